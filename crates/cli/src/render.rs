@@ -1,0 +1,177 @@
+//! `tessera render`: the embedded, local renderer.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+use tessera_render::output::{write_exr, write_png_preview, ExrChannels, Preview};
+use tessera_render::scene::{Limits, Scene};
+use tessera_render::{render_frame, RenderSettings, Strategy};
+
+/// Arguments of `tessera render`.
+#[derive(Debug, clap::Args)]
+pub struct RenderArgs {
+    /// Scene file (TOML, or JSON by its .json extension).
+    scene: PathBuf,
+    /// Samples per pixel.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    spp: u32,
+    /// Output OpenEXR file.
+    #[arg(long, short)]
+    output: PathBuf,
+    /// Worker threads (default: every core).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    threads: Option<u32>,
+    /// Job seed: the same seed gives the same bits.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Samples per batch (part of the job's identity, like the seed; the farm uses the same
+    /// default, so a farm job with the same settings gives the same bits).
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=65536))]
+    batch: u32,
+    /// Also write an 8-bit sRGB PNG preview here.
+    #[arg(long)]
+    preview: Option<PathBuf>,
+    /// Preview exposure in stops.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    exposure: f32,
+    /// Add variance-of-the-mean channels (variance.R/G/B) to the EXR.
+    #[arg(long)]
+    variance: bool,
+    /// Add a per-pixel sample-count channel (samples) to the EXR.
+    #[arg(long)]
+    sample_count: bool,
+    /// Direct-lighting strategy (mis is the best; the others exist for comparisons).
+    #[arg(long, value_enum, default_value_t = StrategyArg::Mis)]
+    strategy: StrategyArg,
+    /// Largest spp accepted.
+    #[arg(long, default_value_t = Limits::default().max_spp)]
+    max_spp: u32,
+    /// Largest image width or height accepted.
+    #[arg(long, default_value_t = Limits::default().max_resolution)]
+    max_resolution: u32,
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum StrategyArg {
+    Mis,
+    Bsdf,
+    Nee,
+}
+
+/// Runs `tessera render`.
+pub fn run(args: RenderArgs) -> Result<()> {
+    if !args.exposure.is_finite() {
+        bail!("--exposure must be a finite number, got {}", args.exposure);
+    }
+    if args.spp > args.max_spp {
+        bail!(
+            "--spp {} is above the limit of {} (raise it with --max-spp)",
+            args.spp,
+            args.max_spp
+        );
+    }
+    for out in std::iter::once(&args.output).chain(args.preview.as_ref()) {
+        if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+            if !dir.is_dir() {
+                bail!(
+                    "{}: output directory {} does not exist",
+                    out.display(),
+                    dir.display()
+                );
+            }
+        }
+    }
+    let limits = Limits {
+        max_spp: args.max_spp,
+        max_resolution: args.max_resolution,
+        ..Limits::default()
+    };
+    let scene = Scene::load(&args.scene, &limits)?;
+    let settings = RenderSettings {
+        seed: args.seed,
+        spp: args.spp,
+        batch: args.batch,
+        strategy: match args.strategy {
+            StrategyArg::Mis => Strategy::Mis,
+            StrategyArg::Bsdf => Strategy::Bsdf,
+            StrategyArg::Nee => Strategy::Nee,
+        },
+        ..RenderSettings::default()
+    };
+    let mut pool = rayon::ThreadPoolBuilder::new();
+    if let Some(t) = args.threads {
+        pool = pool.num_threads(t as usize);
+    }
+    let pool = pool.build().context("starting the render threads")?;
+
+    let total = scene.width as u64 * scene.height as u64 * settings.spp as u64;
+    let bar = ProgressBar::new(total);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {wide_bar} {percent:>3}% {msg} ETA {eta}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let done = AtomicU64::new(0);
+    let start = Instant::now();
+    let sums = pool.install(|| {
+        render_frame(&scene, &settings, &|n| {
+            let d = done.fetch_add(n, Ordering::Relaxed) + n;
+            bar.set_position(d);
+            let secs = start.elapsed().as_secs_f64();
+            if secs > 0.0 {
+                bar.set_message(format!("{:.2} Msamples/s", d as f64 / secs / 1e6));
+            }
+        })
+    });
+    let secs = start.elapsed().as_secs_f64();
+    bar.finish_and_clear();
+    let image = sums.finalize();
+
+    let meta = vec![
+        ("scene_sha256".to_string(), scene.hash.clone()),
+        ("spp".to_string(), settings.spp.to_string()),
+        ("seed".to_string(), settings.seed.to_string()),
+        ("batch".to_string(), settings.batch.to_string()),
+        (
+            "strategy".to_string(),
+            format!("{:?}", settings.strategy).to_lowercase(),
+        ),
+        (
+            "renderer".to_string(),
+            format!("tessera {}", env!("CARGO_PKG_VERSION")),
+        ),
+    ];
+    let channels = ExrChannels {
+        variance: args.variance,
+        samples: args.sample_count,
+    };
+    write_exr(&args.output, &image, channels, &meta)?;
+    if let Some(p) = &args.preview {
+        write_png_preview(
+            p,
+            &image,
+            Preview {
+                exposure: args.exposure,
+            },
+        )?;
+    }
+    let (noise, rel) = image.noise();
+    println!(
+        "rendered {}×{} at {} spp in {:.2} s on {} threads: {:.2} Msamples/s, noise σ≈{:.4} ({:.2}% of mean), {} non-finite samples dropped → {}",
+        scene.width,
+        scene.height,
+        settings.spp,
+        secs,
+        pool.current_num_threads(),
+        total as f64 / secs / 1e6,
+        noise,
+        rel * 100.0,
+        image.nonfinite,
+        args.output.display()
+    );
+    Ok(())
+}

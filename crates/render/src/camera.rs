@@ -1,0 +1,117 @@
+//! Pinhole cameras: the course notes' pitch/yaw model (eqs. 1–12) and look-at.
+//!
+//! Both reduce to an eye, an orthonormal basis (forward t, right b, up v) and the size of one
+//! pixel on the image plane at distance 1. A film point in continuous pixel coordinates
+//! (x right, y down, (0, 0) the top-left corner) maps to the direction
+//! `t + (x − W/2)·sx·b + (H/2 − y)·sy·v`, so sampling x, y uniformly over a pixel's square is
+//! the box filter: the pixel value is the mean radiance over its square.
+
+use glam::Vec3A;
+
+use crate::math::Ray;
+
+/// A pinhole camera.
+#[derive(Clone, Debug)]
+pub struct Camera {
+    eye: Vec3A,
+    forward: Vec3A,
+    right: Vec3A,
+    up: Vec3A,
+    width: f32,
+    height: f32,
+}
+
+impl Camera {
+    /// The course model. `fov` is θ in radians; as in eqs. 7–9 the viewport width
+    /// h_x = 2·tan(θ/2) spans the centres of the first and last pixel columns, so one pixel is
+    /// h_x/(k − 1) wide (k = `width` ≥ 2), and pixels are square (eq. 8).
+    pub fn pitch_yaw(eye: Vec3A, pitch: f32, yaw: f32, fov: f32, width: u32, height: u32) -> Self {
+        let (sa, ca) = pitch.sin_cos();
+        let (sb, cb) = yaw.sin_cos();
+        let t = Vec3A::new(ca * cb, sa, -ca * sb); // eq. 4
+        let v = Vec3A::new(-sa * cb, ca, sa * sb); // eq. 5
+        let b = Vec3A::new(sb, 0.0, cb); // eq. 6
+        let q = 2.0 * (fov * 0.5).tan() / (width as f32 - 1.0); // eqs. 7, 9
+        Self {
+            eye,
+            forward: t,
+            right: b * q,
+            up: v * q,
+            width: width as f32,
+            height: height as f32,
+        }
+    }
+
+    /// Look-at camera with horizontal field of view `fov` (radians) spanning the film's
+    /// outer edges. Returns `None` if `up` is parallel to the view direction.
+    pub fn look_at(
+        eye: Vec3A,
+        target: Vec3A,
+        up: Vec3A,
+        fov: f32,
+        width: u32,
+        height: u32,
+    ) -> Option<Self> {
+        let t = (target - eye).try_normalize()?;
+        let b = t.cross(up).try_normalize()?;
+        let v = b.cross(t);
+        let s = 2.0 * (fov * 0.5).tan() / width as f32;
+        Some(Self {
+            eye,
+            forward: t,
+            right: b * s,
+            up: v * s,
+            width: width as f32,
+            height: height as f32,
+        })
+    }
+
+    /// Primary ray through film point (x, y).
+    #[inline]
+    pub fn ray(&self, x: f32, y: f32) -> Ray {
+        let d =
+            self.forward + self.right * (x - 0.5 * self.width) + self.up * (0.5 * self.height - y);
+        Ray::new(self.eye, d.normalize())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pitch_yaw_basis_matches_the_notes() {
+        // α = β = 0: t0 = +x, v0 = +y, b0 = +z (eq. 1).
+        let c = Camera::pitch_yaw(Vec3A::ZERO, 0.0, 0.0, 1.0, 5, 5);
+        let centre = c.ray(2.5, 2.5);
+        assert!((centre.d - Vec3A::X).length() < 1e-6);
+        // Column 0's centre is at −h_x/2 along b (eq. 10): angle θ/2 off-axis.
+        let left = c.ray(0.5, 2.5);
+        assert!(
+            (left.d.z / left.d.x + (0.5f32).tan()).abs() < 1e-5,
+            "{:?}",
+            left.d
+        );
+        // Row 0 is the top: its rays point up.
+        assert!(c.ray(2.5, 0.5).d.y > 0.0);
+    }
+
+    #[test]
+    fn look_at_fov_spans_the_film_edges() {
+        let fov = 40f32.to_radians();
+        let c = Camera::look_at(
+            Vec3A::new(0.0, 0.0, 4.0),
+            Vec3A::ZERO,
+            Vec3A::Y,
+            fov,
+            64,
+            64,
+        )
+        .expect("valid");
+        let edge = c.ray(0.0, 32.0).d;
+        let angle = edge.dot(-Vec3A::Z).acos();
+        assert!((angle - fov / 2.0).abs() < 1e-5);
+        assert!(edge.x < 0.0, "x grows to the right of the image");
+        assert!(Camera::look_at(Vec3A::ZERO, Vec3A::Y, Vec3A::Y, fov, 4, 4).is_none());
+    }
+}

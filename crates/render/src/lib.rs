@@ -1,0 +1,37 @@
+//! # tessera-render
+//!
+//! tessera's core renderer: a physically based, unbiased Monte Carlo path tracer. It is a plain
+//! synchronous library (no async runtime); parallelism is rayon's.
+//!
+//! The unit of work is a rectangle of pixels and a range of sample indices,
+//! [`render_tile`], which returns per-pixel partial sums ([`TileSums`]: f64 sum of RGB, f64 sum
+//! of squares, sample count). Because every random number is a pure function of
+//! (job seed, pixel, sample index, dimension), and sums are accumulated per sample batch and
+//! merged in batch order, the same job gives the same bits however the frame is cut into
+//! tiles, threads, batches of work or machines.
+//!
+//! Modules follow pbrt's split: [`math`] and [`shape`] (geometry and intersection), [`bvh`],
+//! [`sampling`] (sample generation and warps), [`light`], [`camera`], [`scene`] (file format,
+//! validation, runtime scene), [`integrator`], [`tile`] (partial sums) and [`output`] (EXR, PNG).
+//!
+//! ```no_run
+//! use tessera_render::{scene::{Limits, Scene}, RenderSettings, render_frame};
+//! let scene = Scene::load("scenes/cornell-box.toml".as_ref(), &Limits::default()).unwrap();
+//! let settings = RenderSettings { spp: 16, ..RenderSettings::default() };
+//! let sums = render_frame(&scene, &settings, &|_| {});
+//! let image = sums.finalize();
+//! ```
+
+pub mod bvh;
+pub mod camera;
+pub mod integrator;
+pub mod light;
+pub mod math;
+pub mod output;
+pub mod sampling;
+pub mod scene;
+pub mod shape;
+pub mod tile;
+
+pub use integrator::{RenderSettings, Strategy};
+pub use tile::{render_frame, render_tile, Image, PixelRect, TileSums};

@@ -1,0 +1,218 @@
+//! Area lights: sampling a point on an emitter as seen from a shading point, and the density
+//! of that choice in solid angle (which MIS needs for directions found by BSDF sampling).
+
+use std::f32::consts::PI;
+
+use glam::{Vec2, Vec3A};
+
+use crate::math::{offset_ray_origin, Frame};
+use crate::sampling::{square_to_uniform_cone, square_to_uniform_sphere, Distribution1D};
+use crate::shape::{sphere_roots, Parallelogram};
+
+/// The part of an emitter that can be sampled.
+#[derive(Clone, Debug)]
+pub enum LightShape {
+    /// A parallelogram (a rect, or one face of a box).
+    Quad(Parallelogram),
+    /// A sphere.
+    Sphere {
+        /// Centre.
+        center: Vec3A,
+        /// Radius.
+        radius: f32,
+    },
+}
+
+/// One emitter.
+#[derive(Clone, Debug)]
+pub struct Light {
+    /// Geometry.
+    pub shape: LightShape,
+    /// Emitted radiance.
+    pub radiance: Vec3A,
+    /// Whether both sides emit.
+    pub two_sided: bool,
+}
+
+/// A sampled point on a light.
+#[derive(Clone, Copy, Debug)]
+pub struct LightSample {
+    /// The point, moved off the light towards the shading point for the shadow ray.
+    pub p: Vec3A,
+    /// Unit direction from the shading point to the light.
+    pub wi: Vec3A,
+    /// Emitted radiance towards the shading point (0 from a one-sided light's back).
+    pub le: Vec3A,
+    /// Density in solid angle at the shading point, light selection included.
+    pub pdf: f32,
+}
+
+/// All emitters with a power-proportional selection distribution.
+#[derive(Clone, Debug, Default)]
+pub struct Lights {
+    /// The emitters.
+    pub lights: Vec<Light>,
+    select: Option<Distribution1D>,
+}
+
+impl Light {
+    fn power_weight(&self) -> f32 {
+        let area = match &self.shape {
+            LightShape::Quad(q) => q.area,
+            LightShape::Sphere { radius, .. } => 4.0 * PI * radius * radius,
+        };
+        let sides = if self.two_sided { 2.0 } else { 1.0 };
+        area * sides * (self.radiance.x + self.radiance.y + self.radiance.z)
+    }
+
+    /// Radiance leaving point with normal `n` in direction `w` (towards the viewer).
+    #[inline]
+    pub fn emitted(&self, n: Vec3A, w: Vec3A) -> Vec3A {
+        if self.two_sided || n.dot(w) > 0.0 {
+            self.radiance
+        } else {
+            Vec3A::ZERO
+        }
+    }
+
+    /// Samples a point as seen from `p`; density in solid angle, without selection.
+    fn sample(&self, p: Vec3A, u: Vec2) -> Option<(Vec3A, Vec3A, f32)> {
+        match &self.shape {
+            LightShape::Quad(q) => {
+                let x = q.point(u.x, u.y);
+                let (wi, dist2) = dir_and_dist2(p, x)?;
+                let cos_l = q.normal.dot(wi).abs();
+                if cos_l == 0.0 {
+                    return None;
+                }
+                Some((x, q.normal, dist2 / (cos_l * q.area)))
+            }
+            LightShape::Sphere { center, radius } => {
+                let dc2 = (*center - p).length_squared();
+                let r2 = radius * radius;
+                if dc2 <= r2 {
+                    // Inside: uniform area sampling.
+                    let n = square_to_uniform_sphere(u);
+                    let x = *center + n * *radius;
+                    let (wi, dist2) = dir_and_dist2(p, x)?;
+                    let cos_l = n.dot(wi).abs();
+                    if cos_l == 0.0 {
+                        return None;
+                    }
+                    return Some((x, n, dist2 / (cos_l * 4.0 * PI * r2)));
+                }
+                // Outside: uniform in the cone of directions the sphere subtends.
+                let sin2 = r2 / dc2;
+                let cos_max = (1.0 - sin2).max(0.0).sqrt();
+                let one_minus_cos = sin2 / (1.0 + cos_max);
+                let axis = (*center - p) / dc2.sqrt();
+                let wi =
+                    Frame::from_normal(axis).to_world(square_to_uniform_cone(u, one_minus_cos));
+                let wi = wi.normalize();
+                let t = match sphere_roots(p, wi, *center, *radius) {
+                    Some((t0, _)) if t0 > 0.0 => t0,
+                    // Grazing directions can miss by rounding: use the tangent point.
+                    _ => (*center - p).dot(wi),
+                };
+                let n = (p + wi * t - *center).normalize();
+                let x = *center + n * *radius;
+                Some((x, n, 1.0 / (2.0 * PI * one_minus_cos)))
+            }
+        }
+    }
+
+    /// Density (solid angle, without selection) of sampling point `x` with normal `n` from `p`.
+    fn pdf(&self, p: Vec3A, x: Vec3A, n: Vec3A) -> f32 {
+        match &self.shape {
+            LightShape::Quad(q) => match dir_and_dist2(p, x) {
+                Some((wi, dist2)) => {
+                    let cos_l = n.dot(wi).abs();
+                    if cos_l == 0.0 {
+                        0.0
+                    } else {
+                        dist2 / (cos_l * q.area)
+                    }
+                }
+                None => 0.0,
+            },
+            LightShape::Sphere { center, radius } => {
+                let dc2 = (*center - p).length_squared();
+                let r2 = radius * radius;
+                if dc2 <= r2 {
+                    match dir_and_dist2(p, x) {
+                        Some((wi, dist2)) => {
+                            let cos_l = n.dot(wi).abs();
+                            if cos_l == 0.0 {
+                                0.0
+                            } else {
+                                dist2 / (cos_l * 4.0 * PI * r2)
+                            }
+                        }
+                        None => 0.0,
+                    }
+                } else {
+                    let sin2 = r2 / dc2;
+                    let cos_max = (1.0 - sin2).max(0.0).sqrt();
+                    1.0 / (2.0 * PI * (sin2 / (1.0 + cos_max)))
+                }
+            }
+        }
+    }
+}
+
+#[inline]
+fn dir_and_dist2(p: Vec3A, x: Vec3A) -> Option<(Vec3A, f32)> {
+    let d = x - p;
+    let dist2 = d.length_squared();
+    if !(dist2 > 0.0) || !dist2.is_finite() {
+        return None;
+    }
+    Some((d / dist2.sqrt(), dist2))
+}
+
+impl Lights {
+    /// Builds the selection distribution (power-proportional).
+    pub fn new(lights: Vec<Light>) -> Self {
+        let weights: Vec<f32> = lights.iter().map(Light::power_weight).collect();
+        let select = Distribution1D::new(&weights);
+        Self { lights, select }
+    }
+
+    /// Whether there is anything to sample.
+    #[inline]
+    pub fn is_empty(&self) -> bool {
+        self.select.is_none()
+    }
+
+    /// Picks a light and a point on it as seen from `p`.
+    #[inline]
+    pub fn sample(&self, p: Vec3A, u_select: f32, u: Vec2) -> Option<LightSample> {
+        let dist = self.select.as_ref()?;
+        let i = dist.sample(u_select);
+        let light = &self.lights[i];
+        let (x, n, pdf) = light.sample(p, u)?;
+        let pdf = pdf * dist.pmf(i);
+        if !(pdf > 0.0) || !pdf.is_finite() {
+            return None;
+        }
+        let wi = (x - p).normalize();
+        let le = light.emitted(n, -wi);
+        let towards = if n.dot(-wi) >= 0.0 { n } else { -n };
+        Some(LightSample {
+            p: offset_ray_origin(x, towards),
+            wi,
+            le,
+            pdf,
+        })
+    }
+
+    /// Density (solid angle, selection included) with which [`Lights::sample`] from `p` would
+    /// have chosen point `x` (normal `n`) of light `index`.
+    #[inline]
+    pub fn pdf(&self, index: usize, p: Vec3A, x: Vec3A, n: Vec3A) -> f32 {
+        match &self.select {
+            Some(d) => d.pmf(index) * self.lights[index].pdf(p, x, n),
+            None => 0.0,
+        }
+    }
+}

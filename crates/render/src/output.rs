@@ -1,0 +1,223 @@
+//! Image output: OpenEXR (the product) and an optional PNG preview.
+
+use std::fs;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+
+use exr::prelude::{
+    read_first_rgba_layer_from_file, AnyChannel, AnyChannels, AttributeValue, Encoding,
+    FlatSamples, Layer, LayerAttributes, Text, WritableImage,
+};
+
+use crate::tile::Image;
+
+/// Errors writing or reading images.
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    /// Filesystem error.
+    #[error("{path}: {source}")]
+    Io {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// EXR encoding or decoding error.
+    #[error("{path}: EXR: {message}")]
+    Exr {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        message: String,
+    },
+    /// PNG encoding error.
+    #[error("{path}: PNG: {message}")]
+    Png {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        message: String,
+    },
+}
+
+/// Which extra channels to write besides R, G, B.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ExrChannels {
+    /// `variance.R`, `variance.G`, `variance.B`: the variance of each pixel's mean.
+    pub variance: bool,
+    /// `samples`: the sample count per pixel.
+    pub samples: bool,
+}
+
+/// Writes `image` as a float32 OpenEXR file, atomically (a temporary file in the same
+/// directory, then a rename), so a reader never sees a half-written frame.
+///
+/// `metadata` pairs go into one `tessera` text-vector header attribute as `key=value`. One
+/// attribute, because the `exr` crate keeps custom attributes in a hash map whose order varies
+/// between processes, and the same job must give the same file bytes.
+pub fn write_exr(
+    path: &Path,
+    image: &Image,
+    channels: ExrChannels,
+    metadata: &[(String, String)],
+) -> Result<(), OutputError> {
+    let size = (image.width as usize, image.height as usize);
+    let plane = |f: &dyn Fn(usize) -> f32| FlatSamples::F32((0..image.rgb.len()).map(f).collect());
+    let mut list: Vec<AnyChannel<FlatSamples>> = vec![
+        AnyChannel::new("R", plane(&|i| image.rgb[i][0])),
+        AnyChannel::new("G", plane(&|i| image.rgb[i][1])),
+        AnyChannel::new("B", plane(&|i| image.rgb[i][2])),
+    ];
+    if channels.variance {
+        for (c, name) in ["variance.R", "variance.G", "variance.B"]
+            .iter()
+            .enumerate()
+        {
+            list.push(AnyChannel::new(*name, plane(&|i| image.variance[i][c])));
+        }
+    }
+    if channels.samples {
+        list.push(AnyChannel::new(
+            "samples",
+            plane(&|i| image.count[i] as f32),
+        ));
+    }
+    let mut attrs = LayerAttributes::default();
+    let texts: Vec<Text> = metadata
+        .iter()
+        .filter_map(|(k, v)| Text::new_or_none(format!("{k}={v}")))
+        .collect();
+    if !texts.is_empty() {
+        attrs
+            .other
+            .insert(Text::from("tessera"), AttributeValue::TextVector(texts));
+    }
+    let layer = Layer::new(
+        size,
+        attrs,
+        Encoding::SMALL_LOSSLESS,
+        AnyChannels::sort(list.into_iter().collect()),
+    );
+    let exr_image = exr::image::Image::from_layer(layer);
+
+    let tmp = temp_path(path);
+    let err = |e: exr::error::Error| OutputError::Exr {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    };
+    exr_image.write().to_file(&tmp).map_err(|e| {
+        let _ = fs::remove_file(&tmp);
+        err(e)
+    })?;
+    fs::rename(&tmp, path).map_err(|source| {
+        let _ = fs::remove_file(&tmp);
+        OutputError::Io {
+            path: path.to_path_buf(),
+            source,
+        }
+    })
+}
+
+fn temp_path(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "out.exr".into());
+    path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
+}
+
+/// An RGB float image read from an EXR file.
+#[derive(Clone, Debug)]
+pub struct RgbImage {
+    /// Width.
+    pub width: usize,
+    /// Height.
+    pub height: usize,
+    /// Pixels, row-major, row 0 at the top.
+    pub rgb: Vec<[f32; 3]>,
+}
+
+/// Reads the R, G, B channels of the first layer of an EXR file.
+pub fn read_exr_rgb(path: &Path) -> Result<RgbImage, OutputError> {
+    let img = read_first_rgba_layer_from_file(
+        path,
+        |res, _| (res.width(), vec![[0f32; 3]; res.width() * res.height()]),
+        |(w, px), pos, (r, g, b, _a): (f32, f32, f32, f32)| px[pos.y() * *w + pos.x()] = [r, g, b],
+    )
+    .map_err(|e| OutputError::Exr {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    let size = img.layer_data.size;
+    let (_, rgb) = img.layer_data.channel_data.pixels;
+    Ok(RgbImage {
+        width: size.width(),
+        height: size.height(),
+        rgb,
+    })
+}
+
+/// How a PNG preview maps radiance to display values.
+#[derive(Clone, Copy, Debug)]
+pub struct Preview {
+    /// Exposure in stops (multiplies radiance by 2^exposure).
+    pub exposure: f32,
+}
+
+/// Writes an 8-bit sRGB PNG preview: exposure, then the ACES filmic curve (Narkowicz's fit),
+/// then the sRGB transfer function.
+pub fn write_png_preview(path: &Path, image: &Image, preview: Preview) -> Result<(), OutputError> {
+    let io = |source| OutputError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let file = fs::File::create(path).map_err(io)?;
+    let mut enc = png::Encoder::new(BufWriter::new(file), image.width, image.height);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let png_err = |e: png::EncodingError| OutputError::Png {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    };
+    let mut writer = enc.write_header().map_err(png_err)?;
+    let scale = preview.exposure.exp2();
+    let data: Vec<u8> = image
+        .rgb
+        .iter()
+        .flat_map(|p| p.map(|c| to_srgb8(aces(c * scale))))
+        .collect();
+    writer.write_image_data(&data).map_err(png_err)?;
+    writer.finish().map_err(png_err)?;
+    Ok(())
+}
+
+fn aces(x: f32) -> f32 {
+    let x = if x.is_finite() { x.max(0.0) } else { 0.0 };
+    ((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)).clamp(0.0, 1.0)
+}
+
+fn to_srgb8(x: f32) -> u8 {
+    let s = if x <= 0.003_130_8 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    };
+    (s * 255.0 + 0.5).clamp(0.0, 255.0) as u8
+}
+
+/// Reads the `tessera` metadata attribute of an EXR file as `key=value` strings.
+pub fn read_exr_metadata(path: &Path) -> Result<Vec<String>, OutputError> {
+    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| OutputError::Exr {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    let mut out = Vec::new();
+    for h in &meta.headers {
+        if let Some(AttributeValue::TextVector(v)) =
+            h.own_attributes.other.get(&Text::from("tessera"))
+        {
+            out.extend(v.iter().map(|t| t.to_string()));
+        }
+    }
+    Ok(out)
+}

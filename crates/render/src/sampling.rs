@@ -1,0 +1,296 @@
+//! Deterministic sample generation and the warps from the unit square to the domains the
+//! integrator samples.
+//!
+//! Every random number is a pure function of (job seed, pixel, sample index, dimension): the
+//! sampler holds no state that depends on which thread or tile runs a pixel, so any cut of the
+//! frame into tiles, threads, batches or machines draws the same numbers.
+
+use std::f32::consts::{FRAC_1_PI, PI};
+
+use glam::{Vec2, Vec3A};
+
+/// Largest f32 below 1. Warps clamp to it so that `u = 1 − 2⁻²⁴` style inputs stay inside
+/// their domain.
+pub const ONE_MINUS_EPSILON: f32 = 1.0 - f32::EPSILON * 0.5;
+
+/// A 64-bit finaliser (SplitMix64 / Stafford variant 13): a strong bijective mixer used to
+/// derive seeds from coordinates.
+#[inline]
+pub fn mix64(mut z: u64) -> u64 {
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// Hashes several words into one seed.
+#[inline]
+pub fn hash_words(words: &[u64]) -> u64 {
+    let mut h = 0x9e37_79b9_7f4a_7c15u64;
+    for &w in words {
+        h = mix64(h ^ w.wrapping_add(0x9e37_79b9_7f4a_7c15));
+    }
+    h
+}
+
+/// Owen-scrambled Sobol samples for one pixel sample.
+///
+/// Dimensions come in groups of four. Group `g` of sample `i` is dimension set 0 of the
+/// Sobol sequence seeded by hash(job seed, pixel, g, i ≫ 16): "padding by seeding", which
+/// gives each group its own independently scrambled 4-D sequence, so path depth is unbounded
+/// even though `sobol_burley` has 256 dimensions and 2¹⁶ samples per sequence. Within a group
+/// the four dimensions are stratified jointly.
+#[derive(Clone, Copy, Debug)]
+pub struct PixelSampler {
+    pixel_seed: u64,
+    index: u32,
+}
+
+impl PixelSampler {
+    /// Sampler for `sample_index` of pixel (`x`, `y`) of a job with `seed`.
+    #[inline]
+    pub fn new(seed: u64, x: u32, y: u32, sample_index: u32) -> Self {
+        let pixel_seed = hash_words(&[seed, ((x as u64) << 32) | y as u64]);
+        Self {
+            pixel_seed,
+            index: sample_index,
+        }
+    }
+
+    /// The four dimensions of group `group`, each in [0, 1).
+    #[inline]
+    pub fn get4(&self, group: u32) -> [f32; 4] {
+        let block = (self.index >> 16) as u64;
+        let seed = hash_words(&[self.pixel_seed, ((group as u64) << 32) | block]);
+        let s = sobol_burley::sample_4d(self.index & 0xffff, 0, seed as u32);
+        s.map(|v| v.min(ONE_MINUS_EPSILON))
+    }
+}
+
+/// A small counter-based generator for tests and tools (never for rendering, whose numbers
+/// come from [`PixelSampler`]).
+#[derive(Clone, Debug)]
+pub struct HashRng {
+    key: u64,
+    counter: u64,
+}
+
+impl HashRng {
+    /// Generator with `seed`.
+    pub fn new(seed: u64) -> Self {
+        Self {
+            key: mix64(seed ^ 0xd1b5_4a32_d192_ed03),
+            counter: 0,
+        }
+    }
+
+    /// Next uniform f32 in [0, 1).
+    pub fn next_f32(&mut self) -> f32 {
+        self.counter += 1;
+        (mix64(self.key ^ self.counter.wrapping_mul(0x9e37_79b9_7f4a_7c15)) >> 40) as f32
+            * (1.0 / (1u64 << 24) as f32)
+    }
+}
+
+/// Shirley–Chiu concentric map from the unit square to the unit disk: area preserving and
+/// low distortion, so it keeps the stratification of the input points.
+#[inline]
+pub fn square_to_disk_concentric(u: Vec2) -> Vec2 {
+    let a = 2.0 * u - Vec2::ONE;
+    if a.x == 0.0 && a.y == 0.0 {
+        return Vec2::ZERO;
+    }
+    let (r, theta) = if a.x.abs() > a.y.abs() {
+        (a.x, PI / 4.0 * (a.y / a.x))
+    } else {
+        (a.y, PI / 2.0 - PI / 4.0 * (a.x / a.y))
+    };
+    let (s, c) = theta.sin_cos();
+    Vec2::new(r * c, r * s)
+}
+
+/// Cosine-weighted direction on the +z hemisphere (Malley's method). pdf = cos θ / π.
+#[inline]
+pub fn square_to_cosine_hemisphere(u: Vec2) -> Vec3A {
+    let d = square_to_disk_concentric(u);
+    let z = (1.0 - d.length_squared()).max(0.0).sqrt();
+    Vec3A::new(d.x, d.y, z)
+}
+
+/// Density of [`square_to_cosine_hemisphere`] in solid angle.
+#[inline]
+pub fn cosine_hemisphere_pdf(cos_theta: f32) -> f32 {
+    if cos_theta > 0.0 {
+        cos_theta * FRAC_1_PI
+    } else {
+        0.0
+    }
+}
+
+/// Uniform direction on the unit sphere. pdf = 1/(4π).
+#[inline]
+pub fn square_to_uniform_sphere(u: Vec2) -> Vec3A {
+    let z = 1.0 - 2.0 * u.x;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let (s, c) = (2.0 * PI * u.y).sin_cos();
+    Vec3A::new(r * c, r * s, z)
+}
+
+/// Uniform direction in the cone of half-angle θmax around +z, given cos θmax. pdf =
+/// 1/(2π(1 − cos θmax)). Uses `1 − cos θmax` computed by the caller to avoid cancellation
+/// for tiny cones (a small, distant light).
+#[inline]
+pub fn square_to_uniform_cone(u: Vec2, one_minus_cos_max: f32) -> Vec3A {
+    let one_minus_cos = u.x * one_minus_cos_max;
+    let cos = 1.0 - one_minus_cos;
+    // sin² = 1 − cos² = (1 − cos)(1 + cos), exact for small angles.
+    let sin = (one_minus_cos * (2.0 - one_minus_cos)).max(0.0).sqrt();
+    let (s, c) = (2.0 * PI * u.y).sin_cos();
+    Vec3A::new(sin * c, sin * s, cos)
+}
+
+/// Power heuristic (β = 2) MIS weight of a technique with density `f` against one with `g`.
+#[inline]
+pub fn power_heuristic(f: f32, g: f32) -> f32 {
+    let (f2, g2) = (f * f, g * g);
+    if f2.is_infinite() {
+        return 1.0;
+    }
+    if f2 + g2 == 0.0 {
+        return 0.0;
+    }
+    f2 / (f2 + g2)
+}
+
+/// A discrete distribution sampled by inversion of its CDF.
+#[derive(Clone, Debug)]
+pub struct Distribution1D {
+    cdf: Vec<f32>,
+    pmf: Vec<f32>,
+}
+
+impl Distribution1D {
+    /// Builds from non-negative weights. Returns `None` if all weights are zero.
+    pub fn new(weights: &[f32]) -> Option<Self> {
+        let total: f64 = weights.iter().map(|&w| w.max(0.0) as f64).sum();
+        if !(total > 0.0) || !total.is_finite() {
+            return None;
+        }
+        let mut cdf = Vec::with_capacity(weights.len());
+        let mut acc = 0.0f64;
+        for &w in weights {
+            acc += w.max(0.0) as f64;
+            cdf.push((acc / total) as f32);
+        }
+        if let Some(last) = cdf.last_mut() {
+            *last = 1.0;
+        }
+        let pmf = weights
+            .iter()
+            .map(|&w| (w.max(0.0) as f64 / total) as f32)
+            .collect();
+        Some(Self { cdf, pmf })
+    }
+
+    /// Picks an index for `u` in [0, 1), never one of zero probability.
+    #[inline]
+    pub fn sample(&self, u: f32) -> usize {
+        let i = self.cdf.partition_point(|&c| c <= u);
+        let mut i = i.min(self.cdf.len() - 1);
+        // Rounding can land on a zero-weight entry at a plateau; step to the next real one.
+        while self.pmf[i] == 0.0 && i + 1 < self.pmf.len() {
+            i += 1;
+        }
+        i
+    }
+
+    /// Probability of index `i`.
+    #[inline]
+    pub fn pmf(&self, i: usize) -> f32 {
+        self.pmf[i]
+    }
+
+    /// Number of entries.
+    pub fn len(&self) -> usize {
+        self.pmf.len()
+    }
+
+    /// Whether it has no entries (never true for a constructed distribution).
+    pub fn is_empty(&self) -> bool {
+        self.pmf.is_empty()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sampler_is_a_pure_function_of_its_inputs() {
+        let a = PixelSampler::new(7, 3, 4, 5).get4(2);
+        let b = PixelSampler::new(7, 3, 4, 5).get4(2);
+        assert_eq!(a, b);
+        assert_ne!(a, PixelSampler::new(8, 3, 4, 5).get4(2));
+        assert_ne!(a, PixelSampler::new(7, 4, 3, 5).get4(2));
+        assert_ne!(a, PixelSampler::new(7, 3, 4, 6).get4(2));
+        assert_ne!(a, PixelSampler::new(7, 3, 4, 5).get4(3));
+        // Past the 2^16 samples of one Sobol sequence, samples still vary.
+        assert_ne!(
+            PixelSampler::new(7, 3, 4, 5).get4(0),
+            PixelSampler::new(7, 3, 4, 5 + (1 << 16)).get4(0)
+        );
+    }
+
+    #[test]
+    fn sampler_is_stratified_in_each_group() {
+        // 16 samples of a (0,2)-sequence put exactly one point in each 4x4 cell of dims 0-1.
+        let mut cells = [0u32; 16];
+        for i in 0..16 {
+            let [a, b, _, _] = PixelSampler::new(1, 9, 9, i).get4(5);
+            cells[(a * 4.0) as usize * 4 + (b * 4.0) as usize] += 1;
+        }
+        assert!(cells.iter().all(|&c| c == 1), "{cells:?}");
+    }
+
+    #[test]
+    fn warps_at_domain_edges_stay_finite_and_in_domain() {
+        let edges = [0.0, 0.5, ONE_MINUS_EPSILON];
+        for &a in &edges {
+            for &b in &edges {
+                let u = Vec2::new(a, b);
+                let c = square_to_cosine_hemisphere(u);
+                assert!(
+                    c.is_finite() && c.z >= 0.0 && (c.length() - 1.0).abs() < 1e-5,
+                    "{u:?} {c:?}"
+                );
+                let s = square_to_uniform_sphere(u);
+                assert!(s.is_finite() && (s.length() - 1.0).abs() < 1e-5);
+                for omc in [1e-12, 1e-3, 1.0, 2.0] {
+                    let k = square_to_uniform_cone(u, omc);
+                    assert!(
+                        k.is_finite() && (k.length() - 1.0).abs() < 1e-5,
+                        "{omc} {k:?}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn distribution_never_picks_zero_weight() {
+        let d = Distribution1D::new(&[0.0, 1.0, 0.0, 3.0, 0.0]).expect("non-zero");
+        for i in 0..1000 {
+            let k = d.sample(i as f32 / 1000.0);
+            assert!(k == 1 || k == 3);
+        }
+        assert_eq!(d.sample(ONE_MINUS_EPSILON), 3);
+        assert!(Distribution1D::new(&[0.0, 0.0]).is_none());
+        assert!((d.pmf(3) - 0.75).abs() < 1e-6);
+    }
+
+    #[test]
+    fn power_heuristic_limits() {
+        assert_eq!(power_heuristic(0.0, 0.0), 0.0);
+        assert_eq!(power_heuristic(f32::INFINITY, 1.0), 1.0);
+        assert!((power_heuristic(1.0, 1.0) - 0.5).abs() < 1e-7);
+    }
+}

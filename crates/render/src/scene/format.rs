@@ -1,0 +1,200 @@
+//! The scene file's serde types: what a user writes, kept apart from the runtime geometry
+//! ([`crate::scene::Scene`]) they are validated and converted into. Every struct rejects
+//! unknown keys. `docs/scene-format.md` documents each field.
+
+use std::collections::BTreeMap;
+
+use serde::Deserialize;
+
+/// A whole scene file.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneFile {
+    /// Format version; only 1 exists.
+    pub version: u32,
+    /// The camera.
+    pub camera: CameraDesc,
+    /// Image size.
+    pub film: FilmDesc,
+    /// Integrator settings that change the image, and so belong to the scene.
+    #[serde(default)]
+    pub render: RenderDesc,
+    /// Light from infinitely far away; none means black.
+    pub environment: Option<EnvironmentDesc>,
+    /// Named materials.
+    #[serde(default)]
+    pub materials: BTreeMap<String, MaterialDesc>,
+    /// The objects.
+    #[serde(default)]
+    pub objects: Vec<ObjectDesc>,
+}
+
+/// Which camera model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CameraModel {
+    /// Eye, target, up vector and horizontal field of view.
+    LookAt,
+    /// The course notes' model: eye, pitch α, yaw β, and the horizontal field of view θ
+    /// spanning the outermost pixel centres.
+    PitchYaw,
+}
+
+/// Camera description.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraDesc {
+    /// Camera model.
+    pub model: CameraModel,
+    /// Eye position.
+    pub eye: [f32; 3],
+    /// Look-at target (look_at only).
+    pub target: Option<[f32; 3]>,
+    /// Up vector (look_at only; default +y).
+    pub up: Option<[f32; 3]>,
+    /// Pitch α in degrees (pitch_yaw only; default 0).
+    pub pitch: Option<f32>,
+    /// Yaw β in degrees (pitch_yaw only; default 0).
+    pub yaw: Option<f32>,
+    /// Horizontal field of view in degrees, in (0, 180).
+    pub fov: f32,
+}
+
+/// Image size in pixels.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FilmDesc {
+    /// Width.
+    pub width: u32,
+    /// Height.
+    pub height: u32,
+}
+
+/// Integrator settings stored with the scene.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RenderDesc {
+    /// Maximum number of bounces; unlimited (Russian roulette ends paths) when absent.
+    pub max_depth: Option<u32>,
+}
+
+/// Environment kinds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EnvironmentKind {
+    /// The same radiance in every direction.
+    Constant,
+    /// A blend from `bottom` (straight down) to `top` (straight up), linear in the direction's y.
+    Gradient,
+}
+
+/// Environment description.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EnvironmentDesc {
+    /// Kind.
+    #[serde(rename = "type")]
+    pub kind: EnvironmentKind,
+    /// Radiance (constant).
+    pub radiance: Option<[f32; 3]>,
+    /// Radiance straight up (gradient).
+    pub top: Option<[f32; 3]>,
+    /// Radiance straight down (gradient).
+    pub bottom: Option<[f32; 3]>,
+}
+
+/// Material kinds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MaterialKind {
+    /// Lambertian reflector.
+    Diffuse,
+    /// Perfect mirror.
+    Mirror,
+    /// Smooth dielectric (glass): Fresnel reflection and refraction.
+    Dielectric,
+}
+
+/// Material description.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialDesc {
+    /// Kind.
+    #[serde(rename = "type")]
+    pub kind: MaterialKind,
+    /// Diffuse reflectance in [0, 1] (diffuse).
+    pub albedo: Option<[f32; 3]>,
+    /// Mirror reflectance in [0, 1] (mirror; default 1).
+    pub reflectance: Option<[f32; 3]>,
+    /// Index of refraction, inside over outside (dielectric).
+    pub ior: Option<f32>,
+    /// Emitted radiance; makes every object with this material an area light.
+    pub emission: Option<[f32; 3]>,
+    /// Whether the back side reflects and emits like the front (default false: the back of a
+    /// diffuse or mirror surface is black and emits nothing).
+    pub two_sided: Option<bool>,
+}
+
+/// Shape kinds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ShapeKind {
+    /// Sphere (`center`, `radius`).
+    Sphere,
+    /// Axis-aligned box in object space (`min`, `max`).
+    Box,
+    /// Rectangle `size` centred at the origin in the z = 0 plane, front normal +z.
+    Rect,
+    /// Infinite plane (`point`, `normal`).
+    Plane,
+}
+
+/// One object: a shape, its material and an optional transform.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObjectDesc {
+    /// Shape kind.
+    pub shape: ShapeKind,
+    /// Material name, a key of `[materials]`.
+    pub material: String,
+    /// Sphere centre (default origin).
+    pub center: Option<[f32; 3]>,
+    /// Sphere radius (default 1).
+    pub radius: Option<f32>,
+    /// Box lower corner (default −1,−1,−1).
+    pub min: Option<[f32; 3]>,
+    /// Box upper corner (default 1,1,1).
+    pub max: Option<[f32; 3]>,
+    /// Rectangle size (default 2 × 2, the square [−1, 1]²).
+    pub size: Option<[f32; 2]>,
+    /// A point of the plane (default origin).
+    pub point: Option<[f32; 3]>,
+    /// Plane front normal (default +y).
+    pub normal: Option<[f32; 3]>,
+    /// Object-to-world transform.
+    pub transform: Option<TransformDesc>,
+}
+
+/// An affine transform: a full matrix, or translate · rotate · scale (scale applied first).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TransformDesc {
+    /// Row-major 4×4 matrix whose last row is 0 0 0 1; a point p maps to M·[p, 1].
+    pub matrix: Option<[[f32; 4]; 4]>,
+    /// Translation.
+    pub translate: Option<[f32; 3]>,
+    /// Rotation about an axis.
+    pub rotate: Option<RotateDesc>,
+    /// Per-axis scale.
+    pub scale: Option<[f32; 3]>,
+}
+
+/// A rotation by `degrees` about `axis` (right-handed).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RotateDesc {
+    /// Axis (any non-zero length).
+    pub axis: [f32; 3],
+    /// Angle in degrees.
+    pub degrees: f32,
+}

@@ -1,0 +1,43 @@
+//! Helpers shared by the integration tests.
+#![allow(dead_code, missing_docs)]
+
+use std::path::PathBuf;
+
+use tessera_render::scene::{Format, Limits, Scene};
+use tessera_render::{render_frame, Image, RenderSettings};
+
+pub fn repo_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+pub fn load(name: &str) -> Scene {
+    let path = repo_root().join("scenes").join(name);
+    Scene::load(&path, &Limits::default()).unwrap_or_else(|e| panic!("{e}"))
+}
+
+pub fn scene(text: &str) -> Scene {
+    Scene::from_str(text, Format::Toml, "test.toml", &Limits::default())
+        .unwrap_or_else(|e| panic!("{e}"))
+}
+
+pub fn render(scene: &Scene, settings: &RenderSettings) -> Image {
+    render_frame(scene, settings, &|_| {}).finalize()
+}
+
+/// Mean and standard error of the mean over a pixel region, per channel, from the per-pixel
+/// variance estimates.
+pub fn region_stats(img: &Image, x0: u32, y0: u32, w: u32, h: u32) -> ([f64; 3], [f64; 3]) {
+    let mut mean = [0f64; 3];
+    let mut var = [0f64; 3];
+    for y in y0..y0 + h {
+        for x in x0..x0 + w {
+            let i = (y * img.width + x) as usize;
+            for c in 0..3 {
+                mean[c] += img.rgb[i][c] as f64;
+                var[c] += img.variance[i][c] as f64;
+            }
+        }
+    }
+    let n = (w * h) as f64;
+    (mean.map(|m| m / n), var.map(|v| (v / (n * n)).sqrt()))
+}
