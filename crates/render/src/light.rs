@@ -90,8 +90,8 @@ impl Light {
             LightShape::Sphere { center, radius } => {
                 let dc2 = (*center - p).length_squared();
                 let r2 = radius * radius;
-                if dc2 <= r2 {
-                    // Inside: uniform area sampling.
+                if !cone_applies(dc2, r2) {
+                    // Inside, or on the sphere itself: uniform area sampling.
                     let n = square_to_uniform_sphere(u);
                     let x = *center + n * *radius;
                     let (wi, dist2) = dir_and_dist2(p, x)?;
@@ -138,7 +138,7 @@ impl Light {
             LightShape::Sphere { center, radius } => {
                 let dc2 = (*center - p).length_squared();
                 let r2 = radius * radius;
-                if dc2 <= r2 {
+                if !cone_applies(dc2, r2) {
                     match dir_and_dist2(p, x) {
                         Some((wi, dist2)) => {
                             let cos_l = n.dot(wi).abs();
@@ -158,6 +158,16 @@ impl Light {
             }
         }
     }
+}
+
+/// Whether a point at squared distance `dc2` from a sphere's centre is clearly outside it, so
+/// that sampling the cone it subtends is well defined. A shading point on the emitting sphere
+/// itself (a furnace, a glowing ball's own bounce) can round to either side; there the cone's
+/// near root is the point itself, so such points use area sampling, which is valid anywhere.
+/// `sample` and `pdf` must apply the same rule for MIS to stay consistent.
+#[inline]
+fn cone_applies(dc2: f32, r2: f32) -> bool {
+    dc2 > r2 * 1.001
 }
 
 #[inline]
@@ -204,6 +214,32 @@ impl Lights {
             le,
             pdf,
         })
+    }
+
+    /// Total density (solid angle) with which [`Lights::sample`] from `p` produces direction
+    /// `w`, summed over every light the line through `w` crosses, occluded or not. This is the
+    /// sampler's exact direction density, for tests; the integrator needs only [`Lights::pdf`],
+    /// because a sample behind another surface is blocked by its shadow ray.
+    pub fn pdf_direction(&self, p: Vec3A, w: Vec3A) -> f32 {
+        let Some(d) = &self.select else { return 0.0 };
+        let ray = crate::math::Ray::new(p, w);
+        let mut total = 0.0;
+        for (i, light) in self.lights.iter().enumerate() {
+            let hit = match &light.shape {
+                LightShape::Quad(q) => q
+                    .intersect(&ray, f32::INFINITY)
+                    .map(|t| (ray.at(t), q.normal)),
+                LightShape::Sphere { center, radius } => sphere_roots(p, w, *center, *radius)
+                    .and_then(|(t0, t1)| {
+                        let t = if t0 > 0.0 { t0 } else { t1 };
+                        (t > 0.0).then(|| (ray.at(t), (ray.at(t) - *center).normalize()))
+                    }),
+            };
+            if let Some((x, n)) = hit {
+                total += d.pmf(i) * light.pdf(p, x, n);
+            }
+        }
+        total
     }
 
     /// Density (solid angle, selection included) with which [`Lights::sample`] from `p` would

@@ -138,8 +138,9 @@ impl Parallelogram {
         self.p0 + self.e1 * u + self.e2 * v
     }
 
+    /// Ray parameter of the hit in (0, t_max), if any; closed on all four edges.
     #[inline]
-    fn intersect(&self, r: &Ray, t_max: f32) -> Option<f32> {
+    pub fn intersect(&self, r: &Ray, t_max: f32) -> Option<f32> {
         let denom = self.normal.dot(r.d);
         if denom == 0.0 {
             return None;

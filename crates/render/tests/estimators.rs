@@ -1,0 +1,103 @@
+//! BSDF-only, NEE-only and MIS renders of the same scenes agree statistically: three estimators
+//! of one integral, with different variance, must converge to the same image.
+
+mod common;
+
+use common::{region_stats, render};
+use tessera_render::scene::{Format, Limits, Scene};
+use tessera_render::{RenderSettings, Strategy};
+
+fn shrink(name: &str, w: u32, h: u32) -> Scene {
+    let path = common::repo_root().join("scenes").join(name);
+    let text = std::fs::read_to_string(&path).expect("scene");
+    let text = text
+        .lines()
+        .map(|l| {
+            if l.starts_with("width =") {
+                format!("width = {w}")
+            } else if l.starts_with("height =") {
+                format!("height = {h}")
+            } else {
+                l.to_string()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    Scene::from_str(&text, Format::Toml, name, &Limits::default()).expect("valid")
+}
+
+fn agree(scene: &Scene, spp: [u32; 3], block: u32) {
+    let strategies = [Strategy::Mis, Strategy::Nee, Strategy::Bsdf];
+    let imgs: Vec<_> = strategies
+        .iter()
+        .zip(spp)
+        .map(|(&strategy, spp)| {
+            render(
+                scene,
+                &RenderSettings {
+                    spp,
+                    seed: 11,
+                    strategy,
+                    ..RenderSettings::default()
+                },
+            )
+        })
+        .collect();
+    let mut worst = 0f64;
+    let mut failures = Vec::new();
+    for y0 in (0..scene.height).step_by(block as usize) {
+        for x0 in (0..scene.width).step_by(block as usize) {
+            let (w, h) = (block.min(scene.width - x0), block.min(scene.height - y0));
+            let stats: Vec<_> = imgs.iter().map(|i| region_stats(i, x0, y0, w, h)).collect();
+            for (a, b) in [(0, 1), (0, 2), (1, 2)] {
+                for c in 0..3 {
+                    let se = (stats[a].1[c].powi(2) + stats[b].1[c].powi(2)).sqrt();
+                    let z = (stats[a].0[c] - stats[b].0[c]) / se.max(1e-9);
+                    worst = worst.max(z.abs());
+                    if z.abs() > 5.0 {
+                        failures.push(format!(
+                            "region ({x0},{y0}) channel {c}: {:?} {:.5} vs {:?} {:.5}, z = {z:.2}",
+                            strategies[a], stats[a].0[c], strategies[b], stats[b].0[c]
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    eprintln!("worst |z| = {worst:.2}");
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+#[test]
+fn strategies_agree_on_the_cornell_box() {
+    agree(&shrink("cornell-box.toml", 40, 40), [256, 256, 1024], 8);
+}
+
+#[test]
+fn strategies_agree_with_glass_mirror_and_a_sphere_light() {
+    agree(&shrink("spheres.toml", 48, 36), [256, 256, 1024], 12);
+}
+
+#[test]
+fn nee_reduces_variance_against_bsdf_sampling() {
+    // Not a time assertion: the same sample count, and MIS must be the less noisy estimator.
+    let scene = shrink("cornell-box.toml", 32, 32);
+    let noise = |strategy| {
+        render(
+            &scene,
+            &RenderSettings {
+                spp: 64,
+                seed: 2,
+                strategy,
+                ..RenderSettings::default()
+            },
+        )
+        .noise()
+        .0
+    };
+    let (mis, bsdf) = (noise(Strategy::Mis), noise(Strategy::Bsdf));
+    assert!(
+        mis < bsdf,
+        "MIS noise {mis} should be below BSDF-only {bsdf}"
+    );
+}
