@@ -80,15 +80,18 @@ impl Aabb {
 
     /// Slab test against a ray with precomputed reciprocal direction. Returns whether the
     /// ray overlaps `[0, t_max]`. The far distance is inflated by 1 + 2γ₃ (pbrt-v4) so that
-    /// rounding never makes a ray miss a box that its primitive is inside. NaN (0·∞ when the
-    /// origin lies on a slab plane of a zero direction) is treated as "no constraint" by the
-    /// argument order of `max`/`min`, which keeps the test conservative.
+    /// rounding never makes a ray miss a box that its primitive is inside.
+    ///
+    /// A zero direction component with the origin exactly on that slab's plane gives 0·∞ = NaN;
+    /// the ray lies in the face plane, so that axis is treated as unconstrained (a conservative
+    /// hit). This is explicit because SIMD `min`/`max` do not ignore NaN the way `f32::min` does.
     #[inline]
     pub fn hit(&self, o: Vec3A, inv_d: Vec3A, t_max: f32) -> bool {
         let t0 = (self.min - o) * inv_d;
         let t1 = (self.max - o) * inv_d;
-        let tn = t0.min(t1);
-        let tf = t0.max(t1) * (1.0 + 2.0 * gamma(3));
+        let nan = t0.is_nan_mask() | t1.is_nan_mask();
+        let tn = Vec3A::select(nan, Vec3A::NEG_INFINITY, t0.min(t1));
+        let tf = Vec3A::select(nan, Vec3A::INFINITY, t0.max(t1) * (1.0 + 2.0 * gamma(3)));
         let t_near = tn.max_element().max(0.0);
         let t_far = tf.min_element().min(t_max);
         t_near <= t_far
@@ -221,6 +224,12 @@ mod tests {
         assert!(!b.hit(Vec3A::new(-1.0, 1.5, 0.5), inv, f32::INFINITY));
         // Origin exactly on the y = 0 face plane, moving parallel to it: conservative hit.
         assert!(b.hit(Vec3A::new(-1.0, 0.0, 0.5), inv, f32::INFINITY));
+        assert!(b.hit(Vec3A::new(-1.0, 1.0, 0.5), inv, f32::INFINITY));
+        // Negative zero behaves like positive zero.
+        let dn = Vec3A::new(1.0, -0.0, 0.0);
+        assert!(b.hit(Vec3A::new(-1.0, 0.0, 0.5), dn.recip(), f32::INFINITY));
+        assert!(b.hit(Vec3A::new(-1.0, 0.5, 0.5), dn.recip(), f32::INFINITY));
+        assert!(!b.hit(Vec3A::new(-1.0, 1.5, 0.5), dn.recip(), f32::INFINITY));
         assert!(!b.hit(Vec3A::new(-1.0, 0.5, 0.5), inv, 0.5));
     }
 }

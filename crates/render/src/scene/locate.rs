@@ -52,23 +52,10 @@ impl fmt::Display for KeyPath {
 /// 1-based line and column (in characters) of byte `offset`.
 pub fn line_col(text: &str, offset: usize) -> (usize, usize) {
     let offset = offset.min(text.len());
-    let before = &text[..text.floor_char_boundary_compat(offset)];
+    let before = &text[..text.floor_char_boundary(offset)];
     let line = before.matches('\n').count() + 1;
     let col = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
     (line, col)
-}
-
-trait FloorBoundary {
-    fn floor_char_boundary_compat(&self, i: usize) -> usize;
-}
-
-impl FloorBoundary for str {
-    fn floor_char_boundary_compat(&self, mut i: usize) -> usize {
-        while i > 0 && !self.is_char_boundary(i) {
-            i -= 1;
-        }
-        i
-    }
 }
 
 /// Span of the deepest existing prefix of `path` in a TOML document.
@@ -265,6 +252,6 @@ mod tests {
             Seg::Key("radius".into()),
         ]);
         let span = json_span(text, &path).expect("found");
-        assert_eq!(line_col(text, span.start), (3, 22));
+        assert_eq!(line_col(text, span.start), (3, 23));
     }
 }

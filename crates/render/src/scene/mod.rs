@@ -75,9 +75,9 @@ impl Default for Limits {
 pub struct SceneError {
     /// The file (or a name given by the caller).
     pub file: String,
-    /// 1-based line, if known.
+    /// 1-based line; 0 when the problem is not inside the text (an unreadable file).
     pub line: usize,
-    /// 1-based column, if known.
+    /// 1-based column; 0 with line 0.
     pub column: usize,
     /// Key path, e.g. `objects[3].radius`.
     pub path: String,
@@ -87,6 +87,10 @@ pub struct SceneError {
 
 impl fmt::Display for SceneError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.line == 0 {
+            // Not a problem inside the text (the file could not be read).
+            return write!(f, "{}: {}", self.file, self.message);
+        }
         write!(
             f,
             "{}:{}:{}: {}: {}",
@@ -283,8 +287,8 @@ fn io_error(file: &str, e: std::io::Error) -> SceneError {
         file: file.into(),
         line: 0,
         column: 0,
-        path: "(file)".into(),
-        message: e.to_string(),
+        path: String::new(),
+        message: format!("cannot read the scene: {e}"),
     }
 }
 
@@ -330,7 +334,9 @@ fn convert_path(p: &serde_path_to_error::Path) -> KeyPath {
 fn unknown_key_path(mut path: KeyPath, message: &str) -> KeyPath {
     if let Some(rest) = message.strip_prefix("unknown field `") {
         if let Some(name) = rest.split('`').next() {
-            path.0.push(Seg::Key(name.to_string()));
+            if path.0.last() != Some(&Seg::Key(name.to_string())) {
+                path.0.push(Seg::Key(name.to_string()));
+            }
         }
     }
     path
@@ -343,7 +349,10 @@ fn parse(text: &str, format: Format, file: &str) -> Result<SceneFile, SceneError
             serde_path_to_error::deserialize::<_, SceneFile>(de).map_err(|e| {
                 let path = convert_path(e.path());
                 let inner = e.into_inner();
-                let message = inner.message().trim().to_string();
+                let mut message = inner.message().trim().to_string();
+                if path.0.is_empty() && inner.span().is_some() {
+                    message = format!("syntax error: {message}");
+                }
                 let path = unknown_key_path(path, &message);
                 let (line, column) = match inner.span() {
                     Some(s) => line_col(text, s.start),

@@ -1,0 +1,211 @@
+//! Drives the real `tessera` binary, as a user would.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use tessera_render::output::{read_exr_metadata, read_exr_rgb};
+
+fn tessera(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_tessera"))
+        .args(args)
+        .output()
+        .expect("run tessera")
+}
+
+fn repo(path: &str) -> String {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../..")
+        .join(path)
+        .display()
+        .to_string()
+}
+
+fn write(dir: &Path, name: &str, text: &str) -> String {
+    let p = dir.join(name);
+    std::fs::write(&p, text).expect("write scene");
+    p.display().to_string()
+}
+
+/// Fails with stderr and asserts the message is a one-line error, not a panic.
+fn assert_clean_failure(out: &Output, needles: &[&str]) {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "should fail: {stderr}");
+    assert!(!stderr.contains("panicked"), "panic: {stderr}");
+    assert!(!stderr.contains("RUST_BACKTRACE"), "panic: {stderr}");
+    for n in needles {
+        assert!(stderr.contains(n), "missing {n:?} in: {stderr}");
+    }
+}
+
+#[test]
+fn renders_the_cornell_box_to_a_valid_exr() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("cb.exr");
+    let png = dir.path().join("cb.png");
+    let r = tessera(&[
+        "render",
+        &repo("scenes/cornell-box.toml"),
+        "--spp",
+        "4",
+        "--output",
+        out.to_str().expect("utf8"),
+        "--preview",
+        png.to_str().expect("utf8"),
+        "--threads",
+        "2",
+        "--seed",
+        "7",
+    ]);
+    let stdout = String::from_utf8_lossy(&r.stdout);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    assert!(
+        stdout.contains("Msamples/s") && stdout.contains("noise"),
+        "summary line: {stdout}"
+    );
+    let img = read_exr_rgb(&out).expect("valid EXR");
+    assert_eq!((img.width, img.height), (256, 256));
+    let mean: f32 =
+        img.rgb.iter().map(|p| p[0] + p[1] + p[2]).sum::<f32>() / (3.0 * img.rgb.len() as f32);
+    assert!(mean > 0.05 && mean < 1.0, "mean {mean}");
+    let meta = read_exr_metadata(&out).expect("metadata");
+    assert!(meta.iter().any(|m| m == "seed=7"), "{meta:?}");
+    assert!(
+        meta.iter()
+            .any(|m| m.starts_with("scene_sha256=") && m.len() == 13 + 64),
+        "{meta:?}"
+    );
+    assert!(std::fs::read(&png).expect("png").starts_with(b"\x89PNG"));
+}
+
+#[test]
+fn same_flags_same_bytes_whatever_the_threads() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let a = dir.path().join("a.exr");
+    let b = dir.path().join("b.exr");
+    let scene = repo("scenes/spheres.toml");
+    for (out, threads) in [(&a, "1"), (&b, "2")] {
+        let r = tessera(&[
+            "render",
+            &scene,
+            "--spp",
+            "2",
+            "--output",
+            out.to_str().expect("utf8"),
+            "--threads",
+            threads,
+            "--variance",
+            "--sample-count",
+        ]);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    }
+    assert_eq!(std::fs::read(&a).expect("a"), std::fs::read(&b).expect("b"));
+}
+
+#[test]
+fn bad_scenes_give_positioned_errors() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let good = std::fs::read_to_string(repo("scenes/cornell-box.toml")).expect("scene");
+    let out = dir.path().join("o.exr");
+    let out = out.to_str().expect("utf8");
+    let cases = [
+        ("syntax.toml", good.replace("fov = 39.3077", "fov = 39.3077 ]"), vec!["syntax.toml:10:", "syntax error"]),
+        ("unknown.toml", good.replace("up = [0.0", "upp = [0.0"), vec!["unknown.toml:9:1:", "camera.upp", "unknown field `upp`"]),
+        ("missing.toml", good.replace("material = \"green\"", "material = \"gren\""), vec!["missing.toml:51:12:", "objects[3].material", "`gren` is not defined"]),
+        (
+            "nan.toml",
+            good.replace("shape = \"box\"\nmaterial = \"white\"\ntransform.matrix = [[0.28491", "shape = \"sphere\"\nradius = nan\nmaterial = \"white\"\ntransform.matrix = [[0.28491"),
+            vec!["nan.toml:66:10:", "objects[6].radius", "finite number greater than 0"],
+        ),
+    ];
+    for (name, text, needles) in cases {
+        assert_ne!(text, good, "{name}: the edit did not apply");
+        let path = write(dir.path(), name, &text);
+        let r = tessera(&["render", &path, "--spp", "1", "--output", out]);
+        assert_clean_failure(&r, &needles);
+        assert_eq!(
+            String::from_utf8_lossy(&r.stderr).trim().lines().count(),
+            1,
+            "one line: {}",
+            String::from_utf8_lossy(&r.stderr)
+        );
+    }
+    assert!(!Path::new(out).exists(), "no output for a bad scene");
+}
+
+#[test]
+fn bad_flags_and_paths_are_refused() {
+    let scene = repo("scenes/cornell-box.toml");
+    assert_clean_failure(
+        &tessera(&["render", &scene, "--spp", "0", "--output", "x.exr"]),
+        &["--spp"],
+    );
+    assert_clean_failure(
+        &tessera(&["render", &scene, "--spp", "many", "--output", "x.exr"]),
+        &["--spp"],
+    );
+    assert_clean_failure(
+        &tessera(&["render", &scene, "--output", "x.exr"]),
+        &["--spp"],
+    );
+    assert_clean_failure(
+        &tessera(&[
+            "render",
+            &scene,
+            "--spp",
+            "1",
+            "--output",
+            "x.exr",
+            "--threads",
+            "0",
+        ]),
+        &["--threads"],
+    );
+    assert_clean_failure(
+        &tessera(&[
+            "render",
+            &scene,
+            "--spp",
+            "9",
+            "--max-spp",
+            "8",
+            "--output",
+            "x.exr",
+        ]),
+        &["above the limit of 8"],
+    );
+    assert_clean_failure(
+        &tessera(&[
+            "render",
+            &scene,
+            "--spp",
+            "1",
+            "--output",
+            "/nonexistent-dir/x.exr",
+        ]),
+        &["does not exist"],
+    );
+    assert_clean_failure(
+        &tessera(&[
+            "render",
+            "no-such-scene.toml",
+            "--spp",
+            "1",
+            "--output",
+            "x.exr",
+        ]),
+        &["no-such-scene.toml", "cannot read"],
+    );
+    assert_clean_failure(
+        &tessera(&[
+            "render",
+            &scene,
+            "--spp",
+            "1",
+            "--output",
+            "x.exr",
+            "--exposure",
+            "NaN",
+        ]),
+        &["--exposure"],
+    );
+}

@@ -1,0 +1,251 @@
+//! Every bad scene gives an error naming the file, line:column and key path — never a panic.
+
+use tessera_render::scene::{Format, Limits, Scene, SceneError};
+
+const HEAD: &str = "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 0, 5]\ntarget = [0, 0, 0]\nfov = 40\n[film]\nwidth = 8\nheight = 8\n[materials.m]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n";
+
+fn err(text: &str) -> SceneError {
+    err_with(text, Format::Toml, &Limits::default())
+}
+
+fn err_with(text: &str, format: Format, limits: &Limits) -> SceneError {
+    match Scene::from_str(text, format, "s.toml", limits) {
+        Ok(_) => panic!("accepted:\n{text}"),
+        Err(e) => e,
+    }
+}
+
+fn check(text: &str, line: usize, path: &str, message: &str) {
+    let e = err(text);
+    assert_eq!(e.line, line, "{e}");
+    assert!(e.column >= 1, "{e}");
+    assert_eq!(e.path, path, "{e}");
+    assert!(e.message.contains(message), "{e}");
+    assert!(e.to_string().starts_with(&format!("s.toml:{line}:")), "{e}");
+}
+
+#[test]
+fn parser_errors() {
+    check(
+        &format!("{HEAD}[[objects]\n"),
+        13,
+        "(document)",
+        "syntax error",
+    );
+    check(
+        &format!("{HEAD}[[objects]]\nshape = \"sphere\"\nmaterial = \"m\"\nradiuss = 1\n"),
+        16,
+        "objects[0].radiuss",
+        "unknown field `radiuss`",
+    );
+    check(
+        &format!("{HEAD}[[objects]]\nshape = \"cone\"\nmaterial = \"m\"\n"),
+        14,
+        "objects[0].shape",
+        "unknown variant `cone`",
+    );
+    check(
+        &format!("{HEAD}[[objects]]\nshape = \"sphere\"\nmaterial = \"m\"\nradius = \"big\"\n"),
+        16,
+        "objects[0].radius",
+        "invalid type",
+    );
+    check(
+        &HEAD.replace("version = 1\n", ""),
+        1,
+        "(document)",
+        "missing field `version`",
+    );
+    check(
+        &HEAD.replace("width = 8", "width = -8"),
+        8,
+        "film.width",
+        "invalid value",
+    );
+}
+
+#[test]
+fn validation_errors() {
+    let obj = |body: &str| format!("{HEAD}[[objects]]\n{body}");
+    check(
+        &obj("shape = \"sphere\"\nmaterial = \"m\"\nradius = nan\n"),
+        16,
+        "objects[0].radius",
+        "finite number greater than 0",
+    );
+    check(
+        &obj("shape = \"sphere\"\nmaterial = \"m\"\nradius = 0.0\n"),
+        16,
+        "objects[0].radius",
+        "greater than 0",
+    );
+    check(
+        &obj("shape = \"sphere\"\nmaterial = \"m\"\ncenter = [0, inf, 0]\n"),
+        16,
+        "objects[0].center",
+        "finite",
+    );
+    check(
+        &obj("shape = \"sphere\"\nmaterial = \"nope\"\n"),
+        15,
+        "objects[0].material",
+        "material `nope` is not defined",
+    );
+    check(
+        &obj("shape = \"rect\"\nmaterial = \"m\"\nsize = [1, -2]\n"),
+        16,
+        "objects[0].size[1]",
+        "greater than 0",
+    );
+    check(
+        &obj("shape = \"box\"\nmaterial = \"m\"\nmin = [0, 0, 0]\nmax = [1, 0, 1]\n"),
+        17,
+        "objects[0].max",
+        "positive on every axis",
+    );
+    check(
+        &obj("shape = \"box\"\nmaterial = \"m\"\nradius = 2\n"),
+        16,
+        "objects[0].radius",
+        "does not apply to a box",
+    );
+    check(
+        &obj("shape = \"box\"\nmaterial = \"m\"\ntransform = { scale = [1, 0, 1] }\n"),
+        16,
+        "objects[0].transform",
+        "degenerate",
+    );
+    check(
+        &obj("shape = \"box\"\nmaterial = \"m\"\ntransform = { matrix = [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,1,1]] }\n"),
+        16,
+        "objects[0].transform.matrix[3]",
+        "last row",
+    );
+    check(
+        &HEAD.replace("fov = 40", "fov = 0"),
+        6,
+        "camera.fov",
+        "(0°, 180°)",
+    );
+    check(
+        &HEAD.replace("fov = 40", "fov = 180"),
+        6,
+        "camera.fov",
+        "(0°, 180°)",
+    );
+    check(
+        &HEAD.replace("target = [0, 0, 0]", "target = [0, 0, 5]"),
+        2,
+        "camera",
+        "degenerate camera",
+    );
+    check(
+        &HEAD.replace("albedo = [0.5, 0.5, 0.5]", "albedo = [0.5, 1.5, 0.5]"),
+        12,
+        "materials.m.albedo",
+        "at most 1",
+    );
+    check(
+        &HEAD.replace("version = 1", "version = 2"),
+        1,
+        "version",
+        "unsupported version 2",
+    );
+    check(
+        &format!("{}[materials.lamp]\ntype = \"diffuse\"\nalbedo = [0, 0, 0]\nemission = [1, 1, 1]\n[[objects]]\nshape = \"plane\"\nmaterial = \"lamp\"\n", HEAD),
+        19,
+        "objects[0].material",
+        "infinite plane cannot emit",
+    );
+}
+
+#[test]
+fn limits_are_enforced() {
+    let limits = Limits {
+        max_resolution: 4,
+        ..Limits::default()
+    };
+    let e = err_with(HEAD, Format::Toml, &limits);
+    assert_eq!((e.line, e.path.as_str()), (8, "film.width"), "{e}");
+    assert!(e.message.contains("above the limit of 4"), "{e}");
+    let limits = Limits {
+        max_bytes: 10,
+        ..Limits::default()
+    };
+    assert!(err_with(HEAD, Format::Toml, &limits)
+        .message
+        .contains("bytes"));
+    let limits = Limits {
+        max_objects: 0,
+        ..Limits::default()
+    };
+    let e = err_with(
+        &format!("{HEAD}[[objects]]\nshape = \"sphere\"\nmaterial = \"m\"\n"),
+        Format::Toml,
+        &limits,
+    );
+    assert!(e.message.contains("objects is above the limit"), "{e}");
+}
+
+#[test]
+fn json_errors_have_positions_too() {
+    let good = r#"{"version": 1, "camera": {"model": "look_at", "eye": [0,0,5], "target": [0,0,0], "fov": 40},
+ "film": {"width": 8, "height": 8},
+ "materials": {"m": {"type": "diffuse", "albedo": [0.5,0.5,0.5]}},
+ "objects": [{"shape": "sphere", "material": "m", "radius": 1}]}"#;
+    assert!(Scene::from_str(good, Format::Json, "s.json", &Limits::default()).is_ok());
+    let e = err_with(
+        &good.replace("\"radius\": 1", "\"radius\": -1"),
+        Format::Json,
+        &Limits::default(),
+    );
+    assert_eq!(
+        (e.line, e.column, e.path.as_str()),
+        (4, 51, "objects[0].radius"),
+        "{e}"
+    );
+    let e = err_with(
+        &good.replace("\"fov\": 40", "\"fov\": 40,"),
+        Format::Json,
+        &Limits::default(),
+    );
+    assert_eq!(e.line, 1, "{e}");
+    let e = err_with(
+        &good.replace("\"radius\"", "\"radios\""),
+        Format::Json,
+        &Limits::default(),
+    );
+    assert!(
+        e.message.contains("unknown field `radios`") && e.line == 4,
+        "{e}"
+    );
+}
+
+#[test]
+fn garbage_never_panics() {
+    // Truncations and byte flips of a valid scene: every one is an error or a scene, no panic.
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../scenes/cornell-box.toml"
+    ))
+    .expect("scene");
+    for cut in (0..text.len()).step_by(7) {
+        let _ = Scene::from_str(
+            &text[..text.floor_char_boundary(cut)],
+            Format::Toml,
+            "cut.toml",
+            &Limits::default(),
+        );
+    }
+    let bytes = text.as_bytes();
+    for i in (0..bytes.len()).step_by(5) {
+        for b in [b'[', b'"', b'=', b'9', b'\n', b'-', b'e'] {
+            let mut v = bytes.to_vec();
+            v[i] = b;
+            if let Ok(s) = String::from_utf8(v) {
+                let _ = Scene::from_str(&s, Format::Toml, "flip.toml", &Limits::default());
+                let _ = Scene::from_str(&s, Format::Json, "flip.json", &Limits::default());
+            }
+        }
+    }
+}
