@@ -112,3 +112,36 @@ fn convex_object_under_uniform_sky() {
         assert!((corner[c] - sky[c]).abs() <= 3.0 * se[c] + 1e-5);
     }
 }
+
+/// With `render.max_depth = k`, the closed sphere sums only the first k + 1 terms of the
+/// series: L = Le·(1 + ρ + … + ρᵏ).
+#[test]
+fn max_depth_truncates_the_neumann_series() {
+    let (rho, le) = (0.7f64, 1.0f64);
+    for k in [0u32, 1, 3] {
+        let text = format!(
+            "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 0, 0]\ntarget = [1, 0, 0]\nfov = 90\n[film]\nwidth = 16\nheight = 16\n\
+             [render]\nmax_depth = {k}\n\
+             [materials.shell]\ntype = \"diffuse\"\nalbedo = [{rho}, {rho}, {rho}]\nemission = [{le}, {le}, {le}]\ntwo_sided = true\n\
+             [[objects]]\nshape = \"sphere\"\nmaterial = \"shell\"\nradius = 1.0\n"
+        );
+        for strategy in [Strategy::Mis, Strategy::Bsdf, Strategy::Nee] {
+            let img = render(
+                &scene(&text),
+                &RenderSettings {
+                    spp: 128,
+                    seed: 8,
+                    strategy,
+                    ..RenderSettings::default()
+                },
+            );
+            let (mean, se) = image_mean(&img);
+            let expected: f64 = (0..=k).map(|i| le * rho.powi(i as i32)).sum();
+            assert!(
+                (mean[0] - expected).abs() <= 3.0 * se[0] + 1e-5 * expected,
+                "max_depth {k}, {strategy:?}: {} vs {expected}",
+                mean[0]
+            );
+        }
+    }
+}
