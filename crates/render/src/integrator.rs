@@ -142,7 +142,8 @@ pub fn radiance(
         }
         // Normal on the side the path arrived from.
         let n = if front { sp.n } else { -sp.n };
-        let [u0, u1, u2, _] = sampler.get4(1 + 2 * depth);
+        // u_rr decides Russian roulette after this bounce.
+        let [u0, u1, u2, u_rr] = sampler.get4(1 + 2 * depth);
         let next = match mat.bsdf {
             Bsdf::Diffuse(albedo) => {
                 let p_out = offset_ray_origin(sp.p, n);
@@ -203,7 +204,6 @@ pub fn radiance(
         depth += 1;
         if depth >= settings.rr_depth {
             let q = (beta * eta_scale).max_element().min(0.95);
-            let [_, _, _, u_rr] = sampler.get4(1 + 2 * (depth - 1));
             if !(u_rr < q) {
                 break;
             }

@@ -203,7 +203,8 @@ pub fn sphere_roots(o: Vec3A, d: Vec3A, c: Vec3A, r: f32) -> Option<(f32, f32)> 
     if !(disc >= 0.0) {
         return None;
     }
-    let cc = (f.length() - r) * (f.length() + r);
+    let fl = f.length();
+    let cc = (fl - r) * (fl + r);
     let q = b + b.signum() * (a * disc).sqrt();
     if q == 0.0 {
         // Tangent ray through the centre's perpendicular foot: a double root at t = b/a.
