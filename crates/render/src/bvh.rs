@@ -109,6 +109,7 @@ impl Bvh {
     }
 
     /// Visits leaf primitives a ray may hit, nearest subtree first; `f` returns the new t_max.
+    /// A negative t_max ends the traversal at once (any-hit queries).
     #[inline]
     pub fn traverse(&self, ray: &Ray, mut t_max: f32, mut f: impl FnMut(u32, f32) -> f32) {
         if self.nodes.is_empty() {
@@ -131,6 +132,9 @@ impl Bvh {
                     let first = node.offset as usize;
                     for &p in &self.order[first..first + count as usize] {
                         t_max = f(p, t_max);
+                        if t_max < 0.0 {
+                            return;
+                        }
                     }
                 } else {
                     let axis = (node.count_axis >> AXIS_SHIFT) as usize;

@@ -75,17 +75,14 @@ impl Light {
         }
     }
 
-    /// Samples a point as seen from `p`; density in solid angle, without selection.
-    fn sample(&self, p: Vec3A, u: Vec2) -> Option<(Vec3A, Vec3A, f32)> {
+    /// Samples a point as seen from `p`: (point, its normal, unit direction from `p`, density in
+    /// solid angle without selection).
+    fn sample(&self, p: Vec3A, u: Vec2) -> Option<(Vec3A, Vec3A, Vec3A, f32)> {
         match &self.shape {
             LightShape::Quad(q) => {
                 let x = q.point(u.x, u.y);
-                let (wi, dist2) = dir_and_dist2(p, x)?;
-                let cos_l = q.normal.dot(wi).abs();
-                if cos_l == 0.0 {
-                    return None;
-                }
-                Some((x, q.normal, dist2 / (cos_l * q.area)))
+                let (wi, pdf) = area_to_solid_angle(p, x, q.normal, q.area)?;
+                Some((x, q.normal, wi, pdf))
             }
             LightShape::Sphere { center, radius } => {
                 let dc2 = (*center - p).length_squared();
@@ -94,17 +91,11 @@ impl Light {
                     // Inside, or on the sphere itself: uniform area sampling.
                     let n = square_to_uniform_sphere(u);
                     let x = *center + n * *radius;
-                    let (wi, dist2) = dir_and_dist2(p, x)?;
-                    let cos_l = n.dot(wi).abs();
-                    if cos_l == 0.0 {
-                        return None;
-                    }
-                    return Some((x, n, dist2 / (cos_l * 4.0 * PI * r2)));
+                    let (wi, pdf) = area_to_solid_angle(p, x, n, 4.0 * PI * r2)?;
+                    return Some((x, n, wi, pdf));
                 }
                 // Outside: uniform in the cone of directions the sphere subtends.
-                let sin2 = r2 / dc2;
-                let cos_max = (1.0 - sin2).max(0.0).sqrt();
-                let one_minus_cos = sin2 / (1.0 + cos_max);
+                let one_minus_cos = cone_one_minus_cos(dc2, r2);
                 let axis = (*center - p) / dc2.sqrt();
                 let wi =
                     Frame::from_normal(axis).to_world(square_to_uniform_cone(u, one_minus_cos));
@@ -116,48 +107,48 @@ impl Light {
                 };
                 let n = (p + wi * t - *center).normalize();
                 let x = *center + n * *radius;
-                Some((x, n, 1.0 / (2.0 * PI * one_minus_cos)))
+                Some((x, n, wi, 1.0 / (2.0 * PI * one_minus_cos)))
             }
         }
     }
 
     /// Density (solid angle, without selection) of sampling point `x` with normal `n` from `p`.
     fn pdf(&self, p: Vec3A, x: Vec3A, n: Vec3A) -> f32 {
-        match &self.shape {
-            LightShape::Quad(q) => match dir_and_dist2(p, x) {
-                Some((wi, dist2)) => {
-                    let cos_l = n.dot(wi).abs();
-                    if cos_l == 0.0 {
-                        0.0
-                    } else {
-                        dist2 / (cos_l * q.area)
-                    }
-                }
-                None => 0.0,
-            },
+        let area = match &self.shape {
+            LightShape::Quad(q) => q.area,
             LightShape::Sphere { center, radius } => {
                 let dc2 = (*center - p).length_squared();
                 let r2 = radius * radius;
-                if !cone_applies(dc2, r2) {
-                    match dir_and_dist2(p, x) {
-                        Some((wi, dist2)) => {
-                            let cos_l = n.dot(wi).abs();
-                            if cos_l == 0.0 {
-                                0.0
-                            } else {
-                                dist2 / (cos_l * 4.0 * PI * r2)
-                            }
-                        }
-                        None => 0.0,
-                    }
-                } else {
-                    let sin2 = r2 / dc2;
-                    let cos_max = (1.0 - sin2).max(0.0).sqrt();
-                    1.0 / (2.0 * PI * (sin2 / (1.0 + cos_max)))
+                if cone_applies(dc2, r2) {
+                    return 1.0 / (2.0 * PI * cone_one_minus_cos(dc2, r2));
                 }
+                4.0 * PI * r2
             }
-        }
+        };
+        area_to_solid_angle(p, x, n, area).map_or(0.0, |(_, pdf)| pdf)
     }
+}
+
+/// Converts a uniform density 1/`area` at point `x` (normal `n`) into solid angle as seen from
+/// `p`: dist²/(|cos θ_light|·area). Returns the unit direction from `p` with it; `None` where
+/// the density is undefined (coincident points, or a light seen exactly edge-on).
+#[inline]
+fn area_to_solid_angle(p: Vec3A, x: Vec3A, n: Vec3A, area: f32) -> Option<(Vec3A, f32)> {
+    let (wi, dist2) = dir_and_dist2(p, x)?;
+    let cos_l = n.dot(wi).abs();
+    if cos_l == 0.0 {
+        return None;
+    }
+    Some((wi, dist2 / (cos_l * area)))
+}
+
+/// 1 − cos θmax of the cone a sphere subtends from squared centre distance `dc2`, computed as
+/// sin²/(1 + cos) to avoid cancellation for small, distant spheres.
+#[inline]
+fn cone_one_minus_cos(dc2: f32, r2: f32) -> f32 {
+    let sin2 = r2 / dc2;
+    let cos_max = (1.0 - sin2).max(0.0).sqrt();
+    sin2 / (1.0 + cos_max)
 }
 
 /// Whether a point at squared distance `dc2` from a sphere's centre is clearly outside it, so
@@ -200,12 +191,11 @@ impl Lights {
         let dist = self.select.as_ref()?;
         let i = dist.sample(u_select);
         let light = &self.lights[i];
-        let (x, n, pdf) = light.sample(p, u)?;
+        let (x, n, wi, pdf) = light.sample(p, u)?;
         let pdf = pdf * dist.pmf(i);
         if !(pdf > 0.0) || !pdf.is_finite() {
             return None;
         }
-        let wi = (x - p).normalize();
         let le = light.emitted(n, -wi);
         let towards = if n.dot(-wi) >= 0.0 { n } else { -n };
         Some(LightSample {

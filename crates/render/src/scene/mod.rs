@@ -254,26 +254,21 @@ impl Scene {
     /// Whether anything blocks `ray` for t in (0, t_max).
     #[inline]
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
-        // A closest-hit search with early exit: the first hit found ends the traversal by
-        // shrinking t_max below every box.
+        // Any hit will do: a negative t_max tells the traversal to stop at the first one.
         let mut hit = false;
         let mut test = |p: u32, t_max: f32| -> f32 {
-            if hit {
-                return -1.0;
-            }
             if self.prims[p as usize].shape.intersect(ray, t_max).is_some() {
                 hit = true;
                 return -1.0;
             }
             t_max
         };
-        let mut t = t_max;
         for &p in &self.unbounded {
-            t = test(p, t);
+            if test(p, t_max) < 0.0 {
+                return true;
+            }
         }
-        if t >= 0.0 {
-            self.bvh.traverse(ray, t, test);
-        }
+        self.bvh.traverse(ray, t_max, &mut test);
         hit
     }
 }
