@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
-use tessera_render::output::{write_exr, write_png_preview, ExrChannels, Preview};
+use tessera_render::output::{render_metadata, write_exr, write_png_preview, ExrChannels, Preview};
 use tessera_render::scene::{Limits, Scene};
 use tessera_render::{render_frame, RenderSettings, Strategy};
 
@@ -131,20 +131,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     bar.finish_and_clear();
     let image = sums.finalize();
 
-    let meta = vec![
-        ("scene_sha256".to_string(), scene.hash.clone()),
-        ("spp".to_string(), settings.spp.to_string()),
-        ("seed".to_string(), settings.seed.to_string()),
-        ("batch".to_string(), settings.batch.to_string()),
-        (
-            "strategy".to_string(),
-            format!("{:?}", settings.strategy).to_lowercase(),
-        ),
-        (
-            "renderer".to_string(),
-            format!("tessera {}", env!("CARGO_PKG_VERSION")),
-        ),
-    ];
+    let meta = render_metadata(&scene.hash, &settings);
     let channels = ExrChannels {
         variance: args.variance,
         samples: args.sample_count,

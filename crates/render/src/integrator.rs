@@ -29,6 +29,24 @@ pub enum Strategy {
     Nee,
 }
 
+impl Strategy {
+    /// Lower-case name, as on the command line and in EXR metadata.
+    pub fn name(self) -> &'static str {
+        match self {
+            Strategy::Mis => "mis",
+            Strategy::Bsdf => "bsdf",
+            Strategy::Nee => "nee",
+        }
+    }
+
+    /// Inverse of [`Strategy::name`].
+    pub fn from_name(name: &str) -> Option<Self> {
+        [Strategy::Mis, Strategy::Bsdf, Strategy::Nee]
+            .into_iter()
+            .find(|s| s.name() == name)
+    }
+}
+
 /// Everything besides the scene that decides a render's pixels.
 #[derive(Clone, Debug)]
 pub struct RenderSettings {

@@ -52,6 +52,25 @@ pub struct ExrChannels {
 /// Writes `image` as a float32 OpenEXR file, atomically (a temporary file in the same
 /// directory, then a rename), so a reader never sees a half-written frame.
 ///
+/// The header metadata of a render: everything that decides its pixels. The local renderer and
+/// the farm both write exactly this, so the same job gives the same file bytes either way.
+pub fn render_metadata(
+    scene_hash: &str,
+    settings: &crate::RenderSettings,
+) -> Vec<(String, String)> {
+    vec![
+        ("scene_sha256".to_string(), scene_hash.to_string()),
+        ("spp".to_string(), settings.spp.to_string()),
+        ("seed".to_string(), settings.seed.to_string()),
+        ("batch".to_string(), settings.batch.to_string()),
+        ("strategy".to_string(), settings.strategy.name().to_string()),
+        (
+            "renderer".to_string(),
+            format!("tessera {}", env!("CARGO_PKG_VERSION")),
+        ),
+    ]
+}
+
 /// `metadata` pairs go into one `tessera` text-vector header attribute as `key=value`. One
 /// attribute, because the `exr` crate keeps custom attributes in a hash map whose order varies
 /// between processes, and the same job must give the same file bytes.

@@ -196,6 +196,29 @@ impl TileSums {
         Ok(())
     }
 
+    /// (Σ variance of the mean, Σ mean, pixels with data), each pixel's channels averaged: the
+    /// parts of [`Image::noise`], so a merger can add them up tile by tile without building
+    /// the image.
+    pub fn noise_parts(&self) -> (f64, f64, u64) {
+        let (mut var, mut mean, mut n) = (0.0, 0.0, 0u64);
+        for i in 0..self.sum.len() {
+            let k = self.count[i] as f64;
+            if k < 1.0 {
+                continue;
+            }
+            n += 1;
+            for c in 0..3 {
+                let m = self.sum[i][c] / k;
+                mean += m / 3.0;
+                if k > 1.0 {
+                    var +=
+                        ((self.sum_sq[i][c] - self.sum[i][c] * m) / (k - 1.0)).max(0.0) / k / 3.0;
+                }
+            }
+        }
+        (var, mean, n)
+    }
+
     /// Mean radiance, variance of the mean and sample count per pixel.
     pub fn finalize(&self) -> Image {
         let n = self.sum.len();

@@ -1,0 +1,394 @@
+//! # tessera-coordinator
+//!
+//! The farm's coordinator. It takes render jobs over gRPC (`tessera.v1.Jobs`), splits each
+//! frame into work units (tile × sample batch), leases them to workers (`tessera.v1.Workers`)
+//! with a deadline that heartbeats renew, merges returned partial sums per tile in batch order
+//! (whatever order they arrive in), and writes the finished frame as OpenEXR, atomically.
+//!
+//! Because the renderer's partial sums are a pure function of (seed, pixel, sample index) and
+//! each tile's batches are folded in index order starting from zero, the EXR is bit-identical
+//! to `tessera render` with the same seed, spp and batch size, however many workers took part.
+//!
+//! State lives in a redb database under the data directory; every merged result is committed
+//! before it is acknowledged, so a restarted coordinator resumes its jobs. Leases are not
+//! stored: after a restart, units that were in flight are simply handed out again.
+//!
+//! [`serve`] runs the server on a listener the caller binds (port 0 in tests) until the
+//! `shutdown` future completes.
+
+use std::future::Future;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use tessera_proto::v1::jobs_server::JobsServer;
+use tessera_proto::v1::workers_server::WorkersServer;
+use tessera_render::output::{render_metadata, write_exr, ExrChannels};
+use tessera_render::scene::Limits;
+use tessera_render::{PixelRect, TileSums};
+use tokio::sync::{mpsc, oneshot, watch};
+use tracing::{error, info, warn};
+
+mod service;
+pub mod state;
+pub mod store;
+
+use state::{job_name, Core, Job};
+use store::{JobPhase, Op, Store, StoreError};
+
+/// Coordinator settings.
+#[derive(Clone, Debug)]
+pub struct Config {
+    /// Where the state database lives.
+    pub data_dir: PathBuf,
+    /// Where finished EXRs are written (default: `data_dir/output`).
+    pub output_dir: Option<PathBuf>,
+    /// How long a lease lasts without a heartbeat.
+    pub lease_timeout: Duration,
+    /// Tile edge when a job does not choose one.
+    pub default_tile_size: u32,
+    /// Bounds on submitted scenes and spp.
+    pub limits: Limits,
+    /// Largest gRPC message accepted, in bytes.
+    pub max_message_bytes: usize,
+    /// Most jobs that may be active (queued or running) at once.
+    pub max_active_jobs: usize,
+    /// Most work units one job may have.
+    pub max_units_per_job: u64,
+}
+
+impl Config {
+    /// Defaults for a data directory.
+    pub fn new(data_dir: impl Into<PathBuf>) -> Self {
+        Self {
+            data_dir: data_dir.into(),
+            output_dir: None,
+            lease_timeout: Duration::from_secs(30),
+            default_tile_size: 64,
+            limits: Limits {
+                max_bytes: 32 << 20,
+                ..Limits::default()
+            },
+            max_message_bytes: 48 << 20,
+            max_active_jobs: 1000,
+            max_units_per_job: 1 << 24,
+        }
+    }
+
+    /// The directory finished EXRs go to.
+    pub fn output_dir(&self) -> PathBuf {
+        self.output_dir
+            .clone()
+            .unwrap_or_else(|| self.data_dir.join("output"))
+    }
+}
+
+/// Why the coordinator could not start or keep running.
+#[derive(Debug, thiserror::Error)]
+pub enum CoordinatorError {
+    /// The state store failed.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    /// A stored job could not be restored.
+    #[error("state store: {0}")]
+    Restore(String),
+    /// The output directory cannot be created.
+    #[error("output directory {path}: {source}")]
+    Output {
+        /// The directory.
+        path: String,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The gRPC server failed.
+    #[error("gRPC server: {0}")]
+    Transport(#[from] tonic::transport::Error),
+}
+
+/// A batch of store changes and who waits for them to be durable.
+struct Write {
+    ops: Vec<Op>,
+    done: oneshot::Sender<Result<(), String>>,
+}
+
+/// State shared by the RPC handlers and background tasks.
+pub(crate) struct Shared {
+    core: Mutex<Core>,
+    store: Arc<Store>,
+    writes: mpsc::UnboundedSender<Write>,
+    /// Bumped whenever a job's status changes (watchers wake on it).
+    changed: watch::Sender<u64>,
+    /// Bumped whenever units become available (long-polling leases wake on it).
+    work: watch::Sender<u64>,
+    config: Config,
+}
+
+impl Shared {
+    /// Locks the scheduling state. A panic while holding the lock is a bug; the state it left
+    /// is still consistent enough to serve (every mutation is a sequence of plain assignments),
+    /// so poisoning is ignored rather than turned into a crash loop.
+    fn core(&self) -> MutexGuard<'_, Core> {
+        self.core.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    fn bump_changed(&self) {
+        self.changed.send_modify(|v| *v = v.wrapping_add(1));
+    }
+
+    fn bump_work(&self) {
+        self.work.send_modify(|v| *v = v.wrapping_add(1));
+    }
+
+    /// Queues store changes. Called with the core lock held, so commits follow merge order.
+    fn queue_write(&self, ops: Vec<Op>) -> oneshot::Receiver<Result<(), String>> {
+        let (done, rx) = oneshot::channel();
+        if self.writes.send(Write { ops, done }).is_err() {
+            error!("state writer has stopped");
+        }
+        rx
+    }
+}
+
+/// Waits for a queued write to be durable.
+async fn durable(rx: oneshot::Receiver<Result<(), String>>) -> Result<(), String> {
+    rx.await
+        .map_err(|_| "state writer stopped".to_string())
+        .and_then(|r| r)
+}
+
+/// Unix time in milliseconds.
+pub(crate) fn now_ms() -> i64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_millis() as i64)
+        .unwrap_or(0)
+}
+
+/// Commits queued writes in groups: one fsync covers every result that arrived meanwhile.
+async fn writer(store: Arc<Store>, mut rx: mpsc::UnboundedReceiver<Write>) {
+    while let Some(first) = rx.recv().await {
+        let mut group = vec![first];
+        while group.len() < 256 {
+            match rx.try_recv() {
+                Ok(w) => group.push(w),
+                Err(_) => break,
+            }
+        }
+        let mut ops = Vec::new();
+        let mut waiters = Vec::new();
+        for w in group {
+            ops.extend(w.ops);
+            waiters.push(w.done);
+        }
+        let store = store.clone();
+        let result = tokio::task::spawn_blocking(move || store.apply(&ops))
+            .await
+            .map_err(|e| e.to_string())
+            .and_then(|r| r.map_err(|e| e.to_string()));
+        if let Err(e) = &result {
+            error!("state commit failed: {e}");
+        }
+        for w in waiters {
+            let _ = w.send(result.clone());
+        }
+    }
+}
+
+/// Writes a finished job's EXR, then records it as done (or failed).
+async fn finish_job(shared: Arc<Shared>, id: u64) {
+    let gathered = {
+        let core = shared.core();
+        core.jobs.get(&id).map(|job| {
+            let tiles: Vec<TileSums> = job
+                .acc
+                .iter()
+                .zip(&job.tiles)
+                .map(|(a, &r)| a.sums.clone().unwrap_or_else(|| TileSums::empty(r, 0)))
+                .collect();
+            (job.rec.clone(), job.settings(), tiles)
+        })
+    };
+    let Some((rec, settings, tiles)) = gathered else {
+        return;
+    };
+    let dir = shared.config.output_dir();
+    let path = dir.join(&rec.output_name);
+    let written = tokio::task::spawn_blocking(move || {
+        let mut frame = TileSums::empty(
+            PixelRect {
+                x0: 0,
+                y0: 0,
+                width: rec.width,
+                height: rec.height,
+            },
+            0,
+        );
+        frame.samples = 0..rec.spp;
+        for t in &tiles {
+            frame.insert(t).map_err(|e| e.to_string())?;
+        }
+        let image = frame.finalize();
+        let channels = ExrChannels {
+            variance: rec.variance,
+            samples: rec.sample_count,
+        };
+        write_exr(
+            &path,
+            &image,
+            channels,
+            &render_metadata(&rec.scene_hash, &settings),
+        )
+        .map_err(|e| e.to_string())
+    })
+    .await
+    .map_err(|e| e.to_string())
+    .and_then(|r| r);
+    let rx = {
+        let mut core = shared.core();
+        let ops = match &written {
+            Ok(()) => core.end_job(id, JobPhase::Done, String::new(), now_ms()),
+            Err(e) => core.end_job(
+                id,
+                JobPhase::Failed,
+                format!("writing the EXR: {e}"),
+                now_ms(),
+            ),
+        };
+        shared.queue_write(ops)
+    };
+    match (&written, durable(rx).await) {
+        (Ok(()), Ok(())) => info!("{} done → {}", job_name(id), dir.display()),
+        (Err(e), _) => warn!("{} failed: {e}", job_name(id)),
+        (_, Err(e)) => error!("{}: recording completion: {e}", job_name(id)),
+    }
+    shared.bump_changed();
+}
+
+/// Opens the store under `config.data_dir`, restores its jobs, and builds the shared state.
+fn open(
+    config: Config,
+) -> Result<(Arc<Shared>, mpsc::UnboundedReceiver<Write>, Vec<u64>), CoordinatorError> {
+    let out = config.output_dir();
+    std::fs::create_dir_all(&out).map_err(|source| CoordinatorError::Output {
+        path: out.display().to_string(),
+        source,
+    })?;
+    let store = Arc::new(Store::open(&config.data_dir)?);
+    let epoch = store.next_epoch()?;
+    let mut core = Core::new(epoch, config.lease_timeout);
+    let mut to_finish = Vec::new();
+    for loaded in store.load()? {
+        let id = loaded.record.id;
+        let mut job = Job::restore(loaded)
+            .map_err(|e| CoordinatorError::Restore(format!("{}: {e}", job_name(id))))?;
+        if job.rec.phase == JobPhase::Active && job.units_done == job.units_total() {
+            job.finishing = true;
+            to_finish.push(id);
+        }
+        core.next_job = core.next_job.max(id + 1);
+        core.jobs.insert(id, job);
+    }
+    let active = core
+        .jobs
+        .values()
+        .filter(|j| j.rec.phase == JobPhase::Active)
+        .count();
+    info!(
+        "state at {}: boot {epoch}, {} jobs ({active} active)",
+        config.data_dir.display(),
+        core.jobs.len()
+    );
+    let (writes, rx) = mpsc::unbounded_channel();
+    let shared = Arc::new(Shared {
+        core: Mutex::new(core),
+        store,
+        writes,
+        changed: watch::channel(0).0,
+        work: watch::channel(0).0,
+        config,
+    });
+    Ok((shared, rx, to_finish))
+}
+
+/// Runs the coordinator on `listener` until `shutdown` completes. Returns once in-flight
+/// requests have drained and queued state writes are durable.
+pub async fn serve(
+    config: Config,
+    listener: tokio::net::TcpListener,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<(), CoordinatorError> {
+    let max_msg = config.max_message_bytes;
+    let lease_timeout = config.lease_timeout;
+    let (shared, rx, to_finish) = open(config)?;
+    let writer = tokio::spawn(writer(shared.store.clone(), rx));
+    for id in to_finish {
+        tokio::spawn(finish_job(shared.clone(), id));
+    }
+    // Lapsed leases are noticed here as well as on each lease call, so that a long-polling
+    // worker wakes up for a unit whose holder died.
+    let ticker = {
+        let shared = Arc::downgrade(&shared);
+        let period = (lease_timeout / 8).clamp(Duration::from_millis(50), Duration::from_secs(1));
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(period);
+            loop {
+                tick.tick().await;
+                let Some(shared) = shared.upgrade() else {
+                    return;
+                };
+                let any = shared.core().expire(std::time::Instant::now());
+                if any {
+                    shared.bump_work();
+                }
+            }
+        })
+    };
+    let svc = service::Service {
+        shared: shared.clone(),
+    };
+    let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
+    let result = tonic::transport::Server::builder()
+        .add_service(
+            JobsServer::new(svc.clone())
+                .max_decoding_message_size(max_msg)
+                .max_encoding_message_size(max_msg),
+        )
+        .add_service(
+            WorkersServer::new(svc)
+                .max_decoding_message_size(max_msg)
+                .max_encoding_message_size(max_msg),
+        )
+        .serve_with_incoming_shutdown(incoming, shutdown)
+        .await;
+    ticker.abort();
+    drop(shared);
+    // The writer ends when the last sender (inside Shared) is gone; give stragglers (watch
+    // streams finishing their last message) a moment, then stop waiting.
+    let _ = tokio::time::timeout(Duration::from_secs(5), writer).await;
+    result?;
+    Ok(())
+}
+
+/// Whether `name` is an acceptable output file name.
+pub(crate) fn check_output_name(name: &str) -> Result<(), String> {
+    let ok = !name.is_empty()
+        && name.len() <= 128
+        && !name.starts_with('.')
+        && name.ends_with(".exr")
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'.' || b == b'_' || b == b'-');
+    if ok {
+        Ok(())
+    } else {
+        Err(format!(
+            "output name {:?} must be 1–128 letters, digits, '.', '_' or '-', not start with '.', and end in \".exr\"",
+            state::truncate(name)
+        ))
+    }
+}
+
+/// The EXR path of a job, if it is done.
+pub(crate) fn output_path(config: &Config, name: &str) -> PathBuf {
+    Path::new(&config.output_dir()).join(name)
+}

@@ -1,0 +1,702 @@
+//! The gRPC handlers: decode and check each request, call into [`Core`](crate::state::Core)
+//! under its lock, and wait for the store before replying where durability matters.
+
+use std::pin::Pin;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use tessera_proto::v1 as pb;
+use tessera_proto::v1::jobs_server::Jobs;
+use tessera_proto::v1::workers_server::Workers;
+use tessera_render::scene::{Format, Scene};
+use tessera_render::{PixelRect, Strategy, TileSums};
+use tokio::sync::mpsc;
+use tokio_stream::wrappers::ReceiverStream;
+use tokio_stream::Stream;
+use tonic::{Request, Response, Status};
+use tracing::{info, warn};
+
+use crate::state::{job_name, parse_job, truncate, Core, Job, Merged, Refusal, Unit};
+use crate::store::{JobPhase, JobRecord, Op, StoredScene};
+use crate::{check_output_name, durable, finish_job, now_ms, output_path, Shared};
+
+/// Both services over the same shared state.
+#[derive(Clone)]
+pub(crate) struct Service {
+    pub(crate) shared: Arc<Shared>,
+}
+
+type Stream_<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send>>;
+
+impl From<Refusal> for Status {
+    fn from(r: Refusal) -> Self {
+        match r {
+            Refusal::NotFound(m) => Status::not_found(m),
+            Refusal::Invalid(m) => Status::invalid_argument(m),
+            Refusal::Precondition(m) => Status::failed_precondition(m),
+        }
+    }
+}
+
+fn internal(e: String) -> Status {
+    Status::internal(format!("coordinator state store: {e}"))
+}
+
+fn job_id(s: &str) -> Result<u64, Status> {
+    parse_job(s).ok_or_else(|| {
+        Status::invalid_argument(format!(
+            "malformed job id {:?} (expected job-NNNNNN)",
+            truncate(s)
+        ))
+    })
+}
+
+fn strategy_to_pb(s: &str) -> pb::Strategy {
+    match Strategy::from_name(s) {
+        Some(Strategy::Bsdf) => pb::Strategy::Bsdf,
+        Some(Strategy::Nee) => pb::Strategy::Nee,
+        _ => pb::Strategy::Mis,
+    }
+}
+
+fn settings_pb(rec: &JobRecord) -> pb::RenderSettings {
+    pb::RenderSettings {
+        spp: rec.spp,
+        seed: rec.seed,
+        batch: rec.batch,
+        strategy: strategy_to_pb(&rec.strategy) as i32,
+    }
+}
+
+fn rect_pb(r: PixelRect) -> pb::Rect {
+    pb::Rect {
+        x0: r.x0,
+        y0: r.y0,
+        width: r.width,
+        height: r.height,
+    }
+}
+
+/// A job's status as sent to clients.
+fn status(job: &Job, core: &Core) -> pb::JobStatus {
+    let rec = &job.rec;
+    let state = match rec.phase {
+        JobPhase::Active if job.started => pb::JobState::Running,
+        JobPhase::Active => pb::JobState::Queued,
+        JobPhase::Done => pb::JobState::Done,
+        JobPhase::Cancelled => pb::JobState::Cancelled,
+        JobPhase::Failed => pb::JobState::Failed,
+    };
+    let samples_total = rec.width as u64 * rec.height as u64 * rec.spp as u64;
+    let samples_done = if rec.phase == JobPhase::Done {
+        samples_total
+    } else {
+        job.samples_done
+    };
+    let rate = job.rate();
+    let eta = if rec.phase == JobPhase::Done {
+        0.0
+    } else if rate > 0.0 && rec.phase == JobPhase::Active {
+        (samples_total - samples_done) as f64 / rate
+    } else {
+        -1.0
+    };
+    let (noise_rms, noise_relative) = job.noise();
+    let units_leased = job
+        .issued
+        .values()
+        .filter(|ids| {
+            ids.iter()
+                .any(|l| core.leases.get(l).is_some_and(|x| x.active))
+        })
+        .count() as u64;
+    pb::JobStatus {
+        job_id: job_name(rec.id),
+        state: state as i32,
+        priority: rec.priority,
+        scene_hash: rec.scene_hash.clone(),
+        scene_name: rec.scene_name.clone(),
+        output_name: rec.output_name.clone(),
+        width: rec.width,
+        height: rec.height,
+        settings: Some(settings_pb(rec)),
+        tile_size: rec.tile_size,
+        units_total: job.units_total(),
+        units_done: if rec.phase == JobPhase::Done {
+            job.units_total()
+        } else {
+            job.units_done
+        },
+        samples_total,
+        samples_done,
+        samples_per_second: rate,
+        eta_seconds: eta,
+        noise_rms,
+        noise_relative,
+        nonfinite_samples: job.nonfinite,
+        error: rec.error.clone(),
+        submitted_unix_ms: rec.submitted_ms,
+        finished_unix_ms: rec.finished_ms,
+        units_leased,
+    }
+}
+
+fn final_state(s: &pb::JobStatus) -> bool {
+    matches!(
+        pb::JobState::try_from(s.state),
+        Ok(pb::JobState::Done | pb::JobState::Cancelled | pb::JobState::Failed)
+    )
+}
+
+/// Converts a result from the wire, checking only what can be checked without the job.
+fn decode_result(r: pb::TileResult) -> Result<TileSums, Status> {
+    let rect = r
+        .rect
+        .ok_or_else(|| Status::invalid_argument("result has no rect"))?;
+    let rect = PixelRect {
+        x0: rect.x0,
+        y0: rect.y0,
+        width: rect.width,
+        height: rect.height,
+    };
+    let n = rect.width as u64 * rect.height as u64;
+    if r.sum.len() as u64 != 3 * n || r.sum_sq.len() as u64 != 3 * n || r.count.len() as u64 != n {
+        return Err(Status::invalid_argument(format!(
+            "result for a {}×{} rect has {} sums, {} squared sums and {} counts (want {}, {}, {})",
+            rect.width,
+            rect.height,
+            r.sum.len(),
+            r.sum_sq.len(),
+            r.count.len(),
+            3 * n,
+            3 * n,
+            n
+        )));
+    }
+    if r.sample_start > r.sample_end {
+        return Err(Status::invalid_argument(format!(
+            "result sample range {}..{} is backwards",
+            r.sample_start, r.sample_end
+        )));
+    }
+    let triples = |v: &[f64]| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    Ok(TileSums {
+        rect,
+        samples: r.sample_start..r.sample_end,
+        sum: triples(&r.sum),
+        sum_sq: triples(&r.sum_sq),
+        count: r.count,
+        nonfinite: r.nonfinite,
+    })
+}
+
+impl Service {
+    fn not_found(id: u64) -> Status {
+        Status::not_found(format!("unknown job {}", job_name(id)))
+    }
+
+    fn job_status(&self, id: u64) -> Result<pb::JobStatus, Status> {
+        let core = self.shared.core();
+        let job = core.jobs.get(&id).ok_or_else(|| Self::not_found(id))?;
+        Ok(status(job, &core))
+    }
+}
+
+#[tonic::async_trait]
+impl Jobs for Service {
+    async fn submit_job(
+        &self,
+        request: Request<pb::SubmitJobRequest>,
+    ) -> Result<Response<pb::SubmitJobResponse>, Status> {
+        let req = request.into_inner();
+        let config = &self.shared.config;
+        let s = req.settings.unwrap_or_default();
+        let limits = config.limits.clone();
+        if s.spp == 0 || s.spp > limits.max_spp {
+            return Err(Status::invalid_argument(format!(
+                "spp {} must be between 1 and {}",
+                s.spp, limits.max_spp
+            )));
+        }
+        let batch = if s.batch == 0 { 16 } else { s.batch };
+        if batch > 65536 {
+            return Err(Status::invalid_argument(format!(
+                "batch {batch} must be between 1 and 65536"
+            )));
+        }
+        let tile_size = if req.tile_size == 0 {
+            config.default_tile_size
+        } else {
+            req.tile_size
+        };
+        if !(4..=512).contains(&tile_size) {
+            return Err(Status::invalid_argument(format!(
+                "tile size {tile_size} must be between 4 and 512"
+            )));
+        }
+        let strategy = match pb::Strategy::try_from(s.strategy) {
+            Ok(pb::Strategy::Unspecified | pb::Strategy::Mis) => Strategy::Mis,
+            Ok(pb::Strategy::Bsdf) => Strategy::Bsdf,
+            Ok(pb::Strategy::Nee) => Strategy::Nee,
+            Err(_) => {
+                return Err(Status::invalid_argument(format!(
+                    "unknown strategy {}",
+                    s.strategy
+                )))
+            }
+        };
+        if !req.output_name.is_empty() {
+            check_output_name(&req.output_name).map_err(Status::invalid_argument)?;
+        }
+        let json = req.scene_format == pb::SceneFormat::Json as i32;
+        let name = if req.scene_name.is_empty() {
+            "scene".to_string()
+        } else {
+            truncate(&req.scene_name)
+        };
+        // Parsing builds the BVH: keep it off the async threads.
+        let text = req.scene_text;
+        let (scene, text, name) = tokio::task::spawn_blocking(move || {
+            let format = if json { Format::Json } else { Format::Toml };
+            let r = Scene::from_str(&text, format, &name, &limits);
+            (r, text, name)
+        })
+        .await
+        .map_err(|e| Status::internal(e.to_string()))?;
+        let scene = scene.map_err(|e| Status::invalid_argument(e.to_string()))?;
+        let tiles = PixelRect::tiles(scene.width, scene.height, tile_size).len() as u64;
+        let units = tiles * spp_batches(s.spp, batch);
+        if units > config.max_units_per_job {
+            return Err(Status::resource_exhausted(format!(
+                "the job would have {units} work units, above the limit of {} (use larger tiles or batches)",
+                config.max_units_per_job
+            )));
+        }
+        let (id, rx) = {
+            let mut core = self.shared.core();
+            let active = core
+                .jobs
+                .values()
+                .filter(|j| j.rec.phase == JobPhase::Active)
+                .count();
+            if active >= config.max_active_jobs {
+                return Err(Status::resource_exhausted(format!(
+                    "{active} jobs are already queued or running, the limit is {}",
+                    config.max_active_jobs
+                )));
+            }
+            let id = core.next_job;
+            let output_name = if req.output_name.is_empty() {
+                format!("{}.exr", job_name(id))
+            } else {
+                req.output_name
+            };
+            if let Some(other) = core
+                .jobs
+                .values()
+                .find(|j| j.rec.phase == JobPhase::Active && j.rec.output_name == output_name)
+            {
+                return Err(Status::already_exists(format!(
+                    "output name {output_name} is in use by {}, which is still running",
+                    job_name(other.rec.id)
+                )));
+            }
+            core.next_job += 1;
+            let rec = JobRecord {
+                id,
+                scene_hash: scene.hash.clone(),
+                scene_name: name.clone(),
+                width: scene.width,
+                height: scene.height,
+                spp: s.spp,
+                seed: s.seed,
+                batch,
+                strategy: strategy.name().to_string(),
+                tile_size,
+                output_name,
+                priority: req.priority,
+                variance: req.channels.as_ref().is_some_and(|c| c.variance),
+                sample_count: req.channels.as_ref().is_some_and(|c| c.sample_count),
+                phase: JobPhase::Active,
+                error: String::new(),
+                submitted_ms: now_ms(),
+                finished_ms: 0,
+            };
+            let ops = vec![
+                Op::PutScene(scene.hash.clone(), StoredScene { text, json, name }),
+                Op::PutJob(rec.clone()),
+            ];
+            core.jobs.insert(id, Job::new(rec));
+            (id, self.shared.queue_write(ops))
+        };
+        durable(rx).await.map_err(internal)?;
+        info!(
+            "{} submitted: {}×{} at {} spp, {units} units",
+            job_name(id),
+            scene.width,
+            scene.height,
+            s.spp
+        );
+        self.shared.bump_work();
+        self.shared.bump_changed();
+        Ok(Response::new(pb::SubmitJobResponse {
+            job_id: job_name(id),
+            scene_hash: scene.hash,
+            units,
+        }))
+    }
+
+    async fn get_job(
+        &self,
+        request: Request<pb::GetJobRequest>,
+    ) -> Result<Response<pb::JobStatus>, Status> {
+        let id = job_id(&request.into_inner().job_id)?;
+        Ok(Response::new(self.job_status(id)?))
+    }
+
+    type WatchJobStream = Stream_<pb::JobStatus>;
+
+    async fn watch_job(
+        &self,
+        request: Request<pb::WatchJobRequest>,
+    ) -> Result<Response<Self::WatchJobStream>, Status> {
+        let req = request.into_inner();
+        let id = job_id(&req.job_id)?;
+        let interval = Duration::from_millis(match req.interval_ms {
+            0 => 1000,
+            ms => ms.clamp(50, 60_000) as u64,
+        });
+        let first = self.job_status(id)?;
+        let (tx, rx) = mpsc::channel(4);
+        let shared = Arc::downgrade(&self.shared);
+        let mut changed = self.shared.changed.subscribe();
+        tokio::spawn(async move {
+            let mut msg = first;
+            loop {
+                let last = final_state(&msg);
+                if tx.send(Ok(msg)).await.is_err() || last {
+                    return;
+                }
+                // Wake on a change, but no more often than every tenth of the interval.
+                let _ = tokio::time::timeout(interval, changed.changed()).await;
+                tokio::time::sleep(interval / 10).await;
+                let Some(shared) = shared.upgrade() else {
+                    return;
+                };
+                let core = shared.core();
+                let Some(job) = core.jobs.get(&id) else {
+                    return;
+                };
+                msg = status(job, &core);
+            }
+        });
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+
+    async fn cancel_job(
+        &self,
+        request: Request<pb::CancelJobRequest>,
+    ) -> Result<Response<pb::CancelJobResponse>, Status> {
+        let id = job_id(&request.into_inner().job_id)?;
+        let rx = {
+            let mut core = self.shared.core();
+            let job = core.jobs.get(&id).ok_or_else(|| Self::not_found(id))?;
+            if job.rec.phase != JobPhase::Active || job.finishing {
+                let s = status(job, &core);
+                return Ok(Response::new(pb::CancelJobResponse { state: s.state }));
+            }
+            let ops = core.end_job(id, JobPhase::Cancelled, String::new(), now_ms());
+            self.shared.queue_write(ops)
+        };
+        durable(rx).await.map_err(internal)?;
+        info!("{} cancelled", job_name(id));
+        self.shared.bump_changed();
+        Ok(Response::new(pb::CancelJobResponse {
+            state: pb::JobState::Cancelled as i32,
+        }))
+    }
+
+    async fn list_jobs(
+        &self,
+        _request: Request<pb::ListJobsRequest>,
+    ) -> Result<Response<pb::ListJobsResponse>, Status> {
+        let core = self.shared.core();
+        let jobs = core
+            .schedule_order()
+            .into_iter()
+            .filter_map(|id| core.jobs.get(&id))
+            .map(|j| status(j, &core))
+            .collect();
+        Ok(Response::new(pb::ListJobsResponse { jobs }))
+    }
+
+    async fn list_workers(
+        &self,
+        _request: Request<pb::ListWorkersRequest>,
+    ) -> Result<Response<pb::ListWorkersResponse>, Status> {
+        let core = self.shared.core();
+        let now = Instant::now();
+        let workers = core
+            .workers
+            .iter()
+            .map(|(&n, w)| {
+                let idle = now.duration_since(w.last_seen);
+                pb::WorkerInfo {
+                    worker_id: core.worker_name(n),
+                    name: w.name.clone(),
+                    cores: w.cores,
+                    version: w.version.clone(),
+                    leases: core.leases_of(n) as u32,
+                    units_done: w.units_done,
+                    samples_done: w.samples_done,
+                    last_seen_ms_ago: idle.as_millis() as u64,
+                    alive: !w.gone && idle <= core.lease_time,
+                    bad_results: w.bad_results,
+                }
+            })
+            .collect();
+        Ok(Response::new(pb::ListWorkersResponse { workers }))
+    }
+
+    type FetchResultStream = Stream_<pb::ResultChunk>;
+
+    async fn fetch_result(
+        &self,
+        request: Request<pb::FetchResultRequest>,
+    ) -> Result<Response<Self::FetchResultStream>, Status> {
+        let id = job_id(&request.into_inner().job_id)?;
+        let s = self.job_status(id)?;
+        if s.state != pb::JobState::Done as i32 {
+            let state = pb::JobState::try_from(s.state)
+                .map(|st| {
+                    st.as_str_name()
+                        .trim_start_matches("JOB_STATE_")
+                        .to_lowercase()
+                })
+                .unwrap_or_default();
+            return Err(Status::failed_precondition(format!(
+                "{} is {state} ({}/{} units): its EXR is not ready",
+                s.job_id, s.units_done, s.units_total
+            )));
+        }
+        let path = output_path(&self.shared.config, &s.output_name);
+        let data = tokio::fs::read(&path).await.map_err(|e| {
+            Status::not_found(format!("{}'s output {}: {e}", s.job_id, s.output_name))
+        })?;
+        let total = data.len() as u64;
+        let name = s.output_name;
+        let chunks: Vec<Result<pb::ResultChunk, Status>> = data
+            .chunks(1 << 20)
+            .map(|c| {
+                Ok(pb::ResultChunk {
+                    data: c.to_vec(),
+                    total_bytes: total,
+                    output_name: name.clone(),
+                })
+            })
+            .collect();
+        Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))
+    }
+}
+
+fn spp_batches(spp: u32, batch: u32) -> u64 {
+    spp.div_ceil(batch.max(1)) as u64
+}
+
+#[tonic::async_trait]
+impl Workers for Service {
+    async fn register(
+        &self,
+        request: Request<pb::RegisterRequest>,
+    ) -> Result<Response<pb::RegisterResponse>, Status> {
+        let req = request.into_inner();
+        let lease = self.shared.config.lease_timeout;
+        let mut core = self.shared.core();
+        let n = core.register(
+            truncate(&req.name),
+            req.cores,
+            truncate(&req.version),
+            Instant::now(),
+        );
+        let id = core.worker_name(n);
+        info!(
+            "worker {id} ({}, {} cores) registered",
+            truncate(&req.name),
+            req.cores
+        );
+        Ok(Response::new(pb::RegisterResponse {
+            worker_id: id,
+            lease_ms: lease.as_millis() as u32,
+            heartbeat_ms: (lease / 4).as_millis().max(1) as u32,
+        }))
+    }
+
+    async fn lease(
+        &self,
+        request: Request<pb::LeaseRequest>,
+    ) -> Result<Response<pb::LeaseResponse>, Status> {
+        let req = request.into_inner();
+        let max = req.max_units.clamp(1, 64) as usize;
+        let deadline = Instant::now() + Duration::from_millis(req.wait_ms.min(30_000) as u64);
+        let mut work = self.shared.work.subscribe();
+        loop {
+            work.borrow_and_update();
+            let units = {
+                let mut core = self.shared.core();
+                let now = Instant::now();
+                let w = core.touch_worker(&req.worker_id, now)?;
+                let granted = core.lease(w, max, now);
+                let lease_ms = core.lease_time.as_millis() as u32;
+                granted
+                    .into_iter()
+                    .filter_map(|g| {
+                        let job = core.jobs.get(&g.job)?;
+                        let range = job.batch_range(g.unit.batch);
+                        Some(pb::WorkUnit {
+                            lease_id: core.lease_name(g.lease),
+                            job_id: job_name(g.job),
+                            scene_hash: job.rec.scene_hash.clone(),
+                            settings: Some(settings_pb(&job.rec)),
+                            rect: Some(rect_pb(job.tiles[g.unit.tile as usize])),
+                            tile_index: g.unit.tile,
+                            batch_index: g.unit.batch,
+                            sample_start: range.start,
+                            sample_end: range.end,
+                            lease_ms,
+                        })
+                    })
+                    .collect::<Vec<_>>()
+            };
+            if !units.is_empty() {
+                self.shared.bump_changed();
+                return Ok(Response::new(pb::LeaseResponse { units }));
+            }
+            let now = Instant::now();
+            if now >= deadline
+                || tokio::time::timeout(deadline - now, work.changed())
+                    .await
+                    .is_err()
+            {
+                return Ok(Response::new(pb::LeaseResponse { units: Vec::new() }));
+            }
+        }
+    }
+
+    async fn heartbeat(
+        &self,
+        request: Request<pb::HeartbeatRequest>,
+    ) -> Result<Response<pb::HeartbeatResponse>, Status> {
+        let req = request.into_inner();
+        if req.lease_ids.len() > 4096 {
+            return Err(Status::invalid_argument(format!(
+                "heartbeat lists {} leases; at most 4096",
+                req.lease_ids.len()
+            )));
+        }
+        let mut core = self.shared.core();
+        let now = Instant::now();
+        let w = core.touch_worker(&req.worker_id, now)?;
+        let revoked = core.heartbeat(w, &req.lease_ids, now);
+        Ok(Response::new(pb::HeartbeatResponse {
+            revoked,
+            lease_ms: core.lease_time.as_millis() as u32,
+        }))
+    }
+
+    async fn submit_result(
+        &self,
+        request: Request<pb::SubmitResultRequest>,
+    ) -> Result<Response<pb::SubmitResultResponse>, Status> {
+        let req = request.into_inner();
+        let job = job_id(&req.job_id)?;
+        let sums = decode_result(
+            req.result
+                .ok_or_else(|| Status::invalid_argument("request has no result"))?,
+        )?;
+        let unit = Unit {
+            tile: req.tile_index,
+            batch: req.batch_index,
+        };
+        let (merged, rx) = {
+            let mut core = self.shared.core();
+            let now = Instant::now();
+            let w = core.touch_worker(&req.worker_id, now)?;
+            match core.submit(w, &req.lease_id, job, unit, sums, now) {
+                Ok(Merged::New { ops, finished }) => {
+                    let rx = self.shared.queue_write(ops);
+                    (finished, Some(rx))
+                }
+                Ok(Merged::Duplicate) => {
+                    return Ok(Response::new(pb::SubmitResultResponse {
+                        outcome: pb::ResultOutcome::Duplicate as i32,
+                    }))
+                }
+                Ok(Merged::Discarded) => {
+                    return Ok(Response::new(pb::SubmitResultResponse {
+                        outcome: pb::ResultOutcome::Discarded as i32,
+                    }))
+                }
+                Err(r) => {
+                    warn!("result from {} refused: {r:?}", truncate(&req.worker_id));
+                    return Err(r.into());
+                }
+            }
+        };
+        if let Some(rx) = rx {
+            durable(rx).await.map_err(internal)?;
+        }
+        if merged {
+            tokio::spawn(finish_job(self.shared.clone(), job));
+        }
+        self.shared.bump_changed();
+        Ok(Response::new(pb::SubmitResultResponse {
+            outcome: pb::ResultOutcome::Merged as i32,
+        }))
+    }
+
+    async fn release_leases(
+        &self,
+        request: Request<pb::ReleaseLeasesRequest>,
+    ) -> Result<Response<pb::ReleaseLeasesResponse>, Status> {
+        let req = request.into_inner();
+        let released = {
+            let mut core = self.shared.core();
+            let w = core.touch_worker(&req.worker_id, Instant::now())?;
+            let n = core.release(w, &req.lease_ids);
+            if req.goodbye {
+                if let Some(worker) = core.workers.get_mut(&w) {
+                    worker.gone = true;
+                }
+            }
+            n
+        };
+        if released > 0 {
+            self.shared.bump_work();
+            self.shared.bump_changed();
+        }
+        Ok(Response::new(pb::ReleaseLeasesResponse { released }))
+    }
+
+    async fn get_scene(
+        &self,
+        request: Request<pb::GetSceneRequest>,
+    ) -> Result<Response<pb::GetSceneResponse>, Status> {
+        let hash = request.into_inner().scene_hash;
+        let store = self.shared.store.clone();
+        let h = hash.clone();
+        let scene = tokio::task::spawn_blocking(move || store.scene(&h))
+            .await
+            .map_err(|e| Status::internal(e.to_string()))?
+            .map_err(|e| internal(e.to_string()))?
+            .ok_or_else(|| Status::not_found(format!("unknown scene {}", truncate(&hash))))?;
+        Ok(Response::new(pb::GetSceneResponse {
+            scene_text: scene.text,
+            scene_format: if scene.json {
+                pb::SceneFormat::Json
+            } else {
+                pb::SceneFormat::Toml
+            } as i32,
+            scene_name: scene.name,
+        }))
+    }
+}

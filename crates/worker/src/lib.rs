@@ -1,0 +1,589 @@
+//! # tessera-worker
+//!
+//! A render worker. It registers with a coordinator, leases work units (one tile for one batch
+//! of samples), renders each on every core with rayon, and returns the partial sums.
+//!
+//! Three tasks form a pipeline so that the cores never wait for the network:
+//! - the *fetcher* leases the next unit (and fetches its scene once, by hash) while the current
+//!   one renders, holding at most one unit queued ahead;
+//! - the *renderer* runs each unit through [`tessera_render::render_tile`] inside
+//!   `spawn_blocking` + the worker's rayon pool (the renderer itself knows nothing of tokio);
+//! - the *submitter* sends results, retrying through network errors.
+//!
+//! A heartbeat renews the leases held and learns which ones the coordinator revoked (cancelled
+//! jobs). The gRPC channel reconnects by itself; calls that fail because the coordinator is
+//! unreachable are retried with capped exponential backoff, and a worker that the coordinator
+//! no longer knows (after a restart) registers again.
+//!
+//! On shutdown the worker stops leasing, finishes and sends the unit it is rendering (units
+//! take seconds at most), hands queued units back, and says goodbye.
+
+use std::collections::{HashMap, HashSet};
+use std::future::Future;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, RwLock};
+use std::time::Duration;
+
+use tessera_proto::v1 as pb;
+use tessera_proto::v1::workers_client::WorkersClient;
+use tessera_render::scene::{Format, Limits, Scene};
+use tessera_render::{render_tile, PixelRect, RenderSettings, Strategy, TileSums};
+use tokio::sync::{mpsc, watch, OwnedSemaphorePermit, Semaphore};
+use tonic::transport::{Channel, Endpoint};
+use tonic::{Code, Status};
+use tracing::{debug, info, warn};
+
+/// Worker settings.
+#[derive(Clone, Debug)]
+pub struct Config {
+    /// Coordinator URL, e.g. `http://10.0.0.5:7878`.
+    pub coordinator: String,
+    /// Render threads (default: every core).
+    pub threads: Option<usize>,
+    /// Name shown in `tessera workers`.
+    pub name: String,
+    /// Largest gRPC message accepted, in bytes (scenes can be large).
+    pub max_message_bytes: usize,
+    /// Longest wait between reconnection attempts.
+    pub max_backoff: Duration,
+    /// How long shutdown waits for the unit in progress before handing it back.
+    pub shutdown_grace: Duration,
+}
+
+impl Config {
+    /// Defaults for a coordinator URL.
+    pub fn new(coordinator: impl Into<String>) -> Self {
+        Self {
+            coordinator: coordinator.into(),
+            threads: None,
+            name: "worker".into(),
+            max_message_bytes: 48 << 20,
+            max_backoff: Duration::from_secs(10),
+            shutdown_grace: Duration::from_secs(30),
+        }
+    }
+}
+
+/// Why the worker stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum WorkerError {
+    /// The coordinator URL is not usable.
+    #[error("coordinator URL {url:?}: {message}")]
+    Url {
+        /// The URL.
+        url: String,
+        /// Why.
+        message: String,
+    },
+    /// The render threads could not start.
+    #[error("starting the render threads: {0}")]
+    Threads(String),
+}
+
+/// What the tasks share.
+struct Ctx {
+    client: WorkersClient<Channel>,
+    config: Config,
+    cores: u32,
+    pool: rayon::ThreadPool,
+    worker_id: RwLock<String>,
+    /// Heartbeat period the coordinator asked for.
+    heartbeat_ms: AtomicU64,
+    /// Leases held: queued, rendering or being sent.
+    held: Mutex<HashSet<String>>,
+    /// Leases the coordinator no longer wants.
+    revoked: Mutex<HashSet<String>>,
+    scenes: Mutex<HashMap<String, Arc<Scene>>>,
+    stop: watch::Receiver<bool>,
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Errors worth retrying: the coordinator is down, restarting or overloaded.
+fn transient(s: &Status) -> bool {
+    matches!(
+        s.code(),
+        Code::Unavailable | Code::Unknown | Code::DeadlineExceeded | Code::Aborted | Code::Internal
+    )
+}
+
+impl Ctx {
+    fn id(&self) -> String {
+        self.worker_id
+            .read()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
+    }
+
+    fn stopping(&self) -> bool {
+        *self.stop.borrow()
+    }
+
+    /// Sleeps for a backoff step; false if shutdown began meanwhile.
+    async fn backoff(&self, attempt: &mut u32) -> bool {
+        let ms = (100u64 << (*attempt).min(10)).min(self.config.max_backoff.as_millis() as u64);
+        *attempt += 1;
+        let mut stop = self.stop.clone();
+        tokio::select! {
+            _ = tokio::time::sleep(Duration::from_millis(ms)) => !self.stopping(),
+            _ = stop.wait_for(|s| *s) => false,
+        }
+    }
+
+    /// Registers (again), retrying until it works or shutdown begins.
+    async fn register(&self) -> bool {
+        let mut attempt = 0;
+        loop {
+            let req = pb::RegisterRequest {
+                name: self.config.name.clone(),
+                cores: self.cores,
+                version: env!("CARGO_PKG_VERSION").into(),
+            };
+            match self.client.clone().register(req).await {
+                Ok(r) => {
+                    let r = r.into_inner();
+                    info!(
+                        "registered with {} as {} ({} render threads)",
+                        self.config.coordinator, r.worker_id, self.cores
+                    );
+                    self.heartbeat_ms
+                        .store(r.heartbeat_ms.clamp(50, 60_000) as u64, Ordering::Relaxed);
+                    *self.worker_id.write().unwrap_or_else(|p| p.into_inner()) = r.worker_id;
+                    return true;
+                }
+                Err(e) => {
+                    if attempt == 0 || attempt % 10 == 0 {
+                        warn!("cannot reach {}: {}", self.config.coordinator, e.message());
+                    }
+                    if !self.backoff(&mut attempt).await {
+                        return false;
+                    }
+                }
+            }
+        }
+    }
+
+    /// The scene of a unit, fetched and parsed once per hash.
+    async fn scene(&self, hash: &str) -> Result<Arc<Scene>, Status> {
+        if let Some(s) = lock(&self.scenes).get(hash) {
+            return Ok(s.clone());
+        }
+        let mut attempt = 0;
+        let resp = loop {
+            let req = pb::GetSceneRequest {
+                scene_hash: hash.to_string(),
+            };
+            match self.client.clone().get_scene(req).await {
+                Ok(r) => break r.into_inner(),
+                Err(e) if transient(&e) && self.backoff(&mut attempt).await => continue,
+                Err(e) => return Err(e),
+            }
+        };
+        let format = if resp.scene_format == pb::SceneFormat::Json as i32 {
+            Format::Json
+        } else {
+            Format::Toml
+        };
+        let scene = tokio::task::spawn_blocking(move || {
+            Scene::from_str(
+                &resp.scene_text,
+                format,
+                &resp.scene_name,
+                &Limits::default(),
+            )
+        })
+        .await
+        .map_err(|e| Status::internal(e.to_string()))?
+        .map_err(|e| Status::invalid_argument(e.to_string()))?;
+        if scene.hash != hash {
+            return Err(Status::data_loss(format!(
+                "scene {hash} arrived with hash {}",
+                scene.hash
+            )));
+        }
+        let scene = Arc::new(scene);
+        lock(&self.scenes).insert(hash.to_string(), scene.clone());
+        Ok(scene)
+    }
+
+    async fn release(&self, leases: Vec<String>, goodbye: bool) {
+        if leases.is_empty() && !goodbye {
+            return;
+        }
+        for l in &leases {
+            lock(&self.held).remove(l);
+        }
+        let req = pb::ReleaseLeasesRequest {
+            worker_id: self.id(),
+            lease_ids: leases,
+            goodbye,
+        };
+        if let Err(e) = self.client.clone().release_leases(req).await {
+            debug!("releasing leases: {}", e.message());
+        }
+    }
+}
+
+/// A leased unit, ready to render.
+struct Ready {
+    unit: pb::WorkUnit,
+    scene: Arc<Scene>,
+    rect: PixelRect,
+    settings: RenderSettings,
+    _slot: OwnedSemaphorePermit,
+}
+
+/// Checks a unit against its scene and turns it into renderer arguments.
+fn prepare(unit: &pb::WorkUnit, scene: &Scene) -> Result<(PixelRect, RenderSettings), String> {
+    let r = unit.rect.as_ref().ok_or("unit has no rect")?;
+    let rect = PixelRect {
+        x0: r.x0,
+        y0: r.y0,
+        width: r.width,
+        height: r.height,
+    };
+    if !rect.fits(scene.width, scene.height) {
+        return Err(format!(
+            "unit rect {rect:?} is outside the {}×{} image",
+            scene.width, scene.height
+        ));
+    }
+    let s = unit.settings.as_ref().ok_or("unit has no settings")?;
+    if unit.sample_start >= unit.sample_end || unit.sample_end > s.spp || s.batch == 0 {
+        return Err(format!(
+            "unit samples {}..{} do not fit spp {} in batches of {}",
+            unit.sample_start, unit.sample_end, s.spp, s.batch
+        ));
+    }
+    let strategy = match pb::Strategy::try_from(s.strategy) {
+        Ok(pb::Strategy::Bsdf) => Strategy::Bsdf,
+        Ok(pb::Strategy::Nee) => Strategy::Nee,
+        _ => Strategy::Mis,
+    };
+    Ok((
+        rect,
+        RenderSettings {
+            seed: s.seed,
+            spp: s.spp,
+            batch: s.batch,
+            strategy,
+            ..RenderSettings::default()
+        },
+    ))
+}
+
+/// Leases units while there is room, and queues them for the renderer.
+async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
+    // One unit rendering and one queued ahead.
+    let slots = Arc::new(Semaphore::new(2));
+    let mut attempt = 0;
+    let mut stop = ctx.stop.clone();
+    loop {
+        let slot = tokio::select! {
+            s = slots.clone().acquire_owned() => match s { Ok(s) => s, Err(_) => return },
+            _ = stop.wait_for(|s| *s) => return,
+        };
+        let req = pb::LeaseRequest {
+            worker_id: ctx.id(),
+            max_units: 1,
+            wait_ms: 2000,
+        };
+        let mut client = ctx.client.clone();
+        let resp = tokio::select! {
+            r = client.lease(req) => r,
+            _ = stop.wait_for(|s| *s) => return,
+        };
+        let units = match resp {
+            Ok(r) => {
+                attempt = 0;
+                r.into_inner().units
+            }
+            Err(e) if e.code() == Code::NotFound => {
+                warn!("{}", e.message());
+                if !ctx.register().await {
+                    return;
+                }
+                continue;
+            }
+            Err(e) => {
+                if attempt == 0 || attempt % 10 == 0 {
+                    warn!("leasing from {}: {}", ctx.config.coordinator, e.message());
+                }
+                if !ctx.backoff(&mut attempt).await {
+                    return;
+                }
+                continue;
+            }
+        };
+        let mut slot = Some(slot);
+        for unit in units {
+            lock(&ctx.held).insert(unit.lease_id.clone());
+            let prepared = match ctx.scene(&unit.scene_hash).await {
+                Ok(scene) => prepare(&unit, &scene).map(|p| (scene, p)),
+                Err(e) => Err(format!("scene {}: {}", unit.scene_hash, e.message())),
+            };
+            let (scene, (rect, settings)) = match prepared {
+                Ok(p) => p,
+                Err(e) => {
+                    warn!(
+                        "unit {} of {}: {e}; handing it back",
+                        unit.lease_id, unit.job_id
+                    );
+                    ctx.release(vec![unit.lease_id], false).await;
+                    continue;
+                }
+            };
+            let Some(s) = slot.take() else { break };
+            let ready = Ready {
+                unit,
+                scene,
+                rect,
+                settings,
+                _slot: s,
+            };
+            if tx.send(ready).await.is_err() {
+                return;
+            }
+        }
+    }
+}
+
+/// A rendered unit on its way back.
+struct Done {
+    unit: pb::WorkUnit,
+    sums: TileSums,
+}
+
+/// Renders queued units one at a time on the whole pool.
+async fn renderer(ctx: Arc<Ctx>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::UnboundedSender<Done>) {
+    let mut stop = ctx.stop.clone();
+    loop {
+        let ready = tokio::select! {
+            biased;
+            _ = stop.wait_for(|s| *s) => break,
+            r = rx.recv() => match r { Some(r) => r, None => break },
+        };
+        if lock(&ctx.revoked).remove(&ready.unit.lease_id) {
+            lock(&ctx.held).remove(&ready.unit.lease_id);
+            continue;
+        }
+        let work = ctx.clone();
+        let (scene, settings, rect) = (ready.scene.clone(), ready.settings.clone(), ready.rect);
+        let samples = ready.unit.sample_start..ready.unit.sample_end;
+        let sums = tokio::task::spawn_blocking(move || {
+            work.pool
+                .install(|| render_tile(&scene, &settings, rect, samples))
+        })
+        .await;
+        match sums {
+            Ok(sums) => {
+                let _ = tx.send(Done {
+                    unit: ready.unit,
+                    sums,
+                });
+            }
+            Err(e) => warn!("render task failed: {e}"),
+        }
+    }
+    // Shutting down: hand back what is queued and not started.
+    rx.close();
+    let mut back = Vec::new();
+    while let Ok(r) = rx.try_recv() {
+        back.push(r.unit.lease_id);
+    }
+    if !back.is_empty() {
+        info!("handing back {} queued unit(s)", back.len());
+        ctx.release(back, false).await;
+    }
+}
+
+fn result_pb(unit: &pb::WorkUnit, sums: &TileSums) -> pb::TileResult {
+    let flat = |v: &[[f64; 3]]| v.iter().flatten().copied().collect::<Vec<f64>>();
+    pb::TileResult {
+        rect: unit.rect,
+        sample_start: sums.samples.start,
+        sample_end: sums.samples.end,
+        sum: flat(&sums.sum),
+        sum_sq: flat(&sums.sum_sq),
+        count: sums.count.clone(),
+        nonfinite: sums.nonfinite,
+    }
+}
+
+/// Sends results, retrying through network errors.
+async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
+    while let Some(done) = rx.recv().await {
+        let result = result_pb(&done.unit, &done.sums);
+        let mut attempt = 0;
+        loop {
+            let req = pb::SubmitResultRequest {
+                worker_id: ctx.id(),
+                lease_id: done.unit.lease_id.clone(),
+                job_id: done.unit.job_id.clone(),
+                tile_index: done.unit.tile_index,
+                batch_index: done.unit.batch_index,
+                result: Some(result.clone()),
+            };
+            match ctx.client.clone().submit_result(req).await {
+                Ok(_) => break,
+                Err(e) if e.code() == Code::NotFound && e.message().contains("unknown worker") => {
+                    if !ctx.register().await {
+                        break;
+                    }
+                }
+                Err(e) if transient(&e) => {
+                    if attempt == 0 || attempt % 10 == 0 {
+                        warn!("sending a result: {}; retrying", e.message());
+                    }
+                    // Keep retrying during shutdown too, but not past the grace period
+                    // (enforced by the caller's timeout).
+                    let ms =
+                        (100u64 << attempt.min(10)).min(ctx.config.max_backoff.as_millis() as u64);
+                    attempt += 1;
+                    tokio::time::sleep(Duration::from_millis(ms)).await;
+                }
+                Err(e) => {
+                    warn!(
+                        "result for {} tile {} batch {} refused: {}",
+                        done.unit.job_id,
+                        done.unit.tile_index,
+                        done.unit.batch_index,
+                        e.message()
+                    );
+                    break;
+                }
+            }
+        }
+        lock(&ctx.held).remove(&done.unit.lease_id);
+    }
+}
+
+/// Renews leases and learns which were revoked.
+async fn heartbeat(ctx: Arc<Ctx>) {
+    loop {
+        let every = Duration::from_millis(ctx.heartbeat_ms.load(Ordering::Relaxed));
+        tokio::time::sleep(every).await;
+        let lease_ids: Vec<String> = lock(&ctx.held).iter().cloned().collect();
+        let req = pb::HeartbeatRequest {
+            worker_id: ctx.id(),
+            lease_ids,
+        };
+        match ctx.client.clone().heartbeat(req).await {
+            Ok(r) => {
+                let revoked = r.into_inner().revoked;
+                if !revoked.is_empty() {
+                    debug!("{} lease(s) revoked", revoked.len());
+                    let mut held = lock(&ctx.held);
+                    let mut gone = lock(&ctx.revoked);
+                    for l in revoked {
+                        held.remove(&l);
+                        gone.insert(l);
+                    }
+                }
+            }
+            Err(e) => debug!("heartbeat: {}", e.message()),
+        }
+    }
+}
+
+/// A spawned task that is aborted when dropped, so that dropping (aborting) [`run`] stops
+/// everything the worker started, as a crash would.
+struct Task(tokio::task::JoinHandle<()>);
+
+impl Task {
+    fn spawn(f: impl Future<Output = ()> + Send + 'static) -> Self {
+        Self(tokio::spawn(f))
+    }
+
+    async fn join(&mut self) {
+        let _ = (&mut self.0).await;
+    }
+}
+
+impl Drop for Task {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
+/// The rayon pool units render on (kept out of `run` because the builder is not `Send`).
+fn render_pool(threads: Option<usize>) -> Result<rayon::ThreadPool, WorkerError> {
+    let mut pool = rayon::ThreadPoolBuilder::new().thread_name(|i| format!("render-{i}"));
+    if let Some(t) = threads {
+        pool = pool.num_threads(t);
+    }
+    pool.build()
+        .map_err(|e| WorkerError::Threads(e.to_string()))
+}
+
+/// Runs a worker until `shutdown` completes (then drains as described in the crate docs).
+pub async fn run(
+    config: Config,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<(), WorkerError> {
+    let endpoint = Endpoint::from_shared(config.coordinator.clone())
+        .map_err(|e| WorkerError::Url {
+            url: config.coordinator.clone(),
+            message: e.to_string(),
+        })?
+        .connect_timeout(Duration::from_secs(5))
+        .tcp_nodelay(true)
+        .http2_keep_alive_interval(Duration::from_secs(20))
+        .keep_alive_while_idle(true);
+    if !matches!(endpoint.uri().scheme_str(), Some("http")) {
+        return Err(WorkerError::Url {
+            url: config.coordinator.clone(),
+            message: "must start with http:// and name a host and port".into(),
+        });
+    }
+    let client = WorkersClient::new(endpoint.connect_lazy())
+        .max_decoding_message_size(config.max_message_bytes)
+        .max_encoding_message_size(config.max_message_bytes);
+    let pool = render_pool(config.threads)?;
+    let (stop_tx, stop) = watch::channel(false);
+    let ctx = Arc::new(Ctx {
+        client,
+        cores: pool.current_num_threads() as u32,
+        pool,
+        config: config.clone(),
+        worker_id: RwLock::new(String::new()),
+        heartbeat_ms: AtomicU64::new(2000),
+        held: Mutex::new(HashSet::new()),
+        revoked: Mutex::new(HashSet::new()),
+        scenes: Mutex::new(HashMap::new()),
+        stop,
+    });
+    let _signal = Task::spawn(async move {
+        shutdown.await;
+        let _ = stop_tx.send(true);
+    });
+    if !ctx.register().await {
+        return Ok(());
+    }
+    let (ready_tx, ready_rx) = mpsc::channel(1);
+    let (done_tx, done_rx) = mpsc::unbounded_channel();
+    let _beat = Task::spawn(heartbeat(ctx.clone()));
+    let mut fetch = Task::spawn(fetcher(ctx.clone(), ready_tx));
+    let mut render = Task::spawn(renderer(ctx.clone(), ready_rx, done_tx));
+    let mut submit = Task::spawn(submitter(ctx.clone(), done_rx));
+    let mut stop = ctx.stop.clone();
+    let _ = stop.wait_for(|s| *s).await;
+    info!("shutting down: finishing the unit in progress");
+    fetch.join().await;
+    let drained = async {
+        render.join().await;
+        submit.join().await;
+    };
+    if tokio::time::timeout(config.shutdown_grace, drained)
+        .await
+        .is_err()
+    {
+        warn!("unit in progress did not finish within the grace period; handing it back");
+    }
+    let left: Vec<String> = lock(&ctx.held).iter().cloned().collect();
+    ctx.release(left, true).await;
+    info!("worker stopped");
+    Ok(())
+}

@@ -1,0 +1,379 @@
+//! End-to-end farm tests: a coordinator and workers in-process on loopback (port 0), driven
+//! through the real gRPC API. The farm's EXR must be bit-identical to the local renderer's.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use tessera_coordinator::{serve, Config};
+use tessera_proto::v1 as pb;
+use tessera_proto::v1::jobs_client::JobsClient;
+use tessera_render::output::{render_metadata, write_exr, ExrChannels};
+use tessera_render::scene::{Format, Limits, Scene};
+use tessera_render::{render_frame, RenderSettings};
+use tokio::sync::oneshot;
+use tonic::transport::Channel;
+
+/// The Cornell box shrunk to `size`² so a farm run takes a second or two.
+fn scene_text(size: u32) -> String {
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-box.toml"),
+    )
+    .expect("read cornell-box.toml");
+    text.replace("width = 256", &format!("width = {size}"))
+        .replace("height = 256", &format!("height = {size}"))
+}
+
+/// A coordinator on an ephemeral port, stopped when dropped.
+struct Coordinator {
+    addr: SocketAddr,
+    stop: Option<oneshot::Sender<()>>,
+    task: tokio::task::JoinHandle<()>,
+    out: PathBuf,
+}
+
+impl Coordinator {
+    async fn start(data: &Path, lease: Duration) -> Self {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+            .await
+            .expect("bind");
+        let addr = listener.local_addr().expect("addr");
+        let mut config = Config::new(data);
+        config.lease_timeout = lease;
+        let out = config.output_dir();
+        let (tx, rx) = oneshot::channel::<()>();
+        let task = tokio::spawn(async move {
+            serve(config, listener, async {
+                let _ = rx.await;
+            })
+            .await
+            .expect("coordinator");
+        });
+        Self {
+            addr,
+            stop: Some(tx),
+            task,
+            out,
+        }
+    }
+
+    fn url(&self) -> String {
+        format!("http://{}", self.addr)
+    }
+
+    async fn client(&self) -> JobsClient<Channel> {
+        JobsClient::connect(self.url()).await.expect("connect")
+    }
+
+    async fn stop(mut self) {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+        let _ = (&mut self.task).await;
+    }
+}
+
+/// A worker task; dropping the handle (abort) kills it without any goodbye.
+fn worker(url: &str, name: &str) -> tokio::task::JoinHandle<()> {
+    let mut config = tessera_worker::Config::new(url);
+    config.threads = Some(1);
+    config.name = name.into();
+    tokio::spawn(async move {
+        tessera_worker::run(config, std::future::pending())
+            .await
+            .expect("worker");
+    })
+}
+
+async fn submit(
+    client: &mut JobsClient<Channel>,
+    text: &str,
+    spp: u32,
+    batch: u32,
+    priority: i32,
+) -> String {
+    client
+        .submit_job(pb::SubmitJobRequest {
+            scene_text: text.into(),
+            scene_format: pb::SceneFormat::Toml as i32,
+            scene_name: "cornell.toml".into(),
+            settings: Some(pb::RenderSettings {
+                spp,
+                seed: 7,
+                batch,
+                strategy: pb::Strategy::Mis as i32,
+            }),
+            tile_size: 16,
+            output_name: String::new(),
+            priority,
+            channels: None,
+        })
+        .await
+        .expect("submit")
+        .into_inner()
+        .job_id
+}
+
+/// Follows WatchJob to the end and returns the final status.
+async fn wait(client: &mut JobsClient<Channel>, job: &str) -> pb::JobStatus {
+    let mut stream = client
+        .watch_job(pb::WatchJobRequest {
+            job_id: job.into(),
+            interval_ms: 200,
+        })
+        .await
+        .expect("watch")
+        .into_inner();
+    let mut last = None;
+    let fut = async {
+        while let Some(s) = stream.message().await.expect("stream") {
+            last = Some(s);
+        }
+    };
+    tokio::time::timeout(Duration::from_secs(120), fut)
+        .await
+        .expect("job did not finish within 120 s");
+    last.expect("at least one status")
+}
+
+async fn fetch(client: &mut JobsClient<Channel>, job: &str) -> Vec<u8> {
+    let mut stream = client
+        .fetch_result(pb::FetchResultRequest { job_id: job.into() })
+        .await
+        .expect("fetch")
+        .into_inner();
+    let mut out = Vec::new();
+    while let Some(c) = stream.message().await.expect("chunk") {
+        out.extend_from_slice(&c.data);
+    }
+    out
+}
+
+/// The bytes `tessera render` writes for the same job.
+fn local_exr(text: &str, spp: u32, batch: u32, dir: &Path) -> Vec<u8> {
+    let scene =
+        Scene::from_str(text, Format::Toml, "cornell.toml", &Limits::default()).expect("scene");
+    let settings = RenderSettings {
+        seed: 7,
+        spp,
+        batch,
+        ..RenderSettings::default()
+    };
+    let image = render_frame(&scene, &settings, &|_| {}).finalize();
+    let path = dir.join("local.exr");
+    write_exr(
+        &path,
+        &image,
+        ExrChannels::default(),
+        &render_metadata(&scene.hash, &settings),
+    )
+    .expect("write");
+    std::fs::read(path).expect("read")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn three_workers_render_the_same_bits_as_a_local_render() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start(&dir.path().join("data"), Duration::from_secs(30)).await;
+    let workers: Vec<_> = (0..3)
+        .map(|i| worker(&coord.url(), &format!("w{i}")))
+        .collect();
+    let text = scene_text(48);
+    let mut client = coord.client().await;
+    let job = submit(&mut client, &text, 24, 8, 0).await;
+    let status = wait(&mut client, &job).await;
+    assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
+    assert_eq!(status.units_done, status.units_total);
+    assert_eq!(status.units_total, 9 * 3);
+    let farm = fetch(&mut client, &job).await;
+    assert_eq!(
+        std::fs::read(coord.out.join(format!("{job}.exr"))).expect("output file"),
+        farm
+    );
+    let local = local_exr(&text, 24, 8, dir.path());
+    assert!(farm == local, "farm EXR differs from the local render");
+
+    let listed = client
+        .list_workers(pb::ListWorkersRequest {})
+        .await
+        .expect("workers")
+        .into_inner()
+        .workers;
+    assert_eq!(listed.len(), 3);
+    assert_eq!(listed.iter().map(|w| w.units_done).sum::<u64>(), 27);
+    for w in workers {
+        w.abort();
+    }
+    coord.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_worker_killed_mid_job_does_not_break_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start(&dir.path().join("data"), Duration::from_millis(800)).await;
+    let text = scene_text(48);
+    let mut client = coord.client().await;
+    let job = submit(&mut client, &text, 64, 4, 0).await;
+    let doomed = worker(&coord.url(), "doomed");
+    // Let it merge some units and hold some leases, then kill it without a goodbye.
+    loop {
+        let s = client
+            .get_job(pb::GetJobRequest {
+                job_id: job.clone(),
+            })
+            .await
+            .expect("status")
+            .into_inner();
+        if s.units_done >= 10 {
+            assert!(
+                s.units_done < s.units_total,
+                "the job finished too fast to test"
+            );
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    doomed.abort();
+    let _ = doomed.await;
+    let held = client
+        .get_job(pb::GetJobRequest {
+            job_id: job.clone(),
+        })
+        .await
+        .expect("status")
+        .into_inner();
+    let survivor = worker(&coord.url(), "survivor");
+    let status = wait(&mut client, &job).await;
+    assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
+    assert!(
+        held.units_leased > 0,
+        "the killed worker held no lease, so nothing was tested"
+    );
+    let farm = fetch(&mut client, &job).await;
+    assert!(farm == local_exr(&text, 64, 4, dir.path()));
+    survivor.abort();
+    coord.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn priorities_order_jobs_and_cancel_frees_units() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start(&dir.path().join("data"), Duration::from_secs(30)).await;
+    let text = scene_text(32);
+    let mut client = coord.client().await;
+    // Submitted before any worker exists, so the scheduler alone decides the order.
+    let low = submit(&mut client, &text, 32, 4, 0).await;
+    let doomed = submit(&mut client, &text, 4096, 4, 5).await;
+    let high = submit(&mut client, &text, 32, 4, 10).await;
+    let jobs = client
+        .list_jobs(pb::ListJobsRequest {})
+        .await
+        .expect("list")
+        .into_inner()
+        .jobs;
+    let order: Vec<&str> = jobs.iter().map(|j| j.job_id.as_str()).collect();
+    assert_eq!(order, [high.as_str(), doomed.as_str(), low.as_str()]);
+    assert!(jobs.iter().all(|j| j.state == pb::JobState::Queued as i32));
+
+    let workers: Vec<_> = (0..2)
+        .map(|i| worker(&coord.url(), &format!("w{i}")))
+        .collect();
+    let high_status = wait(&mut client, &high).await;
+    assert_eq!(high_status.state, pb::JobState::Done as i32);
+    // The big job runs next; cancel it while it holds leases.
+    loop {
+        let s = client
+            .get_job(pb::GetJobRequest {
+                job_id: doomed.clone(),
+            })
+            .await
+            .expect("status")
+            .into_inner();
+        if s.units_done > 0 {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let cancelled = client
+        .cancel_job(pb::CancelJobRequest {
+            job_id: doomed.clone(),
+        })
+        .await
+        .expect("cancel")
+        .into_inner();
+    assert_eq!(cancelled.state, pb::JobState::Cancelled as i32);
+    let low_status = wait(&mut client, &low).await;
+    assert_eq!(low_status.state, pb::JobState::Done as i32);
+    assert!(high_status.finished_unix_ms <= low_status.finished_unix_ms);
+    let d = client
+        .get_job(pb::GetJobRequest {
+            job_id: doomed.clone(),
+        })
+        .await
+        .expect("status")
+        .into_inner();
+    assert_eq!(d.state, pb::JobState::Cancelled as i32);
+    assert_eq!(d.units_leased, 0, "cancel left leases behind");
+    assert!(d.units_done < d.units_total);
+    let err = client
+        .fetch_result(pb::FetchResultRequest {
+            job_id: doomed.clone(),
+        })
+        .await
+        .expect_err("a cancelled job has no result");
+    assert_eq!(err.code(), tonic::Code::FailedPrecondition);
+    assert!(!coord.out.join(format!("{doomed}.exr")).exists());
+    assert!(fetch(&mut client, &low).await == local_exr(&text, 32, 4, dir.path()));
+    for w in workers {
+        w.abort();
+    }
+    coord.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_submissions_are_refused_with_the_reason() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start(&dir.path().join("data"), Duration::from_secs(30)).await;
+    let mut client = coord.client().await;
+    let bad_scene = scene_text(32).replace("fov = 39.3077", "fov = 390");
+    let mut req = pb::SubmitJobRequest {
+        scene_text: bad_scene,
+        scene_format: pb::SceneFormat::Toml as i32,
+        scene_name: "box.toml".into(),
+        settings: Some(pb::RenderSettings {
+            spp: 4,
+            ..Default::default()
+        }),
+        ..Default::default()
+    };
+    let err = client.submit_job(req.clone()).await.expect_err("bad fov");
+    assert_eq!(err.code(), tonic::Code::InvalidArgument);
+    assert!(
+        err.message().starts_with("box.toml:10:7: camera.fov"),
+        "{}",
+        err.message()
+    );
+    req.scene_text = scene_text(32);
+    req.output_name = "../escape.exr".into();
+    let err = client.submit_job(req.clone()).await.expect_err("bad name");
+    assert!(err.message().contains("output name"), "{}", err.message());
+    req.output_name = String::new();
+    req.settings = Some(pb::RenderSettings::default());
+    let err = client.submit_job(req.clone()).await.expect_err("spp 0");
+    assert!(err.message().contains("spp 0"), "{}", err.message());
+    let err = client
+        .get_job(pb::GetJobRequest {
+            job_id: "job-999999".into(),
+        })
+        .await
+        .expect_err("unknown job");
+    assert_eq!(err.code(), tonic::Code::NotFound);
+    assert!(client
+        .list_jobs(pb::ListJobsRequest {})
+        .await
+        .expect("list")
+        .into_inner()
+        .jobs
+        .is_empty());
+    coord.stop().await;
+}
