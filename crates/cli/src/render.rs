@@ -54,11 +54,34 @@ pub struct RenderArgs {
     max_resolution: u32,
 }
 
+/// `--strategy` values.
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
-enum StrategyArg {
+pub enum StrategyArg {
+    /// Multiple importance sampling.
     Mis,
+    /// BSDF sampling only.
     Bsdf,
+    /// Light sampling only.
     Nee,
+}
+
+impl StrategyArg {
+    fn to_strategy(self) -> Strategy {
+        match self {
+            StrategyArg::Mis => Strategy::Mis,
+            StrategyArg::Bsdf => Strategy::Bsdf,
+            StrategyArg::Nee => Strategy::Nee,
+        }
+    }
+
+    /// The protocol's value.
+    pub fn to_pb(self) -> tessera_proto::v1::Strategy {
+        match self {
+            StrategyArg::Mis => tessera_proto::v1::Strategy::Mis,
+            StrategyArg::Bsdf => tessera_proto::v1::Strategy::Bsdf,
+            StrategyArg::Nee => tessera_proto::v1::Strategy::Nee,
+        }
+    }
 }
 
 /// Runs `tessera render`.
@@ -94,11 +117,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         seed: args.seed,
         spp: args.spp,
         batch: args.batch,
-        strategy: match args.strategy {
-            StrategyArg::Mis => Strategy::Mis,
-            StrategyArg::Bsdf => Strategy::Bsdf,
-            StrategyArg::Nee => Strategy::Nee,
-        },
+        strategy: args.strategy.to_strategy(),
         ..RenderSettings::default()
     };
     let mut pool = rayon::ThreadPoolBuilder::new();

@@ -264,10 +264,11 @@ async fn finish_job(shared: Arc<Shared>, id: u64) {
     shared.bump_changed();
 }
 
+/// The shared state, the writer's queue, and jobs whose units were all in at the last stop.
+type Opened = (Arc<Shared>, mpsc::UnboundedReceiver<Write>, Vec<u64>);
+
 /// Opens the store under `config.data_dir`, restores its jobs, and builds the shared state.
-fn open(
-    config: Config,
-) -> Result<(Arc<Shared>, mpsc::UnboundedReceiver<Write>, Vec<u64>), CoordinatorError> {
+fn open(config: Config) -> Result<Opened, CoordinatorError> {
     let out = config.output_dir();
     std::fs::create_dir_all(&out).map_err(|source| CoordinatorError::Output {
         path: out.display().to_string(),

@@ -321,6 +321,7 @@ impl Jobs for Service {
                 error: String::new(),
                 submitted_ms: now_ms(),
                 finished_ms: 0,
+                final_noise: (0.0, 0.0),
             };
             let ops = vec![
                 Op::PutScene(scene.hash.clone(), StoredScene { text, json, name }),

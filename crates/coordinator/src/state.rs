@@ -262,6 +262,9 @@ impl Job {
 
     /// RMS standard error of merged pixel means, and the same relative to the mean.
     pub fn noise(&self) -> (f64, f64) {
+        if self.acc.is_empty() {
+            return self.rec.final_noise;
+        }
         let (mut var, mut mean, mut n) = (0.0, 0.0, 0u64);
         for a in &self.acc {
             var += a.noise.0;
@@ -702,6 +705,9 @@ impl Core {
         let Some(job) = self.jobs.get_mut(&id) else {
             return Vec::new();
         };
+        if phase == JobPhase::Done {
+            job.rec.final_noise = job.noise();
+        }
         job.rec.phase = phase;
         job.rec.error = error;
         job.rec.finished_ms = now_ms;
@@ -753,6 +759,7 @@ mod tests {
             error: String::new(),
             submitted_ms: 0,
             finished_ms: 0,
+            final_noise: (0.0, 0.0),
         }
     }
 
@@ -880,6 +887,9 @@ mod tests {
             core.submit(b, &name, 1, again.unit, r, later),
             Ok(Merged::Duplicate)
         ));
-        assert_eq!(core.heartbeat(b, &[name.clone()], later), vec![name]);
+        assert_eq!(
+            core.heartbeat(b, std::slice::from_ref(&name), later),
+            vec![name]
+        );
     }
 }

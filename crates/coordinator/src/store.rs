@@ -112,6 +112,9 @@ pub struct JobRecord {
     pub submitted_ms: i64,
     /// End time, Unix ms (0 while active).
     pub finished_ms: i64,
+    /// Final noise estimate (RMS standard error, relative), kept once the sums are dropped.
+    #[serde(default)]
+    pub final_noise: (f64, f64),
 }
 
 /// One change to the store; a list of them is committed as one transaction.
@@ -404,6 +407,7 @@ mod tests {
             error: String::new(),
             submitted_ms: 1,
             finished_ms: 0,
+            final_noise: (0.0, 0.0),
         };
         {
             let store = Store::open(dir.path()).expect("open");

@@ -1,0 +1,587 @@
+//! The farm commands: `coordinator` and `worker` (servers), and `submit`, `status`, `cancel`,
+//! `workers` and `fetch` (clients of a coordinator's `Jobs` service).
+
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{anyhow, bail, Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+use tessera_proto::v1 as pb;
+use tessera_proto::v1::jobs_client::JobsClient;
+use tessera_render::scene::Limits;
+use tonic::transport::{Channel, Endpoint};
+use tonic::Code;
+
+/// Where client commands find the coordinator.
+#[derive(Debug, clap::Args)]
+pub struct CoordinatorUrl {
+    /// Coordinator URL.
+    #[arg(
+        long,
+        env = "TESSERA_COORDINATOR",
+        default_value = "http://127.0.0.1:7878"
+    )]
+    coordinator: String,
+}
+
+/// Arguments of `tessera coordinator`.
+#[derive(Debug, clap::Args)]
+pub struct CoordinatorArgs {
+    /// Address to listen on (use 0.0.0.0:7878 to accept workers from other machines).
+    #[arg(long, default_value = "127.0.0.1:7878")]
+    listen: String,
+    /// Directory for the durable state (jobs, scenes, merged sums).
+    #[arg(long)]
+    data_dir: PathBuf,
+    /// Directory for finished EXRs (default: DATA_DIR/output).
+    #[arg(long)]
+    output_dir: Option<PathBuf>,
+    /// Seconds a lease lasts without a heartbeat before its unit is handed to another worker.
+    #[arg(long, default_value_t = 30.0)]
+    lease_timeout: f64,
+    /// Default tile edge in pixels for jobs that do not choose one.
+    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u32).range(4..=512))]
+    tile_size: u32,
+    /// Largest scene accepted, in bytes.
+    #[arg(long, default_value_t = 32 << 20)]
+    max_scene_bytes: usize,
+    /// Largest spp accepted.
+    #[arg(long, default_value_t = Limits::default().max_spp)]
+    max_spp: u32,
+    /// Largest image width or height accepted.
+    #[arg(long, default_value_t = Limits::default().max_resolution)]
+    max_resolution: u32,
+}
+
+/// Arguments of `tessera worker`.
+#[derive(Debug, clap::Args)]
+pub struct WorkerArgs {
+    #[command(flatten)]
+    url: CoordinatorUrl,
+    /// Render threads (default: every core).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    threads: Option<u32>,
+    /// Name shown by `tessera workers` (default: the host name).
+    #[arg(long)]
+    name: Option<String>,
+}
+
+/// Arguments of `tessera submit`.
+#[derive(Debug, clap::Args)]
+pub struct SubmitArgs {
+    /// Scene file (TOML, or JSON by its .json extension).
+    scene: PathBuf,
+    #[command(flatten)]
+    url: CoordinatorUrl,
+    /// Samples per pixel.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    spp: u32,
+    /// Job seed.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Samples per batch (the same default as `tessera render`, so the bits match).
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=65536))]
+    batch: u32,
+    /// Tile edge in pixels (default: the coordinator's).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(4..=512))]
+    tile_size: Option<u32>,
+    /// Higher runs first.
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
+    priority: i32,
+    /// File name of the EXR in the coordinator's output directory (default: JOB.exr).
+    #[arg(long)]
+    name: Option<String>,
+    /// Direct-lighting strategy.
+    #[arg(long, value_enum, default_value_t = crate::render::StrategyArg::Mis)]
+    strategy: crate::render::StrategyArg,
+    /// Add variance-of-the-mean channels to the EXR.
+    #[arg(long)]
+    variance: bool,
+    /// Add a per-pixel sample-count channel to the EXR.
+    #[arg(long)]
+    sample_count: bool,
+    /// Follow the job with a progress bar, then fetch its EXR.
+    #[arg(long)]
+    wait: bool,
+    /// Where `--wait` saves the EXR (default: the job's output name, here).
+    #[arg(long, short)]
+    output: Option<PathBuf>,
+}
+
+/// Arguments of `tessera status`.
+#[derive(Debug, clap::Args)]
+pub struct StatusArgs {
+    /// A job id; without it, every job is listed.
+    job: Option<String>,
+    #[command(flatten)]
+    url: CoordinatorUrl,
+}
+
+/// Arguments of `tessera cancel`.
+#[derive(Debug, clap::Args)]
+pub struct CancelArgs {
+    /// Job id.
+    job: String,
+    #[command(flatten)]
+    url: CoordinatorUrl,
+}
+
+/// Arguments of `tessera workers`.
+#[derive(Debug, clap::Args)]
+pub struct WorkersArgs {
+    #[command(flatten)]
+    url: CoordinatorUrl,
+}
+
+/// Arguments of `tessera fetch`.
+#[derive(Debug, clap::Args)]
+pub struct FetchArgs {
+    /// Job id.
+    job: String,
+    #[command(flatten)]
+    url: CoordinatorUrl,
+    /// Where to save the EXR.
+    #[arg(long, short)]
+    output: PathBuf,
+    /// Wait for the job to finish first.
+    #[arg(long)]
+    wait: bool,
+}
+
+fn runtime() -> Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("starting the async runtime")
+}
+
+/// Logs to stderr; `RUST_LOG` overrides the default `info`.
+fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
+}
+
+/// Completes on Ctrl-C or SIGTERM.
+async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        _ = ctrl_c => {},
+        _ = term => {},
+    }
+    tracing::info!("signal received, shutting down");
+}
+
+/// Runs `tessera coordinator`.
+pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
+    if !(args.lease_timeout.is_finite() && (0.1..=86_400.0).contains(&args.lease_timeout)) {
+        bail!(
+            "--lease-timeout must be between 0.1 and 86400 seconds, got {}",
+            args.lease_timeout
+        );
+    }
+    init_logging();
+    let mut config = tessera_coordinator::Config::new(&args.data_dir);
+    config.output_dir = args.output_dir;
+    config.lease_timeout = Duration::from_secs_f64(args.lease_timeout);
+    config.default_tile_size = args.tile_size;
+    config.limits.max_bytes = args.max_scene_bytes;
+    config.limits.max_spp = args.max_spp;
+    config.limits.max_resolution = args.max_resolution;
+    config.max_message_bytes = config
+        .max_message_bytes
+        .max(args.max_scene_bytes + (1 << 20));
+    runtime()?.block_on(async {
+        let listener = tokio::net::TcpListener::bind(&args.listen)
+            .await
+            .with_context(|| format!("--listen {}: cannot listen", args.listen))?;
+        let addr = listener.local_addr()?;
+        tracing::info!("coordinator listening on {addr}");
+        // A line on stdout that scripts (and tests) can wait for.
+        println!("listening on {addr}");
+        let _ = std::io::stdout().flush();
+        tessera_coordinator::serve(config, listener, shutdown_signal()).await?;
+        Ok(())
+    })
+}
+
+/// Runs `tessera worker`.
+pub fn worker(args: WorkerArgs) -> Result<()> {
+    init_logging();
+    let mut config = tessera_worker::Config::new(args.url.coordinator);
+    config.threads = args.threads.map(|t| t as usize);
+    config.name = match args.name {
+        Some(n) => n,
+        None => hostname::get()
+            .ok()
+            .and_then(|h| h.into_string().ok())
+            .unwrap_or_else(|| "worker".into()),
+    };
+    runtime()?.block_on(tessera_worker::run(config, shutdown_signal()))?;
+    Ok(())
+}
+
+/// Turns a gRPC error into one line that says what failed.
+fn rpc_error(url: &str, what: &str, e: tonic::Status) -> anyhow::Error {
+    match e.code() {
+        Code::Unavailable => anyhow!("cannot reach the coordinator at {url}: {}", e.message()),
+        _ if e.message().contains(what) => anyhow!("{}", e.message()),
+        _ => anyhow!("{what}: {}", e.message()),
+    }
+}
+
+async fn connect(url: &str) -> Result<JobsClient<Channel>> {
+    let endpoint = Endpoint::from_shared(url.to_string())
+        .map_err(|e| anyhow!("--coordinator {url:?} is not a URL: {e}"))?
+        .connect_timeout(Duration::from_secs(5));
+    let channel = endpoint.connect().await.map_err(|e| {
+        let mut msg = e.to_string();
+        let mut src = std::error::Error::source(&e);
+        while let Some(s) = src {
+            msg = s.to_string();
+            src = s.source();
+        }
+        anyhow!("cannot reach the coordinator at {url}: {msg}")
+    })?;
+    Ok(JobsClient::new(channel)
+        .max_decoding_message_size(64 << 20)
+        .max_encoding_message_size(64 << 20))
+}
+
+fn state_name(state: i32) -> String {
+    pb::JobState::try_from(state)
+        .map(|s| {
+            s.as_str_name()
+                .trim_start_matches("JOB_STATE_")
+                .to_lowercase()
+        })
+        .unwrap_or_else(|_| "unknown".into())
+}
+
+fn fmt_eta(secs: f64) -> String {
+    if !(secs >= 0.0) {
+        return "?".into();
+    }
+    let s = secs.round() as u64;
+    if s >= 3600 {
+        format!("{}h{:02}m", s / 3600, s / 60 % 60)
+    } else {
+        format!("{}m{:02}s", s / 60, s % 60)
+    }
+}
+
+/// Follows a job until it ends, with a progress bar on stderr; errors unless it is done.
+async fn follow(client: &mut JobsClient<Channel>, url: &str, job: &str) -> Result<pb::JobStatus> {
+    let mut stream = client
+        .watch_job(pb::WatchJobRequest {
+            job_id: job.into(),
+            interval_ms: 500,
+        })
+        .await
+        .map_err(|e| rpc_error(url, job, e))?
+        .into_inner();
+    let bar = ProgressBar::new(1);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {wide_bar} {percent:>3}% {msg}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let mut last = None;
+    while let Some(s) = stream.message().await.map_err(|e| rpc_error(url, job, e))? {
+        bar.set_length(s.samples_total.max(1));
+        bar.set_position(s.samples_done);
+        bar.set_message(format!(
+            "{} {}/{} units, {:.2} Msamples/s, noise {:.2}%, ETA {}",
+            state_name(s.state),
+            s.units_done,
+            s.units_total,
+            s.samples_per_second / 1e6,
+            s.noise_relative * 100.0,
+            fmt_eta(s.eta_seconds)
+        ));
+        last = Some(s);
+    }
+    bar.finish_and_clear();
+    let s = last.ok_or_else(|| anyhow!("{job}: the coordinator closed the stream"))?;
+    match pb::JobState::try_from(s.state) {
+        Ok(pb::JobState::Done) => Ok(s),
+        Ok(pb::JobState::Failed) => bail!("{job} failed: {}", s.error),
+        _ => bail!("{job} ended {}", state_name(s.state)),
+    }
+}
+
+/// Streams a done job's EXR into `out` (atomically: temp file, then rename).
+async fn download(
+    client: &mut JobsClient<Channel>,
+    url: &str,
+    job: &str,
+    out: &Path,
+) -> Result<u64> {
+    let mut stream = client
+        .fetch_result(pb::FetchResultRequest { job_id: job.into() })
+        .await
+        .map_err(|e| rpc_error(url, job, e))?
+        .into_inner();
+    let mut data = Vec::new();
+    while let Some(c) = stream.message().await.map_err(|e| rpc_error(url, job, e))? {
+        data.extend_from_slice(&c.data);
+        if data.len() as u64 > c.total_bytes {
+            bail!("{job}: the coordinator sent more bytes than it announced");
+        }
+    }
+    let dir = out
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let tmp = dir.join(format!(
+        ".{}.part",
+        out.file_name().and_then(|n| n.to_str()).unwrap_or("fetch")
+    ));
+    std::fs::write(&tmp, &data).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, out).with_context(|| format!("writing {}", out.display()))?;
+    Ok(data.len() as u64)
+}
+
+fn check_output_dir(out: &Path) -> Result<()> {
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        if !dir.is_dir() {
+            bail!(
+                "{}: output directory {} does not exist",
+                out.display(),
+                dir.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Runs `tessera submit`.
+pub fn submit(args: SubmitArgs) -> Result<()> {
+    if let Some(o) = &args.output {
+        if !args.wait {
+            bail!("--output needs --wait (or use `tessera fetch JOB --output FILE` later)");
+        }
+        check_output_dir(o)?;
+    }
+    let text = std::fs::read_to_string(&args.scene)
+        .with_context(|| format!("{}: cannot read the scene", args.scene.display()))?;
+    let json = args
+        .scene
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+    let url = args.url.coordinator.clone();
+    runtime()?.block_on(async {
+        let mut client = connect(&url).await?;
+        let req = pb::SubmitJobRequest {
+            scene_text: text,
+            scene_format: if json {
+                pb::SceneFormat::Json
+            } else {
+                pb::SceneFormat::Toml
+            } as i32,
+            scene_name: args.scene.display().to_string(),
+            settings: Some(pb::RenderSettings {
+                spp: args.spp,
+                seed: args.seed,
+                batch: args.batch,
+                strategy: args.strategy.to_pb() as i32,
+            }),
+            tile_size: args.tile_size.unwrap_or(0),
+            output_name: args.name.clone().unwrap_or_default(),
+            priority: args.priority,
+            channels: Some(pb::OutputChannels {
+                variance: args.variance,
+                sample_count: args.sample_count,
+            }),
+        };
+        let resp = client
+            .submit_job(req)
+            .await
+            .map_err(|e| rpc_error(&url, "submit refused", e))?
+            .into_inner();
+        if !args.wait {
+            println!("{}", resp.job_id);
+            return Ok(());
+        }
+        eprintln!("{} submitted ({} units)", resp.job_id, resp.units);
+        let s = follow(&mut client, &url, &resp.job_id).await?;
+        let out = args
+            .output
+            .clone()
+            .unwrap_or_else(|| PathBuf::from(&s.output_name));
+        let bytes = download(&mut client, &url, &resp.job_id, &out).await?;
+        let secs = (s.finished_unix_ms - s.submitted_unix_ms) as f64 / 1000.0;
+        println!(
+            "{} done: {}×{} at {} spp in {:.2} s, noise σ≈{:.4} ({:.2}% of mean) → {} ({bytes} bytes)",
+            s.job_id,
+            s.width,
+            s.height,
+            s.settings.map(|x| x.spp).unwrap_or(0),
+            secs,
+            s.noise_rms,
+            s.noise_relative * 100.0,
+            out.display()
+        );
+        Ok(())
+    })
+}
+
+fn print_job(s: &pb::JobStatus) {
+    let settings = s.settings.unwrap_or_default();
+    println!("{}", s.job_id);
+    println!("  state      {}", state_name(s.state));
+    if !s.error.is_empty() {
+        println!("  error      {}", s.error);
+    }
+    println!("  scene      {} (sha256 {})", s.scene_name, s.scene_hash);
+    println!(
+        "  image      {}×{}, {} spp, seed {}, batch {}, tiles {}",
+        s.width, s.height, settings.spp, settings.seed, settings.batch, s.tile_size
+    );
+    println!("  priority   {}", s.priority);
+    println!(
+        "  progress   {}/{} units ({} leased), {}/{} samples",
+        s.units_done, s.units_total, s.units_leased, s.samples_done, s.samples_total
+    );
+    println!(
+        "  rate       {:.2} Msamples/s, ETA {}",
+        s.samples_per_second / 1e6,
+        fmt_eta(s.eta_seconds)
+    );
+    println!(
+        "  noise      σ≈{:.4} ({:.2}% of mean), {} non-finite samples",
+        s.noise_rms,
+        s.noise_relative * 100.0,
+        s.nonfinite_samples
+    );
+    println!("  output     {}", s.output_name);
+}
+
+/// Runs `tessera status`.
+pub fn status(args: StatusArgs) -> Result<()> {
+    let url = args.url.coordinator.clone();
+    runtime()?.block_on(async {
+        let mut client = connect(&url).await?;
+        if let Some(job) = &args.job {
+            let s = client
+                .get_job(pb::GetJobRequest {
+                    job_id: job.clone(),
+                })
+                .await
+                .map_err(|e| rpc_error(&url, job, e))?
+                .into_inner();
+            print_job(&s);
+            return Ok(());
+        }
+        let jobs = client
+            .list_jobs(pb::ListJobsRequest {})
+            .await
+            .map_err(|e| rpc_error(&url, "listing jobs", e))?
+            .into_inner()
+            .jobs;
+        println!(
+            "{:<12} {:<10} {:>8} {:>7} {:>10} {:>8}  SCENE",
+            "JOB", "STATE", "PRIORITY", "DONE", "UNITS", "ETA"
+        );
+        for s in jobs {
+            println!(
+                "{:<12} {:<10} {:>8} {:>6.1}% {:>10} {:>8}  {}",
+                s.job_id,
+                state_name(s.state),
+                s.priority,
+                100.0 * s.units_done as f64 / s.units_total.max(1) as f64,
+                s.units_total,
+                fmt_eta(s.eta_seconds),
+                s.scene_name
+            );
+        }
+        Ok(())
+    })
+}
+
+/// Runs `tessera cancel`.
+pub fn cancel(args: CancelArgs) -> Result<()> {
+    let url = args.url.coordinator.clone();
+    runtime()?.block_on(async {
+        let mut client = connect(&url).await?;
+        let r = client
+            .cancel_job(pb::CancelJobRequest {
+                job_id: args.job.clone(),
+            })
+            .await
+            .map_err(|e| rpc_error(&url, &args.job, e))?
+            .into_inner();
+        if r.state == pb::JobState::Cancelled as i32 {
+            println!("{} cancelled", args.job);
+            Ok(())
+        } else {
+            bail!("{} had already ended ({})", args.job, state_name(r.state))
+        }
+    })
+}
+
+/// Runs `tessera workers`.
+pub fn workers(args: WorkersArgs) -> Result<()> {
+    let url = args.url.coordinator.clone();
+    runtime()?.block_on(async {
+        let mut client = connect(&url).await?;
+        let workers = client
+            .list_workers(pb::ListWorkersRequest {})
+            .await
+            .map_err(|e| rpc_error(&url, "listing workers", e))?
+            .into_inner()
+            .workers;
+        println!(
+            "{:<10} {:<20} {:>5} {:<6} {:>6} {:>8} {:>12} {:>5} {:>9}",
+            "WORKER", "NAME", "CORES", "STATE", "LEASES", "UNITS", "SAMPLES", "BAD", "SEEN"
+        );
+        for w in workers {
+            println!(
+                "{:<10} {:<20} {:>5} {:<6} {:>6} {:>8} {:>12} {:>5} {:>8.1}s",
+                w.worker_id,
+                w.name,
+                w.cores,
+                if w.alive { "alive" } else { "gone" },
+                w.leases,
+                w.units_done,
+                w.samples_done,
+                w.bad_results,
+                w.last_seen_ms_ago as f64 / 1000.0
+            );
+        }
+        Ok(())
+    })
+}
+
+/// Runs `tessera fetch`.
+pub fn fetch(args: FetchArgs) -> Result<()> {
+    check_output_dir(&args.output)?;
+    let url = args.url.coordinator.clone();
+    runtime()?.block_on(async {
+        let mut client = connect(&url).await?;
+        if args.wait {
+            follow(&mut client, &url, &args.job).await?;
+        }
+        let bytes = download(&mut client, &url, &args.job, &args.output).await?;
+        println!("{} → {} ({bytes} bytes)", args.job, args.output.display());
+        Ok(())
+    })
+}

@@ -1,0 +1,233 @@
+//! The farm as a user runs it: a `tessera coordinator` process, two `tessera worker`
+//! processes and `tessera submit --wait`, on loopback. The fetched EXR must be the same bytes
+//! as `tessera render` writes.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_tessera");
+
+/// A child process killed when dropped, so a failing test leaves nothing running.
+struct Proc(Child);
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn repo(path: &str) -> String {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../..")
+        .join(path)
+        .display()
+        .to_string()
+}
+
+/// Starts a coordinator on port 0 and returns it with its URL (read from its stdout).
+fn coordinator(data: &Path) -> (Proc, String) {
+    let mut child = Command::new(BIN)
+        .args(["coordinator", "--listen", "127.0.0.1:0", "--data-dir"])
+        .arg(data)
+        .args(["--lease-timeout", "5"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start coordinator");
+    let stdout = child.stdout.take().expect("stdout");
+    let mut line = String::new();
+    BufReader::new(stdout)
+        .read_line(&mut line)
+        .expect("read the listening line");
+    let addr = line
+        .trim()
+        .strip_prefix("listening on ")
+        .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
+        .to_string();
+    (Proc(child), format!("http://{addr}"))
+}
+
+fn worker(url: &str, name: &str) -> Proc {
+    Proc(
+        Command::new(BIN)
+            .args([
+                "worker",
+                "--coordinator",
+                url,
+                "--threads",
+                "1",
+                "--name",
+                name,
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("start worker"),
+    )
+}
+
+fn tessera(args: &[&str], url: &str) -> Output {
+    Command::new(BIN)
+        .args(args)
+        .env("TESSERA_COORDINATOR", url)
+        .output()
+        .expect("run tessera")
+}
+
+fn one_line_failure(out: &Output, needle: &str) {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "should fail: {stderr}");
+    assert!(!stderr.contains("panicked"), "panic: {stderr}");
+    assert_eq!(stderr.trim().lines().count(), 1, "not one line: {stderr}");
+    assert!(stderr.contains(needle), "missing {needle:?} in: {stderr}");
+}
+
+fn wait_for(what: &str, mut f: impl FnMut() -> bool) {
+    let start = Instant::now();
+    while !f() {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "timed out waiting for {what}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn coordinator_two_workers_and_submit_wait_match_a_local_render() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, url) = coordinator(&dir.path().join("data"));
+    let _a = worker(&url, "a");
+    let mut b = worker(&url, "b");
+    let scene = repo("scenes/spheres.toml");
+    let farm = dir.path().join("farm.exr");
+    let out = tessera(
+        &[
+            "submit",
+            &scene,
+            "--spp",
+            "8",
+            "--batch",
+            "4",
+            "--seed",
+            "3",
+            "--wait",
+            "--output",
+            farm.to_str().expect("utf8"),
+        ],
+        &url,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("job-000001 done"), "{stdout}");
+
+    let local = dir.path().join("local.exr");
+    let out = tessera(
+        &[
+            "render",
+            &scene,
+            "--spp",
+            "8",
+            "--batch",
+            "4",
+            "--seed",
+            "3",
+            "--output",
+            local.to_str().expect("utf8"),
+        ],
+        &url,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        std::fs::read(&farm).expect("farm") == std::fs::read(&local).expect("local"),
+        "the farm's EXR differs from tessera render's"
+    );
+
+    // Both workers took part and are listed.
+    let out = tessera(&["workers"], &url);
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success());
+    for name in [" a ", " b "] {
+        assert!(table.contains(name), "{table}");
+    }
+
+    // Without --wait, submit prints the job id alone; fetch --wait then gets the same bytes.
+    let out = tessera(
+        &[
+            "submit", &scene, "--spp", "8", "--batch", "4", "--seed", "3",
+        ],
+        &url,
+    );
+    assert!(out.status.success());
+    assert_eq!(String::from_utf8_lossy(&out.stdout), "job-000002\n");
+    let again = dir.path().join("again.exr");
+    let out = tessera(
+        &[
+            "fetch",
+            "job-000002",
+            "--wait",
+            "-o",
+            again.to_str().expect("utf8"),
+        ],
+        &url,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(std::fs::read(&again).expect("again") == std::fs::read(&local).expect("local"));
+
+    // SIGTERM: the worker says goodbye and exits cleanly.
+    let pid = b.0.id().to_string();
+    let killed = Command::new("kill")
+        .args(["-TERM", &pid])
+        .status()
+        .expect("kill");
+    assert!(killed.success());
+    let mut status = None;
+    wait_for("the worker to exit", || {
+        status = b.0.try_wait().expect("wait");
+        status.is_some()
+    });
+    assert!(
+        status.is_some_and(|s| s.success()),
+        "worker exit {status:?}"
+    );
+    let out = tessera(&["workers"], &url);
+    let table = String::from_utf8_lossy(&out.stdout);
+    let line_b = table.lines().find(|l| l.contains(" b ")).expect("b listed");
+    assert!(line_b.contains("gone"), "{table}");
+
+    // Errors are one line and a non-zero exit.
+    one_line_failure(
+        &tessera(&["status", "job-000042"], &url),
+        "unknown job job-000042",
+    );
+    one_line_failure(&tessera(&["cancel", "job-000001"], &url), "already ended");
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(
+        &bad,
+        std::fs::read_to_string(&scene)
+            .expect("scene")
+            .replace("[film]", "[film]\nwidht = 3"),
+    )
+    .expect("write");
+    let out = tessera(&["submit", bad.to_str().expect("utf8"), "--spp", "1"], &url);
+    one_line_failure(&out, "widht");
+    one_line_failure(
+        &tessera(&["status"], "http://127.0.0.1:1"),
+        "cannot reach the coordinator at http://127.0.0.1:1",
+    );
+}
