@@ -41,7 +41,7 @@ pub struct CoordinatorArgs {
     #[arg(long, default_value_t = 30.0)]
     lease_timeout: f64,
     /// Default tile edge in pixels for jobs that do not choose one.
-    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u32).range(4..=512))]
+    #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u32).range(4..=512))]
     tile_size: u32,
     /// Largest scene accepted, in bytes.
     #[arg(long, default_value_t = 32 << 20)]

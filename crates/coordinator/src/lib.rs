@@ -64,7 +64,7 @@ impl Config {
             data_dir: data_dir.into(),
             output_dir: None,
             lease_timeout: Duration::from_secs(30),
-            default_tile_size: 64,
+            default_tile_size: 128,
             limits: Limits {
                 max_bytes: 32 << 20,
                 ..Limits::default()

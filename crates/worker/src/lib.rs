@@ -276,8 +276,8 @@ fn prepare(unit: &pb::WorkUnit, scene: &Scene) -> Result<(PixelRect, RenderSetti
 
 /// Leases units while there is room, and queues them for the renderer.
 async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
-    // One unit rendering and one queued ahead.
-    let slots = Arc::new(Semaphore::new(2));
+    // The units rendering and one queued ahead.
+    let slots = Arc::new(Semaphore::new(OVERLAP + 1));
     let mut attempt = 0;
     let mut stop = ctx.stop.clone();
     loop {
@@ -356,35 +356,47 @@ struct Done {
     sums: TileSums,
 }
 
-/// Renders queued units one at a time on the whole pool.
+/// Units rendering at once. Two, so that while one unit's last rows finish on a few threads,
+/// the other keeps the rest of the pool busy (rayon steals across both).
+const OVERLAP: usize = 2;
+
+/// Renders queued units on the whole pool, [`OVERLAP`] at a time.
 async fn renderer(ctx: Arc<Ctx>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::UnboundedSender<Done>) {
     let mut stop = ctx.stop.clone();
-    loop {
-        let ready = tokio::select! {
+    let mut running: tokio::task::JoinSet<Done> = tokio::task::JoinSet::new();
+    let mut open = true;
+    while open || !running.is_empty() {
+        tokio::select! {
             biased;
-            _ = stop.wait_for(|s| *s) => break,
-            r = rx.recv() => match r { Some(r) => r, None => break },
-        };
-        if lock(&ctx.revoked).remove(&ready.unit.lease_id) {
-            lock(&ctx.held).remove(&ready.unit.lease_id);
-            continue;
-        }
-        let work = ctx.clone();
-        let (scene, settings, rect) = (ready.scene.clone(), ready.settings.clone(), ready.rect);
-        let samples = ready.unit.sample_start..ready.unit.sample_end;
-        let sums = tokio::task::spawn_blocking(move || {
-            work.pool
-                .install(|| render_tile(&scene, &settings, rect, samples))
-        })
-        .await;
-        match sums {
-            Ok(sums) => {
-                let _ = tx.send(Done {
-                    unit: ready.unit,
-                    sums,
+            // Shutdown: take no new unit, but finish the ones started.
+            _ = stop.wait_for(|s| *s), if open => open = false,
+            Some(done) = running.join_next(), if !running.is_empty() => match done {
+                Ok(done) => {
+                    let _ = tx.send(done);
+                }
+                Err(e) => warn!("render task failed: {e}"),
+            },
+            r = rx.recv(), if open && running.len() < OVERLAP => {
+                let Some(ready) = r else {
+                    open = false;
+                    continue;
+                };
+                if lock(&ctx.revoked).remove(&ready.unit.lease_id) {
+                    lock(&ctx.held).remove(&ready.unit.lease_id);
+                    continue;
+                }
+                let work = ctx.clone();
+                running.spawn_blocking(move || {
+                    let samples = ready.unit.sample_start..ready.unit.sample_end;
+                    let sums = work.pool.install(|| {
+                        render_tile(&ready.scene, &ready.settings, ready.rect, samples)
+                    });
+                    Done {
+                        unit: ready.unit,
+                        sums,
+                    }
                 });
             }
-            Err(e) => warn!("render task failed: {e}"),
         }
     }
     // Shutting down: hand back what is queued and not started.
