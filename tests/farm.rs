@@ -6,13 +6,31 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use tessera_coordinator::{serve, Config};
+use tessera_proto::client::{endpoint, Bearer, ClientOptions, ClientTls};
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_client::JobsClient;
+use tessera_proto::v1::workers_client::WorkersClient;
+use tessera_proto::Secret;
 use tessera_render::output::{render_metadata, write_exr, ExrChannels};
 use tessera_render::scene::{Format, Limits, Scene};
 use tessera_render::{render_frame, RenderSettings};
+use tessera_render::{render_tile, PixelRect};
 use tokio::sync::oneshot;
+use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
+
+/// A `Jobs` client with a (possibly empty) token attached.
+type Client = JobsClient<InterceptedService<Channel, Bearer>>;
+
+/// Connects a `Jobs` client to `url` with `options`.
+async fn client_with(url: &str, options: &ClientOptions) -> Client {
+    let channel = endpoint(url, options)
+        .expect("endpoint")
+        .connect()
+        .await
+        .expect("connect");
+    JobsClient::with_interceptor(channel, Bearer::new(options))
+}
 
 /// The Cornell box shrunk to `size`² so a farm run takes a second or two.
 fn scene_text(size: u32) -> String {
@@ -34,12 +52,17 @@ struct Coordinator {
 
 impl Coordinator {
     async fn start(data: &Path, lease: Duration) -> Self {
+        Self::start_with(data, lease, |_| {}).await
+    }
+
+    async fn start_with(data: &Path, lease: Duration, edit: impl FnOnce(&mut Config)) -> Self {
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
             .await
             .expect("bind");
         let addr = listener.local_addr().expect("addr");
         let mut config = Config::new(data);
         config.lease_timeout = lease;
+        edit(&mut config);
         let out = config.output_dir();
         let (tx, rx) = oneshot::channel::<()>();
         let task = tokio::spawn(async move {
@@ -61,8 +84,8 @@ impl Coordinator {
         format!("http://{}", self.addr)
     }
 
-    async fn client(&self) -> JobsClient<Channel> {
-        JobsClient::connect(self.url()).await.expect("connect")
+    async fn client(&self) -> Client {
+        client_with(&self.url(), &ClientOptions::default()).await
     }
 
     async fn stop(mut self) {
@@ -75,9 +98,14 @@ impl Coordinator {
 
 /// A worker task; dropping the handle (abort) kills it without any goodbye.
 fn worker(url: &str, name: &str) -> tokio::task::JoinHandle<()> {
+    worker_with(url, name, ClientOptions::default())
+}
+
+fn worker_with(url: &str, name: &str, client: ClientOptions) -> tokio::task::JoinHandle<()> {
     let mut config = tessera_worker::Config::new(url);
     config.threads = Some(1);
     config.name = name.into();
+    config.client = client;
     tokio::spawn(async move {
         tessera_worker::run(config, std::future::pending())
             .await
@@ -85,13 +113,7 @@ fn worker(url: &str, name: &str) -> tokio::task::JoinHandle<()> {
     })
 }
 
-async fn submit(
-    client: &mut JobsClient<Channel>,
-    text: &str,
-    spp: u32,
-    batch: u32,
-    priority: i32,
-) -> String {
+async fn submit(client: &mut Client, text: &str, spp: u32, batch: u32, priority: i32) -> String {
     client
         .submit_job(pb::SubmitJobRequest {
             scene_text: text.into(),
@@ -115,7 +137,7 @@ async fn submit(
 }
 
 /// Follows WatchJob to the end and returns the final status.
-async fn wait(client: &mut JobsClient<Channel>, job: &str) -> pb::JobStatus {
+async fn wait(client: &mut Client, job: &str) -> pb::JobStatus {
     let mut stream = client
         .watch_job(pb::WatchJobRequest {
             job_id: job.into(),
@@ -136,7 +158,7 @@ async fn wait(client: &mut JobsClient<Channel>, job: &str) -> pb::JobStatus {
     last.expect("at least one status")
 }
 
-async fn fetch(client: &mut JobsClient<Channel>, job: &str) -> Vec<u8> {
+async fn fetch(client: &mut Client, job: &str) -> Vec<u8> {
     let mut stream = client
         .fetch_result(pb::FetchResultRequest { job_id: job.into() })
         .await
@@ -375,5 +397,300 @@ async fn bad_submissions_are_refused_with_the_reason() {
         .into_inner()
         .jobs
         .is_empty());
+    coord.stop().await;
+}
+
+/// A coordinator that requires a token refuses calls without it or with a wrong one, on both
+/// services, and works with the right one.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_token_is_required_on_every_service() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let token = Secret::new("farm-token-0123456789abcdef");
+    let t = token.clone();
+    let coord = Coordinator::start_with(&dir.path().join("data"), Duration::from_secs(30), |c| {
+        c.token = Some(t)
+    })
+    .await;
+    let url = coord.url();
+    let good = ClientOptions {
+        token: Some(token.clone()),
+        tls: None,
+    };
+    let wrong = ClientOptions {
+        token: Some(Secret::new("farm-token-0123456789abcdeX")),
+        tls: None,
+    };
+    let text = scene_text(16);
+    for options in [ClientOptions::default(), wrong.clone()] {
+        let mut client = client_with(&url, &options).await;
+        let req = pb::SubmitJobRequest {
+            scene_text: text.clone(),
+            settings: Some(pb::RenderSettings {
+                spp: 1,
+                ..Default::default()
+            }),
+            ..Default::default()
+        };
+        let e = client
+            .submit_job(req)
+            .await
+            .expect_err("submit without the token");
+        assert_eq!(e.code(), tonic::Code::Unauthenticated, "{e:?}");
+        let e = client
+            .fetch_result(pb::FetchResultRequest {
+                job_id: "job-000001".into(),
+            })
+            .await
+            .expect_err("fetch without the token");
+        assert_eq!(e.code(), tonic::Code::Unauthenticated);
+        let e = client
+            .list_jobs(pb::ListJobsRequest {})
+            .await
+            .expect_err("list without the token");
+        assert_eq!(e.code(), tonic::Code::Unauthenticated);
+        let channel = endpoint(&url, &options).expect("ep").connect_lazy();
+        let mut workers = WorkersClient::with_interceptor(channel, Bearer::new(&options));
+        let e = workers
+            .lease(pb::LeaseRequest {
+                worker_id: "w1-1".into(),
+                max_units: 1,
+                wait_ms: 0,
+            })
+            .await
+            .expect_err("lease without the token");
+        assert_eq!(e.code(), tonic::Code::Unauthenticated);
+        let e = workers
+            .register(pb::RegisterRequest::default())
+            .await
+            .expect_err("register without the token");
+        assert_eq!(e.code(), tonic::Code::Unauthenticated);
+    }
+    // A worker with the wrong token stops with an error instead of retrying forever.
+    let mut config = tessera_worker::Config::new(url.clone());
+    config.client = wrong;
+    let err = tessera_worker::run(config, std::future::pending())
+        .await
+        .expect_err("refused");
+    assert!(err.to_string().contains("wrong token"), "{err}");
+
+    let w = worker_with(&url, "ok", good.clone());
+    let mut client = client_with(&url, &good).await;
+    let job = submit(&mut client, &text, 4, 2, 0).await;
+    assert_eq!(
+        wait(&mut client, &job).await.state,
+        pb::JobState::Done as i32
+    );
+    assert!(fetch(&mut client, &job).await == local_exr(&text, 4, 2, dir.path()));
+    w.abort();
+    coord.stop().await;
+}
+
+/// A job runs end to end over TLS (server certificate from a test CA), with a token too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_job_completes_over_tls() {
+    let ca_key = rcgen::KeyPair::generate().expect("key");
+    let mut ca_params = rcgen::CertificateParams::new(Vec::<String>::new()).expect("params");
+    ca_params.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);
+    let ca = ca_params.self_signed(&ca_key).expect("ca");
+    let issuer = rcgen::Issuer::new(ca_params, ca_key);
+    let key = rcgen::KeyPair::generate().expect("key");
+    let params = rcgen::CertificateParams::new(vec!["localhost".to_string()]).expect("params");
+    let cert = params.signed_by(&key, &issuer).expect("cert");
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let token = Secret::new("tls-token-0123456789abcdef");
+    let (t, cert_pem, key_pem) = (token.clone(), cert.pem(), key.serialize_pem());
+    let coord = Coordinator::start_with(&dir.path().join("data"), Duration::from_secs(30), |c| {
+        c.token = Some(t);
+        c.tls = Some(tessera_coordinator::ServerTls {
+            cert_pem: cert_pem.into_bytes(),
+            key_pem: Secret::new(key_pem),
+            client_ca_pem: None,
+        });
+    })
+    .await;
+    let url = format!("https://localhost:{}", coord.addr.port());
+    let options = ClientOptions {
+        token: Some(token),
+        tls: Some(ClientTls {
+            ca_pem: Some(ca.pem().into_bytes()),
+            identity: None,
+            domain: None,
+        }),
+    };
+    // Plain HTTP to a TLS port fails rather than leaking anything.
+    let plain = format!("http://127.0.0.1:{}", coord.addr.port());
+    let channel = endpoint(&plain, &ClientOptions::default())
+        .expect("ep")
+        .connect_lazy();
+    let mut raw = JobsClient::new(channel);
+    assert!(raw.list_jobs(pb::ListJobsRequest {}).await.is_err());
+
+    let w = worker_with(&url, "tls", options.clone());
+    let text = scene_text(16);
+    let mut client = client_with(&url, &options).await;
+    let job = submit(&mut client, &text, 4, 2, 0).await;
+    assert_eq!(
+        wait(&mut client, &job).await.state,
+        pb::JobState::Done as i32
+    );
+    assert!(fetch(&mut client, &job).await == local_exr(&text, 4, 2, dir.path()));
+    w.abort();
+    coord.stop().await;
+}
+
+/// A forged worker sends NaN sums, wrong dimensions, a lease issued for another unit, a lease
+/// from before a restart, and a duplicate. Each is refused or deduplicated, the worker is
+/// quarantined, and the image is still bit-identical.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn forged_results_are_refused_and_leave_the_image_unaffected() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start(&dir.path().join("data"), Duration::from_secs(30)).await;
+    let url = coord.url();
+    let text = scene_text(32);
+    let mut client = coord.client().await;
+    let job = submit(&mut client, &text, 8, 4, 0).await;
+    let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
+    let settings = RenderSettings {
+        seed: 7,
+        spp: 8,
+        batch: 4,
+        ..RenderSettings::default()
+    };
+
+    let channel = endpoint(&url, &ClientOptions::default())
+        .expect("ep")
+        .connect_lazy();
+    let mut forger = WorkersClient::new(channel);
+    let id = forger
+        .register(pb::RegisterRequest {
+            name: "forger".into(),
+            cores: 1,
+            version: "0".into(),
+        })
+        .await
+        .expect("register")
+        .into_inner()
+        .worker_id;
+    let units = forger
+        .lease(pb::LeaseRequest {
+            worker_id: id.clone(),
+            max_units: 2,
+            wait_ms: 0,
+        })
+        .await
+        .expect("lease")
+        .into_inner()
+        .units;
+    assert_eq!(units.len(), 2);
+    let honest = |u: &pb::WorkUnit| {
+        let r = u.rect.expect("rect");
+        let rect = PixelRect {
+            x0: r.x0,
+            y0: r.y0,
+            width: r.width,
+            height: r.height,
+        };
+        let sums = render_tile(&scene, &settings, rect, u.sample_start..u.sample_end);
+        pb::TileResult {
+            rect: u.rect,
+            sample_start: u.sample_start,
+            sample_end: u.sample_end,
+            sum: sums.sum.iter().flatten().copied().collect(),
+            sum_sq: sums.sum_sq.iter().flatten().copied().collect(),
+            count: sums.count,
+            nonfinite: sums.nonfinite,
+        }
+    };
+    let send = |lease: &str, u: &pb::WorkUnit, result: pb::TileResult| pb::SubmitResultRequest {
+        worker_id: id.clone(),
+        lease_id: lease.into(),
+        job_id: u.job_id.clone(),
+        tile_index: u.tile_index,
+        batch_index: u.batch_index,
+        result: Some(result),
+    };
+    let (a, b) = (&units[0], &units[1]);
+    let mut nan = honest(a);
+    nan.sum[5] = f64::NAN;
+    let mut short = honest(a);
+    short.sum.truncate(9);
+    let mut wrong_rect = honest(a);
+    wrong_rect.rect = b.rect;
+    let cases = [
+        (
+            "NaN sums",
+            send(&a.lease_id, a, nan),
+            tonic::Code::InvalidArgument,
+        ),
+        (
+            "wrong dimensions",
+            send(&a.lease_id, a, short),
+            tonic::Code::InvalidArgument,
+        ),
+        (
+            "another tile's rect",
+            send(&a.lease_id, a, wrong_rect),
+            tonic::Code::InvalidArgument,
+        ),
+        (
+            "lease of another unit",
+            send(&b.lease_id, a, honest(a)),
+            tonic::Code::FailedPrecondition,
+        ),
+        (
+            "stale lease",
+            send("L0-1", a, honest(a)),
+            tonic::Code::FailedPrecondition,
+        ),
+    ];
+    for (what, req, code) in cases {
+        let e = forger.submit_result(req).await.expect_err(what);
+        assert_eq!(e.code(), code, "{what}: {e:?}");
+    }
+    // The honest result is merged once; its copy is a duplicate.
+    let ok = forger
+        .submit_result(send(&b.lease_id, b, honest(b)))
+        .await
+        .expect("honest")
+        .into_inner();
+    assert_eq!(ok.outcome, pb::ResultOutcome::Merged as i32);
+    let dup = forger
+        .submit_result(send(&b.lease_id, b, honest(b)))
+        .await
+        .expect("duplicate")
+        .into_inner();
+    assert_eq!(dup.outcome, pb::ResultOutcome::Duplicate as i32);
+    // Three invalid results so far (a foreign or stale lease is not counted: it happens
+    // honestly after restarts); two more reach the quarantine limit (5).
+    for _ in 0..2 {
+        let mut nan = honest(a);
+        nan.sum_sq[0] = f64::INFINITY;
+        let _ = forger.submit_result(send(&a.lease_id, a, nan)).await;
+    }
+    let e = forger
+        .lease(pb::LeaseRequest {
+            worker_id: id.clone(),
+            max_units: 1,
+            wait_ms: 0,
+        })
+        .await
+        .expect_err("quarantined");
+    assert_eq!(e.code(), tonic::Code::PermissionDenied);
+    let listed = client
+        .list_workers(pb::ListWorkersRequest {})
+        .await
+        .expect("workers")
+        .into_inner()
+        .workers;
+    let f = listed.iter().find(|w| w.name == "forger").expect("listed");
+    assert!(f.quarantined);
+    assert_eq!(f.bad_results, 5);
+
+    let w = worker(&url, "honest");
+    let status = wait(&mut client, &job).await;
+    assert_eq!(status.state, pb::JobState::Done as i32);
+    assert!(fetch(&mut client, &job).await == local_exr(&text, 8, 4, dir.path()));
+    w.abort();
     coord.stop().await;
 }

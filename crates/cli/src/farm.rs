@@ -7,22 +7,93 @@ use std::time::Duration;
 
 use anyhow::{anyhow, bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
+use tessera_coordinator::ServerTls;
+use tessera_proto::client::{endpoint, Bearer, ClientOptions, ClientTls};
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_client::JobsClient;
+use tessera_proto::{parse_token, Secret};
 use tessera_render::scene::Limits;
-use tonic::transport::{Channel, Endpoint};
+use tonic::service::interceptor::InterceptedService;
+use tonic::transport::Channel;
 use tonic::Code;
 
-/// Where client commands find the coordinator.
+/// Where client commands find the coordinator, and how they prove who they are.
 #[derive(Debug, clap::Args)]
 pub struct CoordinatorUrl {
-    /// Coordinator URL.
+    /// Coordinator URL (https:// with --tls-ca for TLS).
     #[arg(
         long,
         env = "TESSERA_COORDINATOR",
         default_value = "http://127.0.0.1:7878"
     )]
     coordinator: String,
+    /// File holding the farm's token (default: the TESSERA_TOKEN environment variable, if set).
+    #[arg(long)]
+    token_file: Option<PathBuf>,
+    /// PEM CA certificate that signed the coordinator's certificate (enables TLS).
+    #[arg(long)]
+    tls_ca: Option<PathBuf>,
+    /// PEM client certificate, for coordinators that require one (mutual TLS).
+    #[arg(long, requires = "tls_key")]
+    tls_cert: Option<PathBuf>,
+    /// PEM private key of --tls-cert.
+    #[arg(long, requires = "tls_cert")]
+    tls_key: Option<PathBuf>,
+    /// Name to check the coordinator's certificate against (default: the URL's host).
+    #[arg(long)]
+    tls_domain: Option<String>,
+}
+
+fn read_file(what: &str, path: &Path) -> Result<Vec<u8>> {
+    std::fs::read(path).with_context(|| format!("{what} {}: cannot read", path.display()))
+}
+
+/// The token from `--token-file`, or else from `TESSERA_TOKEN`. Read by hand rather than by
+/// clap's `env`, so that `--help` can never print it.
+fn load_token(file: Option<&Path>) -> Result<Option<Secret>> {
+    let (text, source) = match file {
+        Some(p) => (
+            String::from_utf8(read_file("--token-file", p)?)
+                .map_err(|_| anyhow!("--token-file {}: not text", p.display()))?,
+            format!("--token-file {}", p.display()),
+        ),
+        None => match std::env::var("TESSERA_TOKEN") {
+            Ok(t) if !t.trim().is_empty() => (t, "TESSERA_TOKEN".to_string()),
+            _ => return Ok(None),
+        },
+    };
+    parse_token(&text)
+        .map(Some)
+        .map_err(|e| anyhow!("{source}: {e}"))
+}
+
+impl CoordinatorUrl {
+    fn options(&self) -> Result<ClientOptions> {
+        let tls = if self.tls_ca.is_some() || self.tls_cert.is_some() {
+            let identity = match (&self.tls_cert, &self.tls_key) {
+                (Some(c), Some(k)) => Some((
+                    read_file("--tls-cert", c)?,
+                    Secret::new(String::from_utf8_lossy(&read_file("--tls-key", k)?)),
+                )),
+                _ => None,
+            };
+            Some(ClientTls {
+                ca_pem: self
+                    .tls_ca
+                    .as_deref()
+                    .map(|p| read_file("--tls-ca", p))
+                    .transpose()?,
+                identity,
+                domain: self.tls_domain.clone(),
+            })
+        } else {
+            None
+        };
+        Ok(ClientOptions {
+            token: load_token(self.token_file.as_deref())?,
+            tls,
+        })
+    }
 }
 
 /// Arguments of `tessera coordinator`.
@@ -52,6 +123,22 @@ pub struct CoordinatorArgs {
     /// Largest image width or height accepted.
     #[arg(long, default_value_t = Limits::default().max_resolution)]
     max_resolution: u32,
+    /// File holding the farm's token; every RPC must then carry it (default: the
+    /// TESSERA_TOKEN environment variable, if set; without either, no token is required).
+    #[arg(long)]
+    token_file: Option<PathBuf>,
+    /// PEM certificate chain to serve TLS with (needs --tls-key).
+    #[arg(long, requires = "tls_key")]
+    tls_cert: Option<PathBuf>,
+    /// PEM private key of --tls-cert.
+    #[arg(long, requires = "tls_cert")]
+    tls_key: Option<PathBuf>,
+    /// PEM CA: clients must present a certificate it signed (mutual TLS; needs --tls-cert).
+    #[arg(long, requires = "tls_cert")]
+    tls_client_ca: Option<PathBuf>,
+    /// Invalid results after which a worker is quarantined.
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u64).range(1..))]
+    quarantine_after: u64,
 }
 
 /// Arguments of `tessera worker`.
@@ -208,12 +295,31 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
     config.max_message_bytes = config
         .max_message_bytes
         .max(args.max_scene_bytes + (1 << 20));
+    config.quarantine_after = args.quarantine_after;
+    config.token = load_token(args.token_file.as_deref())?;
+    if let (Some(cert), Some(key)) = (&args.tls_cert, &args.tls_key) {
+        config.tls = Some(ServerTls {
+            cert_pem: read_file("--tls-cert", cert)?,
+            key_pem: Secret::new(String::from_utf8_lossy(&read_file("--tls-key", key)?)),
+            client_ca_pem: args
+                .tls_client_ca
+                .as_deref()
+                .map(|p| read_file("--tls-client-ca", p))
+                .transpose()?,
+        });
+    }
+    let auth = match (&config.token, &config.tls) {
+        (Some(_), Some(_)) => "token and TLS",
+        (Some(_), None) => "token (no TLS: the token crosses the network in clear)",
+        (None, Some(_)) => "TLS, no token",
+        (None, None) => "none: anyone who can connect may submit, lease and fetch",
+    };
     runtime()?.block_on(async {
         let listener = tokio::net::TcpListener::bind(&args.listen)
             .await
             .with_context(|| format!("--listen {}: cannot listen", args.listen))?;
         let addr = listener.local_addr()?;
-        tracing::info!("coordinator listening on {addr}");
+        tracing::info!("coordinator listening on {addr}; auth: {auth}");
         // A line on stdout that scripts (and tests) can wait for.
         println!("listening on {addr}");
         let _ = std::io::stdout().flush();
@@ -225,7 +331,9 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
 /// Runs `tessera worker`.
 pub fn worker(args: WorkerArgs) -> Result<()> {
     init_logging();
+    let options = args.url.options()?;
     let mut config = tessera_worker::Config::new(args.url.coordinator);
+    config.client = options;
     config.threads = args.threads.map(|t| t as usize);
     config.name = match args.name {
         Some(n) => n,
@@ -247,10 +355,13 @@ fn rpc_error(url: &str, what: &str, e: tonic::Status) -> anyhow::Error {
     }
 }
 
-async fn connect(url: &str) -> Result<JobsClient<Channel>> {
-    let endpoint = Endpoint::from_shared(url.to_string())
-        .map_err(|e| anyhow!("--coordinator {url:?} is not a URL: {e}"))?
-        .connect_timeout(Duration::from_secs(5));
+/// A `Jobs` client with the token attached.
+type Client = JobsClient<InterceptedService<Channel, Bearer>>;
+
+async fn connect(args: &CoordinatorUrl) -> Result<Client> {
+    let url = &args.coordinator;
+    let options = args.options()?;
+    let endpoint = endpoint(url, &options)?;
     let channel = endpoint.connect().await.map_err(|e| {
         let mut msg = e.to_string();
         let mut src = std::error::Error::source(&e);
@@ -260,7 +371,7 @@ async fn connect(url: &str) -> Result<JobsClient<Channel>> {
         }
         anyhow!("cannot reach the coordinator at {url}: {msg}")
     })?;
-    Ok(JobsClient::new(channel)
+    Ok(JobsClient::with_interceptor(channel, Bearer::new(&options))
         .max_decoding_message_size(64 << 20)
         .max_encoding_message_size(64 << 20))
 }
@@ -288,7 +399,7 @@ fn fmt_eta(secs: f64) -> String {
 }
 
 /// Follows a job until it ends, with a progress bar on stderr; errors unless it is done.
-async fn follow(client: &mut JobsClient<Channel>, url: &str, job: &str) -> Result<pb::JobStatus> {
+async fn follow(client: &mut Client, url: &str, job: &str) -> Result<pb::JobStatus> {
     let mut stream = client
         .watch_job(pb::WatchJobRequest {
             job_id: job.into(),
@@ -329,12 +440,7 @@ async fn follow(client: &mut JobsClient<Channel>, url: &str, job: &str) -> Resul
 }
 
 /// Streams a done job's EXR into `out` (atomically: temp file, then rename).
-async fn download(
-    client: &mut JobsClient<Channel>,
-    url: &str,
-    job: &str,
-    out: &Path,
-) -> Result<u64> {
+async fn download(client: &mut Client, url: &str, job: &str, out: &Path) -> Result<u64> {
     let mut stream = client
         .fetch_result(pb::FetchResultRequest { job_id: job.into() })
         .await
@@ -389,7 +495,7 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
         .is_some_and(|e| e.eq_ignore_ascii_case("json"));
     let url = args.url.coordinator.clone();
     runtime()?.block_on(async {
-        let mut client = connect(&url).await?;
+        let mut client = connect(&args.url).await?;
         let req = pb::SubmitJobRequest {
             scene_text: text,
             scene_format: if json {
@@ -479,7 +585,7 @@ fn print_job(s: &pb::JobStatus) {
 pub fn status(args: StatusArgs) -> Result<()> {
     let url = args.url.coordinator.clone();
     runtime()?.block_on(async {
-        let mut client = connect(&url).await?;
+        let mut client = connect(&args.url).await?;
         if let Some(job) = &args.job {
             let s = client
                 .get_job(pb::GetJobRequest {
@@ -521,7 +627,7 @@ pub fn status(args: StatusArgs) -> Result<()> {
 pub fn cancel(args: CancelArgs) -> Result<()> {
     let url = args.url.coordinator.clone();
     runtime()?.block_on(async {
-        let mut client = connect(&url).await?;
+        let mut client = connect(&args.url).await?;
         let r = client
             .cancel_job(pb::CancelJobRequest {
                 job_id: args.job.clone(),
@@ -542,7 +648,7 @@ pub fn cancel(args: CancelArgs) -> Result<()> {
 pub fn workers(args: WorkersArgs) -> Result<()> {
     let url = args.url.coordinator.clone();
     runtime()?.block_on(async {
-        let mut client = connect(&url).await?;
+        let mut client = connect(&args.url).await?;
         let workers = client
             .list_workers(pb::ListWorkersRequest {})
             .await
@@ -550,16 +656,22 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
             .into_inner()
             .workers;
         println!(
-            "{:<10} {:<20} {:>5} {:<6} {:>6} {:>8} {:>12} {:>5} {:>9}",
+            "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>9}",
             "WORKER", "NAME", "CORES", "STATE", "LEASES", "UNITS", "SAMPLES", "BAD", "SEEN"
         );
         for w in workers {
             println!(
-                "{:<10} {:<20} {:>5} {:<6} {:>6} {:>8} {:>12} {:>5} {:>8.1}s",
+                "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>8.1}s",
                 w.worker_id,
                 w.name,
                 w.cores,
-                if w.alive { "alive" } else { "gone" },
+                if w.quarantined {
+                    "quarantined"
+                } else if w.alive {
+                    "alive"
+                } else {
+                    "gone"
+                },
                 w.leases,
                 w.units_done,
                 w.samples_done,
@@ -576,7 +688,7 @@ pub fn fetch(args: FetchArgs) -> Result<()> {
     check_output_dir(&args.output)?;
     let url = args.url.coordinator.clone();
     runtime()?.block_on(async {
-        let mut client = connect(&url).await?;
+        let mut client = connect(&args.url).await?;
         if args.wait {
             follow(&mut client, &url, &args.job).await?;
         }

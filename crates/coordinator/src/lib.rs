@@ -23,10 +23,13 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use tessera_proto::v1::jobs_server::JobsServer;
 use tessera_proto::v1::workers_server::WorkersServer;
+use tessera_proto::Secret;
 use tessera_render::output::{render_metadata, write_exr, ExrChannels};
 use tessera_render::scene::Limits;
 use tessera_render::{PixelRect, TileSums};
 use tokio::sync::{mpsc, oneshot, watch};
+use tonic::service::interceptor::InterceptedService;
+use tonic::transport::{Certificate, Identity, ServerTlsConfig};
 use tracing::{error, info, warn};
 
 mod service;
@@ -55,6 +58,23 @@ pub struct Config {
     pub max_active_jobs: usize,
     /// Most work units one job may have.
     pub max_units_per_job: u64,
+    /// When set, every RPC must carry `authorization: Bearer <token>`.
+    pub token: Option<Secret>,
+    /// When set, serve TLS only.
+    pub tls: Option<ServerTls>,
+    /// Refused results after which a worker is quarantined (no more leases or results).
+    pub quarantine_after: u64,
+}
+
+/// The coordinator's TLS identity, and optionally the CA its clients' certificates must chain to.
+#[derive(Clone, Debug)]
+pub struct ServerTls {
+    /// PEM certificate chain.
+    pub cert_pem: Vec<u8>,
+    /// PEM private key.
+    pub key_pem: Secret,
+    /// PEM CA: when set, clients must present a certificate it signed (mutual TLS).
+    pub client_ca_pem: Option<Vec<u8>>,
 }
 
 impl Config {
@@ -72,6 +92,9 @@ impl Config {
             max_message_bytes: 48 << 20,
             max_active_jobs: 1000,
             max_units_per_job: 1 << 24,
+            token: None,
+            tls: None,
+            quarantine_after: 5,
         }
     }
 
@@ -277,6 +300,7 @@ fn open(config: Config) -> Result<Opened, CoordinatorError> {
     let store = Arc::new(Store::open(&config.data_dir)?);
     let epoch = store.next_epoch()?;
     let mut core = Core::new(epoch, config.lease_timeout);
+    core.quarantine_after = config.quarantine_after.max(1);
     let mut to_finish = Vec::new();
     for loaded in store.load()? {
         let id = loaded.record.id;
@@ -320,6 +344,8 @@ pub async fn serve(
 ) -> Result<(), CoordinatorError> {
     let max_msg = config.max_message_bytes;
     let lease_timeout = config.lease_timeout;
+    let auth = AuthCheck::new(config.token.as_ref());
+    let tls = config.tls.clone();
     let (shared, rx, to_finish) = open(config)?;
     let writer = tokio::spawn(writer(shared.store.clone(), rx));
     for id in to_finish {
@@ -348,17 +374,28 @@ pub async fn serve(
         shared: shared.clone(),
     };
     let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
-    let result = tonic::transport::Server::builder()
-        .add_service(
+    let mut builder = tonic::transport::Server::builder();
+    if let Some(tls) = &tls {
+        let mut cfg = ServerTlsConfig::new()
+            .identity(Identity::from_pem(&tls.cert_pem, tls.key_pem.expose()));
+        if let Some(ca) = &tls.client_ca_pem {
+            cfg = cfg.client_ca_root(Certificate::from_pem(ca));
+        }
+        builder = builder.tls_config(cfg)?;
+    }
+    let result = builder
+        .add_service(InterceptedService::new(
             JobsServer::new(svc.clone())
                 .max_decoding_message_size(max_msg)
                 .max_encoding_message_size(max_msg),
-        )
-        .add_service(
+            auth.clone(),
+        ))
+        .add_service(InterceptedService::new(
             WorkersServer::new(svc)
                 .max_decoding_message_size(max_msg)
                 .max_encoding_message_size(max_msg),
-        )
+            auth,
+        ))
         .serve_with_incoming_shutdown(incoming, shutdown)
         .await;
     ticker.abort();
@@ -368,6 +405,43 @@ pub async fn serve(
     let _ = tokio::time::timeout(Duration::from_secs(5), writer).await;
     result?;
     Ok(())
+}
+
+/// Checks the bearer token of every call, in constant time: both sides are hashed first, so
+/// neither the comparison's time nor its length depends on how much of the token matched.
+#[derive(Clone)]
+struct AuthCheck(Option<[u8; 32]>);
+
+impl AuthCheck {
+    fn new(token: Option<&Secret>) -> Self {
+        Self(token.map(|t| sha256(t.expose().as_bytes())))
+    }
+}
+
+fn sha256(b: &[u8]) -> [u8; 32] {
+    use sha2::Digest;
+    sha2::Sha256::digest(b).into()
+}
+
+impl tonic::service::Interceptor for AuthCheck {
+    fn call(&mut self, request: tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> {
+        use subtle::ConstantTimeEq;
+        let Some(want) = &self.0 else {
+            return Ok(request);
+        };
+        let presented = request
+            .metadata()
+            .get("authorization")
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.strip_prefix("Bearer "));
+        match presented {
+            None => Err(tonic::Status::unauthenticated(
+                "this coordinator requires a token (--token-file or TESSERA_TOKEN)",
+            )),
+            Some(t) if bool::from(sha256(t.as_bytes()).ct_eq(want)) => Ok(request),
+            Some(_) => Err(tonic::Status::unauthenticated("wrong token")),
+        }
+    }
 }
 
 /// Whether `name` is an acceptable output file name.

@@ -34,6 +34,7 @@ impl From<Refusal> for Status {
             Refusal::NotFound(m) => Status::not_found(m),
             Refusal::Invalid(m) => Status::invalid_argument(m),
             Refusal::Precondition(m) => Status::failed_precondition(m),
+            Refusal::Denied(m) => Status::permission_denied(m),
         }
     }
 }
@@ -453,6 +454,7 @@ impl Jobs for Service {
                     last_seen_ms_ago: idle.as_millis() as u64,
                     alive: !w.gone && idle <= core.lease_time,
                     bad_results: w.bad_results,
+                    quarantined: w.quarantined,
                 }
             })
             .collect();
@@ -610,10 +612,6 @@ impl Workers for Service {
     ) -> Result<Response<pb::SubmitResultResponse>, Status> {
         let req = request.into_inner();
         let job = job_id(&req.job_id)?;
-        let sums = decode_result(
-            req.result
-                .ok_or_else(|| Status::invalid_argument("request has no result"))?,
-        )?;
         let unit = Unit {
             tile: req.tile_index,
             batch: req.batch_index,
@@ -622,6 +620,22 @@ impl Workers for Service {
             let mut core = self.shared.core();
             let now = Instant::now();
             let w = core.touch_worker(&req.worker_id, now)?;
+            let decoded = req
+                .result
+                .ok_or_else(|| Status::invalid_argument("request has no result"))
+                .and_then(decode_result);
+            let sums = match decoded {
+                Ok(s) => s,
+                Err(e) => {
+                    core.count_bad_result(w);
+                    warn!(
+                        "result from {} refused: {}",
+                        truncate(&req.worker_id),
+                        e.message()
+                    );
+                    return Err(e);
+                }
+            };
             match core.submit(w, &req.lease_id, job, unit, sums, now) {
                 Ok(Merged::New { ops, finished }) => {
                     let rx = self.shared.queue_write(ops);

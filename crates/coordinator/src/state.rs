@@ -54,6 +54,8 @@ pub struct Worker {
     pub bad_results: u64,
     /// Said goodbye.
     pub gone: bool,
+    /// Sent too many invalid results: gets no more work.
+    pub quarantined: bool,
 }
 
 /// Merged sums of one tile: batches `0..next` folded in order, plus results that arrived early.
@@ -230,6 +232,29 @@ impl Job {
             .is_some_and(|ids| ids.iter().any(|l| leases.get(l).is_some_and(|x| x.active)))
     }
 
+    /// A copy of a unit that is out already, for worker `w` to race: the one leased longest
+    /// ago that has exactly one live lease, held by another worker. Near the end of a job this
+    /// keeps a slow or stuck worker from holding everyone up; the first result is merged and
+    /// the other is a duplicate.
+    fn speculative_unit(&self, w: u64, leases: &HashMap<u64, Lease>) -> Option<Unit> {
+        let mut best: Option<(u64, Unit)> = None;
+        for (u, ids) in &self.issued {
+            if self.is_done(*u) {
+                continue;
+            }
+            let mut live = ids
+                .iter()
+                .filter(|l| leases.get(l).is_some_and(|x| x.active));
+            let (Some(&l), None) = (live.next(), live.next()) else {
+                continue;
+            };
+            if leases.get(&l).is_some_and(|x| x.worker != w) && best.is_none_or(|(b, _)| l < b) {
+                best = Some((l, *u));
+            }
+        }
+        best.map(|(_, u)| u)
+    }
+
     fn next_unit(&mut self, leases: &HashMap<u64, Lease>) -> Option<Unit> {
         while let Some(u) = self.requeue.pop_front() {
             if !self.is_done(u) && !self.has_active_lease(u, leases) {
@@ -355,6 +380,8 @@ pub enum Refusal {
     Invalid(String),
     /// Not allowed in the current state (unknown lease).
     Precondition(String),
+    /// The worker is quarantined.
+    Denied(String),
 }
 
 /// A unit handed to a worker.
@@ -386,6 +413,8 @@ pub struct Core {
     pub next_worker: u64,
     /// How long a lease lasts.
     pub lease_time: Duration,
+    /// Invalid results after which a worker is quarantined.
+    pub quarantine_after: u64,
 }
 
 impl Core {
@@ -400,6 +429,7 @@ impl Core {
             workers: BTreeMap::new(),
             next_worker: 1,
             lease_time,
+            quarantine_after: 5,
         }
     }
 
@@ -448,6 +478,13 @@ impl Core {
         let w = self.workers.get_mut(&n).ok_or_else(unknown)?;
         w.last_seen = now;
         w.gone = false;
+        if w.quarantined {
+            return Err(Refusal::Denied(format!(
+                "worker {} is quarantined after {} invalid results",
+                truncate(id),
+                w.bad_results
+            )));
+        }
         Ok(n)
     }
 
@@ -466,6 +503,7 @@ impl Core {
                 samples_done: 0,
                 bad_results: 0,
                 gone: false,
+                quarantined: false,
             },
         );
         n
@@ -500,40 +538,51 @@ impl Core {
         any
     }
 
-    /// Leases up to `max` units to worker `w`.
+    /// Leases up to `max` units to worker `w`: fresh units first (by job priority), then, if
+    /// there are none anywhere, speculative copies of outstanding ones.
     pub fn lease(&mut self, w: u64, max: usize, now: Instant) -> Vec<Granted> {
         self.expire(now);
         let mut out = Vec::new();
-        for id in self.schedule_order() {
-            while out.len() < max {
-                let Some(job) = self.jobs.get_mut(&id) else {
-                    break;
-                };
-                if !job.is_live() {
-                    break;
-                }
-                let Some(unit) = job.next_unit(&self.leases) else {
-                    break;
-                };
-                let n = self.next_lease;
-                self.next_lease += 1;
-                job.issued.entry(unit).or_default().push(n);
-                job.started = true;
-                self.leases.insert(
-                    n,
-                    Lease {
+        if self.workers.get(&w).is_some_and(|x| x.quarantined) {
+            return out;
+        }
+        for speculate in [false, true] {
+            for id in self.schedule_order() {
+                while out.len() < max {
+                    let Some(job) = self.jobs.get_mut(&id) else {
+                        break;
+                    };
+                    if !job.is_live() {
+                        break;
+                    }
+                    let next = if speculate {
+                        job.speculative_unit(w, &self.leases)
+                    } else {
+                        job.next_unit(&self.leases)
+                    };
+                    let Some(unit) = next else {
+                        break;
+                    };
+                    let n = self.next_lease;
+                    self.next_lease += 1;
+                    job.issued.entry(unit).or_default().push(n);
+                    job.started = true;
+                    self.leases.insert(
+                        n,
+                        Lease {
+                            job: id,
+                            unit,
+                            worker: w,
+                            deadline: now + self.lease_time,
+                            active: true,
+                        },
+                    );
+                    out.push(Granted {
+                        lease: n,
                         job: id,
                         unit,
-                        worker: w,
-                        deadline: now + self.lease_time,
-                        active: true,
-                    },
-                );
-                out.push(Granted {
-                    lease: n,
-                    job: id,
-                    unit,
-                });
+                    });
+                }
             }
         }
         out
@@ -636,9 +685,7 @@ impl Core {
             }
         }
         if let Err(e) = job.check_result(unit, &sums) {
-            if let Some(worker) = self.workers.get_mut(&w) {
-                worker.bad_results += 1;
-            }
+            self.count_bad_result(w);
             return Err(Refusal::Invalid(format!(
                 "{} tile {} batch {}: {e}",
                 job_name(job_id),
@@ -719,6 +766,34 @@ impl Core {
             }
         }
         vec![Op::PutJob(job.rec.clone()), Op::DropSums(id)]
+    }
+
+    /// Counts an invalid result against worker `w`, quarantining it (and taking back its
+    /// leases) once it reaches the limit.
+    pub fn count_bad_result(&mut self, w: u64) {
+        let name = self.worker_name(w);
+        let Some(worker) = self.workers.get_mut(&w) else {
+            return;
+        };
+        worker.bad_results += 1;
+        if worker.bad_results >= self.quarantine_after && !worker.quarantined {
+            worker.quarantined = true;
+            tracing::warn!(
+                "worker {name} ({}) quarantined after {} invalid results",
+                worker.name,
+                worker.bad_results
+            );
+            for lease in self.leases.values_mut() {
+                if lease.worker == w && lease.active {
+                    lease.active = false;
+                    if let Some(job) = self.jobs.get_mut(&lease.job) {
+                        if job.is_live() && !job.is_done(lease.unit) {
+                            job.requeue.push_front(lease.unit);
+                        }
+                    }
+                }
+            }
+        }
     }
 
     /// Leases held now by worker `w`.
@@ -891,5 +966,67 @@ mod tests {
             core.heartbeat(b, std::slice::from_ref(&name), later),
             vec![name]
         );
+    }
+
+    #[test]
+    fn idle_workers_race_the_oldest_outstanding_unit_once_the_queue_is_empty() {
+        let mut core = Core::new(1, Duration::from_secs(60));
+        core.jobs.insert(1, Job::new(record(2, 2)));
+        let now = Instant::now();
+        let slow = core.register("slow".into(), 1, "v".into(), now);
+        let fast = core.register("fast".into(), 1, "v".into(), now);
+        let held = core.lease(slow, 2, now);
+        assert_eq!(held.len(), 2);
+        // No fresh unit is left: the fast worker gets a copy of the oldest unit, then of the
+        // other, and nothing more (each unit is raced at most once).
+        let copies = core.lease(fast, 5, now);
+        let units: Vec<Unit> = copies.iter().map(|g| g.unit).collect();
+        assert_eq!(units, vec![held[0].unit, held[1].unit]);
+        assert!(core.lease(fast, 5, now).is_empty());
+        // The copy's result wins; the slow original is then a duplicate.
+        let r = result(&core.jobs[&1], copies[0].unit, 1.0);
+        let name = core.lease_name(copies[0].lease);
+        assert!(matches!(
+            core.submit(fast, &name, 1, copies[0].unit, r.clone(), now),
+            Ok(Merged::New { .. })
+        ));
+        let name = core.lease_name(held[0].lease);
+        assert!(matches!(
+            core.submit(slow, &name, 1, held[0].unit, r, now),
+            Ok(Merged::Duplicate)
+        ));
+    }
+
+    #[test]
+    fn a_worker_that_keeps_sending_bad_results_is_quarantined() {
+        let mut core = Core::new(1, Duration::from_secs(60));
+        core.quarantine_after = 3;
+        core.jobs.insert(1, Job::new(record(8, 2)));
+        let now = Instant::now();
+        let w = core.register("bad".into(), 1, "v".into(), now);
+        let id = core.worker_name(w);
+        let g = core.lease(w, 2, now);
+        let name = core.lease_name(g[0].lease);
+        for _ in 0..3 {
+            let mut r = result(&core.jobs[&1], g[0].unit, 1.0);
+            r.sum[0][0] = f64::INFINITY;
+            assert!(matches!(
+                core.submit(w, &name, 1, g[0].unit, r, now),
+                Err(Refusal::Invalid(_))
+            ));
+        }
+        assert!(core.workers[&w].quarantined);
+        assert!(matches!(
+            core.touch_worker(&id, now),
+            Err(Refusal::Denied(_))
+        ));
+        assert!(core.lease(w, 1, now).is_empty());
+        assert_eq!(core.leases_of(w), 0, "its leases were taken back");
+        let other = core.register("good".into(), 1, "v".into(), now);
+        let mut units: Vec<Unit> = core.lease(other, 2, now).iter().map(|g| g.unit).collect();
+        units.sort();
+        let mut want = vec![g[0].unit, g[1].unit];
+        want.sort();
+        assert_eq!(units, want, "its units are handed out again first");
     }
 }

@@ -24,12 +24,14 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, RwLock};
 use std::time::Duration;
 
+use tessera_proto::client::{endpoint, Bearer, ClientOptions};
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::workers_client::WorkersClient;
 use tessera_render::scene::{Format, Limits, Scene};
 use tessera_render::{render_tile, PixelRect, RenderSettings, Strategy, TileSums};
 use tokio::sync::{mpsc, watch, OwnedSemaphorePermit, Semaphore};
-use tonic::transport::{Channel, Endpoint};
+use tonic::service::interceptor::InterceptedService;
+use tonic::transport::Channel;
 use tonic::{Code, Status};
 use tracing::{debug, info, warn};
 
@@ -48,6 +50,8 @@ pub struct Config {
     pub max_backoff: Duration,
     /// How long shutdown waits for the unit in progress before handing it back.
     pub shutdown_grace: Duration,
+    /// Token and TLS.
+    pub client: ClientOptions,
 }
 
 impl Config {
@@ -60,6 +64,7 @@ impl Config {
             max_message_bytes: 48 << 20,
             max_backoff: Duration::from_secs(10),
             shutdown_grace: Duration::from_secs(30),
+            client: ClientOptions::default(),
         }
     }
 }
@@ -78,11 +83,14 @@ pub enum WorkerError {
     /// The render threads could not start.
     #[error("starting the render threads: {0}")]
     Threads(String),
+    /// The coordinator refused this worker (wrong token, quarantined).
+    #[error("the coordinator refused this worker: {0}")]
+    Refused(String),
 }
 
 /// What the tasks share.
 struct Ctx {
-    client: WorkersClient<Channel>,
+    client: WorkersClient<InterceptedService<Channel, Bearer>>,
     config: Config,
     cores: u32,
     pool: rayon::ThreadPool,
@@ -95,6 +103,8 @@ struct Ctx {
     revoked: Mutex<HashSet<String>>,
     scenes: Mutex<HashMap<String, Arc<Scene>>>,
     stop: watch::Receiver<bool>,
+    /// Why the coordinator refused this worker for good, if it did.
+    refused: Mutex<Option<String>>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -132,7 +142,8 @@ impl Ctx {
         }
     }
 
-    /// Registers (again), retrying until it works or shutdown begins.
+    /// Registers (again), retrying until it works or shutdown begins. A refusal that retrying
+    /// cannot fix (a wrong token) is kept in `refused` and stops the worker.
     async fn register(&self) -> bool {
         let mut attempt = 0;
         loop {
@@ -152,6 +163,10 @@ impl Ctx {
                         .store(r.heartbeat_ms.clamp(50, 60_000) as u64, Ordering::Relaxed);
                     *self.worker_id.write().unwrap_or_else(|p| p.into_inner()) = r.worker_id;
                     return true;
+                }
+                Err(e) if matches!(e.code(), Code::Unauthenticated | Code::PermissionDenied) => {
+                    *lock(&self.refused) = Some(e.message().to_string());
+                    return false;
                 }
                 Err(e) => {
                     if attempt == 0 || attempt % 10 == 0 {
@@ -535,24 +550,14 @@ pub async fn run(
     config: Config,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<(), WorkerError> {
-    let endpoint = Endpoint::from_shared(config.coordinator.clone())
-        .map_err(|e| WorkerError::Url {
-            url: config.coordinator.clone(),
-            message: e.to_string(),
-        })?
-        .connect_timeout(Duration::from_secs(5))
-        .tcp_nodelay(true)
-        .http2_keep_alive_interval(Duration::from_secs(20))
-        .keep_alive_while_idle(true);
-    if !matches!(endpoint.uri().scheme_str(), Some("http")) {
-        return Err(WorkerError::Url {
-            url: config.coordinator.clone(),
-            message: "must start with http:// and name a host and port".into(),
-        });
-    }
-    let client = WorkersClient::new(endpoint.connect_lazy())
-        .max_decoding_message_size(config.max_message_bytes)
-        .max_encoding_message_size(config.max_message_bytes);
+    let endpoint = endpoint(&config.coordinator, &config.client).map_err(|e| WorkerError::Url {
+        url: config.coordinator.clone(),
+        message: e.to_string(),
+    })?;
+    let client =
+        WorkersClient::with_interceptor(endpoint.connect_lazy(), Bearer::new(&config.client))
+            .max_decoding_message_size(config.max_message_bytes)
+            .max_encoding_message_size(config.max_message_bytes);
     let pool = render_pool(config.threads)?;
     let (stop_tx, stop) = watch::channel(false);
     let ctx = Arc::new(Ctx {
@@ -566,13 +571,20 @@ pub async fn run(
         revoked: Mutex::new(HashSet::new()),
         scenes: Mutex::new(HashMap::new()),
         stop,
+        refused: Mutex::new(None),
     });
+    let stop_tx = Arc::new(stop_tx);
+    let signal_tx = stop_tx.clone();
     let _signal = Task::spawn(async move {
         shutdown.await;
-        let _ = stop_tx.send(true);
+        let _ = signal_tx.send(true);
     });
     if !ctx.register().await {
-        return Ok(());
+        let refused = lock(&ctx.refused).take();
+        return match refused {
+            Some(why) => Err(WorkerError::Refused(why)),
+            None => Ok(()),
+        };
     }
     let (ready_tx, ready_rx) = mpsc::channel(1);
     let (done_tx, done_rx) = mpsc::unbounded_channel();
@@ -581,9 +593,17 @@ pub async fn run(
     let mut render = Task::spawn(renderer(ctx.clone(), ready_rx, done_tx));
     let mut submit = Task::spawn(submitter(ctx.clone(), done_rx));
     let mut stop = ctx.stop.clone();
-    let _ = stop.wait_for(|s| *s).await;
+    // The fetcher only ends by itself when the coordinator refused us for good.
+    let refused = tokio::select! {
+        _ = stop.wait_for(|s| *s) => false,
+        _ = fetch.join() => true,
+    };
+    if refused {
+        let _ = stop_tx.send(true);
+    } else {
+        fetch.join().await;
+    }
     info!("shutting down: finishing the unit in progress");
-    fetch.join().await;
     let drained = async {
         render.join().await;
         submit.join().await;
@@ -597,5 +617,9 @@ pub async fn run(
     let left: Vec<String> = lock(&ctx.held).iter().cloned().collect();
     ctx.release(left, true).await;
     info!("worker stopped");
-    Ok(())
+    let refused = lock(&ctx.refused).take();
+    match refused {
+        Some(why) => Err(WorkerError::Refused(why)),
+        None => Ok(()),
+    }
 }
