@@ -400,14 +400,6 @@ fn fmt_eta(secs: f64) -> String {
 
 /// Follows a job until it ends, with a progress bar on stderr; errors unless it is done.
 async fn follow(client: &mut Client, url: &str, job: &str) -> Result<pb::JobStatus> {
-    let mut stream = client
-        .watch_job(pb::WatchJobRequest {
-            job_id: job.into(),
-            interval_ms: 500,
-        })
-        .await
-        .map_err(|e| rpc_error(url, job, e))?
-        .into_inner();
     let bar = ProgressBar::new(1);
     bar.set_style(
         ProgressStyle::with_template(
@@ -415,20 +407,71 @@ async fn follow(client: &mut Client, url: &str, job: &str) -> Result<pb::JobStat
         )
         .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    let mut last = None;
-    while let Some(s) = stream.message().await.map_err(|e| rpc_error(url, job, e))? {
-        bar.set_length(s.samples_total.max(1));
-        bar.set_position(s.samples_done);
-        bar.set_message(format!(
-            "{} {}/{} units, {:.2} Msamples/s, noise {:.2}%, ETA {}",
-            state_name(s.state),
-            s.units_done,
-            s.units_total,
-            s.samples_per_second / 1e6,
-            s.noise_relative * 100.0,
-            fmt_eta(s.eta_seconds)
-        ));
-        last = Some(s);
+    let mut last: Option<pb::JobStatus> = None;
+    // A coordinator restart or a network blip breaks the stream; the job survives both, so
+    // reconnect (the channel does so by itself) for up to OUTAGE before giving up.
+    const OUTAGE: Duration = Duration::from_secs(600);
+    let mut down_since: Option<std::time::Instant> = None;
+    let mut attempt = 0u32;
+    loop {
+        let streamed = async {
+            let mut stream = client
+                .watch_job(pb::WatchJobRequest {
+                    job_id: job.into(),
+                    interval_ms: 500,
+                })
+                .await?
+                .into_inner();
+            while let Some(s) = stream.message().await? {
+                down_since = None;
+                attempt = 0;
+                bar.set_length(s.samples_total.max(1));
+                bar.set_position(s.samples_done);
+                bar.set_message(format!(
+                    "{} {}/{} units, {:.2} Msamples/s, noise {:.2}%, ETA {}",
+                    state_name(s.state),
+                    s.units_done,
+                    s.units_total,
+                    s.samples_per_second / 1e6,
+                    s.noise_relative * 100.0,
+                    fmt_eta(s.eta_seconds)
+                ));
+                last = Some(s);
+            }
+            Ok::<(), tonic::Status>(())
+        }
+        .await;
+        let ended = last.as_ref().is_some_and(|s| {
+            matches!(
+                pb::JobState::try_from(s.state),
+                Ok(pb::JobState::Done | pb::JobState::Cancelled | pb::JobState::Failed)
+            )
+        });
+        // A stream that closes before a final state means the coordinator went away.
+        let streamed = match streamed {
+            Ok(()) if !ended => Err(tonic::Status::unavailable("the stream closed early")),
+            other => other,
+        };
+        match streamed {
+            Ok(()) => break,
+            Err(e) if matches!(e.code(), Code::Unavailable | Code::Unknown | Code::Internal) => {
+                let since = *down_since.get_or_insert_with(std::time::Instant::now);
+                if since.elapsed() > OUTAGE {
+                    bar.finish_and_clear();
+                    return Err(rpc_error(url, job, e));
+                }
+                bar.set_message(format!(
+                    "coordinator unreachable ({}), retrying",
+                    e.message()
+                ));
+                tokio::time::sleep(Duration::from_millis(200 << attempt.min(4))).await;
+                attempt += 1;
+            }
+            Err(e) => {
+                bar.finish_and_clear();
+                return Err(rpc_error(url, job, e));
+            }
+        }
     }
     bar.finish_and_clear();
     let s = last.ok_or_else(|| anyhow!("{job}: the coordinator closed the stream"))?;

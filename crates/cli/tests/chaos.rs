@@ -1,0 +1,264 @@
+//! Chaos: a coordinator and 4 workers as separate processes on loopback. Workers are killed
+//! with SIGKILL at random and restarted; the coordinator is killed with SIGKILL once, mid-job,
+//! and restarted on the same data directory and port. The job must finish with an EXR
+//! bit-identical to `tessera render`, and no lease may be left behind.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_tessera");
+
+struct Proc(Child);
+
+impl Proc {
+    /// SIGKILL: no goodbye, no flush, leases left to lapse.
+    fn kill9(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        self.kill9();
+    }
+}
+
+fn repo(path: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../..")
+        .join(path)
+}
+
+fn coordinator(data: &Path, port: u16, log: &Path) -> Proc {
+    let log = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(log)
+        .expect("log");
+    Proc(
+        Command::new(BIN)
+            .args(["coordinator", "--listen", &format!("127.0.0.1:{port}")])
+            .arg("--data-dir")
+            .arg(data)
+            .args(["--lease-timeout", "2"])
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .expect("start coordinator"),
+    )
+}
+
+fn worker(url: &str, name: &str) -> Proc {
+    Proc(
+        Command::new(BIN)
+            .args([
+                "worker",
+                "--coordinator",
+                url,
+                "--threads",
+                "1",
+                "--name",
+                name,
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start worker"),
+    )
+}
+
+fn tessera(args: &[&str], url: &str) -> Output {
+    Command::new(BIN)
+        .args(args)
+        .env("TESSERA_COORDINATOR", url)
+        .output()
+        .expect("run tessera")
+}
+
+/// (units done, units total, units leased) from `tessera status JOB`, if the coordinator
+/// answers.
+fn progress(job: &str, url: &str) -> Option<(u64, u64, u64)> {
+    let out = tessera(&["status", job], url);
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text
+        .lines()
+        .find(|l| l.trim_start().starts_with("progress"))?;
+    // "  progress   12/576 units (3 leased), ..."
+    let mut words = line.split_whitespace().skip(1);
+    let (done, total) = words.next()?.split_once('/')?;
+    let leased = words.nth(1)?.trim_start_matches('(');
+    Some((
+        done.parse().ok()?,
+        total.parse().ok()?,
+        leased.parse().ok()?,
+    ))
+}
+
+/// A small deterministic generator, so a failing run can be replayed from its seed.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+}
+
+#[test]
+fn sigkilled_workers_and_coordinator_do_not_change_a_bit() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let data = dir.path().join("data");
+    let log = dir.path().join("coordinator.log");
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("free port")
+        .port();
+    let url = format!("http://127.0.0.1:{port}");
+    let scene = dir.path().join("box.toml");
+    std::fs::write(
+        &scene,
+        std::fs::read_to_string(repo("scenes/cornell-box.toml"))
+            .expect("scene")
+            .replace("width = 256", "width = 80")
+            .replace("height = 256", "height = 80"),
+    )
+    .expect("write scene");
+    let scene = scene.to_str().expect("utf8").to_string();
+    let settings = ["--spp", "512", "--batch", "4", "--seed", "11"];
+
+    let mut coord = coordinator(&data, port, &log);
+    let mut workers: Vec<Proc> = (0..4).map(|i| worker(&url, &format!("w{i}"))).collect();
+    let started = Instant::now();
+    let job = loop {
+        let mut args = vec!["submit", scene.as_str(), "--tile-size", "16"];
+        args.extend(settings);
+        let out = tessera(&args, &url);
+        if out.status.success() {
+            break String::from_utf8_lossy(&out.stdout).trim().to_string();
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(20),
+            "coordinator never came up"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    // A client following the job across the coordinator's death, as `--wait` users do.
+    let farm_exr = dir.path().join("farm.exr");
+    let follower = Command::new(BIN)
+        .args(["fetch", &job, "--wait", "-o"])
+        .arg(&farm_exr)
+        .env("TESSERA_COORDINATOR", &url)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("fetch --wait");
+
+    let seed = 0x5eed_u64;
+    let mut rng = Rng(seed);
+    let mut events = Vec::new();
+    let mut coordinator_killed = false;
+    let deadline = Instant::now() + Duration::from_secs(240);
+    let (mut last_done, mut total) = (0, u64::MAX);
+    while last_done < total {
+        assert!(
+            Instant::now() < deadline,
+            "job not done after 240 s (seed {seed:#x}); events: {events:?}"
+        );
+        std::thread::sleep(Duration::from_millis(200 + rng.next() % 400));
+        if let Some((done, t, _)) = progress(&job, &url) {
+            (last_done, total) = (done, t);
+        }
+        if last_done >= total {
+            break;
+        }
+        if !coordinator_killed && total != u64::MAX && last_done * 10 >= total * 4 {
+            coord.kill9();
+            events.push(format!("coordinator SIGKILL at {last_done}/{total} units"));
+            std::thread::sleep(Duration::from_millis(300));
+            coord = coordinator(&data, port, &log);
+            coordinator_killed = true;
+            // What was acknowledged survived: progress resumes from the store, less at most
+            // the results whose commit was still queued (a few per worker).
+            let resumed = loop {
+                if let Some((done, _, _)) = progress(&job, &url) {
+                    break done;
+                }
+                assert!(
+                    Instant::now() < deadline,
+                    "the coordinator did not come back"
+                );
+                std::thread::sleep(Duration::from_millis(50));
+            };
+            events.push(format!(
+                "coordinator restarted with {resumed}/{total} units"
+            ));
+            assert!(
+                resumed + 16 >= last_done,
+                "restart lost merged work: {last_done} units before, {resumed} after"
+            );
+            continue;
+        }
+        let i = (rng.next() % workers.len() as u64) as usize;
+        workers[i].kill9();
+        events.push(format!("worker w{i} SIGKILL at {last_done}/{total} units"));
+        if rng.next() % 4 != 0 {
+            std::thread::sleep(Duration::from_millis(rng.next() % 300));
+        }
+        workers[i] = worker(&url, &format!("w{i}"));
+    }
+    assert!(
+        coordinator_killed,
+        "the job finished before the coordinator could be killed"
+    );
+    let follower = follower.wait_with_output().expect("fetch --wait");
+    assert!(
+        follower.status.success(),
+        "fetch --wait across the restart failed: {}",
+        String::from_utf8_lossy(&follower.stderr)
+    );
+
+    let local = dir.path().join("local.exr");
+    let mut args = vec![
+        "render",
+        scene.as_str(),
+        "--output",
+        local.to_str().expect("utf8"),
+    ];
+    args.extend(settings);
+    let out = tessera(&args, &url);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        std::fs::read(&farm_exr).expect("farm") == std::fs::read(&local).expect("local"),
+        "the EXR after the chaos differs from tessera render's (events: {events:?})"
+    );
+
+    // No lease left behind, on the job or on any worker.
+    let (done, total, leased) = progress(&job, &url).expect("status");
+    assert_eq!((done, leased), (total, 0));
+    let out = tessera(&["workers"], &url);
+    let table = String::from_utf8_lossy(&out.stdout);
+    for line in table.lines().skip(1) {
+        let leases: u64 = line
+            .split_whitespace()
+            .nth(4)
+            .and_then(|w| w.parse().ok())
+            .unwrap_or_else(|| panic!("unparsable workers line {line:?}"));
+        assert_eq!(leases, 0, "{table}");
+    }
+    let kills = events.len();
+    eprintln!(
+        "chaos (seed {seed:#x}): {kills} kills in {:.1} s: {events:#?}",
+        started.elapsed().as_secs_f64()
+    );
+    drop(workers);
+    drop(coord);
+}
