@@ -206,7 +206,7 @@ fn sigkilled_workers_and_coordinator_do_not_change_a_bit() {
         let i = (rng.next() % workers.len() as u64) as usize;
         workers[i].kill9();
         events.push(format!("worker w{i} SIGKILL at {last_done}/{total} units"));
-        if rng.next() % 4 != 0 {
+        if !rng.next().is_multiple_of(4) {
             std::thread::sleep(Duration::from_millis(rng.next() % 300));
         }
         workers[i] = worker(&url, &format!("w{i}"));

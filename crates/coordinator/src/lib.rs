@@ -33,6 +33,7 @@ use tonic::transport::{Certificate, Identity, ServerTlsConfig};
 use tracing::{error, info, warn};
 
 mod service;
+pub use service::decode_result;
 pub mod state;
 pub mod store;
 

@@ -149,8 +149,9 @@ fn final_state(s: &pb::JobStatus) -> bool {
     )
 }
 
-/// Converts a result from the wire, checking only what can be checked without the job.
-fn decode_result(r: pb::TileResult) -> Result<TileSums, Status> {
+/// Converts a result from the wire, checking only what can be checked without the job (the
+/// rest is [`Core::submit`](crate::state::Core::submit)'s). Public for the fuzz target.
+pub fn decode_result(r: pb::TileResult) -> Result<TileSums, Status> {
     let rect = r
         .rect
         .ok_or_else(|| Status::invalid_argument("result has no rect"))?;

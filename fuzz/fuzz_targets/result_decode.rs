@@ -1,0 +1,62 @@
+//! Any bytes as a SubmitResult request, through the coordinator's decoding and validation
+//! against a live job, and as a stored tile record: errors are fine, panics are not, and a
+//! merged result must have passed every check.
+#![no_main]
+
+use std::time::{Duration, Instant};
+
+use libfuzzer_sys::fuzz_target;
+use prost::Message;
+use tessera_coordinator::state::{Core, Job, Merged, Unit};
+use tessera_coordinator::store::{decode_sums, JobPhase, JobRecord};
+use tessera_proto::v1 as pb;
+
+fn job() -> Job {
+    Job::new(JobRecord {
+        id: 1,
+        scene_hash: "h".into(),
+        scene_name: "s".into(),
+        width: 5,
+        height: 3,
+        spp: 7,
+        seed: 0,
+        batch: 3,
+        strategy: "mis".into(),
+        tile_size: 4,
+        output_name: "o.exr".into(),
+        priority: 0,
+        variance: false,
+        sample_count: false,
+        phase: JobPhase::Active,
+        error: String::new(),
+        submitted_ms: 0,
+        finished_ms: 0,
+        final_noise: (0.0, 0.0),
+    })
+}
+
+fuzz_target!(|data: &[u8]| {
+    let j = job();
+    let _ = decode_sums(data, j.tiles[0]);
+    let Ok(req) = pb::SubmitResultRequest::decode(data) else {
+        return;
+    };
+    let mut core = Core::new(1, Duration::from_secs(60));
+    core.jobs.insert(1, j);
+    let now = Instant::now();
+    let w = core.register("fuzz".into(), 1, "0".into(), now);
+    let _ = core.lease(w, 64, now);
+    let Some(result) = req.result else { return };
+    let Ok(sums) = tessera_coordinator::decode_result(result) else {
+        return;
+    };
+    let unit = Unit {
+        tile: req.tile_index,
+        batch: req.batch_index,
+    };
+    // Lease ids of this core are "L1-1".."L1-6": the fuzzer can find them.
+    if let Ok(Merged::New { .. }) = core.submit(w, &req.lease_id, 1, unit, sums.clone(), now) {
+        let job = &core.jobs[&1];
+        assert!(job.check_result(unit, &sums).is_ok());
+    }
+});

@@ -1,0 +1,38 @@
+//! Any bytes, as TOML and as JSON: the scene loader must return a scene or a positioned error,
+//! never panic, and never take long (the limits keep builds small).
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+use tessera_render::scene::{Format, Limits, Scene};
+
+fuzz_target!(|data: &[u8]| {
+    let Ok(text) = std::str::from_utf8(data) else {
+        return;
+    };
+    let limits = Limits {
+        max_resolution: 256,
+        max_pixels: 256 * 256,
+        max_objects: 256,
+        max_bytes: 1 << 16,
+        max_spp: 1024,
+    };
+    for format in [Format::Toml, Format::Json] {
+        match Scene::from_str(text, format, "fuzz", &limits) {
+            Ok(scene) => {
+                // A scene that loads must be renderable: trace one sample of its centre.
+                let settings = tessera_render::RenderSettings {
+                    spp: 1,
+                    ..Default::default()
+                };
+                let _ = tessera_render::integrator::sample_pixel(
+                    &scene,
+                    &settings,
+                    scene.width / 2,
+                    scene.height / 2,
+                    0,
+                );
+            }
+            Err(e) => assert!(!e.to_string().is_empty()),
+        }
+    }
+});
