@@ -147,7 +147,7 @@ pub struct WorkerArgs {
     #[command(flatten)]
     url: CoordinatorUrl,
     /// Render threads (default: every core).
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    #[arg(long, env = "TESSERA_WORKER_THREADS", value_parser = clap::value_parser!(u32).range(1..=4096))]
     threads: Option<u32>,
     /// Name shown by `tessera workers` (default: the host name).
     #[arg(long)]
