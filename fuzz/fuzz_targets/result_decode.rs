@@ -8,14 +8,12 @@ use std::time::{Duration, Instant};
 use libfuzzer_sys::fuzz_target;
 use prost::Message;
 use tessera_coordinator::state::{Core, Job, Merged, Unit};
-use tessera_coordinator::store::{decode_sums, JobPhase, JobRecord};
+use tessera_coordinator::store::{decode_sums, JobRecord};
 use tessera_proto::v1 as pb;
 
 fn job() -> Job {
     Job::new(JobRecord {
         id: 1,
-        scene_hash: "h".into(),
-        scene_name: "s".into(),
         width: 5,
         height: 3,
         spp: 7,
@@ -24,14 +22,8 @@ fn job() -> Job {
         strategy: "mis".into(),
         tile_size: 4,
         output_name: "o.exr".into(),
-        priority: 0,
-        variance: false,
-        sample_count: false,
-        phase: JobPhase::Active,
-        error: String::new(),
         submitted_ms: 0,
-        finished_ms: 0,
-        final_noise: (0.0, 0.0),
+        ..JobRecord::default()
     })
 }
 

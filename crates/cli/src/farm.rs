@@ -13,6 +13,8 @@ use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_client::JobsClient;
 use tessera_proto::{parse_token, Secret};
 use tessera_render::scene::Limits;
+
+use crate::render::check_output_dir;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
 use tonic::Code;
@@ -507,19 +509,6 @@ async fn download(client: &mut Client, url: &str, job: &str, out: &Path) -> Resu
     std::fs::write(&tmp, &data).with_context(|| format!("writing {}", tmp.display()))?;
     std::fs::rename(&tmp, out).with_context(|| format!("writing {}", out.display()))?;
     Ok(data.len() as u64)
-}
-
-fn check_output_dir(out: &Path) -> Result<()> {
-    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        if !dir.is_dir() {
-            bail!(
-                "{}: output directory {} does not exist",
-                out.display(),
-                dir.display()
-            );
-        }
-    }
-    Ok(())
 }
 
 /// Runs `tessera submit`.

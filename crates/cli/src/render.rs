@@ -84,6 +84,20 @@ impl StrategyArg {
     }
 }
 
+/// Fails early, before any rendering, if `out` is to go into a directory that does not exist.
+pub fn check_output_dir(out: &std::path::Path) -> Result<()> {
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        if !dir.is_dir() {
+            bail!(
+                "{}: output directory {} does not exist",
+                out.display(),
+                dir.display()
+            );
+        }
+    }
+    Ok(())
+}
+
 /// Runs `tessera render`.
 pub fn run(args: RenderArgs) -> Result<()> {
     if !args.exposure.is_finite() {
@@ -97,15 +111,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         );
     }
     for out in std::iter::once(&args.output).chain(args.preview.as_ref()) {
-        if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
-            if !dir.is_dir() {
-                bail!(
-                    "{}: output directory {} does not exist",
-                    out.display(),
-                    dir.display()
-                );
-            }
-        }
+        check_output_dir(out)?;
     }
     let limits = Limits {
         max_spp: args.max_spp,

@@ -3,33 +3,18 @@
 //! and restarted on the same data directory and port. The job must finish with an EXR
 //! bit-identical to `tessera render`, and no lease may be left behind.
 
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+mod common;
+
+use std::path::Path;
+use std::process::{Command, Output, Stdio};
+
+use common::{repo, tessera_at, worker, Proc, BIN};
+
+fn tessera(args: &[&str], url: &str) -> Output {
+    tessera_at(args, url)
+}
+
 use std::time::{Duration, Instant};
-
-const BIN: &str = env!("CARGO_BIN_EXE_tessera");
-
-struct Proc(Child);
-
-impl Proc {
-    /// SIGKILL: no goodbye, no flush, leases left to lapse.
-    fn kill9(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        self.kill9();
-    }
-}
-
-fn repo(path: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../..")
-        .join(path)
-}
 
 fn coordinator(data: &Path, port: u16, log: &Path) -> Proc {
     let log = std::fs::OpenOptions::new()
@@ -48,33 +33,6 @@ fn coordinator(data: &Path, port: u16, log: &Path) -> Proc {
             .spawn()
             .expect("start coordinator"),
     )
-}
-
-fn worker(url: &str, name: &str) -> Proc {
-    Proc(
-        Command::new(BIN)
-            .args([
-                "worker",
-                "--coordinator",
-                url,
-                "--threads",
-                "1",
-                "--name",
-                name,
-            ])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("start worker"),
-    )
-}
-
-fn tessera(args: &[&str], url: &str) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .env("TESSERA_COORDINATOR", url)
-        .output()
-        .expect("run tessera")
 }
 
 /// (units done, units total, units leased) from `tessera status JOB`, if the coordinator

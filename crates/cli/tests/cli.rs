@@ -1,6 +1,10 @@
 //! Drives the real `tessera` binary, as a user would.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
+
+use common::repo;
 use std::process::{Command, Output};
 
 use tessera_render::output::{read_exr_metadata, read_exr_rgb};
@@ -10,14 +14,6 @@ fn tessera(args: &[&str]) -> Output {
         .args(args)
         .output()
         .expect("run tessera")
-}
-
-fn repo(path: &str) -> String {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../..")
-        .join(path)
-        .display()
-        .to_string()
 }
 
 fn write(dir: &Path, name: &str, text: &str) -> String {

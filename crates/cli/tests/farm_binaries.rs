@@ -3,29 +3,18 @@
 //! as `tessera render` writes.
 
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+mod common;
+
+use std::path::Path;
+use std::process::{Command, Output, Stdio};
+
+use common::{repo, tessera_at, worker, Proc, BIN};
+
+fn tessera(args: &[&str], url: &str) -> Output {
+    tessera_at(args, url)
+}
+
 use std::time::{Duration, Instant};
-
-const BIN: &str = env!("CARGO_BIN_EXE_tessera");
-
-/// A child process killed when dropped, so a failing test leaves nothing running.
-struct Proc(Child);
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn repo(path: &str) -> String {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../..")
-        .join(path)
-        .display()
-        .to_string()
-}
 
 /// Starts a coordinator on port 0 and returns it with its URL (read from its stdout).
 fn coordinator(data: &Path) -> (Proc, String) {
@@ -48,33 +37,6 @@ fn coordinator(data: &Path) -> (Proc, String) {
         .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
         .to_string();
     (Proc(child), format!("http://{addr}"))
-}
-
-fn worker(url: &str, name: &str) -> Proc {
-    Proc(
-        Command::new(BIN)
-            .args([
-                "worker",
-                "--coordinator",
-                url,
-                "--threads",
-                "1",
-                "--name",
-                name,
-            ])
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("start worker"),
-    )
-}
-
-fn tessera(args: &[&str], url: &str) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .env("TESSERA_COORDINATOR", url)
-        .output()
-        .expect("run tessera")
 }
 
 fn one_line_failure(out: &Output, needle: &str) {

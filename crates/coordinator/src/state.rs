@@ -817,24 +817,16 @@ mod tests {
     fn record(spp: u32, batch: u32) -> JobRecord {
         JobRecord {
             id: 1,
-            scene_hash: "h".into(),
-            scene_name: "s".into(),
+            spp,
+            batch,
             width: 4,
             height: 2,
-            spp,
             seed: 0,
-            batch,
             strategy: "mis".into(),
             tile_size: 2,
             output_name: "o.exr".into(),
-            priority: 0,
-            variance: false,
-            sample_count: false,
-            phase: JobPhase::Active,
-            error: String::new(),
             submitted_ms: 0,
-            finished_ms: 0,
-            final_noise: (0.0, 0.0),
+            ..JobRecord::default()
         }
     }
 

@@ -61,9 +61,10 @@ pub struct StoredScene {
 }
 
 /// Lifecycle state of a job, as stored.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub enum JobPhase {
     /// Accepted; units not all merged yet.
+    #[default]
     Active,
     /// Finished; the EXR is written.
     Done,
@@ -73,8 +74,9 @@ pub enum JobPhase {
     Failed,
 }
 
-/// Everything about a job that must survive a restart, besides its sums.
-#[derive(Clone, Debug, Serialize, Deserialize)]
+/// Everything about a job that must survive a restart, besides its sums. The default is an
+/// active, empty job, for building records field by field.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct JobRecord {
     /// Numeric id (shown as `job-NNNNNN`).
     pub id: u64,
@@ -390,8 +392,6 @@ mod tests {
         let dir = tempfile::tempdir().expect("tempdir");
         let rec = JobRecord {
             id: 7,
-            scene_hash: "h".into(),
-            scene_name: "s.toml".into(),
             width: 4,
             height: 4,
             spp: 4,
@@ -400,14 +400,8 @@ mod tests {
             strategy: "mis".into(),
             tile_size: 64,
             output_name: "a.exr".into(),
-            priority: 0,
-            variance: false,
-            sample_count: false,
-            phase: JobPhase::Active,
-            error: String::new(),
             submitted_ms: 1,
-            finished_ms: 0,
-            final_noise: (0.0, 0.0),
+            ..JobRecord::default()
         };
         {
             let store = Store::open(dir.path()).expect("open");

@@ -5,30 +5,22 @@ use std::time::{Duration, Instant};
 
 use proptest::prelude::*;
 use tessera_coordinator::state::{Core, Job, Merged, Unit};
-use tessera_coordinator::store::{JobPhase, JobRecord};
+use tessera_coordinator::store::JobRecord;
 use tessera_render::TileSums;
 
 fn record(width: u32, spp: u32, batch: u32) -> JobRecord {
     JobRecord {
         id: 1,
-        scene_hash: "h".into(),
-        scene_name: "s".into(),
         width,
-        height: 3,
         spp,
-        seed: 0,
         batch,
+        height: 3,
+        seed: 0,
         strategy: "mis".into(),
         tile_size: 2,
         output_name: "o.exr".into(),
-        priority: 0,
-        variance: false,
-        sample_count: false,
-        phase: JobPhase::Active,
-        error: String::new(),
         submitted_ms: 0,
-        finished_ms: 0,
-        final_noise: (0.0, 0.0),
+        ..JobRecord::default()
     }
 }
 
