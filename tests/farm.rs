@@ -448,6 +448,20 @@ async fn bad_submissions_are_refused_with_the_reason() {
     coord.stop().await;
 }
 
+/// With one worker and one client using `options`, renders `text` at 4 spp and checks the
+/// bits against a local render.
+async fn render_one_job(url: &str, options: &ClientOptions, text: &str, dir: &Path) {
+    let w = worker_with(url, "one", options.clone());
+    let mut client = client_with(url, options).await;
+    let job = submit(&mut client, text, 4, 2, 0).await;
+    assert_eq!(
+        wait(&mut client, &job).await.state,
+        pb::JobState::Done as i32
+    );
+    assert!(fetch(&mut client, &job).await == local_exr(text, 4, 2, dir));
+    w.abort();
+}
+
 /// A coordinator that requires a token refuses calls without it or with a wrong one, on both
 /// services, and works with the right one.
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
@@ -521,15 +535,7 @@ async fn a_token_is_required_on_every_service() {
         .expect_err("refused");
     assert!(err.to_string().contains("wrong token"), "{err}");
 
-    let w = worker_with(&url, "ok", good.clone());
-    let mut client = client_with(&url, &good).await;
-    let job = submit(&mut client, &text, 4, 2, 0).await;
-    assert_eq!(
-        wait(&mut client, &job).await.state,
-        pb::JobState::Done as i32
-    );
-    assert!(fetch(&mut client, &job).await == local_exr(&text, 4, 2, dir.path()));
-    w.abort();
+    render_one_job(&url, &good, &text, dir.path()).await;
     coord.stop().await;
 }
 
@@ -574,16 +580,7 @@ async fn a_job_completes_over_tls() {
     let mut raw = JobsClient::new(channel);
     assert!(raw.list_jobs(pb::ListJobsRequest {}).await.is_err());
 
-    let w = worker_with(&url, "tls", options.clone());
-    let text = scene_text(16);
-    let mut client = client_with(&url, &options).await;
-    let job = submit(&mut client, &text, 4, 2, 0).await;
-    assert_eq!(
-        wait(&mut client, &job).await.state,
-        pb::JobState::Done as i32
-    );
-    assert!(fetch(&mut client, &job).await == local_exr(&text, 4, 2, dir.path()));
-    w.abort();
+    render_one_job(&url, &options, &scene_text(16), dir.path()).await;
     coord.stop().await;
 }
 
