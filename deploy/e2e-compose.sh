@@ -60,8 +60,11 @@ echo "  reconnected"
 "$T" render scenes/cornell-box.toml --spp $SPP --output "$OUT/local.exr" >/dev/null
 cmp "$OUT/farm.exr" "$OUT/local.exr" || { echo "compose EXR differs from tessera render's" >&2; exit 1; }
 echo "== bit-identical to tessera render"
-"$T" workers
+"$T" workers | tee "$OUT/workers"
 "$T" status "$JOB" | grep -q "(0 leased)" || { echo "leases left behind" >&2; exit 1; }
+# The worker that was cut off came back by itself (its name is its container's host name).
+grep "${WORKERS[1]:0:12}" "$OUT/workers" | grep -q " alive " \
+  || { echo "the disconnected worker did not come back" >&2; exit 1; }
 
 echo "== down -v"
 dc down -v --remove-orphans
