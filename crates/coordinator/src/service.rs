@@ -425,7 +425,7 @@ impl Jobs for Service {
     ) -> Result<Response<pb::ListJobsResponse>, Status> {
         let core = self.shared.core();
         let jobs = core
-            .schedule_order()
+            .schedule_order(false)
             .into_iter()
             .filter_map(|id| core.jobs.get(&id))
             .map(|j| status(j, &core))

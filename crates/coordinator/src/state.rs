@@ -509,11 +509,13 @@ impl Core {
         n
     }
 
-    /// Active jobs in scheduling order: priority (high first), then submission order.
-    pub fn schedule_order(&self) -> Vec<u64> {
+    /// Jobs in scheduling order: priority (high first), then submission order; only those
+    /// still taking leases if `live_only` (finished jobs accumulate, and leasing runs often).
+    pub fn schedule_order(&self, live_only: bool) -> Vec<u64> {
         let mut ids: Vec<(i32, u64)> = self
             .jobs
             .values()
+            .filter(|j| !live_only || j.is_live())
             .map(|j| (j.rec.priority, j.rec.id))
             .collect();
         ids.sort_by_key(|&(p, id)| (std::cmp::Reverse(p), id));
@@ -547,7 +549,7 @@ impl Core {
             return out;
         }
         for speculate in [false, true] {
-            for id in self.schedule_order() {
+            for id in self.schedule_order(true) {
                 while out.len() < max {
                     let Some(job) = self.jobs.get_mut(&id) else {
                         break;
