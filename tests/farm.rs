@@ -136,6 +136,15 @@ async fn submit(client: &mut Client, text: &str, spp: u32, batch: u32, priority:
         .job_id
 }
 
+/// A job's current status.
+async fn job_status(client: &mut Client, job: &str) -> pb::JobStatus {
+    client
+        .get_job(pb::GetJobRequest { job_id: job.into() })
+        .await
+        .expect("status")
+        .into_inner()
+}
+
 /// Follows WatchJob to the end and returns the final status.
 async fn wait(client: &mut Client, job: &str) -> pb::JobStatus {
     let mut stream = client
@@ -239,13 +248,7 @@ async fn a_worker_killed_mid_job_does_not_break_it() {
     let doomed = worker(&coord.url(), "doomed");
     // Let it merge some units and hold some leases, then kill it without a goodbye.
     loop {
-        let s = client
-            .get_job(pb::GetJobRequest {
-                job_id: job.clone(),
-            })
-            .await
-            .expect("status")
-            .into_inner();
+        let s = job_status(&mut client, &job).await;
         if s.units_done >= 10 {
             assert!(
                 s.units_done < s.units_total,
@@ -257,13 +260,7 @@ async fn a_worker_killed_mid_job_does_not_break_it() {
     }
     doomed.abort();
     let _ = doomed.await;
-    let held = client
-        .get_job(pb::GetJobRequest {
-            job_id: job.clone(),
-        })
-        .await
-        .expect("status")
-        .into_inner();
+    let held = job_status(&mut client, &job).await;
     let survivor = worker(&coord.url(), "survivor");
     let status = wait(&mut client, &job).await;
     assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
@@ -304,13 +301,7 @@ async fn priorities_order_jobs_and_cancel_frees_units() {
     assert_eq!(high_status.state, pb::JobState::Done as i32);
     // The big job runs next; cancel it while it holds leases.
     loop {
-        let s = client
-            .get_job(pb::GetJobRequest {
-                job_id: doomed.clone(),
-            })
-            .await
-            .expect("status")
-            .into_inner();
+        let s = job_status(&mut client, &doomed).await;
         if s.units_done > 0 {
             break;
         }
@@ -327,13 +318,7 @@ async fn priorities_order_jobs_and_cancel_frees_units() {
     let low_status = wait(&mut client, &low).await;
     assert_eq!(low_status.state, pb::JobState::Done as i32);
     assert!(high_status.finished_unix_ms <= low_status.finished_unix_ms);
-    let d = client
-        .get_job(pb::GetJobRequest {
-            job_id: doomed.clone(),
-        })
-        .await
-        .expect("status")
-        .into_inner();
+    let d = job_status(&mut client, &doomed).await;
     assert_eq!(d.state, pb::JobState::Cancelled as i32);
     assert_eq!(d.units_leased, 0, "cancel left leases behind");
     assert!(d.units_done < d.units_total);

@@ -65,23 +65,24 @@ fn coordinator_two_workers_and_submit_wait_match_a_local_render() {
     let _a = worker(&url, "a");
     let mut b = worker(&url, "b");
     let scene = repo("scenes/spheres.toml");
+    // The job's settings, given alike to `submit` and to `render`.
+    let job = [scene.as_str(), "--spp", "8", "--batch", "4", "--seed", "3"];
+    let with = |cmd: &str, extra: &[&str]| -> Vec<String> {
+        std::iter::once(cmd)
+            .chain(job)
+            .chain(extra.iter().copied())
+            .map(String::from)
+            .collect()
+    };
+    let run = |args: Vec<String>| {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        tessera(&args, &url)
+    };
     let farm = dir.path().join("farm.exr");
-    let out = tessera(
-        &[
-            "submit",
-            &scene,
-            "--spp",
-            "8",
-            "--batch",
-            "4",
-            "--seed",
-            "3",
-            "--wait",
-            "--output",
-            farm.to_str().expect("utf8"),
-        ],
-        &url,
-    );
+    let out = run(with(
+        "submit",
+        &["--wait", "--output", farm.to_str().expect("utf8")],
+    ));
     assert!(
         out.status.success(),
         "{}",
@@ -91,21 +92,7 @@ fn coordinator_two_workers_and_submit_wait_match_a_local_render() {
     assert!(stdout.contains("job-000001 done"), "{stdout}");
 
     let local = dir.path().join("local.exr");
-    let out = tessera(
-        &[
-            "render",
-            &scene,
-            "--spp",
-            "8",
-            "--batch",
-            "4",
-            "--seed",
-            "3",
-            "--output",
-            local.to_str().expect("utf8"),
-        ],
-        &url,
-    );
+    let out = run(with("render", &["--output", local.to_str().expect("utf8")]));
     assert!(
         out.status.success(),
         "{}",
@@ -125,12 +112,7 @@ fn coordinator_two_workers_and_submit_wait_match_a_local_render() {
     }
 
     // Without --wait, submit prints the job id alone; fetch --wait then gets the same bytes.
-    let out = tessera(
-        &[
-            "submit", &scene, "--spp", "8", "--batch", "4", "--seed", "3",
-        ],
-        &url,
-    );
+    let out = run(with("submit", &[]));
     assert!(out.status.success());
     assert_eq!(String::from_utf8_lossy(&out.stdout), "job-000002\n");
     let again = dir.path().join("again.exr");

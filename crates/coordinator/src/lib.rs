@@ -26,7 +26,7 @@ use tessera_proto::v1::workers_server::WorkersServer;
 use tessera_proto::Secret;
 use tessera_render::output::{render_metadata, write_exr, ExrChannels};
 use tessera_render::scene::Limits;
-use tessera_render::{PixelRect, TileSums};
+use tessera_render::{assemble_frame, TileSums};
 use tokio::sync::{mpsc, oneshot, watch};
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Certificate, Identity, ServerTlsConfig};
@@ -238,20 +238,9 @@ async fn finish_job(shared: Arc<Shared>, id: u64) {
     let dir = shared.config.output_dir();
     let path = dir.join(&rec.output_name);
     let written = tokio::task::spawn_blocking(move || {
-        let mut frame = TileSums::empty(
-            PixelRect {
-                x0: 0,
-                y0: 0,
-                width: rec.width,
-                height: rec.height,
-            },
-            0,
-        );
-        frame.samples = 0..rec.spp;
-        for t in &tiles {
-            frame.insert(t).map_err(|e| e.to_string())?;
-        }
-        let image = frame.finalize();
+        let image = assemble_frame(rec.width, rec.height, rec.spp, &tiles)
+            .map_err(|e| e.to_string())?
+            .finalize();
         let channels = ExrChannels {
             variance: rec.variance,
             samples: rec.sample_count,

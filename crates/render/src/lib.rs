@@ -34,4 +34,4 @@ pub mod shape;
 pub mod tile;
 
 pub use integrator::{RenderSettings, Strategy};
-pub use tile::{render_frame, render_tile, Image, PixelRect, TileSums};
+pub use tile::{assemble_frame, render_frame, render_tile, Image, PixelRect, TileSums};

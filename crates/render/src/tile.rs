@@ -353,6 +353,28 @@ pub fn render_tile(
     out
 }
 
+/// Assembles a `width` × `height` frame from tiles that each cover samples `0..spp` and
+/// together partition it (the local renderer's last step, and the farm coordinator's).
+pub fn assemble_frame(
+    width: u32,
+    height: u32,
+    spp: u32,
+    tiles: &[TileSums],
+) -> Result<TileSums, MergeError> {
+    let full = PixelRect {
+        x0: 0,
+        y0: 0,
+        width,
+        height,
+    };
+    let mut frame = TileSums::empty(full, 0);
+    frame.samples = 0..spp;
+    for t in tiles {
+        frame.insert(t)?;
+    }
+    Ok(frame)
+}
+
 /// Renders the whole frame for `settings.spp` samples, tile by tile and batch by batch, calling
 /// `progress` with the number of samples finished after each tile batch.
 pub fn render_frame(
@@ -360,12 +382,6 @@ pub fn render_frame(
     settings: &RenderSettings,
     progress: &(dyn Fn(u64) + Sync),
 ) -> TileSums {
-    let full = PixelRect {
-        x0: 0,
-        y0: 0,
-        width: scene.width,
-        height: scene.height,
-    };
     let batch = settings.batch.max(1);
     let tiles = PixelRect::tiles(scene.width, scene.height, 32);
     let done: Vec<TileSums> = tiles
@@ -384,12 +400,6 @@ pub fn render_frame(
             acc
         })
         .collect();
-    let mut frame = TileSums::empty(full, 0);
-    frame.samples = 0..settings.spp;
-    for t in &done {
-        frame
-            .insert(t)
-            .expect("tiles partition the frame and cover 0..spp");
-    }
-    frame
+    assemble_frame(scene.width, scene.height, settings.spp, &done)
+        .expect("tiles partition the frame and cover 0..spp")
 }

@@ -4,36 +4,33 @@ mod common;
 
 use common::load;
 use tessera_render::output::{write_exr, ExrChannels};
-use tessera_render::{render_frame, render_tile, PixelRect, RenderSettings, TileSums};
+use tessera_render::{
+    assemble_frame, render_frame, render_tile, PixelRect, RenderSettings, TileSums,
+};
 
 fn frame_by_tiles(
     scene: &tessera_render::scene::Scene,
     settings: &RenderSettings,
     tile: u32,
 ) -> TileSums {
-    let full = PixelRect {
-        x0: 0,
-        y0: 0,
-        width: scene.width,
-        height: scene.height,
-    };
-    let mut frame = TileSums::empty(full, 0);
-    frame.samples = 0..settings.spp;
-    for rect in PixelRect::tiles(scene.width, scene.height, tile) {
-        let mut acc = TileSums::empty(rect, 0);
-        // Sample batches of 16 rendered separately and merged in order, as the farm does.
-        for s in (0..settings.spp).step_by(16) {
-            acc.merge(&render_tile(
-                scene,
-                settings,
-                rect,
-                s..(s + 16).min(settings.spp),
-            ))
-            .expect("in order");
-        }
-        frame.insert(&acc).expect("fits");
-    }
-    frame
+    let tiles: Vec<TileSums> = PixelRect::tiles(scene.width, scene.height, tile)
+        .into_iter()
+        .map(|rect| {
+            let mut acc = TileSums::empty(rect, 0);
+            // Sample batches of 16 rendered separately and merged in order, as the farm does.
+            for s in (0..settings.spp).step_by(16) {
+                acc.merge(&render_tile(
+                    scene,
+                    settings,
+                    rect,
+                    s..(s + 16).min(settings.spp),
+                ))
+                .expect("in order");
+            }
+            acc
+        })
+        .collect();
+    assemble_frame(scene.width, scene.height, settings.spp, &tiles).expect("fits")
 }
 
 #[test]
