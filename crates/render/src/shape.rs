@@ -218,40 +218,38 @@ pub fn sphere_roots(o: Vec3A, d: Vec3A, c: Vec3A, r: f32) -> Option<(f32, f32)> 
 /// Slab test against `[min, max]`. Returns (t_near, face_near, t_far, face_far) where faces are
 /// numbered axis·2 + (1 if the max side). Ties between axes go to the lowest axis; a zero
 /// direction component whose origin lies outside its slab misses; one inside is unconstrained.
+///
+/// Vectorised: a zero component gives ±∞ slab distances, which order correctly, except for an
+/// origin exactly on that slab's plane, where 0·∞ is NaN; that origin is inside the closed slab,
+/// so the axis is made unconstrained explicitly (SIMD `min`/`max` would propagate the NaN).
 #[inline]
 pub fn slab(o: Vec3A, d: Vec3A, min: Vec3A, max: Vec3A) -> Option<(f32, u32, f32, u32)> {
-    let mut t_near = f32::NEG_INFINITY;
-    let mut t_far = f32::INFINITY;
-    let (mut f_near, mut f_far) = (0u32, 0u32);
-    for axis in 0..3 {
-        let (oa, da, lo, hi) = (o[axis], d[axis], min[axis], max[axis]);
-        if da == 0.0 {
-            if oa < lo || oa > hi {
-                return None;
-            }
-            continue;
-        }
-        let inv = 1.0 / da;
-        let (mut t0, mut t1) = ((lo - oa) * inv, (hi - oa) * inv);
-        let (mut face0, mut face1) = (axis as u32 * 2, axis as u32 * 2 + 1);
-        if t0 > t1 {
-            std::mem::swap(&mut t0, &mut t1);
-            std::mem::swap(&mut face0, &mut face1);
-        }
-        if t0 > t_near {
-            t_near = t0;
-            f_near = face0;
-        }
-        if t1 < t_far {
-            t_far = t1;
-            f_far = face1;
-        }
+    let inv = d.recip();
+    let t_lo = (min - o) * inv;
+    let t_hi = (max - o) * inv;
+    let nan = t_lo.is_nan_mask() | t_hi.is_nan_mask();
+    let near = Vec3A::select(nan, Vec3A::NEG_INFINITY, t_lo.min(t_hi));
+    let far = Vec3A::select(nan, Vec3A::INFINITY, t_lo.max(t_hi));
+    let t_near = near.max_element();
+    let t_far = far.min_element();
+    if !(t_near <= t_far) {
+        return None;
     }
-    if t_near <= t_far {
-        Some((t_near, f_near, t_far, f_far))
-    } else {
-        None
-    }
+    let first = |v: Vec3A, t: f32| -> usize {
+        if v.x == t {
+            0
+        } else if v.y == t {
+            1
+        } else {
+            2
+        }
+    };
+    let (an, af) = (first(near, t_near), first(far, t_far));
+    // Entering through the min face when moving towards +axis (including +0), else the max face.
+    let pos = |a: usize| inv[a] > 0.0;
+    let f_near = (an * 2) as u32 + u32::from(!pos(an));
+    let f_far = (af * 2) as u32 + u32::from(pos(af));
+    Some((t_near, f_near, t_far, f_far))
 }
 
 /// Unit object-space normal of box face `face`.

@@ -1,0 +1,80 @@
+//! Microbenchmarks of the renderer's inner loops: the intersection kernels, the sampler, one
+//! path, and a tile render on one thread. Run with `cargo bench -p tessera-render`; compare
+//! before/after runs of the same machine, never absolute figures across machines.
+
+use std::hint::black_box;
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use glam::Vec3A;
+use tessera_render::math::{Aabb, Ray};
+use tessera_render::sampling::PixelSampler;
+use tessera_render::scene::{Limits, Scene};
+use tessera_render::shape::{slab, sphere_roots};
+use tessera_render::{render_tile, PixelRect, RenderSettings};
+
+fn scene(name: &str) -> Scene {
+    let path = format!("{}/../../scenes/{name}.toml", env!("CARGO_MANIFEST_DIR"));
+    Scene::load(path.as_ref(), &Limits::default()).expect("bundled scene loads")
+}
+
+fn kernels(c: &mut Criterion) {
+    let o = Vec3A::new(0.1, 0.2, 5.0);
+    let d = Vec3A::new(0.01, -0.02, -1.0).normalize();
+    c.bench_function("sphere_roots", |b| {
+        b.iter(|| sphere_roots(black_box(o), black_box(d), Vec3A::ZERO, 1.0))
+    });
+    c.bench_function("slab", |b| {
+        b.iter(|| slab(black_box(o), black_box(d), Vec3A::splat(-1.0), Vec3A::ONE))
+    });
+    let bx = Aabb {
+        min: Vec3A::splat(-1.0),
+        max: Vec3A::ONE,
+    };
+    let inv = d.recip();
+    c.bench_function("aabb_hit", |b| {
+        b.iter(|| bx.hit(black_box(o), black_box(inv), f32::INFINITY))
+    });
+    c.bench_function("sampler_get4", |b| {
+        let s = PixelSampler::new(7, 10, 20, 33);
+        b.iter(|| black_box(&s).get4(black_box(5)))
+    });
+    let cbox = scene("cornell-box");
+    let ray = cbox.camera.ray(128.5, 100.5);
+    c.bench_function("cornell_closest_hit", |b| {
+        b.iter(|| cbox.intersect(black_box(&ray), f32::INFINITY))
+    });
+    let shadow = Ray::new(Vec3A::new(0.0, -0.99, 0.0), Vec3A::new(0.05, 1.97, 0.02));
+    c.bench_function("cornell_shadow_ray", |b| {
+        b.iter(|| cbox.occluded(black_box(&shadow), 1.0 - 1e-4))
+    });
+}
+
+fn tiles(c: &mut Criterion) {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("one-thread pool");
+    let mut g = c.benchmark_group("tile_32x32_16spp_1thread");
+    g.sample_size(10);
+    g.throughput(Throughput::Elements(32 * 32 * 16));
+    for name in ["cornell-box", "spheres"] {
+        let s = scene(name);
+        let settings = RenderSettings {
+            spp: 16,
+            ..RenderSettings::default()
+        };
+        let rect = PixelRect {
+            x0: 112,
+            y0: 112,
+            width: 32,
+            height: 32,
+        };
+        g.bench_function(name, |b| {
+            b.iter(|| pool.install(|| render_tile(&s, &settings, rect, 0..16)))
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, kernels, tiles);
+criterion_main!(benches);
