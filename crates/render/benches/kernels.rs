@@ -2,6 +2,8 @@
 //! path, and a tile render on one thread. Run with `cargo bench -p tessera-render`; compare
 //! before/after runs of the same machine, never absolute figures across machines.
 
+#![allow(missing_docs)] // criterion_group! generates an undocumented function
+
 use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
@@ -76,5 +78,9 @@ fn tiles(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, kernels, tiles);
+criterion_group! {
+    name = benches;
+    config = Criterion::default();
+    targets = kernels, tiles
+}
 criterion_main!(benches);

@@ -164,7 +164,7 @@ pub fn radiance(
         let [u0, u1, u2, u_rr] = sampler.get4(1 + 2 * depth);
         let next = match mat.bsdf {
             Bsdf::Diffuse(albedo) => {
-                let p_out = offset_ray_origin(sp.p, n);
+                let p_out = offset_ray_origin(sp.p, sp.err, n);
                 if strategy != Strategy::Bsdf {
                     let [v0, v1, v2, _] = sampler.get4(2 + 2 * depth);
                     if let Some(ls) = scene.lights.sample(sp.p, v0, Vec2::new(v1, v2)) {
@@ -199,7 +199,7 @@ pub fn radiance(
             Bsdf::Mirror(r) => {
                 beta *= r;
                 specular = true;
-                Ray::new(offset_ray_origin(sp.p, n), reflect(ray.d, n))
+                Ray::new(offset_ray_origin(sp.p, sp.err, n), reflect(ray.d, n))
             }
             Bsdf::Dielectric(ior) => {
                 // The front side (sp.n) is outside.
@@ -208,13 +208,13 @@ pub fn radiance(
                 let (f, cos_t) = fresnel_dielectric(cos_i, eta);
                 specular = true;
                 if u2 < f {
-                    Ray::new(offset_ray_origin(sp.p, n), reflect(ray.d, n))
+                    Ray::new(offset_ray_origin(sp.p, sp.err, n), reflect(ray.d, n))
                 } else {
                     // Radiance is compressed by 1/η² entering a denser medium.
                     let wt = (-wo / eta + n * (cos_i / eta - cos_t)).normalize();
                     beta /= eta * eta;
                     eta_scale *= eta * eta;
-                    Ray::new(offset_ray_origin(sp.p, -n), wt)
+                    Ray::new(offset_ray_origin(sp.p, sp.err, -n), wt)
                 }
             }
         };

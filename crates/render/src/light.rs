@@ -5,9 +5,10 @@ use std::f32::consts::PI;
 
 use glam::{Vec2, Vec3A};
 
+use crate::math::gamma;
 use crate::math::{offset_ray_origin, Frame};
 use crate::sampling::{square_to_uniform_cone, square_to_uniform_sphere, Distribution1D};
-use crate::shape::{sphere_roots, Parallelogram};
+use crate::shape::{sphere_roots, sphere_roots_f64, Parallelogram};
 
 /// The part of an emitter that can be sampled.
 #[derive(Clone, Debug)]
@@ -75,6 +76,17 @@ impl Light {
         }
     }
 
+    /// Rounding-error bound of a point `x` that [`Light::sample`] produced from `u`.
+    #[inline]
+    fn point_error(&self, x: Vec3A, u: Vec2) -> Vec3A {
+        match &self.shape {
+            LightShape::Quad(q) => q.point_error(u.x, u.y),
+            LightShape::Sphere { center, .. } => {
+                (center.abs() + (x - *center).abs()) * gamma(8) + Vec3A::splat(f32::MIN_POSITIVE)
+            }
+        }
+    }
+
     /// Samples a point as seen from `p`: (point, its normal, unit direction from `p`, density in
     /// solid angle without selection).
     fn sample(&self, p: Vec3A, u: Vec2) -> Option<(Vec3A, Vec3A, Vec3A, f32)> {
@@ -100,12 +112,15 @@ impl Light {
                 let wi =
                     Frame::from_normal(axis).to_world(square_to_uniform_cone(u, one_minus_cos));
                 let wi = wi.normalize();
-                let t = match sphere_roots(p, wi, *center, *radius) {
+                // In f64, as for the sphere's own hits: for a small, distant light, p + t·wi in
+                // f32 can be off by more than the radius.
+                let (c64, p64, w64) = (center.as_dvec3(), p.as_dvec3(), wi.as_dvec3());
+                let t = match sphere_roots_f64(p, wi, *center, *radius) {
                     Some((t0, _)) if t0 > 0.0 => t0,
                     // Grazing directions can miss by rounding: use the tangent point.
-                    _ => (*center - p).dot(wi),
+                    _ => (c64 - p64).dot(w64) / w64.length_squared(),
                 };
-                let n = (p + wi * t - *center).normalize();
+                let n = ((p64 - c64) + w64 * t).normalize().as_vec3a();
                 let x = *center + n * *radius;
                 Some((x, n, wi, 1.0 / (2.0 * PI * one_minus_cos)))
             }
@@ -199,7 +214,7 @@ impl Lights {
         let le = light.emitted(n, -wi);
         let towards = if n.dot(-wi) >= 0.0 { n } else { -n };
         Some(LightSample {
-            p: offset_ray_origin(x, towards),
+            p: offset_ray_origin(x, light.point_error(x, u), towards),
             wi,
             le,
             pdf,

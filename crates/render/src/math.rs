@@ -136,26 +136,28 @@ impl Frame {
     }
 }
 
-/// Moves a surface point off its surface along `n` (the side the new ray leaves from) by a
-/// fixed number of ULPs of each coordinate (Wächter & Binder, Ray Tracing Gems ch. 6). The
-/// offset scales with the magnitude of the coordinates, not with scene units, so it holds at any
-/// scale and translation where a fixed epsilon fails.
+/// Moves a surface point off its surface to the side `n` points to (the side the new ray leaves
+/// from), by just enough to clear the point's conservative rounding-error bound `err` (pbrt-v4's
+/// `OffsetRayOrigin`): the offset along `n` is |n|·err, then each coordinate is rounded one more
+/// float away from the surface, so the rounding of the addition cannot undo it. The bound
+/// comes from the magnitudes of the terms the point was computed from, never from scene units,
+/// so it holds at any scale and translation where a fixed epsilon fails.
 #[inline]
-pub fn offset_ray_origin(p: Vec3A, n: Vec3A) -> Vec3A {
-    const ORIGIN: f32 = 1.0 / 32.0;
-    const FLOAT_SCALE: f32 = 1.0 / 65536.0;
-    const INT_SCALE: f32 = 256.0;
-    let off = |p: f32, n: f32| -> f32 {
-        let of_i = (INT_SCALE * n) as i32;
-        let bits = p.to_bits() as i32;
-        let moved = f32::from_bits(bits.wrapping_add(if p < 0.0 { -of_i } else { of_i }) as u32);
-        if p.abs() < ORIGIN {
-            p + FLOAT_SCALE * n
+pub fn offset_ray_origin(p: Vec3A, err: Vec3A, n: Vec3A) -> Vec3A {
+    let d = n.abs().dot(err);
+    let offset = n * d;
+    let po = p + offset;
+    let away = |v: f32, o: f32| {
+        if o > 0.0 {
+            v.next_up()
+        } else if o < 0.0 {
+            v.next_down()
         } else {
-            moved
+            v
         }
     };
-    Vec3A::new(off(p.x, n.x), off(p.y, n.y), off(p.z, n.z))
+    // By the sign of n, not of the offset: even a zero error bound moves the origin a float.
+    Vec3A::new(away(po.x, n.x), away(po.y, n.y), away(po.z, n.z))
 }
 
 /// Converts an RGB (or XYZ) array to `Vec3A`.
@@ -196,18 +198,21 @@ mod tests {
     }
 
     #[test]
-    fn offset_moves_to_the_normal_side() {
+    fn offset_moves_to_the_normal_side_at_every_magnitude() {
         for p in [
             Vec3A::ZERO,
             Vec3A::splat(1e8),
             Vec3A::splat(-3.5),
             Vec3A::splat(1e-3),
+            Vec3A::splat(-1e-30),
         ] {
             let n = Vec3A::new(0.0, 1.0, 0.0);
-            let q = offset_ray_origin(p, n);
+            let err = p.abs() * gamma(4);
+            let q = offset_ray_origin(p, err, n);
             assert!(q.y > p.y, "{p:?} -> {q:?}");
+            assert!(q.y - p.y >= err.y, "clears the error bound: {p:?} -> {q:?}");
             assert_eq!(q.x, p.x);
-            let q = offset_ray_origin(p, -n);
+            let q = offset_ray_origin(p, err, -n);
             assert!(q.y < p.y);
         }
     }

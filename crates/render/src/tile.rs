@@ -292,6 +292,33 @@ impl Image {
     }
 }
 
+/// One pixel's sums over one batch: the only place a sample enters the image. A non-finite
+/// sample (which no test scene has produced, but a future bug might) is counted and dropped,
+/// so it is reported instead of poisoning the pixel and every merge after it.
+#[derive(Default)]
+struct BatchSums {
+    sum: [f64; 3],
+    sum_sq: [f64; 3],
+    count: u32,
+    nonfinite: u64,
+}
+
+impl BatchSums {
+    #[inline]
+    fn add(&mut self, v: glam::Vec3A) {
+        if !v.is_finite() {
+            self.nonfinite += 1;
+            return;
+        }
+        for c in 0..3 {
+            let f = v[c] as f64;
+            self.sum[c] += f;
+            self.sum_sq[c] += f * f;
+        }
+        self.count += 1;
+    }
+}
+
 /// Renders `rect` for sample indices `samples` (parallel over rows with rayon).
 pub fn render_tile(
     scene: &Scene,
@@ -324,25 +351,16 @@ pub fn render_tile(
                     let end = ((i / batch).saturating_add(1))
                         .saturating_mul(batch)
                         .min(samples.end);
-                    let mut bs = [0f64; 3];
-                    let mut bsq = [0f64; 3];
+                    let mut b = BatchSums::default();
                     for index in i..end {
-                        let v = sample_pixel(scene, settings, x, y, index);
-                        if !v.is_finite() {
-                            bad += 1;
-                            continue;
-                        }
-                        for c in 0..3 {
-                            let f = v[c] as f64;
-                            bs[c] += f;
-                            bsq[c] += f * f;
-                        }
-                        *k += 1;
+                        b.add(sample_pixel(scene, settings, x, y, index));
                     }
                     for c in 0..3 {
-                        s[c] += bs[c];
-                        sq[c] += bsq[c];
+                        s[c] += b.sum[c];
+                        sq[c] += b.sum_sq[c];
                     }
+                    *k += b.count;
+                    bad += b.nonfinite;
                     i = end;
                 }
             }
@@ -402,4 +420,23 @@ pub fn render_frame(
         .collect();
     assemble_frame(scene.width, scene.height, settings.spp, &done)
         .expect("tiles partition the frame and cover 0..spp")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn non_finite_samples_are_counted_and_never_merged() {
+        let mut b = BatchSums::default();
+        b.add(glam::Vec3A::new(1.0, 2.0, 3.0));
+        b.add(glam::Vec3A::new(f32::NAN, 0.0, 0.0));
+        b.add(glam::Vec3A::new(0.0, f32::INFINITY, 0.0));
+        b.add(glam::Vec3A::new(0.0, 0.0, f32::NEG_INFINITY));
+        b.add(glam::Vec3A::new(3.0, 2.0, 1.0));
+        assert_eq!(b.nonfinite, 3);
+        assert_eq!(b.count, 2);
+        assert_eq!(b.sum, [4.0, 4.0, 4.0]);
+        assert_eq!(b.sum_sq, [10.0, 8.0, 10.0]);
+    }
 }
