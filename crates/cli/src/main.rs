@@ -9,6 +9,7 @@ use std::process::ExitCode;
 
 use clap::Parser;
 
+mod bench;
 mod farm;
 mod render;
 
@@ -38,6 +39,9 @@ enum Command {
     Workers(farm::WorkersArgs),
     /// Download a finished job's EXR.
     Fetch(farm::FetchArgs),
+    /// Measure speed against error: timed renders at 4…4096 spp, relMSE against references,
+    /// and a report with a log–log plot (and peers' figures, if given).
+    Bench(bench::BenchArgs),
 }
 
 fn main() -> ExitCode {
@@ -51,6 +55,7 @@ fn main() -> ExitCode {
         Command::Cancel(args) => farm::cancel(args),
         Command::Workers(args) => farm::workers(args),
         Command::Fetch(args) => farm::fetch(args),
+        Command::Bench(args) => bench::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -205,3 +205,91 @@ fn bad_flags_and_paths_are_refused() {
         &["--exposure"],
     );
 }
+
+#[test]
+fn bench_writes_csv_markdown_and_plot_with_peer_ratios() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let scene = write(
+        dir.path(),
+        "tiny.toml",
+        "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 0, 4]\ntarget = [0, 0, 0]\nfov = 40\n\
+         [film]\nwidth = 12\nheight = 8\n[environment]\ntype = \"constant\"\nradiance = [1, 1, 1]\n\
+         [materials.m]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"m\"\n",
+    );
+    let peer = write(
+        dir.path(),
+        "peer.csv",
+        "renderer,scene,spp,seed,threads,seconds,msamples_per_s,relmse\n\
+         other,tiny,4,1,2,0.5,0.001,0.02\nother,tiny,16,1,2,2.0,0.001,0.005\n",
+    );
+    let out = dir.path().join("out");
+    std::fs::create_dir(&out).expect("mkdir");
+    let cache = dir.path().join("cache");
+    let args = |peer: &str| {
+        vec![
+            "bench".to_string(),
+            "--scene".into(),
+            scene.clone(),
+            "--max-spp".into(),
+            "16".into(),
+            "--seeds".into(),
+            "2".into(),
+            "--reference-spp".into(),
+            "64".into(),
+            "--cache".into(),
+            cache.display().to_string(),
+            "--out".into(),
+            out.display().to_string(),
+            "--peer".into(),
+            peer.to_string(),
+        ]
+    };
+    let a = args(&peer);
+    let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let csv = std::fs::read_to_string(out.join("speed-vs-error.csv")).expect("csv");
+    // 2 spp levels × 2 seeds of tessera, plus the peer's 2 rows.
+    assert_eq!(csv.lines().count(), 1 + 4 + 2, "{csv}");
+    let ours: Vec<f64> = csv
+        .lines()
+        .filter(|l| l.starts_with("tessera,tiny,"))
+        .map(|l| {
+            l.rsplit(',')
+                .next()
+                .expect("relmse")
+                .parse()
+                .expect("number")
+        })
+        .collect();
+    assert!(ours.iter().all(|e| e.is_finite() && *e > 0.0), "{csv}");
+    let md = std::fs::read_to_string(out.join("speed-vs-error.md")).expect("md");
+    assert!(
+        md.contains("| tiny | other |") && md.contains("| tiny | tessera | 16 |"),
+        "{md}"
+    );
+    assert!(
+        md.contains("Machine:") && md.contains("tessera bench"),
+        "{md}"
+    );
+    let svg = std::fs::read_to_string(out.join("speed-vs-error.svg")).expect("svg");
+    assert!(svg.starts_with("<svg") && svg.contains("polyline"), "{svg}");
+    assert_eq!(
+        std::fs::read_dir(&cache).expect("cache").count(),
+        1,
+        "the reference is cached"
+    );
+
+    let bad = write(dir.path(), "bad.csv", "other,tiny,4,1,2,NaN,1,1\n");
+    let a = args(&bad);
+    let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_clean_failure(&r, &["bad.csv:1", "seconds"]);
+    let r = tessera(&[
+        "bench",
+        "--max-spp",
+        "8",
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    assert_clean_failure(&r, &["--max-spp", "power of 4"]);
+}

@@ -1,0 +1,572 @@
+//! `tessera bench`: speed against error.
+//!
+//! Renders each scene at 4, 16, … spp with several seeds, times every render, and measures
+//! relMSE = mean over pixels and channels of (I − R)²/(R² + 0.01) against a converged
+//! reference. It writes a CSV, a markdown report and a log–log plot of error against time.
+//! Rows from peers (other renderers, measured by `bench/mitsuba_peer.py` in the same run) are
+//! read from CSV files in the same format and compared: the equal-time relMSE ratio is the
+//! ratio of relMSE·seconds, which is constant once error falls as 1/time.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use tessera_render::output::{read_exr_rgb, render_metadata, write_exr, ExrChannels, RgbImage};
+use tessera_render::scene::{Limits, Scene};
+use tessera_render::{render_frame, Image, RenderSettings};
+
+/// Arguments of `tessera bench`.
+#[derive(Debug, clap::Args)]
+pub struct BenchArgs {
+    /// Scene files (default: the bundled cornell-box, spheres and glass-mirror scenes).
+    #[arg(long = "scene")]
+    scenes: Vec<PathBuf>,
+    /// Largest spp: renders at 4, 16, 64, … up to this (a power of 4).
+    #[arg(long, default_value_t = 4096, value_parser = clap::value_parser!(u32).range(4..=65536))]
+    max_spp: u32,
+    /// Seeds per spp.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
+    seeds: u32,
+    /// Worker threads (default: every core).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    threads: Option<u32>,
+    /// A converged reference for a scene, as NAME=FILE.exr (NAME is the scene file's stem).
+    /// cornell-box defaults to the independent Mitsuba reference in tests/data; other scenes
+    /// without one get a tessera render at --reference-spp, cached under --cache.
+    #[arg(long = "reference")]
+    references: Vec<String>,
+    /// Samples per pixel of the references tessera renders itself.
+    #[arg(long, default_value_t = 16384)]
+    reference_spp: u32,
+    /// Where self-rendered references are cached (keyed by scene hash and spp).
+    #[arg(long, default_value = "target/bench-cache")]
+    cache: PathBuf,
+    /// CSV files of peer measurements (same columns as the CSV this writes).
+    #[arg(long = "peer")]
+    peers: Vec<PathBuf>,
+    /// Output directory.
+    #[arg(long, default_value = "docs/benchmarks")]
+    out: PathBuf,
+    /// Base name of the report files (NAME.csv, NAME.md, NAME.svg).
+    #[arg(long, default_value = "speed-vs-error")]
+    name: String,
+}
+
+/// One timed render.
+#[derive(Clone, Debug)]
+struct Row {
+    renderer: String,
+    scene: String,
+    spp: u32,
+    seed: u64,
+    threads: usize,
+    seconds: f64,
+    msamples_per_s: f64,
+    relmse: f64,
+}
+
+const CSV_HEADER: &str = "renderer,scene,spp,seed,threads,seconds,msamples_per_s,relmse";
+
+impl Row {
+    fn to_csv(&self) -> String {
+        format!(
+            "{},{},{},{},{},{:.6},{:.4},{:.6e}",
+            self.renderer,
+            self.scene,
+            self.spp,
+            self.seed,
+            self.threads,
+            self.seconds,
+            self.msamples_per_s,
+            self.relmse
+        )
+    }
+
+    fn parse(line: &str, file: &Path, number: usize) -> Result<Self> {
+        let f: Vec<&str> = line.split(',').map(str::trim).collect();
+        let at = || format!("{}:{number}", file.display());
+        if f.len() != 8 {
+            bail!(
+                "{}: expected 8 comma-separated fields ({CSV_HEADER}), found {}",
+                at(),
+                f.len()
+            );
+        }
+        let num = |i: usize, what: &str| -> Result<f64> {
+            let v: f64 = f[i]
+                .parse()
+                .with_context(|| format!("{}: {what} {:?} is not a number", at(), f[i]))?;
+            if !v.is_finite() || v < 0.0 {
+                bail!(
+                    "{}: {what} must be a finite non-negative number, got {v}",
+                    at()
+                );
+            }
+            Ok(v)
+        };
+        let row = Row {
+            renderer: f[0].to_string(),
+            scene: f[1].to_string(),
+            spp: num(2, "spp")? as u32,
+            seed: num(3, "seed")? as u64,
+            threads: num(4, "threads")? as usize,
+            seconds: num(5, "seconds")?,
+            msamples_per_s: num(6, "msamples_per_s")?,
+            relmse: num(7, "relmse")?,
+        };
+        if row.renderer.is_empty() || row.scene.is_empty() || row.seconds <= 0.0 || row.spp == 0 {
+            bail!(
+                "{}: renderer and scene must be named, spp and seconds positive",
+                at()
+            );
+        }
+        Ok(row)
+    }
+}
+
+/// relMSE of `img` against `reference`: mean over pixels and channels of (I−R)²/(R²+0.01).
+fn rel_mse(img: &Image, reference: &RgbImage) -> f64 {
+    let mut sum = 0f64;
+    for (p, r) in img.rgb.iter().zip(&reference.rgb) {
+        for c in 0..3 {
+            let (i, r) = (p[c] as f64, r[c] as f64);
+            sum += (i - r) * (i - r) / (r * r + 0.01);
+        }
+    }
+    sum / (3 * img.rgb.len()) as f64
+}
+
+fn machine() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|m| m.trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown CPU".into());
+    let mem = std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("MemTotal"))
+                .and_then(|l| l.split_whitespace().nth(1)?.parse::<f64>().ok())
+        })
+        .map(|kb| format!(", {:.0} GiB", kb / 1024.0 / 1024.0))
+        .unwrap_or_default();
+    let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
+    format!("{cpu}, {cores} cores available{mem}")
+}
+
+/// The reference for `name`: given, the bundled independent one, or rendered here (cached).
+fn reference(
+    args: &BenchArgs,
+    name: &str,
+    scene: &Scene,
+    pool: &rayon::ThreadPool,
+) -> Result<(RgbImage, String)> {
+    for r in &args.references {
+        let (n, file) = r
+            .split_once('=')
+            .with_context(|| format!("--reference {r:?}: expected NAME=FILE.exr"))?;
+        if n == name {
+            let img = read_exr_rgb(Path::new(file))?;
+            return Ok((img, format!("`{file}`")));
+        }
+    }
+    let bundled = Path::new("tests/data").join(format!("{name}-reference.exr"));
+    if bundled.is_file() {
+        return Ok((
+            read_exr_rgb(&bundled)?,
+            format!(
+                "`{}` (independent: Mitsuba 3, 16384 spp)",
+                bundled.display()
+            ),
+        ));
+    }
+    let spp = args.reference_spp;
+    let cached = args.cache.join(format!("{}-{spp}.exr", &scene.hash[..16]));
+    if !cached.is_file() {
+        std::fs::create_dir_all(&args.cache)
+            .with_context(|| format!("creating {}", args.cache.display()))?;
+        eprintln!(
+            "rendering a {spp}-spp reference of {name} (cached as {})",
+            cached.display()
+        );
+        // A seed no benchmark render uses, so the reference's noise is independent.
+        let settings = RenderSettings {
+            seed: u64::MAX,
+            spp,
+            ..RenderSettings::default()
+        };
+        let img = pool
+            .install(|| render_frame(scene, &settings, &|_| {}))
+            .finalize();
+        write_exr(
+            &cached,
+            &img,
+            ExrChannels::default(),
+            &render_metadata(&scene.hash, &settings),
+        )?;
+    }
+    Ok((
+        read_exr_rgb(&cached)?,
+        format!("tessera at {spp} spp, seed 2⁶⁴−1 (`{}`)", cached.display()),
+    ))
+}
+
+/// Runs `tessera bench`.
+pub fn run(args: BenchArgs) -> Result<()> {
+    if !args.max_spp.is_power_of_two() || args.max_spp.trailing_zeros() % 2 != 0 {
+        bail!(
+            "--max-spp must be a power of 4 (4, 16, 64, …), got {}",
+            args.max_spp
+        );
+    }
+    if !args.out.is_dir() {
+        bail!("output directory {} does not exist", args.out.display());
+    }
+    let scenes = if args.scenes.is_empty() {
+        ["cornell-box", "spheres", "glass-mirror"]
+            .iter()
+            .map(|s| PathBuf::from(format!("scenes/{s}.toml")))
+            .collect()
+    } else {
+        args.scenes.clone()
+    };
+    let mut peer_rows = Vec::new();
+    for file in &args.peers {
+        let text =
+            std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
+        for (i, line) in text.lines().enumerate() {
+            if i == 0 && line.trim() == CSV_HEADER || line.trim().is_empty() {
+                continue;
+            }
+            peer_rows.push(Row::parse(line, file, i + 1)?);
+        }
+    }
+    let mut pool = rayon::ThreadPoolBuilder::new();
+    if let Some(t) = args.threads {
+        pool = pool.num_threads(t as usize);
+    }
+    let pool = pool.build().context("starting the render threads")?;
+    let threads = pool.current_num_threads();
+
+    let mut rows = Vec::new();
+    let mut references = Vec::new();
+    for path in &scenes {
+        let scene = Scene::load(path, &Limits::default())?;
+        let name = path
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .context("scene file name")?
+            .to_string();
+        let (reference, source) = reference(&args, &name, &scene, &pool)?;
+        if (reference.width, reference.height) != (scene.width as usize, scene.height as usize) {
+            bail!(
+                "the reference for {name} is {}×{}, the scene {}×{}",
+                reference.width,
+                reference.height,
+                scene.width,
+                scene.height
+            );
+        }
+        references.push((name.clone(), source));
+        // Warm-up (page faults, thread start), not timed.
+        let warm = RenderSettings {
+            spp: 1,
+            ..RenderSettings::default()
+        };
+        pool.install(|| render_frame(&scene, &warm, &|_| {}));
+        let mut spp = 4;
+        while spp <= args.max_spp {
+            for seed in 0..args.seeds as u64 {
+                let settings = RenderSettings {
+                    seed: 1 + seed,
+                    spp,
+                    ..RenderSettings::default()
+                };
+                let start = Instant::now();
+                let sums = pool.install(|| render_frame(&scene, &settings, &|_| {}));
+                let seconds = start.elapsed().as_secs_f64();
+                let img = sums.finalize();
+                let samples = scene.width as f64 * scene.height as f64 * spp as f64;
+                let row = Row {
+                    renderer: "tessera".into(),
+                    scene: name.clone(),
+                    spp,
+                    seed: settings.seed,
+                    threads,
+                    seconds,
+                    msamples_per_s: samples / seconds / 1e6,
+                    relmse: rel_mse(&img, &reference),
+                };
+                eprintln!("{}", row.to_csv());
+                rows.push(row);
+            }
+            spp *= 4;
+        }
+    }
+    rows.extend(peer_rows);
+
+    let base = args.out.join(&args.name);
+    let csv = std::iter::once(CSV_HEADER.to_string())
+        .chain(rows.iter().map(Row::to_csv))
+        .collect::<Vec<_>>()
+        .join("\n")
+        + "\n";
+    let csv_path = base.with_extension("csv");
+    std::fs::write(&csv_path, csv).with_context(|| format!("writing {}", csv_path.display()))?;
+    let svg_path = base.with_extension("svg");
+    plot(&rows, &svg_path)?;
+    let md_path = base.with_extension("md");
+    let md = report(&rows, &references, &args, threads, &svg_path, &csv_path);
+    std::fs::write(&md_path, md).with_context(|| format!("writing {}", md_path.display()))?;
+    println!(
+        "wrote {}, {} and {}",
+        md_path.display(),
+        csv_path.display(),
+        svg_path.display()
+    );
+    Ok(())
+}
+
+/// Per (scene, renderer, spp): mean seconds, mean relMSE, mean Msamples/s over seeds.
+type Series = BTreeMap<(String, String), BTreeMap<u32, (f64, f64, f64)>>;
+
+fn series(rows: &[Row]) -> Series {
+    let mut acc: BTreeMap<(String, String), BTreeMap<u32, Vec<&Row>>> = BTreeMap::new();
+    for r in rows {
+        acc.entry((r.scene.clone(), r.renderer.clone()))
+            .or_default()
+            .entry(r.spp)
+            .or_default()
+            .push(r);
+    }
+    acc.into_iter()
+        .map(|(k, by_spp)| {
+            let v = by_spp
+                .into_iter()
+                .map(|(spp, rs)| {
+                    let n = rs.len() as f64;
+                    let mean = |f: &dyn Fn(&Row) -> f64| rs.iter().map(|r| f(r)).sum::<f64>() / n;
+                    (
+                        spp,
+                        (
+                            mean(&|r| r.seconds),
+                            mean(&|r| r.relmse),
+                            mean(&|r| r.msamples_per_s),
+                        ),
+                    )
+                })
+                .collect();
+            (k, v)
+        })
+        .collect()
+}
+
+/// relMSE·seconds (geometric mean over spp ≥ 64, where error falls as 1/time and fixed costs
+/// no longer dominate) and throughput (all samples over all time) of one series.
+fn summary(points: &BTreeMap<u32, (f64, f64, f64)>) -> (f64, f64) {
+    let fit: Vec<f64> = points
+        .iter()
+        .filter(|(spp, _)| **spp >= 64)
+        .map(|(_, (s, e, _))| (s * e).ln())
+        .collect();
+    let err_time = if fit.is_empty() {
+        f64::NAN
+    } else {
+        (fit.iter().sum::<f64>() / fit.len() as f64).exp()
+    };
+    let (samples, secs) = points
+        .values()
+        .fold((0.0, 0.0), |(n, t), (s, _, m)| (n + m * s, t + s));
+    (err_time, samples / secs)
+}
+
+fn report(
+    rows: &[Row],
+    references: &[(String, String)],
+    args: &BenchArgs,
+    threads: usize,
+    svg: &Path,
+    csv: &Path,
+) -> String {
+    let all = series(rows);
+    let mut md = String::new();
+    let command: Vec<String> = std::env::args().collect();
+    let _ = writeln!(md, "# Speed against error\n");
+    let _ = writeln!(
+        md,
+        "Made by `{}` (tessera on {threads} threads).\n",
+        command.join(" ")
+    );
+    let _ = writeln!(md, "Machine: {}.\n", machine());
+    let _ = writeln!(
+        md,
+        "Each scene is rendered at 4, 16, … {} spp with {} seeds; a row is the mean over seeds. \
+         relMSE = mean over pixels and channels of (I − R)²/(R² + 0.01); efficiency = 1/(relMSE·s). \
+         relMSE·s is the geometric mean over spp ≥ 64, where error falls as 1/time. \
+         Peers' rows come from their own CSV files, measured in the same run. \
+         Data: [`{}`]({}), plot: [`{}`]({}).\n",
+        args.max_spp,
+        args.seeds,
+        csv.display(),
+        csv.file_name().map_or_else(String::new, |f| f.to_string_lossy().into()),
+        svg.display(),
+        svg.file_name().map_or_else(String::new, |f| f.to_string_lossy().into()),
+    );
+    let _ = writeln!(md, "References:\n");
+    for (name, source) in references {
+        let _ = writeln!(md, "- {name}: {source}");
+    }
+    let _ = writeln!(md, "\n## Summary\n");
+    let _ = writeln!(
+        md,
+        "| scene | renderer | Msamples/s | relMSE·s | efficiency | throughput vs tessera | equal-time relMSE vs tessera |\n|---|---|---:|---:|---:|---:|---:|"
+    );
+    for ((scene, renderer), points) in &all {
+        let (et, ms) = summary(points);
+        let (ratio_t, ratio_e) = match all.get(&(scene.clone(), "tessera".to_string())) {
+            Some(t) if renderer != "tessera" => {
+                let (t_et, t_ms) = summary(t);
+                (format!("{:.2}×", t_ms / ms), format!("{:.3}×", t_et / et))
+            }
+            _ => ("".into(), "".into()),
+        };
+        let _ = writeln!(
+            md,
+            "| {scene} | {renderer} | {ms:.2} | {et:.4} | {:.0} | {ratio_t} | {ratio_e} |",
+            1.0 / et
+        );
+    }
+    let _ = writeln!(
+        md,
+        "\n\"throughput vs tessera\" is tessera's Msamples/s over the peer's; \"equal-time relMSE vs \
+         tessera\" is tessera's relMSE·s over the peer's: the error tessera reaches in the time the \
+         peer needs for its own (below 1 is better for tessera).\n"
+    );
+    let _ = writeln!(md, "## All points\n");
+    let _ = writeln!(
+        md,
+        "| scene | renderer | spp | seconds | Msamples/s | relMSE | efficiency |\n|---|---|---:|---:|---:|---:|---:|"
+    );
+    for ((scene, renderer), points) in &all {
+        for (spp, (s, e, m)) in points {
+            let _ = writeln!(
+                md,
+                "| {scene} | {renderer} | {spp} | {s:.3} | {m:.2} | {e:.3e} | {:.1} |",
+                1.0 / (e * s)
+            );
+        }
+    }
+    md
+}
+
+fn plot(rows: &[Row], path: &Path) -> Result<()> {
+    use plotters::prelude::*;
+    let all = series(rows);
+    let scenes: Vec<String> = {
+        let mut s: Vec<String> = all.keys().map(|(s, _)| s.clone()).collect();
+        s.dedup();
+        s
+    };
+    let root = SVGBackend::new(path, (480 * scenes.len().max(1) as u32, 420)).into_drawing_area();
+    let draw = || -> Result<(), Box<dyn std::error::Error>> {
+        root.fill(&WHITE)?;
+        let panels = root.split_evenly((1, scenes.len().max(1)));
+        for (scene, panel) in scenes.iter().zip(panels.iter()) {
+            let pts: Vec<(f64, f64)> = all
+                .iter()
+                .filter(|((s, _), _)| s == scene)
+                .flat_map(|(_, p)| p.values().map(|(s, e, _)| (*s, *e)))
+                .filter(|(s, e)| *s > 0.0 && *e > 0.0)
+                .collect();
+            let (x0, x1) = pts
+                .iter()
+                .fold((f64::MAX, f64::MIN), |a, p| (a.0.min(p.0), a.1.max(p.0)));
+            let (y0, y1) = pts
+                .iter()
+                .fold((f64::MAX, f64::MIN), |a, p| (a.0.min(p.1), a.1.max(p.1)));
+            if pts.is_empty() {
+                continue;
+            }
+            let mut chart = ChartBuilder::on(panel)
+                .caption(scene, ("sans-serif", 20))
+                .margin(12)
+                .x_label_area_size(40)
+                .y_label_area_size(60)
+                .build_cartesian_2d(
+                    (x0 * 0.8..x1 * 1.25).log_scale(),
+                    (y0 * 0.8..y1 * 1.25).log_scale(),
+                )?;
+            chart
+                .configure_mesh()
+                .x_desc("seconds")
+                .y_desc("relMSE")
+                .x_label_formatter(&|v| format!("{v:.2}"))
+                .y_label_formatter(&|v| format!("{v:.0e}"))
+                .draw()?;
+            for (i, ((_, renderer), points)) in
+                all.iter().filter(|((s, _), _)| s == scene).enumerate()
+            {
+                let color = Palette99::pick(i).to_rgba();
+                let line: Vec<(f64, f64)> = points.values().map(|(s, e, _)| (*s, *e)).collect();
+                chart
+                    .draw_series(LineSeries::new(line.clone(), color.stroke_width(2)))?
+                    .label(renderer.as_str())
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 16, y)], color.stroke_width(2))
+                    });
+                chart.draw_series(line.into_iter().map(|p| Circle::new(p, 3, color.filled())))?;
+            }
+            chart
+                .configure_series_labels()
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .draw()?;
+        }
+        root.present()?;
+        Ok(())
+    };
+    draw().map_err(|e| anyhow::anyhow!("drawing {}: {e}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn csv_rows_round_trip_and_bad_rows_name_their_line() {
+        let r = Row {
+            renderer: "mitsuba-llvm_ad_rgb".into(),
+            scene: "cornell-box".into(),
+            spp: 64,
+            seed: 2,
+            threads: 2,
+            seconds: 1.5,
+            msamples_per_s: 2.8,
+            relmse: 1.25e-3,
+        };
+        let back = Row::parse(&r.to_csv(), Path::new("p.csv"), 2).expect("parses");
+        assert_eq!((back.spp, back.seed, back.relmse), (64, 2, 1.25e-3));
+        let e = Row::parse("a,b,1,2", Path::new("p.csv"), 7).expect_err("short");
+        assert!(e.to_string().contains("p.csv:7"), "{e}");
+        let e = Row::parse("a,b,4,1,2,NaN,1,1", Path::new("p.csv"), 3).expect_err("nan");
+        assert!(e.to_string().contains("seconds"), "{e}");
+    }
+
+    #[test]
+    fn summary_is_relmse_times_seconds_over_the_1_over_n_range() {
+        let mut p = BTreeMap::new();
+        p.insert(4, (0.1, 1.0, 2.0)); // excluded: below 64 spp
+        p.insert(64, (1.0, 0.01, 2.0));
+        p.insert(256, (4.0, 0.0025, 2.0));
+        let (et, ms) = summary(&p);
+        assert!((et - 0.01).abs() < 1e-12, "{et}");
+        assert!((ms - 2.0).abs() < 1e-12);
+    }
+}
