@@ -220,7 +220,7 @@ fn reference(
 
 /// Runs `tessera bench`.
 pub fn run(args: BenchArgs) -> Result<()> {
-    if !args.max_spp.is_power_of_two() || args.max_spp.trailing_zeros() % 2 != 0 {
+    if !args.max_spp.is_power_of_two() || !args.max_spp.trailing_zeros().is_multiple_of(2) {
         bail!(
             "--max-spp must be a power of 4 (4, 16, 64, …), got {}",
             args.max_spp

@@ -20,6 +20,14 @@ use tessera_render::scene::Scene;
 use tessera_render::shape::{slab, sphere_roots, Shape, Transformed};
 use tessera_render::{render_tile, Image, PixelRect, RenderSettings, TileSums};
 
+fn seeded(spp: u32, seed: u64) -> RenderSettings {
+    RenderSettings {
+        spp,
+        seed,
+        ..RenderSettings::default()
+    }
+}
+
 fn rand3(rng: &mut HashRng) -> Vec3A {
     Vec3A::new(rng.next_f32(), rng.next_f32(), rng.next_f32())
 }
@@ -530,11 +538,7 @@ fn z_test(a: &Image, b: &Image) -> (f64, f64) {
 
 #[test]
 fn sphere_inside_a_glass_sphere_4e5_larger_stays_visible() {
-    let settings = |seed| RenderSettings {
-        spp: 64,
-        seed,
-        ..RenderSettings::default()
-    };
+    let settings = |seed| seeded(64, seed);
     // Index-matched glass (η = 1) is invisible: the image must equal the bare sphere's.
     let bare = render(&nested_scene(None), &settings(1));
     let matched = render(&nested_scene(Some(1.0)), &settings(2));
@@ -576,13 +580,7 @@ fn a_room_of_flush_boxes_leaks_no_light() {
     text += &slab([a, -a, -b], [b, a, b]);
     text += &slab([-a, -a, -b], [a, a, -a]); // z walls
     text += &slab([-a, -a, a], [a, a, b]);
-    let img = render(
-        &scene(&text),
-        &RenderSettings {
-            spp: 64,
-            ..RenderSettings::default()
-        },
-    );
+    let img = render(&scene(&text), &seeded(64, 0));
     let lit = img
         .rgb
         .iter()
@@ -844,11 +842,7 @@ fn cornell_scaled(k: f64, t: f64) -> Scene {
 
 #[test]
 fn cornell_box_is_invariant_to_scale_and_translation() {
-    let settings = |seed| RenderSettings {
-        spp: 128,
-        seed,
-        ..RenderSettings::default()
-    };
+    let settings = |seed| seeded(128, seed);
     let base = render(&cornell_scaled(1.0, 0.0), &settings(10));
     for (i, (k, t)) in [(1e-3, 0.0), (1.0, 0.0), (1e3, 0.0), (1.0, 1e4)]
         .into_iter()
