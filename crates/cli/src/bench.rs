@@ -485,15 +485,15 @@ fn plot(rows: &[Row], path: &Path) -> Result<()> {
                 .flat_map(|(_, p)| p.values().map(|(s, e, _)| (*s, *e)))
                 .filter(|(s, e)| *s > 0.0 && *e > 0.0)
                 .collect();
+            if pts.is_empty() {
+                continue;
+            }
             let (x0, x1) = pts
                 .iter()
                 .fold((f64::MAX, f64::MIN), |a, p| (a.0.min(p.0), a.1.max(p.0)));
             let (y0, y1) = pts
                 .iter()
                 .fold((f64::MAX, f64::MIN), |a, p| (a.0.min(p.1), a.1.max(p.1)));
-            if pts.is_empty() {
-                continue;
-            }
             let mut chart = ChartBuilder::on(panel)
                 .caption(scene, ("sans-serif", 20))
                 .margin(12)

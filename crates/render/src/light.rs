@@ -5,10 +5,9 @@ use std::f32::consts::PI;
 
 use glam::{Vec2, Vec3A};
 
-use crate::math::gamma;
 use crate::math::{offset_ray_origin, Frame};
 use crate::sampling::{square_to_uniform_cone, square_to_uniform_sphere, Distribution1D};
-use crate::shape::{sphere_roots, sphere_roots_f64, Parallelogram};
+use crate::shape::{sphere_point_error, sphere_roots, sphere_roots_f64, Parallelogram};
 
 /// The part of an emitter that can be sampled.
 #[derive(Clone, Debug)]
@@ -81,9 +80,7 @@ impl Light {
     fn point_error(&self, x: Vec3A, u: Vec2) -> Vec3A {
         match &self.shape {
             LightShape::Quad(q) => q.point_error(u.x, u.y),
-            LightShape::Sphere { center, .. } => {
-                (center.abs() + (x - *center).abs()) * gamma(8) + Vec3A::splat(f32::MIN_POSITIVE)
-            }
+            LightShape::Sphere { center, .. } => sphere_point_error(*center, x - *center),
         }
     }
 

@@ -217,6 +217,13 @@ pub struct SurfacePoint {
     pub err: Vec3A,
 }
 
+/// Error bound of a sphere point computed as `c + v` (v = n·r, the re-projection every sphere
+/// point goes through: hits and light samples alike).
+#[inline]
+pub fn sphere_point_error(c: Vec3A, v: Vec3A) -> Vec3A {
+    (c.abs() + v.abs()) * gamma(8) + Vec3A::splat(f32::MIN_POSITIVE)
+}
+
 /// Roots of `|o + t·d − c|² = r²` in increasing order, as f32 (see [`sphere_roots_f64`]).
 #[inline]
 pub fn sphere_roots(o: Vec3A, d: Vec3A, c: Vec3A, r: f32) -> Option<(f32, f32)> {
@@ -366,7 +373,7 @@ impl Shape {
                 SurfacePoint {
                     p,
                     n,
-                    err: (center.abs() + (n * *radius).abs()) * gamma(8),
+                    err: sphere_point_error(*center, n * *radius),
                 }
             }
             Shape::Ellipsoid(xf) => {

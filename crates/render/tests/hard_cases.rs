@@ -55,6 +55,8 @@ fn reference_roots(o: Vec3A, d: Vec3A, c: Vec3A, r: f32) -> Option<(f64, f64, f6
     Some((tc - half, tc + half, dist))
 }
 
+const SPHERE_RAYS: u32 = 20_000;
+
 fn ulp(x: f32) -> f64 {
     let x = x.abs();
     (x.next_up() - x) as f64
@@ -65,7 +67,7 @@ fn ulp(x: f32) -> f64 {
 fn sweep_sphere(c: Vec3A, r: f32, aim: impl Fn(&mut HashRng) -> (Vec3A, Vec3A)) -> (u32, u32) {
     let mut rng = HashRng::new(11);
     let mut hits = 0;
-    for i in 0..20_000 {
+    for i in 0..SPHERE_RAYS {
         let (o, d) = aim(&mut rng);
         let got = sphere_roots(o, d, c, r);
         let want = reference_roots(o, d, c, r);
@@ -96,7 +98,7 @@ fn sweep_sphere(c: Vec3A, r: f32, aim: impl Fn(&mut HashRng) -> (Vec3A, Vec3A)) 
             ),
         }
     }
-    (20_000, hits)
+    (SPHERE_RAYS, hits)
 }
 
 #[test]
