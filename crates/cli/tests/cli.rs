@@ -292,4 +292,13 @@ fn bench_writes_csv_markdown_and_plot_with_peer_ratios() {
         out.to_str().expect("utf8"),
     ]);
     assert_clean_failure(&r, &["--max-spp", "power of 4"]);
+    let mut a = args(&peer);
+    a.extend(["--reference".into(), "tiny".into()]);
+    let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_clean_failure(&r, &["--reference \"tiny\"", "NAME=FILE.exr"]);
+    let mut a = args(&peer);
+    let wrong_size = format!("tiny={}", repo("tests/data/cornell-box-reference.exr"));
+    a.extend(["--reference".into(), wrong_size]);
+    let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_clean_failure(&r, &["reference for tiny is 256×256", "12×8"]);
 }
