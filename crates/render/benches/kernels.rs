@@ -9,7 +9,7 @@ use std::hint::black_box;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use glam::Vec3A;
 use tessera_render::math::{Aabb, Ray};
-use tessera_render::sampling::PixelSampler;
+use tessera_render::sampling::{owen_sobol_4d, PixelSampler};
 use tessera_render::scene::{Limits, Scene};
 use tessera_render::shape::{slab, sphere_roots};
 use tessera_render::{render_tile, PixelRect, RenderSettings};
@@ -36,9 +36,25 @@ fn kernels(c: &mut Criterion) {
     c.bench_function("aabb_hit", |b| {
         b.iter(|| bx.hit(black_box(o), black_box(inv), f32::INFINITY))
     });
-    c.bench_function("sampler_get4", |b| {
-        let s = PixelSampler::new(7, 10, 20, 33);
-        b.iter(|| black_box(&s).get4(black_box(5)))
+    // Indices vary from call to call, as they do in a render: a fixed index would let the
+    // branch predictor learn sobol_burley's data-dependent loop.
+    let mut i = 0u32;
+    let mut next = move || {
+        i = (i + 1) & 0xffff;
+        i
+    };
+    c.bench_function("sampler_get4_hashed", |b| {
+        b.iter(|| PixelSampler::new(7, 10, 20, next()).get4(black_box(5)))
+    });
+    c.bench_function("sampler_get4_sobol", |b| {
+        b.iter(|| PixelSampler::new(7, 10, 20, next()).get4(black_box(0)))
+    });
+    // The crate the table-driven Sobol reproduces, as the peer of the next line.
+    c.bench_function("sobol_burley_sample_4d", |b| {
+        b.iter(|| sobol_burley::sample_4d(next(), 0, black_box(0x1234_5678)))
+    });
+    c.bench_function("owen_sobol_4d", |b| {
+        b.iter(|| owen_sobol_4d(next(), black_box(0x1234_5678)))
     });
     let cbox = scene("cornell-box");
     let ray = cbox.camera.ray(128.5, 100.5);
