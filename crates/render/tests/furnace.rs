@@ -23,24 +23,29 @@ fn closed_emitting_sphere_gives_le_over_one_minus_albedo() {
          [[objects]]\nshape = \"sphere\"\nmaterial = \"shell\"\nradius = 2.0\n"
     );
     let s = scene(&text);
-    for strategy in [Strategy::Bsdf, Strategy::Nee, Strategy::Mis] {
+    // Both Russian roulette rules: pbrt's (threshold 1) and the default.
+    let cases = [Strategy::Bsdf, Strategy::Nee, Strategy::Mis]
+        .into_iter()
+        .flat_map(|s| [(s, 1.0), (s, RenderSettings::default().rr_threshold)]);
+    for (strategy, rr_threshold) in cases {
         let img = render(
             &s,
             &RenderSettings {
                 spp: 256,
                 seed: 3,
                 strategy,
+                rr_threshold,
                 ..RenderSettings::default()
             },
         );
         let (mean, se) = image_mean(&img);
-        eprintln!("{strategy:?}: {mean:?} ± {se:?}");
+        eprintln!("{strategy:?}, RR threshold {rr_threshold}: {mean:?} ± {se:?}");
         for c in 0..3 {
             let expected = le[c] / (1.0 - rho[c]);
             let tol = 3.0 * se[c] + 1e-5 * expected;
             assert!(
                 (mean[c] - expected).abs() <= tol,
-                "{strategy:?} channel {c}: {} vs Le/(1-ρ) = {expected} (3σ = {})",
+                "{strategy:?}, RR threshold {rr_threshold}, channel {c}: {} vs Le/(1-ρ) = {expected} (3σ = {})",
                 mean[c],
                 3.0 * se[c]
             );
