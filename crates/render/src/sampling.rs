@@ -35,12 +35,12 @@ pub fn hash_words(words: &[u64]) -> u64 {
 /// Sample dimensions for one pixel sample.
 ///
 /// Dimensions come in groups of four. The first [`SOBOL_GROUPS`] groups (the pixel position and
-/// the first bounce's BSDF and light samples) are Owen-scrambled Sobol points: group `g` of
+/// the first two bounces' BSDF and light samples) are Owen-scrambled Sobol points: group `g` of
 /// sample `i` is dimension set 0 of the Sobol sequence seeded by hash(job seed, pixel, g, i ≫ 16),
 /// "padding by seeding", so each group is its own independently scrambled 4-D sequence whose
 /// four dimensions are stratified jointly. Deeper groups are independent uniform numbers from a
 /// counter-based hash of the same coordinates: stratification there buys almost nothing (those
-/// bounces carry little of the image's variance), while a Sobol group costs ~45 ns against ~3 ns
+/// bounces carry little of the image's variance), and a Sobol group costs ~11 ns against ~5 ns
 /// for the hash (`cargo bench -p tessera-render -- sampler`). Either way every number is a pure
 /// function of (job seed, pixel, sample index, dimension), and path depth is unbounded.
 #[derive(Clone, Copy, Debug)]
@@ -50,7 +50,7 @@ pub struct PixelSampler {
 }
 
 /// Groups of four dimensions drawn from scrambled Sobol sequences; the rest are hashed.
-pub const SOBOL_GROUPS: u32 = 3;
+pub const SOBOL_GROUPS: u32 = 5;
 
 impl PixelSampler {
     /// Sampler for `sample_index` of pixel (`x`, `y`) of a job with `seed`.
