@@ -190,7 +190,10 @@ fn sah_split(items: &[BuildItem], axis: usize, cb: Aabb, bounds: Aabb) -> Option
         if lc == 0 || rc == 0 {
             continue;
         }
-        let cost = 0.125
+        // A node's box test costs about what a primitive test does here (both are a few SSE
+        // operations), not pbrt's 1/8: with 1/8 the Cornell box split into seven nodes whose
+        // boxes (the walls') every ray enters anyway; with 1 it is one leaf, ~1% faster.
+        let cost = 1.0
             + (lc as f32 * l.area() + rc as f32 * r.area()) / bounds.area().max(f32::MIN_POSITIVE);
         if cost < best.0 {
             best = (cost, split);

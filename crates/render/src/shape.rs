@@ -157,23 +157,16 @@ impl Parallelogram {
     /// Ray parameter of the hit in (0, t_max), if any; closed on all four edges.
     #[inline]
     pub fn intersect(&self, r: &Ray, t_max: f32) -> Option<f32> {
-        let denom = self.normal.dot(r.d);
-        if denom == 0.0 {
-            return None;
-        }
-        let t = self.normal.dot(self.p0 - r.o) / denom;
-        if !(t > 0.0 && t < t_max) {
-            return None;
-        }
+        // One branch for the whole test: which walls of a room a ray meets is a coin toss, so
+        // early exits mispredict. A zero denominator gives t = ±∞ or NaN, which fails the range
+        // test, as do NaN u and v.
+        let t = self.normal.dot(self.p0 - r.o) / self.normal.dot(r.d);
         let q = r.at(t) - self.p0;
         let u = q.dot(self.a1);
         let v = q.dot(self.a2);
         // Closed on all four edges: flush neighbours (a box built from quads) leave no cracks.
-        if (0.0..=1.0).contains(&u) && (0.0..=1.0).contains(&v) {
-            Some(t)
-        } else {
-            None
-        }
+        let inside = (t > 0.0) & (t < t_max) & (u >= 0.0) & (u <= 1.0) & (v >= 0.0) & (v <= 1.0);
+        inside.then_some(t)
     }
 
     /// Error bound of [`Parallelogram::point`]`(u, v)`: the rounding of p0 + u·e1 + v·e2 (and of
@@ -271,6 +264,14 @@ pub fn sphere_roots_f64(o: Vec3A, d: Vec3A, c: Vec3A, r: f32) -> Option<(f64, f6
 /// so the axis is made unconstrained explicitly (SIMD `min`/`max` would propagate the NaN).
 #[inline]
 pub fn slab(o: Vec3A, d: Vec3A, min: Vec3A, max: Vec3A) -> Option<(f32, u32, f32, u32)> {
+    let hit = slab_unchecked(o, d, min, max);
+    (hit.0 <= hit.2).then_some(hit)
+}
+
+/// [`slab`] without the final test: the ray misses unless t_near ≤ t_far. For callers that
+/// fold that test into their own, so that a miss costs no mispredicted branch.
+#[inline]
+fn slab_unchecked(o: Vec3A, d: Vec3A, min: Vec3A, max: Vec3A) -> (f32, u32, f32, u32) {
     let inv = d.recip();
     let t_lo = (min - o) * inv;
     let t_hi = (max - o) * inv;
@@ -279,24 +280,16 @@ pub fn slab(o: Vec3A, d: Vec3A, min: Vec3A, max: Vec3A) -> Option<(f32, u32, f32
     let far = Vec3A::select(nan, Vec3A::INFINITY, t_lo.max(t_hi));
     let t_near = near.max_element();
     let t_far = far.min_element();
-    if !(t_near <= t_far) {
-        return None;
-    }
-    let first = |v: Vec3A, t: f32| -> usize {
-        if v.x == t {
-            0
-        } else if v.y == t {
-            1
-        } else {
-            2
-        }
-    };
-    let (an, af) = (first(near, t_near), first(far, t_far));
+    // The face index without data-dependent branches (they mispredict in a render): the lowest
+    // axis whose slab distance is the extreme one, and that axis's direction sign. `near` and
+    // `far` hold no NaN, so each mask has a bit set.
+    let an = near.cmpeq(Vec3A::splat(t_near)).bitmask().trailing_zeros();
+    let af = far.cmpeq(Vec3A::splat(t_far)).bitmask().trailing_zeros();
     // Entering through the min face when moving towards +axis (including +0), else the max face.
-    let pos = |a: usize| inv[a] > 0.0;
-    let f_near = (an * 2) as u32 + u32::from(!pos(an));
-    let f_far = (af * 2) as u32 + u32::from(pos(af));
-    Some((t_near, f_near, t_far, f_far))
+    let pos = inv.cmpgt(Vec3A::ZERO).bitmask();
+    let f_near = an * 2 + (!(pos >> an) & 1);
+    let f_far = af * 2 + ((pos >> af) & 1);
+    (t_near, f_near, t_far, f_far)
 }
 
 /// Unit object-space normal of box face `face`.
@@ -341,14 +334,12 @@ impl Shape {
             }
             Shape::Cuboid { min, max, xf } => {
                 let lr = xf.ray_to_object(r);
-                let (tn, fnear, tf, ffar) = slab(lr.o, lr.d, *min, *max)?;
-                if tn > 0.0 && tn < t_max {
-                    Some((tn, fnear))
-                } else if tf > 0.0 && tf < t_max {
-                    Some((tf, ffar))
-                } else {
-                    None
-                }
+                let (tn, fnear, tf, ffar) = slab_unchecked(lr.o, lr.d, *min, *max);
+                // Selects rather than branches, as in the slab test.
+                let near_ok = (tn > 0.0) & (tn < t_max);
+                let far_ok = (tf > 0.0) & (tf < t_max);
+                let (t, face) = if near_ok { (tn, fnear) } else { (tf, ffar) };
+                ((tn <= tf) & (near_ok | far_ok)).then_some((t, face))
             }
         }
     }
