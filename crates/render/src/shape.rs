@@ -156,6 +156,7 @@ impl Parallelogram {
 
     /// Ray parameter of the hit in (0, t_max), if any; closed on all four edges.
     #[inline]
+    #[allow(clippy::manual_range_contains)] // `contains` short-circuits: a branch per bound
     pub fn intersect(&self, r: &Ray, t_max: f32) -> Option<f32> {
         // One branch for the whole test: which walls of a room a ray meets is a coin toss, so
         // early exits mispredict. A zero denominator gives t = ±∞ or NaN, which fails the range
