@@ -108,10 +108,17 @@ impl Bvh {
         node_index
     }
 
-    /// Visits leaf primitives a ray may hit, nearest subtree first; `f` returns the new t_max.
-    /// A negative t_max ends the traversal at once (any-hit queries).
+    /// Visits the leaves a ray may hit, nearest subtree first. `f` gets the leaf's range of
+    /// positions in [`Bvh::order`] and the current t_max, and returns the new t_max; a negative
+    /// t_max ends the traversal at once (any-hit queries). Leaves rather than primitives, so
+    /// that the caller can test a leaf's primitives together.
     #[inline]
-    pub fn traverse(&self, ray: &Ray, mut t_max: f32, mut f: impl FnMut(u32, f32) -> f32) {
+    pub fn traverse(
+        &self,
+        ray: &Ray,
+        mut t_max: f32,
+        mut f: impl FnMut(std::ops::Range<usize>, f32) -> f32,
+    ) {
         if self.nodes.is_empty() {
             return;
         }
@@ -130,11 +137,9 @@ impl Bvh {
                 let count = node.count_axis & COUNT_MASK;
                 if count > 0 {
                     let first = node.offset as usize;
-                    for &p in &self.order[first..first + count as usize] {
-                        t_max = f(p, t_max);
-                        if t_max < 0.0 {
-                            return;
-                        }
+                    t_max = f(first..first + count as usize, t_max);
+                    if t_max < 0.0 {
+                        return;
                     }
                 } else {
                     let axis = (node.count_axis >> AXIS_SHIFT) as usize;
@@ -161,6 +166,19 @@ impl Bvh {
     /// Number of nodes (for tests and statistics).
     pub fn node_count(&self) -> usize {
         self.nodes.len()
+    }
+
+    /// Primitive indices in leaf order: a leaf holds a contiguous range of positions.
+    pub fn order(&self) -> &[u32] {
+        &self.order
+    }
+
+    /// Each leaf's range of positions in [`Bvh::order`], in node order.
+    pub fn leaves(&self) -> impl Iterator<Item = std::ops::Range<usize>> + '_ {
+        self.nodes.iter().filter_map(|n| {
+            let count = (n.count_axis & COUNT_MASK) as usize;
+            (count > 0).then(|| n.offset as usize..n.offset as usize + count)
+        })
     }
 }
 
@@ -249,8 +267,10 @@ mod tests {
             .normalize();
             let ray = Ray::new(o, d);
             let mut seen = vec![false; boxes.len()];
-            bvh.traverse(&ray, f32::INFINITY, |p, t| {
-                seen[p as usize] = true;
+            bvh.traverse(&ray, f32::INFINITY, |leaf, t| {
+                for &p in &bvh.order()[leaf] {
+                    seen[p as usize] = true;
+                }
                 t
             });
             for (i, b) in boxes.iter().enumerate() {

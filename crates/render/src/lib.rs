@@ -10,8 +10,8 @@
 //! merged in batch order, the same job gives the same bits however the frame is cut into
 //! tiles, threads, batches of work or machines.
 //!
-//! Modules follow pbrt's split: [`math`] and [`shape`] (geometry and intersection), [`bvh`],
-//! [`sampling`] (sample generation and warps), [`light`], [`camera`], [`scene`] (file format,
+//! Modules follow pbrt's split: [`math`] and [`shape`] (geometry and intersection), [`bvh`] and
+//! [`leaf`] (its leaves, quads four at a time), [`sampling`] (sample generation and warps), [`light`], [`camera`], [`scene`] (file format,
 //! validation, runtime scene), [`integrator`], [`tile`] (partial sums) and [`output`] (EXR, PNG).
 //!
 //! ```no_run
@@ -25,6 +25,7 @@
 pub mod bvh;
 pub mod camera;
 pub mod integrator;
+pub mod leaf;
 pub mod light;
 pub mod math;
 pub mod output;

@@ -128,8 +128,9 @@ pub struct Parallelogram {
     pub normal: Vec3A,
     /// Area.
     pub area: f32,
-    a1: Vec3A,
-    a2: Vec3A,
+    /// Dual basis: u = (p − p0)·a1, v = (p − p0)·a2 for a point p of the plane.
+    pub(crate) a1: Vec3A,
+    pub(crate) a2: Vec3A,
 }
 
 impl Parallelogram {

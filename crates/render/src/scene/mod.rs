@@ -19,6 +19,7 @@ pub use locate::{line_col, KeyPath, Seg};
 
 use crate::bvh::Bvh;
 use crate::camera::Camera;
+use crate::leaf::{Leaves, RayX4};
 use crate::light::{Light, LightShape, Lights};
 use crate::math::{v3, Aabb, Ray};
 use crate::shape::{Hit, Shape, Transformed};
@@ -184,6 +185,7 @@ pub struct Scene {
     /// SHA-256 of the scene text, hex: the scene's content address.
     pub hash: String,
     bvh: Bvh,
+    leaves: Leaves,
     unbounded: Vec<u32>,
 }
 
@@ -233,42 +235,45 @@ impl Scene {
     /// Closest hit along `ray` with t in (0, t_max).
     #[inline]
     pub fn intersect(&self, ray: &Ray, t_max: f32) -> Option<Hit> {
+        let test = |p: u32, t_max: f32| self.prims[p as usize].shape.intersect(ray, t_max);
         let mut best: Option<Hit> = None;
-        let mut test = |p: u32, t_max: f32| -> f32 {
-            match self.prims[p as usize].shape.intersect(ray, t_max) {
-                Some((t, part)) => {
-                    best = Some(Hit { t, prim: p, part });
+        let mut t = t_max;
+        for &p in &self.unbounded {
+            if let Some((tp, part)) = test(p, t) {
+                t = tp;
+                best = Some(Hit { t, prim: p, part });
+            }
+        }
+        let r4 = RayX4::new(ray);
+        self.bvh.traverse(ray, t, |leaf, t_max| {
+            match self.leaves.closest(leaf, &r4, t_max, test) {
+                Some((t, prim, part)) => {
+                    best = Some(Hit { t, prim, part });
                     t
                 }
                 None => t_max,
             }
-        };
-        let mut t = t_max;
-        for &p in &self.unbounded {
-            t = test(p, t);
-        }
-        self.bvh.traverse(ray, t, test);
+        });
         best
     }
 
     /// Whether anything blocks `ray` for t in (0, t_max).
     #[inline]
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
+        let blocks = |p: u32| self.prims[p as usize].shape.intersect(ray, t_max).is_some();
+        if self.unbounded.iter().any(|&p| blocks(p)) {
+            return true;
+        }
         // Any hit will do: a negative t_max tells the traversal to stop at the first one.
+        let r4 = RayX4::new(ray);
         let mut hit = false;
-        let mut test = |p: u32, t_max: f32| -> f32 {
-            if self.prims[p as usize].shape.intersect(ray, t_max).is_some() {
+        self.bvh.traverse(ray, t_max, |leaf, t| {
+            if self.leaves.any(leaf, &r4, t, blocks) {
                 hit = true;
                 return -1.0;
             }
-            t_max
-        };
-        for &p in &self.unbounded {
-            if test(p, t_max) < 0.0 {
-                return true;
-            }
-        }
-        self.bvh.traverse(ray, t_max, &mut test);
+            t
+        });
         hit
     }
 }
@@ -875,6 +880,8 @@ fn build(desc: &SceneFile, limits: &Limits) -> Result<Scene, Invalid> {
     let (bounded, unbounded): (Vec<u32>, Vec<u32>) =
         (0..prims.len() as u32).partition(|&i| bounds[i as usize].is_finite());
     let bvh = Bvh::build(&bounds, &bounded);
+    let shapes: Vec<&Shape> = prims.iter().map(|p| &p.shape).collect();
+    let leaves = Leaves::build(&shapes, bvh.order(), bvh.leaves());
     Ok(Scene {
         camera,
         width: w,
@@ -886,6 +893,7 @@ fn build(desc: &SceneFile, limits: &Limits) -> Result<Scene, Invalid> {
         max_depth: desc.render.max_depth,
         hash: String::new(),
         bvh,
+        leaves,
         unbounded,
     })
 }
