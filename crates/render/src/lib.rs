@@ -10,9 +10,10 @@
 //! merged in batch order, the same job gives the same bits however the frame is cut into
 //! tiles, threads, batches of work or machines.
 //!
-//! Modules follow pbrt's split: [`math`] and [`shape`] (geometry and intersection), [`bvh`] and
-//! [`leaf`] (its leaves, quads four at a time), [`sampling`] (sample generation and warps), [`light`], [`camera`], [`scene`] (file format,
-//! validation, runtime scene), [`integrator`], [`tile`] (partial sums) and [`output`] (EXR, PNG).
+//! Modules follow pbrt's split: [`math`] and [`shape`] (geometry and intersection), [`bvh`]
+//! and [`leaf`] (its leaves, quads four at a time), [`sampling`] (sample generation and warps),
+//! [`light`], [`camera`], [`scene`] (file format, validation, runtime scene), [`integrator`],
+//! [`tile`] (partial sums) and [`output`] (EXR, PNG).
 //!
 //! ```no_run
 //! use tessera_render::{scene::{Limits, Scene}, RenderSettings, render_frame};
