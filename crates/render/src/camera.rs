@@ -21,17 +21,30 @@ pub struct Camera {
     height: f32,
 }
 
+/// The camera's trigonometry in f64, rounded once to f32. The f32 library functions are chosen
+/// per CPU at load time and may round differently, and a camera basis one bit off would change
+/// every pixel a worker returns; an f64 result one f64 ulp off changes the f32 only when it lies
+/// within that ulp of a rounding boundary.
+fn sin_cos(x: f32) -> (f32, f32) {
+    let (s, c) = f64::from(x).sin_cos();
+    (s as f32, c as f32)
+}
+
+/// tan(fov/2), as [`sin_cos`].
+fn half_tan(fov: f32) -> f32 {
+    (f64::from(fov) * 0.5).tan() as f32
+}
+
 impl Camera {
     /// The course model. `fov` is θ in radians; as in eqs. 7–9 the viewport width
     /// h_x = 2·tan(θ/2) spans the centres of the first and last pixel columns, so one pixel is
     /// h_x/(k − 1) wide (k = `width` ≥ 2), and pixels are square (eq. 8).
     pub fn pitch_yaw(eye: Vec3A, pitch: f32, yaw: f32, fov: f32, width: u32, height: u32) -> Self {
-        let (sa, ca) = pitch.sin_cos();
-        let (sb, cb) = yaw.sin_cos();
+        let ((sa, ca), (sb, cb)) = (sin_cos(pitch), sin_cos(yaw));
         let t = Vec3A::new(ca * cb, sa, -ca * sb); // eq. 4
         let v = Vec3A::new(-sa * cb, ca, sa * sb); // eq. 5
         let b = Vec3A::new(sb, 0.0, cb); // eq. 6
-        let q = 2.0 * (fov * 0.5).tan() / (width as f32 - 1.0); // eqs. 7, 9
+        let q = 2.0 * half_tan(fov) / (width as f32 - 1.0); // eqs. 7, 9
         Self {
             eye,
             forward: t,
@@ -55,7 +68,7 @@ impl Camera {
         let t = (target - eye).try_normalize()?;
         let b = t.cross(up).try_normalize()?;
         let v = b.cross(t);
-        let s = 2.0 * (fov * 0.5).tan() / width as f32;
+        let s = 2.0 * half_tan(fov) / width as f32;
         Some(Self {
             eye,
             forward: t,

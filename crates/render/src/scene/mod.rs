@@ -498,7 +498,11 @@ fn build_transform(t: &TransformDesc, path: &KeyPath) -> Result<Affine3A, Invali
                 .try_normalize()
                 .ok_or_else(|| (rp.key("axis"), "rotation axis must not be zero".to_string()))?;
             let deg = finite(r.degrees, &rp.key("degrees"))?;
-            m = Affine3A::from_axis_angle(axis.into(), deg.to_radians()) * m;
+            // In f64, rounded once: f32 `sin_cos` is picked per CPU at load time and may round
+            // differently, and every worker must build the same geometry bits.
+            let r = glam::DMat3::from_axis_angle(axis.as_dvec3(), f64::from(deg).to_radians());
+            let r = Mat3::from_cols(r.x_axis.as_vec3(), r.y_axis.as_vec3(), r.z_axis.as_vec3());
+            m = Affine3A::from_mat3(r) * m;
         }
         if let Some(tr) = t.translate {
             let tr = finite3(tr, &path.key("translate"))?;
