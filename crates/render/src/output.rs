@@ -66,7 +66,11 @@ pub fn render_metadata(
         ("strategy".to_string(), settings.strategy.name().to_string()),
         (
             "renderer".to_string(),
-            format!("tessera {}", env!("CARGO_PKG_VERSION")),
+            format!(
+                "tessera {} image revision {}",
+                env!("CARGO_PKG_VERSION"),
+                crate::IMAGE_REVISION
+            ),
         ),
     ]
 }

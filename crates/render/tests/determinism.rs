@@ -5,7 +5,7 @@ mod common;
 use common::load;
 use tessera_render::output::{write_exr, ExrChannels};
 use tessera_render::{
-    assemble_frame, render_frame, render_tile, PixelRect, RenderSettings, TileSums,
+    assemble_frame, render_frame, render_tile, PixelRect, RenderSettings, Strategy, TileSums,
 };
 
 fn frame_by_tiles(
@@ -131,4 +131,99 @@ fn exr_files_are_bit_identical() {
     );
     std::fs::remove_dir_all(&dir).ok();
     assert_eq!(a, b);
+}
+
+/// FNV-1a over the bits of a render's sums, squares and counts.
+fn sums_hash(hash: &mut u64, t: &TileSums) {
+    let mut eat = |bytes: &[u8]| {
+        for &b in bytes {
+            *hash = (*hash ^ b as u64).wrapping_mul(0x100_0000_01b3);
+        }
+    };
+    for (s, q) in t.sum.iter().zip(&t.sum_sq) {
+        for c in 0..3 {
+            eat(&s[c].to_bits().to_le_bytes());
+            eat(&q[c].to_bits().to_le_bytes());
+        }
+    }
+    for &k in &t.count {
+        eat(&k.to_le_bytes());
+    }
+    eat(&t.nonfinite.to_le_bytes());
+}
+
+/// Every bundled scene, plus an ellipsoid (the one shape they lack), rendered for a few samples
+/// over a strip through the middle of the frame.
+const PINNED: (u32, u64) = (1, 0x5785_ba40_3df7_1b10);
+
+/// The bits the renderer returns are pinned to [`tessera_render::IMAGE_REVISION`]: a change
+/// that alters them must bump the revision (and update the hash here), because the farm refuses
+/// to mix results of different revisions and can only do that if the number changes with the
+/// bits. This is also a check that a render gives the same bits on every machine CI runs on.
+#[test]
+fn the_image_revision_pins_the_bits() {
+    let ellipsoid = common::scene(
+        r#"
+version = 1
+[camera]
+model = "look_at"
+eye = [0.0, 0.5, 4.0]
+up = [0.0, 1.0, 0.0]
+target = [0.0, 0.0, 0.0]
+fov = 40.0
+[film]
+width = 48
+height = 32
+[environment]
+type = "constant"
+radiance = [0.6, 0.7, 0.8]
+[materials.a]
+type = "diffuse"
+albedo = [0.7, 0.6, 0.5]
+[materials.lamp]
+type = "diffuse"
+albedo = [0.5, 0.5, 0.5]
+emission = [5.0, 5.0, 5.0]
+[[objects]]
+shape = "sphere"
+material = "a"
+transform.matrix = [[1, 0, 0, 0], [0, 0.5, 0, 0], [0, 0, 0.8, 0], [0, 0, 0, 1]]
+[[objects]]
+shape = "sphere"
+material = "lamp"
+center = [1.5, 1.5, 1.0]
+radius = 0.3
+"#,
+    );
+    let scenes = [
+        load("cornell-box.toml"),
+        load("spheres.toml"),
+        load("glass-mirror.toml"),
+        ellipsoid,
+    ];
+    let mut hash = 0xcbf2_9ce4_8422_2325u64;
+    for scene in &scenes {
+        for strategy in [Strategy::Mis, Strategy::Bsdf, Strategy::Nee] {
+            let settings = RenderSettings {
+                seed: 3,
+                spp: 8,
+                strategy,
+                ..RenderSettings::default()
+            };
+            let rect = PixelRect {
+                x0: 0,
+                y0: scene.height / 2 - 4,
+                width: scene.width,
+                height: 8,
+            };
+            sums_hash(&mut hash, &render_tile(scene, &settings, rect, 0..8));
+        }
+    }
+    assert_eq!(
+        (tessera_render::IMAGE_REVISION, hash),
+        PINNED,
+        "the renderer's bits changed (hash {hash:#x}): if that is intended, bump \
+         IMAGE_REVISION in crates/render/src/lib.rs and set PINNED in this test to \
+         (the new revision, {hash:#x})"
+    );
 }
