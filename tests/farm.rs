@@ -5,6 +5,7 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+use tessera_coordinator::store::{JobRecord, Op, Store};
 use tessera_coordinator::{serve, Config};
 use tessera_proto::client::{endpoint, Bearer, ClientOptions, ClientTls};
 use tessera_proto::v1 as pb;
@@ -13,7 +14,7 @@ use tessera_proto::v1::workers_client::WorkersClient;
 use tessera_proto::Secret;
 use tessera_render::output::{render_metadata, write_exr, ExrChannels};
 use tessera_render::scene::{Format, Limits, Scene};
-use tessera_render::{render_frame, RenderSettings};
+use tessera_render::{render_frame, RenderSettings, IMAGE_REVISION};
 use tessera_render::{render_tile, PixelRect};
 use tokio::sync::oneshot;
 use tonic::service::interceptor::InterceptedService;
@@ -597,6 +598,7 @@ async fn forged_results_are_refused_and_leave_the_image_unaffected() {
             name: "forger".into(),
             cores: 1,
             version: "0".into(),
+            image_revision: IMAGE_REVISION,
         })
         .await
         .expect("register")
@@ -721,6 +723,147 @@ async fn forged_results_are_refused_and_leave_the_image_unaffected() {
     let status = wait(&mut client, &job).await;
     assert_eq!(status.state, pb::JobState::Done as i32);
     assert!(fetch(&mut client, &job).await == local_exr(&text, 8, 4, dir.path()));
+    w.abort();
+    coord.stop().await;
+}
+
+/// Results of two renderer revisions never meet in one job: a worker of another image revision
+/// is refused at registration (and stops, since retrying cannot help), and a job that a
+/// coordinator of another revision had started is failed with the reason after an upgrade,
+/// while one it had not started is simply rendered by the new revision.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn renderer_revisions_are_never_mixed() {
+    let data = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start(data.path(), Duration::from_secs(30)).await;
+    let url = coord.url();
+    let channel = endpoint(&url, &ClientOptions::default())
+        .expect("ep")
+        .connect_lazy();
+    let mut workers = WorkersClient::new(channel);
+    let e = workers
+        .register(pb::RegisterRequest {
+            name: "old-build".into(),
+            cores: 1,
+            version: "0.0.9".into(),
+            image_revision: IMAGE_REVISION + 1,
+        })
+        .await
+        .expect_err("another revision");
+    assert_eq!(e.code(), tonic::Code::FailedPrecondition, "{e:?}");
+    let why = e.message();
+    assert!(
+        why.contains("old-build")
+            && why.contains(&format!("image revision {}", IMAGE_REVISION + 1))
+            && why.contains(&format!("revision {IMAGE_REVISION}")),
+        "{why}"
+    );
+
+    // One job gets a merged unit, the other none; then the store is made to say that another
+    // revision accepted both, as after an upgrade.
+    let text = scene_text(16);
+    let mut client = coord.client().await;
+    let started = submit(&mut client, &text, 8, 4, 1).await;
+    let untouched = submit(&mut client, &text, 8, 4, 0).await;
+    let id = workers
+        .register(pb::RegisterRequest {
+            name: "one-unit".into(),
+            cores: 1,
+            version: "0".into(),
+            image_revision: IMAGE_REVISION,
+        })
+        .await
+        .expect("register")
+        .into_inner()
+        .worker_id;
+    let unit = workers
+        .lease(pb::LeaseRequest {
+            worker_id: id.clone(),
+            max_units: 1,
+            wait_ms: 0,
+        })
+        .await
+        .expect("lease")
+        .into_inner()
+        .units
+        .remove(0);
+    assert_eq!(unit.job_id, started, "the higher priority first");
+    let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
+    let settings = RenderSettings {
+        seed: 7,
+        spp: 8,
+        batch: 4,
+        ..RenderSettings::default()
+    };
+    let r = unit.rect.expect("rect");
+    let rect = PixelRect {
+        x0: r.x0,
+        y0: r.y0,
+        width: r.width,
+        height: r.height,
+    };
+    let sums = render_tile(&scene, &settings, rect, unit.sample_start..unit.sample_end);
+    let outcome = workers
+        .submit_result(pb::SubmitResultRequest {
+            worker_id: id,
+            lease_id: unit.lease_id.clone(),
+            job_id: unit.job_id.clone(),
+            tile_index: unit.tile_index,
+            batch_index: unit.batch_index,
+            result: Some(pb::TileResult {
+                rect: unit.rect,
+                sample_start: unit.sample_start,
+                sample_end: unit.sample_end,
+                sum: sums.sum.iter().flatten().copied().collect(),
+                sum_sq: sums.sum_sq.iter().flatten().copied().collect(),
+                count: sums.count,
+                nonfinite: sums.nonfinite,
+            }),
+        })
+        .await
+        .expect("submit")
+        .into_inner()
+        .outcome;
+    assert_eq!(outcome, pb::ResultOutcome::Merged as i32);
+    coord.stop().await;
+    {
+        let store = Store::open(data.path()).expect("store");
+        let ops: Vec<Op> = store
+            .load()
+            .expect("load")
+            .into_iter()
+            .map(|j| {
+                assert_eq!(j.record.image_revision, IMAGE_REVISION);
+                Op::PutJob(JobRecord {
+                    image_revision: IMAGE_REVISION + 1,
+                    ..j.record
+                })
+            })
+            .collect();
+        assert_eq!(ops.len(), 2);
+        store.apply(&ops).expect("rewrite");
+    }
+
+    let coord = Coordinator::start(data.path(), Duration::from_secs(30)).await;
+    let url = coord.url();
+    let mut client = coord.client().await;
+    let s = job_status(&mut client, &started).await;
+    assert_eq!(s.state, pb::JobState::Failed as i32);
+    assert!(
+        s.error
+            .contains(&format!("image revision {}", IMAGE_REVISION + 1))
+            && s.error.contains("resubmit"),
+        "{}",
+        s.error
+    );
+    let w = worker(&url, "new-build");
+    let s = wait(&mut client, &untouched).await;
+    assert_eq!(s.state, pb::JobState::Done as i32, "{}", s.error);
+    let dir = tempfile::tempdir().expect("tempdir");
+    assert_eq!(
+        fetch(&mut client, &untouched).await,
+        local_exr(&text, 8, 4, dir.path()),
+        "the job the old revision never touched renders as a fresh one"
+    );
     w.abort();
     coord.stop().await;
 }

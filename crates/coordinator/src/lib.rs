@@ -26,7 +26,7 @@ use tessera_proto::v1::workers_server::WorkersServer;
 use tessera_proto::Secret;
 use tessera_render::output::{render_metadata, write_exr, ExrChannels};
 use tessera_render::scene::Limits;
-use tessera_render::{assemble_frame, TileSums};
+use tessera_render::{assemble_frame, TileSums, IMAGE_REVISION};
 use tokio::sync::{mpsc, oneshot, watch};
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Certificate, Identity, ServerTlsConfig};
@@ -296,12 +296,31 @@ fn open(config: Config) -> Result<Opened, CoordinatorError> {
         let id = loaded.record.id;
         let mut job = Job::restore(loaded)
             .map_err(|e| CoordinatorError::Restore(format!("{}: {e}", job_name(id))))?;
+        let mut stale = None;
         if job.rec.phase == JobPhase::Active && job.units_done == job.units_total() {
             job.finishing = true;
             to_finish.push(id);
+        } else if job.rec.phase == JobPhase::Active && job.rec.image_revision != IMAGE_REVISION {
+            // Accepted by a coordinator of another renderer revision. Its merged sums are that
+            // revision's bits; adding this revision's would give an image neither renders.
+            if job.started {
+                stale = Some(format!(
+                    "rendered in part by renderer image revision {}, and this coordinator \
+                     renders revision {IMAGE_REVISION}: its results cannot be mixed; resubmit \
+                     the job",
+                    job.rec.image_revision
+                ));
+            } else {
+                job.rec.image_revision = IMAGE_REVISION;
+                store.apply(&[Op::PutJob(job.rec.clone())])?;
+            }
         }
         core.next_job = core.next_job.max(id + 1);
         core.jobs.insert(id, job);
+        if let Some(why) = stale {
+            warn!("{}: {why}", job_name(id));
+            store.apply(&core.end_job(id, JobPhase::Failed, why, now_ms()))?;
+        }
     }
     let active = core
         .jobs

@@ -9,7 +9,7 @@ use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_server::Jobs;
 use tessera_proto::v1::workers_server::Workers;
 use tessera_render::scene::{Format, Scene};
-use tessera_render::{PixelRect, Strategy, TileSums};
+use tessera_render::{PixelRect, Strategy, TileSums, IMAGE_REVISION};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tokio_stream::Stream;
@@ -324,6 +324,7 @@ impl Jobs for Service {
                 submitted_ms: now_ms(),
                 finished_ms: 0,
                 final_noise: (0.0, 0.0),
+                image_revision: IMAGE_REVISION,
             };
             let ops = vec![
                 Op::PutScene(scene.hash.clone(), StoredScene { text, json, name }),
@@ -514,6 +515,16 @@ impl Workers for Service {
         request: Request<pb::RegisterRequest>,
     ) -> Result<Response<pb::RegisterResponse>, Status> {
         let req = request.into_inner();
+        if req.image_revision != IMAGE_REVISION {
+            return Err(Status::failed_precondition(format!(
+                "worker {:?} (tessera {}) renders image revision {}, this coordinator revision \
+                 {IMAGE_REVISION}: different revisions return different bits for the same \
+                 sample, so every worker of a farm must run the coordinator's revision",
+                truncate(&req.name),
+                truncate(&req.version),
+                req.image_revision
+            )));
+        }
         let lease = self.shared.config.lease_timeout;
         let mut core = self.shared.core();
         let n = core.register(

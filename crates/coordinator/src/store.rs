@@ -117,6 +117,11 @@ pub struct JobRecord {
     /// Final noise estimate (RMS standard error, relative), kept once the sums are dropped.
     #[serde(default)]
     pub final_noise: (f64, f64),
+    /// The renderer image revision whose results the job's sums hold
+    /// ([`tessera_render::IMAGE_REVISION`] of the coordinator that accepted it; 0 in records
+    /// written before revisions were recorded).
+    #[serde(default)]
+    pub image_revision: u32,
 }
 
 /// One change to the store; a list of them is committed as one transaction.

@@ -83,7 +83,8 @@ pub enum WorkerError {
     /// The render threads could not start.
     #[error("starting the render threads: {0}")]
     Threads(String),
-    /// The coordinator refused this worker (wrong token, quarantined).
+    /// The coordinator refused this worker (wrong token, quarantined, another renderer image
+    /// revision).
     #[error("the coordinator refused this worker: {0}")]
     Refused(String),
 }
@@ -143,7 +144,8 @@ impl Ctx {
     }
 
     /// Registers (again), retrying until it works or shutdown begins. A refusal that retrying
-    /// cannot fix (a wrong token) is kept in `refused` and stops the worker.
+    /// cannot fix (a wrong token, another image revision) is kept in `refused` and stops the
+    /// worker.
     async fn register(&self) -> bool {
         let mut attempt = 0;
         loop {
@@ -151,6 +153,7 @@ impl Ctx {
                 name: self.config.name.clone(),
                 cores: self.cores,
                 version: env!("CARGO_PKG_VERSION").into(),
+                image_revision: tessera_render::IMAGE_REVISION,
             };
             match self.client.clone().register(req).await {
                 Ok(r) => {
@@ -164,7 +167,13 @@ impl Ctx {
                     *self.worker_id.write().unwrap_or_else(|p| p.into_inner()) = r.worker_id;
                     return true;
                 }
-                Err(e) if matches!(e.code(), Code::Unauthenticated | Code::PermissionDenied) => {
+                // A wrong token, or a renderer of another image revision: retrying cannot help.
+                Err(e)
+                    if matches!(
+                        e.code(),
+                        Code::Unauthenticated | Code::PermissionDenied | Code::FailedPrecondition
+                    ) =>
+                {
                     *lock(&self.refused) = Some(e.message().to_string());
                     return false;
                 }
