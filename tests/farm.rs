@@ -203,6 +203,27 @@ fn local_exr(text: &str, spp: u32, batch: u32, dir: &Path) -> Vec<u8> {
     std::fs::read(path).expect("read")
 }
 
+/// The result an honest worker sends for `u`.
+fn honest_result(scene: &Scene, settings: &RenderSettings, u: &pb::WorkUnit) -> pb::TileResult {
+    let r = u.rect.expect("rect");
+    let rect = PixelRect {
+        x0: r.x0,
+        y0: r.y0,
+        width: r.width,
+        height: r.height,
+    };
+    let sums = render_tile(scene, settings, rect, u.sample_start..u.sample_end);
+    pb::TileResult {
+        rect: u.rect,
+        sample_start: u.sample_start,
+        sample_end: u.sample_end,
+        sum: sums.sum.iter().flatten().copied().collect(),
+        sum_sq: sums.sum_sq.iter().flatten().copied().collect(),
+        count: sums.count,
+        nonfinite: sums.nonfinite,
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn three_workers_render_the_same_bits_as_a_local_render() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -615,25 +636,7 @@ async fn forged_results_are_refused_and_leave_the_image_unaffected() {
         .into_inner()
         .units;
     assert_eq!(units.len(), 2);
-    let honest = |u: &pb::WorkUnit| {
-        let r = u.rect.expect("rect");
-        let rect = PixelRect {
-            x0: r.x0,
-            y0: r.y0,
-            width: r.width,
-            height: r.height,
-        };
-        let sums = render_tile(&scene, &settings, rect, u.sample_start..u.sample_end);
-        pb::TileResult {
-            rect: u.rect,
-            sample_start: u.sample_start,
-            sample_end: u.sample_end,
-            sum: sums.sum.iter().flatten().copied().collect(),
-            sum_sq: sums.sum_sq.iter().flatten().copied().collect(),
-            count: sums.count,
-            nonfinite: sums.nonfinite,
-        }
-    };
+    let honest = |u: &pb::WorkUnit| honest_result(&scene, &settings, u);
     let send = |lease: &str, u: &pb::WorkUnit, result: pb::TileResult| pb::SubmitResultRequest {
         worker_id: id.clone(),
         lease_id: lease.into(),
@@ -794,14 +797,6 @@ async fn renderer_revisions_are_never_mixed() {
         batch: 4,
         ..RenderSettings::default()
     };
-    let r = unit.rect.expect("rect");
-    let rect = PixelRect {
-        x0: r.x0,
-        y0: r.y0,
-        width: r.width,
-        height: r.height,
-    };
-    let sums = render_tile(&scene, &settings, rect, unit.sample_start..unit.sample_end);
     let outcome = workers
         .submit_result(pb::SubmitResultRequest {
             worker_id: id,
@@ -809,15 +804,7 @@ async fn renderer_revisions_are_never_mixed() {
             job_id: unit.job_id.clone(),
             tile_index: unit.tile_index,
             batch_index: unit.batch_index,
-            result: Some(pb::TileResult {
-                rect: unit.rect,
-                sample_start: unit.sample_start,
-                sample_end: unit.sample_end,
-                sum: sums.sum.iter().flatten().copied().collect(),
-                sum_sq: sums.sum_sq.iter().flatten().copied().collect(),
-                count: sums.count,
-                nonfinite: sums.nonfinite,
-            }),
+            result: Some(honest_result(&scene, &settings, &unit)),
         })
         .await
         .expect("submit")
