@@ -185,12 +185,7 @@ async fn fetch(client: &mut Client, job: &str) -> Vec<u8> {
 fn local_exr(text: &str, spp: u32, batch: u32, dir: &Path) -> Vec<u8> {
     let scene =
         Scene::from_str(text, Format::Toml, "cornell.toml", &Limits::default()).expect("scene");
-    let settings = RenderSettings {
-        seed: 7,
-        spp,
-        batch,
-        ..RenderSettings::default()
-    };
+    let settings = job_settings(spp, batch);
     let image = render_frame(&scene, &settings, &|_| {}).finalize();
     let path = dir.join("local.exr");
     write_exr(
@@ -201,6 +196,60 @@ fn local_exr(text: &str, spp: u32, batch: u32, dir: &Path) -> Vec<u8> {
     )
     .expect("write");
     std::fs::read(path).expect("read")
+}
+
+/// The render settings `submit` gives a job of `spp` samples in batches of `batch`.
+fn job_settings(spp: u32, batch: u32) -> RenderSettings {
+    RenderSettings {
+        seed: 7,
+        spp,
+        batch,
+        ..RenderSettings::default()
+    }
+}
+
+/// A `Workers` client for driving the protocol by hand.
+fn workers_client(url: &str) -> WorkersClient<Channel> {
+    WorkersClient::new(
+        endpoint(url, &ClientOptions::default())
+            .expect("endpoint")
+            .connect_lazy(),
+    )
+}
+
+/// Registers a hand-driven worker named `name` rendering image revision `revision`; returns
+/// its id.
+async fn register_as(
+    workers: &mut WorkersClient<Channel>,
+    name: &str,
+    version: &str,
+    revision: u32,
+) -> Result<String, tonic::Status> {
+    let r = workers
+        .register(pb::RegisterRequest {
+            name: name.into(),
+            cores: 1,
+            version: version.into(),
+            image_revision: revision,
+        })
+        .await?;
+    Ok(r.into_inner().worker_id)
+}
+
+/// Leases up to `max` units for worker `id` without waiting for work.
+async fn lease_now(
+    workers: &mut WorkersClient<Channel>,
+    id: &str,
+    max: u32,
+) -> Result<Vec<pb::WorkUnit>, tonic::Status> {
+    let r = workers
+        .lease(pb::LeaseRequest {
+            worker_id: id.into(),
+            max_units: max,
+            wait_ms: 0,
+        })
+        .await?;
+    Ok(r.into_inner().units)
 }
 
 /// The result an honest worker sends for `u`.
@@ -603,38 +652,13 @@ async fn forged_results_are_refused_and_leave_the_image_unaffected() {
     let mut client = coord.client().await;
     let job = submit(&mut client, &text, 8, 4, 0).await;
     let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
-    let settings = RenderSettings {
-        seed: 7,
-        spp: 8,
-        batch: 4,
-        ..RenderSettings::default()
-    };
+    let settings = job_settings(8, 4);
 
-    let channel = endpoint(&url, &ClientOptions::default())
-        .expect("ep")
-        .connect_lazy();
-    let mut forger = WorkersClient::new(channel);
-    let id = forger
-        .register(pb::RegisterRequest {
-            name: "forger".into(),
-            cores: 1,
-            version: "0".into(),
-            image_revision: IMAGE_REVISION,
-        })
+    let mut forger = workers_client(&url);
+    let id = register_as(&mut forger, "forger", "0", IMAGE_REVISION)
         .await
-        .expect("register")
-        .into_inner()
-        .worker_id;
-    let units = forger
-        .lease(pb::LeaseRequest {
-            worker_id: id.clone(),
-            max_units: 2,
-            wait_ms: 0,
-        })
-        .await
-        .expect("lease")
-        .into_inner()
-        .units;
+        .expect("register");
+    let units = lease_now(&mut forger, &id, 2).await.expect("lease");
     assert_eq!(units.len(), 2);
     let honest = |u: &pb::WorkUnit| honest_result(&scene, &settings, u);
     let send = |lease: &str, u: &pb::WorkUnit, result: pb::TileResult| pb::SubmitResultRequest {
@@ -703,12 +727,7 @@ async fn forged_results_are_refused_and_leave_the_image_unaffected() {
         nan.sum_sq[0] = f64::INFINITY;
         let _ = forger.submit_result(send(&a.lease_id, a, nan)).await;
     }
-    let e = forger
-        .lease(pb::LeaseRequest {
-            worker_id: id.clone(),
-            max_units: 1,
-            wait_ms: 0,
-        })
+    let e = lease_now(&mut forger, &id, 1)
         .await
         .expect_err("quarantined");
     assert_eq!(e.code(), tonic::Code::PermissionDenied);
@@ -739,17 +758,8 @@ async fn renderer_revisions_are_never_mixed() {
     let data = tempfile::tempdir().expect("tempdir");
     let coord = Coordinator::start(data.path(), Duration::from_secs(30)).await;
     let url = coord.url();
-    let channel = endpoint(&url, &ClientOptions::default())
-        .expect("ep")
-        .connect_lazy();
-    let mut workers = WorkersClient::new(channel);
-    let e = workers
-        .register(pb::RegisterRequest {
-            name: "old-build".into(),
-            cores: 1,
-            version: "0.0.9".into(),
-            image_revision: IMAGE_REVISION + 1,
-        })
+    let mut workers = workers_client(&url);
+    let e = register_as(&mut workers, "old-build", "0.0.9", IMAGE_REVISION + 1)
         .await
         .expect_err("another revision");
     assert_eq!(e.code(), tonic::Code::FailedPrecondition, "{e:?}");
@@ -767,36 +777,16 @@ async fn renderer_revisions_are_never_mixed() {
     let mut client = coord.client().await;
     let started = submit(&mut client, &text, 8, 4, 1).await;
     let untouched = submit(&mut client, &text, 8, 4, 0).await;
-    let id = workers
-        .register(pb::RegisterRequest {
-            name: "one-unit".into(),
-            cores: 1,
-            version: "0".into(),
-            image_revision: IMAGE_REVISION,
-        })
+    let id = register_as(&mut workers, "one-unit", "0", IMAGE_REVISION)
         .await
-        .expect("register")
-        .into_inner()
-        .worker_id;
-    let unit = workers
-        .lease(pb::LeaseRequest {
-            worker_id: id.clone(),
-            max_units: 1,
-            wait_ms: 0,
-        })
+        .expect("register");
+    let unit = lease_now(&mut workers, &id, 1)
         .await
         .expect("lease")
-        .into_inner()
-        .units
         .remove(0);
     assert_eq!(unit.job_id, started, "the higher priority first");
     let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
-    let settings = RenderSettings {
-        seed: 7,
-        spp: 8,
-        batch: 4,
-        ..RenderSettings::default()
-    };
+    let settings = job_settings(8, 4);
     let outcome = workers
         .submit_result(pb::SubmitResultRequest {
             worker_id: id,

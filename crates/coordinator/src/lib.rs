@@ -292,6 +292,8 @@ fn open(config: Config) -> Result<Opened, CoordinatorError> {
     let mut core = Core::new(epoch, config.lease_timeout);
     core.quarantine_after = config.quarantine_after.max(1);
     let mut to_finish = Vec::new();
+    // Start-up changes to job records, written in one transaction.
+    let mut ops = Vec::new();
     for loaded in store.load()? {
         let id = loaded.record.id;
         let mut job = Job::restore(loaded)
@@ -312,15 +314,18 @@ fn open(config: Config) -> Result<Opened, CoordinatorError> {
                 ));
             } else {
                 job.rec.image_revision = IMAGE_REVISION;
-                store.apply(&[Op::PutJob(job.rec.clone())])?;
+                ops.push(Op::PutJob(job.rec.clone()));
             }
         }
         core.next_job = core.next_job.max(id + 1);
         core.jobs.insert(id, job);
         if let Some(why) = stale {
             warn!("{}: {why}", job_name(id));
-            store.apply(&core.end_job(id, JobPhase::Failed, why, now_ms()))?;
+            ops.extend(core.end_job(id, JobPhase::Failed, why, now_ms()));
         }
+    }
+    if !ops.is_empty() {
+        store.apply(&ops)?;
     }
     let active = core
         .jobs

@@ -36,13 +36,13 @@ pub mod shape;
 pub mod tile;
 
 pub use integrator::{RenderSettings, Strategy};
+pub use tile::{assemble_frame, render_frame, render_tile, Image, PixelRect, TileSums};
 
 /// Revision of the renderer's output bits: bumped by every change that alters any bit that any
 /// render returns (a new sampler, a reordered sum, a different warp). One job's partial sums
 /// merged from two revisions would be neither revision's image, and the farm's promise is one
 /// job, one set of bits; so workers and the coordinator must run the same revision, and the
-/// coordinator refuses a worker or a stored job from another. The `image_revision` test pins
-/// a hash of renders of every bundled scene to this number, so a change that moves bits
-/// without bumping it fails there.
+/// coordinator refuses a worker or a stored job from another. The test
+/// `determinism.rs::the_image_revision_pins_the_bits` pins a hash of renders of every bundled
+/// scene to this number, so a change that moves bits without bumping it fails there.
 pub const IMAGE_REVISION: u32 = 1;
-pub use tile::{assemble_frame, render_frame, render_tile, Image, PixelRect, TileSums};

@@ -152,8 +152,9 @@ fn sums_hash(hash: &mut u64, t: &TileSums) {
     eat(&t.nonfinite.to_le_bytes());
 }
 
-/// Every bundled scene, plus an ellipsoid (the one shape they lack), rendered for a few samples
-/// over a strip through the middle of the frame.
+/// The image revision and the hash of its renders: every bundled scene, plus an ellipsoid (the
+/// one shape they lack), for a few samples of each strategy over a strip through the middle of
+/// the frame.
 const PINNED: (u32, u64) = (1, 0x5785_ba40_3df7_1b10);
 
 /// The bits the renderer returns are pinned to [`tessera_render::IMAGE_REVISION`]: a change
