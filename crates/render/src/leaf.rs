@@ -11,7 +11,7 @@ use std::ops::Range;
 
 use glam::{BVec4A, Vec3A, Vec4};
 
-use crate::math::Ray;
+use crate::math::{Aabb, Ray};
 use crate::shape::{Parallelogram, Shape};
 
 /// Four parallelograms, one per lane. Unused lanes have a zero normal, so their t is 0/0 = NaN
@@ -78,11 +78,14 @@ impl QuadBlock {
     }
 }
 
-/// A ray's components splatted across four lanes, made once per query.
+/// A ray's components splatted across four lanes, made once per query, with what the bounding
+/// box test of the other primitives needs.
 #[derive(Clone, Copy, Debug)]
 pub struct RayX4 {
     o: [Vec4; 3],
     d: [Vec4; 3],
+    origin: Vec3A,
+    inv_d: Vec3A,
 }
 
 impl RayX4 {
@@ -92,6 +95,8 @@ impl RayX4 {
         Self {
             o: [0, 1, 2].map(|a| Vec4::splat(ray.o[a])),
             d: [0, 1, 2].map(|a| Vec4::splat(ray.d[a])),
+            origin: ray.o,
+            inv_d: ray.d.recip(),
         }
     }
 }
@@ -109,6 +114,9 @@ pub struct Leaves {
     by_first: Vec<LeafRef>,
     blocks: Vec<QuadBlock>,
     others: Vec<u32>,
+    /// World bounds of each of `others`: a rotated box's exact test costs several times a
+    /// bounding-box test, and most rays in a room pass its boxes by.
+    other_bounds: Vec<Aabb>,
 }
 
 impl Leaves {
@@ -130,7 +138,10 @@ impl Leaves {
             for &p in &order[leaf] {
                 match shapes[p as usize] {
                     Shape::Parallelogram(q) => quads.push((p, q)),
-                    _ => out.others.push(p),
+                    shape => {
+                        out.others.push(p);
+                        out.other_bounds.push(shape.bounds());
+                    }
                 }
             }
             let blocks_start = out.blocks.len() as u32;
@@ -167,7 +178,14 @@ impl Leaves {
                 best = Some((t_min, b.prim[lane], 0));
             }
         }
-        for &p in &self.others[r.others.start as usize..r.others.end as usize] {
+        let range = r.others.start as usize..r.others.end as usize;
+        for (&p, b) in self.others[range.clone()]
+            .iter()
+            .zip(&self.other_bounds[range])
+        {
+            if !b.hit(ray.origin, ray.inv_d, t_max) {
+                continue;
+            }
             if let Some((t, part)) = other(p, t_max) {
                 t_max = t;
                 best = Some((t, p, part));
@@ -192,9 +210,13 @@ impl Leaves {
         self.blocks[r.blocks.start as usize..r.blocks.end as usize]
             .iter()
             .any(|b| b.hits(ray, t_max).0.any())
-            || self.others[r.others.start as usize..r.others.end as usize]
-                .iter()
-                .any(|&p| other(p))
+            || {
+                let range = r.others.start as usize..r.others.end as usize;
+                self.others[range.clone()]
+                    .iter()
+                    .zip(&self.other_bounds[range])
+                    .any(|(&p, b)| b.hit(ray.origin, ray.inv_d, t_max) && other(p))
+            }
     }
 }
 

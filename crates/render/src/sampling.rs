@@ -300,6 +300,10 @@ impl Distribution1D {
     /// Picks an index for `u` in [0, 1), never one of zero probability.
     #[inline]
     pub fn sample(&self, u: f32) -> usize {
+        // One light is the common case: no search.
+        if self.cdf.len() == 1 {
+            return 0;
+        }
         let i = self.cdf.partition_point(|&c| c <= u);
         let mut i = i.min(self.cdf.len() - 1);
         // Rounding can land on a zero-weight entry at a plateau; step to the next real one.

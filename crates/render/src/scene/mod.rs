@@ -260,7 +260,7 @@ impl Scene {
     /// Whether anything blocks `ray` for t in (0, t_max).
     #[inline]
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
-        let blocks = |p: u32| self.prims[p as usize].shape.intersect(ray, t_max).is_some();
+        let blocks = |p: u32| self.prims[p as usize].shape.blocks(ray, t_max);
         if self.unbounded.iter().any(|&p| blocks(p)) {
             return true;
         }
