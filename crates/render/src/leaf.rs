@@ -113,10 +113,9 @@ struct LeafRef {
 pub struct Leaves {
     by_first: Vec<LeafRef>,
     blocks: Vec<QuadBlock>,
-    others: Vec<u32>,
-    /// World bounds of each of `others`: a rotated box's exact test costs several times a
-    /// bounding-box test, and most rays in a room pass its boxes by.
-    other_bounds: Vec<Aabb>,
+    /// Each other primitive with its world bounds: a rotated box's exact test costs several
+    /// times a bounding-box test, and most rays in a room pass its boxes by.
+    others: Vec<(u32, Aabb)>,
 }
 
 impl Leaves {
@@ -138,10 +137,7 @@ impl Leaves {
             for &p in &order[leaf] {
                 match shapes[p as usize] {
                     Shape::Parallelogram(q) => quads.push((p, q)),
-                    shape => {
-                        out.others.push(p);
-                        out.other_bounds.push(shape.bounds());
-                    }
+                    shape => out.others.push((p, shape.bounds())),
                 }
             }
             let blocks_start = out.blocks.len() as u32;
@@ -178,11 +174,7 @@ impl Leaves {
                 best = Some((t_min, b.prim[lane], 0));
             }
         }
-        let range = r.others.start as usize..r.others.end as usize;
-        for (&p, b) in self.others[range.clone()]
-            .iter()
-            .zip(&self.other_bounds[range])
-        {
+        for &(p, b) in self.others(r) {
             if !b.hit(ray.origin, ray.inv_d, t_max) {
                 continue;
             }
@@ -210,13 +202,16 @@ impl Leaves {
         self.blocks[r.blocks.start as usize..r.blocks.end as usize]
             .iter()
             .any(|b| b.hits(ray, t_max).0.any())
-            || {
-                let range = r.others.start as usize..r.others.end as usize;
-                self.others[range.clone()]
-                    .iter()
-                    .zip(&self.other_bounds[range])
-                    .any(|(&p, b)| b.hit(ray.origin, ray.inv_d, t_max) && other(p))
-            }
+            || self
+                .others(r)
+                .iter()
+                .any(|&(p, b)| b.hit(ray.origin, ray.inv_d, t_max) && other(p))
+    }
+
+    /// The leaf's other primitives with their bounds.
+    #[inline]
+    fn others(&self, r: &LeafRef) -> &[(u32, Aabb)] {
+        &self.others[r.others.start as usize..r.others.end as usize]
     }
 }
 

@@ -301,6 +301,15 @@ fn slab_distances(o: Vec3A, d: Vec3A, min: Vec3A, max: Vec3A) -> (Vec3A, Vec3A, 
     (inv, near, far)
 }
 
+/// For slab distances (`tn`, `tf`): whether `tn` lies in (0, t_max), and whether the slab is
+/// hit in that range at all. Selects rather than branches, as in the slab test.
+#[inline]
+fn slab_in_range(tn: f32, tf: f32, t_max: f32) -> (bool, bool) {
+    let near_ok = (tn > 0.0) & (tn < t_max);
+    let far_ok = (tf > 0.0) & (tf < t_max);
+    (near_ok, (tn <= tf) & (near_ok | far_ok))
+}
+
 /// Unit object-space normal of box face `face`.
 #[inline]
 fn face_normal(face: u32) -> Vec3A {
@@ -344,11 +353,9 @@ impl Shape {
             Shape::Cuboid { min, max, xf } => {
                 let lr = xf.ray_to_object(r);
                 let (tn, fnear, tf, ffar) = slab_unchecked(lr.o, lr.d, *min, *max);
-                // Selects rather than branches, as in the slab test.
-                let near_ok = (tn > 0.0) & (tn < t_max);
-                let far_ok = (tf > 0.0) & (tf < t_max);
+                let (near_ok, hit) = slab_in_range(tn, tf, t_max);
                 let (t, face) = if near_ok { (tn, fnear) } else { (tf, ffar) };
-                ((tn <= tf) & (near_ok | far_ok)).then_some((t, face))
+                hit.then_some((t, face))
             }
         }
     }
@@ -361,10 +368,7 @@ impl Shape {
             Shape::Cuboid { min, max, xf } => {
                 let lr = xf.ray_to_object(r);
                 let (_, near, far) = slab_distances(lr.o, lr.d, *min, *max);
-                let (tn, tf) = (near.max_element(), far.min_element());
-                let near_ok = (tn > 0.0) & (tn < t_max);
-                let far_ok = (tf > 0.0) & (tf < t_max);
-                (tn <= tf) & (near_ok | far_ok)
+                slab_in_range(near.max_element(), far.min_element(), t_max).1
             }
             _ => self.intersect(r, t_max).is_some(),
         }
