@@ -119,8 +119,19 @@ impl Bvh {
         mut t_max: f32,
         mut f: impl FnMut(std::ops::Range<usize>, f32) -> f32,
     ) {
-        if self.nodes.is_empty() {
-            return;
+        match self.nodes.as_slice() {
+            [] => return,
+            // A small scene (the Cornell box) is one leaf, whose bounds every ray inside the
+            // scene enters anyway: testing them would only repeat the primitives' own tests.
+            [leaf] => {
+                let first = leaf.offset as usize;
+                f(
+                    first..first + (leaf.count_axis & COUNT_MASK) as usize,
+                    t_max,
+                );
+                return;
+            }
+            _ => {}
         }
         let inv_d = ray.d.recip();
         let neg = [ray.d.x < 0.0, ray.d.y < 0.0, ray.d.z < 0.0];
@@ -243,9 +254,16 @@ mod tests {
     /// Every primitive a brute-force test hits must be visited by the traversal.
     #[test]
     fn traversal_visits_every_box_the_ray_hits() {
+        // 3 boxes make a single-leaf tree, which skips the node test; 500 make a deep one.
+        for count in [3, 500] {
+            visits_every_box_the_ray_hits(count);
+        }
+    }
+
+    fn visits_every_box_the_ray_hits(count: usize) {
         let mut rng = HashRng::new(3);
         let mut boxes = Vec::new();
-        for _ in 0..500 {
+        for _ in 0..count {
             let c = Vec3A::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 20.0;
             let e = Vec3A::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 0.5;
             boxes.push(Aabb {
@@ -255,7 +273,7 @@ mod tests {
         }
         let idx: Vec<u32> = (0..boxes.len() as u32).collect();
         let bvh = Bvh::build(&boxes, &idx);
-        assert!(bvh.node_count() > 1);
+        assert_eq!(bvh.node_count() > 1, count > MAX_LEAF, "{count} boxes");
         for _ in 0..2000 {
             let o = Vec3A::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 30.0 - 5.0;
             let d = Vec3A::new(
