@@ -138,7 +138,30 @@ fn rel_mse(img: &Image, reference: &RgbImage) -> f64 {
     sum / (3 * img.rgb.len()) as f64
 }
 
-fn machine() -> String {
+/// The core clock, timed on a chain of dependent rotate-and-xor operations, which take one
+/// cycle each on current x86-64 and AArch64 cores. The best of three runs, so a moment's
+/// contention does not lower it. Shared machines change clock from one sitting to the next,
+/// and with it every absolute figure of a report; the ratios, measured in one run, do not.
+fn measured_clock_ghz() -> f64 {
+    // Not inlined, so the chain's length stays opaque to the optimiser.
+    #[inline(never)]
+    fn chain(n: u64, mut x: u64) -> u64 {
+        for _ in 0..n {
+            x = x.rotate_left(1) ^ 0x9e37_79b9_7f4a_7c15;
+        }
+        x
+    }
+    const STEPS: u64 = 100_000_000;
+    (0..3)
+        .map(|_| {
+            let start = Instant::now();
+            std::hint::black_box(chain(std::hint::black_box(STEPS), 1));
+            2.0 * STEPS as f64 / start.elapsed().as_secs_f64().max(1e-9) / 1e9
+        })
+        .fold(0.0, f64::max)
+}
+
+fn machine(clock_ghz: f64) -> String {
     let cpu = std::fs::read_to_string("/proc/cpuinfo")
         .ok()
         .and_then(|s| {
@@ -158,7 +181,10 @@ fn machine() -> String {
         .map(|kb| format!(", {:.0} GiB", kb / 1024.0 / 1024.0))
         .unwrap_or_default();
     let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
-    format!("{cpu}, {cores} cores available{mem}")
+    format!(
+        "{cpu}, {cores} cores available{mem}; clock {clock_ghz:.2} GHz (timed on a chain of \
+         dependent rotate-and-xor operations, one cycle each, before rendering)"
+    )
 }
 
 /// The reference for `name`: given, the bundled independent one, or rendered here (cached).
@@ -254,6 +280,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     }
     let pool = pool.build().context("starting the render threads")?;
     let threads = pool.current_num_threads();
+    let clock_ghz = measured_clock_ghz();
 
     let mut rows = Vec::new();
     let mut references = Vec::new();
@@ -323,7 +350,15 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let svg_path = base.with_extension("svg");
     plot(&rows, &svg_path)?;
     let md_path = base.with_extension("md");
-    let md = report(&rows, &references, &args, threads, &svg_path, &csv_path);
+    let md = report(
+        &rows,
+        &references,
+        &args,
+        threads,
+        clock_ghz,
+        &svg_path,
+        &csv_path,
+    );
     std::fs::write(&md_path, md).with_context(|| format!("writing {}", md_path.display()))?;
     println!(
         "wrote {}, {} and {}",
@@ -392,6 +427,7 @@ fn report(
     references: &[(String, String)],
     args: &BenchArgs,
     threads: usize,
+    clock_ghz: f64,
     svg: &Path,
     csv: &Path,
 ) -> String {
@@ -404,7 +440,7 @@ fn report(
         "Made by `{}` (tessera on {threads} threads).\n",
         command.join(" ")
     );
-    let _ = writeln!(md, "Machine: {}.\n", machine());
+    let _ = writeln!(md, "Machine: {}.\n", machine(clock_ghz));
     let _ = writeln!(
         md,
         "Each scene is rendered at 4, 16, … {} spp with {} seeds; a row is the mean over seeds. \

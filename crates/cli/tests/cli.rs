@@ -272,6 +272,14 @@ fn bench_writes_csv_markdown_and_plot_with_peer_ratios() {
         md.contains("Machine:") && md.contains("tessera bench"),
         "{md}"
     );
+    // The clock is a timing, so only its form is checked: a finite, positive figure.
+    let clock: f64 = md
+        .split("clock ")
+        .nth(1)
+        .and_then(|rest| rest.split(" GHz").next())
+        .and_then(|x| x.parse().ok())
+        .expect("the machine line gives the measured clock");
+    assert!(clock.is_finite() && clock > 0.0, "{md}");
     let svg = std::fs::read_to_string(out.join("speed-vs-error.svg")).expect("svg");
     assert!(svg.starts_with("<svg") && svg.contains("polyline"), "{svg}");
     assert_eq!(
