@@ -17,6 +17,16 @@ struct Node {
     count_axis: u32,
 }
 
+impl Node {
+    /// The primitives (positions in `order`) of a leaf; `None` for an interior node.
+    #[inline]
+    fn leaf(&self) -> Option<std::ops::Range<usize>> {
+        let count = (self.count_axis & COUNT_MASK) as usize;
+        let first = self.offset as usize;
+        (count > 0).then_some(first..first + count)
+    }
+}
+
 const AXIS_SHIFT: u32 = 30;
 const COUNT_MASK: u32 = (1 << AXIS_SHIFT) - 1;
 const MAX_LEAF: usize = 4;
@@ -123,12 +133,10 @@ impl Bvh {
             [] => return,
             // A small scene (the Cornell box) is one leaf, whose bounds every ray inside the
             // scene enters anyway: testing them would only repeat the primitives' own tests.
-            [leaf] => {
-                let first = leaf.offset as usize;
-                f(
-                    first..first + (leaf.count_axis & COUNT_MASK) as usize,
-                    t_max,
-                );
+            [root] => {
+                if let Some(leaf) = root.leaf() {
+                    f(leaf, t_max);
+                }
                 return;
             }
             _ => {}
@@ -146,10 +154,8 @@ impl Bvh {
                 max: Vec3A::from(node.max),
             };
             if b.hit(ray.o, inv_d, t_max) {
-                let count = node.count_axis & COUNT_MASK;
-                if count > 0 {
-                    let first = node.offset as usize;
-                    t_max = f(first..first + count as usize, t_max);
+                if let Some(leaf) = node.leaf() {
+                    t_max = f(leaf, t_max);
                     if t_max < 0.0 {
                         return;
                     }
@@ -185,10 +191,7 @@ impl Bvh {
 
     /// Each leaf's range of positions in [`Bvh::order`], in node order.
     pub fn leaves(&self) -> impl Iterator<Item = std::ops::Range<usize>> + '_ {
-        self.nodes.iter().filter_map(|n| {
-            let count = (n.count_axis & COUNT_MASK) as usize;
-            (count > 0).then(|| n.offset as usize..n.offset as usize + count)
-        })
+        self.nodes.iter().filter_map(Node::leaf)
     }
 }
 
