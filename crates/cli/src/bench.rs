@@ -161,6 +161,32 @@ fn measured_clock_ghz() -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// The vector extensions this CPU has. tessera is built for baseline x86-64 so that every worker
+/// rounds alike, but a peer that compiles its kernels on the host (Mitsuba's `llvm_ad_rgb`) uses
+/// the widest it finds, so this explains much of a peer's speed from one sitting to the next.
+fn simd_extensions() -> String {
+    #[cfg(target_arch = "x86_64")]
+    let found: Vec<&str> = [
+        ("SSE4.1", std::arch::is_x86_feature_detected!("sse4.1")),
+        ("AVX", std::arch::is_x86_feature_detected!("avx")),
+        ("AVX2", std::arch::is_x86_feature_detected!("avx2")),
+        ("FMA", std::arch::is_x86_feature_detected!("fma")),
+        ("AVX-512F", std::arch::is_x86_feature_detected!("avx512f")),
+    ]
+    .into_iter()
+    .filter_map(|(name, has)| has.then_some(name))
+    .collect();
+    #[cfg(target_arch = "aarch64")]
+    let found = vec!["NEON"];
+    #[cfg(not(any(target_arch = "x86_64", target_arch = "aarch64")))]
+    let found: Vec<&str> = Vec::new();
+    if found.is_empty() {
+        "none detected".into()
+    } else {
+        found.join(", ")
+    }
+}
+
 fn machine(clock_ghz: f64) -> String {
     let cpu = std::fs::read_to_string("/proc/cpuinfo")
         .ok()
@@ -182,8 +208,10 @@ fn machine(clock_ghz: f64) -> String {
         .unwrap_or_default();
     let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
     format!(
-        "{cpu}, {cores} cores available{mem}; clock {clock_ghz:.2} GHz (timed on a chain of \
-         dependent rotate-and-xor operations, one cycle each, before rendering)"
+        "{cpu}, {cores} cores available{mem}; vector extensions: {}; clock {clock_ghz:.2} GHz \
+         (timed on a chain of dependent rotate-and-xor operations, one cycle each, before \
+         rendering)",
+        simd_extensions()
     )
 }
 

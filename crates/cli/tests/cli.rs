@@ -280,6 +280,18 @@ fn bench_writes_csv_markdown_and_plot_with_peer_ratios() {
         .and_then(|x| x.parse().ok())
         .expect("the machine line gives the measured clock");
     assert!(clock.is_finite() && clock > 0.0, "{md}");
+    let simd = md
+        .split("vector extensions: ")
+        .nth(1)
+        .and_then(|rest| rest.split(';').next())
+        .expect("the machine line gives the vector extensions");
+    #[cfg(target_arch = "x86_64")]
+    assert_eq!(
+        simd.split(", ").any(|x| x == "AVX2"),
+        std::arch::is_x86_feature_detected!("avx2"),
+        "{simd}"
+    );
+    assert!(!simd.is_empty(), "{md}");
     let svg = std::fs::read_to_string(out.join("speed-vs-error.svg")).expect("svg");
     assert!(svg.starts_with("<svg") && svg.contains("polyline"), "{svg}");
     assert_eq!(
