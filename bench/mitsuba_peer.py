@@ -1,11 +1,29 @@
-"""Mitsuba 3 as a peer for `tessera bench`: renders Mitsuba's built-in Cornell box (the scene of
-tests/data/cornell-box-reference.exr and scenes/cornell-box.toml: box filter, unbiased path
-tracer with max_depth = -1) at 4, 16, ... spp with several seeds, times each render, and
-writes CSV rows in `tessera bench`'s format (renderer,scene,spp,seed,threads,seconds,
-msamples_per_s,relmse), relMSE against the same reference.
+"""Mitsuba 3 as a peer for `tessera bench`.
 
-Usage: python mitsuba_peer.py --reference REF.exr --out OUT.csv [--variants V ...]
-       [--max-spp N] [--seeds K]
+Two scenes have exact Mitsuba counterparts, built here as dictionaries:
+- cornell-box: Mitsuba's built-in Cornell box, the scene of tests/data/cornell-box-reference.exr
+  and scenes/cornell-box.toml;
+- glass-mirror: the same box with the two cuboids replaced by the spheres of
+  scenes/glass-mirror.toml (a perfect mirror of reflectance 0.95 and a smooth dielectric of
+  index 1.5 in vacuum).
+Both use a box filter and the unbiased path tracer (max_depth = -1).
+
+Peer mode renders each scene at 4, 16, ... spp with several seeds, times each render, and
+writes CSV rows in `tessera bench`'s format (renderer,scene,spp,seed,threads,seconds,
+msamples_per_s,relmse), relMSE against the reference given for that scene:
+
+    python mitsuba_peer.py --reference cornell-box=REF.exr [--reference glass-mirror=REF2.exr]
+        --out OUT.csv [--variants V ...] [--max-spp N] [--seeds K]
+
+Reference mode renders a converged reference of one scene (the mean of independent passes,
+so no single render holds every sample in memory), as an RGB float32 EXR:
+
+    python mitsuba_peer.py --make-reference glass-mirror=OUT.exr --reference-spp 16384
+
+Block mode averages a reference over BxB pixel blocks, small enough to commit as test data
+(tests/data/glass-mirror-reference-4x4.exr was made this way, with --block 4):
+
+    python mitsuba_peer.py --block-means FULL.exr=OUT.exr --block 4
 
 Each variant renders once untimed first, so JIT compilation (llvm_ad_rgb) is not timed. The
 timed span is mi.render plus the copy to a NumPy array, which forces the lazy evaluation.
@@ -18,10 +36,97 @@ import time
 import numpy as np
 
 
+SCENES = ("cornell-box", "glass-mirror")
+
+
+def scene_dict(mi, name, size):
+    """The Mitsuba scene dictionary of `name` at `size`x`size` pixels."""
+    d = mi.cornell_box()
+    if name == "glass-mirror":
+        # scenes/glass-mirror.toml: the box, lit as before, with two balls for the cuboids.
+        del d["small-box"], d["large-box"]
+        d["mirror-ball"] = {
+            "type": "sphere", "center": [-0.42, -0.68, -0.3], "radius": 0.32,
+            # material "none": a perfect conductor (F = 1), scaled by the reflectance.
+            "bsdf": {"type": "conductor", "material": "none",
+                     "specular_reflectance": {"type": "rgb", "value": [0.95, 0.95, 0.95]}},
+        }
+        d["glass-ball"] = {
+            "type": "sphere", "center": [0.42, -0.68, 0.3], "radius": 0.32,
+            # tessera's outside is vacuum; Mitsuba's default ext_ior is air (1.000277).
+            "bsdf": {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0},
+        }
+    elif name != "cornell-box":
+        raise SystemExit(f"no Mitsuba counterpart for scene {name!r}; known: {SCENES}")
+    d["sensor"]["film"].update(width=size, height=size, rfilter={"type": "box"})
+    d["sensor"]["sampler"] = {"type": "independent", "sample_count": 4}
+    d["integrator"] = {"type": "path", "max_depth": -1}
+    return d
+
+
+def name_file(arg, flag):
+    name, sep, path = arg.partition("=")
+    if not sep or not name or not path:
+        raise SystemExit(f"{flag} {arg!r}: expected NAME=FILE.exr")
+    if name not in SCENES:
+        raise SystemExit(f"{flag} {arg!r}: no Mitsuba counterpart for {name!r}; known: {SCENES}")
+    return name, path
+
+
+def set_variant(mi, variants):
+    """The first of `variants` this build and machine can run."""
+    for v in variants:
+        try:
+            mi.set_variant(v)
+            return v
+        except Exception as e:
+            print(f"skipping {v}: {e}", file=sys.stderr)
+    raise SystemExit(f"none of the variants {variants} runs here")
+
+
+def make_reference(mi, a):
+    name, out = name_file(a.make_reference, "--make-reference")
+    variant = set_variant(mi, a.variants)
+    scene = mi.load_dict(scene_dict(mi, name, a.size))
+    passes = max(1, a.reference_spp // a.pass_spp)
+    acc = None
+    t = time.perf_counter()
+    for k in range(passes):
+        # Seeds far from the peer runs' 1, 2, ... keep the reference's noise independent.
+        img = np.array(mi.render(scene, spp=a.pass_spp, seed=1_000_000 + k), dtype=np.float64)
+        acc = img if acc is None else acc + img
+    mean = (acc / passes)[..., :3].astype(np.float32)
+    mi.Bitmap(mean, pixel_format=mi.Bitmap.PixelFormat.RGB).write(out)
+    dt = time.perf_counter() - t
+    print(f"{name}: {passes * a.pass_spp} spp with {variant} in {dt:.1f} s -> {out}",
+          file=sys.stderr)
+
+
+def block_means(mi, a):
+    src, sep, out = a.block_means.partition("=")
+    if not sep or not src or not out:
+        raise SystemExit(f"--block-means {a.block_means!r}: expected FULL.exr=OUT.exr")
+    mi.set_variant("scalar_rgb")
+    img = np.array(mi.Bitmap(src).convert(
+        mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32, False), dtype=np.float64)
+    b = a.block
+    h, w = img.shape[:2]
+    if b < 1 or h % b or w % b:
+        raise SystemExit(f"--block {b} does not divide the {w}x{h} image {src}")
+    means = img.reshape(h // b, b, w // b, b, 3).mean(axis=(1, 3)).astype(np.float32)
+    mi.Bitmap(means, pixel_format=mi.Bitmap.PixelFormat.RGB).write(out)
+
+
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--reference", required=True)
-    ap.add_argument("--out", required=True)
+    ap.add_argument("--reference", action="append", default=[],
+                    help="NAME=FILE.exr: the scene to render as a peer and its reference")
+    ap.add_argument("--out")
+    ap.add_argument("--make-reference", help="NAME=FILE.exr: render a converged reference")
+    ap.add_argument("--reference-spp", type=int, default=16384)
+    ap.add_argument("--block-means", help="FULL.exr=OUT.exr: average over --block pixels")
+    ap.add_argument("--block", type=int, default=4)
+    ap.add_argument("--pass-spp", type=int, default=256)
     ap.add_argument("--variants", nargs="+", default=["llvm_ad_rgb", "scalar_rgb"])
     ap.add_argument("--max-spp", type=int, default=4096)
     ap.add_argument("--seeds", type=int, default=2)
@@ -33,6 +138,16 @@ def main():
 
     import mitsuba as mi
 
+    if a.make_reference:
+        make_reference(mi, a)
+        return
+    if a.block_means:
+        block_means(mi, a)
+        return
+    if not a.out or not a.reference:
+        ap.error("peer mode needs --out and at least one --reference NAME=FILE.exr")
+    references = [name_file(r, "--reference") for r in a.reference]
+
     rows = []
     threads = os.cpu_count()
     for variant in a.variants:
@@ -41,27 +156,27 @@ def main():
         except Exception as e:  # a variant this build or machine cannot run
             print(f"skipping {variant}: {e}", file=sys.stderr)
             continue
-        ref = np.array(mi.Bitmap(a.reference).convert(
-            mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32, False), dtype=np.float64)
-        d = mi.cornell_box()
-        d["sensor"]["film"].update(width=a.size, height=a.size, rfilter={"type": "box"})
-        d["sensor"]["sampler"] = {"type": "independent", "sample_count": 4}
-        d["integrator"] = {"type": "path", "max_depth": -1}
-        scene = mi.load_dict(d)
-        np.array(mi.render(scene, spp=4, seed=999))  # warm-up: JIT compilation, not timed
-        top = min(a.max_spp, a.scalar_max_spp) if variant.startswith("scalar") else a.max_spp
-        spp = 4
-        while spp <= top:
-            for seed in range(1, a.seeds + 1):
-                t = time.perf_counter()
-                img = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float64)
-                dt = time.perf_counter() - t
-                rel = float(np.mean((img[..., :3] - ref) ** 2 / (ref ** 2 + 0.01)))
-                row = (f"mitsuba-{variant},cornell-box,{spp},{seed},{threads},{dt:.6f},"
-                       f"{a.size * a.size * spp / dt / 1e6:.4f},{rel:.6e}")
-                print(row, file=sys.stderr, flush=True)
-                rows.append(row)
-            spp *= 4
+        for name, ref_path in references:
+            ref = np.array(mi.Bitmap(ref_path).convert(
+                mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32, False), dtype=np.float64)
+            if ref.shape[:2] != (a.size, a.size):
+                raise SystemExit(f"reference {ref_path} is {ref.shape[1]}x{ref.shape[0]}, "
+                                 f"the render {a.size}x{a.size}")
+            scene = mi.load_dict(scene_dict(mi, name, a.size))
+            np.array(mi.render(scene, spp=4, seed=999))  # warm-up: JIT compilation, not timed
+            top = min(a.max_spp, a.scalar_max_spp) if variant.startswith("scalar") else a.max_spp
+            spp = 4
+            while spp <= top:
+                for seed in range(1, a.seeds + 1):
+                    t = time.perf_counter()
+                    img = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float64)
+                    dt = time.perf_counter() - t
+                    rel = float(np.mean((img[..., :3] - ref) ** 2 / (ref ** 2 + 0.01)))
+                    row = (f"mitsuba-{variant},{name},{spp},{seed},{threads},{dt:.6f},"
+                           f"{a.size * a.size * spp / dt / 1e6:.4f},{rel:.6e}")
+                    print(row, file=sys.stderr, flush=True)
+                    rows.append(row)
+                spp *= 4
     with open(a.out, "w") as f:
         f.write("renderer,scene,spp,seed,threads,seconds,msamples_per_s,relmse\n")
         f.write("".join(r + "\n" for r in rows))

@@ -1,10 +1,14 @@
 #!/usr/bin/env bash
 # Speed against error, tessera and its peers measured in one run on this machine:
-#   1. Mitsuba 3 (PyPI `mitsuba`) renders the Cornell box, variants llvm_ad_rgb and scalar_rgb,
-#      when Python 3 is here (it is installed into target/bench-venv; llvm_ad_rgb needs
-#      Debian's libllvm19, which this script installs with apt-get when it can);
+#   1. Mitsuba 3 (PyPI `mitsuba`) renders the Cornell box and glass-mirror, variants
+#      llvm_ad_rgb and scalar_rgb, when Python 3 is here (it is installed into
+#      target/bench-venv; llvm_ad_rgb needs Debian's libllvm19, which this script installs with
+#      apt-get when it can). glass-mirror's reference is Mitsuba's too, rendered once at
+#      16384 spp and cached in target/bench-cache (about 13 minutes on 2 cores);
 #   2. `tessera bench` renders cornell-box, spheres and glass-mirror and writes
 #      docs/benchmarks/speed-vs-error.{md,csv,svg} with the peers' rows and the ratios.
+#      spheres (a sky gradient and an infinite plane, which Mitsuba has no exact form of) is
+#      measured against tessera's own reference.
 # Usage: bench/speed-vs-error.sh [--max-spp N] [--seeds K] [--reference-spp R]
 # (R: spp of the references tessera renders for scenes without an independent one)
 set -euo pipefail
@@ -37,10 +41,18 @@ if command -v python3 >/dev/null; then
     fi
     [ -n "$llvm" ] && export DRJIT_LIBLLVM_PATH="$llvm"
     [ -z "$llvm" ] && echo "no libLLVM.so.19.1: mitsuba's llvm_ad_rgb variant will be skipped" >&2
+    gm_ref=target/bench-cache/mitsuba-glass-mirror-16384.exr
+    if [ ! -s "$gm_ref" ]; then
+        mkdir -p target/bench-cache
+        target/bench-venv/bin/python bench/mitsuba_peer.py \
+            --make-reference "glass-mirror=$gm_ref.tmp.exr" --reference-spp 16384
+        mv "$gm_ref.tmp.exr" "$gm_ref"
+    fi
     target/bench-venv/bin/python bench/mitsuba_peer.py \
-        --reference tests/data/cornell-box-reference.exr --out target/bench/mitsuba.csv \
+        --reference cornell-box=tests/data/cornell-box-reference.exr \
+        --reference "glass-mirror=$gm_ref" --out target/bench/mitsuba.csv \
         --max-spp "$max_spp" --seeds "$seeds"
-    peers+=(--peer target/bench/mitsuba.csv)
+    peers+=(--peer target/bench/mitsuba.csv --reference "glass-mirror=$gm_ref")
 else
     echo "no python3: reporting tessera alone" >&2
 fi

@@ -1,6 +1,11 @@
-//! The Cornell box against an independent converged reference (Mitsuba 3, 16384 spp).
+//! Scenes against independent converged references rendered by Mitsuba 3 at 16384 spp:
+//! - cornell-box: the full image (`tests/data/cornell-box-reference.exr`);
+//! - glass-mirror (a mirror ball and a glass ball in the box: specular chains, caustics, total
+//!   internal reflection): its 4×4-pixel block means (`tests/data/glass-mirror-reference-4x4.exr`,
+//!   made by `bench/mitsuba_peer.py`), small enough to keep in the repository. Region means are
+//!   all the checks below read, so the blocks lose nothing.
 //!
-//! Three checks, each able to fail:
+//! Three checks per scene, each able to fail:
 //! - z-test: every 32×32 region mean agrees within 4.5 standard errors (192 region-channels,
 //!   so a false alarm has probability ~1e-3; the seed is fixed, so the outcome is too);
 //! - bias bound: for every 64×64 region, the 99% confidence interval of the relative bias
@@ -16,30 +21,47 @@ use tessera_render::{Image, RenderSettings};
 
 const SPP: u32 = 1024;
 
-fn reference_mean(r: &RgbImage, x0: u32, y0: u32, w: u32, h: u32) -> [f64; 3] {
-    let mut m = [0f64; 3];
-    for y in y0..y0 + h {
-        for x in x0..x0 + w {
-            let p = r.rgb[y as usize * r.width + x as usize];
-            for c in 0..3 {
-                m[c] += p[c] as f64 / (w * h) as f64;
-            }
-        }
-    }
-    m
+/// A reference image whose texels are the means of `block`×`block` pixel squares.
+struct Reference {
+    img: RgbImage,
+    block: u32,
 }
 
-/// (relative difference, z, combined standard error) per channel for one region.
+impl Reference {
+    fn load(file: &str, block: u32) -> Self {
+        let img = read_exr_rgb(&repo_root().join("tests/data").join(file)).expect("reference");
+        Self { img, block }
+    }
+
+    /// Mean over a pixel region whose edges lie on block boundaries.
+    fn mean(&self, x0: u32, y0: u32, w: u32, h: u32) -> [f64; 3] {
+        let b = self.block;
+        assert!([x0, y0, w, h].iter().all(|v| v.is_multiple_of(b)));
+        let (tx, ty, tw, th) = (x0 / b, y0 / b, w / b, h / b);
+        let mut m = [0f64; 3];
+        for y in ty..ty + th {
+            for x in tx..tx + tw {
+                let p = self.img.rgb[y as usize * self.img.width + x as usize];
+                for c in 0..3 {
+                    m[c] += p[c] as f64 / (tw * th) as f64;
+                }
+            }
+        }
+        m
+    }
+}
+
+/// (relative difference, z, relative combined standard error, ours, reference) per channel.
 fn compare(
     img: &Image,
-    r: &RgbImage,
+    r: &Reference,
     x0: u32,
     y0: u32,
     w: u32,
     h: u32,
 ) -> [(f64, f64, f64, f64, f64); 3] {
     let (mean, se) = region_stats(img, x0, y0, w, h);
-    let rm = reference_mean(r, x0, y0, w, h);
+    let rm = r.mean(x0, y0, w, h);
     std::array::from_fn(|c| {
         // The reference's own noise is about SPP/16384 of ours in variance.
         let se_both = se[c] * (1.0 + SPP as f64 / 16384.0).sqrt();
@@ -54,13 +76,14 @@ fn compare(
     })
 }
 
-#[test]
-fn cornell_box_matches_the_independent_reference() {
-    let reference =
-        read_exr_rgb(&repo_root().join("tests/data/cornell-box-reference.exr")).expect("reference");
-    let scene = load("cornell-box.toml");
-    assert_eq!((reference.width, reference.height), (256, 256));
+/// Renders `scene` at [`SPP`] and runs the three checks against `reference`.
+fn check_against(scene: &str, reference: &Reference) {
+    let scene = load(scene);
     assert_eq!((scene.width, scene.height), (256, 256));
+    assert_eq!(
+        (reference.img.width as u32, reference.img.height as u32),
+        (256 / reference.block, 256 / reference.block)
+    );
     let img = render(
         &scene,
         &RenderSettings {
@@ -77,7 +100,7 @@ fn cornell_box_matches_the_independent_reference() {
         for y0 in (0..256).step_by(block as usize) {
             for x0 in (0..256).step_by(block as usize) {
                 for (c, (rel, z, rel_se, ours, theirs)) in
-                    compare(&img, &reference, x0, y0, block, block)
+                    compare(&img, reference, x0, y0, block, block)
                         .into_iter()
                         .enumerate()
                 {
@@ -94,7 +117,7 @@ fn cornell_box_matches_the_independent_reference() {
             }
         }
     }
-    for (c, (rel, z, _, ours, theirs)) in compare(&img, &reference, 0, 0, 256, 256)
+    for (c, (rel, z, _, ours, theirs)) in compare(&img, reference, 0, 0, 256, 256)
         .into_iter()
         .enumerate()
     {
@@ -112,5 +135,21 @@ fn cornell_box_matches_the_independent_reference() {
         "{} checks failed:\n{}",
         failures.len(),
         failures.join("\n")
+    );
+}
+
+#[test]
+fn cornell_box_matches_the_independent_reference() {
+    check_against(
+        "cornell-box.toml",
+        &Reference::load("cornell-box-reference.exr", 1),
+    );
+}
+
+#[test]
+fn glass_mirror_matches_the_independent_reference() {
+    check_against(
+        "glass-mirror.toml",
+        &Reference::load("glass-mirror-reference-4x4.exr", 4),
     );
 }
