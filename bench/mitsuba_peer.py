@@ -102,13 +102,18 @@ def make_reference(mi, a):
           file=sys.stderr)
 
 
+def read_rgb(mi, path):
+    """An EXR's RGB channels as a float64 (height, width, 3) array."""
+    return np.array(mi.Bitmap(path).convert(
+        mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32, False), dtype=np.float64)
+
+
 def block_means(mi, a):
     src, sep, out = a.block_means.partition("=")
     if not sep or not src or not out:
         raise SystemExit(f"--block-means {a.block_means!r}: expected FULL.exr=OUT.exr")
     mi.set_variant("scalar_rgb")
-    img = np.array(mi.Bitmap(src).convert(
-        mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32, False), dtype=np.float64)
+    img = read_rgb(mi, src)
     b = a.block
     h, w = img.shape[:2]
     if b < 1 or h % b or w % b:
@@ -157,8 +162,7 @@ def main():
             print(f"skipping {variant}: {e}", file=sys.stderr)
             continue
         for name, ref_path in references:
-            ref = np.array(mi.Bitmap(ref_path).convert(
-                mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32, False), dtype=np.float64)
+            ref = read_rgb(mi, ref_path)
             if ref.shape[:2] != (a.size, a.size):
                 raise SystemExit(f"reference {ref_path} is {ref.shape[1]}x{ref.shape[0]}, "
                                  f"the render {a.size}x{a.size}")
