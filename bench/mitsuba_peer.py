@@ -96,10 +96,20 @@ def make_reference(mi, a):
         img = np.array(mi.render(scene, spp=a.pass_spp, seed=1_000_000 + k), dtype=np.float64)
         acc = img if acc is None else acc + img
     mean = (acc / passes)[..., :3].astype(np.float32)
-    mi.Bitmap(mean, pixel_format=mi.Bitmap.PixelFormat.RGB).write(out)
+    write_rgb(mi, mean, out,
+              f"independent reference: Mitsuba 3 {variant}, path integrator, "
+              f"{passes * a.pass_spp} spp ({passes} passes of {a.pass_spp}, seeds from 1000000)")
     dt = time.perf_counter() - t
     print(f"{name}: {passes * a.pass_spp} spp with {variant} in {dt:.1f} s -> {out}",
           file=sys.stderr)
+
+
+def write_rgb(mi, rgb, path, comments):
+    """Writes a float32 RGB EXR whose `comments` attribute says how it was made: `tessera bench`
+    quotes it when the file is given as a reference."""
+    bmp = mi.Bitmap(rgb, pixel_format=mi.Bitmap.PixelFormat.RGB)
+    bmp.metadata()["comments"] = comments
+    bmp.write(path)
 
 
 def read_rgb(mi, path):
@@ -119,7 +129,9 @@ def block_means(mi, a):
     if b < 1 or h % b or w % b:
         raise SystemExit(f"--block {b} does not divide the {w}x{h} image {src}")
     means = img.reshape(h // b, b, w // b, b, 3).mean(axis=(1, 3)).astype(np.float32)
-    mi.Bitmap(means, pixel_format=mi.Bitmap.PixelFormat.RGB).write(out)
+    source = mi.Bitmap(src).metadata()
+    origin = source["comments"] if "comments" in source else src
+    write_rgb(mi, means, out, f"{b}x{b}-pixel block means of {origin}")
 
 
 def main():

@@ -13,7 +13,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use tessera_render::output::{read_exr_rgb, render_metadata, write_exr, ExrChannels, RgbImage};
+use tessera_render::output::{
+    read_exr_provenance, read_exr_rgb, render_metadata, write_exr, ExrChannels, RgbImage,
+};
 use tessera_render::scene::{Limits, Scene};
 use tessera_render::{render_frame, Image, RenderSettings};
 
@@ -228,7 +230,9 @@ fn reference(
             .with_context(|| format!("--reference {r:?}: expected NAME=FILE.exr"))?;
         if n == name {
             let img = read_exr_rgb(Path::new(file))?;
-            return Ok((img, format!("`{file}`")));
+            let origin = read_exr_provenance(Path::new(file))?
+                .unwrap_or_else(|| "its header does not say where it came from".into());
+            return Ok((img, format!("`{file}` ({origin})")));
         }
     }
     let bundled = Path::new("tests/data").join(format!("{name}-reference.exr"));

@@ -299,6 +299,25 @@ fn bench_writes_csv_markdown_and_plot_with_peer_ratios() {
         1,
         "the reference is cached"
     );
+    // A reference given by file is described by what its header says of its origin.
+    let cached = std::fs::read_dir(&cache)
+        .expect("cache")
+        .next()
+        .expect("one entry")
+        .expect("entry")
+        .path();
+    let mut a = args(&peer);
+    a.extend(["--reference".into(), format!("tiny={}", cached.display())]);
+    let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let md = std::fs::read_to_string(out.join("speed-vs-error.md")).expect("md");
+    assert!(
+        md.contains(&format!(
+            "- tiny: `{}` (tessera render: scene_sha256=",
+            cached.display()
+        )) && md.contains("spp=64, seed=18446744073709551615"),
+        "{md}"
+    );
 
     let bad = write(dir.path(), "bad.csv", "other,tiny,4,1,2,NaN,1,1\n");
     let a = args(&bad);

@@ -228,6 +228,40 @@ fn to_srgb8(x: f32) -> u8 {
     (s * 255.0 + 0.5).clamp(0.0, 255.0) as u8
 }
 
+/// One line saying where an EXR file came from, for reports that compare against it: tessera's
+/// own metadata when it has them, else its standard `comments` and `software` attributes and
+/// `generatedBy` (which Mitsuba writes). `None` when the file says nothing of its origin.
+pub fn read_exr_provenance(path: &Path) -> Result<Option<String>, OutputError> {
+    let tessera = read_exr_metadata(path)?;
+    if !tessera.is_empty() {
+        return Ok(Some(format!("tessera render: {}", tessera.join(", "))));
+    }
+    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| OutputError::Exr {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    let mut parts: Vec<String> = Vec::new();
+    let mut add = |t: &Text| {
+        let t = t.to_string();
+        if !t.is_empty() && !parts.contains(&t) {
+            parts.push(t);
+        }
+    };
+    for h in &meta.headers {
+        let own = &h.own_attributes;
+        own.comments
+            .iter()
+            .chain(&own.software_name)
+            .for_each(&mut add);
+        for other in [&own.other, &h.shared_attributes.other] {
+            if let Some(AttributeValue::Text(t)) = other.get(&Text::from("generatedBy")) {
+                add(t);
+            }
+        }
+    }
+    Ok((!parts.is_empty()).then(|| parts.join("; ")))
+}
+
 /// Reads the `tessera` metadata attribute of an EXR file as `key=value` strings.
 pub fn read_exr_metadata(path: &Path) -> Result<Vec<String>, OutputError> {
     let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| OutputError::Exr {
@@ -243,4 +277,47 @@ pub fn read_exr_metadata(path: &Path) -> Result<Vec<String>, OutputError> {
         }
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn provenance_names_tessera_mitsuba_or_nothing() {
+        let dir = std::env::temp_dir().join(format!("tessera-prov-{}", std::process::id()));
+        fs::create_dir_all(&dir).expect("tmp");
+        let img = Image {
+            width: 2,
+            height: 1,
+            rgb: vec![[0.5; 3]; 2],
+            variance: vec![[0.0; 3]; 2],
+            count: vec![1; 2],
+            nonfinite: 0,
+        };
+        let settings = crate::RenderSettings::default();
+        let ours = dir.join("ours.exr");
+        let meta = render_metadata("abc", &settings);
+        write_exr(&ours, &img, ExrChannels::default(), &meta).expect("write");
+        let bare = dir.join("bare.exr");
+        write_exr(&bare, &img, ExrChannels::default(), &[]).expect("write");
+        let (ours, bare) = (read_exr_provenance(&ours), read_exr_provenance(&bare));
+        fs::remove_dir_all(&dir).ok();
+        let ours = ours.expect("read").expect("tessera's metadata");
+        assert!(
+            ours.starts_with("tessera render: scene_sha256=abc, spp=64"),
+            "{ours}"
+        );
+        assert_eq!(bare.expect("read"), None);
+        // The bundled reference was written by Mitsuba, which records itself in `generatedBy`.
+        let mitsuba = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../tests/data/cornell-box-reference.exr");
+        let origin = read_exr_provenance(&mitsuba).expect("read");
+        assert!(
+            origin
+                .as_deref()
+                .is_some_and(|o| o.starts_with("Mitsuba version 3")),
+            "{origin:?}"
+        );
+    }
 }
