@@ -43,11 +43,22 @@ fn kernels(c: &mut Criterion) {
         i = (i + 1) & 0xffff;
         i
     };
+    // A render makes one sampler per pixel and moves it from sample to sample.
+    let mut sampler = PixelSampler::new(7, 10, 20, 0);
     c.bench_function("sampler_get4_hashed", |b| {
-        b.iter(|| PixelSampler::new(7, 10, 20, next()).get4(black_box(5)))
+        b.iter(|| {
+            sampler.set_index(next());
+            sampler.get4(black_box(5))
+        })
     });
     c.bench_function("sampler_get4_sobol", |b| {
-        b.iter(|| PixelSampler::new(7, 10, 20, next()).get4(black_box(0)))
+        b.iter(|| {
+            sampler.set_index(next());
+            sampler.get4(black_box(0))
+        })
+    });
+    c.bench_function("sampler_new", |b| {
+        b.iter(|| PixelSampler::new(7, black_box(10), 20, next()))
     });
     // The crate the table-driven Sobol reproduces, as the peer of the next line.
     c.bench_function("sobol_burley_sample_4d", |b| {

@@ -103,12 +103,18 @@ fn reflect(d: Vec3A, n: Vec3A) -> Vec3A {
     d - n * (2.0 * d.dot(n))
 }
 
-/// The radiance estimate of one camera sample of pixel (`x`, `y`).
-pub fn sample_pixel(scene: &Scene, settings: &RenderSettings, x: u32, y: u32, index: u32) -> Vec3A {
-    let sampler = PixelSampler::new(settings.seed, x, y, index);
+/// The radiance estimate of one camera sample of pixel (`x`, `y`): the sample `sampler` (made
+/// for that pixel and the job's seed) is at.
+pub fn sample_pixel(
+    scene: &Scene,
+    settings: &RenderSettings,
+    x: u32,
+    y: u32,
+    sampler: &PixelSampler,
+) -> Vec3A {
     let [jx, jy, _, _] = sampler.get4(0);
     let ray = scene.camera.ray(x as f32 + jx, y as f32 + jy);
-    radiance(scene, settings, ray, &sampler)
+    radiance(scene, settings, ray, sampler)
 }
 
 /// Radiance arriving at the camera along `ray`.

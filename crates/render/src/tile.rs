@@ -12,6 +12,7 @@ use std::ops::Range;
 use rayon::prelude::*;
 
 use crate::integrator::{sample_pixel, RenderSettings};
+use crate::sampling::PixelSampler;
 use crate::scene::Scene;
 
 /// A rectangle of pixels.
@@ -346,6 +347,7 @@ pub fn render_tile(
                 .enumerate()
             {
                 let x = rect.x0 + col as u32;
+                let mut sampler = PixelSampler::new(settings.seed, x, y, samples.start);
                 let mut i = samples.start;
                 while i < samples.end {
                     let end = ((i / batch).saturating_add(1))
@@ -353,7 +355,8 @@ pub fn render_tile(
                         .min(samples.end);
                     let mut b = BatchSums::default();
                     for index in i..end {
-                        b.add(sample_pixel(scene, settings, x, y, index));
+                        sampler.set_index(index);
+                        b.add(sample_pixel(scene, settings, x, y, &sampler));
                     }
                     for c in 0..3 {
                         s[c] += b.sum[c];
