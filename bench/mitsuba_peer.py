@@ -114,7 +114,11 @@ def write_rgb(mi, rgb, path, comments):
 
 def read_rgb(mi, path):
     """An EXR's RGB channels as a float64 (height, width, 3) array."""
-    return np.array(mi.Bitmap(path).convert(
+    return rgb_of(mi, mi.Bitmap(path))
+
+
+def rgb_of(mi, bmp):
+    return np.array(bmp.convert(
         mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32, False), dtype=np.float64)
 
 
@@ -123,13 +127,14 @@ def block_means(mi, a):
     if not sep or not src or not out:
         raise SystemExit(f"--block-means {a.block_means!r}: expected FULL.exr=OUT.exr")
     mi.set_variant("scalar_rgb")
-    img = read_rgb(mi, src)
+    bmp = mi.Bitmap(src)
+    img = rgb_of(mi, bmp)
     b = a.block
     h, w = img.shape[:2]
     if b < 1 or h % b or w % b:
         raise SystemExit(f"--block {b} does not divide the {w}x{h} image {src}")
     means = img.reshape(h // b, b, w // b, b, 3).mean(axis=(1, 3)).astype(np.float32)
-    source = mi.Bitmap(src).metadata()
+    source = bmp.metadata()
     origin = source["comments"] if "comments" in source else src
     write_rgb(mi, means, out, f"{b}x{b}-pixel block means of {origin}")
 

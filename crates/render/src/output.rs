@@ -232,14 +232,11 @@ fn to_srgb8(x: f32) -> u8 {
 /// own metadata when it has them, else its standard `comments` and `software` attributes and
 /// `generatedBy` (which Mitsuba writes). `None` when the file says nothing of its origin.
 pub fn read_exr_provenance(path: &Path) -> Result<Option<String>, OutputError> {
-    let tessera = read_exr_metadata(path)?;
+    let meta = read_exr_header(path)?;
+    let tessera = tessera_attribute(&meta);
     if !tessera.is_empty() {
         return Ok(Some(format!("tessera render: {}", tessera.join(", "))));
     }
-    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| OutputError::Exr {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    })?;
     let mut parts: Vec<String> = Vec::new();
     let mut add = |t: &Text| {
         let t = t.to_string();
@@ -264,10 +261,18 @@ pub fn read_exr_provenance(path: &Path) -> Result<Option<String>, OutputError> {
 
 /// Reads the `tessera` metadata attribute of an EXR file as `key=value` strings.
 pub fn read_exr_metadata(path: &Path) -> Result<Vec<String>, OutputError> {
-    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| OutputError::Exr {
+    Ok(tessera_attribute(&read_exr_header(path)?))
+}
+
+fn read_exr_header(path: &Path) -> Result<exr::meta::MetaData, OutputError> {
+    exr::meta::MetaData::read_from_file(path, false).map_err(|e| OutputError::Exr {
         path: path.to_path_buf(),
         message: e.to_string(),
-    })?;
+    })
+}
+
+/// The `key=value` strings of every header's `tessera` attribute.
+fn tessera_attribute(meta: &exr::meta::MetaData) -> Vec<String> {
     let mut out = Vec::new();
     for h in &meta.headers {
         if let Some(AttributeValue::TextVector(v)) =
@@ -276,7 +281,7 @@ pub fn read_exr_metadata(path: &Path) -> Result<Vec<String>, OutputError> {
             out.extend(v.iter().map(|t| t.to_string()));
         }
     }
-    Ok(out)
+    out
 }
 
 #[cfg(test)]
