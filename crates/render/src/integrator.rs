@@ -112,17 +112,37 @@ pub fn sample_pixel(
     y: u32,
     sampler: &PixelSampler,
 ) -> Vec3A {
-    let [jx, jy, _, _] = sampler.get4(0);
+    let [jx, jy, lx, ly] = sampler.get4(0);
     let ray = scene.camera.ray(x as f32 + jx, y as f32 + jy);
-    radiance(scene, settings, ray, sampler)
+    trace(scene, settings, ray, sampler, [lx, ly])
 }
 
 /// Radiance arriving at the camera along `ray`.
 pub fn radiance(
     scene: &Scene,
     settings: &RenderSettings,
+    ray: Ray,
+    sampler: &PixelSampler,
+) -> Vec3A {
+    let [_, _, lx, ly] = sampler.get4(0);
+    trace(scene, settings, ray, sampler, [lx, ly])
+}
+
+/// [`radiance`], given the first vertex's light-sample point `light_uv` (group 0's last two
+/// numbers, which [`sample_pixel`] has already drawn with the pixel position).
+///
+/// Dimension layout, chosen so that each Sobol group holds the four numbers one term of the
+/// image depends on jointly, and is stratified in all four together: group 0 is the pixel
+/// position and the light point of the first vertex (its direct light); group 1 + 2d is
+/// bounce d's direction and the light point of the vertex it reaches (one bounce of indirect
+/// light); group 2 + 2d holds bounce d's scalar choices (light selection, reflect or refract,
+/// Russian roulette), drawn only when one of them is needed.
+fn trace(
+    scene: &Scene,
+    settings: &RenderSettings,
     mut ray: Ray,
     sampler: &PixelSampler,
+    mut light_uv: [f32; 2],
 ) -> Vec3A {
     let strategy = if scene.lights.is_empty() {
         Strategy::Bsdf
@@ -174,14 +194,23 @@ pub fn radiance(
         }
         // Normal on the side the path arrived from.
         let n = if front { sp.n } else { -sp.n };
+        let [u0, u1, next_lx, next_ly] = sampler.get4(1 + 2 * depth);
+        let nee = strategy != Strategy::Bsdf && matches!(mat.bsdf, Bsdf::Diffuse(_));
         // u_rr decides Russian roulette after this bounce.
-        let [u0, u1, u2, u_rr] = sampler.get4(1 + 2 * depth);
+        let [u_select, u_choice, u_rr, _] = if (nee && scene.lights.lights.len() > 1)
+            || matches!(mat.bsdf, Bsdf::Dielectric(_))
+            || depth + 1 >= settings.rr_depth
+        {
+            sampler.get4(2 + 2 * depth)
+        } else {
+            [0.0; 4]
+        };
+        let [lx, ly] = std::mem::replace(&mut light_uv, [next_lx, next_ly]);
         let next = match mat.bsdf {
             Bsdf::Diffuse(albedo) => {
                 let p_out = offset_ray_origin(sp.p, sp.err, n);
-                if strategy != Strategy::Bsdf {
-                    let [v0, v1, v2, _] = sampler.get4(2 + 2 * depth);
-                    if let Some(ls) = scene.lights.sample(sp.p, v0, Vec2::new(v1, v2)) {
+                if nee {
+                    if let Some(ls) = scene.lights.sample(sp.p, u_select, Vec2::new(lx, ly)) {
                         let cos = n.dot(ls.wi);
                         if cos > 0.0 && ls.le != Vec3A::ZERO {
                             let d = ls.p - p_out;
@@ -221,7 +250,7 @@ pub fn radiance(
                 let cos_i = n.dot(wo).min(1.0);
                 let (f, cos_t) = fresnel_dielectric(cos_i, eta);
                 specular = true;
-                if u2 < f {
+                if u_choice < f {
                     Ray::new(offset_ray_origin(sp.p, sp.err, n), reflect(ray.d, n))
                 } else {
                     // Radiance is compressed by 1/η² entering a denser medium.
