@@ -117,7 +117,8 @@ pub fn sample_pixel(
     trace(scene, settings, ray, sampler, [lx, ly])
 }
 
-/// Radiance arriving at the camera along `ray`.
+/// Radiance arriving at the camera along `ray`, for a path that starts at `ray` rather than at
+/// a pixel: group 0's pixel position goes unused, its light point is the first vertex's.
 pub fn radiance(
     scene: &Scene,
     settings: &RenderSettings,

@@ -37,10 +37,10 @@ pub fn hash_words(words: &[u64]) -> u64 {
 /// Dimensions come in groups of four (the integrator's layout is documented at its `trace`:
 /// each group holds four numbers that one term of the image depends on jointly). The first
 /// [`SOBOL_GROUPS`] groups (the pixel and first light point, and the first two bounces) are
-/// Owen-scrambled Sobol points: group `g` of
-/// sample `i` is dimension set 0 of the Sobol sequence seeded by hash(job seed, pixel, g, i ≫ 16),
-/// "padding by seeding", so each group is its own independently scrambled 4-D sequence whose
-/// four dimensions are stratified jointly. Deeper groups are independent uniform numbers from a
+/// Owen-scrambled Sobol points: group `g` of sample `i` is dimension set 0 of the Sobol
+/// sequence seeded by hash(job seed, pixel, g, i ≫ 16), "padding by seeding", so each group
+/// is its own independently scrambled 4-D sequence whose four dimensions are stratified
+/// jointly. Deeper groups are independent uniform numbers from a
 /// counter-based hash of the same coordinates: stratification there buys almost nothing (those
 /// bounces carry little of the image's variance), and a Sobol group costs ~11 ns against ~5 ns
 /// for the hash (`cargo bench -p tessera-render -- sampler`). Either way every number is a pure
