@@ -36,7 +36,18 @@ fn var<T: std::str::FromStr>(name: &str, default: T) -> Result<T> {
     }
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
+    // Display, not the Debug form `main` would print for a returned error.
+    match probe() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("efficiency: {e}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn probe() -> Result<()> {
     let d = RenderSettings::default();
     let spp: u32 = var("SPP", 64)?;
     let seeds: u64 = var("SEEDS", 2)?;

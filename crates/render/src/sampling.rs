@@ -155,8 +155,9 @@ static SOBOL_NIBBLES: std::sync::LazyLock<[[[u32; 4]; 16]; 4]> = std::sync::Lazy
 });
 
 /// The same numbers as `sobol_burley::sample_4d(index, 0, seed)` (the unit test
-/// `owen_sobol_matches_sobol_burley` checks every bit), computed with [`SOBOL_NIBBLES`]: the
-/// crate's index shuffle and per-dimension Owen scramble, with a branch-free Sobol step.
+/// `owen_sobol_matches_sobol_burley` checks every bit), computed from a table of Sobol points
+/// per index nibble: the crate's index shuffle and per-dimension Owen scramble, with a
+/// branch-free Sobol step.
 #[inline]
 pub fn owen_sobol_4d(index: u32, seed: u32) -> [f32; 4] {
     owen_sobol_4d_keyed(index, &GroupKeys::new(seed))
