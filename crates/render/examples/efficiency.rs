@@ -63,17 +63,20 @@ fn probe() -> Result<()> {
     )?);
     let scene = Scene::load(&scene_path, &Limits::default())?;
     let reference = read_exr_rgb(&ref_path)?;
+    let base = RenderSettings {
+        spp,
+        strategy,
+        rr_depth: var("RR", d.rr_depth)?,
+        rr_threshold: var("RR_T", d.rr_threshold)?,
+        ..d
+    };
     let mut out = std::io::stdout().lock();
     let mut err_time = 0.0;
     let mut bins = [0f64; BINS.len() + 1];
     for seed in 1..=seeds {
         let settings = RenderSettings {
             seed,
-            spp,
-            strategy,
-            rr_depth: var("RR", d.rr_depth)?,
-            rr_threshold: var("RR_T", d.rr_threshold)?,
-            ..d.clone()
+            ..base.clone()
         };
         let t = Instant::now();
         let img = render_frame(&scene, &settings, &|_| {}).finalize();
