@@ -23,8 +23,8 @@ use tessera_render::{render_frame, RenderSettings, Strategy};
 /// Upper edges of the reference-luminance bins the error is split over.
 const BINS: [f32; 5] = [0.05, 0.1, 0.2, 0.5, 2.0];
 
-/// What ends the probe early: a bad variable, an unreadable file, or a closed stdout (as under
-/// `| head`), reported as one line instead of a panic.
+/// What ends the probe early: a bad variable or an unreadable file, reported as one line
+/// instead of a panic, or a closed stdout (as under `| head`), which ends it quietly.
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
 
 fn var<T: std::str::FromStr>(name: &str, default: T) -> Result<T> {
@@ -40,6 +40,13 @@ fn main() -> std::process::ExitCode {
     // Display, not the Debug form `main` would print for a returned error.
     match probe() {
         Ok(()) => std::process::ExitCode::SUCCESS,
+        // A reader that stopped early (`| head`) has all it wanted: end quietly, as ripgrep does.
+        Err(e)
+            if e.downcast_ref::<std::io::Error>()
+                .is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe) =>
+        {
+            std::process::ExitCode::SUCCESS
+        }
         Err(e) => {
             eprintln!("efficiency: {e}");
             std::process::ExitCode::FAILURE

@@ -51,12 +51,26 @@ pub fn hash_words(words: &[u64]) -> u64 {
 /// the sample index (the group's seed and its five scramble keys) is hashed when the sampler is
 /// made, not once per group of numbers (about 240 of a Cornell box sample's 5 500
 /// instructions, docs/renderer.md). The numbers are the same either way.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy)]
 pub struct PixelSampler {
     pixel_seed: u64,
     index: u32,
     /// The keys of the 2¹⁶-sample block `index >> 16`.
     keys: [GroupKeys; SOBOL_GROUPS as usize],
+    /// [`SOBOL_NIBBLES`], dereferenced once per pixel rather than once per group: each
+    /// `LazyLock` dereference is an atomic load and a branch.
+    table: &'static SobolTable,
+}
+
+impl std::fmt::Debug for PixelSampler {
+    // Without the table, which is the same for every sampler.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PixelSampler")
+            .field("pixel_seed", &self.pixel_seed)
+            .field("index", &self.index)
+            .field("keys", &self.keys)
+            .finish_non_exhaustive()
+    }
 }
 
 /// A Sobol group's scramble keys for one pixel and block: the index shuffle's and each
@@ -93,6 +107,7 @@ impl PixelSampler {
             pixel_seed,
             index: sample_index,
             keys: Self::block_keys(pixel_seed, sample_index >> 16),
+            table: &SOBOL_NIBBLES,
         }
     }
 
@@ -116,7 +131,8 @@ impl PixelSampler {
     #[inline]
     pub fn get4(&self, group: u32) -> [f32; 4] {
         if let Some(keys) = self.keys.get(group as usize) {
-            owen_sobol_4d_keyed(self.index & 0xffff, keys).map(|v| v.min(ONE_MINUS_EPSILON))
+            owen_sobol_4d_keyed(self.table, self.index & 0xffff, keys)
+                .map(|v| v.min(ONE_MINUS_EPSILON))
         } else {
             let h0 = mix64(
                 self.pixel_seed
@@ -141,7 +157,7 @@ impl PixelSampler {
 /// whose nibble `k` is `v` and other bits are zero. Sobol points are linear over GF(2) in the
 /// index bits, so four lookups XORed together give any point, without the crate's
 /// data-dependent loop over set bits (whose branch mispredictions were most of its cost).
-static SOBOL_NIBBLES: std::sync::LazyLock<[[[u32; 4]; 16]; 4]> = std::sync::LazyLock::new(|| {
+static SOBOL_NIBBLES: std::sync::LazyLock<SobolTable> = std::sync::LazyLock::new(|| {
     let mut t = [[[0u32; 4]; 16]; 4];
     for (k, table) in t.iter_mut().enumerate() {
         for (v, entry) in table.iter_mut().enumerate() {
@@ -160,15 +176,17 @@ static SOBOL_NIBBLES: std::sync::LazyLock<[[[u32; 4]; 16]; 4]> = std::sync::Lazy
 /// branch-free Sobol step.
 #[inline]
 pub fn owen_sobol_4d(index: u32, seed: u32) -> [f32; 4] {
-    owen_sobol_4d_keyed(index, &GroupKeys::new(seed))
+    owen_sobol_4d_keyed(&SOBOL_NIBBLES, index, &GroupKeys::new(seed))
 }
+
+/// Four tables, one per index nibble, of sixteen 4-D Sobol points.
+type SobolTable = [[[u32; 4]; 16]; 4];
 
 /// [`owen_sobol_4d`] with the seed's keys already derived.
 #[inline]
-fn owen_sobol_4d_keyed(index: u32, keys: &GroupKeys) -> [f32; 4] {
+fn owen_sobol_4d_keyed(t: &SobolTable, index: u32, keys: &GroupKeys) -> [f32; 4] {
     use sobol_burley::parts::{owen_scramble_rev, u32_to_f32_norm};
     debug_assert!(index < 1 << 16);
-    let t = &*SOBOL_NIBBLES;
     let r = owen_scramble_rev(index.reverse_bits(), keys.index);
     let n = |k: u32| ((r >> (16 + 4 * k)) & 15) as usize;
     let (a, b, c, d) = (&t[0][n(0)], &t[1][n(1)], &t[2][n(2)], &t[3][n(3)]);
