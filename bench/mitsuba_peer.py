@@ -15,6 +15,15 @@ msamples_per_s,relmse), relMSE against the reference given for that scene:
     python mitsuba_peer.py --reference cornell-box=REF.exr [--reference glass-mirror=REF2.exr]
         --out OUT.csv [--variants V ...] [--max-spp N] [--seeds K]
 
+Serve mode measures one point at a time for `tessera bench --peer-command`, which asks for each
+point right after measuring its own, so both renderers face the same minute of the machine. It
+reads `SCENE SPP SEED` lines on stdin and answers each with one CSV row per variant that renders
+that point (none for a scene it has no counterpart of, or above a variant's spp cap), then
+`done`; `error: MESSAGE` for a request it cannot serve. It exits when stdin closes:
+
+    python mitsuba_peer.py --serve --reference cornell-box=REF.exr [--reference ...]
+        [--variants V ...]
+
 Reference mode renders a converged reference of one scene (the mean of independent passes,
 so no single render holds every sample in memory), as an RGB float32 EXR:
 
@@ -139,11 +148,73 @@ def block_means(mi, a):
     write_rgb(mi, means, out, f"{b}x{b}-pixel block means of {origin}")
 
 
+class Peer:
+    """One variant's render of one scene, loaded, checked against its reference and warmed up
+    (JIT compilation for llvm_ad_rgb is not timed), ready to measure points."""
+
+    def __init__(self, mi, a, variant, name, ref_path):
+        self.mi, self.variant, self.name, self.size = mi, variant, name, a.size
+        self.ref = read_rgb(mi, ref_path)
+        if self.ref.shape[:2] != (a.size, a.size):
+            raise SystemExit(f"reference {ref_path} is {self.ref.shape[1]}x{self.ref.shape[0]}, "
+                             f"the render {a.size}x{a.size}")
+        mi.set_variant(variant)
+        self.scene = mi.load_dict(scene_dict(mi, name, a.size))
+        np.array(mi.render(self.scene, spp=4, seed=999))  # warm-up, not timed
+        self.max_spp = (min(a.max_spp, a.scalar_max_spp) if variant.startswith("scalar")
+                        else a.max_spp)
+        self.threads = os.cpu_count()
+
+    def measure(self, spp, seed):
+        """The CSV row of one timed render."""
+        self.mi.set_variant(self.variant)
+        t = time.perf_counter()
+        img = np.array(self.mi.render(self.scene, spp=spp, seed=seed), dtype=np.float64)
+        dt = time.perf_counter() - t
+        rel = float(np.mean((img[..., :3] - self.ref) ** 2 / (self.ref ** 2 + 0.01)))
+        return (f"mitsuba-{self.variant},{self.name},{spp},{seed},{self.threads},{dt:.6f},"
+                f"{self.size * self.size * spp / dt / 1e6:.4f},{rel:.6e}")
+
+
+def serve(mi, a, references):
+    """Answers `SCENE SPP SEED` lines on stdin (see the module's doc) until stdin closes."""
+    variants = []
+    for v in a.variants:
+        try:
+            mi.set_variant(v)
+            variants.append(v)
+        except Exception as e:  # a variant this build or machine cannot run
+            print(f"skipping {v}: {e}", file=sys.stderr)
+    if not variants:
+        raise SystemExit(f"none of the variants {a.variants} runs here")
+    refs = dict(references)
+    peers = {}  # (variant, scene) -> Peer, made at the first request for it
+    for line in sys.stdin:
+        fields = line.split()
+        try:
+            name, spp, seed = fields[0], int(fields[1]), int(fields[2])
+            if len(fields) != 3 or spp < 1 or seed < 0:
+                raise ValueError
+        except (ValueError, IndexError):
+            print(f"error: expected `SCENE SPP SEED`, got {line.strip()!r}", flush=True)
+            continue
+        if name in refs:
+            for v in variants:
+                if (v, name) not in peers:
+                    peers[(v, name)] = Peer(mi, a, v, name, refs[name])
+                peer = peers[(v, name)]
+                if spp <= peer.max_spp:
+                    print(peer.measure(spp, seed), flush=True)
+        print("done", flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--reference", action="append", default=[],
                     help="NAME=FILE.exr: the scene to render as a peer and its reference")
     ap.add_argument("--out")
+    ap.add_argument("--serve", action="store_true",
+                    help="measure the points tessera bench --peer-command asks for on stdin")
     ap.add_argument("--make-reference", help="NAME=FILE.exr: render a converged reference")
     ap.add_argument("--reference-spp", type=int, default=16384)
     ap.add_argument("--block-means", help="FULL.exr=OUT.exr: average over --block pixels")
@@ -166,12 +237,14 @@ def main():
     if a.block_means:
         block_means(mi, a)
         return
-    if not a.out or not a.reference:
-        ap.error("peer mode needs --out and at least one --reference NAME=FILE.exr")
+    if not a.reference or not (a.out or a.serve):
+        ap.error("peer mode needs --out (or --serve) and at least one --reference NAME=FILE.exr")
     references = [name_file(r, "--reference") for r in a.reference]
 
+    if a.serve:
+        serve(mi, a, references)
+        return
     rows = []
-    threads = os.cpu_count()
     for variant in a.variants:
         try:
             mi.set_variant(variant)
@@ -179,22 +252,11 @@ def main():
             print(f"skipping {variant}: {e}", file=sys.stderr)
             continue
         for name, ref_path in references:
-            ref = read_rgb(mi, ref_path)
-            if ref.shape[:2] != (a.size, a.size):
-                raise SystemExit(f"reference {ref_path} is {ref.shape[1]}x{ref.shape[0]}, "
-                                 f"the render {a.size}x{a.size}")
-            scene = mi.load_dict(scene_dict(mi, name, a.size))
-            np.array(mi.render(scene, spp=4, seed=999))  # warm-up: JIT compilation, not timed
-            top = min(a.max_spp, a.scalar_max_spp) if variant.startswith("scalar") else a.max_spp
+            peer = Peer(mi, a, variant, name, ref_path)
             spp = 4
-            while spp <= top:
+            while spp <= peer.max_spp:
                 for seed in range(1, a.seeds + 1):
-                    t = time.perf_counter()
-                    img = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float64)
-                    dt = time.perf_counter() - t
-                    rel = float(np.mean((img[..., :3] - ref) ** 2 / (ref ** 2 + 0.01)))
-                    row = (f"mitsuba-{variant},{name},{spp},{seed},{threads},{dt:.6f},"
-                           f"{a.size * a.size * spp / dt / 1e6:.4f},{rel:.6e}")
+                    row = peer.measure(spp, seed)
                     print(row, file=sys.stderr, flush=True)
                     rows.append(row)
                 spp *= 4

@@ -4,13 +4,17 @@
 //! relMSE = mean over pixels and channels of (I − R)²/(R² + 0.01) against a converged
 //! reference. It writes a CSV, a markdown report and a log–log plot of error against time.
 //! Rows from peers (other renderers, measured by `bench/mitsuba_peer.py` in the same run) are
-//! read from CSV files in the same format and compared: the equal-time relMSE ratio is the
-//! ratio of relMSE·seconds, which is constant once error falls as 1/time.
+//! read from CSV files in the same format, or measured point by point, interleaved with
+//! tessera's own, by a peer command (`--peer-command`, see [`PeerCommand`]), and compared: the
+//! equal-time relMSE ratio is the ratio of relMSE·seconds, which is constant once error falls
+//! as 1/time.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
+use std::io::{BufRead, BufReader, Write as _};
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
+use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use tessera_render::output::{
@@ -48,6 +52,13 @@ pub struct BenchArgs {
     /// CSV files of peer measurements (same columns as the CSV this writes).
     #[arg(long = "peer")]
     peers: Vec<PathBuf>,
+    /// A peer renderer to measure interleaved with tessera, run with `sh -c`: after each of
+    /// tessera's points it is asked for the same scene, spp and seed (one `SCENE SPP SEED` line
+    /// on its stdin) and answers with CSV rows and a `done` line, so that both renderers are
+    /// timed within seconds of each other and a slow minute of a shared machine falls on both.
+    /// `bench/mitsuba_peer.py --serve` is one.
+    #[arg(long)]
+    peer_command: Option<String>,
     /// Output directory.
     #[arg(long, default_value = "docs/benchmarks")]
     out: PathBuf,
@@ -86,9 +97,10 @@ impl Row {
         )
     }
 
-    fn parse(line: &str, file: &Path, number: usize) -> Result<Self> {
+    /// One CSV row; `at` says where it came from (`FILE:LINE`) for the error.
+    fn parse(line: &str, at: &str) -> Result<Self> {
         let f: Vec<&str> = line.split(',').map(str::trim).collect();
-        let at = || format!("{}:{number}", file.display());
+        let at = || at.to_string();
         if f.len() != 8 {
             bail!(
                 "{}: expected 8 comma-separated fields ({CSV_HEADER}), found {}",
@@ -125,6 +137,116 @@ impl Row {
             );
         }
         Ok(row)
+    }
+}
+
+/// A peer renderer run as a child process that measures one point at a time, so that each of
+/// its points is timed right after tessera's point of the same scene, spp and seed. A peer
+/// measured in a separate pass runs minutes away from tessera's matching point, and a slow
+/// minute of a shared machine then lands on one side of the ratio only.
+///
+/// The protocol is one line at a time. tessera writes `SCENE SPP SEED`. The peer answers with
+/// zero or more rows in the CSV format (one per renderer it runs at that point, none for a
+/// scene it has no counterpart of) and then `done`. A line `error: MESSAGE` ends the run with
+/// that message. Closing its stdin asks it to exit.
+struct PeerCommand {
+    command: String,
+    child: Child,
+    stdin: Option<ChildStdin>,
+    stdout: BufReader<ChildStdout>,
+    /// Lines read so far, to say which line of the peer's output was wrong.
+    lines: usize,
+}
+
+impl PeerCommand {
+    fn start(command: &str) -> Result<Self> {
+        let mut child = Command::new("sh")
+            .arg("-c")
+            .arg(command)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .with_context(|| format!("starting --peer-command {command:?}"))?;
+        let (Some(stdin), Some(stdout)) = (child.stdin.take(), child.stdout.take()) else {
+            bail!("--peer-command {command:?}: no pipe to its stdin or stdout");
+        };
+        Ok(Self {
+            command: command.to_string(),
+            child,
+            stdin: Some(stdin),
+            stdout: BufReader::new(stdout),
+            lines: 0,
+        })
+    }
+
+    /// The peer's rows for one point, checked to be that point's.
+    fn measure(&mut self, scene: &str, spp: u32, seed: u64) -> Result<Vec<Row>> {
+        let point = format!("{scene} {spp} {seed}");
+        let cmd = &self.command;
+        let sent = match self.stdin.as_mut() {
+            Some(stdin) => writeln!(stdin, "{point}").and_then(|()| stdin.flush()),
+            None => Err(std::io::ErrorKind::BrokenPipe.into()),
+        };
+        let mut rows = Vec::new();
+        loop {
+            let mut line = String::new();
+            let read = match &sent {
+                Ok(()) => self.stdout.read_line(&mut line),
+                Err(_) => Ok(0),
+            }
+            .with_context(|| format!("--peer-command {cmd:?}: reading its answer to `{point}`"))?;
+            if read == 0 {
+                self.stdin = None;
+                let status = self
+                    .child
+                    .wait()
+                    .map_or_else(|e| format!("cannot tell how: {e}"), |s| s.to_string());
+                bail!("--peer-command {cmd:?} ended ({status}) before it answered `{point}`");
+            }
+            self.lines += 1;
+            let line = line.trim();
+            if line == "done" {
+                return Ok(rows);
+            }
+            if let Some(message) = line.strip_prefix("error:") {
+                bail!(
+                    "--peer-command {cmd:?} failed at `{point}`: {}",
+                    message.trim()
+                );
+            }
+            let at = format!("--peer-command output line {}", self.lines);
+            let row = Row::parse(line, &at)?;
+            if (row.scene.as_str(), row.spp, row.seed) != (scene, spp, seed) {
+                bail!(
+                    "{at}: a row for scene {} at {} spp, seed {}, in answer to `{point}`",
+                    row.scene,
+                    row.spp,
+                    row.seed
+                );
+            }
+            if row.renderer == "tessera" {
+                bail!("{at}: a peer's row may not be named tessera");
+            }
+            rows.push(row);
+        }
+    }
+}
+
+impl Drop for PeerCommand {
+    /// Closes the peer's stdin, which asks it to exit, and waits a little for it; a peer that
+    /// does not exit by then is killed, so that it never outlives the bench.
+    fn drop(&mut self) {
+        self.stdin = None;
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while Instant::now() < deadline {
+            match self.child.try_wait() {
+                Ok(Some(_)) | Err(_) => return,
+                Ok(None) => std::thread::sleep(Duration::from_millis(20)),
+            }
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
     }
 }
 
@@ -303,9 +425,14 @@ pub fn run(args: BenchArgs) -> Result<()> {
             if i == 0 && line.trim() == CSV_HEADER || line.trim().is_empty() {
                 continue;
             }
-            peer_rows.push(Row::parse(line, file, i + 1)?);
+            peer_rows.push(Row::parse(line, &format!("{}:{}", file.display(), i + 1))?);
         }
     }
+    let mut peer = args
+        .peer_command
+        .as_deref()
+        .map(PeerCommand::start)
+        .transpose()?;
     let mut pool = rayon::ThreadPoolBuilder::new();
     if let Some(t) = args.threads {
         pool = pool.num_threads(t as usize);
@@ -365,10 +492,17 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 };
                 eprintln!("{}", row.to_csv());
                 rows.push(row);
+                if let Some(peer) = peer.as_mut() {
+                    for row in peer.measure(&name, spp, settings.seed)? {
+                        eprintln!("{}", row.to_csv());
+                        rows.push(row);
+                    }
+                }
             }
             spp *= 4;
         }
     }
+    drop(peer);
     rows.extend(peer_rows);
 
     let base = args.out.join(&args.name);
@@ -465,7 +599,9 @@ fn report(
 ) -> String {
     let all = series(rows);
     let mut md = String::new();
-    let command: Vec<String> = std::env::args().collect();
+    // Quoted as a shell would need them, so that the line can be run again as it stands
+    // (a --peer-command is one argument with spaces).
+    let command: Vec<String> = std::env::args().map(|a| shell_quote(&a)).collect();
     let _ = writeln!(md, "# Speed against error\n");
     let _ = writeln!(
         md,
@@ -473,13 +609,26 @@ fn report(
         command.join(" ")
     );
     let _ = writeln!(md, "Machine: {}.\n", machine(clock_ghz));
+    let peers = match (&args.peer_command, args.peers.is_empty()) {
+        (Some(_), true) => {
+            "Peers were measured interleaved with tessera: each peer point right after tessera's \
+             point of the same scene, spp and seed, so that both face the same minute of the \
+             machine. "
+        }
+        (Some(_), false) => {
+            "Peers were measured interleaved with tessera (each peer point right after tessera's \
+             point of the same scene, spp and seed), or read from CSV files measured in the same \
+             run. "
+        }
+        (None, false) => "Peers' rows come from their own CSV files, measured in the same run. ",
+        (None, true) => "",
+    };
     let _ = writeln!(
         md,
         "Each scene is rendered at 4, 16, … {} spp with {} seeds; a row is the mean over seeds. \
          relMSE = mean over pixels and channels of (I − R)²/(R² + 0.01); efficiency = 1/(relMSE·s). \
          relMSE·s is the geometric mean over spp ≥ 64, where error falls as 1/time. \
-         Peers' rows come from their own CSV files, measured in the same run. \
-         Data: [`{}`]({}), plot: [`{}`]({}).\n",
+         {peers}Data: [`{}`]({}), plot: [`{}`]({}).\n",
         args.max_spp,
         args.seeds,
         csv.display(),
@@ -532,6 +681,19 @@ fn report(
         }
     }
     md
+}
+
+/// `arg` as one shell word: as it is when that is safe, else in single quotes.
+fn shell_quote(arg: &str) -> String {
+    let plain = !arg.is_empty()
+        && arg
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_./=:,+@%".contains(c));
+    if plain {
+        arg.to_string()
+    } else {
+        format!("'{}'", arg.replace('\'', "'\\''"))
+    }
 }
 
 fn plot(rows: &[Row], path: &Path) -> Result<()> {
@@ -619,12 +781,23 @@ mod tests {
             msamples_per_s: 2.8,
             relmse: 1.25e-3,
         };
-        let back = Row::parse(&r.to_csv(), Path::new("p.csv"), 2).expect("parses");
+        let back = Row::parse(&r.to_csv(), "p.csv:2").expect("parses");
         assert_eq!((back.spp, back.seed, back.relmse), (64, 2, 1.25e-3));
-        let e = Row::parse("a,b,1,2", Path::new("p.csv"), 7).expect_err("short");
+        let e = Row::parse("a,b,1,2", "p.csv:7").expect_err("short");
         assert!(e.to_string().contains("p.csv:7"), "{e}");
-        let e = Row::parse("a,b,4,1,2,NaN,1,1", Path::new("p.csv"), 3).expect_err("nan");
+        let e = Row::parse("a,b,4,1,2,NaN,1,1", "p.csv:3").expect_err("nan");
         assert!(e.to_string().contains("seconds"), "{e}");
+    }
+
+    #[test]
+    fn shell_quote_keeps_plain_words_and_quotes_the_rest() {
+        assert_eq!(shell_quote("--max-spp=4096"), "--max-spp=4096");
+        assert_eq!(
+            shell_quote("python peer.py --serve"),
+            "'python peer.py --serve'"
+        );
+        assert_eq!(shell_quote("it's"), "'it'\\''s'");
+        assert_eq!(shell_quote(""), "''");
     }
 
     #[test]

@@ -206,17 +206,22 @@ fn bad_flags_and_paths_are_refused() {
     );
 }
 
-#[test]
-fn bench_writes_csv_markdown_and_plot_with_peer_ratios() {
-    let dir = tempfile::tempdir().expect("tmp");
-    let scene = write(
-        dir.path(),
+/// A 12×8 scene that renders in moments, named `tiny`, for the bench's tests.
+fn tiny_bench_scene(dir: &Path) -> String {
+    write(
+        dir,
         "tiny.toml",
         "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 0, 4]\ntarget = [0, 0, 0]\nfov = 40\n\
          [film]\nwidth = 12\nheight = 8\n[environment]\ntype = \"constant\"\nradiance = [1, 1, 1]\n\
          [materials.m]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n\
          [[objects]]\nshape = \"sphere\"\nmaterial = \"m\"\n",
-    );
+    )
+}
+
+#[test]
+fn bench_writes_csv_markdown_and_plot_with_peer_ratios() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let scene = tiny_bench_scene(dir.path());
     let peer = write(
         dir.path(),
         "peer.csv",
@@ -340,4 +345,78 @@ fn bench_writes_csv_markdown_and_plot_with_peer_ratios() {
     a.extend(["--reference".into(), wrong_size]);
     let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
     assert_clean_failure(&r, &["reference for tiny is 256×256", "12×8"]);
+}
+
+/// `--peer-command` asks the peer for each point right after tessera measures it, and every
+/// wrong answer (a row for another point, a malformed row, an error line, an early exit) ends
+/// the run with an error that names the peer's line or the point it failed at.
+#[test]
+fn bench_measures_a_peer_command_point_by_point_and_rejects_its_bad_answers() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let scene = tiny_bench_scene(dir.path());
+    let out = dir.path().join("out");
+    std::fs::create_dir(&out).expect("mkdir");
+    let cache = dir.path().join("cache").display().to_string();
+    let run = |peer: &str| {
+        tessera(&[
+            "bench",
+            "--scene",
+            &scene,
+            "--max-spp",
+            "16",
+            "--seeds",
+            "2",
+            "--reference-spp",
+            "64",
+            "--cache",
+            &cache,
+            "--out",
+            out.to_str().expect("utf8"),
+            "--peer-command",
+            peer,
+        ])
+    };
+    // The peer logs each request it gets, so the test sees the order of the points.
+    let log = dir.path().join("asked.txt");
+    let r = run(&format!(
+        "while read s n k; do echo \"$s $n $k\" >> '{}'; \
+         echo \"other,$s,$n,$k,2,0.5,0.001,0.02\"; echo done; done",
+        log.display()
+    ));
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let asked = std::fs::read_to_string(&log).expect("the peer was asked");
+    assert_eq!(asked, "tiny 4 1\ntiny 4 2\ntiny 16 1\ntiny 16 2\n");
+    let csv = std::fs::read_to_string(out.join("speed-vs-error.csv")).expect("csv");
+    // tessera's 4 points, each followed by the peer's.
+    let renderers: Vec<&str> = csv
+        .lines()
+        .skip(1)
+        .map(|l| &l[..l.find(',').expect("row")])
+        .collect();
+    assert_eq!(renderers, ["tessera", "other"].repeat(4), "{csv}");
+    let md = std::fs::read_to_string(out.join("speed-vs-error.md")).expect("md");
+    assert!(
+        md.contains("interleaved") && md.contains("| tiny | other |"),
+        "{md}"
+    );
+
+    let r = run("while read s n k; do echo \"other,$s,999,$k,2,0.5,0.001,0.02\"; echo done; done");
+    assert_clean_failure(
+        &r,
+        &["--peer-command output line 1", "999 spp", "`tiny 4 1`"],
+    );
+    let r = run("read l; echo other,tiny,4,1,2,NaN,1,1; echo done");
+    assert_clean_failure(&r, &["--peer-command output line 1", "seconds"]);
+    let r = run("while read l; do echo 'error: no counterpart of this scene'; done");
+    assert_clean_failure(
+        &r,
+        &["failed at `tiny 4 1`", "no counterpart of this scene"],
+    );
+    let r = run("read l; exit 3");
+    assert_clean_failure(
+        &r,
+        &["ended (exit status: 3)", "before it answered `tiny 4 1`"],
+    );
+    let r = run("while read s n k; do echo \"tessera,$s,$n,$k,2,0.5,0.001,0.02\"; echo done; done");
+    assert_clean_failure(&r, &["may not be named tessera"]);
 }
