@@ -183,26 +183,25 @@ impl PeerCommand {
     /// The peer's rows for one point, checked to be that point's.
     fn measure(&mut self, scene: &str, spp: u32, seed: u64) -> Result<Vec<Row>> {
         let point = format!("{scene} {spp} {seed}");
-        let cmd = &self.command;
-        let sent = match self.stdin.as_mut() {
-            Some(stdin) => writeln!(stdin, "{point}").and_then(|()| stdin.flush()),
-            None => Err(std::io::ErrorKind::BrokenPipe.into()),
-        };
+        let sent = self.stdin.as_mut().is_some_and(|stdin| {
+            writeln!(stdin, "{point}")
+                .and_then(|()| stdin.flush())
+                .is_ok()
+        });
+        if !sent {
+            return Err(self.ended(&point));
+        }
         let mut rows = Vec::new();
         loop {
             let mut line = String::new();
-            let read = match &sent {
-                Ok(()) => self.stdout.read_line(&mut line),
-                Err(_) => Ok(0),
-            }
-            .with_context(|| format!("--peer-command {cmd:?}: reading its answer to `{point}`"))?;
+            let read = self.stdout.read_line(&mut line).with_context(|| {
+                format!(
+                    "--peer-command {:?}: reading its answer to `{point}`",
+                    self.command
+                )
+            })?;
             if read == 0 {
-                self.stdin = None;
-                let status = self
-                    .child
-                    .wait()
-                    .map_or_else(|e| format!("cannot tell how: {e}"), |s| s.to_string());
-                bail!("--peer-command {cmd:?} ended ({status}) before it answered `{point}`");
+                return Err(self.ended(&point));
             }
             self.lines += 1;
             let line = line.trim();
@@ -211,7 +210,8 @@ impl PeerCommand {
             }
             if let Some(message) = line.strip_prefix("error:") {
                 bail!(
-                    "--peer-command {cmd:?} failed at `{point}`: {}",
+                    "--peer-command {:?} failed at `{point}`: {}",
+                    self.command,
                     message.trim()
                 );
             }
@@ -230,6 +230,19 @@ impl PeerCommand {
             }
             rows.push(row);
         }
+    }
+
+    /// The error for a peer that closed its pipes before answering `point`, with how it ended.
+    fn ended(&mut self, point: &str) -> anyhow::Error {
+        self.stdin = None;
+        let status = self
+            .child
+            .wait()
+            .map_or_else(|e| format!("cannot tell how: {e}"), |s| s.to_string());
+        anyhow::anyhow!(
+            "--peer-command {:?} ended ({status}) before it answered `{point}`",
+            self.command
+        )
     }
 }
 
