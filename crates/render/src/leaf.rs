@@ -54,27 +54,8 @@ impl QuadBlock {
     /// Lanes whose quad the ray meets with t in (0, t_max), and each lane's t.
     #[inline]
     fn hits(&self, r: &RayX4, t_max: f32) -> (BVec4A, Vec4) {
-        let dot = |a: &[Vec4; 3], b: [Vec4; 3]| (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2];
-        let to_p0 = [
-            self.p0[0] - r.o[0],
-            self.p0[1] - r.o[1],
-            self.p0[2] - r.o[2],
-        ];
-        let t = dot(&self.n, to_p0) / dot(&self.n, r.d);
-        let q = [
-            (r.o[0] + r.d[0] * t) - self.p0[0],
-            (r.o[1] + r.d[1] * t) - self.p0[1],
-            (r.o[2] + r.d[2] * t) - self.p0[2],
-        ];
-        let (u, v) = (dot(&self.a1, q), dot(&self.a2, q));
-        let (zero, one) = (Vec4::ZERO, Vec4::ONE);
-        let mask = t.cmpgt(zero)
-            & t.cmplt(Vec4::splat(t_max))
-            & u.cmpge(zero)
-            & u.cmple(one)
-            & v.cmpge(zero)
-            & v.cmple(one);
-        (mask, t)
+        let t = self.plane_t(r);
+        (in_range(t, t_max) & self.within_edges(r, t), t)
     }
 
     /// Whether any lane's quad blocks the ray in (0, t_max): `hits(..).0.any()`, but a block
@@ -82,26 +63,46 @@ impl QuadBlock {
     /// ray inside a room crosses none of its walls' planes, so this is the common case there.
     #[inline]
     fn blocks(&self, r: &RayX4, t_max: f32) -> bool {
-        let dot = |a: &[Vec4; 3], b: [Vec4; 3]| (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2];
+        let t = self.plane_t(r);
+        let crossed = in_range(t, t_max);
+        crossed.any() && (crossed & self.within_edges(r, t)).any()
+    }
+
+    /// Each lane's ray parameter at its quad's plane.
+    #[inline]
+    fn plane_t(&self, r: &RayX4) -> Vec4 {
         let to_p0 = [
             self.p0[0] - r.o[0],
             self.p0[1] - r.o[1],
             self.p0[2] - r.o[2],
         ];
-        let t = dot(&self.n, to_p0) / dot(&self.n, r.d);
-        let in_range = t.cmpgt(Vec4::ZERO) & t.cmplt(Vec4::splat(t_max));
-        if !in_range.any() {
-            return false;
-        }
+        dot4(&self.n, to_p0) / dot4(&self.n, r.d)
+    }
+
+    /// Lanes whose plane point at `t` lies inside their quad's edges.
+    #[inline]
+    fn within_edges(&self, r: &RayX4, t: Vec4) -> BVec4A {
         let q = [
             (r.o[0] + r.d[0] * t) - self.p0[0],
             (r.o[1] + r.d[1] * t) - self.p0[1],
             (r.o[2] + r.d[2] * t) - self.p0[2],
         ];
-        let (u, v) = (dot(&self.a1, q), dot(&self.a2, q));
+        let (u, v) = (dot4(&self.a1, q), dot4(&self.a2, q));
         let (zero, one) = (Vec4::ZERO, Vec4::ONE);
-        (in_range & u.cmpge(zero) & u.cmple(one) & v.cmpge(zero) & v.cmple(one)).any()
+        u.cmpge(zero) & u.cmple(one) & v.cmpge(zero) & v.cmple(one)
     }
+}
+
+/// Four dot products, one per lane, summed as (x + y) + z like the scalar test's.
+#[inline]
+fn dot4(a: &[Vec4; 3], b: [Vec4; 3]) -> Vec4 {
+    (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
+}
+
+/// Lanes with t in (0, t_max); NaN (a padded lane, or a ray in a quad's plane) is in none.
+#[inline]
+fn in_range(t: Vec4, t_max: f32) -> BVec4A {
+    t.cmpgt(Vec4::ZERO) & t.cmplt(Vec4::splat(t_max))
 }
 
 /// A ray's components splatted across four lanes, made once per query, with what the bounding
