@@ -100,22 +100,21 @@ impl Row {
     /// One CSV row; `at` says where it came from (`FILE:LINE`) for the error.
     fn parse(line: &str, at: &str) -> Result<Self> {
         let f: Vec<&str> = line.split(',').map(str::trim).collect();
-        let at = || at.to_string();
         if f.len() != 8 {
             bail!(
                 "{}: expected 8 comma-separated fields ({CSV_HEADER}), found {}",
-                at(),
+                at,
                 f.len()
             );
         }
         let num = |i: usize, what: &str| -> Result<f64> {
             let v: f64 = f[i]
                 .parse()
-                .with_context(|| format!("{}: {what} {:?} is not a number", at(), f[i]))?;
+                .with_context(|| format!("{}: {what} {:?} is not a number", at, f[i]))?;
             if !v.is_finite() || v < 0.0 {
                 bail!(
                     "{}: {what} must be a finite non-negative number, got {v}",
-                    at()
+                    at
                 );
             }
             Ok(v)
@@ -133,7 +132,7 @@ impl Row {
         if row.renderer.is_empty() || row.scene.is_empty() || row.seconds <= 0.0 || row.spp == 0 {
             bail!(
                 "{}: renderer and scene must be named, spp and seconds positive",
-                at()
+                at
             );
         }
         Ok(row)

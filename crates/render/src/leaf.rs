@@ -306,8 +306,9 @@ mod tests {
         let mut hits = 0;
         for ray in &rays {
             for t_max in [f32::INFINITY, 3.0] {
-                let (mask, t) = block.hits(&RayX4::new(ray), t_max);
-                assert_eq!(block.blocks(&RayX4::new(ray), t_max), mask.any(), "{ray:?}");
+                let r4 = RayX4::new(ray);
+                let (mask, t) = block.hits(&r4, t_max);
+                assert_eq!(block.blocks(&r4, t_max), mask.any(), "{ray:?}");
                 for (lane, q) in quads.iter().enumerate() {
                     let scalar = q.intersect(ray, t_max);
                     let lane_hit = mask.bitmask() >> lane & 1 == 1;
