@@ -9,7 +9,7 @@
 
 use std::ops::Range;
 
-use glam::{BVec4A, Vec3A, Vec4};
+use glam::{BVec4A, Vec3A, Vec3Swizzles, Vec4};
 
 use crate::math::{Aabb, Ray};
 use crate::shape::{Parallelogram, Shape};
@@ -120,8 +120,8 @@ impl RayX4 {
     #[inline]
     pub fn new(ray: &Ray) -> Self {
         Self {
-            o: [0, 1, 2].map(|a| Vec4::splat(ray.o[a])),
-            d: [0, 1, 2].map(|a| Vec4::splat(ray.d[a])),
+            o: [ray.o.xxxx(), ray.o.yyyy(), ray.o.zzzz()],
+            d: [ray.d.xxxx(), ray.d.yyyy(), ray.d.zzzz()],
             origin: ray.o,
             inv_d: ray.d.recip(),
         }

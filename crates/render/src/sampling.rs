@@ -140,8 +140,9 @@ impl PixelSampler {
                         .wrapping_mul(0x9e37_79b9_7f4a_7c15),
             );
             let h1 = mix64(h0 ^ 0xd1b5_4a32_d192_ed03);
-            // The top 24 bits of each 32-bit half: exact in f32, so always below 1.
-            let f = |w: u64| (w >> 8) as f32 * (1.0 / (1u32 << 24) as f32);
+            // The top 24 bits of each 32-bit half: exact in f32, so always below 1. Through
+            // u32, whose conversion is one instruction; u64's needs a sign fix-up on x86.
+            let f = |w: u64| ((w >> 8) as u32) as f32 * (1.0 / (1u32 << 24) as f32);
             [
                 f(h0 >> 32),
                 f(h0 & 0xffff_ffff),
