@@ -86,6 +86,10 @@ impl Light {
 
     /// Samples a point as seen from `p`: (point, its normal, unit direction from `p`, density in
     /// solid angle without selection).
+    ///
+    /// Inlined for quads, whose sample is a few operations: called, it cost the integrator a
+    /// call and the reloads of a dozen spilled registers after it. Spheres stay a call.
+    #[inline]
     fn sample(&self, p: Vec3A, u: Vec2) -> Option<(Vec3A, Vec3A, Vec3A, f32)> {
         match &self.shape {
             LightShape::Quad(q) => {
@@ -93,34 +97,7 @@ impl Light {
                 let (wi, pdf) = area_to_solid_angle(p, x, q.normal, q.area)?;
                 Some((x, q.normal, wi, pdf))
             }
-            LightShape::Sphere { center, radius } => {
-                let dc2 = (*center - p).length_squared();
-                let r2 = radius * radius;
-                if !cone_applies(dc2, r2) {
-                    // Inside, or on the sphere itself: uniform area sampling.
-                    let n = square_to_uniform_sphere(u);
-                    let x = *center + n * *radius;
-                    let (wi, pdf) = area_to_solid_angle(p, x, n, 4.0 * PI * r2)?;
-                    return Some((x, n, wi, pdf));
-                }
-                // Outside: uniform in the cone of directions the sphere subtends.
-                let one_minus_cos = cone_one_minus_cos(dc2, r2);
-                let axis = (*center - p) / dc2.sqrt();
-                let wi =
-                    Frame::from_normal(axis).to_world(square_to_uniform_cone(u, one_minus_cos));
-                let wi = wi.normalize();
-                // In f64, as for the sphere's own hits: for a small, distant light, p + t·wi in
-                // f32 can be off by more than the radius.
-                let (c64, p64, w64) = (center.as_dvec3(), p.as_dvec3(), wi.as_dvec3());
-                let t = match sphere_roots_f64(p, wi, *center, *radius) {
-                    Some((t0, _)) if t0 > 0.0 => t0,
-                    // Grazing directions can miss by rounding: use the tangent point.
-                    _ => (c64 - p64).dot(w64) / w64.length_squared(),
-                };
-                let n = ((p64 - c64) + w64 * t).normalize().as_vec3a();
-                let x = *center + n * *radius;
-                Some((x, n, wi, 1.0 / (2.0 * PI * one_minus_cos)))
-            }
+            LightShape::Sphere { center, radius } => sample_sphere(*center, *radius, p, u),
         }
     }
 
@@ -139,6 +116,41 @@ impl Light {
         };
         area_to_solid_angle(p, x, n, area).map_or(0.0, |(_, pdf)| pdf)
     }
+}
+
+/// [`Light::sample`] for a sphere light.
+#[inline(never)]
+fn sample_sphere(
+    center: Vec3A,
+    radius: f32,
+    p: Vec3A,
+    u: Vec2,
+) -> Option<(Vec3A, Vec3A, Vec3A, f32)> {
+    let dc2 = (center - p).length_squared();
+    let r2 = radius * radius;
+    if !cone_applies(dc2, r2) {
+        // Inside, or on the sphere itself: uniform area sampling.
+        let n = square_to_uniform_sphere(u);
+        let x = center + n * radius;
+        let (wi, pdf) = area_to_solid_angle(p, x, n, 4.0 * PI * r2)?;
+        return Some((x, n, wi, pdf));
+    }
+    // Outside: uniform in the cone of directions the sphere subtends.
+    let one_minus_cos = cone_one_minus_cos(dc2, r2);
+    let axis = (center - p) / dc2.sqrt();
+    let wi = Frame::from_normal(axis).to_world(square_to_uniform_cone(u, one_minus_cos));
+    let wi = wi.normalize();
+    // In f64, as for the sphere's own hits: for a small, distant light, p + t·wi in f32 can be
+    // off by more than the radius.
+    let (c64, p64, w64) = (center.as_dvec3(), p.as_dvec3(), wi.as_dvec3());
+    let t = match sphere_roots_f64(p, wi, center, radius) {
+        Some((t0, _)) if t0 > 0.0 => t0,
+        // Grazing directions can miss by rounding: use the tangent point.
+        _ => (c64 - p64).dot(w64) / w64.length_squared(),
+    };
+    let n = ((p64 - c64) + w64 * t).normalize().as_vec3a();
+    let x = center + n * radius;
+    Some((x, n, wi, 1.0 / (2.0 * PI * one_minus_cos)))
 }
 
 /// Converts a uniform density 1/`area` at point `x` (normal `n`) into solid angle as seen from
