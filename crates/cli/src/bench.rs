@@ -600,6 +600,61 @@ fn summary(points: &BTreeMap<u32, (f64, f64, f64)>) -> (f64, f64) {
     (err_time, samples / secs)
 }
 
+/// The expected share of the reference's own noise in every relMSE of `scene`, estimated from
+/// the renderers' top octave.
+///
+/// A render I and a reference R are independent, so E[(I − R)²] = E[(I − μ)²] + E[(R − μ)²]:
+/// the reference adds the same ρ to every point of a scene, whichever renderer made it, and
+/// it is the larger part of a good render's error at high spp. Where a renderer's own error
+/// falls as 1/spp over its last octave (e at 4N is e/4), its points e₁ at N and e₄ at 4N give
+/// ρ = (4·e₄ − e₁)/3. A renderer whose error falls faster there (quasi-Monte Carlo) makes the
+/// estimate smaller, never larger, so the correction leans towards too little. The mean over
+/// the scene's renderers, `None` without a top octave or where the estimate is not positive.
+fn reference_noise(all: &Series, scene: &str) -> Option<f64> {
+    let estimates: Vec<f64> = all
+        .iter()
+        .filter(|((s, _), _)| s == scene)
+        .filter_map(|(_, points)| {
+            let mut top = points.iter().rev();
+            let (&n4, &(_, e4, _)) = top.next()?;
+            let (&n1, &(_, e1, _)) = top.next()?;
+            (n4 == 4 * n1).then_some((4.0 * e4 - e1) / 3.0)
+        })
+        .collect();
+    let rho = estimates.iter().sum::<f64>() / estimates.len() as f64;
+    // Below every point's error, or the "corrected" error of some point would be 0 or less.
+    let floor = all
+        .iter()
+        .filter(|((s, _), _)| s == scene)
+        .flat_map(|(_, p)| p.values().map(|v| v.1))
+        .fold(f64::INFINITY, f64::min);
+    (rho > 0.0 && rho < floor).then_some(rho)
+}
+
+/// Rows of the by-spp table: for each peer of each scene and each spp both measured, tessera's
+/// relMSE·s over the peer's as measured and with `reference_noise` taken off both.
+fn by_spp(all: &Series) -> Vec<(String, String, u32, f64, Option<f64>)> {
+    let mut out = Vec::new();
+    for ((scene, renderer), points) in all {
+        let Some(t) = all.get(&(scene.clone(), "tessera".to_string())) else {
+            continue;
+        };
+        if renderer == "tessera" {
+            continue;
+        }
+        let rho = reference_noise(all, scene);
+        for (spp, &(ps, pe, _)) in points {
+            let Some(&(ts, te, _)) = t.get(spp) else {
+                continue;
+            };
+            let raw = (ts * te) / (ps * pe);
+            let corrected = rho.map(|r| (ts * (te - r)) / (ps * (pe - r)));
+            out.push((scene.clone(), renderer.clone(), *spp, raw, corrected));
+        }
+    }
+    out
+}
+
 fn report(
     rows: &[Row],
     references: &[(String, String)],
@@ -678,6 +733,40 @@ fn report(
          tessera\" is tessera's relMSE·s over the peer's: the error tessera reaches in the time the \
          peer needs for its own (below 1 is better for tessera).\n"
     );
+    let table = by_spp(&all);
+    if !table.is_empty() {
+        let _ = writeln!(md, "## Equal-time relMSE by spp\n");
+        let _ = writeln!(
+            md,
+            "tessera's relMSE·s over the peer's at each spp. The summary's one number hides how \
+             the ratio moves with spp. At high spp part of every error is the reference's own \
+             noise, the same amount ρ for every renderer of a scene, so it weighs most on the \
+             renderer with the smaller error. The last column takes an estimate of ρ off both: \
+             ρ = (4·e(4N) − e(N))/3 from each renderer's top octave (exact where error falls as \
+             1/spp; quasi-Monte Carlo makes it an underestimate), averaged over the scene's \
+             renderers. It is an estimate, for reading the measured column, not a replacement \
+             for it.\n"
+        );
+        let _ = writeln!(
+            md,
+            "| scene | peer | spp | measured | reference noise removed |\n|---|---|---:|---:|---:|"
+        );
+        for (scene, peer, spp, raw, corrected) in table {
+            let corrected = corrected.map_or_else(|| "".into(), |c| format!("{c:.3}×"));
+            let _ = writeln!(md, "| {scene} | {peer} | {spp} | {raw:.3}× | {corrected} |");
+        }
+        let _ = writeln!(md);
+        for scene in all
+            .keys()
+            .map(|(s, _)| s)
+            .collect::<std::collections::BTreeSet<_>>()
+        {
+            if let Some(rho) = reference_noise(&all, scene) {
+                let _ = writeln!(md, "- {scene}: estimated reference noise ρ = {rho:.2e}");
+            }
+        }
+        let _ = writeln!(md);
+    }
     let _ = writeln!(md, "## All points\n");
     let _ = writeln!(
         md,
@@ -821,5 +910,51 @@ mod tests {
         let (et, ms) = summary(&p);
         assert!((et - 0.01).abs() < 1e-12, "{et}");
         assert!((ms - 2.0).abs() < 1e-12);
+    }
+
+    /// Two renderers whose own errors fall as 1/spp, against a reference that adds ρ to every
+    /// point: the estimate finds ρ, and the corrected ratio is the ratio of the own errors.
+    #[test]
+    fn reference_noise_is_found_and_taken_off_both_sides() {
+        let rho = 2e-5;
+        let series = |c: f64, ms: f64| -> BTreeMap<u32, (f64, f64, f64)> {
+            [64u32, 256, 1024, 4096]
+                .into_iter()
+                .map(|spp| {
+                    let secs = 65536.0 * f64::from(spp) / (ms * 1e6);
+                    (spp, (secs, c / f64::from(spp) + rho, ms))
+                })
+                .collect()
+        };
+        let mut all = Series::new();
+        all.insert(("box".into(), "tessera".into()), series(0.1, 3.0));
+        all.insert(("box".into(), "peer".into()), series(0.3, 2.0));
+        let est = reference_noise(&all, "box").expect("estimated");
+        assert!((est - rho).abs() < 1e-12, "{est}");
+        let rows = by_spp(&all);
+        assert_eq!(rows.len(), 4);
+        // Own errors 0.1 against 0.3 per sample, and tessera 1.5x as fast: 1/4.5 at every spp.
+        for (_, peer, spp, raw, corrected) in rows {
+            assert_eq!(peer, "peer");
+            let c = corrected.expect("corrected");
+            assert!((c - 1.0 / 4.5).abs() < 1e-9, "{spp}: {c}");
+            // The measured ratio is pulled towards 1 by the shared ρ, most at high spp.
+            assert!(raw > c, "{spp}: {raw} vs {c}");
+        }
+        // Without a top octave (one spp), nothing is estimated.
+        let mut one = Series::new();
+        one.insert(
+            ("box".into(), "tessera".into()),
+            [(64, (1.0, 0.01, 2.0))].into(),
+        );
+        assert_eq!(reference_noise(&one, "box"), None);
+        // An estimate at or above some point's error is refused rather than giving a negative
+        // error: here the last octave does not fall at all.
+        let mut flat = Series::new();
+        flat.insert(
+            ("box".into(), "tessera".into()),
+            [(1024, (1.0, 1e-4, 2.0)), (4096, (4.0, 1e-4, 2.0))].into(),
+        );
+        assert_eq!(reference_noise(&flat, "box"), None);
     }
 }
