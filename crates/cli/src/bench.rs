@@ -606,16 +606,19 @@ fn summary(points: &BTreeMap<u32, (f64, f64, f64)>) -> (f64, f64) {
 /// A render I and a reference R are independent, so E[(I − R)²] = E[(I − μ)²] + E[(R − μ)²]:
 /// the reference adds the same ρ to every point of a scene, whichever renderer made it, and at
 /// high spp it is a large part of a good render's error (44% of tessera's on the Cornell box
-/// at 4096 spp, docs/renderer.md). Where a renderer's own error
-/// falls as 1/spp over its last octave (e at 4N is e/4), its points e₁ at N and e₄ at 4N give
-/// ρ = (4·e₄ − e₁)/3. A renderer whose error falls faster there (quasi-Monte Carlo) makes the
+/// at 4096 spp, docs/renderer.md). Where a renderer's own error falls as 1/spp over its last
+/// octave (e at 4N is e/4), its points e₁ at N and e₄ at 4N give ρ = (4·e₄ − e₁)/3. A renderer whose error falls faster there (quasi-Monte Carlo) makes the
 /// estimate smaller, never larger, so the correction leans towards too little. The mean over
 /// the scene's renderers, `None` without a top octave or where the estimate is not positive.
 fn reference_noise(all: &Series, scene: &str) -> Option<f64> {
-    let estimates: Vec<f64> = all
+    let of_scene: Vec<_> = all
         .iter()
         .filter(|((s, _), _)| s == scene)
-        .filter_map(|(_, points)| {
+        .map(|(_, points)| points)
+        .collect();
+    let estimates: Vec<f64> = of_scene
+        .iter()
+        .filter_map(|points| {
             let mut top = points.iter().rev();
             let (&n4, &(_, e4, _)) = top.next()?;
             let (&n1, &(_, e1, _)) = top.next()?;
@@ -624,17 +627,27 @@ fn reference_noise(all: &Series, scene: &str) -> Option<f64> {
         .collect();
     let rho = estimates.iter().sum::<f64>() / estimates.len() as f64;
     // Below every point's error, or the "corrected" error of some point would be 0 or less.
-    let floor = all
+    let floor = of_scene
         .iter()
-        .filter(|((s, _), _)| s == scene)
-        .flat_map(|(_, p)| p.values().map(|v| v.1))
+        .flat_map(|p| p.values().map(|v| v.1))
         .fold(f64::INFINITY, f64::min);
     (rho > 0.0 && rho < floor).then_some(rho)
 }
 
+/// [`reference_noise`] of every scene of `all`, estimated once for the table and its notes.
+fn reference_noises(all: &Series) -> BTreeMap<String, Option<f64>> {
+    all.keys()
+        .map(|(scene, _)| (scene.clone(), reference_noise(all, scene)))
+        .collect()
+}
+
 /// Rows of the by-spp table: for each peer of each scene and each spp both measured, tessera's
-/// relMSE·s over the peer's as measured and with `reference_noise` taken off both.
-fn by_spp(all: &Series) -> Vec<(String, String, u32, f64, Option<f64>)> {
+/// relMSE·s over the peer's as measured and with the scene's estimated reference noise `rho`
+/// taken off both.
+fn by_spp(
+    all: &Series,
+    rho: &BTreeMap<String, Option<f64>>,
+) -> Vec<(String, String, u32, f64, Option<f64>)> {
     let mut out = Vec::new();
     for ((scene, renderer), points) in all {
         let Some(t) = all.get(&(scene.clone(), "tessera".to_string())) else {
@@ -643,7 +656,7 @@ fn by_spp(all: &Series) -> Vec<(String, String, u32, f64, Option<f64>)> {
         if renderer == "tessera" {
             continue;
         }
-        let rho = reference_noise(all, scene);
+        let rho = rho.get(scene).copied().flatten();
         for (spp, &(ps, pe, _)) in points {
             let Some(&(ts, te, _)) = t.get(spp) else {
                 continue;
@@ -734,7 +747,8 @@ fn report(
          tessera\" is tessera's relMSE·s over the peer's: the error tessera reaches in the time the \
          peer needs for its own (below 1 is better for tessera).\n"
     );
-    let table = by_spp(&all);
+    let noises = reference_noises(&all);
+    let table = by_spp(&all, &noises);
     if !table.is_empty() {
         let _ = writeln!(md, "## Equal-time relMSE by spp\n");
         let _ = writeln!(
@@ -757,12 +771,8 @@ fn report(
             let _ = writeln!(md, "| {scene} | {peer} | {spp} | {raw:.3}× | {corrected} |");
         }
         let _ = writeln!(md);
-        for scene in all
-            .keys()
-            .map(|(s, _)| s)
-            .collect::<std::collections::BTreeSet<_>>()
-        {
-            if let Some(rho) = reference_noise(&all, scene) {
+        for (scene, rho) in &noises {
+            if let Some(rho) = rho {
                 let _ = writeln!(md, "- {scene}: estimated reference noise ρ = {rho:.2e}");
             }
         }
@@ -932,7 +942,7 @@ mod tests {
         all.insert(("box".into(), "peer".into()), series(0.3, 2.0));
         let est = reference_noise(&all, "box").expect("estimated");
         assert!((est - rho).abs() < 1e-12, "{est}");
-        let rows = by_spp(&all);
+        let rows = by_spp(&all, &reference_noises(&all));
         assert_eq!(rows.len(), 4);
         // Own errors 0.1 against 0.3 per sample, and tessera 1.5x as fast: 1/4.5 at every spp.
         for (_, peer, spp, raw, corrected) in rows {
