@@ -273,6 +273,13 @@ fn bench_writes_csv_markdown_and_plot_with_peer_ratios() {
         md.contains("| tiny | other |") && md.contains("| tiny | tessera | 16 |"),
         "{md}"
     );
+    // The equal-time ratio at each spp the peer and tessera both measured.
+    assert!(
+        md.contains("## Equal-time relMSE by spp")
+            && md.contains("| tiny | other | 4 |")
+            && md.contains("| tiny | other | 16 |"),
+        "{md}"
+    );
     assert!(
         md.contains("Machine:") && md.contains("tessera bench"),
         "{md}"
