@@ -131,8 +131,8 @@ impl PixelSampler {
     #[inline]
     pub fn get4(&self, group: u32) -> [f32; 4] {
         if let Some(keys) = self.keys.get(group as usize) {
+            // At most 1 − 2⁻²³ (23 bits below 1), so below 1 without a clamp.
             owen_sobol_4d_keyed(self.table, self.index & 0xffff, keys)
-                .map(|v| v.min(ONE_MINUS_EPSILON))
         } else {
             let h0 = mix64(
                 self.pixel_seed
@@ -184,17 +184,20 @@ pub fn owen_sobol_4d(index: u32, seed: u32) -> [f32; 4] {
 type SobolTable = [[[u32; 4]; 16]; 4];
 
 /// [`owen_sobol_4d`] with the seed's keys already derived.
+///
+/// The four dimensions go through the Owen scramble, the bit reversal and the conversion to
+/// float together, in `sobol_burley`'s SSE lanes: the same integer operations as four scalar
+/// passes, so the same bits.
 #[inline]
 fn owen_sobol_4d_keyed(t: &SobolTable, index: u32, keys: &GroupKeys) -> [f32; 4] {
-    use sobol_burley::parts::{owen_scramble_rev, u32_to_f32_norm};
+    use sobol_burley::parts::{owen_scramble_int4_rev, owen_scramble_rev, Int4};
     debug_assert!(index < 1 << 16);
     let r = owen_scramble_rev(index.reverse_bits(), keys.index);
-    let n = |k: u32| ((r >> (16 + 4 * k)) & 15) as usize;
-    let (a, b, c, d) = (&t[0][n(0)], &t[1][n(1)], &t[2][n(2)], &t[3][n(3)]);
-    std::array::from_fn(|i| {
-        let sobol = a[i] ^ b[i] ^ c[i] ^ d[i];
-        u32_to_f32_norm(owen_scramble_rev(sobol, keys.dims[i]).reverse_bits())
-    })
+    let n = |k: u32| Int4::from(t[k as usize][((r >> (16 + 4 * k)) & 15) as usize]);
+    let sobol = n(0) ^ n(1) ^ n(2) ^ n(3);
+    owen_scramble_int4_rev(sobol, keys.dims.into())
+        .reverse_bits()
+        .to_f32_norm()
 }
 
 /// A small counter-based generator for tests and tools (never for rendering, whose numbers
@@ -491,6 +494,22 @@ mod tests {
                 cells[(a * 4.0) as usize * 4 + (b * 4.0) as usize] += 1;
             }
             assert!(cells.iter().all(|&c| c == 1), "group {group}: {cells:?}");
+        }
+    }
+
+    /// The Sobol groups need no clamp below 1: the conversion's largest output, for an all-ones
+    /// integer, is 1 − 2⁻²³, and the SIMD path gives exactly the scalar conversion.
+    #[test]
+    fn sobol_groups_stay_below_one() {
+        use sobol_burley::parts::{u32_to_f32_norm, Int4};
+        assert_eq!(u32_to_f32_norm(u32::MAX), 1.0 - f32::EPSILON);
+        let words = [u32::MAX, 0, 0x8000_0000, 0x1234_5678];
+        assert_eq!(Int4::from(words).to_f32_norm(), words.map(u32_to_f32_norm));
+        for group in 0..SOBOL_GROUPS {
+            for i in 0..4096 {
+                let u = PixelSampler::new(5, i % 61, i / 61, i).get4(group);
+                assert!(u.iter().all(|v| (0.0..1.0).contains(v)), "{u:?}");
+            }
         }
     }
 
