@@ -138,26 +138,30 @@ impl Frame {
 
 /// Moves a surface point off its surface to the side `n` points to (the side the new ray leaves
 /// from), by just enough to clear the point's conservative rounding-error bound `err` (pbrt-v4's
-/// `OffsetRayOrigin`): the offset along `n` is |n|·err, then each coordinate is rounded one more
-/// float away from the surface, so the rounding of the addition cannot undo it. The bound
-/// comes from the magnitudes of the terms the point was computed from, never from scene units,
-/// so it holds at any scale and translation where a fixed epsilon fails.
+/// `OffsetRayOrigin`): the offset along `n` is |n|·err, then each coordinate is pushed at least
+/// one more float away from the surface, so the rounding of the addition cannot undo it. The
+/// bound comes from the magnitudes of the terms the point was computed from, never from scene
+/// units, so it holds at any scale and translation where a fixed epsilon fails.
+///
+/// The extra float is a step of |x|·2⁻²³ plus the smallest subnormal, added along the sign of
+/// `n`: at least one ulp of x at every magnitude (two at most), so the rounded sum lands at or
+/// beyond x's neighbour on that side. pbrt steps with `next_up`/`next_down`, exactly one ulp;
+/// per axis that is a branch on the sign of n and another on x's class, which LLVM keeps even
+/// when written without `if`s. This is a handful of vector operations instead
+/// (docs/renderer.md).
 #[inline]
 pub fn offset_ray_origin(p: Vec3A, err: Vec3A, n: Vec3A) -> Vec3A {
+    /// 2⁻²³: |x|·2⁻²³ is at least x's ulp (the spacing above |x|), and exact, being a power of 2.
+    const ULP_SCALE: f32 = f32::EPSILON;
     let d = n.abs().dot(err);
-    let offset = n * d;
-    let po = p + offset;
-    let away = |v: f32, o: f32| {
-        if o > 0.0 {
-            v.next_up()
-        } else if o < 0.0 {
-            v.next_down()
-        } else {
-            v
-        }
-    };
-    // By the sign of n, not of the offset: even a zero error bound moves the origin a float.
-    Vec3A::new(away(po.x, n.x), away(po.y, n.y), away(po.z, n.z))
+    let po = p + n * d;
+    // Adding the smallest subnormal keeps the step positive where |x|·2⁻²³ underflows to 0
+    // (x = 0 and subnormal x), and is rounded away wherever it does not.
+    let step = po.abs() * ULP_SCALE + Vec3A::splat(f32::from_bits(1));
+    // By the sign of n, not of the offset: even a zero error bound moves the origin. An axis
+    // n does not lean along (n = ±0) stays put, as with pbrt.
+    let side = Vec3A::select(n.cmpeq(Vec3A::ZERO), Vec3A::ZERO, Vec3A::ONE.copysign(n));
+    po + side * step
 }
 
 /// Converts an RGB (or XYZ) array to `Vec3A`.
@@ -215,6 +219,82 @@ mod tests {
             let q = offset_ray_origin(p, err, -n);
             assert!(q.y < p.y);
         }
+    }
+
+    /// On every axis and every float class, the origin moves past the exact offset point by at
+    /// least the neighbouring float on n's side (pbrt's one-ulp step), and by at most three
+    /// floats; an axis with n = ±0 keeps the offset point's coordinate.
+    #[test]
+    fn offset_steps_at_least_one_float_at_every_class() {
+        let xs = [
+            0.0f32,
+            -0.0,
+            f32::from_bits(1),
+            -f32::from_bits(1),
+            f32::from_bits(0x007f_ffff),
+            f32::MIN_POSITIVE,
+            -f32::MIN_POSITIVE,
+            1.0,
+            -1.0,
+            1.0 - f32::EPSILON / 2.0,
+            2.0,
+            -2.0,
+            3.7e-12,
+            -6.1e7,
+            1e8,
+            f32::MAX / 4.0,
+        ];
+        let floats_between = |a: f32, b: f32| -> i64 {
+            // Position on the number line counted in floats (ordered bits).
+            let key = |x: f32| {
+                let b = x.to_bits() as i32;
+                i64::from(if b < 0 { i32::MIN - b } else { b })
+            };
+            key(b) - key(a)
+        };
+        for &x in &xs {
+            for (sign, toward) in [
+                (1.0f32, f32::next_up as fn(f32) -> f32),
+                (-1.0, f32::next_down),
+            ] {
+                for axis in 0..3 {
+                    let mut n = Vec3A::ZERO;
+                    n[axis] = sign;
+                    let p = Vec3A::splat(x);
+                    let q = offset_ray_origin(p, Vec3A::ZERO, n);
+                    let moved = floats_between(x, q[axis]) * sign as i64;
+                    assert!(
+                        if sign > 0.0 {
+                            q[axis] >= toward(x)
+                        } else {
+                            q[axis] <= toward(x)
+                        },
+                        "x = {x:e}, n = {n:?}: {} is not past {}",
+                        q[axis],
+                        toward(x)
+                    );
+                    assert!(
+                        (1..=3).contains(&moved),
+                        "x = {x:e}, n = {n:?}: moved {moved}"
+                    );
+                    for other in (0..3).filter(|&a| a != axis) {
+                        // x + n·0: the offset's addition turns −0 into +0.
+                        assert_eq!(
+                            q[other].to_bits(),
+                            (x + 0.0).to_bits(),
+                            "x = {x:e}, n = {n:?}"
+                        );
+                    }
+                }
+            }
+        }
+        // A tilted normal: each axis steps on its own sign; a NaN point stays NaN.
+        let n = Vec3A::new(0.6, -0.8, 0.0);
+        let q = offset_ray_origin(Vec3A::ONE, Vec3A::ZERO, n);
+        assert!(q.x > 1.0 && q.y < 1.0 && q.z == 1.0, "{q:?}");
+        assert!(offset_ray_origin(Vec3A::splat(f32::NAN), Vec3A::ZERO, n)
+            .x
+            .is_nan());
     }
 
     #[test]
