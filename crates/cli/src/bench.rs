@@ -605,10 +605,11 @@ fn summary(points: &BTreeMap<u32, (f64, f64, f64)>) -> (f64, f64) {
 ///
 /// A render I and a reference R are independent, so E[(I − R)²] = E[(I − μ)²] + E[(R − μ)²]:
 /// the reference adds the same ρ to every point of a scene, whichever renderer made it, and at
-/// high spp it is a large part of a good render's error (44% of tessera's on the Cornell box
-/// at 4096 spp, docs/renderer.md). Where a renderer's own error falls as 1/spp over its last
-/// octave (e at 4N is e/4), its points e₁ at N and e₄ at 4N give ρ = (4·e₄ − e₁)/3. A renderer whose error falls faster there (quasi-Monte Carlo) makes the
-/// estimate smaller, never larger, so the correction leans towards too little. The mean over
+/// high spp it is a large part of a good render's error (docs/renderer.md gives its share on
+/// the Cornell box). Where a renderer's own error falls as 1/spp over its last octave (e at 4N
+/// is e/4), its points e₁ at N and e₄ at 4N give ρ = (4·e₄ − e₁)/3. A renderer whose error
+/// falls faster there (quasi-Monte Carlo) makes the estimate smaller, never larger, so the
+/// correction leans towards too little. The mean over
 /// the scene's renderers, `None` without a top octave or where the estimate is not positive.
 fn reference_noise(all: &Series, scene: &str) -> Option<f64> {
     let of_scene: Vec<_> = all
