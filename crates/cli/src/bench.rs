@@ -538,7 +538,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         &csv_path,
     );
     std::fs::write(&md_path, md).with_context(|| format!("writing {}", md_path.display()))?;
-    println!(
+    outln!(
         "wrote {}, {} and {}",
         md_path.display(),
         csv_path.display(),

@@ -322,9 +322,11 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
             .with_context(|| format!("--listen {}: cannot listen", args.listen))?;
         let addr = listener.local_addr()?;
         tracing::info!("coordinator listening on {addr}; auth: {auth}");
-        // A line on stdout that scripts (and tests) can wait for.
-        println!("listening on {addr}");
-        let _ = std::io::stdout().flush();
+        // A line on stdout that scripts (and tests) can wait for. Best effort: a script that
+        // read it and closed the pipe must not stop the server.
+        let mut out = std::io::stdout().lock();
+        let _ = writeln!(out, "listening on {addr}").and_then(|()| out.flush());
+        drop(out);
         tessera_coordinator::serve(config, listener, shutdown_signal()).await?;
         Ok(())
     })
@@ -556,7 +558,7 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
             .map_err(|e| rpc_error(&url, "submit refused", e))?
             .into_inner();
         if !args.wait {
-            println!("{}", resp.job_id);
+            outln!("{}", resp.job_id);
             return Ok(());
         }
         eprintln!("{} submitted ({} units)", resp.job_id, resp.units);
@@ -567,7 +569,7 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
             .unwrap_or_else(|| PathBuf::from(&s.output_name));
         let bytes = download(&mut client, &url, &resp.job_id, &out).await?;
         let secs = (s.finished_unix_ms - s.submitted_unix_ms) as f64 / 1000.0;
-        println!(
+        outln!(
             "{} done: {}×{} at {} spp in {:.2} s, noise σ≈{:.4} ({:.2}% of mean) → {} ({bytes} bytes)",
             s.job_id,
             s.width,
@@ -582,35 +584,45 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
     })
 }
 
-fn print_job(s: &pb::JobStatus) {
+fn print_job(s: &pb::JobStatus) -> std::io::Result<()> {
     let settings = s.settings.unwrap_or_default();
-    println!("{}", s.job_id);
-    println!("  state      {}", state_name(s.state));
+    outln!("{}", s.job_id);
+    outln!("  state      {}", state_name(s.state));
     if !s.error.is_empty() {
-        println!("  error      {}", s.error);
+        outln!("  error      {}", s.error);
     }
-    println!("  scene      {} (sha256 {})", s.scene_name, s.scene_hash);
-    println!(
+    outln!("  scene      {} (sha256 {})", s.scene_name, s.scene_hash);
+    outln!(
         "  image      {}×{}, {} spp, seed {}, batch {}, tiles {}",
-        s.width, s.height, settings.spp, settings.seed, settings.batch, s.tile_size
+        s.width,
+        s.height,
+        settings.spp,
+        settings.seed,
+        settings.batch,
+        s.tile_size
     );
-    println!("  priority   {}", s.priority);
-    println!(
+    outln!("  priority   {}", s.priority);
+    outln!(
         "  progress   {}/{} units ({} leased), {}/{} samples",
-        s.units_done, s.units_total, s.units_leased, s.samples_done, s.samples_total
+        s.units_done,
+        s.units_total,
+        s.units_leased,
+        s.samples_done,
+        s.samples_total
     );
-    println!(
+    outln!(
         "  rate       {:.2} Msamples/s, ETA {}",
         s.samples_per_second / 1e6,
         fmt_eta(s.eta_seconds)
     );
-    println!(
+    outln!(
         "  noise      σ≈{:.4} ({:.2}% of mean), {} non-finite samples",
         s.noise_rms,
         s.noise_relative * 100.0,
         s.nonfinite_samples
     );
-    println!("  output     {}", s.output_name);
+    outln!("  output     {}", s.output_name);
+    Ok(())
 }
 
 /// Runs `tessera status`.
@@ -626,7 +638,7 @@ pub fn status(args: StatusArgs) -> Result<()> {
                 .await
                 .map_err(|e| rpc_error(&url, job, e))?
                 .into_inner();
-            print_job(&s);
+            print_job(&s)?;
             return Ok(());
         }
         let jobs = client
@@ -635,12 +647,17 @@ pub fn status(args: StatusArgs) -> Result<()> {
             .map_err(|e| rpc_error(&url, "listing jobs", e))?
             .into_inner()
             .jobs;
-        println!(
+        outln!(
             "{:<12} {:<10} {:>8} {:>7} {:>10} {:>8}  SCENE",
-            "JOB", "STATE", "PRIORITY", "DONE", "UNITS", "ETA"
+            "JOB",
+            "STATE",
+            "PRIORITY",
+            "DONE",
+            "UNITS",
+            "ETA"
         );
         for s in jobs {
-            println!(
+            outln!(
                 "{:<12} {:<10} {:>8} {:>6.1}% {:>10} {:>8}  {}",
                 s.job_id,
                 state_name(s.state),
@@ -668,7 +685,7 @@ pub fn cancel(args: CancelArgs) -> Result<()> {
             .map_err(|e| rpc_error(&url, &args.job, e))?
             .into_inner();
         if r.state == pb::JobState::Cancelled as i32 {
-            println!("{} cancelled", args.job);
+            outln!("{} cancelled", args.job);
             Ok(())
         } else {
             bail!("{} had already ended ({})", args.job, state_name(r.state))
@@ -687,12 +704,20 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
             .map_err(|e| rpc_error(&url, "listing workers", e))?
             .into_inner()
             .workers;
-        println!(
+        outln!(
             "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>9}",
-            "WORKER", "NAME", "CORES", "STATE", "LEASES", "UNITS", "SAMPLES", "BAD", "SEEN"
+            "WORKER",
+            "NAME",
+            "CORES",
+            "STATE",
+            "LEASES",
+            "UNITS",
+            "SAMPLES",
+            "BAD",
+            "SEEN"
         );
         for w in workers {
-            println!(
+            outln!(
                 "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>8.1}s",
                 w.worker_id,
                 w.name,
@@ -725,7 +750,7 @@ pub fn fetch(args: FetchArgs) -> Result<()> {
             follow(&mut client, &url, &args.job).await?;
         }
         let bytes = download(&mut client, &url, &args.job, &args.output).await?;
-        println!("{} → {} ({bytes} bytes)", args.job, args.output.display());
+        outln!("{} → {} ({bytes} bytes)", args.job, args.output.display());
         Ok(())
     })
 }

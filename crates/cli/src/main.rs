@@ -9,6 +9,18 @@ use std::process::ExitCode;
 
 use clap::Parser;
 
+/// `println!` that returns stdout's error instead of panicking on it.
+///
+/// A reader that stops early (`tessera status JOB | grep -q done`, `| head`) closes the pipe
+/// while tessera still writes; `println!` would panic there and exit 101, failing the reader's
+/// pipeline under `pipefail`. This hands the `BrokenPipe` back to `main`, which ends quietly.
+macro_rules! outln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        writeln!(std::io::stdout().lock(), $($arg)*)?;
+    }};
+}
+
 mod bench;
 mod farm;
 mod render;
@@ -59,9 +71,21 @@ fn main() -> ExitCode {
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        // The reader of our stdout has gone, having read what it wanted: not a failure of ours,
+        // and nobody is left to tell.
+        Err(e) if is_broken_pipe(&e) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
         }
     }
+}
+
+/// Whether an error comes from writing to a pipe whose reader has closed it.
+fn is_broken_pipe(e: &anyhow::Error) -> bool {
+    e.chain().any(|cause| {
+        cause
+            .downcast_ref::<std::io::Error>()
+            .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+    })
 }

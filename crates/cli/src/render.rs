@@ -172,7 +172,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         )?;
     }
     let (noise, rel) = image.noise();
-    println!(
+    outln!(
         "rendered {}×{} at {} spp in {:.2} s on {} threads: {:.2} Msamples/s, noise σ≈{:.4} ({:.2}% of mean), {} non-finite samples dropped → {}",
         scene.width,
         scene.height,

@@ -111,6 +111,27 @@ fn coordinator_two_workers_and_submit_wait_match_a_local_render() {
         assert!(table.contains(name), "{table}");
     }
 
+    // A reader that has gone (`tessera status JOB | grep -q …` once grep has its line) is not a
+    // failure: every command that prints ends quietly and successfully, with no panic. The read
+    // end closes before the command has even connected, so its first write meets the closed pipe.
+    for args in [&["status", "job-000001"][..], &["status"], &["workers"]] {
+        let mut child = Command::new(BIN)
+            .args(args)
+            .env("TESSERA_COORDINATOR", &url)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("spawn");
+        drop(child.stdout.take());
+        let out = child.wait_with_output().expect("wait");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            out.status.success() && stderr.is_empty(),
+            "tessera {args:?} into a closed pipe: {:?}, {stderr}",
+            out.status
+        );
+    }
+
     // Without --wait, submit prints the job id alone; fetch --wait then gets the same bytes.
     let out = run(with("submit", &[]));
     assert!(out.status.success());
