@@ -384,7 +384,7 @@ fn reference(
     if !cached.is_file() {
         std::fs::create_dir_all(&args.cache)
             .with_context(|| format!("creating {}", args.cache.display()))?;
-        eprintln!(
+        errln!(
             "rendering a {spp}-spp reference of {name} (cached as {})",
             cached.display()
         );
@@ -502,11 +502,11 @@ pub fn run(args: BenchArgs) -> Result<()> {
                     msamples_per_s: samples / seconds / 1e6,
                     relmse: rel_mse(&img, &reference),
                 };
-                eprintln!("{}", row.to_csv());
+                errln!("{}", row.to_csv());
                 rows.push(row);
                 if let Some(peer) = peer.as_mut() {
                     for row in peer.measure(&name, spp, settings.seed)? {
-                        eprintln!("{}", row.to_csv());
+                        errln!("{}", row.to_csv());
                         rows.push(row);
                     }
                 }

@@ -561,7 +561,7 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
             outln!("{}", resp.job_id);
             return Ok(());
         }
-        eprintln!("{} submitted ({} units)", resp.job_id, resp.units);
+        errln!("{} submitted ({} units)", resp.job_id, resp.units);
         let s = follow(&mut client, &url, &resp.job_id).await?;
         let out = args
             .output

@@ -21,6 +21,15 @@ macro_rules! outln {
     }};
 }
 
+/// `eprintln!` that ignores stderr's errors: progress and error lines are for a person, and a
+/// closed stderr (`2>&-`) must not turn into a panic and exit code 101.
+macro_rules! errln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr().lock(), $($arg)*);
+    }};
+}
+
 mod bench;
 mod farm;
 mod render;
@@ -75,7 +84,7 @@ fn main() -> ExitCode {
         // and nobody is left to tell.
         Err(e) if is_broken_pipe(&e) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            errln!("error: {e:#}");
             ExitCode::FAILURE
         }
     }

@@ -128,6 +128,27 @@ fn bad_scenes_give_positioned_errors() {
     assert!(!Path::new(out).exists(), "no output for a bad scene");
 }
 
+/// A failure with nowhere to report it (stderr's reader gone) is still the plain failure,
+/// exit code 1, not a panic's 101.
+#[test]
+fn a_closed_stderr_does_not_turn_an_error_into_a_panic() {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_tessera"))
+        .args([
+            "render",
+            "no-such-scene.toml",
+            "--spp",
+            "1",
+            "--output",
+            "x.exr",
+        ])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    drop(child.stderr.take());
+    let status = child.wait().expect("wait");
+    assert_eq!(status.code(), Some(1), "{status:?}");
+}
+
 #[test]
 fn bad_flags_and_paths_are_refused() {
     let scene = repo("scenes/cornell-box.toml");
