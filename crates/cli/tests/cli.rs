@@ -128,19 +128,22 @@ fn bad_scenes_give_positioned_errors() {
     assert!(!Path::new(out).exists(), "no output for a bad scene");
 }
 
+/// A render of a scene file that does not exist: a plain failure, before any output.
+const MISSING_SCENE: [&str; 6] = [
+    "render",
+    "no-such-scene.toml",
+    "--spp",
+    "1",
+    "--output",
+    "x.exr",
+];
+
 /// A failure with nowhere to report it (stderr's reader gone) is still the plain failure,
 /// exit code 1, not a panic's 101.
 #[test]
 fn a_closed_stderr_does_not_turn_an_error_into_a_panic() {
     let mut child = Command::new(env!("CARGO_BIN_EXE_tessera"))
-        .args([
-            "render",
-            "no-such-scene.toml",
-            "--spp",
-            "1",
-            "--output",
-            "x.exr",
-        ])
+        .args(MISSING_SCENE)
         .stderr(std::process::Stdio::piped())
         .spawn()
         .expect("spawn");
@@ -202,14 +205,7 @@ fn bad_flags_and_paths_are_refused() {
         &["does not exist"],
     );
     assert_clean_failure(
-        &tessera(&[
-            "render",
-            "no-such-scene.toml",
-            "--spp",
-            "1",
-            "--output",
-            "x.exr",
-        ]),
+        &tessera(&MISSING_SCENE),
         &["no-such-scene.toml", "cannot read"],
     );
     assert_clean_failure(
