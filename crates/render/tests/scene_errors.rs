@@ -145,6 +145,25 @@ fn validation_errors() {
         "materials.m.albedo",
         "at most 1",
     );
+    // A missing key is reported at that key's path, on the line of the table that lacks it.
+    check(
+        &HEAD.replace("albedo = [0.5, 0.5, 0.5]\n", ""),
+        10,
+        "materials.m.albedo",
+        "a diffuse material needs `albedo`",
+    );
+    check(
+        &HEAD.replace("target = [0, 0, 0]\n", ""),
+        2,
+        "camera.target",
+        "a look_at camera needs `target`",
+    );
+    check(
+        &format!("{HEAD}[environment]\ntype = \"gradient\"\ntop = [1, 1, 1]\n"),
+        13,
+        "environment.bottom",
+        "a gradient environment needs `bottom`",
+    );
     check(
         &HEAD.replace("version = 1", "version = 2"),
         1,

@@ -456,6 +456,11 @@ fn only(
     Ok(())
 }
 
+/// The value of a key that `kind` cannot do without, or an error at that key saying so.
+fn required<T>(value: Option<T>, path: &KeyPath, kind: &str, name: &str) -> Result<T, Invalid> {
+    value.ok_or_else(|| (path.key(name), format!("{kind} needs `{name}`")))
+}
+
 fn build_transform(t: &TransformDesc, path: &KeyPath) -> Result<Affine3A, Invalid> {
     let m = if let Some(rows) = t.matrix {
         if t.translate.is_some() || t.rotate.is_some() || t.scale.is_some() {
@@ -582,12 +587,7 @@ fn build(desc: &SceneFile, limits: &Limits) -> Result<Scene, Invalid> {
     let camera = match c.model {
         CameraModel::LookAt => {
             only(&cp, "a look_at camera", &present, &["target", "up"])?;
-            let target = c.target.ok_or_else(|| {
-                (
-                    cp.key("target"),
-                    "a look_at camera needs `target`".to_string(),
-                )
-            })?;
+            let target = required(c.target, &cp, "a look_at camera", "target")?;
             let target = finite3(target, &cp.key("target"))?;
             let up = finite3(c.up.unwrap_or([0.0, 1.0, 0.0]), &cp.key("up"))?;
             Camera::look_at(eye, target, up, fov.to_radians(), w, h).ok_or_else(|| {
@@ -632,28 +632,13 @@ fn build(desc: &SceneFile, limits: &Limits) -> Result<Scene, Invalid> {
             Some(match e.kind {
                 EnvironmentKind::Constant => {
                     only(&ep, "a constant environment", &present, &["radiance"])?;
-                    let r = e.radiance.ok_or_else(|| {
-                        (
-                            ep.key("radiance"),
-                            "a constant environment needs `radiance`".to_string(),
-                        )
-                    })?;
+                    let r = required(e.radiance, &ep, "a constant environment", "radiance")?;
                     Environment::Constant(color(r, &ep.key("radiance"), false)?)
                 }
                 EnvironmentKind::Gradient => {
                     only(&ep, "a gradient environment", &present, &["top", "bottom"])?;
-                    let top = e.top.ok_or_else(|| {
-                        (
-                            ep.key("top"),
-                            "a gradient environment needs `top`".to_string(),
-                        )
-                    })?;
-                    let bottom = e.bottom.ok_or_else(|| {
-                        (
-                            ep.key("bottom"),
-                            "a gradient environment needs `bottom`".to_string(),
-                        )
-                    })?;
+                    let top = required(e.top, &ep, "a gradient environment", "top")?;
+                    let bottom = required(e.bottom, &ep, "a gradient environment", "bottom")?;
                     Environment::Gradient {
                         top: color(top, &ep.key("top"), false)?,
                         bottom: color(bottom, &ep.key("bottom"), false)?,
@@ -675,12 +660,7 @@ fn build(desc: &SceneFile, limits: &Limits) -> Result<Scene, Invalid> {
         let bsdf = match m.kind {
             MaterialKind::Diffuse => {
                 only(&mp, "a diffuse material", &present, &["albedo"])?;
-                let a = m.albedo.ok_or_else(|| {
-                    (
-                        mp.key("albedo"),
-                        "a diffuse material needs `albedo`".to_string(),
-                    )
-                })?;
+                let a = required(m.albedo, &mp, "a diffuse material", "albedo")?;
                 Bsdf::Diffuse(color(a, &mp.key("albedo"), true)?)
             }
             MaterialKind::Mirror => {
@@ -693,12 +673,7 @@ fn build(desc: &SceneFile, limits: &Limits) -> Result<Scene, Invalid> {
             }
             MaterialKind::Dielectric => {
                 only(&mp, "a dielectric material", &present, &["ior"])?;
-                let ior = m.ior.ok_or_else(|| {
-                    (
-                        mp.key("ior"),
-                        "a dielectric material needs `ior`".to_string(),
-                    )
-                })?;
+                let ior = required(m.ior, &mp, "a dielectric material", "ior")?;
                 Bsdf::Dielectric(positive(ior, &mp.key("ior"))?)
             }
         };
