@@ -322,11 +322,10 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
             .with_context(|| format!("--listen {}: cannot listen", args.listen))?;
         let addr = listener.local_addr()?;
         tracing::info!("coordinator listening on {addr}; auth: {auth}");
-        // A line on stdout that scripts (and tests) can wait for. Best effort: a script that
-        // read it and closed the pipe must not stop the server.
-        let mut out = std::io::stdout().lock();
-        let _ = writeln!(out, "listening on {addr}").and_then(|()| out.flush());
-        drop(out);
+        // A line on stdout that scripts (and tests) can wait for; stdout is line-buffered, so
+        // the newline sends it. Best effort: a script that read it and closed the pipe must
+        // not stop the server.
+        let _ = writeln!(std::io::stdout(), "listening on {addr}");
         tessera_coordinator::serve(config, listener, shutdown_signal()).await?;
         Ok(())
     })
