@@ -96,7 +96,7 @@ impl Aabb {
             return Self::overlap_guarded(t0, t1, nan, t_max);
         }
         let t_near = t0.min(t1).max_element().max(0.0);
-        let far = (t0.max(t1) * (1.0 + 2.0 * gamma(3))).min_element();
+        let far = (t0.max(t1) * FAR_INFLATION).min_element();
         // Neither is NaN here, so a plain compare does what `f32::min` does without the
         // compare and blend its NaN rule costs.
         let t_far = if far < t_max { far } else { t_max };
@@ -108,12 +108,16 @@ impl Aabb {
     #[cold]
     fn overlap_guarded(t0: Vec3A, t1: Vec3A, nan: glam::BVec3A, t_max: f32) -> bool {
         let tn = Vec3A::select(nan, Vec3A::NEG_INFINITY, t0.min(t1));
-        let tf = Vec3A::select(nan, Vec3A::INFINITY, t0.max(t1) * (1.0 + 2.0 * gamma(3)));
+        let tf = Vec3A::select(nan, Vec3A::INFINITY, t0.max(t1) * FAR_INFLATION);
         let t_near = tn.max_element().max(0.0);
         let t_far = tf.min_element().min(t_max);
         t_near <= t_far
     }
 }
+
+/// What a slab test's far distance is multiplied by: 1 + 2γ₃ (pbrt-v4) covers the rounding of
+/// the three operations behind each distance, so that a box is never missed by rounding alone.
+const FAR_INFLATION: f32 = 1.0 + 2.0 * gamma(3);
 
 /// pbrt's γₙ = nε/(1−nε), the relative error bound of n floating-point operations.
 #[inline]
@@ -191,6 +195,35 @@ pub fn v3(a: [f32; 3]) -> Vec3A {
 #[inline]
 pub fn luminance(c: Vec3A) -> f32 {
     0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}
+
+/// Helpers shared by the crate's unit tests.
+#[cfg(test)]
+pub(crate) mod testing {
+    /// Counts a randomised test's hits and misses, so that it can check that both answers were
+    /// exercised: a sweep that only ever misses would pass whatever the code under test did.
+    #[derive(Default)]
+    pub(crate) struct Tally {
+        hits: u32,
+        misses: u32,
+    }
+
+    impl Tally {
+        /// Counts one answer.
+        pub(crate) fn record(&mut self, hit: bool) {
+            if hit {
+                self.hits += 1;
+            } else {
+                self.misses += 1;
+            }
+        }
+
+        /// Panics unless there were more than `min` of each.
+        pub(crate) fn assert_both_above(&self, min: u32) {
+            let (hits, misses) = (self.hits, self.misses);
+            assert!(hits > min && misses > min, "{hits} hits, {misses} misses");
+        }
+    }
 }
 
 #[cfg(test)]
@@ -335,7 +368,7 @@ mod tests {
         let coords = [-3.0, -1.0, -0.25, 0.0, 0.5, 1.0, 2.0, 3.0];
         let pick =
             |rng: &mut crate::sampling::HashRng, n: usize| (rng.next_f32() * n as f32) as usize % n;
-        let (mut hits, mut misses) = (0, 0);
+        let mut tally = testing::Tally::default();
         for _ in 0..200_000 {
             let b = boxes[pick(&mut rng, 2)];
             // Grid origins lie on the boxes' planes; random ones make x·(1/x) round away from 1.
@@ -366,16 +399,9 @@ mod tests {
                 Aabb::overlap_guarded(t0, t1, nan, t_max),
                 "box {b:?} o {o:?} d {d:?} t_max {t_max}"
             );
-            if fast {
-                hits += 1;
-            } else {
-                misses += 1;
-            }
+            tally.record(fast);
         }
-        assert!(
-            hits > 10_000 && misses > 10_000,
-            "{hits} hits, {misses} misses"
-        );
+        tally.assert_both_above(10_000);
     }
 
     #[test]

@@ -574,7 +574,7 @@ mod tests {
         ];
         let mut rng = crate::sampling::HashRng::new(3);
         let mut coord = || [-2.0, -1.0, -0.0, 0.0, 0.5, 1.0, 2.0][(rng.next_f32() * 7.0) as usize];
-        let (mut hits, mut misses) = (0, 0);
+        let mut tally = crate::math::testing::Tally::default();
         for _ in 0..20_000 {
             let o = Vec3A::new(coord(), coord(), coord());
             let d = Vec3A::new(coord(), coord(), coord());
@@ -583,18 +583,11 @@ mod tests {
                 for t_max in [f32::INFINITY, 1.0, 0.5, 0.0] {
                     let want = shape.intersect(&ray, t_max).is_some();
                     assert_eq!(shape.blocks(&ray, t_max), want, "{shape:?} {ray:?} {t_max}");
-                    if want {
-                        hits += 1;
-                    } else {
-                        misses += 1;
-                    }
+                    tally.record(want);
                 }
             }
         }
-        assert!(
-            hits > 10_000 && misses > 10_000,
-            "{hits} hits, {misses} misses"
-        );
+        tally.assert_both_above(10_000);
     }
 
     #[test]
