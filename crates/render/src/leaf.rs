@@ -51,6 +51,20 @@ impl QuadBlock {
         }
     }
 
+    /// Each used lane's quad on its own, splatted across four lanes.
+    fn splat(&self) -> impl Iterator<Item = SplatQuad> + '_ {
+        (0..4).filter(|&j| self.prim[j] != u32::MAX).map(move |j| {
+            let s = |v: &[Vec4; 3]| v.map(|axis| Vec4::splat(axis[j]));
+            SplatQuad {
+                p0: s(&self.p0),
+                n: s(&self.n),
+                a1: s(&self.a1),
+                a2: s(&self.a2),
+                prim: self.prim[j],
+            }
+        })
+    }
+
     /// Lanes whose quad the ray meets with t in (0, t_max), and each lane's t.
     #[inline]
     fn hits(&self, r: &RayX4, t_max: f32) -> (BVec4A, Vec4) {
@@ -150,6 +164,9 @@ pub struct Leaves {
     /// `blocks` and `others` without looking its leaf up, which saved 2.5% of a Cornell box
     /// sample's instructions (docs/renderer.md).
     single: bool,
+    /// For a one-leaf BVH, each quad of `blocks` splatted across four lanes, in the blocks'
+    /// order: what [`Leaves::closest4`] tests four rays against.
+    splat: Vec<SplatQuad>,
 }
 
 impl Leaves {
@@ -184,6 +201,9 @@ impl Leaves {
             };
         }
         out.single = count == 1;
+        if out.single {
+            out.splat = out.blocks.iter().flat_map(QuadBlock::splat).collect();
+        }
         out
     }
 
@@ -255,6 +275,167 @@ impl Leaves {
             self.others
                 .get(r.others.start as usize..r.others.end as usize)?,
         ))
+    }
+}
+
+/// One quad in every lane, to be tested against four rays at once.
+#[derive(Clone, Debug)]
+struct SplatQuad {
+    p0: [Vec4; 3],
+    n: [Vec4; 3],
+    a1: [Vec4; 3],
+    a2: [Vec4; 3],
+    prim: u32,
+}
+
+impl SplatQuad {
+    /// Each ray's t at the quad's plane, and the rays that meet the quad with t in (0, t_max):
+    /// [`QuadBlock::hits`]'s arithmetic with the lanes turned around, so each lane's t and
+    /// answer are the scalar test's.
+    #[inline]
+    fn hits(&self, r: &Rays4, t_max: Vec4) -> (BVec4A, Vec4) {
+        let to_p0 = [
+            self.p0[0] - r.o[0],
+            self.p0[1] - r.o[1],
+            self.p0[2] - r.o[2],
+        ];
+        let t = dot4(&self.n, to_p0) / dot4(&self.n, r.d);
+        let crossed = t.cmpgt(Vec4::ZERO) & t.cmplt(t_max);
+        if !crossed.any() {
+            return (crossed, t);
+        }
+        let q = [
+            (r.o[0] + r.d[0] * t) - self.p0[0],
+            (r.o[1] + r.d[1] * t) - self.p0[1],
+            (r.o[2] + r.d[2] * t) - self.p0[2],
+        ];
+        let (u, v) = (dot4(&self.a1, q), dot4(&self.a2, q));
+        let (zero, one) = (Vec4::ZERO, Vec4::ONE);
+        (
+            crossed & u.cmpge(zero) & u.cmple(one) & v.cmpge(zero) & v.cmple(one),
+            t,
+        )
+    }
+}
+
+/// Four rays in structure-of-arrays lanes.
+#[derive(Clone, Copy, Debug)]
+pub struct Rays4 {
+    o: [Vec4; 3],
+    d: [Vec4; 3],
+    inv_d: [Vec4; 3],
+}
+
+impl Rays4 {
+    /// Rays whose origins and directions are already in lanes.
+    #[inline]
+    pub fn from_lanes(o: [Vec4; 3], d: [Vec4; 3]) -> Self {
+        Self {
+            o,
+            d,
+            inv_d: d.map(Vec4::recip),
+        }
+    }
+
+    /// The lanes whose rays meet `b`, with t_max per lane: [`Aabb::hit`]'s answer for each,
+    /// computed the way its guarded branch does (an axis whose slab distance is NaN is
+    /// unconstrained), which is the answer of its fast branch wherever there is no NaN.
+    #[inline]
+    fn hit_box(&self, b: &Aabb, t_max: Vec4) -> BVec4A {
+        let mut near = Vec4::NEG_INFINITY;
+        let mut far = Vec4::INFINITY;
+        for axis in 0..3 {
+            let t0 = (Vec4::splat(b.min[axis]) - self.o[axis]) * self.inv_d[axis];
+            let t1 = (Vec4::splat(b.max[axis]) - self.o[axis]) * self.inv_d[axis];
+            let nan = t0.is_nan_mask() | t1.is_nan_mask();
+            near = near.max(Vec4::select(nan, Vec4::NEG_INFINITY, t0.min(t1)));
+            far = far.min(Vec4::select(
+                nan,
+                Vec4::INFINITY,
+                t0.max(t1) * crate::math::FAR_INFLATION,
+            ));
+        }
+        near.max(Vec4::ZERO).cmple(far.min(t_max))
+    }
+}
+
+impl Leaves {
+    /// Whether the BVH is one leaf.
+    pub fn is_single(&self) -> bool {
+        self.single
+    }
+
+    /// [`Leaves::closest`] for four rays at once, for a one-leaf BVH (`None` otherwise, and the
+    /// caller asks ray by ray): each active lane (bit of `active`) gets the closest hit with t
+    /// in (0, ∞) as (t, primitive, part), the same as [`Leaves::closest`] gives its ray,
+    /// ties included. `other(lane, p, t_max)` tests lane's ray against other primitive `p`.
+    #[inline]
+    pub fn closest4(
+        &self,
+        r: &Rays4,
+        active: u32,
+        mut other: impl FnMut(usize, u32, f32) -> Option<(f32, u32)>,
+    ) -> Option<[Option<(f32, u32, u32)>; 4]> {
+        if !self.single {
+            return None;
+        }
+        let mut best_t = Vec4::INFINITY;
+        // Primitive indices travel as float bits, which a select copies unchanged.
+        let mut best_prim = Vec4::splat(f32::from_bits(u32::MAX));
+        for q in &self.splat {
+            let (mask, t) = q.hits(r, best_t);
+            // A strict t < best keeps the earlier quad on a tie, as the blocks' test does.
+            best_t = Vec4::select(mask, t, best_t);
+            best_prim = Vec4::select(mask, Vec4::splat(f32::from_bits(q.prim)), best_prim);
+        }
+        let mut t = best_t.to_array();
+        let mut best: [Option<(f32, u32, u32)>; 4] = [0, 1, 2, 3].map(|lane| {
+            let prim = best_prim[lane].to_bits();
+            (prim != u32::MAX).then_some((t[lane], prim, 0))
+        });
+        for (p, b) in &self.others {
+            let lanes = r.hit_box(b, Vec4::from_array(t)).bitmask() & active;
+            for lane in (0..4).filter(|lane| lanes >> lane & 1 == 1) {
+                if let Some((tp, part)) = other(lane, *p, t[lane]) {
+                    t[lane] = tp;
+                    best[lane] = Some((tp, *p, part));
+                }
+            }
+        }
+        Some(best)
+    }
+
+    /// [`Leaves::any`] for four rays at once, for a one-leaf BVH (`None` otherwise): the
+    /// active lanes (bits of `active`) whose rays something blocks in (0, t_max), as bits.
+    /// `other(lane, p)` tests lane's ray against other primitive `p`.
+    #[inline]
+    pub fn any4(
+        &self,
+        r: &Rays4,
+        active: u32,
+        t_max: f32,
+        mut other: impl FnMut(usize, u32) -> bool,
+    ) -> Option<u32> {
+        if !self.single {
+            return None;
+        }
+        let t_max4 = Vec4::splat(t_max);
+        let mut blocked = 0;
+        for q in &self.splat {
+            blocked |= q.hits(r, t_max4).0.bitmask() & active;
+            if blocked == active {
+                return Some(blocked);
+            }
+        }
+        for (p, b) in &self.others {
+            let lanes = r.hit_box(b, t_max4).bitmask() & active & !blocked;
+            for lane in (0..4).filter(|lane| lanes >> lane & 1 == 1) {
+                if other(lane, *p) {
+                    blocked |= 1 << lane;
+                }
+            }
+        }
+        Some(blocked)
     }
 }
 

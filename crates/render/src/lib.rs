@@ -34,6 +34,7 @@ pub mod sampling;
 pub mod scene;
 pub mod shape;
 pub mod tile;
+pub mod wide;
 
 pub use integrator::{RenderSettings, Strategy};
 pub use tile::{assemble_frame, render_frame, render_tile, Image, PixelRect, TileSums};

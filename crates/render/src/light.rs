@@ -218,6 +218,12 @@ impl Lights {
         self.select.is_none()
     }
 
+    /// The selection probability of a scene's only light (what [`Lights::sample`] multiplies
+    /// its density by), or 0 where there is no light.
+    pub fn pdf_scale(&self) -> f32 {
+        self.select.as_ref().map_or(0.0, |d| d.pmf(0))
+    }
+
     /// Picks a light and a point on it as seen from `p`.
     #[inline]
     pub fn sample(&self, p: Vec3A, u_select: f32, u: Vec2) -> Option<LightSample> {

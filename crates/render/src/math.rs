@@ -117,7 +117,7 @@ impl Aabb {
 
 /// What a slab test's far distance is multiplied by: 1 + 2γ₃ (pbrt-v4) covers the rounding of
 /// the three operations behind each distance, so that a box is never missed by rounding alone.
-const FAR_INFLATION: f32 = 1.0 + 2.0 * gamma(3);
+pub(crate) const FAR_INFLATION: f32 = 1.0 + 2.0 * gamma(3);
 
 /// pbrt's γₙ = nε/(1−nε), the relative error bound of n floating-point operations.
 #[inline]

@@ -320,6 +320,10 @@ impl BatchSums {
     }
 }
 
+/// How many samples of a pixel the four-lane tracer takes at a time: their values are kept
+/// until all are done, to be summed in index order.
+const STREAM_CHUNK: u32 = 1024;
+
 /// Renders `rect` for sample indices `samples` (parallel over rows with rayon).
 pub fn render_tile(
     scene: &Scene,
@@ -331,6 +335,14 @@ pub fn render_tile(
     out.samples = samples.clone();
     let w = rect.width as usize;
     let batch = settings.batch.max(1);
+    // Scenes whose bounce the four-lane tracer models take it: the same bits, about 1.2x the
+    // samples a second in the Cornell box (docs/renderer.md). `TESSERA_SCALAR` forces one path
+    // at a time, for timing the two against each other; it cannot change a bit of the output.
+    let wide = if std::env::var_os("TESSERA_SCALAR").is_some() {
+        None
+    } else {
+        crate::wide::Wide::new(scene, settings)
+    };
     let nonfinite: u64 = out
         .sum
         .par_chunks_mut(w)
@@ -340,6 +352,7 @@ pub fn render_tile(
         .map(|(row, ((sum, sum_sq), count))| {
             let y = rect.y0 + row as u32;
             let mut bad = 0u64;
+            let mut values = Vec::new();
             for (col, ((s, sq), k)) in sum
                 .iter_mut()
                 .zip(sum_sq.iter_mut())
@@ -348,6 +361,29 @@ pub fn render_tile(
             {
                 let x = rect.x0 + col as u32;
                 let mut sampler = PixelSampler::new(settings.seed, x, y, samples.start);
+                if let Some(wide) = &wide {
+                    let mut b = BatchSums::default();
+                    let mut start = samples.start;
+                    while start < samples.end {
+                        let end = start.saturating_add(STREAM_CHUNK).min(samples.end);
+                        wide.sample_pixel(x, y, &sampler, start..end, &mut values);
+                        for (index, v) in (start..end).zip(&values) {
+                            b.add(*v);
+                            // Batches end at multiples of `batch` and at the end of the range.
+                            if (index + 1) % batch == 0 || index + 1 == samples.end {
+                                for c in 0..3 {
+                                    s[c] += b.sum[c];
+                                    sq[c] += b.sum_sq[c];
+                                }
+                                *k += b.count;
+                                bad += b.nonfinite;
+                                b = BatchSums::default();
+                            }
+                        }
+                        start = end;
+                    }
+                    continue;
+                }
                 let mut i = samples.start;
                 while i < samples.end {
                     let end = ((i / batch).saturating_add(1))

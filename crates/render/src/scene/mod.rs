@@ -257,6 +257,52 @@ impl Scene {
         best
     }
 
+    /// [`Scene::intersect`] with t_max = ∞ for the lanes of `r` set in `active`, for a scene
+    /// of one BVH leaf and no unbounded primitives ([`Scene::is_one_leaf`]); `rays` holds the
+    /// same rays one by one, for the exact tests of primitives other than quads.
+    #[inline]
+    pub fn intersect4_lanes(
+        &self,
+        r: &crate::leaf::Rays4,
+        rays: &[Ray; 4],
+        active: u32,
+    ) -> [Option<Hit>; 4] {
+        let hits = self
+            .leaves
+            .closest4(r, active, |lane, p, t_max| {
+                self.prims[p as usize].shape.intersect(&rays[lane], t_max)
+            })
+            .unwrap_or([None; 4]);
+        [0, 1, 2, 3].map(|lane| {
+            hits[lane]
+                .filter(|_| active >> lane & 1 == 1)
+                .map(|(t, prim, part)| Hit { t, prim, part })
+        })
+    }
+
+    /// [`Scene::occluded`] for the lanes of `r` set in `active`, for a scene of one BVH leaf
+    /// and no unbounded primitives: bit i is set when something blocks lane i in (0, t_max).
+    #[inline]
+    pub fn occluded4_lanes(
+        &self,
+        r: &crate::leaf::Rays4,
+        rays: &[Ray; 4],
+        active: u32,
+        t_max: f32,
+    ) -> u32 {
+        self.leaves
+            .any4(r, active, t_max, |lane, p| {
+                self.prims[p as usize].shape.blocks(&rays[lane], t_max)
+            })
+            .unwrap_or(0)
+    }
+
+    /// Whether the whole scene is one BVH leaf with nothing unbounded: the scenes whose
+    /// queries the four-lane tests answer.
+    pub fn is_one_leaf(&self) -> bool {
+        self.unbounded.is_empty() && self.leaves.is_single()
+    }
+
     /// Whether anything blocks `ray` for t in (0, t_max).
     #[inline]
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {

@@ -1,0 +1,132 @@
+//! The four-lane tracer (`tessera_render::wide`) against the scalar one: every sample's value,
+//! bit for bit, on the scenes it takes, and which scenes those are.
+
+mod common;
+
+use common::{load, scene};
+use glam::Vec3A;
+use tessera_render::integrator::sample_pixel;
+use tessera_render::sampling::PixelSampler;
+use tessera_render::scene::Scene;
+use tessera_render::wide::Wide;
+use tessera_render::{RenderSettings, Strategy};
+
+/// Compares every sample of `samples` for a spread of pixels (edges and corners included),
+/// and returns how many samples were compared and how many of them had any light.
+fn compare(scene: &Scene, settings: &RenderSettings, samples: std::ops::Range<u32>) -> (u64, u64) {
+    let wide = Wide::new(scene, settings).expect("the scene is one the four-lane tracer takes");
+    let (mut count, mut lit) = (0u64, 0u64);
+    let mut values = Vec::new();
+    let xs = (0..scene.width).step_by(9).chain([scene.width - 1]);
+    for x in xs {
+        for y in (0..scene.height).step_by(11).chain([scene.height - 1]) {
+            let sampler = PixelSampler::new(settings.seed, x, y, samples.start);
+            wide.sample_pixel(x, y, &sampler, samples.clone(), &mut values);
+            assert_eq!(values.len(), samples.len());
+            let mut s = sampler;
+            for (index, v) in samples.clone().zip(&values) {
+                s.set_index(index);
+                let expected = sample_pixel(scene, settings, x, y, &s);
+                let bits = |c: Vec3A| c.to_array().map(f32::to_bits);
+                assert_eq!(
+                    bits(*v),
+                    bits(expected),
+                    "pixel ({x}, {y}) sample {index}: four lanes gave {v}, one path {expected}"
+                );
+                count += 1;
+                lit += u64::from(expected != Vec3A::ZERO);
+            }
+        }
+    }
+    (count, lit)
+}
+
+#[test]
+fn four_lanes_give_the_scalar_bits_in_the_cornell_box() {
+    let scene = load("cornell-box.toml");
+    let settings = RenderSettings {
+        seed: 11,
+        ..RenderSettings::default()
+    };
+    let (count, lit) = compare(&scene, &settings, 0..37);
+    assert!(
+        count > 20_000 && lit > count / 2,
+        "{count} samples, {lit} lit"
+    );
+    // Across the 2¹⁶-sample block where the Sobol groups' keys change, with lanes on both
+    // sides of it at once.
+    compare(&scene, &settings, 65_530..65_545);
+    // Russian roulette from the first bounce, with pbrt's threshold.
+    let early = RenderSettings {
+        rr_depth: 1,
+        rr_threshold: 1.0,
+        ..settings
+    };
+    compare(&scene, &early, 0..9);
+}
+
+/// A two-sided light seen from both sides, two-sided walls, and a light that is a box's face
+/// away from the camera (so paths reach its back and the light's far side).
+#[test]
+fn four_lanes_give_the_scalar_bits_with_two_sided_surfaces() {
+    let scene = scene(
+        r#"
+version = 1
+[camera]
+model = "look_at"
+eye = [0.0, 0.2, 3.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov = 50.0
+[film]
+width = 40
+height = 30
+[materials.wall]
+type = "diffuse"
+albedo = [0.8, 0.7, 0.6]
+two_sided = true
+[materials.lamp]
+type = "diffuse"
+albedo = [0.3, 0.3, 0.3]
+emission = [4.0, 3.0, 2.0]
+two_sided = true
+[[objects]]
+shape = "rect"
+material = "wall"
+transform.matrix = [[2, 0, 0, 0], [0, 0, 2, -1], [0, -2, 0, 0], [0, 0, 0, 1]]
+[[objects]]
+shape = "rect"
+material = "lamp"
+transform.matrix = [[0.5, 0, 0, 0], [0, 0.3, 0.4, 0.5], [0, -0.4, 0.3, 0], [0, 0, 0, 1]]
+[[objects]]
+shape = "box"
+material = "wall"
+transform.matrix = [[0.3, 0, 0.1, -0.5], [0, 0.4, 0, -0.6], [-0.1, 0, 0.3, 0.2], [0, 0, 0, 1]]
+"#,
+    );
+    let settings = RenderSettings {
+        seed: 5,
+        ..RenderSettings::default()
+    };
+    let (count, lit) = compare(&scene, &settings, 0..64);
+    assert!(lit > count / 4, "{count} samples, {lit} lit");
+}
+
+/// The scenes whose bounce the lanes do not model go one path at a time.
+#[test]
+fn other_scenes_and_strategies_go_one_path_at_a_time() {
+    let cornell = load("cornell-box.toml");
+    for strategy in [Strategy::Bsdf, Strategy::Nee] {
+        let settings = RenderSettings {
+            strategy,
+            ..RenderSettings::default()
+        };
+        assert!(Wide::new(&cornell, &settings).is_none(), "{strategy:?}");
+    }
+    let settings = RenderSettings::default();
+    assert!(Wide::new(&cornell, &settings).is_some());
+    // Glass and mirrors; spheres and an environment.
+    for name in ["glass-mirror.toml", "spheres.toml"] {
+        assert!(Wide::new(&load(name), &settings).is_none(), "{name}");
+    }
+}
