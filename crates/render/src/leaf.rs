@@ -56,10 +56,13 @@ impl QuadBlock {
         (0..4).filter(|&j| self.prim[j] != u32::MAX).map(move |j| {
             let s = |v: &[Vec4; 3]| v.map(|axis| Vec4::splat(axis[j]));
             SplatQuad {
-                p0: s(&self.p0),
-                n: s(&self.n),
-                a1: s(&self.a1),
-                a2: s(&self.a2),
+                lanes: QuadBlock {
+                    p0: s(&self.p0),
+                    n: s(&self.n),
+                    a1: s(&self.a1),
+                    a2: s(&self.a2),
+                    prim: [self.prim[j]; 4],
+                },
                 prim: self.prim[j],
             }
         })
@@ -68,8 +71,8 @@ impl QuadBlock {
     /// Lanes whose quad the ray meets with t in (0, t_max), and each lane's t.
     #[inline]
     fn hits(&self, r: &RayX4, t_max: f32) -> (BVec4A, Vec4) {
-        let t = self.plane_t(r);
-        (in_range(t, t_max) & self.within_edges(r, t), t)
+        let t = self.plane_t(&r.o, &r.d);
+        (in_range(t, t_max) & self.within_edges(&r.o, &r.d, t), t)
     }
 
     /// Whether any lane's quad blocks the ray in (0, t_max): `hits(..).0.any()`, but a block
@@ -77,29 +80,26 @@ impl QuadBlock {
     /// ray inside a room crosses none of its walls' planes, so this is the common case there.
     #[inline]
     fn blocks(&self, r: &RayX4, t_max: f32) -> bool {
-        let t = self.plane_t(r);
+        let t = self.plane_t(&r.o, &r.d);
         let crossed = in_range(t, t_max);
-        crossed.any() && (crossed & self.within_edges(r, t)).any()
+        crossed.any() && (crossed & self.within_edges(&r.o, &r.d, t)).any()
     }
 
-    /// Each lane's ray parameter at its quad's plane.
+    /// Each lane's ray parameter at its quad's plane, for the ray (`o`, `d`) in lanes (one ray
+    /// splatted, or a ray per lane).
     #[inline]
-    fn plane_t(&self, r: &RayX4) -> Vec4 {
-        let to_p0 = [
-            self.p0[0] - r.o[0],
-            self.p0[1] - r.o[1],
-            self.p0[2] - r.o[2],
-        ];
-        dot4(&self.n, to_p0) / dot4(&self.n, r.d)
+    fn plane_t(&self, o: &[Vec4; 3], d: &[Vec4; 3]) -> Vec4 {
+        let to_p0 = [self.p0[0] - o[0], self.p0[1] - o[1], self.p0[2] - o[2]];
+        dot4(&self.n, to_p0) / dot4(&self.n, *d)
     }
 
     /// Lanes whose plane point at `t` lies inside their quad's edges.
     #[inline]
-    fn within_edges(&self, r: &RayX4, t: Vec4) -> BVec4A {
+    fn within_edges(&self, o: &[Vec4; 3], d: &[Vec4; 3], t: Vec4) -> BVec4A {
         let q = [
-            (r.o[0] + r.d[0] * t) - self.p0[0],
-            (r.o[1] + r.d[1] * t) - self.p0[1],
-            (r.o[2] + r.d[2] * t) - self.p0[2],
+            (o[0] + d[0] * t) - self.p0[0],
+            (o[1] + d[1] * t) - self.p0[1],
+            (o[2] + d[2] * t) - self.p0[2],
         ];
         let (u, v) = (dot4(&self.a1, q), dot4(&self.a2, q));
         let (zero, one) = (Vec4::ZERO, Vec4::ONE);
@@ -281,10 +281,8 @@ impl Leaves {
 /// One quad in every lane, to be tested against four rays at once.
 #[derive(Clone, Debug)]
 struct SplatQuad {
-    p0: [Vec4; 3],
-    n: [Vec4; 3],
-    a1: [Vec4; 3],
-    a2: [Vec4; 3],
+    /// The quad in all four lanes.
+    lanes: QuadBlock,
     prim: u32,
 }
 
@@ -294,27 +292,12 @@ impl SplatQuad {
     /// answer are the scalar test's.
     #[inline]
     fn hits(&self, r: &Rays4, t_max: Vec4) -> (BVec4A, Vec4) {
-        let to_p0 = [
-            self.p0[0] - r.o[0],
-            self.p0[1] - r.o[1],
-            self.p0[2] - r.o[2],
-        ];
-        let t = dot4(&self.n, to_p0) / dot4(&self.n, r.d);
+        let t = self.lanes.plane_t(&r.o, &r.d);
         let crossed = t.cmpgt(Vec4::ZERO) & t.cmplt(t_max);
         if !crossed.any() {
             return (crossed, t);
         }
-        let q = [
-            (r.o[0] + r.d[0] * t) - self.p0[0],
-            (r.o[1] + r.d[1] * t) - self.p0[1],
-            (r.o[2] + r.d[2] * t) - self.p0[2],
-        ];
-        let (u, v) = (dot4(&self.a1, q), dot4(&self.a2, q));
-        let (zero, one) = (Vec4::ZERO, Vec4::ONE);
-        (
-            crossed & u.cmpge(zero) & u.cmple(one) & v.cmpge(zero) & v.cmple(one),
-            t,
-        )
+        (crossed & self.lanes.within_edges(&r.o, &r.d, t), t)
     }
 }
 

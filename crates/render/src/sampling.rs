@@ -253,6 +253,18 @@ pub fn square_to_disk_concentric(u: Vec2) -> Vec2 {
 #[inline]
 pub fn sin_cos_octant(x: f32) -> (f32, f32) {
     debug_assert!(x.abs() <= FRAC_PI_4 * 1.000_001, "{x}");
+    sin_cos_polynomials(x)
+}
+
+/// [`sin_cos_octant`]'s polynomials for a number or for SIMD lanes, each lane by the same
+/// operations in the same order, so the four-lane tracer's sines and cosines are the scalar
+/// ones, bit for bit.
+#[inline]
+pub(crate) fn sin_cos_polynomials<T>(x: T) -> (T, T)
+where
+    T: Copy + std::ops::Mul<Output = T> + std::ops::Mul<f32, Output = T>,
+    f32: std::ops::Add<T, Output = T>,
+{
     let x2 = x * x;
     let s = x
         * (1.0

@@ -318,6 +318,25 @@ impl BatchSums {
         }
         self.count += 1;
     }
+
+    /// Adds this batch to its pixel's sums, sample count and non-finite count, in the one
+    /// order every path through `render_tile` merges batches in, and starts the next batch.
+    #[inline]
+    fn flush_into(
+        &mut self,
+        sum: &mut [f64; 3],
+        sum_sq: &mut [f64; 3],
+        count: &mut u32,
+        nonfinite: &mut u64,
+    ) {
+        for c in 0..3 {
+            sum[c] += self.sum[c];
+            sum_sq[c] += self.sum_sq[c];
+        }
+        *count += self.count;
+        *nonfinite += self.nonfinite;
+        *self = Self::default();
+    }
 }
 
 /// How many samples of a pixel the four-lane tracer takes at a time: their values are kept
@@ -371,13 +390,7 @@ pub fn render_tile(
                             b.add(*v);
                             // Batches end at multiples of `batch` and at the end of the range.
                             if (index + 1) % batch == 0 || index + 1 == samples.end {
-                                for c in 0..3 {
-                                    s[c] += b.sum[c];
-                                    sq[c] += b.sum_sq[c];
-                                }
-                                *k += b.count;
-                                bad += b.nonfinite;
-                                b = BatchSums::default();
+                                b.flush_into(s, sq, k, &mut bad);
                             }
                         }
                         start = end;
@@ -394,12 +407,7 @@ pub fn render_tile(
                         sampler.set_index(index);
                         b.add(sample_pixel(scene, settings, x, y, &sampler));
                     }
-                    for c in 0..3 {
-                        s[c] += b.sum[c];
-                        sq[c] += b.sum_sq[c];
-                    }
-                    *k += b.count;
-                    bad += b.nonfinite;
+                    b.flush_into(s, sq, k, &mut bad);
                     i = end;
                 }
             }

@@ -11,7 +11,7 @@ use crate::integrator::{RenderSettings, Strategy};
 use crate::leaf::Rays4;
 use crate::light::LightShape;
 use crate::math::{gamma, Ray};
-use crate::sampling::{power_heuristic, PixelSampler};
+use crate::sampling::{power_heuristic, sin_cos_polynomials, PixelSampler};
 use crate::scene::{Bsdf, Scene};
 use crate::shape::Parallelogram;
 
@@ -53,21 +53,6 @@ fn offset4(p: &V3, err: &V3, n: &V3) -> V3 {
     })
 }
 
-/// [`crate::sampling::sin_cos_octant`], lane by lane.
-#[inline]
-fn sin_cos_octant4(x: Vec4) -> (Vec4, Vec4) {
-    let x2 = x * x;
-    let s = x
-        * (1.0
-            + x2 * (-1.0 / 6.0
-                + x2 * (1.0 / 120.0 + x2 * (-1.0 / 5040.0 + x2 * (1.0 / 362_880.0)))));
-    let c = 1.0
-        + x2 * (-0.5
-            + x2 * (1.0 / 24.0
-                + x2 * (-1.0 / 720.0 + x2 * (1.0 / 40320.0 + x2 * (-1.0 / 3_628_800.0)))));
-    (s, c)
-}
-
 /// [`crate::sampling::square_to_cosine_hemisphere`], lane by lane.
 #[inline]
 fn cosine_hemisphere4(u0: Vec4, u1: Vec4) -> V3 {
@@ -77,7 +62,7 @@ fn cosine_hemisphere4(u0: Vec4, u1: Vec4) -> V3 {
     let x_major = ax.abs().cmpgt(ay.abs());
     let num = Vec4::select(x_major, ay, ax);
     let den = Vec4::select(x_major, ax, ay);
-    let (s, c) = sin_cos_octant4(std::f32::consts::FRAC_PI_4 * (num / den));
+    let (s, c) = sin_cos_polynomials(std::f32::consts::FRAC_PI_4 * (num / den));
     let dx = Vec4::select(origin, Vec4::ZERO, den * Vec4::select(x_major, c, s));
     let dy = Vec4::select(origin, Vec4::ZERO, den * Vec4::select(x_major, s, c));
     let z = sqrt4((1.0 - (dx * dx + dy * dy)).max(Vec4::ZERO));
