@@ -9,26 +9,34 @@
 
 use std::ops::Range;
 
-use glam::{BVec4A, Vec3A, Vec3Swizzles, Vec4};
+use glam::{Vec3A, Vec4};
 
+use crate::lanes::{dot, splat3, F, M, V3};
 use crate::math::{Aabb, Ray};
 use crate::shape::{Parallelogram, Shape};
 
-/// Four parallelograms, one per lane. Unused lanes have a zero normal, so their t is 0/0 = NaN
-/// and they never hit.
+/// Parallelograms in lanes: four different quads against one ray splatted across the lanes
+/// (the one-ray query), or one quad splatted across `N` lanes against `N` rays (the packet
+/// query). Unused lanes have a zero normal, so their t is 0/0 = NaN and they never hit.
 #[derive(Clone, Debug)]
-struct QuadBlock {
-    p0: [Vec4; 3],
-    n: [Vec4; 3],
-    a1: [Vec4; 3],
-    a2: [Vec4; 3],
+struct QuadBlock<const N: usize> {
+    p0: V3<N>,
+    n: V3<N>,
+    a1: V3<N>,
+    a2: V3<N>,
+}
+
+/// Four quads in lanes, and their primitives (`u32::MAX` in unused lanes).
+#[derive(Clone, Debug)]
+struct Quads4 {
+    lanes: QuadBlock<4>,
     prim: [u32; 4],
 }
 
-impl QuadBlock {
+impl Quads4 {
     fn new(quads: &[(u32, &Parallelogram)]) -> Self {
         debug_assert!(!quads.is_empty() && quads.len() <= 4);
-        let lanes = |f: &dyn Fn(&Parallelogram) -> Vec3A| -> [Vec4; 3] {
+        let lanes = |f: &dyn Fn(&Parallelogram) -> Vec3A| -> V3<4> {
             let mut out = [[0.0f32; 4]; 3];
             for (lane, (_, q)) in quads.iter().enumerate() {
                 let v = f(q);
@@ -36,33 +44,32 @@ impl QuadBlock {
                     out[axis][lane] = v[axis];
                 }
             }
-            out.map(Vec4::from_array)
+            out.map(F)
         };
         let mut prim = [u32::MAX; 4];
         for (lane, (p, _)) in quads.iter().enumerate() {
             prim[lane] = *p;
         }
         Self {
-            p0: lanes(&|q| q.p0),
-            n: lanes(&|q| q.normal),
-            a1: lanes(&|q| q.a1),
-            a2: lanes(&|q| q.a2),
+            lanes: QuadBlock {
+                p0: lanes(&|q| q.p0),
+                n: lanes(&|q| q.normal),
+                a1: lanes(&|q| q.a1),
+                a2: lanes(&|q| q.a2),
+            },
             prim,
         }
     }
 
-    /// Each used lane's quad on its own, splatted across four lanes.
+    /// Each used lane's quad on its own.
     fn splat(&self) -> impl Iterator<Item = SplatQuad> + '_ {
         (0..4).filter(|&j| self.prim[j] != u32::MAX).map(move |j| {
-            let s = |v: &[Vec4; 3]| v.map(|axis| Vec4::splat(axis[j]));
+            let s = |v: &V3<4>| Vec3A::new(v[0].0[j], v[1].0[j], v[2].0[j]);
             SplatQuad {
-                lanes: QuadBlock {
-                    p0: s(&self.p0),
-                    n: s(&self.n),
-                    a1: s(&self.a1),
-                    a2: s(&self.a2),
-                    prim: [self.prim[j]; 4],
-                },
+                p0: s(&self.lanes.p0),
+                n: s(&self.lanes.n),
+                a1: s(&self.lanes.a1),
+                a2: s(&self.lanes.a2),
                 prim: self.prim[j],
             }
         })
@@ -70,9 +77,12 @@ impl QuadBlock {
 
     /// Lanes whose quad the ray meets with t in (0, t_max), and each lane's t.
     #[inline]
-    fn hits(&self, r: &RayX4, t_max: f32) -> (BVec4A, Vec4) {
-        let t = self.plane_t(&r.o, &r.d);
-        (in_range(t, t_max) & self.within_edges(&r.o, &r.d, t), t)
+    fn hits(&self, r: &RayX4, t_max: f32) -> (M<4>, F<4>) {
+        let t = self.lanes.plane_t(&r.o, &r.d);
+        (
+            in_range(t, F::splat(t_max)) & self.lanes.within_edges(&r.o, &r.d, t),
+            t,
+        )
     }
 
     /// Whether any lane's quad blocks the ray in (0, t_max): `hits(..).0.any()`, but a block
@@ -80,51 +90,47 @@ impl QuadBlock {
     /// ray inside a room crosses none of its walls' planes, so this is the common case there.
     #[inline]
     fn blocks(&self, r: &RayX4, t_max: f32) -> bool {
-        let t = self.plane_t(&r.o, &r.d);
-        let crossed = in_range(t, t_max);
-        crossed.any() && (crossed & self.within_edges(&r.o, &r.d, t)).any()
+        let t = self.lanes.plane_t(&r.o, &r.d);
+        let crossed = in_range(t, F::splat(t_max));
+        crossed.any() && (crossed & self.lanes.within_edges(&r.o, &r.d, t)).any()
     }
+}
 
+impl<const N: usize> QuadBlock<N> {
     /// Each lane's ray parameter at its quad's plane, for the ray (`o`, `d`) in lanes (one ray
     /// splatted, or a ray per lane).
-    #[inline]
-    fn plane_t(&self, o: &[Vec4; 3], d: &[Vec4; 3]) -> Vec4 {
+    #[inline(always)]
+    fn plane_t(&self, o: &V3<N>, d: &V3<N>) -> F<N> {
         let to_p0 = [self.p0[0] - o[0], self.p0[1] - o[1], self.p0[2] - o[2]];
-        dot4(&self.n, to_p0) / dot4(&self.n, *d)
+        dot(&self.n, &to_p0) / dot(&self.n, d)
     }
 
     /// Lanes whose plane point at `t` lies inside their quad's edges.
-    #[inline]
-    fn within_edges(&self, o: &[Vec4; 3], d: &[Vec4; 3], t: Vec4) -> BVec4A {
+    #[inline(always)]
+    fn within_edges(&self, o: &V3<N>, d: &V3<N>, t: F<N>) -> M<N> {
         let q = [
             (o[0] + d[0] * t) - self.p0[0],
             (o[1] + d[1] * t) - self.p0[1],
             (o[2] + d[2] * t) - self.p0[2],
         ];
-        let (u, v) = (dot4(&self.a1, q), dot4(&self.a2, q));
-        let (zero, one) = (Vec4::ZERO, Vec4::ONE);
+        let (u, v) = (dot(&self.a1, &q), dot(&self.a2, &q));
+        let (zero, one) = (F::ZERO, F::ONE);
         u.cmpge(zero) & u.cmple(one) & v.cmpge(zero) & v.cmple(one)
     }
 }
 
-/// Four dot products, one per lane, summed as (x + y) + z like the scalar test's.
-#[inline]
-fn dot4(a: &[Vec4; 3], b: [Vec4; 3]) -> Vec4 {
-    (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
-}
-
 /// Lanes with t in (0, t_max); NaN (a padded lane, or a ray in a quad's plane) is in none.
-#[inline]
-fn in_range(t: Vec4, t_max: f32) -> BVec4A {
-    t.cmpgt(Vec4::ZERO) & t.cmplt(Vec4::splat(t_max))
+#[inline(always)]
+fn in_range<const N: usize>(t: F<N>, t_max: F<N>) -> M<N> {
+    t.cmpgt(F::ZERO) & t.cmplt(t_max)
 }
 
 /// A ray's components splatted across four lanes, made once per query, with what the bounding
 /// box test of the other primitives needs.
 #[derive(Clone, Copy, Debug)]
 pub struct RayX4 {
-    o: [Vec4; 3],
-    d: [Vec4; 3],
+    o: V3<4>,
+    d: V3<4>,
     origin: Vec3A,
     inv_d: Vec3A,
 }
@@ -134,8 +140,8 @@ impl RayX4 {
     #[inline]
     pub fn new(ray: &Ray) -> Self {
         Self {
-            o: [ray.o.xxxx(), ray.o.yyyy(), ray.o.zzzz()],
-            d: [ray.d.xxxx(), ray.d.yyyy(), ray.d.zzzz()],
+            o: splat3(ray.o),
+            d: splat3(ray.d),
             origin: ray.o,
             inv_d: ray.d.recip(),
         }
@@ -143,7 +149,7 @@ impl RayX4 {
 }
 
 /// A leaf's quad blocks, and its other primitives with their bounds.
-type LeafParts<'a> = (&'a [QuadBlock], &'a [(u32, Aabb)]);
+type LeafParts<'a> = (&'a [Quads4], &'a [(u32, Aabb)]);
 
 /// Where one leaf's primitives are.
 #[derive(Clone, Debug, Default)]
@@ -156,7 +162,7 @@ struct LeafRef {
 #[derive(Clone, Debug, Default)]
 pub struct Leaves {
     by_first: Vec<LeafRef>,
-    blocks: Vec<QuadBlock>,
+    blocks: Vec<Quads4>,
     /// Each other primitive with its world bounds: a rotated box's exact test costs several
     /// times a bounding-box test, and most rays in a room pass its boxes by.
     others: Vec<(u32, Aabb)>,
@@ -164,8 +170,8 @@ pub struct Leaves {
     /// `blocks` and `others` without looking its leaf up, which saved 2.5% of a Cornell box
     /// sample's instructions (docs/renderer.md).
     single: bool,
-    /// For a one-leaf BVH, each quad of `blocks` splatted across four lanes, in the blocks'
-    /// order: what [`Leaves::closest4`] tests four rays against.
+    /// For a one-leaf BVH, each quad of `blocks` splatted across lanes, in the blocks' order:
+    /// what [`Leaves::closest_lanes`] tests a packet of rays against.
     splat: Vec<SplatQuad>,
 }
 
@@ -194,7 +200,7 @@ impl Leaves {
                 }
             }
             let blocks_start = out.blocks.len() as u32;
-            out.blocks.extend(quads.chunks(4).map(QuadBlock::new));
+            out.blocks.extend(quads.chunks(4).map(Quads4::new));
             out.by_first[first] = LeafRef {
                 blocks: blocks_start..out.blocks.len() as u32,
                 others: others_start..out.others.len() as u32,
@@ -202,7 +208,7 @@ impl Leaves {
         }
         out.single = count == 1;
         if out.single {
-            out.splat = out.blocks.iter().flat_map(QuadBlock::splat).collect();
+            out.splat = out.blocks.iter().flat_map(Quads4::splat).collect();
         }
         out
     }
@@ -224,7 +230,7 @@ impl Leaves {
         for b in blocks {
             let (mask, t) = b.hits(ray, t_max);
             if mask.any() {
-                let ts = Vec4::select(mask, t, Vec4::INFINITY);
+                let ts = Vec4::from_array(F::select(mask, t, F::INFINITY).0);
                 let t_min = ts.min_element();
                 let lane = ts.cmpeq(Vec4::splat(t_min)).bitmask().trailing_zeros() as usize;
                 t_max = t_min;
@@ -278,67 +284,78 @@ impl Leaves {
     }
 }
 
-/// One quad in every lane, to be tested against four rays at once.
+/// How many lanes a packet query takes at most (its answers' lanes are bits of a `u32`).
+pub const MAX_LANES: usize = 16;
+
+/// One quad, to be splatted across the lanes and tested against a packet of rays at once.
 #[derive(Clone, Debug)]
 struct SplatQuad {
-    /// The quad in all four lanes.
-    lanes: QuadBlock,
+    p0: Vec3A,
+    n: Vec3A,
+    a1: Vec3A,
+    a2: Vec3A,
     prim: u32,
 }
 
 impl SplatQuad {
     /// Each ray's t at the quad's plane, and the rays that meet the quad with t in (0, t_max):
-    /// [`QuadBlock::hits`]'s arithmetic with the lanes turned around, so each lane's t and
-    /// answer are the scalar test's.
-    #[inline]
-    fn hits(&self, r: &Rays4, t_max: Vec4) -> (BVec4A, Vec4) {
-        let t = self.lanes.plane_t(&r.o, &r.d);
-        let crossed = t.cmpgt(Vec4::ZERO) & t.cmplt(t_max);
+    /// [`Quads4::hits`]'s arithmetic with the lanes turned around, so each lane's t and answer
+    /// are the scalar test's.
+    #[inline(always)]
+    fn hits<const N: usize>(&self, r: &Rays<N>, t_max: F<N>) -> (M<N>, F<N>) {
+        let q = QuadBlock::<N> {
+            p0: splat3(self.p0),
+            n: splat3(self.n),
+            a1: splat3(self.a1),
+            a2: splat3(self.a2),
+        };
+        let t = q.plane_t(&r.o, &r.d);
+        let crossed = in_range(t, t_max);
         if !crossed.any() {
             return (crossed, t);
         }
-        (crossed & self.lanes.within_edges(&r.o, &r.d, t), t)
+        (crossed & q.within_edges(&r.o, &r.d, t), t)
     }
 }
 
-/// Four rays in structure-of-arrays lanes.
+/// `N` rays in structure-of-arrays lanes.
 #[derive(Clone, Copy, Debug)]
-pub struct Rays4 {
-    o: [Vec4; 3],
-    d: [Vec4; 3],
-    inv_d: [Vec4; 3],
+pub struct Rays<const N: usize> {
+    o: V3<N>,
+    d: V3<N>,
+    inv_d: V3<N>,
 }
 
-impl Rays4 {
+impl<const N: usize> Rays<N> {
     /// Rays whose origins and directions are already in lanes.
-    #[inline]
-    pub fn from_lanes(o: [Vec4; 3], d: [Vec4; 3]) -> Self {
+    #[inline(always)]
+    pub fn from_lanes(o: V3<N>, d: V3<N>) -> Self {
         Self {
             o,
             d,
-            inv_d: d.map(Vec4::recip),
+            inv_d: d.map(F::recip),
         }
     }
 
     /// The lanes whose rays meet `b`, with t_max per lane: [`Aabb::hit`]'s answer for each,
     /// computed the way its guarded branch does (an axis whose slab distance is NaN is
     /// unconstrained), which is the answer of its fast branch wherever there is no NaN.
-    #[inline]
-    fn hit_box(&self, b: &Aabb, t_max: Vec4) -> BVec4A {
-        let mut near = Vec4::NEG_INFINITY;
-        let mut far = Vec4::INFINITY;
+    #[inline(always)]
+    fn hit_box(&self, b: &Aabb, t_max: F<N>) -> M<N> {
+        let mut near = F::NEG_INFINITY;
+        let mut far = F::INFINITY;
         for axis in 0..3 {
-            let t0 = (Vec4::splat(b.min[axis]) - self.o[axis]) * self.inv_d[axis];
-            let t1 = (Vec4::splat(b.max[axis]) - self.o[axis]) * self.inv_d[axis];
+            let t0 = (F::splat(b.min[axis]) - self.o[axis]) * self.inv_d[axis];
+            let t1 = (F::splat(b.max[axis]) - self.o[axis]) * self.inv_d[axis];
             let nan = t0.is_nan_mask() | t1.is_nan_mask();
-            near = near.max(Vec4::select(nan, Vec4::NEG_INFINITY, t0.min(t1)));
-            far = far.min(Vec4::select(
+            near = near.max(F::select(nan, F::NEG_INFINITY, t0.min(t1)));
+            far = far.min(F::select(
                 nan,
-                Vec4::INFINITY,
+                F::INFINITY,
                 t0.max(t1) * crate::math::FAR_INFLATION,
             ));
         }
-        near.max(Vec4::ZERO).cmple(far.min(t_max))
+        near.max(F::ZERO).cmple(far.min(t_max))
     }
 }
 
@@ -348,37 +365,39 @@ impl Leaves {
         self.single
     }
 
-    /// [`Leaves::closest`] for four rays at once, for a one-leaf BVH (`None` otherwise, and the
-    /// caller asks ray by ray): each active lane (bit of `active`) gets the closest hit with t
-    /// in (0, ∞) as (t, primitive, part), the same as [`Leaves::closest`] gives its ray,
-    /// ties included. `other(lane, p, t_max)` tests lane's ray against other primitive `p`.
-    #[inline]
-    pub fn closest4(
+    /// [`Leaves::closest`] for `N` rays at once (`N` at most [`MAX_LANES`]), for a one-leaf
+    /// BVH (`None` otherwise, and the caller asks ray by ray): each active lane (bit of
+    /// `active`) gets the closest hit with t in (0, ∞) as (t, primitive, part), the same as
+    /// [`Leaves::closest`] gives its ray, ties included. `other(lane, p, t_max)` tests lane's
+    /// ray against other primitive `p`.
+    #[inline(always)]
+    pub fn closest_lanes<const N: usize>(
         &self,
-        r: &Rays4,
+        r: &Rays<N>,
         active: u32,
         mut other: impl FnMut(usize, u32, f32) -> Option<(f32, u32)>,
-    ) -> Option<[Option<(f32, u32, u32)>; 4]> {
+    ) -> Option<[Option<(f32, u32, u32)>; N]> {
+        const { assert!(N <= MAX_LANES) };
         if !self.single {
             return None;
         }
-        let mut best_t = Vec4::INFINITY;
+        let mut best_t = F::INFINITY;
         // Primitive indices travel as float bits, which a select copies unchanged.
-        let mut best_prim = Vec4::splat(f32::from_bits(u32::MAX));
+        let mut best_prim = F::splat(f32::from_bits(u32::MAX));
         for q in &self.splat {
             let (mask, t) = q.hits(r, best_t);
             // A strict t < best keeps the earlier quad on a tie, as the blocks' test does.
-            best_t = Vec4::select(mask, t, best_t);
-            best_prim = Vec4::select(mask, Vec4::splat(f32::from_bits(q.prim)), best_prim);
+            best_t = F::select(mask, t, best_t);
+            best_prim = F::select(mask, F::splat(f32::from_bits(q.prim)), best_prim);
         }
-        let mut t = best_t.to_array();
-        let mut best: [Option<(f32, u32, u32)>; 4] = [0, 1, 2, 3].map(|lane| {
-            let prim = best_prim[lane].to_bits();
+        let mut t = best_t.0;
+        let mut best: [Option<(f32, u32, u32)>; N] = std::array::from_fn(|lane| {
+            let prim = best_prim.0[lane].to_bits();
             (prim != u32::MAX).then_some((t[lane], prim, 0))
         });
         for (p, b) in &self.others {
-            let lanes = r.hit_box(b, Vec4::from_array(t)).bitmask() & active;
-            for lane in (0..4).filter(|lane| lanes >> lane & 1 == 1) {
+            let lanes = r.hit_box(b, F(t)).bits() & active;
+            for lane in (0..N).filter(|lane| lanes >> lane & 1 == 1) {
                 if let Some((tp, part)) = other(lane, *p, t[lane]) {
                     t[lane] = tp;
                     best[lane] = Some((tp, *p, part));
@@ -388,13 +407,13 @@ impl Leaves {
         Some(best)
     }
 
-    /// [`Leaves::any`] for four rays at once, for a one-leaf BVH (`None` otherwise): the
+    /// [`Leaves::any`] for `N` rays at once, for a one-leaf BVH (`None` otherwise): the
     /// active lanes (bits of `active`) whose rays something blocks in (0, t_max), as bits.
     /// `other(lane, p)` tests lane's ray against other primitive `p`.
-    #[inline]
-    pub fn any4(
+    #[inline(always)]
+    pub fn any_lanes<const N: usize>(
         &self,
-        r: &Rays4,
+        r: &Rays<N>,
         active: u32,
         t_max: f32,
         mut other: impl FnMut(usize, u32) -> bool,
@@ -402,17 +421,17 @@ impl Leaves {
         if !self.single {
             return None;
         }
-        let t_max4 = Vec4::splat(t_max);
+        let t_max_n = F::splat(t_max);
         let mut blocked = 0;
         for q in &self.splat {
-            blocked |= q.hits(r, t_max4).0.bitmask() & active;
+            blocked |= q.hits(r, t_max_n).0.bits() & active;
             if blocked == active {
                 return Some(blocked);
             }
         }
         for (p, b) in &self.others {
-            let lanes = r.hit_box(b, t_max4).bitmask() & active & !blocked;
-            for lane in (0..4).filter(|lane| lanes >> lane & 1 == 1) {
+            let lanes = r.hit_box(b, t_max_n).bits() & active & !blocked;
+            for lane in (0..N).filter(|lane| lanes >> lane & 1 == 1) {
                 if other(lane, *p) {
                     blocked |= 1 << lane;
                 }
@@ -447,7 +466,7 @@ mod tests {
             )])
             .collect();
         let indexed: Vec<(u32, &Parallelogram)> = (0..).zip(&quads).collect();
-        let block = QuadBlock::new(&indexed);
+        let block = Quads4::new(&indexed);
         // Rays aimed at points in and just around each quad, so that hits, misses by a little
         // and edge cases all occur.
         let mut rays: Vec<Ray> = (0..20_000)
@@ -475,10 +494,10 @@ mod tests {
                 assert_eq!(block.blocks(&r4, t_max), mask.any(), "{ray:?}");
                 for (lane, q) in quads.iter().enumerate() {
                     let scalar = q.intersect(ray, t_max);
-                    let lane_hit = mask.bitmask() >> lane & 1 == 1;
+                    let lane_hit = mask.bits() >> lane & 1 == 1;
                     assert_eq!(scalar.is_some(), lane_hit, "{ray:?} quad {lane}");
                     if let Some(ts) = scalar {
-                        assert_eq!(ts.to_bits(), t[lane].to_bits());
+                        assert_eq!(ts.to_bits(), t.0[lane].to_bits());
                         hits += 1;
                     }
                 }
@@ -536,9 +555,9 @@ mod tests {
     #[test]
     fn empty_lanes_never_hit() {
         let q = Parallelogram::new(Vec3A::ZERO, Vec3A::X, Vec3A::Y, Vec3A::Z);
-        let block = QuadBlock::new(&[(0, &q)]);
+        let block = Quads4::new(&[(0, &q)]);
         let ray = Ray::new(Vec3A::new(0.0, 0.0, 1.0), -Vec3A::Z);
         let (mask, _) = block.hits(&RayX4::new(&ray), f32::INFINITY);
-        assert_eq!(mask.bitmask(), 1);
+        assert_eq!(mask.bits(), 1);
     }
 }

@@ -13,8 +13,8 @@
 //! Modules follow pbrt's split: [`math`] and [`shape`] (geometry and intersection), [`bvh`]
 //! and [`leaf`] (its leaves, quads four at a time), [`sampling`] (sample generation and warps),
 //! [`light`], [`camera`], [`scene`] (file format, validation, runtime scene), [`integrator`],
-//! [`wide`] (the integrator four paths at a time, for the scenes whose bounce it models, with
-//! the same bits), [`tile`] (partial sums) and [`output`] (EXR, PNG).
+//! [`lanes`] (f32 SIMD lanes of any width) and [`wide`] (the integrator four or eight paths at
+//! a time, for the scenes whose bounce it models, with the same bits), [`tile`] (partial sums) and [`output`] (EXR, PNG).
 //!
 //! ```no_run
 //! use tessera_render::{scene::{Limits, Scene}, RenderSettings, render_frame};
@@ -27,6 +27,7 @@
 pub mod bvh;
 pub mod camera;
 pub mod integrator;
+pub mod lanes;
 pub mod leaf;
 pub mod light;
 pub mod math;

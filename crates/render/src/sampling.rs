@@ -257,9 +257,9 @@ pub fn sin_cos_octant(x: f32) -> (f32, f32) {
 }
 
 /// [`sin_cos_octant`]'s polynomials for a number or for SIMD lanes, each lane by the same
-/// operations in the same order, so the four-lane tracer's sines and cosines are the scalar
+/// operations in the same order, so the many-path tracer's sines and cosines are the scalar
 /// ones, bit for bit.
-#[inline]
+#[inline(always)]
 pub(crate) fn sin_cos_polynomials<T>(x: T) -> (T, T)
 where
     T: Copy + std::ops::Mul<Output = T> + std::ops::Mul<f32, Output = T>,

@@ -339,9 +339,9 @@ impl BatchSums {
     }
 }
 
-/// How many samples of a pixel the four-lane tracer takes at a time: their values are kept
-/// until all are done, to be summed in index order.
-const STREAM_CHUNK: u32 = 1024;
+/// How many samples the many-path tracer takes at a time (from one pixel or from several of a
+/// row): their values are kept until all are done, to be summed in index order.
+const STREAM_CHUNK: u32 = 2048;
 
 /// Renders `rect` for sample indices `samples` (parallel over rows with rayon).
 pub fn render_tile(
@@ -354,13 +354,20 @@ pub fn render_tile(
     out.samples = samples.clone();
     let w = rect.width as usize;
     let batch = settings.batch.max(1);
-    // Scenes whose bounce the four-lane tracer models take it: the same bits, about 1.2x the
-    // samples a second in the Cornell box (docs/renderer.md). `TESSERA_SCALAR` forces one path
-    // at a time, for timing the two against each other; it cannot change a bit of the output.
+    // Scenes whose bounce the many-path tracer models take it: the same bits, about 1.3x the
+    // scalar trace's samples a second in the Cornell box (docs/renderer.md). `TESSERA_SCALAR`
+    // forces one path at a time and `TESSERA_LANES` (4, 8 or 16) the lane count, for timing them
+    // against each other; neither can change a bit of the output.
     let wide = if std::env::var_os("TESSERA_SCALAR").is_some() {
         None
     } else {
-        crate::wide::Wide::new(scene, settings)
+        let lanes = std::env::var("TESSERA_LANES")
+            .ok()
+            .and_then(|v| v.parse().ok());
+        crate::wide::Wide::new(scene, settings).and_then(|w| match lanes {
+            Some(n) => w.with_lanes(n),
+            None => Some(w),
+        })
     };
     let nonfinite: u64 = out
         .sum
@@ -371,7 +378,9 @@ pub fn render_tile(
         .map(|(row, ((sum, sum_sq), count))| {
             let y = rect.y0 + row as u32;
             let mut bad = 0u64;
-            let mut values = Vec::new();
+            if let Some(wide) = &wide {
+                return wide_row(wide, settings, (rect.x0, y), &samples, sum, sum_sq, count);
+            }
             for (col, ((s, sq), k)) in sum
                 .iter_mut()
                 .zip(sum_sq.iter_mut())
@@ -380,23 +389,6 @@ pub fn render_tile(
             {
                 let x = rect.x0 + col as u32;
                 let mut sampler = PixelSampler::new(settings.seed, x, y, samples.start);
-                if let Some(wide) = &wide {
-                    let mut b = BatchSums::default();
-                    let mut start = samples.start;
-                    while start < samples.end {
-                        let end = start.saturating_add(STREAM_CHUNK).min(samples.end);
-                        wide.sample_pixel(x, y, &sampler, start..end, &mut values);
-                        for (index, v) in (start..end).zip(&values) {
-                            b.add(*v);
-                            // Batches end at multiples of `batch` and at the end of the range.
-                            if (index + 1) % batch == 0 || index + 1 == samples.end {
-                                b.flush_into(s, sq, k, &mut bad);
-                            }
-                        }
-                        start = end;
-                    }
-                    continue;
-                }
                 let mut i = samples.start;
                 while i < samples.end {
                     let end = ((i / batch).saturating_add(1))
@@ -416,6 +408,63 @@ pub fn render_tile(
         .sum();
     out.nonfinite = nonfinite;
     out
+}
+
+/// One row of a tile through the many-path tracer: the row's pixels and samples cut into runs
+/// of at most [`STREAM_CHUNK`] samples in all, so that the lanes go on from one pixel to the
+/// next, and each value folded into its pixel's sums in index order, batch by batch. Returns
+/// the non-finite samples.
+fn wide_row(
+    wide: &crate::wide::Wide<'_>,
+    settings: &RenderSettings,
+    (x0, y): (u32, u32),
+    samples: &Range<u32>,
+    sum: &mut [[f64; 3]],
+    sum_sq: &mut [[f64; 3]],
+    count: &mut [u32],
+) -> u64 {
+    let batch = settings.batch.max(1);
+    let mut bad = 0u64;
+    let mut runs = Vec::new();
+    let mut cols = Vec::new();
+    let mut values = Vec::new();
+    let mut b = BatchSums::default();
+    let (mut col, mut start) = (0, samples.start);
+    while col < sum.len() {
+        runs.clear();
+        cols.clear();
+        let mut room = STREAM_CHUNK;
+        while col < sum.len() && room > 0 {
+            let x = x0 + col as u32;
+            let end = start.saturating_add(room).min(samples.end);
+            runs.push(crate::wide::PixelRun {
+                x,
+                y,
+                sampler: PixelSampler::new(settings.seed, x, y, start),
+                samples: start..end,
+            });
+            cols.push(col);
+            room -= end - start;
+            if end == samples.end {
+                col += 1;
+                start = samples.start;
+            } else {
+                start = end;
+            }
+        }
+        wide.trace(&runs, &mut values);
+        let mut v = values.iter();
+        for (run, &c) in runs.iter().zip(&cols) {
+            for (index, value) in run.samples.clone().zip(&mut v) {
+                b.add(*value);
+                // Batches end at multiples of `batch` and at the end of the range.
+                if (index + 1) % batch == 0 || index + 1 == samples.end {
+                    b.flush_into(&mut sum[c], &mut sum_sq[c], &mut count[c], &mut bad);
+                }
+            }
+        }
+    }
+    bad
 }
 
 /// Assembles a `width` × `height` frame from tiles that each cover samples `0..spp` and

@@ -1,135 +1,141 @@
-//! Four paths at a time, the whole bounce in SIMD lanes, for the scenes whose bounce is the
+//! Many paths at a time, the whole bounce in SIMD lanes, for the scenes whose bounce is the
 //! same few operations everywhere: diffuse surfaces, one parallelogram light, one BVH leaf
 //! (the Cornell box). Every lane does exactly the scalar trace's arithmetic on its own numbers
-//! (no fused multiply-add, no sums across lanes), so a sample's value is
-//! [`crate::integrator::sample_pixel`]'s, bit for bit, whichever lane it runs in; the pinned
-//! render hashes test that. A lane whose path ends takes the pixel's next sample.
+//! (no fused multiply-add, no sums across lanes; see [`crate::lanes`]), so a sample's value is
+//! [`crate::integrator::sample_pixel`]'s, bit for bit, whichever lane it runs in and however
+//! many lanes there are; the pinned render hashes test that. A lane whose path ends takes the
+//! next sample of the run, which goes on from one pixel to the next, so the lanes stay busy.
+//!
+//! Eight lanes by default: two SSE registers per number, whose independent work keeps more of
+//! the core busy than one does (about 1.1x the samples a second of four lanes on the Cornell box,
+//! docs/renderer.md); sixteen lanes measured slower than eight.
 
-use glam::{BVec4A, Vec3A, Vec4};
+use std::ops::Range;
+
+use glam::Vec3A;
 
 use crate::integrator::{RenderSettings, Strategy};
-use crate::leaf::Rays4;
+use crate::lanes::{dot, splat3, F, M, V3};
+use crate::leaf::Rays;
 use crate::light::LightShape;
 use crate::math::{gamma, Ray};
 use crate::sampling::{power_heuristic, sin_cos_polynomials, PixelSampler};
 use crate::scene::{Bsdf, Scene};
 use crate::shape::Parallelogram;
 
-type V3 = [Vec4; 3];
-
-/// What a light sample needs of the scene's one light, splatted across the lanes.
+/// The many-path tracer for one scene and its settings.
 pub struct Wide<'a> {
     scene: &'a Scene,
     settings: &'a RenderSettings,
-    p0: V3,
-    e1: V3,
-    e2: V3,
-    normal: V3,
-    area: Vec4,
-    pmf: Vec4,
-    radiance: V3,
+    light: Parallelogram,
+    pmf: f32,
+    radiance: Vec3A,
     two_sided: bool,
     emits: bool,
+    lanes: usize,
 }
 
-fn splat3(v: Vec3A) -> V3 {
-    [Vec4::splat(v.x), Vec4::splat(v.y), Vec4::splat(v.z)]
+/// Samples `samples` of pixel (`x`, `y`), for [`Wide::trace`]; `sampler` is the pixel's
+/// sampler at any sample index.
+#[derive(Clone, Debug)]
+pub struct PixelRun {
+    /// Column.
+    pub x: u32,
+    /// Row.
+    pub y: u32,
+    /// The pixel's sampler.
+    pub sampler: PixelSampler,
+    /// The sample indices.
+    pub samples: Range<u32>,
 }
 
-#[inline]
-fn dot(a: &V3, b: &V3) -> Vec4 {
-    (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
+/// What a light sample needs of the scene's one light, splatted across the lanes.
+struct LightLanes<const N: usize> {
+    p0: V3<N>,
+    e1: V3<N>,
+    e2: V3<N>,
+    normal: V3<N>,
+    area: F<N>,
+    pmf: F<N>,
+    radiance: V3<N>,
 }
 
 /// [`crate::math::offset_ray_origin`], lane by lane.
-#[inline]
-fn offset4(p: &V3, err: &V3, n: &V3) -> V3 {
+#[inline(always)]
+fn offset<const N: usize>(p: &V3<N>, err: &V3<N>, n: &V3<N>) -> V3<N> {
     let d = (n[0].abs() * err[0] + n[1].abs() * err[1]) + n[2].abs() * err[2];
     std::array::from_fn(|c| {
         let po = p[c] + n[c] * d;
-        let step = po.abs() * f32::EPSILON + Vec4::splat(f32::from_bits(1));
-        let side = Vec4::select(n[c].cmpeq(Vec4::ZERO), Vec4::ZERO, Vec4::ONE.copysign(n[c]));
+        let step = po.abs() * f32::EPSILON + F::splat(f32::from_bits(1));
+        let side = F::select(n[c].cmpeq(F::ZERO), F::ZERO, F::ONE.copysign(n[c]));
         po + side * step
     })
 }
 
 /// [`crate::sampling::square_to_cosine_hemisphere`], lane by lane.
-#[inline]
-fn cosine_hemisphere4(u0: Vec4, u1: Vec4) -> V3 {
-    let ax = 2.0 * u0 - Vec4::ONE;
-    let ay = 2.0 * u1 - Vec4::ONE;
-    let origin = ax.cmpeq(Vec4::ZERO) & ay.cmpeq(Vec4::ZERO);
+#[inline(always)]
+fn cosine_hemisphere<const N: usize>(u0: F<N>, u1: F<N>) -> V3<N> {
+    let ax = 2.0 * u0 - F::ONE;
+    let ay = 2.0 * u1 - F::ONE;
+    let origin = ax.cmpeq(F::ZERO) & ay.cmpeq(F::ZERO);
     let x_major = ax.abs().cmpgt(ay.abs());
-    let num = Vec4::select(x_major, ay, ax);
-    let den = Vec4::select(x_major, ax, ay);
+    let num = F::select(x_major, ay, ax);
+    let den = F::select(x_major, ax, ay);
     let (s, c) = sin_cos_polynomials(std::f32::consts::FRAC_PI_4 * (num / den));
-    let dx = Vec4::select(origin, Vec4::ZERO, den * Vec4::select(x_major, c, s));
-    let dy = Vec4::select(origin, Vec4::ZERO, den * Vec4::select(x_major, s, c));
-    let z = sqrt4((1.0 - (dx * dx + dy * dy)).max(Vec4::ZERO));
+    let dx = F::select(origin, F::ZERO, den * F::select(x_major, c, s));
+    let dy = F::select(origin, F::ZERO, den * F::select(x_major, s, c));
+    let z = (1.0 - (dx * dx + dy * dy)).max(F::ZERO).sqrt();
     [dx, dy, z]
 }
 
 /// [`crate::sampling::power_heuristic`], lane by lane.
-#[inline]
-fn power_heuristic4(f: Vec4, g: Vec4) -> Vec4 {
+#[inline(always)]
+fn power_heuristic_lanes<const N: usize>(f: F<N>, g: F<N>) -> F<N> {
     let (f2, g2) = (f * f, g * g);
     let sum = f2 + g2;
-    let w = Vec4::select(sum.cmpeq(Vec4::ZERO), Vec4::ZERO, f2 / sum);
-    Vec4::select(f2.abs().cmpeq(Vec4::INFINITY), Vec4::ONE, w)
-}
-
-/// Square roots, lane by lane (IEEE, correctly rounded: the scalar `sqrt`'s bits).
-#[inline]
-fn sqrt4(v: Vec4) -> Vec4 {
-    Vec4::from_array(v.to_array().map(f32::sqrt))
+    let w = F::select(sum.cmpeq(F::ZERO), F::ZERO, f2 / sum);
+    F::select(f2.abs().cmpeq(F::INFINITY), F::ONE, w)
 }
 
 /// Lane `lane` of three lanes as a vector.
-#[inline]
-fn lane3(v: &[[f32; 4]; 3], lane: usize) -> Vec3A {
+#[inline(always)]
+fn lane3<const N: usize>(v: &[[f32; N]; 3], lane: usize) -> Vec3A {
     Vec3A::new(v[0][lane], v[1][lane], v[2][lane])
 }
 
-#[inline]
-fn set3(v: &mut [[f32; 4]; 3], lane: usize, x: Vec3A) {
+#[inline(always)]
+fn set3<const N: usize>(v: &mut [[f32; N]; 3], lane: usize, x: Vec3A) {
     for c in 0..3 {
         v[c][lane] = x[c];
     }
 }
 
-#[inline]
-fn load3(v: &[[f32; 4]; 3]) -> V3 {
-    v.map(Vec4::from_array)
-}
-
-#[inline]
-fn bits(m: BVec4A) -> u32 {
-    m.bitmask()
-}
-
-/// The lanes whose bits are set in `bits`, as a mask.
-#[inline]
-fn lanes_of(bits: u32) -> BVec4A {
-    BVec4A::new(bits & 1 != 0, bits & 2 != 0, bits & 4 != 0, bits & 8 != 0)
+#[inline(always)]
+fn load3<const N: usize>(v: &[[f32; N]; 3]) -> V3<N> {
+    v.map(F)
 }
 
 /// The paths in the lanes, between bounces.
-struct Lanes {
-    o: [[f32; 4]; 3],
-    d: [[f32; 4]; 3],
-    beta: [[f32; 4]; 3],
-    l: [[f32; 4]; 3],
-    prev_pdf: [f32; 4],
-    prev_p: [[f32; 4]; 3],
-    light_uv: [[f32; 4]; 2],
-    depth: [u32; 4],
-    slot: [usize; 4],
-    sampler: [PixelSampler; 4],
+struct Lanes<const N: usize> {
+    o: [[f32; N]; 3],
+    d: [[f32; N]; 3],
+    beta: [[f32; N]; 3],
+    l: [[f32; N]; 3],
+    prev_pdf: [f32; N],
+    prev_p: [[f32; N]; 3],
+    light_uv: [[f32; N]; 2],
+    depth: [u32; N],
+    /// Where the lane's value goes in the output.
+    slot: [usize; N],
+    /// Which run the lane's sampler belongs to.
+    run: [usize; N],
+    sampler: [PixelSampler; N],
     active: u32,
 }
 
 impl<'a> Wide<'a> {
-    /// The four-lane tracer for `scene`, if its bounce is one this module models.
+    /// The many-path tracer for `scene`, if its bounce is one this module models, eight paths
+    /// at a time.
     pub fn new(scene: &'a Scene, settings: &'a RenderSettings) -> Option<Self> {
         let diffuse = scene
             .materials
@@ -149,29 +155,31 @@ impl<'a> Wide<'a> {
         {
             return None;
         }
-        let Parallelogram {
-            p0,
-            e1,
-            e2,
-            normal,
-            area,
-            ..
-        } = *q;
-        // The one light's selection probability, as `Lights::sample` multiplies it in.
-        let pmf = scene.lights.pdf_scale();
         Some(Self {
             scene,
             settings,
-            p0: splat3(p0),
-            e1: splat3(e1),
-            e2: splat3(e2),
-            normal: splat3(normal),
-            area: Vec4::splat(area),
-            pmf: Vec4::splat(pmf),
-            radiance: splat3(light.radiance),
+            light: q.clone(),
+            // The one light's selection probability, as `Lights::sample` multiplies it in.
+            pmf: scene.lights.pdf_scale(),
+            radiance: light.radiance,
             two_sided: light.two_sided,
             emits: light.radiance != Vec3A::ZERO,
+            lanes: 8,
         })
+    }
+
+    /// The same tracer with `lanes` lanes (4, 8 or 16; `None` for any other count). The values
+    /// are the same bits whatever the count.
+    pub fn with_lanes(mut self, lanes: usize) -> Option<Self> {
+        matches!(lanes, 4 | 8 | 16).then(|| {
+            self.lanes = lanes;
+            self
+        })
+    }
+
+    /// How many paths run at once.
+    pub fn lanes(&self) -> usize {
+        self.lanes
     }
 
     /// The values of samples `samples` of pixel (`x`, `y`), into `out` in index order.
@@ -180,36 +188,80 @@ impl<'a> Wide<'a> {
         x: u32,
         y: u32,
         sampler: &PixelSampler,
-        samples: std::ops::Range<u32>,
+        samples: Range<u32>,
         out: &mut Vec<Vec3A>,
     ) {
-        let scene = self.scene;
-        let settings = self.settings;
+        let run = PixelRun {
+            x,
+            y,
+            sampler: *sampler,
+            samples,
+        };
+        self.trace(std::slice::from_ref(&run), out);
+    }
+
+    /// The values of every run's samples, into `out`: run by run, each in index order.
+    pub fn trace(&self, runs: &[PixelRun], out: &mut Vec<Vec3A>) {
+        match self.lanes {
+            4 => self.trace_lanes::<4>(runs, out),
+            16 => self.trace_lanes::<16>(runs, out),
+            _ => self.trace_lanes::<8>(runs, out),
+        }
+    }
+
+    #[inline(always)]
+    fn trace_lanes<const N: usize>(&self, runs: &[PixelRun], out: &mut Vec<Vec3A>) {
         out.clear();
-        out.resize(samples.len(), Vec3A::ZERO);
-        let mut s = Lanes {
-            o: [[0.0; 4]; 3],
-            d: [[0.0; 4]; 3],
-            beta: [[0.0; 4]; 3],
-            l: [[0.0; 4]; 3],
-            prev_pdf: [0.0; 4],
-            prev_p: [[0.0; 4]; 3],
-            light_uv: [[0.0; 4]; 2],
-            depth: [0; 4],
-            slot: [0; 4],
-            sampler: [*sampler; 4],
+        out.resize(runs.iter().map(|r| r.samples.len()).sum(), Vec3A::ZERO);
+        let Some(first) = runs.first() else {
+            return;
+        };
+        let scene = self.scene;
+        let q = &self.light;
+        let light = LightLanes::<N> {
+            p0: splat3(q.p0),
+            e1: splat3(q.e1),
+            e2: splat3(q.e2),
+            normal: splat3(q.normal),
+            area: F::splat(q.area),
+            pmf: F::splat(self.pmf),
+            radiance: splat3(self.radiance),
+        };
+        let mut s = Lanes::<N> {
+            o: [[0.0; N]; 3],
+            d: [[0.0; N]; 3],
+            beta: [[0.0; N]; 3],
+            l: [[0.0; N]; 3],
+            prev_pdf: [0.0; N],
+            prev_p: [[0.0; N]; 3],
+            light_uv: [[0.0; N]; 2],
+            depth: [0; N],
+            slot: [0; N],
+            run: [0; N],
+            sampler: [first.sampler; N],
             active: 0,
         };
-        let mut next = samples.start;
+        let (mut run, mut next, mut slot) = (0, first.samples.start, 0);
         loop {
-            for lane in 0..4 {
-                if s.active >> lane & 1 == 1 || next == samples.end {
+            for lane in 0..N {
+                if s.active >> lane & 1 == 1 {
                     continue;
                 }
+                while run < runs.len() && next >= runs[run].samples.end {
+                    run += 1;
+                    next = runs.get(run).map_or(0, |r| r.samples.start);
+                }
+                let Some(r) = runs.get(run) else {
+                    break;
+                };
                 let sm = &mut s.sampler[lane];
+                if s.run[lane] != run {
+                    *sm = r.sampler;
+                    s.run[lane] = run;
+                }
                 sm.set_index(next);
                 let [jx, jy, lx, ly] = sm.get4(0);
-                let ray = scene.camera.ray(x as f32 + jx, y as f32 + jy);
+                let ray = scene.camera.ray(r.x as f32 + jx, r.y as f32 + jy);
                 set3(&mut s.o, lane, ray.o);
                 set3(&mut s.d, lane, ray.d);
                 set3(&mut s.beta, lane, Vec3A::ONE);
@@ -219,41 +271,40 @@ impl<'a> Wide<'a> {
                 s.light_uv[0][lane] = lx;
                 s.light_uv[1][lane] = ly;
                 s.depth[lane] = 0;
-                s.slot[lane] = (next - samples.start) as usize;
+                s.slot[lane] = slot;
                 s.active |= 1 << lane;
+                slot += 1;
                 next += 1;
             }
             if s.active == 0 {
                 return;
             }
-            self.bounce(&mut s, out, settings);
+            self.bounce(&mut s, &light, out);
         }
     }
 
     /// One bounce of every active lane: its closest hit, emission, light sample and next ray.
-    #[inline]
-    fn bounce(&self, s: &mut Lanes, out: &mut [Vec3A], settings: &RenderSettings) {
+    #[inline(always)]
+    fn bounce<const N: usize>(&self, s: &mut Lanes<N>, light: &LightLanes<N>, out: &mut [Vec3A]) {
         let scene = self.scene;
-        let rays: [Ray; 4] =
+        let settings = self.settings;
+        let rays: [Ray; N] =
             std::array::from_fn(|lane| Ray::new(lane3(&s.o, lane), lane3(&s.d, lane)));
-        let hits = scene.intersect4_lanes(
-            &Rays4::from_lanes(load3(&s.o), load3(&s.d)),
-            &rays,
-            s.active,
-        );
-        let mut p = [[0.0f32; 4]; 3];
-        let mut n = [[0.0f32; 4]; 3];
-        let mut err = [[0.0f32; 4]; 3];
-        let mut albedo = [[0.0f32; 4]; 3];
-        let mut u = [[0.0f32; 4]; 5];
+        let hits =
+            scene.intersect_lanes(&Rays::from_lanes(load3(&s.o), load3(&s.d)), &rays, s.active);
+        let mut p = [[0.0f32; N]; 3];
+        let mut n = [[0.0f32; N]; 3];
+        let mut err = [[0.0f32; N]; 3];
+        let mut albedo = [[0.0f32; N]; 3];
+        let mut u = [[0.0f32; N]; 5];
         let mut shade = 0u32;
-        for lane in 0..4 {
+        for lane in 0..N {
             if s.active >> lane & 1 == 0 {
                 continue;
             }
             let ray = &rays[lane];
             let Some(hit) = hits[lane] else {
-                self.finish(s, out, lane);
+                finish(s, out, lane);
                 continue;
             };
             let prim = &scene.prims[hit.prim as usize];
@@ -279,7 +330,7 @@ impl<'a> Wide<'a> {
             }
             let front = sp.n.dot(wo) >= 0.0;
             if !front && !mat.two_sided {
-                self.finish(s, out, lane);
+                finish(s, out, lane);
                 continue;
             }
             let nn = if front { sp.n } else { -sp.n };
@@ -310,76 +361,77 @@ impl<'a> Wide<'a> {
             return;
         }
         let (p, n, err, albedo) = (load3(&p), load3(&n), load3(&err), load3(&albedo));
-        let [u0, u1, lx, ly, u_rr] = u.map(Vec4::from_array);
-        let p_out = offset4(&p, &err, &n);
+        let [u0, u1, lx, ly, u_rr] = u.map(F);
+        let p_out = offset(&p, &err, &n);
 
         // Next-event estimation: `Lights::sample` for the one parallelogram light.
-        let x: V3 = std::array::from_fn(|c| (self.p0[c] + self.e1[c] * lx) + self.e2[c] * ly);
-        let d: V3 = std::array::from_fn(|c| x[c] - p[c]);
+        let x: V3<N> = std::array::from_fn(|c| (light.p0[c] + light.e1[c] * lx) + light.e2[c] * ly);
+        let d: V3<N> = std::array::from_fn(|c| x[c] - p[c]);
         let dist2 = dot(&d, &d);
-        let mut valid = dist2.cmpgt(Vec4::ZERO) & dist2.cmple(Vec4::splat(f32::MAX));
-        let len = sqrt4(dist2);
-        let wi: V3 = d.map(|dc| dc / len);
-        let cos_l = dot(&self.normal, &wi).abs();
-        valid &= cos_l.cmpne(Vec4::ZERO);
-        let pdf = (dist2 / (cos_l * self.area)) * self.pmf;
-        valid &= pdf.cmpgt(Vec4::ZERO) & pdf.cmple(Vec4::splat(f32::MAX));
-        let neg_wi: V3 = wi.map(|w| -w);
-        let n_dot = dot(&self.normal, &neg_wi);
-        let facing = n_dot.cmpgt(Vec4::ZERO);
+        let mut valid = dist2.cmpgt(F::ZERO) & dist2.cmple(F::splat(f32::MAX));
+        let len = dist2.sqrt();
+        let wi: V3<N> = d.map(|dc| dc / len);
+        let cos_l = dot(&light.normal, &wi).abs();
+        valid &= cos_l.cmpne(F::ZERO);
+        let pdf = (dist2 / (cos_l * light.area)) * light.pmf;
+        valid &= pdf.cmpgt(F::ZERO) & pdf.cmple(F::splat(f32::MAX));
+        let neg_wi: V3<N> = wi.map(|w| -w);
+        let n_dot = dot(&light.normal, &neg_wi);
+        let facing = n_dot.cmpgt(F::ZERO);
         let lit = if self.two_sided {
-            BVec4A::splat(self.emits)
+            M::splat(self.emits)
         } else {
-            facing & BVec4A::splat(self.emits)
+            facing & M::splat(self.emits)
         };
-        let towards_front = n_dot.cmpge(Vec4::ZERO);
-        let towards: V3 = self.normal.map(|nc| Vec4::select(towards_front, nc, -nc));
-        let x_err: V3 = std::array::from_fn(|c| {
-            (self.p0[c].abs() + (self.e1[c] * lx).abs() + (self.e2[c] * ly).abs()) * gamma(12)
-                + Vec4::splat(f32::MIN_POSITIVE)
+        let towards_front = n_dot.cmpge(F::ZERO);
+        let towards: V3<N> = light.normal.map(|nc| F::select(towards_front, nc, -nc));
+        let x_err: V3<N> = std::array::from_fn(|c| {
+            (light.p0[c].abs() + (light.e1[c] * lx).abs() + (light.e2[c] * ly).abs()) * gamma(12)
+                + F::splat(f32::MIN_POSITIVE)
         });
-        let lp = offset4(&x, &x_err, &towards);
+        let lp = offset(&x, &x_err, &towards);
         let cos = dot(&n, &wi);
-        let nee = bits(valid & lit & cos.cmpgt(Vec4::ZERO)) & shade;
+        let nee = (valid & lit & cos.cmpgt(F::ZERO)).bits() & shade;
         if nee != 0 {
-            let sd: V3 = std::array::from_fn(|c| lp[c] - p_out[c]);
-            let po = p_out.map(|v| v.to_array());
-            let sda = sd.map(|v| v.to_array());
-            let shadow: [Ray; 4] =
+            let sd: V3<N> = std::array::from_fn(|c| lp[c] - p_out[c]);
+            let po = p_out.map(|v| v.0);
+            let sda = sd.map(|v| v.0);
+            let shadow: [Ray; N] =
                 std::array::from_fn(|lane| Ray::new(lane3(&po, lane), lane3(&sda, lane)));
             let blocked =
-                scene.occluded4_lanes(&Rays4::from_lanes(p_out, sd), &shadow, nee, 1.0 - 1e-4);
+                scene.occluded_lanes(&Rays::from_lanes(p_out, sd), &shadow, nee, 1.0 - 1e-4);
             let add = nee & !blocked;
             if add != 0 {
-                let mask = lanes_of(add);
+                let mask = M::from_bits(add);
                 let bsdf_pdf = cos * std::f32::consts::FRAC_1_PI;
-                let w = power_heuristic4(pdf, bsdf_pdf);
+                let w = power_heuristic_lanes(pdf, bsdf_pdf);
                 let factor = (cos * std::f32::consts::FRAC_1_PI * w) / pdf;
-                let terms = s.beta.iter().zip(albedo.iter().zip(&self.radiance));
+                let terms = s.beta.iter().zip(albedo.iter().zip(&light.radiance));
                 for (l_c, (beta_c, (albedo_c, le_c))) in s.l.iter_mut().zip(terms) {
-                    let l = Vec4::from_array(*l_c);
-                    let c_add = Vec4::from_array(*beta_c) * *albedo_c * *le_c * factor;
-                    *l_c = Vec4::select(mask, l + c_add, l).to_array();
+                    let l = F(*l_c);
+                    let c_add = F(*beta_c) * *albedo_c * *le_c * factor;
+                    *l_c = F::select(mask, l + c_add, l).0;
                 }
             }
         }
 
         // The next direction, cosine-weighted: f·cos/pdf = ρ.
-        let local = cosine_hemisphere4(u0, u1);
+        let local = cosine_hemisphere(u0, u1);
         // `Frame::from_normal` and `Frame::to_world`.
-        let sign = Vec4::ONE.copysign(n[2]);
+        let sign = F::ONE.copysign(n[2]);
         let a = -1.0 / (sign + n[2]);
         let b = n[0] * n[1] * a;
         let fs = [1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]];
         let ft = [b, sign + n[1] * n[1] * a, -n[1]];
-        let wi: V3 = std::array::from_fn(|c| fs[c] * local[0] + ft[c] * local[1] + n[c] * local[2]);
-        let mut beta: V3 = std::array::from_fn(|c| Vec4::from_array(s.beta[c]) * albedo[c]);
-        let prev_pdf = Vec4::select(
-            local[2].cmpgt(Vec4::ZERO),
+        let wi: V3<N> =
+            std::array::from_fn(|c| fs[c] * local[0] + ft[c] * local[1] + n[c] * local[2]);
+        let mut beta: V3<N> = std::array::from_fn(|c| F(s.beta[c]) * albedo[c]);
+        let prev_pdf = F::select(
+            local[2].cmpgt(F::ZERO),
             local[2] * std::f32::consts::FRAC_1_PI,
-            Vec4::ZERO,
+            F::ZERO,
         );
-        let mut alive = bits(prev_pdf.cmpgt(Vec4::ZERO)) & shade;
+        let mut alive = prev_pdf.cmpgt(F::ZERO).bits() & shade;
         let mut depth = s.depth;
         let mut roulette = 0u32;
         for (lane, depth) in depth.iter_mut().enumerate() {
@@ -392,18 +444,18 @@ impl<'a> Wide<'a> {
         }
         if roulette != 0 {
             let m = beta[0].max(beta[1].max(beta[2]));
-            let q = (m / settings.rr_threshold).min(Vec4::splat(0.95));
-            let rr = lanes_of(roulette);
-            alive &= !(roulette & !bits(u_rr.cmplt(q)));
-            beta = beta.map(|bc| Vec4::select(rr, bc / q, bc));
+            let q = (m / settings.rr_threshold).min(F::splat(0.95));
+            let rr = M::from_bits(roulette);
+            alive &= !(roulette & !u_rr.cmplt(q).bits());
+            beta = beta.map(|bc| F::select(rr, bc / q, bc));
         }
-        let len = sqrt4(dot(&wi, &wi));
-        let o = p_out.map(|v| v.to_array());
-        let d = wi.map(|w| (w / len).to_array());
-        let beta = beta.map(|v| v.to_array());
-        let prev_pdf = prev_pdf.to_array();
-        let pa = p.map(|v| v.to_array());
-        for lane in 0..4 {
+        let len = dot(&wi, &wi).sqrt();
+        let o = p_out.map(|v| v.0);
+        let d = wi.map(|w| (w / len).0);
+        let beta = beta.map(|v| v.0);
+        let prev_pdf = prev_pdf.0;
+        let pa = p.map(|v| v.0);
+        for lane in 0..N {
             if shade >> lane & 1 == 0 {
                 continue;
             }
@@ -411,7 +463,7 @@ impl<'a> Wide<'a> {
                 dst[lane] = src[lane];
             }
             if alive >> lane & 1 == 0 {
-                self.finish(s, out, lane);
+                finish(s, out, lane);
                 continue;
             }
             for c in 0..3 {
@@ -423,10 +475,11 @@ impl<'a> Wide<'a> {
             s.depth[lane] = depth[lane];
         }
     }
+}
 
-    #[inline]
-    fn finish(&self, s: &mut Lanes, out: &mut [Vec3A], lane: usize) {
-        out[s.slot[lane]] = lane3(&s.l, lane);
-        s.active &= !(1 << lane);
-    }
+/// A lane's path has ended: its value goes to its slot, and the lane is free.
+#[inline(always)]
+fn finish<const N: usize>(s: &mut Lanes<N>, out: &mut [Vec3A], lane: usize) {
+    out[s.slot[lane]] = lane3(&s.l, lane);
+    s.active &= !(1 << lane);
 }

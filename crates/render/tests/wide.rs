@@ -1,4 +1,4 @@
-//! The four-lane tracer (`tessera_render::wide`) against the scalar one: every sample's value,
+//! The many-path tracer (`tessera_render::wide`) against the scalar one: every sample's value,
 //! bit for bit, on the scenes it takes, and which scenes those are.
 
 mod common;
@@ -8,41 +8,87 @@ use glam::Vec3A;
 use tessera_render::integrator::sample_pixel;
 use tessera_render::sampling::PixelSampler;
 use tessera_render::scene::Scene;
-use tessera_render::wide::Wide;
+use tessera_render::wide::{PixelRun, Wide};
 use tessera_render::{RenderSettings, Strategy};
 
 /// Compares every sample of `samples` for a spread of pixels (edges and corners included),
-/// and returns how many samples were compared and how many of them had any light.
+/// with four, eight and sixteen lanes, each pixel's run traced together with the other pixels'
+/// so that lanes go on from one pixel to the next; returns how many samples were compared per
+/// lane count and how many of them had any light.
 fn compare(scene: &Scene, settings: &RenderSettings, samples: std::ops::Range<u32>) -> (u64, u64) {
-    let wide = Wide::new(scene, settings).expect("the scene is one the four-lane tracer takes");
-    let (mut count, mut lit) = (0u64, 0u64);
-    let mut values = Vec::new();
     let xs = (0..scene.width).step_by(9).chain([scene.width - 1]);
-    for x in xs {
-        for y in (0..scene.height).step_by(11).chain([scene.height - 1]) {
-            let sampler = PixelSampler::new(settings.seed, x, y, samples.start);
-            wide.sample_pixel(x, y, &sampler, samples.clone(), &mut values);
-            assert_eq!(values.len(), samples.len());
-            let mut s = sampler;
-            for (index, v) in samples.clone().zip(&values) {
-                s.set_index(index);
-                let expected = sample_pixel(scene, settings, x, y, &s);
-                let bits = |c: Vec3A| c.to_array().map(f32::to_bits);
+    let pixels: Vec<(u32, u32)> = xs
+        .flat_map(|x| {
+            (0..scene.height)
+                .step_by(11)
+                .chain([scene.height - 1])
+                .map(move |y| (x, y))
+        })
+        .collect();
+    let expected: Vec<Vec<Vec3A>> = pixels
+        .iter()
+        .map(|&(x, y)| {
+            let mut s = PixelSampler::new(settings.seed, x, y, samples.start);
+            samples
+                .clone()
+                .map(|index| {
+                    s.set_index(index);
+                    sample_pixel(scene, settings, x, y, &s)
+                })
+                .collect()
+        })
+        .collect();
+    let runs: Vec<PixelRun> = pixels
+        .iter()
+        .map(|&(x, y)| PixelRun {
+            x,
+            y,
+            sampler: PixelSampler::new(settings.seed, x, y, samples.start),
+            samples: samples.clone(),
+        })
+        .collect();
+    let bits = |c: Vec3A| c.to_array().map(f32::to_bits);
+    let (mut count, mut lit) = (0u64, 0u64);
+    for lanes in [4, 8, 16] {
+        let wide = Wide::new(scene, settings)
+            .and_then(|w| w.with_lanes(lanes))
+            .expect("the scene is one the many-path tracer takes");
+        let mut values = Vec::new();
+        // In windows of a few pixels, as `render_tile` cuts a row.
+        for (window, expected) in runs.chunks(7).zip(expected.chunks(7)) {
+            wide.trace(window, &mut values);
+            assert_eq!(values.len(), window.len() * samples.len());
+            let expected = expected.iter().flatten();
+            for (i, (v, e)) in values.iter().zip(expected).enumerate() {
+                let run = &window[i / samples.len()];
+                let index = samples.start as usize + i % samples.len();
                 assert_eq!(
                     bits(*v),
-                    bits(expected),
-                    "pixel ({x}, {y}) sample {index}: four lanes gave {v}, one path {expected}"
+                    bits(*e),
+                    "{lanes} lanes, pixel ({}, {}) sample {index}: lanes gave {v}, one path {e}",
+                    run.x,
+                    run.y
                 );
-                count += 1;
-                lit += u64::from(expected != Vec3A::ZERO);
             }
         }
+        // One pixel at a time gives the same values.
+        let (x, y) = pixels[pixels.len() / 2];
+        wide.sample_pixel(x, y, &runs[0].sampler, samples.clone(), &mut values);
+        let mut s = PixelSampler::new(settings.seed, x, y, samples.start);
+        for (index, v) in samples.clone().zip(&values) {
+            s.set_index(index);
+            assert_eq!(bits(*v), bits(sample_pixel(scene, settings, x, y, &s)));
+        }
+    }
+    for e in expected.iter().flatten() {
+        count += 1;
+        lit += u64::from(*e != Vec3A::ZERO);
     }
     (count, lit)
 }
 
 #[test]
-fn four_lanes_give_the_scalar_bits_in_the_cornell_box() {
+fn lanes_give_the_scalar_bits_in_the_cornell_box() {
     let scene = load("cornell-box.toml");
     let settings = RenderSettings {
         seed: 11,
@@ -68,7 +114,7 @@ fn four_lanes_give_the_scalar_bits_in_the_cornell_box() {
 /// A two-sided light seen from both sides, two-sided walls, and a light that is a box's face
 /// away from the camera (so paths reach its back and the light's far side).
 #[test]
-fn four_lanes_give_the_scalar_bits_with_two_sided_surfaces() {
+fn lanes_give_the_scalar_bits_with_two_sided_surfaces() {
     let scene = scene(
         r#"
 version = 1

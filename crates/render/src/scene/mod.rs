@@ -263,21 +263,21 @@ impl Scene {
     /// the exact tests of primitives other than quads. Crate-private because on other scenes
     /// it would answer "no hit": a ray-by-ray fallback here, even out of line, cost the Cornell
     /// box 4% more instructions a sample.
-    #[inline]
-    pub(crate) fn intersect4_lanes(
+    #[inline(always)]
+    pub(crate) fn intersect_lanes<const N: usize>(
         &self,
-        r: &crate::leaf::Rays4,
-        rays: &[Ray; 4],
+        r: &crate::leaf::Rays<N>,
+        rays: &[Ray; N],
         active: u32,
-    ) -> [Option<Hit>; 4] {
+    ) -> [Option<Hit>; N] {
         debug_assert!(self.is_one_leaf());
         let hits = self
             .leaves
-            .closest4(r, active, |lane, p, t_max| {
+            .closest_lanes(r, active, |lane, p, t_max| {
                 self.prims[p as usize].shape.intersect(&rays[lane], t_max)
             })
-            .unwrap_or([None; 4]);
-        [0, 1, 2, 3].map(|lane| {
+            .unwrap_or([None; N]);
+        std::array::from_fn(|lane| {
             hits[lane]
                 .filter(|_| active >> lane & 1 == 1)
                 .map(|(t, prim, part)| Hit { t, prim, part })
@@ -285,26 +285,26 @@ impl Scene {
     }
 
     /// [`Scene::occluded`] for the lanes of `r` set in `active`, for a scene of one BVH leaf
-    /// and no unbounded primitives (as [`Scene::intersect4_lanes`]): bit i is set when
+    /// and no unbounded primitives (as [`Scene::intersect_lanes`]): bit i is set when
     /// something blocks lane i in (0, t_max).
-    #[inline]
-    pub(crate) fn occluded4_lanes(
+    #[inline(always)]
+    pub(crate) fn occluded_lanes<const N: usize>(
         &self,
-        r: &crate::leaf::Rays4,
-        rays: &[Ray; 4],
+        r: &crate::leaf::Rays<N>,
+        rays: &[Ray; N],
         active: u32,
         t_max: f32,
     ) -> u32 {
         debug_assert!(self.is_one_leaf());
         self.leaves
-            .any4(r, active, t_max, |lane, p| {
+            .any_lanes(r, active, t_max, |lane, p| {
                 self.prims[p as usize].shape.blocks(&rays[lane], t_max)
             })
             .unwrap_or(0)
     }
 
     /// Whether the whole scene is one BVH leaf with nothing unbounded: the scenes whose
-    /// queries the four-lane tests answer.
+    /// queries the packet tests answer.
     pub fn is_one_leaf(&self) -> bool {
         self.unbounded.is_empty() && self.leaves.is_single()
     }
