@@ -304,6 +304,26 @@ pub fn dot<const N: usize>(a: &V3<N>, b: &V3<N>) -> F<N> {
     (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
 }
 
+/// One vector per lane, as lanes: four at a time through glam's 4×4 transpose (whole-register
+/// shuffles), not a float at a time.
+#[inline(always)]
+pub fn transpose3<const N: usize>(v: &[glam::Vec3A; N]) -> V3<N> {
+    let mut r = [F::ZERO; 3];
+    for c in 0..groups::<N>() {
+        let m = glam::Mat4::from_cols(
+            v[4 * c].extend(0.0),
+            v[4 * c + 1].extend(0.0),
+            v[4 * c + 2].extend(0.0),
+            v[4 * c + 3].extend(0.0),
+        )
+        .transpose();
+        st(m.x_axis, &mut r[0].0, c);
+        st(m.y_axis, &mut r[1].0, c);
+        st(m.z_axis, &mut r[2].0, c);
+    }
+    r
+}
+
 /// A vector in every lane.
 #[inline(always)]
 pub fn splat3<const N: usize>(v: glam::Vec3A) -> V3<N> {

@@ -15,7 +15,7 @@ use std::ops::Range;
 use glam::Vec3A;
 
 use crate::integrator::{RenderSettings, Strategy};
-use crate::lanes::{dot, splat3, F, M, V3};
+use crate::lanes::{dot, splat3, transpose3, F, M, V3};
 use crate::leaf::Rays;
 use crate::light::LightShape;
 use crate::math::{gamma, Ray};
@@ -292,10 +292,11 @@ impl<'a> Wide<'a> {
             std::array::from_fn(|lane| Ray::new(lane3(&s.o, lane), lane3(&s.d, lane)));
         let hits =
             scene.intersect_lanes(&Rays::from_lanes(load3(&s.o), load3(&s.d)), &rays, s.active);
-        let mut p = [[0.0f32; N]; 3];
-        let mut n = [[0.0f32; N]; 3];
-        let mut err = [[0.0f32; N]; 3];
-        let mut albedo = [[0.0f32; N]; 3];
+        // Per lane as whole vectors, turned into lanes afterwards (`lanes::transpose3`).
+        let mut p = [Vec3A::ZERO; N];
+        let mut n = [Vec3A::ZERO; N];
+        let mut err = [Vec3A::ZERO; N];
+        let mut albedo = [Vec3A::ZERO; N];
         let mut u = [[0.0f32; N]; 5];
         let mut shade = 0u32;
         for lane in 0..N {
@@ -351,16 +352,21 @@ impl<'a> Wide<'a> {
             u[4][lane] = u_rr;
             s.light_uv[0][lane] = nlx;
             s.light_uv[1][lane] = nly;
-            set3(&mut p, lane, sp.p);
-            set3(&mut n, lane, nn);
-            set3(&mut err, lane, sp.err);
-            set3(&mut albedo, lane, a);
+            p[lane] = sp.p;
+            n[lane] = nn;
+            err[lane] = sp.err;
+            albedo[lane] = a;
             shade |= 1 << lane;
         }
         if shade == 0 {
             return;
         }
-        let (p, n, err, albedo) = (load3(&p), load3(&n), load3(&err), load3(&albedo));
+        let (p, n, err, albedo) = (
+            transpose3(&p),
+            transpose3(&n),
+            transpose3(&err),
+            transpose3(&albedo),
+        );
         let [u0, u1, lx, ly, u_rr] = u.map(F);
         let p_out = offset(&p, &err, &n);
 
@@ -450,29 +456,18 @@ impl<'a> Wide<'a> {
             beta = beta.map(|bc| F::select(rr, bc / q, bc));
         }
         let len = dot(&wi, &wi).sqrt();
-        let o = p_out.map(|v| v.0);
-        let d = wi.map(|w| (w / len).0);
-        let beta = beta.map(|v| v.0);
-        let prev_pdf = prev_pdf.0;
-        let pa = p.map(|v| v.0);
-        for lane in 0..N {
-            if shade >> lane & 1 == 0 {
-                continue;
-            }
-            for (dst, src) in s.beta.iter_mut().zip(&beta) {
-                dst[lane] = src[lane];
-            }
-            if alive >> lane & 1 == 0 {
-                finish(s, out, lane);
-                continue;
-            }
-            for c in 0..3 {
-                s.o[c][lane] = o[c][lane];
-                s.d[c][lane] = d[c][lane];
-                s.prev_p[c][lane] = pa[c][lane];
-            }
-            s.prev_pdf[lane] = prev_pdf[lane];
-            s.depth[lane] = depth[lane];
+        // Whole vectors, not lane by lane: every lane still active after this bounce was
+        // shaded in it, and the others are refilled before they are read again. (A vector load
+        // of numbers stored one float at a time waits for the stores to retire.)
+        s.o = p_out.map(|v| v.0);
+        s.d = wi.map(|w| (w / len).0);
+        s.beta = beta.map(|v| v.0);
+        s.prev_pdf = prev_pdf.0;
+        s.prev_p = p.map(|v| v.0);
+        s.depth = depth;
+        let ended = shade & !alive;
+        for lane in (0..N).filter(|lane| ended >> lane & 1 == 1) {
+            finish(s, out, lane);
         }
     }
 }
