@@ -302,7 +302,10 @@ impl SplatQuad {
     /// [`Quads4::hits`]'s arithmetic with the lanes turned around, so each lane's t and answer
     /// are the scalar test's.
     #[inline(always)]
-    fn hits<const N: usize>(&self, r: &Rays<N>, t_max: F<N>) -> (M<N>, F<N>) {
+    ///
+    /// With `early`, rays that cross the plane nowhere in range skip the edge test: worth a
+    /// branch for shadow rays, which mostly cross no wall's plane, not for closest hits.
+    fn hits<const N: usize>(&self, r: &Rays<N>, t_max: F<N>, early: bool) -> (M<N>, F<N>) {
         let q = QuadBlock::<N> {
             p0: splat3(self.p0),
             n: splat3(self.n),
@@ -311,7 +314,7 @@ impl SplatQuad {
         };
         let t = q.plane_t(&r.o, &r.d);
         let crossed = in_range(t, t_max);
-        if !crossed.any() {
+        if early && !crossed.any() {
             return (crossed, t);
         }
         (crossed & q.within_edges(&r.o, &r.d, t), t)
@@ -327,6 +330,18 @@ pub struct Rays<const N: usize> {
 }
 
 impl<const N: usize> Rays<N> {
+    /// The origins.
+    #[inline(always)]
+    pub fn origins(&self) -> &V3<N> {
+        &self.o
+    }
+
+    /// The directions.
+    #[inline(always)]
+    pub fn directions(&self) -> &V3<N> {
+        &self.d
+    }
+
     /// Rays whose origins and directions are already in lanes.
     #[inline(always)]
     pub fn from_lanes(o: V3<N>, d: V3<N>) -> Self {
@@ -368,14 +383,15 @@ impl Leaves {
     /// [`Leaves::closest`] for `N` rays at once (`N` at most [`MAX_LANES`]), for a one-leaf
     /// BVH (`None` otherwise, and the caller asks ray by ray): each active lane (bit of
     /// `active`) gets the closest hit with t in (0, ∞) as (t, primitive, part), the same as
-    /// [`Leaves::closest`] gives its ray, ties included. `other(lane, p, t_max)` tests lane's
-    /// ray against other primitive `p`.
+    /// [`Leaves::closest`] gives its ray, ties included. `other(p, lanes, t_max)` tests the
+    /// rays of `lanes` (bits) against other primitive `p`, each with its own t_max, and answers
+    /// as [`crate::shape::cuboid_lanes`] does: the lanes with a hit, their t and their parts.
     #[inline(always)]
     pub fn closest_lanes<const N: usize>(
         &self,
         r: &Rays<N>,
         active: u32,
-        mut other: impl FnMut(usize, u32, f32) -> Option<(f32, u32)>,
+        mut other: impl FnMut(u32, u32, &[f32; N]) -> (u32, [f32; N], [u32; N]),
     ) -> Option<[Option<(f32, u32, u32)>; N]> {
         const { assert!(N <= MAX_LANES) };
         if !self.single {
@@ -385,7 +401,7 @@ impl Leaves {
         // Primitive indices travel as float bits, which a select copies unchanged.
         let mut best_prim = F::splat(f32::from_bits(u32::MAX));
         for q in &self.splat {
-            let (mask, t) = q.hits(r, best_t);
+            let (mask, t) = q.hits(r, best_t, false);
             // A strict t < best keeps the earlier quad on a tie, as the blocks' test does.
             best_t = F::select(mask, t, best_t);
             best_prim = F::select(mask, F::splat(f32::from_bits(q.prim)), best_prim);
@@ -397,11 +413,13 @@ impl Leaves {
         });
         for (p, b) in &self.others {
             let lanes = r.hit_box(b, F(t)).bits() & active;
-            for lane in (0..N).filter(|lane| lanes >> lane & 1 == 1) {
-                if let Some((tp, part)) = other(lane, *p, t[lane]) {
-                    t[lane] = tp;
-                    best[lane] = Some((tp, *p, part));
-                }
+            if lanes == 0 {
+                continue;
+            }
+            let (hit, tp, part) = other(*p, lanes, &t);
+            for lane in (0..N).filter(|lane| (hit & lanes) >> lane & 1 == 1) {
+                t[lane] = tp[lane];
+                best[lane] = Some((tp[lane], *p, part[lane]));
             }
         }
         Some(best)
@@ -409,14 +427,14 @@ impl Leaves {
 
     /// [`Leaves::any`] for `N` rays at once, for a one-leaf BVH (`None` otherwise): the
     /// active lanes (bits of `active`) whose rays something blocks in (0, t_max), as bits.
-    /// `other(lane, p)` tests lane's ray against other primitive `p`.
+    /// `other(p, lanes)` gives the lanes of `lanes` whose rays other primitive `p` blocks.
     #[inline(always)]
     pub fn any_lanes<const N: usize>(
         &self,
         r: &Rays<N>,
         active: u32,
         t_max: f32,
-        mut other: impl FnMut(usize, u32) -> bool,
+        mut other: impl FnMut(u32, u32) -> u32,
     ) -> Option<u32> {
         if !self.single {
             return None;
@@ -424,17 +442,15 @@ impl Leaves {
         let t_max_n = F::splat(t_max);
         let mut blocked = 0;
         for q in &self.splat {
-            blocked |= q.hits(r, t_max_n).0.bits() & active;
+            blocked |= q.hits(r, t_max_n, true).0.bits() & active;
             if blocked == active {
                 return Some(blocked);
             }
         }
         for (p, b) in &self.others {
             let lanes = r.hit_box(b, t_max_n).bits() & active & !blocked;
-            for lane in (0..N).filter(|lane| lanes >> lane & 1 == 1) {
-                if other(lane, *p) {
-                    blocked |= 1 << lane;
-                }
+            if lanes != 0 {
+                blocked |= other(*p, lanes) & lanes;
             }
         }
         Some(blocked)

@@ -7,6 +7,8 @@
 
 use glam::{Affine3A, BVec3A, Mat3A, Vec3A};
 
+use crate::lanes::{F, V3};
+
 use crate::math::{gamma, Aabb, Ray};
 
 /// Geometry of one primitive, in world space unless it carries a transform.
@@ -301,6 +303,73 @@ fn slab_distances(o: Vec3A, d: Vec3A, min: Vec3A, max: Vec3A) -> (Vec3A, Vec3A, 
     (inv, near, far)
 }
 
+/// A box's test for `N` rays in lanes (origins `o`, directions `d`, each with its own t_max):
+/// [`Shape::intersect`]'s answer for each lane, as the bits of the lanes with a hit, each
+/// lane's t and each lane's face (meaningful where the bit is set). Every lane does the one-ray
+/// test's arithmetic in its order (glam's matrix product, `min_element` and `max_element`
+/// orders included), so t and the face are its bits; a unit test compares them.
+#[inline(always)]
+pub(crate) fn cuboid_lanes<const N: usize>(
+    min: Vec3A,
+    max: Vec3A,
+    xf: &Transformed,
+    o: &V3<N>,
+    d: &V3<N>,
+    t_max: F<N>,
+) -> (u32, F<N>, [u32; N]) {
+    let (o, d) = if xf.identity {
+        (*o, *d)
+    } else {
+        let m = &xf.to_object.matrix3;
+        let xform = |v: &V3<N>| -> V3<N> {
+            std::array::from_fn(|c| {
+                (F::splat(m.x_axis[c]) * v[0] + F::splat(m.y_axis[c]) * v[1])
+                    + F::splat(m.z_axis[c]) * v[2]
+            })
+        };
+        let tr = xf.to_object.translation;
+        let p = xform(o);
+        (std::array::from_fn(|c| p[c] + tr[c]), xform(d))
+    };
+    let inv: V3<N> = d.map(F::recip);
+    let mut near = [F::ZERO; 3];
+    let mut far = [F::ZERO; 3];
+    for c in 0..3 {
+        let t_lo = (F::splat(min[c]) - o[c]) * inv[c];
+        let t_hi = (F::splat(max[c]) - o[c]) * inv[c];
+        let nan = t_lo.is_nan_mask() | t_hi.is_nan_mask();
+        near[c] = F::select(nan, F::NEG_INFINITY, t_lo.min(t_hi));
+        far[c] = F::select(nan, F::INFINITY, t_lo.max(t_hi));
+    }
+    // `max_element` and `min_element`: (x ∨ z) ∨ (y ∨ z).
+    let tn = near[0].max(near[2]).max(near[1].max(near[2]));
+    let tf = far[0].min(far[2]).min(far[1].min(far[2]));
+    let near_ok = tn.cmpgt(F::ZERO) & tn.cmplt(t_max);
+    let far_ok = tf.cmpgt(F::ZERO) & tf.cmplt(t_max);
+    let hit = (tn.cmple(tf) & (near_ok | far_ok)).bits();
+    let t = F::select(near_ok, tn, tf);
+    let eq_near = near.map(|v| v.cmpeq(tn).bits());
+    let eq_far = far.map(|v| v.cmpeq(tf).bits());
+    let pos = inv.map(|v| v.cmpgt(F::ZERO).bits());
+    let near_ok = near_ok.bits();
+    let mut face = [0; N];
+    for (lane, f) in face.iter_mut().enumerate() {
+        if hit >> lane & 1 == 0 {
+            continue;
+        }
+        // `slab_unchecked`'s faces: the lowest axis holding the extreme distance, and its sign.
+        let axis = |eq: &[u32; 3]| (0..3).find(|&a| eq[a] >> lane & 1 == 1).unwrap_or(2);
+        *f = if near_ok >> lane & 1 == 1 {
+            let a = axis(&eq_near);
+            a as u32 * 2 + (!(pos[a] >> lane) & 1)
+        } else {
+            let a = axis(&eq_far);
+            a as u32 * 2 + ((pos[a] >> lane) & 1)
+        };
+    }
+    (hit, t, face)
+}
+
 /// For slab distances (`tn`, `tf`): whether `tn` lies in (0, t_max), and whether the slab is
 /// hit in that range at all. Selects rather than branches, as in the slab test.
 #[inline]
@@ -507,6 +576,87 @@ fn transformed_box(m: &Affine3A, min: Vec3A, max: Vec3A) -> Aabb {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The lanes' box test gives the one-ray test's hit, t and face, bit for bit: rotated and
+    /// axis-aligned boxes, rays from inside and outside, directions with zero components,
+    /// origins on faces, edges and corners, and a t_max per lane.
+    #[test]
+    fn cuboid_lanes_match_the_one_ray_test() {
+        use crate::lanes::F;
+        use crate::sampling::HashRng;
+        let mut rng = HashRng::new(7);
+        let mut u = move || rng.next_f32();
+        let boxes = [
+            (Vec3A::splat(-1.0), Vec3A::ONE, Affine3A::IDENTITY),
+            (
+                Vec3A::splat(-0.5),
+                Vec3A::splat(0.5),
+                Affine3A::from_scale_rotation_translation(
+                    glam::Vec3::new(0.3, 0.6, 0.3),
+                    glam::Quat::from_rotation_y(0.31),
+                    glam::Vec3::new(-0.3, -0.4, -0.28),
+                ),
+            ),
+        ];
+        let (mut compared, mut hits) = (0, 0);
+        for (min, max, to_world) in boxes {
+            let xf = Transformed::new(to_world);
+            let shape = Shape::Cuboid {
+                min,
+                max,
+                xf: xf.clone(),
+            };
+            let mut rays = Vec::new();
+            for i in 0..4000 {
+                let mut o = Vec3A::new(u(), u(), u()) * 4.0 - 2.0;
+                let mut d = Vec3A::new(u(), u(), u()) * 2.0 - 1.0;
+                if i % 2 == 1 {
+                    // Towards a point of the box, so that many rays hit.
+                    let inside = min + (max - min) * Vec3A::new(u(), u(), u());
+                    d = to_world.transform_point3a(inside) - o;
+                }
+                if i % 5 == 0 {
+                    // Axis-parallel in one or two components.
+                    d[i % 3] = 0.0;
+                    if i % 10 == 0 {
+                        d[(i + 1) % 3] = -0.0;
+                    }
+                }
+                if i % 7 == 0 && to_world == Affine3A::IDENTITY {
+                    // On a face, an edge or a corner of the axis-aligned box.
+                    o[i % 3] = 1.0;
+                    if i % 14 == 0 {
+                        o[(i + 2) % 3] = -1.0;
+                    }
+                }
+                if d == Vec3A::ZERO {
+                    d = Vec3A::X;
+                }
+                rays.push(Ray::new(o, d));
+            }
+            for chunk in rays.chunks_exact(8) {
+                let t_max: [f32; 8] =
+                    std::array::from_fn(|k| if k % 3 == 0 { 1.5 } else { f32::INFINITY });
+                let o = [0, 1, 2].map(|c| F(std::array::from_fn(|k| chunk[k].o[c])));
+                let d = [0, 1, 2].map(|c| F(std::array::from_fn(|k| chunk[k].d[c])));
+                let (hit, t, face) = cuboid_lanes(min, max, &xf, &o, &d, F(t_max));
+                for (k, ray) in chunk.iter().enumerate() {
+                    let one = shape.intersect(ray, t_max[k]);
+                    let lanes = (hit >> k & 1 == 1).then(|| (t.0[k], face[k]));
+                    assert_eq!(
+                        one.map(|(t, f)| (t.to_bits(), f)),
+                        lanes.map(|(t, f)| (t.to_bits(), f)),
+                        "{ray:?} t_max {}",
+                        t_max[k]
+                    );
+                    assert_eq!(shape.blocks(ray, t_max[k]), lanes.is_some());
+                    compared += 1;
+                    hits += usize::from(one.is_some());
+                }
+            }
+        }
+        assert!(hits > compared / 3, "{hits} hits of {compared}");
+    }
 
     #[test]
     fn sphere_roots_match_f64_for_tiny_distant_sphere() {

@@ -440,13 +440,12 @@ impl<'a> Wide<'a> {
         let mut alive = prev_pdf.cmpgt(F::ZERO).bits() & shade;
         let mut depth = s.depth;
         let mut roulette = 0u32;
+        // Without branches: which lanes were shaded, and which of them are past the roulette's
+        // depth, are each a coin toss for the branch predictor.
         for (lane, depth) in depth.iter_mut().enumerate() {
-            if shade >> lane & 1 == 1 {
-                *depth += 1;
-                if *depth >= settings.rr_depth {
-                    roulette |= 1 << lane;
-                }
-            }
+            let shaded = shade >> lane & 1;
+            *depth += shaded;
+            roulette |= (shaded & u32::from(*depth >= settings.rr_depth)) << lane;
         }
         if roulette != 0 {
             let m = beta[0].max(beta[1].max(beta[2]));

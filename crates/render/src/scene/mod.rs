@@ -273,8 +273,31 @@ impl Scene {
         debug_assert!(self.is_one_leaf());
         let hits = self
             .leaves
-            .closest_lanes(r, active, |lane, p, t_max| {
-                self.prims[p as usize].shape.intersect(&rays[lane], t_max)
+            .closest_lanes(r, active, |p, lanes, t_max| {
+                match &self.prims[p as usize].shape {
+                    Shape::Cuboid { min, max, xf } => {
+                        let t_max = crate::lanes::F(*t_max);
+                        let (hit, t, face) = crate::shape::cuboid_lanes(
+                            *min,
+                            *max,
+                            xf,
+                            r.origins(),
+                            r.directions(),
+                            t_max,
+                        );
+                        (hit, t.0, face)
+                    }
+                    shape => {
+                        let (mut hit, mut t, mut part) = (0, [0.0; N], [0; N]);
+                        for lane in (0..N).filter(|lane| lanes >> lane & 1 == 1) {
+                            if let Some((tl, pl)) = shape.intersect(&rays[lane], t_max[lane]) {
+                                hit |= 1 << lane;
+                                (t[lane], part[lane]) = (tl, pl);
+                            }
+                        }
+                        (hit, t, part)
+                    }
+                }
             })
             .unwrap_or([None; N]);
         std::array::from_fn(|lane| {
@@ -297,8 +320,17 @@ impl Scene {
     ) -> u32 {
         debug_assert!(self.is_one_leaf());
         self.leaves
-            .any_lanes(r, active, t_max, |lane, p| {
-                self.prims[p as usize].shape.blocks(&rays[lane], t_max)
+            .any_lanes(r, active, t_max, |p, lanes| {
+                match &self.prims[p as usize].shape {
+                    Shape::Cuboid { min, max, xf } => {
+                        let t = crate::lanes::F::splat(t_max);
+                        crate::shape::cuboid_lanes(*min, *max, xf, r.origins(), r.directions(), t).0
+                    }
+                    shape => (0..N)
+                        .filter(|lane| lanes >> lane & 1 == 1)
+                        .filter(|&lane| shape.blocks(&rays[lane], t_max))
+                        .fold(0, |bits, lane| bits | 1 << lane),
+                }
             })
             .unwrap_or(0)
     }
