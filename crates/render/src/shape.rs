@@ -157,6 +157,18 @@ impl Parallelogram {
         self.p0 + self.e1 * u + self.e2 * v
     }
 
+    /// The surface point at `t` along `r` (a hit of this parallelogram).
+    #[inline(always)]
+    pub fn surface(&self, r: &Ray, t: f32) -> SurfacePoint {
+        let d = r.at(t) - self.p0;
+        let (u, v) = (d.dot(self.a1), d.dot(self.a2));
+        SurfacePoint {
+            p: self.point(u, v),
+            n: self.normal,
+            err: self.point_error(u, v),
+        }
+    }
+
     /// Ray parameter of the hit in (0, t_max), if any; closed on all four edges.
     #[inline]
     #[allow(clippy::manual_range_contains)] // `contains` short-circuits: a branch per bound
@@ -482,15 +494,7 @@ impl Shape {
                     err: xf.point_error(pl, gamma(8)),
                 }
             }
-            Shape::Parallelogram(q) => {
-                let d = r.at(t) - q.p0;
-                let (u, v) = (d.dot(q.a1), d.dot(q.a2));
-                SurfacePoint {
-                    p: q.point(u, v),
-                    n: q.normal,
-                    err: q.point_error(u, v),
-                }
-            }
+            Shape::Parallelogram(q) => q.surface(r, t),
             Shape::Plane { point, normal } => {
                 let p = r.at(t);
                 SurfacePoint {
