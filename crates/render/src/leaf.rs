@@ -321,6 +321,20 @@ impl SplatQuad {
     }
 }
 
+/// The closest hits of a packet: the lanes with one (bits), and each lane's t, primitive and
+/// part (meaningful where its bit is set).
+#[derive(Clone, Copy, Debug)]
+pub struct LaneHits<const N: usize> {
+    /// Lanes with a hit.
+    pub hit: u32,
+    /// Ray parameters.
+    pub t: [f32; N],
+    /// Primitives.
+    pub prim: [u32; N],
+    /// Parts of the primitives (a box's face).
+    pub part: [u32; N],
+}
+
 /// `N` rays in structure-of-arrays lanes.
 #[derive(Clone, Copy, Debug)]
 pub struct Rays<const N: usize> {
@@ -382,17 +396,17 @@ impl Leaves {
 
     /// [`Leaves::closest`] for `N` rays at once (`N` at most [`MAX_LANES`]), for a one-leaf
     /// BVH (`None` otherwise, and the caller asks ray by ray): each active lane (bit of
-    /// `active`) gets the closest hit with t in (0, ∞) as (t, primitive, part), the same as
-    /// [`Leaves::closest`] gives its ray, ties included. `other(p, lanes, t_max)` tests the
-    /// rays of `lanes` (bits) against other primitive `p`, each with its own t_max, and answers
-    /// as [`crate::shape::cuboid_lanes`] does: the lanes with a hit, their t and their parts.
+    /// `active`) gets the closest hit with t in (0, ∞), the same as [`Leaves::closest`] gives
+    /// its ray, ties included. `other(p, lanes, t_max)` tests the rays of `lanes` (bits)
+    /// against other primitive `p`, each with its own t_max, and answers as
+    /// [`crate::shape::cuboid_lanes`] does: the lanes with a hit, their t and their parts.
     #[inline(always)]
     pub fn closest_lanes<const N: usize>(
         &self,
         r: &Rays<N>,
         active: u32,
         mut other: impl FnMut(u32, u32, &[f32; N]) -> (u32, [f32; N], [u32; N]),
-    ) -> Option<[Option<(f32, u32, u32)>; N]> {
+    ) -> Option<LaneHits<N>> {
         const { assert!(N <= MAX_LANES) };
         if !self.single {
             return None;
@@ -406,23 +420,27 @@ impl Leaves {
             best_t = F::select(mask, t, best_t);
             best_prim = F::select(mask, F::splat(f32::from_bits(q.prim)), best_prim);
         }
-        let mut t = best_t.0;
-        let mut best: [Option<(f32, u32, u32)>; N] = std::array::from_fn(|lane| {
-            let prim = best_prim.0[lane].to_bits();
-            (prim != u32::MAX).then_some((t[lane], prim, 0))
-        });
+        let mut h = LaneHits {
+            hit: best_t.cmplt(F::INFINITY).bits() & active,
+            t: best_t.0,
+            prim: best_prim.0.map(f32::to_bits),
+            part: [0; N],
+        };
         for (p, b) in &self.others {
-            let lanes = r.hit_box(b, F(t)).bits() & active;
+            let lanes = r.hit_box(b, F(h.t)).bits() & active;
             if lanes == 0 {
                 continue;
             }
-            let (hit, tp, part) = other(*p, lanes, &t);
-            for lane in (0..N).filter(|lane| (hit & lanes) >> lane & 1 == 1) {
-                t[lane] = tp[lane];
-                best[lane] = Some((tp[lane], *p, part[lane]));
+            let (hit, tp, part) = other(*p, lanes, &h.t);
+            let hit = hit & lanes;
+            for lane in (0..N).filter(|lane| hit >> lane & 1 == 1) {
+                h.t[lane] = tp[lane];
+                h.prim[lane] = *p;
+                h.part[lane] = part[lane];
             }
+            h.hit |= hit;
         }
-        Some(best)
+        Some(h)
     }
 
     /// [`Leaves::any`] for `N` rays at once, for a one-leaf BVH (`None` otherwise): the

@@ -288,10 +288,12 @@ impl<'a> Wide<'a> {
     fn bounce<const N: usize>(&self, s: &mut Lanes<N>, light: &LightLanes<N>, out: &mut [Vec3A]) {
         let scene = self.scene;
         let settings = self.settings;
-        let rays: [Ray; N] =
-            std::array::from_fn(|lane| Ray::new(lane3(&s.o, lane), lane3(&s.d, lane)));
-        let hits =
-            scene.intersect_lanes(&Rays::from_lanes(load3(&s.o), load3(&s.d)), &rays, s.active);
+        let ray_of = |lane| Ray::new(lane3(&s.o, lane), lane3(&s.d, lane));
+        let hits = scene.intersect_lanes(
+            &Rays::from_lanes(load3(&s.o), load3(&s.d)),
+            ray_of,
+            s.active,
+        );
         // Per lane as whole vectors, turned into lanes afterwards (`lanes::transpose3`).
         let mut p = [Vec3A::ZERO; N];
         let mut n = [Vec3A::ZERO; N];
@@ -303,21 +305,22 @@ impl<'a> Wide<'a> {
             if s.active >> lane & 1 == 0 {
                 continue;
             }
-            let ray = &rays[lane];
-            let Some(hit) = hits[lane] else {
+            if hits.hit >> lane & 1 == 0 {
                 finish(s, out, lane);
                 continue;
-            };
-            let prim = &scene.prims[hit.prim as usize];
+            }
+            let ray = &Ray::new(lane3(&s.o, lane), lane3(&s.d, lane));
+            let (t, part) = (hits.t[lane], hits.part[lane]);
+            let prim = &scene.prims[hits.prim[lane] as usize];
             // Quads, most of a room's hits, without the call and the match on the shape.
             let sp = match &prim.shape {
-                Shape::Parallelogram(q) => q.surface(ray, hit.t),
-                shape => shape.surface(ray, hit.t, hit.part),
+                Shape::Parallelogram(q) => q.surface(ray, t),
+                shape => shape.surface(ray, t, part),
             };
             let mat = &scene.materials[prim.material as usize];
             let wo = -ray.d;
             if prim.light != u32::MAX {
-                let li = (prim.light + hit.part) as usize;
+                let li = (prim.light + part) as usize;
                 let le = scene.lights.lights[li].emitted(sp.n, wo);
                 if le != Vec3A::ZERO {
                     let beta = lane3(&s.beta, lane);
@@ -406,10 +409,9 @@ impl<'a> Wide<'a> {
             let sd: V3<N> = std::array::from_fn(|c| lp[c] - p_out[c]);
             let po = p_out.map(|v| v.0);
             let sda = sd.map(|v| v.0);
-            let shadow: [Ray; N] =
-                std::array::from_fn(|lane| Ray::new(lane3(&po, lane), lane3(&sda, lane)));
+            let shadow = |lane| Ray::new(lane3(&po, lane), lane3(&sda, lane));
             let blocked =
-                scene.occluded_lanes(&Rays::from_lanes(p_out, sd), &shadow, nee, 1.0 - 1e-4);
+                scene.occluded_lanes(&Rays::from_lanes(p_out, sd), shadow, nee, 1.0 - 1e-4);
             let add = nee & !blocked;
             if add != 0 {
                 let mask = M::from_bits(add);

@@ -267,12 +267,11 @@ impl Scene {
     pub(crate) fn intersect_lanes<const N: usize>(
         &self,
         r: &crate::leaf::Rays<N>,
-        rays: &[Ray; N],
+        ray: impl Fn(usize) -> Ray,
         active: u32,
-    ) -> [Option<Hit>; N] {
+    ) -> crate::leaf::LaneHits<N> {
         debug_assert!(self.is_one_leaf());
-        let hits = self
-            .leaves
+        self.leaves
             .closest_lanes(r, active, |p, lanes, t_max| {
                 match &self.prims[p as usize].shape {
                     Shape::Cuboid { min, max, xf } => {
@@ -290,7 +289,7 @@ impl Scene {
                     shape => {
                         let (mut hit, mut t, mut part) = (0, [0.0; N], [0; N]);
                         for lane in (0..N).filter(|lane| lanes >> lane & 1 == 1) {
-                            if let Some((tl, pl)) = shape.intersect(&rays[lane], t_max[lane]) {
+                            if let Some((tl, pl)) = shape.intersect(&ray(lane), t_max[lane]) {
                                 hit |= 1 << lane;
                                 (t[lane], part[lane]) = (tl, pl);
                             }
@@ -299,12 +298,12 @@ impl Scene {
                     }
                 }
             })
-            .unwrap_or([None; N]);
-        std::array::from_fn(|lane| {
-            hits[lane]
-                .filter(|_| active >> lane & 1 == 1)
-                .map(|(t, prim, part)| Hit { t, prim, part })
-        })
+            .unwrap_or(crate::leaf::LaneHits {
+                hit: 0,
+                t: [0.0; N],
+                prim: [0; N],
+                part: [0; N],
+            })
     }
 
     /// [`Scene::occluded`] for the lanes of `r` set in `active`, for a scene of one BVH leaf
@@ -314,7 +313,7 @@ impl Scene {
     pub(crate) fn occluded_lanes<const N: usize>(
         &self,
         r: &crate::leaf::Rays<N>,
-        rays: &[Ray; N],
+        ray: impl Fn(usize) -> Ray,
         active: u32,
         t_max: f32,
     ) -> u32 {
@@ -328,7 +327,7 @@ impl Scene {
                     }
                     shape => (0..N)
                         .filter(|lane| lanes >> lane & 1 == 1)
-                        .filter(|&lane| shape.blocks(&rays[lane], t_max))
+                        .filter(|&lane| shape.blocks(&ray(lane), t_max))
                         .fold(0, |bits, lane| bits | 1 << lane),
                 }
             })
