@@ -5,8 +5,8 @@
 //!
 //! Plain loops over `[f32; N]` were tried first and left to the compiler's vectoriser: it
 //! grouped a vector's x, y and z into one register instead of four lanes' x, and the tracer ran
-//! 20% slower than with explicit `Vec4`s. Building for AVX2 as well (run-time dispatch) gave
-//! nothing measurable with either form.
+//! 20% slower than with explicit `Vec4`s. The eight-lane tracer is also compiled for AVX2 and
+//! AVX-512 encodings of the same 128-bit operations (`wide::trace8`), which keep the bits.
 //!
 //! Every operation is the scalar IEEE operation on each lane, with no fused multiply-add and
 //! nothing across lanes except [`M::bits`], so a lane's numbers never depend on the width or on
@@ -93,7 +93,10 @@ impl<const N: usize> F<N> {
     /// Correctly rounded square roots.
     #[inline(always)]
     pub fn sqrt(self) -> Self {
-        self.chunks(|v| Vec4::from_array(v.to_array().map(f32::sqrt)))
+        self.chunks(|v| {
+            let [x, y, z, w] = v.to_array();
+            Vec4::new(x.sqrt(), y.sqrt(), z.sqrt(), w.sqrt())
+        })
     }
 
     /// 1/x.
@@ -322,6 +325,14 @@ pub fn transpose3<const N: usize>(v: &[glam::Vec3A; N]) -> V3<N> {
         st(m.z_axis, &mut r[2].0, c);
     }
     r
+}
+
+/// `[f(0), f(1), f(2)]`: for a vector's components, instead of std's `array::from_fn` and
+/// `map`, which can stay out of line (calls with their arrays in memory) in a function
+/// compiled for other target features, as the AVX2 tracer is.
+#[inline(always)]
+pub fn v3<T>(mut f: impl FnMut(usize) -> T) -> [T; 3] {
+    [f(0), f(1), f(2)]
 }
 
 /// A vector in every lane.

@@ -11,7 +11,7 @@ use std::ops::Range;
 
 use glam::{Vec3A, Vec4};
 
-use crate::lanes::{dot, splat3, F, M, V3};
+use crate::lanes::{dot, splat3, v3, F, M, V3};
 use crate::math::{Aabb, Ray};
 use crate::shape::{Parallelogram, Shape};
 
@@ -362,7 +362,7 @@ impl<const N: usize> Rays<N> {
         Self {
             o,
             d,
-            inv_d: d.map(F::recip),
+            inv_d: v3(|c| d[c].recip()),
         }
     }
 
@@ -423,9 +423,12 @@ impl Leaves {
         let mut h = LaneHits {
             hit: best_t.cmplt(F::INFINITY).bits() & active,
             t: best_t.0,
-            prim: best_prim.0.map(f32::to_bits),
+            prim: [0; N],
             part: [0; N],
         };
+        for (p, b) in h.prim.iter_mut().zip(best_prim.0) {
+            *p = b.to_bits();
+        }
         for (p, b) in &self.others {
             let lanes = r.hit_box(b, F(h.t)).bits() & active;
             if lanes == 0 {

@@ -7,7 +7,7 @@
 
 use glam::{Affine3A, BVec3A, Mat3A, Vec3A};
 
-use crate::lanes::{F, V3};
+use crate::lanes::{v3, F, V3};
 
 use crate::math::{gamma, Aabb, Ray};
 
@@ -334,16 +334,16 @@ pub(crate) fn cuboid_lanes<const N: usize>(
     } else {
         let m = &xf.to_object.matrix3;
         let xform = |v: &V3<N>| -> V3<N> {
-            std::array::from_fn(|c| {
+            v3(|c| {
                 (F::splat(m.x_axis[c]) * v[0] + F::splat(m.y_axis[c]) * v[1])
                     + F::splat(m.z_axis[c]) * v[2]
             })
         };
         let tr = xf.to_object.translation;
         let p = xform(o);
-        (std::array::from_fn(|c| p[c] + tr[c]), xform(d))
+        (v3(|c| p[c] + tr[c]), xform(d))
     };
-    let inv: V3<N> = d.map(F::recip);
+    let inv: V3<N> = v3(|c| d[c].recip());
     let mut near = [F::ZERO; 3];
     let mut far = [F::ZERO; 3];
     for c in 0..3 {
@@ -360,9 +360,9 @@ pub(crate) fn cuboid_lanes<const N: usize>(
     let far_ok = tf.cmpgt(F::ZERO) & tf.cmplt(t_max);
     let hit = (tn.cmple(tf) & (near_ok | far_ok)).bits();
     let t = F::select(near_ok, tn, tf);
-    let eq_near = near.map(|v| v.cmpeq(tn).bits());
-    let eq_far = far.map(|v| v.cmpeq(tf).bits());
-    let pos = inv.map(|v| v.cmpgt(F::ZERO).bits());
+    let eq_near = v3(|c| near[c].cmpeq(tn).bits());
+    let eq_far = v3(|c| far[c].cmpeq(tf).bits());
+    let pos = v3(|c| inv[c].cmpgt(F::ZERO).bits());
     let near_ok = near_ok.bits();
     let mut face = [0; N];
     for (lane, f) in face.iter_mut().enumerate() {

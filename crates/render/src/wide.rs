@@ -6,16 +6,16 @@
 //! many lanes there are; the pinned render hashes test that. A lane whose path ends takes the
 //! next sample of the run, which goes on from one pixel to the next, so the lanes stay busy.
 //!
-//! Eight lanes by default: two SSE registers per number, whose independent work keeps more of
-//! the core busy than one does (about 1.1x the samples a second of four lanes on the Cornell box,
-//! docs/renderer.md); sixteen lanes measured slower than eight.
+//! Eight lanes by default: two 128-bit registers per number, whose independent work keeps more
+//! of the core busy than one does, compiled also for AVX2 and AVX-512 encodings chosen at run
+//! time (see `trace8`); sixteen lanes measured slower than eight (docs/renderer.md).
 
 use std::ops::Range;
 
 use glam::Vec3A;
 
 use crate::integrator::{RenderSettings, Strategy};
-use crate::lanes::{dot, splat3, transpose3, F, M, V3};
+use crate::lanes::{dot, splat3, transpose3, v3, F, M, V3};
 use crate::leaf::Rays;
 use crate::light::LightShape;
 use crate::math::{gamma, Ray};
@@ -64,7 +64,7 @@ struct LightLanes<const N: usize> {
 #[inline(always)]
 fn offset<const N: usize>(p: &V3<N>, err: &V3<N>, n: &V3<N>) -> V3<N> {
     let d = (n[0].abs() * err[0] + n[1].abs() * err[1]) + n[2].abs() * err[2];
-    std::array::from_fn(|c| {
+    v3(|c| {
         let po = p[c] + n[c] * d;
         let step = po.abs() * f32::EPSILON + F::splat(f32::from_bits(1));
         let side = F::select(n[c].cmpeq(F::ZERO), F::ZERO, F::ONE.copysign(n[c]));
@@ -112,7 +112,7 @@ fn set3<const N: usize>(v: &mut [[f32; N]; 3], lane: usize, x: Vec3A) {
 
 #[inline(always)]
 fn load3<const N: usize>(v: &[[f32; N]; 3]) -> V3<N> {
-    v.map(F)
+    v3(|c| F(v[c]))
 }
 
 /// The paths in the lanes, between bounces.
@@ -205,7 +205,7 @@ impl<'a> Wide<'a> {
         match self.lanes {
             4 => self.trace_lanes::<4>(runs, out),
             16 => self.trace_lanes::<16>(runs, out),
-            _ => self.trace_lanes::<8>(runs, out),
+            _ => trace8(self, runs, out),
         }
     }
 
@@ -374,21 +374,21 @@ impl<'a> Wide<'a> {
             transpose3(&err),
             transpose3(&albedo),
         );
-        let [u0, u1, lx, ly, u_rr] = u.map(F);
+        let [u0, u1, lx, ly, u_rr] = [F(u[0]), F(u[1]), F(u[2]), F(u[3]), F(u[4])];
         let p_out = offset(&p, &err, &n);
 
         // Next-event estimation: `Lights::sample` for the one parallelogram light.
-        let x: V3<N> = std::array::from_fn(|c| (light.p0[c] + light.e1[c] * lx) + light.e2[c] * ly);
-        let d: V3<N> = std::array::from_fn(|c| x[c] - p[c]);
+        let x: V3<N> = v3(|c| (light.p0[c] + light.e1[c] * lx) + light.e2[c] * ly);
+        let d: V3<N> = v3(|c| x[c] - p[c]);
         let dist2 = dot(&d, &d);
         let mut valid = dist2.cmpgt(F::ZERO) & dist2.cmple(F::splat(f32::MAX));
         let len = dist2.sqrt();
-        let wi: V3<N> = d.map(|dc| dc / len);
+        let wi: V3<N> = v3(|c| d[c] / len);
         let cos_l = dot(&light.normal, &wi).abs();
         valid &= cos_l.cmpne(F::ZERO);
         let pdf = (dist2 / (cos_l * light.area)) * light.pmf;
         valid &= pdf.cmpgt(F::ZERO) & pdf.cmple(F::splat(f32::MAX));
-        let neg_wi: V3<N> = wi.map(|w| -w);
+        let neg_wi: V3<N> = v3(|c| -wi[c]);
         let n_dot = dot(&light.normal, &neg_wi);
         let facing = n_dot.cmpgt(F::ZERO);
         let lit = if self.two_sided {
@@ -397,8 +397,8 @@ impl<'a> Wide<'a> {
             facing & M::splat(self.emits)
         };
         let towards_front = n_dot.cmpge(F::ZERO);
-        let towards: V3<N> = light.normal.map(|nc| F::select(towards_front, nc, -nc));
-        let x_err: V3<N> = std::array::from_fn(|c| {
+        let towards: V3<N> = v3(|c| F::select(towards_front, light.normal[c], -light.normal[c]));
+        let x_err: V3<N> = v3(|c| {
             (light.p0[c].abs() + (light.e1[c] * lx).abs() + (light.e2[c] * ly).abs()) * gamma(12)
                 + F::splat(f32::MIN_POSITIVE)
         });
@@ -406,9 +406,9 @@ impl<'a> Wide<'a> {
         let cos = dot(&n, &wi);
         let nee = (valid & lit & cos.cmpgt(F::ZERO)).bits() & shade;
         if nee != 0 {
-            let sd: V3<N> = std::array::from_fn(|c| lp[c] - p_out[c]);
-            let po = p_out.map(|v| v.0);
-            let sda = sd.map(|v| v.0);
+            let sd: V3<N> = v3(|c| lp[c] - p_out[c]);
+            let po = v3(|c| p_out[c].0);
+            let sda = v3(|c| sd[c].0);
             let shadow = |lane| Ray::new(lane3(&po, lane), lane3(&sda, lane));
             let blocked =
                 scene.occluded_lanes(&Rays::from_lanes(p_out, sd), shadow, nee, 1.0 - 1e-4);
@@ -435,9 +435,8 @@ impl<'a> Wide<'a> {
         let b = n[0] * n[1] * a;
         let fs = [1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]];
         let ft = [b, sign + n[1] * n[1] * a, -n[1]];
-        let wi: V3<N> =
-            std::array::from_fn(|c| fs[c] * local[0] + ft[c] * local[1] + n[c] * local[2]);
-        let mut beta: V3<N> = std::array::from_fn(|c| F(s.beta[c]) * albedo[c]);
+        let wi: V3<N> = v3(|c| fs[c] * local[0] + ft[c] * local[1] + n[c] * local[2]);
+        let mut beta: V3<N> = v3(|c| F(s.beta[c]) * albedo[c]);
         let prev_pdf = F::select(
             local[2].cmpgt(F::ZERO),
             local[2] * std::f32::consts::FRAC_1_PI,
@@ -458,17 +457,17 @@ impl<'a> Wide<'a> {
             let q = (m / settings.rr_threshold).min(F::splat(0.95));
             let rr = M::from_bits(roulette);
             alive &= !(roulette & !u_rr.cmplt(q).bits());
-            beta = beta.map(|bc| F::select(rr, bc / q, bc));
+            beta = v3(|c| F::select(rr, beta[c] / q, beta[c]));
         }
         let len = dot(&wi, &wi).sqrt();
         // Whole vectors, not lane by lane: every lane still active after this bounce was
         // shaded in it, and the others are refilled before they are read again. (A vector load
         // of numbers stored one float at a time waits for the stores to retire.)
-        s.o = p_out.map(|v| v.0);
-        s.d = wi.map(|w| (w / len).0);
-        s.beta = beta.map(|v| v.0);
+        s.o = v3(|c| p_out[c].0);
+        s.d = v3(|c| (wi[c] / len).0);
+        s.beta = v3(|c| beta[c].0);
         s.prev_pdf = prev_pdf.0;
-        s.prev_p = p.map(|v| v.0);
+        s.prev_p = v3(|c| p[c].0);
         s.depth = depth;
         let ended = shade & !alive;
         for lane in (0..N).filter(|lane| ended >> lane & 1 == 1) {
@@ -482,4 +481,15 @@ impl<'a> Wide<'a> {
 fn finish<const N: usize>(s: &mut Lanes<N>, out: &mut [Vec3A], lane: usize) {
     out[s.slot[lane]] = lane3(&s.l, lane);
     s.active &= !(1 << lane);
+}
+
+/// Eight lanes, compiled for the build's baseline (x86-64-v2), for AVX2 and for AVX-512 (with
+/// VL), the widest the CPU has chosen at run time. The lanes stay 128-bit operations in every
+/// version, each IEEE-rounded as in the others, so the bits are the same: what the newer
+/// encodings give is three operands instead of two (fewer register copies) and, with AVX-512,
+/// 32 registers instead of 16 (fewer spills of the eight lanes' numbers). Nothing fuses a
+/// multiply and an add: Rust never contracts them, and the lanes never call `mul_add`.
+#[multiversion::multiversion(targets("x86_64+avx512f+avx512vl+avx2", "x86_64+avx2"))]
+fn trace8<'a>(wide: &Wide<'a>, runs: &[PixelRun], out: &mut Vec<Vec3A>) {
+    wide.trace_lanes::<8>(runs, out);
 }

@@ -272,8 +272,11 @@ impl Scene {
     ) -> crate::leaf::LaneHits<N> {
         debug_assert!(self.is_one_leaf());
         self.leaves
-            .closest_lanes(r, active, |p, lanes, t_max| {
-                match &self.prims[p as usize].shape {
+            .closest_lanes(
+                r,
+                active,
+                #[inline(always)]
+                |p, lanes, t_max| match &self.prims[p as usize].shape {
                     Shape::Cuboid { min, max, xf } => {
                         let t_max = crate::lanes::F(*t_max);
                         let (hit, t, face) = crate::shape::cuboid_lanes(
@@ -296,8 +299,8 @@ impl Scene {
                         }
                         (hit, t, part)
                     }
-                }
-            })
+                },
+            )
             .unwrap_or(crate::leaf::LaneHits {
                 hit: 0,
                 t: [0.0; N],
@@ -319,8 +322,12 @@ impl Scene {
     ) -> u32 {
         debug_assert!(self.is_one_leaf());
         self.leaves
-            .any_lanes(r, active, t_max, |p, lanes| {
-                match &self.prims[p as usize].shape {
+            .any_lanes(
+                r,
+                active,
+                t_max,
+                #[inline(always)]
+                |p, lanes| match &self.prims[p as usize].shape {
                     Shape::Cuboid { min, max, xf } => {
                         let t = crate::lanes::F::splat(t_max);
                         crate::shape::cuboid_lanes(*min, *max, xf, r.origins(), r.directions(), t).0
@@ -329,8 +336,8 @@ impl Scene {
                         .filter(|lane| lanes >> lane & 1 == 1)
                         .filter(|&lane| shape.blocks(&ray(lane), t_max))
                         .fold(0, |bits, lane| bits | 1 << lane),
-                }
-            })
+                },
+            )
             .unwrap_or(0)
     }
 
