@@ -38,13 +38,14 @@ pub struct BenchArgs {
     /// Worker threads (default: every core).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
     threads: Option<u32>,
-    /// A converged reference for a scene, as NAME=FILE.exr (NAME is the scene file's stem).
+    /// A converged reference for a scene, as NAME=FILE.exr (NAME is the scene file's stem, and
+    /// must be one of the scenes benchmarked).
     /// cornell-box defaults to the independent Mitsuba reference in tests/data; other scenes
     /// without one get a tessera render at --reference-spp, cached under --cache.
     #[arg(long = "reference")]
     references: Vec<String>,
     /// Samples per pixel of the references tessera renders itself.
-    #[arg(long, default_value_t = 16384)]
+    #[arg(long, default_value_t = 16384, value_parser = clap::value_parser!(u32).range(1..))]
     reference_spp: u32,
     /// Where self-rendered references are cached (keyed by scene hash and spp).
     #[arg(long, default_value = "target/bench-cache")]
@@ -351,23 +352,44 @@ fn machine(clock_ghz: f64) -> String {
     )
 }
 
+/// The `--reference NAME=FILE.exr` arguments by scene name, checked before anything renders:
+/// a malformed one, a name given twice or a name that is none of `names` is an error, since a
+/// reference silently ignored would leave the report measured against another one.
+fn given_references<'a>(
+    args: &'a BenchArgs,
+    names: &[String],
+) -> Result<BTreeMap<&'a str, &'a Path>> {
+    let mut given = BTreeMap::new();
+    for r in &args.references {
+        let (name, file) = r
+            .split_once('=')
+            .with_context(|| format!("--reference {r:?}: expected NAME=FILE.exr"))?;
+        if !names.iter().any(|n| n == name) {
+            bail!(
+                "--reference {r:?}: no scene is named {name:?} (the scenes are {})",
+                names.join(", ")
+            );
+        }
+        if given.insert(name, Path::new(file)).is_some() {
+            bail!("--reference {r:?}: {name} is given a reference twice");
+        }
+    }
+    Ok(given)
+}
+
 /// The reference for `name`: given, the bundled independent one, or rendered here (cached).
 fn reference(
     args: &BenchArgs,
+    given: Option<&Path>,
     name: &str,
     scene: &Scene,
     pool: &rayon::ThreadPool,
 ) -> Result<(RgbImage, String)> {
-    for r in &args.references {
-        let (n, file) = r
-            .split_once('=')
-            .with_context(|| format!("--reference {r:?}: expected NAME=FILE.exr"))?;
-        if n == name {
-            let img = read_exr_rgb(Path::new(file))?;
-            let origin = read_exr_provenance(Path::new(file))?
-                .unwrap_or_else(|| "its header does not say where it came from".into());
-            return Ok((img, format!("`{file}` ({origin})")));
-        }
+    if let Some(file) = given {
+        let img = read_exr_rgb(file)?;
+        let origin = read_exr_provenance(file)?
+            .unwrap_or_else(|| "its header does not say where it came from".into());
+        return Ok((img, format!("`{}` ({origin})", file.display())));
     }
     let bundled = Path::new("tests/data").join(format!("{name}-reference.exr"));
     if bundled.is_file() {
@@ -429,6 +451,16 @@ pub fn run(args: BenchArgs) -> Result<()> {
     } else {
         args.scenes.clone()
     };
+    let names = scenes
+        .iter()
+        .map(|path| {
+            path.file_stem()
+                .and_then(|s| s.to_str())
+                .map(str::to_string)
+                .with_context(|| format!("{}: a scene file needs a UTF-8 name", path.display()))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let given = given_references(&args, &names)?;
     let mut peer_rows = Vec::new();
     for file in &args.peers {
         let text =
@@ -455,14 +487,15 @@ pub fn run(args: BenchArgs) -> Result<()> {
 
     let mut rows = Vec::new();
     let mut references = Vec::new();
-    for path in &scenes {
+    for (path, name) in scenes.iter().zip(&names) {
         let scene = Scene::load(path, &Limits::default())?;
-        let name = path
-            .file_stem()
-            .and_then(|s| s.to_str())
-            .context("scene file name")?
-            .to_string();
-        let (reference, source) = reference(&args, &name, &scene, &pool)?;
+        let (reference, source) = reference(
+            &args,
+            given.get(name.as_str()).copied(),
+            name,
+            &scene,
+            &pool,
+        )?;
         if (reference.width, reference.height) != (scene.width as usize, scene.height as usize) {
             bail!(
                 "the reference for {name} is {}×{}, the scene {}×{}",
@@ -505,7 +538,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 errln!("{}", row.to_csv());
                 rows.push(row);
                 if let Some(peer) = peer.as_mut() {
-                    for row in peer.measure(&name, spp, settings.seed)? {
+                    for row in peer.measure(name, spp, settings.seed)? {
                         errln!("{}", row.to_csv());
                         rows.push(row);
                     }

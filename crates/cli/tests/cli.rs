@@ -364,6 +364,33 @@ fn bench_writes_csv_markdown_and_plot_with_peer_ratios() {
     a.extend(["--reference".into(), "tiny".into()]);
     let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
     assert_clean_failure(&r, &["--reference \"tiny\"", "NAME=FILE.exr"]);
+    // A reference for no scene of the run, or two for one, is refused before anything renders,
+    // rather than left unused.
+    let mut a = args(&peer);
+    a.extend(["--reference".into(), "tyni=ref.exr".into()]);
+    let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_clean_failure(
+        &r,
+        &[
+            "--reference \"tyni=ref.exr\"",
+            "no scene is named \"tyni\"",
+            "tiny",
+        ],
+    );
+    let mut a = args(&peer);
+    a.extend([
+        "--reference".into(),
+        "tiny=a.exr".into(),
+        "--reference".into(),
+        "tiny=b.exr".into(),
+    ]);
+    let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_clean_failure(&r, &["--reference \"tiny=b.exr\"", "twice"]);
+    let mut a = args(&peer);
+    let spp = a.iter().position(|x| x == "--reference-spp").expect("flag") + 1;
+    a[spp] = "0".into();
+    let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_clean_failure(&r, &["--reference-spp"]);
     let mut a = args(&peer);
     let wrong_size = format!("tiny={}", repo("tests/data/cornell-box-reference.exr"));
     a.extend(["--reference".into(), wrong_size]);
