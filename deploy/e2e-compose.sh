@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # End-to-end test of deploy/docker-compose.yml with real containers:
-#   build the image (base images from deploy/airgap-base-images.sh when none can be pulled),
+#   run the README's compose commands verbatim, in an empty environment, and compare the EXR;
+#   then build the image (base images from deploy/airgap-base-images.sh when none can be pulled),
 #   bring up a coordinator and 3 workers with a token, submit the Cornell box from the host CLI,
 #   `docker kill` one worker and cut another off the network for longer than a lease mid-job,
 #   check the EXR is bit-identical to `tessera render`, and that `down -v` leaves nothing.
@@ -23,6 +24,35 @@ if ! docker image inspect rust:1-slim-bookworm >/dev/null 2>&1 || ! docker image
 fi
 cargo build --release -q -p tessera-cli
 T=$PWD/target/release/tessera
+
+echo "== the README's docker compose commands, exactly as written, with no extra environment"
+# The block under "Or everything on one box with docker compose" in README.md, run as a user
+# would paste it into a fresh shell: nothing but PATH and HOME (and DOCKER_HOST, if the host
+# uses one). Compose then passes `TESSERA_WORKER_THREADS=` and `TESSERA_TOKEN=` as empty
+# variables, which must mean "not set".
+README_BLOCK=$(awk '/^Or everything on one box with docker compose/ {f = 1; next}
+                    f && /^```sh/ {b = 1; next}
+                    b && /^```/ {exit}
+                    b {print}' README.md)
+[[ $README_BLOCK == *"docker-compose -f deploy/docker-compose.yml up"* ]] \
+  || { echo "README.md has no docker compose block where expected" >&2; exit 1; }
+[[ ! -e cornell-box.exr ]] || { echo "cornell-box.exr is in the way; move it" >&2; exit 1; }
+readme_cleanup() {
+  docker-compose -f deploy/docker-compose.yml down -v >/dev/null 2>&1 || true
+  rm -f cornell-box.exr
+  cleanup
+}
+trap readme_cleanup EXIT
+printf '%s\n' "$README_BLOCK" | sed 's/^/  $ /'
+timeout 900 env -i PATH="$PATH" HOME="$HOME" ${DOCKER_HOST:+DOCKER_HOST="$DOCKER_HOST"} \
+  bash -euo pipefail -c "$README_BLOCK" \
+  || { echo "the README's docker compose commands failed" >&2; exit 1; }
+"$T" render scenes/cornell-box.toml --spp 256 --output "$OUT/readme-local.exr" >/dev/null
+cmp cornell-box.exr "$OUT/readme-local.exr" \
+  || { echo "the README's compose EXR differs from tessera render's" >&2; exit 1; }
+rm -f cornell-box.exr
+trap cleanup EXIT
+echo "== README commands: bit-identical to tessera render"
 
 export TESSERA_PORT=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 export TESSERA_TOKEN=$(od -An -N32 -tx1 /dev/urandom | tr -d ' \n')

@@ -29,14 +29,14 @@ fn job() -> Job {
 
 fuzz_target!(|data: &[u8]| {
     let j = job();
-    let _ = decode_sums(data, j.tiles[0]);
+    let _ = decode_sums(data, j.tiles.get(0).expect("tile 0"));
     let Ok(req) = pb::SubmitResultRequest::decode(data) else {
         return;
     };
     let mut core = Core::new(1, Duration::from_secs(60));
     core.jobs.insert(1, j);
     let now = Instant::now();
-    let w = core.register("fuzz".into(), 1, "0".into(), now);
+    let w = core.register("fuzz".into(), 1, "0".into(), "s".into(), now);
     let _ = core.lease(w, 64, now);
     let Some(result) = req.result else { return };
     let Ok(sums) = tessera_coordinator::decode_result(result) else {

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{anyhow, bail, Context, Result};
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 use tessera_coordinator::ServerTls;
 use tessera_proto::client::{endpoint, Bearer, ClientOptions, ClientTls};
 use tessera_proto::v1 as pb;
@@ -14,7 +14,8 @@ use tessera_proto::v1::jobs_client::JobsClient;
 use tessera_proto::{parse_token, Secret};
 use tessera_render::scene::Limits;
 
-use crate::render::check_output_dir;
+use crate::render::{check_extension, check_output_dir};
+use crate::{printable, progress_style};
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
 use tonic::Code;
@@ -54,11 +55,14 @@ fn read_file(what: &str, path: &Path) -> Result<Vec<u8>> {
 /// clap's `env`, so that `--help` can never print it.
 fn load_token(file: Option<&Path>) -> Result<Option<Secret>> {
     let (text, source) = match file {
-        Some(p) => (
-            String::from_utf8(read_file("--token-file", p)?)
-                .map_err(|_| anyhow!("--token-file {}: not text", p.display()))?,
-            format!("--token-file {}", p.display()),
-        ),
+        Some(p) => {
+            warn_if_others_can_read(p);
+            (
+                String::from_utf8(read_file("--token-file", p)?)
+                    .map_err(|_| anyhow!("--token-file {}: not text", p.display()))?,
+                format!("--token-file {}", p.display()),
+            )
+        }
         None => match std::env::var("TESSERA_TOKEN") {
             Ok(t) if !t.trim().is_empty() => (t, "TESSERA_TOKEN".to_string()),
             _ => return Ok(None),
@@ -67,6 +71,25 @@ fn load_token(file: Option<&Path>) -> Result<Option<Secret>> {
     parse_token(&text)
         .map(Some)
         .map_err(|e| anyhow!("{source}: {e}"))
+}
+
+/// Warns when a token file can be read by others than its owner: whoever reads it can act as
+/// any client or worker of the farm.
+fn warn_if_others_can_read(path: &Path) {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        if let Ok(m) = std::fs::metadata(path) {
+            let mode = m.permissions().mode() & 0o777;
+            if mode & 0o077 != 0 {
+                errln!(
+                    "warning: --token-file {} can be read by others (mode {mode:03o}); `chmod 600 {}`",
+                    path.display(),
+                    path.display()
+                );
+            }
+        }
+    }
 }
 
 impl CoordinatorUrl {
@@ -141,6 +164,12 @@ pub struct CoordinatorArgs {
     /// Invalid results after which a worker is quarantined.
     #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u64).range(1..))]
     quarantine_after: u64,
+    /// Most units one worker may hold at once (a stock worker holds at most 3).
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    max_leases_per_worker: u32,
+    /// Most client connections open at once.
+    #[arg(long, default_value_t = 1024, value_parser = clap::value_parser!(u32).range(1..))]
+    max_connections: u32,
 }
 
 /// Arguments of `tessera worker`.
@@ -247,11 +276,14 @@ fn runtime() -> Result<tokio::runtime::Runtime> {
 
 /// Logs to stderr; `RUST_LOG` overrides the default `info`.
 fn init_logging() {
+    use std::io::IsTerminal as _;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    // Colour codes only for a person at a terminal, not in a log file or `docker logs`.
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal())
         .try_init();
 }
 
@@ -298,6 +330,8 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
         .max_message_bytes
         .max(args.max_scene_bytes + (1 << 20));
     config.quarantine_after = args.quarantine_after;
+    config.max_leases_per_worker = args.max_leases_per_worker as usize;
+    config.max_connections = args.max_connections as usize;
     config.token = load_token(args.token_file.as_deref())?;
     if let (Some(cert), Some(key)) = (&args.tls_cert, &args.tls_key) {
         config.tls = Some(ServerTls {
@@ -321,12 +355,15 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
             .await
             .with_context(|| format!("--listen {}: cannot listen", args.listen))?;
         let addr = listener.local_addr()?;
-        tracing::info!("coordinator listening on {addr}; auth: {auth}");
-        // A line on stdout that scripts (and tests) can wait for; stdout is line-buffered, so
-        // the newline sends it. Best effort: a script that read it and closed the pipe must
-        // not stop the server.
-        let _ = writeln!(std::io::stdout(), "listening on {addr}");
-        tessera_coordinator::serve(config, listener, shutdown_signal()).await?;
+        // Said once the store is open and the TLS key loaded, so that a script (or a person)
+        // waiting for it knows the coordinator is really up; a failure before that is the
+        // one line of the error instead. stdout is line-buffered, so the newline sends it.
+        // Best effort: a script that read it and closed the pipe must not stop the server.
+        let ready = move || {
+            tracing::info!("auth: {auth}");
+            let _ = writeln!(std::io::stdout(), "listening on {addr}");
+        };
+        tessera_coordinator::serve_when_ready(config, listener, shutdown_signal(), ready).await?;
         Ok(())
     })
 }
@@ -401,16 +438,78 @@ fn fmt_eta(secs: f64) -> String {
     }
 }
 
+/// Notices a job that waits with no worker to render it, and says so once.
+///
+/// Without this, `submit --wait` on a farm whose workers never started (or all crashed) shows
+/// a bar that never moves. The job keeps waiting: a worker may join at any time.
+#[derive(Default)]
+struct IdleFarm {
+    /// Since when the job has had no unit leased.
+    since: Option<std::time::Instant>,
+    /// When the coordinator's worker list was last read.
+    checked: Option<std::time::Instant>,
+    /// The warning is on screen (until a worker shows up).
+    warned: bool,
+}
+
+impl IdleFarm {
+    /// How long a job may sit with nothing leased before the worker list is read: long enough
+    /// for a live worker's next lease call, short enough that a person is told at once.
+    const GRACE: Duration = Duration::from_secs(2);
+
+    async fn observe(
+        &mut self,
+        s: &pb::JobStatus,
+        client: &mut Client,
+        url: &str,
+        bar: &ProgressBar,
+    ) {
+        let waiting = matches!(
+            pb::JobState::try_from(s.state),
+            Ok(pb::JobState::Queued | pb::JobState::Running)
+        ) && s.units_leased == 0;
+        if !waiting {
+            self.since = None;
+            self.warned = false;
+            return;
+        }
+        let now = std::time::Instant::now();
+        let since = *self.since.get_or_insert(now);
+        let due = self
+            .checked
+            .is_none_or(|c| now.duration_since(c) >= Self::GRACE);
+        if now.duration_since(since) < Self::GRACE || !due {
+            return;
+        }
+        self.checked = Some(now);
+        let Ok(list) = client.list_workers(pb::ListWorkersRequest {}).await else {
+            return;
+        };
+        let live = list
+            .into_inner()
+            .workers
+            .iter()
+            .any(|w| w.alive && !w.quarantined);
+        if live {
+            self.warned = false;
+        } else if !self.warned {
+            self.warned = true;
+            bar.suspend(|| {
+                errln!(
+                    "no worker is connected to {url}; start one with `tessera worker --coordinator {url}` (still waiting)"
+                )
+            });
+        }
+    }
+}
+
 /// Follows a job until it ends, with a progress bar on stderr; errors unless it is done.
 async fn follow(client: &mut Client, url: &str, job: &str) -> Result<pb::JobStatus> {
     let bar = ProgressBar::new(1);
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{spinner} [{elapsed_precise}] {wide_bar} {percent:>3}% {msg}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
+    bar.set_style(progress_style("{percent:>3}% {wide_msg}"));
     let mut last: Option<pb::JobStatus> = None;
+    let mut workers = client.clone();
+    let mut idle = IdleFarm::default();
     // A coordinator restart or a network blip breaks the stream; the job survives both, so
     // reconnect (the channel does so by itself) for up to OUTAGE before giving up.
     const OUTAGE: Duration = Duration::from_secs(600);
@@ -428,6 +527,7 @@ async fn follow(client: &mut Client, url: &str, job: &str) -> Result<pb::JobStat
             while let Some(s) = stream.message().await? {
                 down_since = None;
                 attempt = 0;
+                idle.observe(&s, &mut workers, url, &bar).await;
                 bar.set_length(s.samples_total.max(1));
                 bar.set_position(s.samples_done);
                 bar.set_message(format!(
@@ -503,12 +603,25 @@ async fn download(client: &mut Client, url: &str, job: &str, out: &Path) -> Resu
         .parent()
         .filter(|d| !d.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
-    let tmp = dir.join(format!(
-        ".{}.part",
-        out.file_name().and_then(|n| n.to_str()).unwrap_or("fetch")
-    ));
-    std::fs::write(&tmp, &data).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, out).with_context(|| format!("writing {}", out.display()))?;
+    // A fresh, randomly named file (created exclusively, never through a link someone left
+    // under a predictable name), renamed over `out` once complete.
+    let mut tmp = tempfile::Builder::new()
+        .prefix(".tessera-fetch-")
+        .suffix(".part")
+        .tempfile_in(dir)
+        .with_context(|| {
+            format!(
+                "writing {}: cannot create a file in {}",
+                out.display(),
+                dir.display()
+            )
+        })?;
+    tmp.write_all(&data)
+        .and_then(|()| tmp.as_file().sync_all())
+        .with_context(|| format!("writing {}", out.display()))?;
+    tmp.persist(out)
+        .map_err(|e| e.error)
+        .with_context(|| format!("writing {}", out.display()))?;
     Ok(data.len() as u64)
 }
 
@@ -518,6 +631,7 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
         if !args.wait {
             bail!("--output needs --wait (or use `tessera fetch JOB --output FILE` later)");
         }
+        check_extension("--output", o, "exr")?;
         check_output_dir(o)?;
     }
     let text = std::fs::read_to_string(&args.scene)
@@ -588,9 +702,13 @@ fn print_job(s: &pb::JobStatus) -> std::io::Result<()> {
     outln!("{}", s.job_id);
     outln!("  state      {}", state_name(s.state));
     if !s.error.is_empty() {
-        outln!("  error      {}", s.error);
+        outln!("  error      {}", printable(&s.error));
     }
-    outln!("  scene      {} (sha256 {})", s.scene_name, s.scene_hash);
+    outln!(
+        "  scene      {} (sha256 {})",
+        printable(&s.scene_name),
+        s.scene_hash
+    );
     outln!(
         "  image      {}×{}, {} spp, seed {}, batch {}, tiles {}",
         s.width,
@@ -664,7 +782,7 @@ pub fn status(args: StatusArgs) -> Result<()> {
                 100.0 * s.units_done as f64 / s.units_total.max(1) as f64,
                 s.units_total,
                 fmt_eta(s.eta_seconds),
-                s.scene_name
+                printable(&s.scene_name)
             );
         }
         Ok(())
@@ -719,7 +837,7 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
             outln!(
                 "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>8.1}s",
                 w.worker_id,
-                w.name,
+                printable(&w.name),
                 w.cores,
                 if w.quarantined {
                     "quarantined"
@@ -741,6 +859,7 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
 
 /// Runs `tessera fetch`.
 pub fn fetch(args: FetchArgs) -> Result<()> {
+    check_extension("--output", &args.output, "exr")?;
     check_output_dir(&args.output)?;
     let url = args.url.coordinator.clone();
     runtime()?.block_on(async {

@@ -66,6 +66,7 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    forget_empty_settings();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Render(args) => render::run(args),
@@ -90,6 +91,48 @@ fn main() -> ExitCode {
     }
 }
 
+/// Removes every `TESSERA_*` environment variable whose value is empty (or blank), before
+/// clap reads them.
+///
+/// An empty variable means "not set" to people and to the tools that pass settings on:
+/// docker compose turns `${TESSERA_WORKER_THREADS:-}` into `TESSERA_WORKER_THREADS=` when the
+/// host has none, and clap would then refuse `--threads ''` and crash-loop every worker.
+/// Runs first in `main`, while the process has one thread.
+fn forget_empty_settings() {
+    for (key, value) in std::env::vars_os() {
+        let ours = key.to_str().is_some_and(|k| k.starts_with("TESSERA_"));
+        let blank = value.to_str().is_some_and(|v| v.trim().is_empty());
+        if ours && blank {
+            std::env::remove_var(key);
+        }
+    }
+}
+
+/// A progress bar style that fits an 80-column terminal: the bar keeps a fixed width and the
+/// message (`tail`, which must contain `{wide_msg}`) is cut to what is left, rather than the
+/// message pushing the bar down to nothing.
+fn progress_style(tail: &str) -> indicatif::ProgressStyle {
+    indicatif::ProgressStyle::with_template(&format!(
+        "{{spinner}} [{{elapsed_precise}}] {{bar:24}} {tail}"
+    ))
+    .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+}
+
+/// `s` with control characters (escape sequences, carriage returns) written as escapes: for
+/// names that came from someone else (a worker's, a scene's), which must not be able to move
+/// the cursor or recolour the terminal of whoever lists them.
+fn printable(s: &str) -> String {
+    s.chars()
+        .map(|c| {
+            if c.is_control() {
+                c.escape_default().to_string()
+            } else {
+                c.to_string()
+            }
+        })
+        .collect()
+}
+
 /// Whether an error comes from writing to a pipe whose reader has closed it.
 fn is_broken_pipe(e: &anyhow::Error) -> bool {
     e.chain().any(|cause| {
@@ -97,4 +140,35 @@ fn is_broken_pipe(e: &anyhow::Error) -> bool {
             .downcast_ref::<std::io::Error>()
             .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
     })
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_progress_bar_keeps_its_width_at_80_columns() {
+        use indicatif::{InMemoryTerm, ProgressBar, ProgressDrawTarget};
+        let term = InMemoryTerm::new(4, 80);
+        let bar = ProgressBar::with_draw_target(
+            Some(100),
+            ProgressDrawTarget::term_like(Box::new(term.clone())),
+        );
+        bar.set_style(super::progress_style("{percent:>3}% {wide_msg}"));
+        bar.set_message(
+            "running 1234/5678 units, 12.34 Msamples/s, noise 1.23%, ETA 1h02m, and then some",
+        );
+        bar.set_position(50);
+        bar.tick();
+        let screen = term.contents();
+        let line = screen.lines().next().unwrap_or_default();
+        assert!(line.chars().count() <= 80, "{line:?}");
+        assert!(line.contains(" 50%"), "{line:?}");
+        let filled = line.chars().filter(|&c| c == '█').count();
+        assert_eq!(filled, 12, "half of a 24-column bar: {line:?}");
+    }
+
+    #[test]
+    fn names_from_others_cannot_drive_the_terminal() {
+        assert_eq!(super::printable("w\u{1b}[2J\rx"), "w\\u{1b}[2J\\rx");
+        assert_eq!(super::printable("rendu-é"), "rendu-é");
+    }
 }

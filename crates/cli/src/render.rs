@@ -5,7 +5,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 use tessera_render::output::{render_metadata, write_exr, write_png_preview, ExrChannels, Preview};
 use tessera_render::scene::{Limits, Scene};
 use tessera_render::{render_frame, RenderSettings, Strategy};
@@ -84,16 +84,45 @@ impl StrategyArg {
     }
 }
 
-/// Fails early, before any rendering, if `out` is to go into a directory that does not exist.
+/// Fails early, before any rendering, if `out` cannot be written: its directory does not
+/// exist or is not writable, or `out` is a directory.
 pub fn check_output_dir(out: &std::path::Path) -> Result<()> {
-    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        if !dir.is_dir() {
-            bail!(
-                "{}: output directory {} does not exist",
-                out.display(),
-                dir.display()
-            );
-        }
+    let dir = out
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(std::path::Path::new("."));
+    if !dir.is_dir() {
+        bail!(
+            "{}: output directory {} does not exist",
+            out.display(),
+            dir.display()
+        );
+    }
+    if out.is_dir() {
+        bail!("{}: is a directory", out.display());
+    }
+    // The file is written as a new file in that directory, then renamed: try exactly that
+    // now rather than after a long render.
+    tempfile::Builder::new()
+        .prefix(".tessera-probe-")
+        .tempfile_in(dir)
+        .map(drop)
+        .with_context(|| format!("{}: cannot write in {}", out.display(), dir.display()))
+}
+
+/// Fails unless `out`'s name ends in `.ext` (any case): a file is read by its extension, and
+/// an EXR named `.png` (or a PNG named `.jpg`) is a file no program opens as what it says.
+pub fn check_extension(flag: &str, out: &std::path::Path, ext: &str) -> Result<()> {
+    let ok = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case(ext));
+    if !ok {
+        bail!(
+            "{flag} {}: the file is written as {}, so its name must end in .{ext}",
+            out.display(),
+            ext.to_uppercase()
+        );
     }
     Ok(())
 }
@@ -109,6 +138,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
             args.spp,
             args.max_spp
         );
+    }
+    check_extension("--output", &args.output, "exr")?;
+    if let Some(p) = &args.preview {
+        check_extension("--preview", p, "png")?;
     }
     for out in std::iter::once(&args.output).chain(args.preview.as_ref()) {
         check_output_dir(out)?;
@@ -134,12 +167,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
 
     let total = scene.width as u64 * scene.height as u64 * settings.spp as u64;
     let bar = ProgressBar::new(total);
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{spinner} [{elapsed_precise}] {wide_bar} {percent:>3}% {msg} ETA {eta}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
+    bar.set_style(crate::progress_style("{percent:>3}% ETA {eta} {wide_msg}"));
     let done = AtomicU64::new(0);
     let start = Instant::now();
     let sums = pool.install(|| {

@@ -223,6 +223,95 @@ fn bad_flags_and_paths_are_refused() {
     );
 }
 
+#[test]
+fn outputs_are_checked_before_rendering() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = |n: &str| dir.path().join(n).display().to_string();
+    // A 4096² scene at many spp would take minutes: every refusal below must come before it
+    // renders anything, or the test would time out.
+    let big = write(
+        dir.path(),
+        "big.toml",
+        &std::fs::read_to_string(repo("scenes/cornell-box.toml"))
+            .expect("scene")
+            .replace("width = 256", "width = 4096")
+            .replace("height = 256", "height = 4096"),
+    );
+    let render = |extra: &[&str]| {
+        let mut args = vec!["render", big.as_str(), "--spp", "4096"];
+        args.extend_from_slice(extra);
+        tessera(&args)
+    };
+    // A file is named for what it is.
+    assert_clean_failure(
+        &render(&["--output", &d("x.png")]),
+        &["--output", "must end in .exr"],
+    );
+    assert_clean_failure(
+        &render(&["--output", &d("x.exr"), "--preview", &d("x.jpg")]),
+        &["--preview", "must end in .png"],
+    );
+    // An unwritable preview (here: a directory in the way) fails at once, not after the render.
+    std::fs::create_dir(dir.path().join("taken.png")).expect("mkdir");
+    assert_clean_failure(
+        &render(&["--output", &d("x.exr"), "--preview", &d("taken.png")]),
+        &["taken.png", "is a directory"],
+    );
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let ro = dir.path().join("ro");
+        std::fs::create_dir(&ro).expect("mkdir");
+        std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o555)).expect("chmod");
+        // root writes anywhere: the check only means something for other users.
+        if std::fs::write(ro.join("probe"), b"").is_err() {
+            assert_clean_failure(
+                &render(&["--output", &d("x.exr"), "--preview", &d("ro/p.png")]),
+                &["p.png", "cannot write"],
+            );
+        }
+    }
+    assert!(!dir.path().join("x.exr").exists());
+    // The client commands check their outputs the same way.
+    assert_clean_failure(
+        &tessera(&["fetch", "job-000001", "--output", &d("x.png")]),
+        &["must end in .exr"],
+    );
+}
+
+#[test]
+fn a_token_file_others_can_read_is_warned_about() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let token = write(dir.path(), "token", "0123456789abcdef0123456789abcdef\n");
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&token, std::fs::Permissions::from_mode(0o644)).expect("chmod");
+        let out = tessera(&[
+            "status",
+            "--coordinator",
+            "http://127.0.0.1:1",
+            "--token-file",
+            &token,
+        ]);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            stderr.contains("can be read by others (mode 644)"),
+            "{stderr}"
+        );
+        std::fs::set_permissions(&token, std::fs::Permissions::from_mode(0o600)).expect("chmod");
+        let out = tessera(&[
+            "status",
+            "--coordinator",
+            "http://127.0.0.1:1",
+            "--token-file",
+            &token,
+        ]);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!stderr.contains("read by others"), "{stderr}");
+    }
+}
+
 /// A 12×8 scene that renders in moments, named `tiny`, for the bench's tests.
 fn tiny_bench_scene(dir: &Path) -> String {
     write(

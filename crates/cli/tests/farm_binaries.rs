@@ -196,3 +196,88 @@ fn coordinator_two_workers_and_submit_wait_match_a_local_render() {
         "cannot reach the coordinator at http://127.0.0.1:1",
     );
 }
+
+/// A farm as docker compose starts it: settings passed on as empty variables when the host
+/// has none (`TESSERA_WORKER_THREADS=`, `TESSERA_TOKEN=`) mean "not set", and `submit --wait`
+/// with no worker connected says so and keeps waiting until one joins.
+#[test]
+fn empty_settings_mean_unset_and_a_job_without_workers_says_so() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, url) = coordinator(&dir.path().join("data"));
+    let out = dir.path().join("waited.exr");
+    let mut submit = Command::new(BIN)
+        .args([
+            "submit",
+            &repo("scenes/spheres.toml"),
+            "--spp",
+            "4",
+            "--wait",
+        ])
+        .args(["--coordinator", &url, "--output"])
+        .arg(&out)
+        .env("TESSERA_TOKEN", "")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("submit");
+    let stderr = submit.stderr.take().expect("stderr");
+    let lines = std::sync::Arc::new(std::sync::Mutex::new(String::new()));
+    let sink = lines.clone();
+    let reader = std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            let mut all = sink.lock().expect("lock");
+            all.push_str(&line);
+            all.push('\n');
+        }
+    });
+    let _submit = Proc(submit);
+    let said = || lines.lock().expect("lock").clone();
+    wait_for("the no-worker warning", || {
+        said().contains("no worker is connected")
+    });
+    assert!(
+        said().contains(&format!("tessera worker --coordinator {url}")),
+        "{}",
+        said()
+    );
+
+    // A worker started the way compose starts it, with blank settings.
+    let _w = Proc(
+        Command::new(BIN)
+            .args(["worker", "--name", "blank"])
+            .env("TESSERA_COORDINATOR", &url)
+            .env("TESSERA_WORKER_THREADS", "")
+            .env("TESSERA_TOKEN", " ")
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("worker"),
+    );
+    let mut submit = _submit;
+    let mut status = None;
+    wait_for("submit --wait to finish", || {
+        status = submit.0.try_wait().expect("wait");
+        status.is_some()
+    });
+    reader.join().expect("reader");
+    assert!(
+        status.is_some_and(|s| s.success()),
+        "{status:?}: {}",
+        said()
+    );
+    assert!(out.exists());
+    let table = String::from_utf8_lossy(&tessera(&["workers"], &url).stdout).to_string();
+    assert!(table.contains("blank"), "{table}");
+
+    // A blank coordinator URL falls back to the default instead of failing to parse.
+    let out = Command::new(BIN)
+        .args(["status", "job-000001"])
+        .env("TESSERA_COORDINATOR", "")
+        .output()
+        .expect("status");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() || stderr.contains("http://127.0.0.1:7878"),
+        "{stderr}"
+    );
+}

@@ -24,7 +24,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use tessera_proto::v1::jobs_server::JobsServer;
 use tessera_proto::v1::workers_server::WorkersServer;
 use tessera_proto::Secret;
-use tessera_render::output::{render_metadata, write_exr, ExrChannels};
+use tessera_render::output::{render_metadata, write_new_exr, ExrChannels};
 use tessera_render::scene::Limits;
 use tessera_render::{assemble_frame, TileSums, IMAGE_REVISION};
 use tokio::sync::{mpsc, oneshot, watch};
@@ -32,6 +32,7 @@ use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Certificate, Identity, ServerTlsConfig};
 use tracing::{error, info, warn};
 
+mod conn;
 mod service;
 pub use service::decode_result;
 pub mod state;
@@ -65,7 +66,21 @@ pub struct Config {
     pub tls: Option<ServerTls>,
     /// Refused results after which a worker is quarantined (no more leases or results).
     pub quarantine_after: u64,
+    /// Most leases one worker registration may hold at once.
+    pub max_leases_per_worker: usize,
+    /// Most client connections open at once; more wait to be accepted until one closes.
+    pub max_connections: usize,
+    /// A connection that sends nothing (not even an answer to a keepalive ping) for this long
+    /// is closed.
+    pub idle_connection: Duration,
 }
+
+/// Scenes parsed at once by submissions: parsing a large scene takes many times its size in
+/// memory, so concurrent submissions of large scenes queue rather than all parse together.
+pub const MAX_CONCURRENT_PARSES: usize = 2;
+
+/// Streams one connection may have open at once.
+pub const MAX_STREAMS_PER_CONNECTION: u32 = 64;
 
 /// The coordinator's TLS identity, and optionally the CA its clients' certificates must chain to.
 #[derive(Clone, Debug)]
@@ -96,6 +111,9 @@ impl Config {
             token: None,
             tls: None,
             quarantine_after: 5,
+            max_leases_per_worker: 8,
+            max_connections: 1024,
+            idle_connection: Duration::from_secs(60),
         }
     }
 
@@ -223,11 +241,18 @@ async fn finish_job(shared: Arc<Shared>, id: u64) {
     let gathered = {
         let core = shared.core();
         core.jobs.get(&id).map(|job| {
-            let tiles: Vec<TileSums> = job
-                .acc
-                .iter()
-                .zip(&job.tiles)
-                .map(|(a, &r)| a.sums.clone().unwrap_or_else(|| TileSums::empty(r, 0)))
+            // Every tile has sums by now; a tile without (which would be a bug) is written
+            // black rather than left out of the frame.
+            let tiles: Vec<TileSums> = (0..job.tiles.len() as u32)
+                .filter_map(|t| {
+                    let rect = job.tiles.get(t)?;
+                    Some(
+                        job.acc
+                            .get(&t)
+                            .and_then(|a| a.sums.clone())
+                            .unwrap_or_else(|| TileSums::empty(rect, 0)),
+                    )
+                })
                 .collect();
             (job.rec.clone(), job.settings(), tiles)
         })
@@ -245,7 +270,9 @@ async fn finish_job(shared: Arc<Shared>, id: u64) {
             variance: rec.variance,
             samples: rec.sample_count,
         };
-        write_exr(
+        // Never over another file: output names are unique among the coordinator's jobs, so a
+        // file already there was put there by someone else, and is theirs.
+        write_new_exr(
             &path,
             &image,
             channels,
@@ -291,9 +318,11 @@ fn open(config: Config) -> Result<Opened, CoordinatorError> {
     let epoch = store.next_epoch()?;
     let mut core = Core::new(epoch, config.lease_timeout);
     core.quarantine_after = config.quarantine_after.max(1);
+    core.max_leases_per_worker = config.max_leases_per_worker.max(1);
     let mut to_finish = Vec::new();
     // Start-up changes to job records, written in one transaction.
     let mut ops = Vec::new();
+    let mut failing = Vec::new();
     for loaded in store.load()? {
         let id = loaded.record.id;
         let mut job = Job::restore(loaded)
@@ -320,8 +349,22 @@ fn open(config: Config) -> Result<Opened, CoordinatorError> {
         core.next_job = core.next_job.max(id + 1);
         core.jobs.insert(id, job);
         if let Some(why) = stale {
-            warn!("{}: {why}", job_name(id));
-            ops.extend(core.end_job(id, JobPhase::Failed, why, now_ms()));
+            failing.push((id, why));
+        }
+    }
+    // Failed once every job is in, so that a scene another job still needs is kept.
+    for (id, why) in failing {
+        warn!("{}: {why}", job_name(id));
+        ops.extend(core.end_job(id, JobPhase::Failed, why, now_ms()));
+    }
+    // Scenes that no live job needs (left by a coordinator that kept them all) go.
+    for hash in store.scene_hashes()? {
+        let live = core
+            .jobs
+            .values()
+            .any(|j| j.rec.phase == JobPhase::Active && j.rec.scene_hash == hash);
+        if !live {
+            ops.push(Op::DropScene(hash));
         }
     }
     if !ops.is_empty() {
@@ -356,10 +399,36 @@ pub async fn serve(
     listener: tokio::net::TcpListener,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<(), CoordinatorError> {
+    serve_when_ready(config, listener, shutdown, || {}).await
+}
+
+/// [`serve`], calling `ready` once the TLS identity is loaded and the store is open and
+/// restored: the moment to tell a person or a script that the coordinator is up. Any error
+/// before that (a bad key, a damaged store) comes back instead, and `ready` is not called.
+pub async fn serve_when_ready(
+    config: Config,
+    listener: tokio::net::TcpListener,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+    ready: impl FnOnce(),
+) -> Result<(), CoordinatorError> {
     let max_msg = config.max_message_bytes;
     let lease_timeout = config.lease_timeout;
     let auth = AuthCheck::new(config.token.as_ref());
-    let tls = config.tls.clone();
+    let mut builder = tonic::transport::Server::builder()
+        // A connection that sends nothing is closed rather than kept for ever, and one
+        // connection cannot open unbounded streams.
+        .http2_keepalive_interval(Some(Duration::from_secs(30)))
+        .http2_keepalive_timeout(Some(Duration::from_secs(20)))
+        .max_concurrent_streams(Some(MAX_STREAMS_PER_CONNECTION));
+    if let Some(tls) = &config.tls {
+        let mut cfg = ServerTlsConfig::new()
+            .identity(Identity::from_pem(&tls.cert_pem, tls.key_pem.expose()));
+        if let Some(ca) = &tls.client_ca_pem {
+            cfg = cfg.client_ca_root(Certificate::from_pem(ca));
+        }
+        builder = builder.tls_config(cfg)?;
+    }
+    let (max_connections, idle) = (config.max_connections, config.idle_connection);
     let (shared, rx, to_finish) = open(config)?;
     let writer = tokio::spawn(writer(shared.store.clone(), rx));
     for id in to_finish {
@@ -386,17 +455,10 @@ pub async fn serve(
     };
     let svc = service::Service {
         shared: shared.clone(),
+        parses: Arc::new(tokio::sync::Semaphore::new(MAX_CONCURRENT_PARSES)),
     };
-    let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
-    let mut builder = tonic::transport::Server::builder();
-    if let Some(tls) = &tls {
-        let mut cfg = ServerTlsConfig::new()
-            .identity(Identity::from_pem(&tls.cert_pem, tls.key_pem.expose()));
-        if let Some(ca) = &tls.client_ca_pem {
-            cfg = cfg.client_ca_root(Certificate::from_pem(ca));
-        }
-        builder = builder.tls_config(cfg)?;
-    }
+    let incoming = conn::Limited::new(listener, max_connections, idle);
+    ready();
     let result = builder
         .add_service(InterceptedService::new(
             JobsServer::new(svc.clone())
@@ -456,6 +518,14 @@ impl tonic::service::Interceptor for AuthCheck {
             Some(_) => Err(tonic::Status::unauthenticated("wrong token")),
         }
     }
+}
+
+/// Whether `name` is the default output name of some job (`job-NNNNNN.exr`): such names are
+/// kept for the jobs they name, so that nobody can take a later job's name in advance.
+pub(crate) fn is_default_output_name(name: &str) -> bool {
+    name.strip_suffix(".exr")
+        .and_then(state::parse_job)
+        .is_some()
 }
 
 /// Whether `name` is an acceptable output file name.

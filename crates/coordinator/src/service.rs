@@ -16,14 +16,18 @@ use tokio_stream::Stream;
 use tonic::{Request, Response, Status};
 use tracing::{info, warn};
 
-use crate::state::{job_name, parse_job, truncate, Core, Job, Merged, Refusal, Unit};
+use crate::state::{job_name, parse_job, truncate, Core, Job, Merged, Refusal, TileGrid, Unit};
 use crate::store::{JobPhase, JobRecord, Op, StoredScene};
-use crate::{check_output_name, durable, finish_job, now_ms, output_path, Shared};
+use crate::{
+    check_output_name, durable, finish_job, is_default_output_name, now_ms, output_path, Shared,
+};
 
 /// Both services over the same shared state.
 #[derive(Clone)]
 pub(crate) struct Service {
     pub(crate) shared: Arc<Shared>,
+    /// Permits to parse a submitted scene ([`crate::MAX_CONCURRENT_PARSES`]).
+    pub(crate) parses: Arc<tokio::sync::Semaphore>,
 }
 
 type Stream_<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send>>;
@@ -249,6 +253,13 @@ impl Jobs for Service {
         };
         if !req.output_name.is_empty() {
             check_output_name(&req.output_name).map_err(Status::invalid_argument)?;
+            if is_default_output_name(&req.output_name) {
+                return Err(Status::invalid_argument(format!(
+                    "output name {} is kept for the job of that id; choose another name, or \
+                     none to get the job's own",
+                    req.output_name
+                )));
+            }
         }
         let json = req.scene_format == pb::SceneFormat::Json as i32;
         let name = if req.scene_name.is_empty() {
@@ -256,7 +267,13 @@ impl Jobs for Service {
         } else {
             truncate(&req.scene_name)
         };
-        // Parsing builds the BVH: keep it off the async threads.
+        // Parsing builds the BVH: keep it off the async threads, and few at a time.
+        let _permit = self
+            .parses
+            .clone()
+            .acquire_owned()
+            .await
+            .map_err(|_| Status::unavailable("the coordinator is shutting down"))?;
         let text = req.scene_text;
         let (scene, text, name) = tokio::task::spawn_blocking(move || {
             let format = if json { Format::Json } else { Format::Toml };
@@ -266,7 +283,7 @@ impl Jobs for Service {
         .await
         .map_err(|e| Status::internal(e.to_string()))?;
         let scene = scene.map_err(|e| Status::invalid_argument(e.to_string()))?;
-        let tiles = PixelRect::tiles(scene.width, scene.height, tile_size).len() as u64;
+        let tiles = TileGrid::new(scene.width, scene.height, tile_size).len() as u64;
         let units = tiles * spp_batches(s.spp, batch);
         if units > config.max_units_per_job {
             return Err(Status::resource_exhausted(format!(
@@ -293,14 +310,22 @@ impl Jobs for Service {
             } else {
                 req.output_name
             };
+            // A name stays with its job for good: re-using a finished job's name would change
+            // what `fetch` returns for it.
             if let Some(other) = core
                 .jobs
                 .values()
-                .find(|j| j.rec.phase == JobPhase::Active && j.rec.output_name == output_name)
+                .find(|j| j.rec.output_name == output_name)
             {
                 return Err(Status::already_exists(format!(
-                    "output name {output_name} is in use by {}, which is still running",
+                    "output name {output_name} belongs to {}; choose another",
                     job_name(other.rec.id)
+                )));
+            }
+            if output_path(config, &output_name).exists() {
+                return Err(Status::already_exists(format!(
+                    "output name {output_name}: a file of that name is already in the output \
+                     directory, and the coordinator never overwrites one; choose another"
                 )));
             }
             core.next_job += 1;
@@ -504,6 +529,14 @@ impl Jobs for Service {
     }
 }
 
+/// 128 bits from the operating system's random source, as hex: a worker's secret.
+fn new_secret() -> Result<String, Status> {
+    let mut b = [0u8; 16];
+    getrandom::getrandom(&mut b)
+        .map_err(|e| Status::internal(format!("no random source for a worker secret: {e}")))?;
+    Ok(b.iter().map(|x| format!("{x:02x}")).collect())
+}
+
 fn spp_batches(spp: u32, batch: u32) -> u64 {
     spp.div_ceil(batch.max(1)) as u64
 }
@@ -526,21 +559,26 @@ impl Workers for Service {
             )));
         }
         let lease = self.shared.config.lease_timeout;
+        let secret = new_secret()?;
         let mut core = self.shared.core();
         let n = core.register(
             truncate(&req.name),
             req.cores,
             truncate(&req.version),
+            secret,
             Instant::now(),
         );
-        let id = core.worker_name(n);
+        let credential = core
+            .worker_credential(n)
+            .ok_or_else(|| Status::internal("a registered worker vanished"))?;
         info!(
-            "worker {id} ({}, {} cores) registered",
-            truncate(&req.name),
+            "worker {} ({}, {} cores) registered",
+            core.worker_name(n),
+            truncate(&req.name).escape_debug(),
             req.cores
         );
         Ok(Response::new(pb::RegisterResponse {
-            worker_id: id,
+            worker_id: credential,
             lease_ms: lease.as_millis() as u32,
             heartbeat_ms: (lease / 4).as_millis().max(1) as u32,
         }))
@@ -567,12 +605,13 @@ impl Workers for Service {
                     .filter_map(|g| {
                         let job = core.jobs.get(&g.job)?;
                         let range = job.batch_range(g.unit.batch);
+                        let rect = job.tiles.get(g.unit.tile)?;
                         Some(pb::WorkUnit {
                             lease_id: core.lease_name(g.lease),
                             job_id: job_name(g.job),
                             scene_hash: job.rec.scene_hash.clone(),
                             settings: Some(settings_pb(&job.rec)),
-                            rect: Some(rect_pb(job.tiles[g.unit.tile as usize])),
+                            rect: Some(rect_pb(rect)),
                             tile_index: g.unit.tile,
                             batch_index: g.unit.batch,
                             sample_start: range.start,
@@ -686,17 +725,33 @@ impl Workers for Service {
         request: Request<pb::ReleaseLeasesRequest>,
     ) -> Result<Response<pb::ReleaseLeasesResponse>, Status> {
         let req = request.into_inner();
-        let released = {
+        if req.lease_ids.len() > 4096 {
+            return Err(Status::invalid_argument(format!(
+                "release lists {} leases; at most 4096",
+                req.lease_ids.len()
+            )));
+        }
+        let (released, failed) = {
             let mut core = self.shared.core();
             let w = core.touch_worker(&req.worker_id, Instant::now())?;
+            let failed = if req.cannot_render.is_empty() {
+                None
+            } else {
+                let ops = core.cannot_render(w, &req.lease_ids, &req.cannot_render, now_ms());
+                Some(self.shared.queue_write(ops))
+            };
             let n = core.release(w, &req.lease_ids);
             if req.goodbye {
                 if let Some(worker) = core.workers.get_mut(&w) {
                     worker.gone = true;
                 }
             }
-            n
+            (n, failed)
         };
+        if let Some(rx) = failed {
+            durable(rx).await.map_err(internal)?;
+            self.shared.bump_changed();
+        }
         if released > 0 {
             self.shared.bump_work();
             self.shared.bump_changed();

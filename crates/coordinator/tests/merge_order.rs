@@ -27,7 +27,7 @@ fn record(width: u32, spp: u32, batch: u32) -> JobRecord {
 /// A unit's result: values of very different magnitudes, so that adding them in another
 /// order would change the low bits.
 fn result(job: &Job, u: Unit) -> TileSums {
-    let rect = job.tiles[u.tile as usize];
+    let rect = job.tiles.get(u.tile).expect("tile");
     let mut t = TileSums::empty(rect, 0);
     t.samples = job.batch_range(u.batch);
     let k = t.samples.len() as u32;
@@ -48,7 +48,9 @@ fn merge(width: u32, spp: u32, batch: u32, order: &[usize]) -> Vec<Vec<u64>> {
     let mut core = Core::new(1, Duration::from_secs(60));
     core.jobs.insert(1, Job::new(record(width, spp, batch)));
     let now = Instant::now();
-    let w = core.register("w".into(), 1, "v".into(), now);
+    // One worker holds every unit here, to submit them in any order.
+    core.max_leases_per_worker = usize::MAX;
+    let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
     let granted = core.lease(w, usize::MAX, now);
     let n = granted.len();
     let mut merged = 0;
@@ -66,7 +68,7 @@ fn merge(width: u32, spp: u32, batch: u32, order: &[usize]) -> Vec<Vec<u64>> {
     assert_eq!(merged, n, "every unit merged exactly once");
     core.jobs[&1]
         .acc
-        .iter()
+        .values()
         .map(|a| {
             let s = a.sums.as_ref().expect("merged");
             s.sum

@@ -84,6 +84,28 @@ pub fn write_exr(
     channels: ExrChannels,
     metadata: &[(String, String)],
 ) -> Result<(), OutputError> {
+    write_exr_as(path, image, channels, metadata, false)
+}
+
+/// [`write_exr`], except that an existing file at `path` is left alone and the call fails
+/// with [`std::io::ErrorKind::AlreadyExists`]: for a server that must never replace a file
+/// someone else may rely on (another job's output, a file put there by hand).
+pub fn write_new_exr(
+    path: &Path,
+    image: &Image,
+    channels: ExrChannels,
+    metadata: &[(String, String)],
+) -> Result<(), OutputError> {
+    write_exr_as(path, image, channels, metadata, true)
+}
+
+fn write_exr_as(
+    path: &Path,
+    image: &Image,
+    channels: ExrChannels,
+    metadata: &[(String, String)],
+    no_clobber: bool,
+) -> Result<(), OutputError> {
     let size = (image.width as usize, image.height as usize);
     let plane = |f: &dyn Fn(usize) -> f32| FlatSamples::F32((0..image.rgb.len()).map(f).collect());
     let mut list: Vec<AnyChannel<FlatSamples>> = vec![
@@ -132,7 +154,13 @@ pub fn write_exr(
         let _ = fs::remove_file(&tmp);
         err(e)
     })?;
-    fs::rename(&tmp, path).map_err(|source| {
+    // A hard link, unlike a rename, fails if the name is taken, and is as atomic.
+    let placed = if no_clobber {
+        fs::hard_link(&tmp, path).and_then(|()| fs::remove_file(&tmp))
+    } else {
+        fs::rename(&tmp, path)
+    };
+    placed.map_err(|source| {
         let _ = fs::remove_file(&tmp);
         OutputError::Io {
             path: path.to_path_buf(),

@@ -62,6 +62,25 @@ fn parser_errors() {
         "film.width",
         "invalid value",
     );
+    // A vector of more (or fewer) than three numbers is an error, not its first three.
+    check(
+        &HEAD.replace("eye = [0, 0, 5]", "eye = [0, 0, 3.9, 42]"),
+        4,
+        "camera.eye",
+        "invalid length 4, expected a vector of 3 numbers",
+    );
+    check(
+        &HEAD.replace("eye = [0, 0, 5]", "eye = [0, 0, 3.9, 42, \"junk\"]"),
+        4,
+        "camera.eye",
+        "invalid type",
+    );
+    check(
+        &HEAD.replace("albedo = [0.5, 0.5, 0.5]", "albedo = [0.5, 0.5]"),
+        12,
+        "materials.m.albedo",
+        "invalid length 2",
+    );
 }
 
 #[test]

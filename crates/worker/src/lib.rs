@@ -103,6 +103,12 @@ struct Ctx {
     /// Leases the coordinator no longer wants.
     revoked: Mutex<HashSet<String>>,
     scenes: Mutex<HashMap<String, Arc<Scene>>>,
+    /// Scenes this worker cannot render, by hash, with the reason: fetched and refused once,
+    /// not again for every unit.
+    refused_scenes: Mutex<HashMap<String, String>>,
+    /// Held while registering, so that the tasks that all learn at once that the coordinator
+    /// forgot this worker register it once, not once each.
+    registering: tokio::sync::Mutex<()>,
     stop: watch::Receiver<bool>,
     /// Why the coordinator refused this worker for good, if it did.
     refused: Mutex<Option<String>>,
@@ -143,10 +149,24 @@ impl Ctx {
         }
     }
 
-    /// Registers (again), retrying until it works or shutdown begins. A refusal that retrying
-    /// cannot fix (a wrong token, another image revision) is kept in `refused` and stops the
-    /// worker.
+    /// Registers again after the coordinator said it does not know `stale` (it restarted),
+    /// unless another task already did.
+    async fn reregister(&self, stale: &str) -> bool {
+        let _one = self.registering.lock().await;
+        if self.id() != stale {
+            return true;
+        }
+        self.register_locked().await
+    }
+
+    /// Registers, retrying until it works or shutdown begins. A refusal that retrying cannot
+    /// fix (a wrong token, another image revision) is kept in `refused` and stops the worker.
     async fn register(&self) -> bool {
+        let _one = self.registering.lock().await;
+        self.register_locked().await
+    }
+
+    async fn register_locked(&self) -> bool {
         let mut attempt = 0;
         loop {
             let req = pb::RegisterRequest {
@@ -158,9 +178,11 @@ impl Ctx {
             match self.client.clone().register(req).await {
                 Ok(r) => {
                     let r = r.into_inner();
+                    // The id's secret half stays out of the log.
+                    let public = r.worker_id.split('.').next().unwrap_or_default();
                     info!(
-                        "registered with {} as {} ({} render threads)",
-                        self.config.coordinator, r.worker_id, self.cores
+                        "registered with {} as {public} ({} render threads)",
+                        self.config.coordinator, self.cores
                     );
                     self.heartbeat_ms
                         .store(r.heartbeat_ms.clamp(50, 60_000) as u64, Ordering::Relaxed);
@@ -189,11 +211,23 @@ impl Ctx {
         }
     }
 
-    /// The scene of a unit, fetched and parsed once per hash.
-    async fn scene(&self, hash: &str) -> Result<Arc<Scene>, Status> {
+    /// The scene of a unit, fetched and parsed once per hash. A scene that does not parse
+    /// here (or breaks this worker's limits) is an `Err(Unrenderable)`, remembered.
+    async fn scene(&self, hash: &str) -> Result<Arc<Scene>, SceneError> {
         if let Some(s) = lock(&self.scenes).get(hash) {
             return Ok(s.clone());
         }
+        if let Some(why) = lock(&self.refused_scenes).get(hash) {
+            return Err(SceneError::Unrenderable(why.clone()));
+        }
+        let scene = self.fetch_scene(hash).await;
+        if let Err(SceneError::Unrenderable(why)) = &scene {
+            lock(&self.refused_scenes).insert(hash.to_string(), why.clone());
+        }
+        scene
+    }
+
+    async fn fetch_scene(&self, hash: &str) -> Result<Arc<Scene>, SceneError> {
         let mut attempt = 0;
         let resp = loop {
             let req = pb::GetSceneRequest {
@@ -202,7 +236,7 @@ impl Ctx {
             match self.client.clone().get_scene(req).await {
                 Ok(r) => break r.into_inner(),
                 Err(e) if transient(&e) && self.backoff(&mut attempt).await => continue,
-                Err(e) => return Err(e),
+                Err(e) => return Err(SceneError::Unavailable(e.message().to_string())),
             }
         };
         let format = if resp.scene_format == pb::SceneFormat::Json as i32 {
@@ -219,10 +253,10 @@ impl Ctx {
             )
         })
         .await
-        .map_err(|e| Status::internal(e.to_string()))?
-        .map_err(|e| Status::invalid_argument(e.to_string()))?;
+        .map_err(|e| SceneError::Unavailable(e.to_string()))?
+        .map_err(|e| SceneError::Unrenderable(e.to_string()))?;
         if scene.hash != hash {
-            return Err(Status::data_loss(format!(
+            return Err(SceneError::Unavailable(format!(
                 "scene {hash} arrived with hash {}",
                 scene.hash
             )));
@@ -233,6 +267,12 @@ impl Ctx {
     }
 
     async fn release(&self, leases: Vec<String>, goodbye: bool) {
+        self.hand_back(leases, goodbye, String::new()).await;
+    }
+
+    /// Hands leases back; with a reason in `cannot_render`, their units are ones this worker
+    /// will never be able to render, and the coordinator fails their jobs with it.
+    async fn hand_back(&self, leases: Vec<String>, goodbye: bool, cannot_render: String) {
         if leases.is_empty() && !goodbye {
             return;
         }
@@ -243,11 +283,20 @@ impl Ctx {
             worker_id: self.id(),
             lease_ids: leases,
             goodbye,
+            cannot_render,
         };
         if let Err(e) = self.client.clone().release_leases(req).await {
             debug!("releasing leases: {}", e.message());
         }
     }
+}
+
+/// Why a unit's scene is not at hand.
+enum SceneError {
+    /// The coordinator could not send it (it is gone, or the network is): hand the unit back.
+    Unavailable(String),
+    /// It does not parse here, or breaks this worker's limits: no retry will change that.
+    Unrenderable(String),
 }
 
 /// A leased unit, ready to render.
@@ -309,8 +358,9 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
             s = slots.clone().acquire_owned() => match s { Ok(s) => s, Err(_) => return },
             _ = stop.wait_for(|s| *s) => return,
         };
+        let req_id = ctx.id();
         let req = pb::LeaseRequest {
-            worker_id: ctx.id(),
+            worker_id: req_id.clone(),
             max_units: 1,
             wait_ms: 2000,
         };
@@ -326,7 +376,7 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
             }
             Err(e) if e.code() == Code::NotFound => {
                 warn!("{}", e.message());
-                if !ctx.register().await {
+                if !ctx.reregister(&req_id).await {
                     return;
                 }
                 continue;
@@ -345,17 +395,27 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
         for unit in units {
             lock(&ctx.held).insert(unit.lease_id.clone());
             let prepared = match ctx.scene(&unit.scene_hash).await {
-                Ok(scene) => prepare(&unit, &scene).map(|p| (scene, p)),
-                Err(e) => Err(format!("scene {}: {}", unit.scene_hash, e.message())),
+                Ok(scene) => prepare(&unit, &scene)
+                    .map(|p| (scene, p))
+                    .map_err(SceneError::Unrenderable),
+                Err(e) => Err(e),
             };
             let (scene, (rect, settings)) = match prepared {
                 Ok(p) => p,
-                Err(e) => {
+                Err(SceneError::Unavailable(e)) => {
                     warn!(
-                        "unit {} of {}: {e}; handing it back",
-                        unit.lease_id, unit.job_id
+                        "unit {} of {}: scene {}: {e}; handing it back",
+                        unit.lease_id, unit.job_id, unit.scene_hash
                     );
                     ctx.release(vec![unit.lease_id], false).await;
+                    continue;
+                }
+                Err(SceneError::Unrenderable(e)) => {
+                    warn!(
+                        "unit {} of {}: this worker cannot render it: {e}",
+                        unit.lease_id, unit.job_id
+                    );
+                    ctx.hand_back(vec![unit.lease_id], false, e).await;
                     continue;
                 }
             };
@@ -374,10 +434,13 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
     }
 }
 
-/// A rendered unit on its way back.
+/// A rendered unit on its way back. It keeps its fetcher slot until the coordinator has the
+/// result: a unit waiting to be sent counts against what the worker may hold, or a worker
+/// that renders faster than it can send would lease without bound.
 struct Done {
     unit: pb::WorkUnit,
     sums: TileSums,
+    _slot: OwnedSemaphorePermit,
 }
 
 /// Units rendering at once. Two, so that while one unit's last rows finish on a few threads,
@@ -418,6 +481,7 @@ async fn renderer(ctx: Arc<Ctx>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::Unboun
                     Done {
                         unit: ready.unit,
                         sums,
+                        _slot: ready._slot,
                     }
                 });
             }
@@ -454,8 +518,9 @@ async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
         let result = result_pb(&done.unit, &done.sums);
         let mut attempt = 0;
         loop {
+            let sent_as = ctx.id();
             let req = pb::SubmitResultRequest {
-                worker_id: ctx.id(),
+                worker_id: sent_as.clone(),
                 lease_id: done.unit.lease_id.clone(),
                 job_id: done.unit.job_id.clone(),
                 tile_index: done.unit.tile_index,
@@ -465,7 +530,7 @@ async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
             match ctx.client.clone().submit_result(req).await {
                 Ok(_) => break,
                 Err(e) if e.code() == Code::NotFound && e.message().contains("unknown worker") => {
-                    if !ctx.register().await {
+                    if !ctx.reregister(&sent_as).await {
                         break;
                     }
                 }
@@ -579,6 +644,8 @@ pub async fn run(
         held: Mutex::new(HashSet::new()),
         revoked: Mutex::new(HashSet::new()),
         scenes: Mutex::new(HashMap::new()),
+        refused_scenes: Mutex::new(HashMap::new()),
+        registering: tokio::sync::Mutex::new(()),
         stop,
         refused: Mutex::new(None),
     });

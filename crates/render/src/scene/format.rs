@@ -4,7 +4,21 @@
 
 use std::collections::BTreeMap;
 
-use serde::Deserialize;
+use serde::de::Error as _;
+use serde::{Deserialize, Deserializer};
+
+/// A vector of exactly three numbers. serde's own `[f32; 3]` stops reading after the third
+/// element, so TOML's `[0, 0, 3.9, 42, "junk"]` would load as `[0, 0, 3.9]`: a typo that
+/// silently changes the scene.
+fn exactly_three<'de, D: Deserializer<'de>>(d: D) -> Result<[f32; 3], D::Error> {
+    let v = Vec::<f32>::deserialize(d)?;
+    <[f32; 3]>::try_from(v).map_err(|v| D::Error::invalid_length(v.len(), &"a vector of 3 numbers"))
+}
+
+/// [`exactly_three`] for a key that may be left out.
+fn maybe_three<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f32; 3]>, D::Error> {
+    exactly_three(d).map(Some)
+}
 
 /// A whole scene file.
 #[derive(Debug, Clone, Deserialize)]
@@ -47,10 +61,13 @@ pub struct CameraDesc {
     /// Camera model.
     pub model: CameraModel,
     /// Eye position.
+    #[serde(deserialize_with = "exactly_three")]
     pub eye: [f32; 3],
     /// Look-at target (look_at only).
+    #[serde(default, deserialize_with = "maybe_three")]
     pub target: Option<[f32; 3]>,
     /// Up vector (look_at only; default +y).
+    #[serde(default, deserialize_with = "maybe_three")]
     pub up: Option<[f32; 3]>,
     /// Pitch α in degrees (pitch_yaw only; default 0).
     pub pitch: Option<f32>,
@@ -96,10 +113,13 @@ pub struct EnvironmentDesc {
     #[serde(rename = "type")]
     pub kind: EnvironmentKind,
     /// Radiance (constant).
+    #[serde(default, deserialize_with = "maybe_three")]
     pub radiance: Option<[f32; 3]>,
     /// Radiance straight up (gradient).
+    #[serde(default, deserialize_with = "maybe_three")]
     pub top: Option<[f32; 3]>,
     /// Radiance straight down (gradient).
+    #[serde(default, deserialize_with = "maybe_three")]
     pub bottom: Option<[f32; 3]>,
 }
 
@@ -123,12 +143,15 @@ pub struct MaterialDesc {
     #[serde(rename = "type")]
     pub kind: MaterialKind,
     /// Diffuse reflectance in [0, 1] (diffuse).
+    #[serde(default, deserialize_with = "maybe_three")]
     pub albedo: Option<[f32; 3]>,
     /// Mirror reflectance in [0, 1] (mirror; default 1).
+    #[serde(default, deserialize_with = "maybe_three")]
     pub reflectance: Option<[f32; 3]>,
     /// Index of refraction, inside over outside (dielectric).
     pub ior: Option<f32>,
     /// Emitted radiance; makes every object with this material an area light.
+    #[serde(default, deserialize_with = "maybe_three")]
     pub emission: Option<[f32; 3]>,
     /// Whether the back side reflects and emits like the front (default false: the back of a
     /// diffuse or mirror surface is black and emits nothing).
@@ -158,18 +181,23 @@ pub struct ObjectDesc {
     /// Material name, a key of `[materials]`.
     pub material: String,
     /// Sphere centre (default origin).
+    #[serde(default, deserialize_with = "maybe_three")]
     pub center: Option<[f32; 3]>,
     /// Sphere radius (default 1).
     pub radius: Option<f32>,
     /// Box lower corner (default −1,−1,−1).
+    #[serde(default, deserialize_with = "maybe_three")]
     pub min: Option<[f32; 3]>,
     /// Box upper corner (default 1,1,1).
+    #[serde(default, deserialize_with = "maybe_three")]
     pub max: Option<[f32; 3]>,
     /// Rectangle size (default 2 × 2, the square [−1, 1]²).
     pub size: Option<[f32; 2]>,
     /// A point of the plane (default origin).
+    #[serde(default, deserialize_with = "maybe_three")]
     pub point: Option<[f32; 3]>,
     /// Plane front normal (default +y).
+    #[serde(default, deserialize_with = "maybe_three")]
     pub normal: Option<[f32; 3]>,
     /// Object-to-world transform.
     pub transform: Option<TransformDesc>,
@@ -182,10 +210,12 @@ pub struct TransformDesc {
     /// Row-major 4×4 matrix whose last row is 0 0 0 1; a point p maps to M·[p, 1].
     pub matrix: Option<[[f32; 4]; 4]>,
     /// Translation.
+    #[serde(default, deserialize_with = "maybe_three")]
     pub translate: Option<[f32; 3]>,
     /// Rotation about an axis.
     pub rotate: Option<RotateDesc>,
     /// Per-axis scale.
+    #[serde(default, deserialize_with = "maybe_three")]
     pub scale: Option<[f32; 3]>,
 }
 
@@ -194,6 +224,7 @@ pub struct TransformDesc {
 #[serde(deny_unknown_fields)]
 pub struct RotateDesc {
     /// Axis (any non-zero length).
+    #[serde(deserialize_with = "exactly_three")]
     pub axis: [f32; 3],
     /// Angle in degrees.
     pub degrees: f32,

@@ -1,0 +1,232 @@
+//! Sequences of worker calls from several fake workers, honest and hostile, against the
+//! coordinator's scheduling state ([`Core`], which every `Workers` RPC goes through under the
+//! coordinator's lock): register, lease, heartbeat, release, refuse, submit (honest, forged,
+//! under another worker's lease), time passing, and a second job being cancelled.
+//!
+//! After every call: no worker holds more than its share, nothing merged is non-finite, every
+//! tile's sums cover batches 0..next, and the noise estimate is finite. At the end an honest
+//! worker must be able to finish the main job while the hostile ones keep renewing their
+//! leases and never send anything; if no forged result was merged, the main job's sums must be
+//! bit-identical to merging the honest results in order.
+#![no_main]
+
+use std::time::{Duration, Instant};
+
+use libfuzzer_sys::fuzz_target;
+use tessera_coordinator::state::{Core, Job, Merged, Unit};
+use tessera_coordinator::store::{JobPhase, JobRecord};
+use tessera_render::TileSums;
+
+const LEASE: Duration = Duration::from_secs(4);
+
+fn record(id: u64) -> JobRecord {
+    JobRecord {
+        id,
+        width: 6,
+        height: 5,
+        spp: 9,
+        seed: 0,
+        batch: 2,
+        strategy: "mis".into(),
+        tile_size: 4,
+        output_name: format!("o{id}.exr"),
+        ..JobRecord::default()
+    }
+}
+
+/// The result an honest worker sends for a unit: values that differ per unit and pixel, of
+/// very different magnitudes, so another merge order would change the low bits.
+fn honest(job: &Job, u: Unit) -> TileSums {
+    let rect = job.tiles.get(u.tile).expect("leased tiles exist");
+    let mut t = TileSums::empty(rect, 0);
+    t.samples = job.batch_range(u.batch);
+    let k = t.samples.len() as u32;
+    for i in 0..rect.area() {
+        let v = ((u.tile * 31 + u.batch * 7 + i as u32) % 97) as f64 * 0.37 + 1e-3;
+        t.sum[i] = [v, v * 0.5, v * 1e6];
+        t.sum_sq[i] = [v * v, v * v * 0.25, v * v * 1e12];
+        t.count[i] = k;
+    }
+    t
+}
+
+/// A forged result: one of several lies about an otherwise honest one.
+fn forged(job: &Job, u: Unit, how: u8) -> TileSums {
+    let mut t = honest(job, u);
+    match how % 7 {
+        0 => t.sum_sq[0] = [1.7e308; 3],
+        1 => t.sum[0][1] = f64::NAN,
+        2 => t.sum[0][2] = -1.0,
+        3 => {
+            t.count.pop();
+        }
+        4 => t.samples = t.samples.start..t.samples.end + 1,
+        5 => t.count[0] = 0,
+        // In range and the right shape: undetectable without rendering again.
+        _ => t.sum[0][0] *= 2.0,
+    }
+    t
+}
+
+struct Fake {
+    id: u64,
+    hostile: bool,
+    leases: Vec<(String, u64, Unit)>,
+}
+
+fn check(core: &Core) {
+    for (&w, _) in &core.workers {
+        assert!(
+            core.leases_of(w) <= core.max_leases_per_worker,
+            "worker {w} holds {} leases",
+            core.leases_of(w)
+        );
+    }
+    for job in core.jobs.values() {
+        assert!(job.units_done <= job.units_total());
+        let (rms, rel) = job.noise();
+        assert!(rms.is_finite() && rel.is_finite());
+        for (t, acc) in &job.acc {
+            if let Some(s) = &acc.sums {
+                assert_eq!(s.samples.start, 0);
+                assert_eq!(s.samples.end, job.batch_range(acc.next - 1).end, "tile {t}");
+                assert!(s.sum.iter().chain(&s.sum_sq).flatten().all(|v| v.is_finite()));
+            }
+        }
+    }
+}
+
+fuzz_target!(|data: &[u8]| {
+    let mut core = Core::new(1, LEASE);
+    core.max_leases_per_worker = 4;
+    core.jobs.insert(1, Job::new(record(1)));
+    core.jobs.insert(2, Job::new(record(2)));
+    core.next_job = 3;
+    let mut now = Instant::now();
+    let mut fakes: Vec<Fake> = Vec::new();
+    let mut tainted = false;
+    let mut bytes = data.iter().copied();
+    let mut next = || bytes.next();
+    while let (Some(op), Some(arg)) = (next(), next()) {
+        let pick = |n: usize| (arg as usize) % n.max(1);
+        match op % 9 {
+            0 if fakes.len() < 6 => {
+                let hostile = arg % 2 == 1;
+                let id = core.register(format!("f{}", fakes.len()), 1, "v".into(), format!("s{arg}"), now);
+                fakes.push(Fake {
+                    id,
+                    hostile,
+                    leases: Vec::new(),
+                });
+            }
+            1 if !fakes.is_empty() => {
+                let f = pick(fakes.len());
+                let w = fakes[f].id;
+                for g in core.lease(w, (arg % 8) as usize + 1, now) {
+                    let name = core.lease_name(g.lease);
+                    fakes[f].leases.push((name, g.job, g.unit));
+                }
+            }
+            2 if !fakes.is_empty() => {
+                let f = &fakes[pick(fakes.len())];
+                let mut ids: Vec<String> = f.leases.iter().map(|l| l.0.clone()).collect();
+                ids.push(format!("L1-{arg}"));
+                ids.push("garbage".into());
+                core.heartbeat(f.id, &ids, now);
+            }
+            3 if !fakes.is_empty() => {
+                let f = &mut fakes[pick(fakes.len())];
+                if let Some(l) = f.leases.pop() {
+                    core.release(f.id, &[l.0]);
+                }
+            }
+            4 | 5 if !fakes.is_empty() => {
+                // Submit for one of this worker's leases, or (arg's high bit) another's.
+                let f = pick(fakes.len());
+                let owner = if arg & 0x80 != 0 { (f + 1) % fakes.len() } else { f };
+                let Some((name, job, unit)) = fakes[owner].leases.first().cloned() else {
+                    continue;
+                };
+                let w = fakes[f].id;
+                let Some(j) = core.jobs.get(&job) else { continue };
+                let lie = op % 9 == 5 || fakes[f].hostile;
+                let sums = if lie { forged(j, unit, arg) } else { honest(j, unit) };
+                let in_range_lie = lie && arg % 7 == 6;
+                let r = core.submit(w, &name, job, unit, sums, now);
+                if owner != f {
+                    assert!(
+                        !matches!(r, Ok(Merged::New { .. })),
+                        "a result under another worker's lease was merged"
+                    );
+                }
+                if lie && !in_range_lie {
+                    assert!(
+                        !matches!(r, Ok(Merged::New { .. })),
+                        "a forged result (lie {}) was merged",
+                        arg % 7
+                    );
+                }
+                if in_range_lie && job == 1 && matches!(r, Ok(Merged::New { .. })) {
+                    tainted = true;
+                }
+                if owner == f {
+                    fakes[f].leases.remove(0);
+                }
+            }
+            6 => now += Duration::from_millis(arg as u64 * 40),
+            7 if !fakes.is_empty() => {
+                // A worker that says it cannot render one of job 2's units fails job 2 only.
+                let f = &mut fakes[pick(fakes.len())];
+                if let Some(i) = f.leases.iter().position(|l| l.1 == 2) {
+                    let l = f.leases.remove(i);
+                    core.cannot_render(f.id, &[l.0], "too big", 1);
+                }
+            }
+            8 => {
+                core.end_job(2, JobPhase::Cancelled, String::new(), 1);
+            }
+            _ => {}
+        }
+        check(&core);
+    }
+
+    // Liveness: the hostile workers keep their leases alive and never finish; a fresh honest
+    // worker must still get job 1 done.
+    let h = core.register("honest".into(), 1, "v".into(), "h".into(), now);
+    let total = core.jobs[&1].units_total();
+    for round in 0.. {
+        if !core.jobs[&1].is_live() {
+            break;
+        }
+        assert!(round < 10 * total + 50, "job 1 stalled with {} of {total} units", core.jobs[&1].units_done);
+        for f in fakes.iter().filter(|f| f.hostile) {
+            let ids: Vec<String> = f.leases.iter().map(|l| l.0.clone()).collect();
+            core.heartbeat(f.id, &ids, now);
+        }
+        for g in core.lease(h, 4, now) {
+            let name = core.lease_name(g.lease);
+            let j = &core.jobs[&g.job];
+            let sums = honest(j, g.unit);
+            let _ = core.submit(h, &name, g.job, g.unit, sums, now);
+        }
+        check(&core);
+        now += LEASE / 2;
+    }
+    if tainted {
+        return;
+    }
+    // Every merged result was honest: the sums are the in-order fold, bit for bit.
+    let job = &core.jobs[&1];
+    if job.rec.phase != JobPhase::Active {
+        return;
+    }
+    for (&t, acc) in &job.acc {
+        let rect = job.tiles.get(t).expect("tile");
+        let mut want = TileSums::empty(rect, 0);
+        for b in 0..job.n_batches {
+            want.merge(&honest(job, Unit { tile: t, batch: b })).expect("in order");
+        }
+        let got = acc.sums.as_ref().expect("finished tiles have sums");
+        assert_eq!(got, &want, "tile {t}");
+    }
+});
