@@ -844,3 +844,375 @@ async fn renderer_revisions_are_never_mixed() {
     w.abort();
     coord.stop().await;
 }
+
+/// A submission with an output name.
+async fn submit_named(
+    client: &mut Client,
+    text: &str,
+    name: &str,
+) -> Result<String, tonic::Status> {
+    client
+        .submit_job(pb::SubmitJobRequest {
+            scene_text: text.into(),
+            scene_format: pb::SceneFormat::Toml as i32,
+            scene_name: "cornell.toml".into(),
+            settings: Some(pb::RenderSettings {
+                spp: 2,
+                seed: 7,
+                batch: 2,
+                strategy: pb::Strategy::Mis as i32,
+            }),
+            tile_size: 16,
+            output_name: name.into(),
+            priority: 0,
+            channels: None,
+        })
+        .await
+        .map(|r| r.into_inner().job_id)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_stock_worker_holds_no_more_than_its_pipeline() {
+    // Tiny units (a 16² tile, one sample) render far faster than results are committed: a
+    // worker that did not count results waiting to be sent would lease without bound.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start_with(&dir.path().join("data"), Duration::from_secs(30), |c| {
+        // The coordinator's own cap must not hide the worker's behaviour.
+        c.max_leases_per_worker = 100_000;
+    })
+    .await;
+    let text = scene_text(64);
+    let mut client = coord.client().await;
+    let job = submit(&mut client, &text, 64, 1, 0).await;
+    let w = worker(&coord.url(), "stock");
+    let mut most = 0;
+    loop {
+        let listed = client
+            .list_workers(pb::ListWorkersRequest {})
+            .await
+            .expect("workers")
+            .into_inner()
+            .workers;
+        most = most.max(listed.iter().map(|w| w.leases).max().unwrap_or(0));
+        let s = job_status(&mut client, &job).await;
+        if s.state == pb::JobState::Done as i32 {
+            break;
+        }
+        assert!(
+            s.state == pb::JobState::Running as i32 || s.state == pb::JobState::Queued as i32,
+            "{s:?}"
+        );
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+    assert!(most >= 1, "the sampling never saw a lease");
+    assert!(most <= 3, "a stock worker held {most} leases at once");
+    w.abort();
+    coord.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn ids_and_leases_are_bound_to_the_worker_that_got_them() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start(&dir.path().join("data"), Duration::from_secs(30)).await;
+    let url = coord.url();
+    let text = scene_text(16);
+    let mut client = coord.client().await;
+    let job = submit(&mut client, &text, 4, 2, 0).await;
+    let mut workers = workers_client(&url);
+    let honest = register_as(&mut workers, "honest", "0", IMAGE_REVISION)
+        .await
+        .expect("register");
+    let thief = register_as(&mut workers, "thief", "0", IMAGE_REVISION)
+        .await
+        .expect("register");
+    // What anyone can see of the honest worker: its public id, without the secret.
+    let listed = client
+        .list_workers(pb::ListWorkersRequest {})
+        .await
+        .expect("workers")
+        .into_inner()
+        .workers;
+    let public = listed
+        .iter()
+        .find(|w| w.name == "honest")
+        .expect("listed")
+        .worker_id
+        .clone();
+    assert!(honest.starts_with(&format!("{public}.")) && honest.len() > public.len() + 16);
+    assert!(
+        listed.iter().all(|w| !w.worker_id.contains('.')),
+        "secrets listed"
+    );
+    let unit = lease_now(&mut workers, &honest, 1)
+        .await
+        .expect("lease")
+        .remove(0);
+    let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
+    let result = honest_result(&scene, &job_settings(4, 2), &unit);
+    let send = |who: &str, r: pb::TileResult| pb::SubmitResultRequest {
+        worker_id: who.into(),
+        lease_id: unit.lease_id.clone(),
+        job_id: unit.job_id.clone(),
+        tile_index: unit.tile_index,
+        batch_index: unit.batch_index,
+        result: Some(r),
+    };
+    // The thief quotes the honest worker's lease under its own id: refused.
+    let e = workers
+        .submit_result(send(&thief, result.clone()))
+        .await
+        .expect_err("another worker's lease");
+    assert_eq!(e.code(), tonic::Code::FailedPrecondition, "{e:?}");
+    // The thief quotes the honest worker's public id (with or without a made-up secret):
+    // unknown. Five empty results that way would once have quarantined the honest worker.
+    for forged in [
+        public.clone(),
+        format!("{public}.00000000000000000000000000000000"),
+    ] {
+        for _ in 0..5 {
+            let e = workers
+                .submit_result(send(&forged, pb::TileResult::default()))
+                .await
+                .expect_err("forged id");
+            assert_eq!(e.code(), tonic::Code::NotFound, "{e:?}");
+        }
+        let e = workers
+            .heartbeat(pb::HeartbeatRequest {
+                worker_id: forged.clone(),
+                lease_ids: vec![unit.lease_id.clone()],
+            })
+            .await
+            .expect_err("forged id");
+        assert_eq!(e.code(), tonic::Code::NotFound);
+    }
+    let listed = client
+        .list_workers(pb::ListWorkersRequest {})
+        .await
+        .expect("workers")
+        .into_inner()
+        .workers;
+    let h = listed.iter().find(|w| w.name == "honest").expect("listed");
+    assert_eq!((h.bad_results, h.quarantined), (0, false));
+    // The honest worker's result still merges.
+    let outcome = workers
+        .submit_result(send(&honest, result))
+        .await
+        .expect("merged")
+        .into_inner()
+        .outcome;
+    assert_eq!(outcome, pb::ResultOutcome::Merged as i32);
+    assert_eq!(job_status(&mut client, &job).await.units_done, 1);
+    coord.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_unit_the_workers_cannot_render_fails_the_job_once_with_the_reason() {
+    // The coordinator accepts wider images than the worker (its default limit is 16384).
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start_with(&dir.path().join("data"), Duration::from_secs(30), |c| {
+        c.limits.max_resolution = 20_000;
+    })
+    .await;
+    let text = scene_text(16)
+        .replace("width = 16", "width = 20000")
+        .replace("height = 16", "height = 1");
+    let mut client = coord.client().await;
+    let job = submit(&mut client, &text, 1, 1, 0).await;
+    let w = worker(&coord.url(), "small");
+    let s = wait(&mut client, &job).await;
+    assert_eq!(s.state, pb::JobState::Failed as i32);
+    assert!(s.error.contains("cannot render"), "{}", s.error);
+    assert!(
+        s.error.contains("20000 is above the limit of 16384"),
+        "{}",
+        s.error
+    );
+    assert!(s.error.contains("small"), "{}", s.error);
+    w.abort();
+    coord.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn output_names_are_never_taken_twice_nor_files_overwritten() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start(&dir.path().join("data"), Duration::from_secs(30)).await;
+    let text = scene_text(16);
+    let mut client = coord.client().await;
+    // A later job's default name cannot be taken in advance.
+    let e = submit_named(&mut client, &text, "job-000004.exr")
+        .await
+        .expect_err("a default name");
+    assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
+    let w = worker(&coord.url(), "w");
+    let first = submit_named(&mut client, &text, "shot.exr")
+        .await
+        .expect("named");
+    assert_eq!(
+        wait(&mut client, &first).await.state,
+        pb::JobState::Done as i32
+    );
+    let before = fetch(&mut client, &first).await;
+    // The name stays with the finished job: fetch keeps returning its image.
+    let e = submit_named(&mut client, &scene_text(24), "shot.exr")
+        .await
+        .expect_err("a finished job's name");
+    assert_eq!(e.code(), tonic::Code::AlreadyExists, "{e:?}");
+    assert_eq!(fetch(&mut client, &first).await, before);
+    // A file someone put in the output directory is theirs.
+    std::fs::write(coord.out.join("mine.exr"), b"not ours").expect("write");
+    let e = submit_named(&mut client, &text, "mine.exr")
+        .await
+        .expect_err("a file in the way");
+    assert_eq!(e.code(), tonic::Code::AlreadyExists, "{e:?}");
+    // Default names squatted by files are passed over, not waited for. (Refused submissions
+    // take no id: the next one would be the second.)
+    for n in [2, 3] {
+        std::fs::write(coord.out.join(format!("job-{n:06}.exr")), b"squat").expect("write");
+    }
+    let job = submit(&mut client, &text, 2, 2, 0).await;
+    assert_eq!(job, "job-000004");
+    assert_eq!(
+        wait(&mut client, &job).await.state,
+        pb::JobState::Done as i32
+    );
+    // A job whose name is taken while it renders fails rather than overwrite the file.
+    w.abort();
+    let job = submit(&mut client, &text, 2, 2, 0).await;
+    let next = format!("{job}.exr");
+    std::fs::write(coord.out.join(&next), b"also not ours").expect("write");
+    let w = worker(&coord.url(), "w2");
+    let s = wait(&mut client, &job).await;
+    assert_eq!(s.state, pb::JobState::Failed as i32);
+    assert!(s.error.contains("exists"), "{}", s.error);
+    assert_eq!(
+        std::fs::read(coord.out.join(&next)).expect("kept"),
+        b"also not ours"
+    );
+    w.abort();
+    coord.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn an_ended_jobs_scene_leaves_the_store() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().join("data");
+    let coord = Coordinator::start(&data, Duration::from_secs(30)).await;
+    let mut client = coord.client().await;
+    let mut workers = workers_client(&coord.url());
+    let text = scene_text(16);
+    let shared_a = submit(&mut client, &text, 4, 2, 0).await;
+    let shared_b = submit(&mut client, &text, 4, 2, 0).await;
+    let hash = job_status(&mut client, &shared_a).await.scene_hash;
+    let scene = |hash: String| pb::GetSceneRequest { scene_hash: hash };
+    client
+        .cancel_job(pb::CancelJobRequest { job_id: shared_a })
+        .await
+        .expect("cancel");
+    // Still needed by the other job.
+    workers.get_scene(scene(hash.clone())).await.expect("kept");
+    client
+        .cancel_job(pb::CancelJobRequest { job_id: shared_b })
+        .await
+        .expect("cancel");
+    let e = workers
+        .get_scene(scene(hash.clone()))
+        .await
+        .expect_err("gone");
+    assert_eq!(e.code(), tonic::Code::NotFound);
+    coord.stop().await;
+    let store = Store::open(&data).expect("store");
+    assert!(store.scene_hashes().expect("hashes").is_empty());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn silent_connections_are_closed_and_do_not_starve_clients() {
+    use tokio::io::AsyncReadExt;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start_with(&dir.path().join("data"), Duration::from_secs(30), |c| {
+        c.max_connections = 4;
+        c.idle_connection = Duration::from_millis(500);
+    })
+    .await;
+    // Every connection slot taken by a peer that sends nothing.
+    let mut silent = Vec::new();
+    for _ in 0..4 {
+        silent.push(
+            tokio::net::TcpStream::connect(coord.addr)
+                .await
+                .expect("connect"),
+        );
+    }
+    // A real client still gets its answer, once the silent ones are cut off.
+    let mut client = coord.client().await;
+    let listed = tokio::time::timeout(
+        Duration::from_secs(20),
+        client.list_jobs(pb::ListJobsRequest {}),
+    )
+    .await
+    .expect("answered in time")
+    .expect("list");
+    assert!(listed.into_inner().jobs.is_empty());
+    for mut s in silent {
+        let mut buf = [0u8; 64];
+        // The server's HTTP/2 preface may come first; then the connection is closed.
+        let closed = tokio::time::timeout(Duration::from_secs(10), async {
+            loop {
+                match s.read(&mut buf).await {
+                    Ok(0) | Err(_) => return,
+                    Ok(_) => {}
+                }
+            }
+        })
+        .await;
+        assert!(closed.is_ok(), "a silent connection was kept open");
+    }
+    coord.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_worker_registers_once_after_a_coordinator_restart() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().join("data");
+    let coord = Coordinator::start(&data, Duration::from_secs(30)).await;
+    let addr = coord.addr;
+    let text = scene_text(64);
+    let mut client = coord.client().await;
+    // Many tiny units, so results are in flight when the coordinator goes: the fetcher and
+    // the submitter both learn at once that their worker id is unknown.
+    let job = submit(&mut client, &text, 256, 1, 0).await;
+    let w = worker(&coord.url(), "once");
+    while job_status(&mut client, &job).await.units_done < 20 {
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    coord.stop().await;
+    // The same address, as a restarted coordinator would have.
+    let listener = loop {
+        match tokio::net::TcpListener::bind(addr).await {
+            Ok(l) => break l,
+            Err(_) => tokio::time::sleep(Duration::from_millis(20)).await,
+        }
+    };
+    let mut config = Config::new(&data);
+    config.lease_timeout = Duration::from_secs(30);
+    let (tx, rx) = oneshot::channel::<()>();
+    let task = tokio::spawn(async move {
+        serve(config, listener, async {
+            let _ = rx.await;
+        })
+        .await
+        .expect("coordinator");
+    });
+    let mut client = client_with(&format!("http://{addr}"), &ClientOptions::default()).await;
+    let s = wait(&mut client, &job).await;
+    assert_eq!(s.state, pb::JobState::Done as i32);
+    let listed = client
+        .list_workers(pb::ListWorkersRequest {})
+        .await
+        .expect("workers")
+        .into_inner()
+        .workers;
+    assert_eq!(listed.len(), 1, "ghost registrations: {listed:?}");
+    w.abort();
+    let _ = tx.send(());
+    let _ = task.await;
+}

@@ -281,3 +281,44 @@ fn empty_settings_mean_unset_and_a_job_without_workers_says_so() {
         "{stderr}"
     );
 }
+
+/// A coordinator never starts on a damaged store: it says which file and why, in one line,
+/// and never says it is listening.
+#[test]
+fn a_damaged_store_is_refused_at_start() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let data = dir.path().join("data");
+    std::fs::create_dir(&data).expect("mkdir");
+    std::fs::write(data.join("coordinator.redb"), b"").expect("truncate");
+    let out = Command::new(BIN)
+        .args(["coordinator", "--listen", "127.0.0.1:0", "--data-dir"])
+        .arg(&data)
+        .output()
+        .expect("coordinator");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(!stdout.contains("listening"), "{stdout}");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let errors: Vec<&str> = stderr.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(errors.len(), 1, "{stderr}");
+    assert!(
+        errors[0].contains("coordinator.redb") && errors[0].contains("empty"),
+        "{stderr}"
+    );
+    assert!(!out.status.success());
+    assert!(!stderr.contains("panicked"), "{stderr}");
+
+    // Nor on a bad TLS key: the error comes before any "listening on".
+    let key = dir.path().join("key.pem");
+    std::fs::write(&key, "not a key").expect("write");
+    let out = Command::new(BIN)
+        .args(["coordinator", "--listen", "127.0.0.1:0", "--data-dir"])
+        .arg(dir.path().join("data2"))
+        .args(["--tls-cert"])
+        .arg(&key)
+        .args(["--tls-key"])
+        .arg(&key)
+        .output()
+        .expect("coordinator");
+    assert!(!out.status.success());
+    assert!(!String::from_utf8_lossy(&out.stdout).contains("listening"));
+}

@@ -304,8 +304,17 @@ impl Jobs for Service {
                     config.max_active_jobs
                 )));
             }
-            let id = core.next_job;
+            let mut id = core.next_job;
             let output_name = if req.output_name.is_empty() {
+                // An id whose default name a file already has is passed over: the file is
+                // someone else's, and waiting for it to go would block every unnamed job.
+                let mut tries = 0;
+                while tries < 10_000
+                    && output_path(config, &format!("{}.exr", job_name(id))).exists()
+                {
+                    id += 1;
+                    tries += 1;
+                }
                 format!("{}.exr", job_name(id))
             } else {
                 req.output_name
@@ -328,7 +337,7 @@ impl Jobs for Service {
                      directory, and the coordinator never overwrites one; choose another"
                 )));
             }
-            core.next_job += 1;
+            core.next_job = id + 1;
             let rec = JobRecord {
                 id,
                 scene_hash: scene.hash.clone(),
