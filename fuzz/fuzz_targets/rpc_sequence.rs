@@ -135,7 +135,8 @@ fuzz_target!(|data: &[u8]| {
                 core.heartbeat(f.id, &ids, now);
             }
             3 if !fakes.is_empty() => {
-                let f = &mut fakes[pick(fakes.len())];
+                let i = pick(fakes.len());
+                let f = &mut fakes[i];
                 if let Some(l) = f.leases.pop() {
                     core.release(f.id, &[l.0]);
                 }
@@ -176,7 +177,8 @@ fuzz_target!(|data: &[u8]| {
             6 => now += Duration::from_millis(arg as u64 * 40),
             7 if !fakes.is_empty() => {
                 // A worker that says it cannot render one of job 2's units fails job 2 only.
-                let f = &mut fakes[pick(fakes.len())];
+                let i = pick(fakes.len());
+                let f = &mut fakes[i];
                 if let Some(i) = f.leases.iter().position(|l| l.1 == 2) {
                     let l = f.leases.remove(i);
                     core.cannot_render(f.id, &[l.0], "too big", 1);

@@ -137,6 +137,11 @@ fn coordinator_two_workers_and_submit_wait_match_a_local_render() {
     assert!(out.status.success());
     assert_eq!(String::from_utf8_lossy(&out.stdout), "job-000002\n");
     let again = dir.path().join("again.exr");
+    // A link left where an older fetch put its partial file is not followed.
+    let victim = dir.path().join("victim");
+    std::fs::write(&victim, b"precious").expect("write");
+    #[cfg(unix)]
+    std::os::unix::fs::symlink(&victim, dir.path().join(".again.exr.part")).expect("symlink");
     let out = tessera(
         &[
             "fetch",
@@ -153,6 +158,7 @@ fn coordinator_two_workers_and_submit_wait_match_a_local_render() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(std::fs::read(&again).expect("again") == std::fs::read(&local).expect("local"));
+    assert_eq!(std::fs::read(&victim).expect("victim"), b"precious");
 
     // SIGTERM: the worker says goodbye and exits cleanly.
     let pid = b.0.id().to_string();
@@ -241,7 +247,9 @@ fn empty_settings_mean_unset_and_a_job_without_workers_says_so() {
         said()
     );
 
-    // A worker started the way compose starts it, with blank settings.
+    // A worker started the way compose starts it, with blank settings, logging to a file
+    // (as `docker logs` does).
+    let log = dir.path().join("worker.log");
     let _w = Proc(
         Command::new(BIN)
             .args(["worker", "--name", "blank"])
@@ -249,7 +257,7 @@ fn empty_settings_mean_unset_and_a_job_without_workers_says_so() {
             .env("TESSERA_WORKER_THREADS", "")
             .env("TESSERA_TOKEN", " ")
             .stdout(Stdio::null())
-            .stderr(Stdio::null())
+            .stderr(std::fs::File::create(&log).expect("log"))
             .spawn()
             .expect("worker"),
     );
@@ -268,6 +276,10 @@ fn empty_settings_mean_unset_and_a_job_without_workers_says_so() {
     assert!(out.exists());
     let table = String::from_utf8_lossy(&tessera(&["workers"], &url).stdout).to_string();
     assert!(table.contains("blank"), "{table}");
+    // A log that is not a terminal gets no colour codes.
+    let logged = std::fs::read_to_string(&log).expect("log");
+    assert!(logged.contains("registered"), "{logged}");
+    assert!(!logged.contains('\u{1b}'), "ANSI codes in a log file: {logged:?}");
 
     // A blank coordinator URL falls back to the default instead of failing to parse.
     let out = Command::new(BIN)

@@ -728,6 +728,17 @@ mod tests {
         assert!(err.to_string().contains("checksum"), "{err}");
     }
 
+    #[cfg(unix)]
+    #[test]
+    fn a_new_data_directory_is_private() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().expect("tempdir");
+        let data = dir.path().join("a/b");
+        Store::open(&data).expect("open");
+        let mode = std::fs::metadata(&data).expect("stat").permissions().mode() & 0o777;
+        assert_eq!(mode, 0o700);
+    }
+
     #[test]
     fn an_empty_store_file_is_refused_not_started_afresh() {
         let dir = tempfile::tempdir().expect("tempdir");
