@@ -90,7 +90,12 @@ fn check(core: &Core) {
             if let Some(s) = &acc.sums {
                 assert_eq!(s.samples.start, 0);
                 assert_eq!(s.samples.end, job.batch_range(acc.next - 1).end, "tile {t}");
-                assert!(s.sum.iter().chain(&s.sum_sq).flatten().all(|v| v.is_finite()));
+                assert!(s
+                    .sum
+                    .iter()
+                    .chain(&s.sum_sq)
+                    .flatten()
+                    .all(|v| v.is_finite()));
             }
         }
     }
@@ -112,7 +117,13 @@ fuzz_target!(|data: &[u8]| {
         match op % 9 {
             0 if fakes.len() < 6 => {
                 let hostile = arg % 2 == 1;
-                let id = core.register(format!("f{}", fakes.len()), 1, "v".into(), format!("s{arg}"), now);
+                let id = core.register(
+                    format!("f{}", fakes.len()),
+                    1,
+                    "v".into(),
+                    format!("s{arg}"),
+                    now,
+                );
                 fakes.push(Fake {
                     id,
                     hostile,
@@ -144,14 +155,24 @@ fuzz_target!(|data: &[u8]| {
             4 | 5 if !fakes.is_empty() => {
                 // Submit for one of this worker's leases, or (arg's high bit) another's.
                 let f = pick(fakes.len());
-                let owner = if arg & 0x80 != 0 { (f + 1) % fakes.len() } else { f };
+                let owner = if arg & 0x80 != 0 {
+                    (f + 1) % fakes.len()
+                } else {
+                    f
+                };
                 let Some((name, job, unit)) = fakes[owner].leases.first().cloned() else {
                     continue;
                 };
                 let w = fakes[f].id;
-                let Some(j) = core.jobs.get(&job) else { continue };
+                let Some(j) = core.jobs.get(&job) else {
+                    continue;
+                };
                 let lie = op % 9 == 5 || fakes[f].hostile;
-                let sums = if lie { forged(j, unit, arg) } else { honest(j, unit) };
+                let sums = if lie {
+                    forged(j, unit, arg)
+                } else {
+                    honest(j, unit)
+                };
                 let in_range_lie = lie && arg % 7 == 6;
                 let r = core.submit(w, &name, job, unit, sums, now);
                 if owner != f {
@@ -200,7 +221,11 @@ fuzz_target!(|data: &[u8]| {
         if !core.jobs[&1].is_live() {
             break;
         }
-        assert!(round < 10 * total + 50, "job 1 stalled with {} of {total} units", core.jobs[&1].units_done);
+        assert!(
+            round < 10 * total + 50,
+            "job 1 stalled with {} of {total} units",
+            core.jobs[&1].units_done
+        );
         for f in fakes.iter().filter(|f| f.hostile) {
             let ids: Vec<String> = f.leases.iter().map(|l| l.0.clone()).collect();
             core.heartbeat(f.id, &ids, now);
@@ -226,7 +251,8 @@ fuzz_target!(|data: &[u8]| {
         let rect = job.tiles.get(t).expect("tile");
         let mut want = TileSums::empty(rect, 0);
         for b in 0..job.n_batches {
-            want.merge(&honest(job, Unit { tile: t, batch: b })).expect("in order");
+            want.merge(&honest(job, Unit { tile: t, batch: b }))
+                .expect("in order");
         }
         let got = acc.sums.as_ref().expect("finished tiles have sums");
         assert_eq!(got, &want, "tile {t}");

@@ -286,28 +286,23 @@ fn a_token_file_others_can_read_is_warned_about() {
     #[cfg(unix)]
     {
         use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(&token, std::fs::Permissions::from_mode(0o644)).expect("chmod");
-        let out = tessera(&[
-            "status",
-            "--coordinator",
-            "http://127.0.0.1:1",
-            "--token-file",
-            &token,
-        ]);
-        let stderr = String::from_utf8_lossy(&out.stderr);
+        let status_stderr = |mode: u32| {
+            std::fs::set_permissions(&token, std::fs::Permissions::from_mode(mode)).expect("chmod");
+            let out = tessera(&[
+                "status",
+                "--coordinator",
+                "http://127.0.0.1:1",
+                "--token-file",
+                &token,
+            ]);
+            String::from_utf8_lossy(&out.stderr).into_owned()
+        };
+        let stderr = status_stderr(0o644);
         assert!(
             stderr.contains("can be read by others (mode 644)"),
             "{stderr}"
         );
-        std::fs::set_permissions(&token, std::fs::Permissions::from_mode(0o600)).expect("chmod");
-        let out = tessera(&[
-            "status",
-            "--coordinator",
-            "http://127.0.0.1:1",
-            "--token-file",
-            &token,
-        ]);
-        let stderr = String::from_utf8_lossy(&out.stderr);
+        let stderr = status_stderr(0o600);
         assert!(!stderr.contains("read by others"), "{stderr}");
     }
 }

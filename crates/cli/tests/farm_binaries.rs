@@ -279,7 +279,10 @@ fn empty_settings_mean_unset_and_a_job_without_workers_says_so() {
     // A log that is not a terminal gets no colour codes.
     let logged = std::fs::read_to_string(&log).expect("log");
     assert!(logged.contains("registered"), "{logged}");
-    assert!(!logged.contains('\u{1b}'), "ANSI codes in a log file: {logged:?}");
+    assert!(
+        !logged.contains('\u{1b}'),
+        "ANSI codes in a log file: {logged:?}"
+    );
 
     // A blank coordinator URL falls back to the default instead of failing to parse.
     let out = Command::new(BIN)

@@ -34,7 +34,7 @@ use tracing::{error, info, warn};
 
 mod conn;
 mod service;
-pub use service::decode_result;
+pub use service::{decode_result, Service};
 pub mod state;
 pub mod store;
 
@@ -481,6 +481,49 @@ pub async fn serve_when_ready(
     let _ = tokio::time::timeout(Duration::from_secs(5), writer).await;
     result?;
     Ok(())
+}
+
+/// Both services over a store, with no network, transport or auth in between: what
+/// [`serve`] runs, for driving sequences of calls in-process (the `rpc_surface` fuzz target).
+/// Made inside a tokio runtime, which runs its state writer.
+#[doc(hidden)]
+pub struct InProcess {
+    service: Service,
+    writer: tokio::task::JoinHandle<()>,
+}
+
+impl InProcess {
+    /// Opens the store under `config.data_dir` and restores its jobs, as [`serve`] does.
+    pub fn open(config: Config) -> Result<Self, CoordinatorError> {
+        let (shared, rx, to_finish) = open(config)?;
+        let writer = tokio::spawn(writer(shared.store.clone(), rx));
+        for id in to_finish {
+            tokio::spawn(finish_job(shared.clone(), id));
+        }
+        let service = Service {
+            shared,
+            parses: Arc::new(tokio::sync::Semaphore::new(MAX_CONCURRENT_PARSES)),
+        };
+        Ok(Self { service, writer })
+    }
+
+    /// The `Jobs` and `Workers` services.
+    pub fn service(&self) -> &Service {
+        &self.service
+    }
+
+    /// Lapses overdue leases, as the server's ticker does.
+    pub fn expire(&self) {
+        if self.service.shared.core().expire(std::time::Instant::now()) {
+            self.service.shared.bump_work();
+        }
+    }
+
+    /// Stops, once every queued write is durable and the store is closed.
+    pub async fn close(self) {
+        drop(self.service);
+        let _ = self.writer.await;
+    }
 }
 
 /// Checks the bearer token of every call, in constant time: both sides are hashed first, so

@@ -24,7 +24,7 @@ use crate::{
 
 /// Both services over the same shared state.
 #[derive(Clone)]
-pub(crate) struct Service {
+pub struct Service {
     pub(crate) shared: Arc<Shared>,
     /// Permits to parse a submitted scene ([`crate::MAX_CONCURRENT_PARSES`]).
     pub(crate) parses: Arc<tokio::sync::Semaphore>,

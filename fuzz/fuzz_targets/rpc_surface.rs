@@ -1,0 +1,360 @@
+//! Sequences of gRPC calls from several fake workers and a client, through the coordinator's
+//! real service handlers and its redb store (`InProcess`: everything `serve` runs but the
+//! network): Register, Lease, Heartbeat, SubmitResult (honest, forged, under another worker's
+//! lease or id), ReleaseLeases (with and without `cannot_render`), GetScene, SubmitJob,
+//! CancelJob, GetJob, ListWorkers, ListJobs.
+//!
+//! Checks: no call panics; no result under another worker's lease or a forged id is merged;
+//! no worker holds more than its share; every status is finite. At the end the coordinator is
+//! closed and opened again on the same store, which must load; and if the main job finished
+//! from honest results only, its EXR must be the bytes `tessera render` writes.
+#![no_main]
+
+use std::sync::OnceLock;
+
+use libfuzzer_sys::fuzz_target;
+use tessera_coordinator::{Config, InProcess};
+use tessera_proto::v1 as pb;
+use tessera_proto::v1::jobs_server::Jobs;
+use tessera_proto::v1::workers_server::Workers;
+use tessera_render::output::{render_metadata, write_exr, ExrChannels};
+use tessera_render::scene::{Format, Limits, Scene};
+use tessera_render::{render_frame, render_tile, PixelRect, RenderSettings, IMAGE_REVISION};
+use tonic::Request;
+
+const SPP: u32 = 6;
+const BATCH: u32 = 2;
+
+fn scene_text() -> &'static str {
+    static TEXT: OnceLock<String> = OnceLock::new();
+    TEXT.get_or_init(|| {
+        include_str!("../../scenes/cornell-box.toml")
+            .replace("width = 256", "width = 8")
+            .replace("height = 256", "height = 6")
+    })
+}
+
+fn settings() -> RenderSettings {
+    RenderSettings {
+        seed: 3,
+        spp: SPP,
+        batch: BATCH,
+        ..RenderSettings::default()
+    }
+}
+
+fn scene() -> &'static Scene {
+    static SCENE: OnceLock<Scene> = OnceLock::new();
+    SCENE.get_or_init(|| {
+        Scene::from_str(scene_text(), Format::Toml, "c.toml", &Limits::default()).expect("scene")
+    })
+}
+
+/// The EXR `tessera render` writes for the main job.
+fn local_exr() -> &'static [u8] {
+    static EXR: OnceLock<Vec<u8>> = OnceLock::new();
+    EXR.get_or_init(|| {
+        let dir = tempfile::tempdir().expect("tmp");
+        let path = dir.path().join("local.exr");
+        let image = render_frame(scene(), &settings(), &|_| {}).finalize();
+        write_exr(
+            &path,
+            &image,
+            ExrChannels::default(),
+            &render_metadata(&scene().hash, &settings()),
+        )
+        .expect("write");
+        std::fs::read(path).expect("read")
+    })
+}
+
+fn submit_request(output_name: String) -> pb::SubmitJobRequest {
+    pb::SubmitJobRequest {
+        scene_text: scene_text().into(),
+        scene_format: pb::SceneFormat::Toml as i32,
+        scene_name: "c.toml".into(),
+        settings: Some(pb::RenderSettings {
+            spp: SPP,
+            seed: 3,
+            batch: BATCH,
+            strategy: pb::Strategy::Mis as i32,
+        }),
+        tile_size: 4,
+        output_name,
+        priority: 0,
+        channels: None,
+    }
+}
+
+fn honest(u: &pb::WorkUnit) -> pb::TileResult {
+    let r = u.rect.unwrap_or_default();
+    let rect = PixelRect {
+        x0: r.x0,
+        y0: r.y0,
+        width: r.width,
+        height: r.height,
+    };
+    let sums = render_tile(scene(), &settings(), rect, u.sample_start..u.sample_end);
+    pb::TileResult {
+        rect: u.rect,
+        sample_start: u.sample_start,
+        sample_end: u.sample_end,
+        sum: sums.sum.iter().flatten().copied().collect(),
+        sum_sq: sums.sum_sq.iter().flatten().copied().collect(),
+        count: sums.count,
+        nonfinite: sums.nonfinite,
+    }
+}
+
+fn forged(u: &pb::WorkUnit, how: u8) -> pb::TileResult {
+    let mut r = honest(u);
+    match how % 6 {
+        0 => r.sum_sq[0] = 1.7e308,
+        1 => r.sum[1] = f64::NAN,
+        2 => {
+            r.count.pop();
+        }
+        3 => r.sample_end += 1,
+        4 => r.nonfinite += 1,
+        _ => r.rect = Some(pb::Rect::default()),
+    }
+    r
+}
+
+struct Fake {
+    id: String,
+    units: Vec<pb::WorkUnit>,
+}
+
+fn merged(r: &Result<tonic::Response<pb::SubmitResultResponse>, tonic::Status>) -> bool {
+    matches!(r, Ok(x) if x.get_ref().outcome == pb::ResultOutcome::Merged as i32)
+}
+
+fuzz_target!(|data: &[u8]| {
+    let Ok(rt) = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+    else {
+        return;
+    };
+    let dir = tempfile::tempdir_in("/dev/shm")
+        .or_else(|_| tempfile::tempdir())
+        .expect("tmp");
+    let mut config = Config::new(dir.path());
+    config.max_leases_per_worker = 3;
+    let out = config.output_dir();
+    rt.block_on(async {
+        let farm = InProcess::open(config.clone()).expect("a fresh store opens");
+        let svc = farm.service();
+        let main = svc
+            .submit_job(Request::new(submit_request(String::new())))
+            .await
+            .expect("the main job")
+            .into_inner()
+            .job_id;
+        let mut fakes: Vec<Fake> = Vec::new();
+        let mut tainted = false;
+        let mut bytes = data.iter().copied();
+        while let (Some(op), Some(arg)) = (bytes.next(), bytes.next()) {
+            let pick = |n: usize| arg as usize % n.max(1);
+            match op % 12 {
+                0 if fakes.len() < 4 => {
+                    let name: String = (0..(arg % 8)).map(|i| char::from(b'a' + i)).collect();
+                    let r = svc
+                        .register(Request::new(pb::RegisterRequest {
+                            name: format!("{name}\u{1b}[2J"),
+                            cores: arg as u32,
+                            version: "0".into(),
+                            image_revision: if arg == 255 {
+                                IMAGE_REVISION + 1
+                            } else {
+                                IMAGE_REVISION
+                            },
+                        }))
+                        .await;
+                    if let Ok(r) = r {
+                        fakes.push(Fake {
+                            id: r.into_inner().worker_id,
+                            units: Vec::new(),
+                        });
+                    }
+                }
+                1 if !fakes.is_empty() => {
+                    let f = pick(fakes.len());
+                    let r = svc
+                        .lease(Request::new(pb::LeaseRequest {
+                            worker_id: fakes[f].id.clone(),
+                            max_units: (arg % 6) as u32,
+                            wait_ms: 0,
+                        }))
+                        .await;
+                    if let Ok(r) = r {
+                        fakes[f].units.extend(r.into_inner().units);
+                    }
+                }
+                2 if !fakes.is_empty() => {
+                    let f = &fakes[pick(fakes.len())];
+                    let mut ids: Vec<String> = f.units.iter().map(|u| u.lease_id.clone()).collect();
+                    ids.push(format!("L1-{arg}"));
+                    let _ = svc
+                        .heartbeat(Request::new(pb::HeartbeatRequest {
+                            worker_id: f.id.clone(),
+                            lease_ids: ids,
+                        }))
+                        .await;
+                }
+                3..=5 if !fakes.is_empty() => {
+                    // An honest result (3), a forged one (4), or one sent under another
+                    // worker's lease or a forged id (5).
+                    let f = pick(fakes.len());
+                    let owner = if op % 12 == 5 {
+                        (f + 1) % fakes.len()
+                    } else {
+                        f
+                    };
+                    let Some(unit) = fakes[owner].units.first().cloned() else {
+                        continue;
+                    };
+                    let worker_id = match (op % 12, arg % 3) {
+                        (5, 0) => fakes[owner]
+                            .id
+                            .split('.')
+                            .next()
+                            .unwrap_or_default()
+                            .to_string(),
+                        (5, 1) => format!(
+                            "{}.{}",
+                            fakes[owner].id.split('.').next().unwrap_or_default(),
+                            "0".repeat(32)
+                        ),
+                        _ => fakes[f].id.clone(),
+                    };
+                    let result = if op % 12 == 4 {
+                        forged(&unit, arg)
+                    } else {
+                        honest(&unit)
+                    };
+                    let r = svc
+                        .submit_result(Request::new(pb::SubmitResultRequest {
+                            worker_id,
+                            lease_id: unit.lease_id.clone(),
+                            job_id: unit.job_id.clone(),
+                            tile_index: unit.tile_index,
+                            batch_index: unit.batch_index,
+                            result: Some(result),
+                        }))
+                        .await;
+                    if op % 12 == 4 || (op % 12 == 5 && owner != f) || (op % 12 == 5 && arg % 3 < 2)
+                    {
+                        assert!(!merged(&r), "op {op} arg {arg}: merged {r:?}");
+                    }
+                    if op % 12 == 3 {
+                        fakes[f].units.remove(0);
+                    }
+                }
+                6 if !fakes.is_empty() => {
+                    let f = pick(fakes.len());
+                    let leases: Vec<String> =
+                        fakes[f].units.drain(..).map(|u| u.lease_id).collect();
+                    let refuse = arg % 5 == 0;
+                    let _ = svc
+                        .release_leases(Request::new(pb::ReleaseLeasesRequest {
+                            worker_id: fakes[f].id.clone(),
+                            lease_ids: leases,
+                            goodbye: arg % 3 == 0,
+                            cannot_render: if refuse {
+                                "too big".into()
+                            } else {
+                                String::new()
+                            },
+                        }))
+                        .await;
+                    if refuse {
+                        tainted = true;
+                    }
+                }
+                7 => {
+                    let hash = if arg % 2 == 0 {
+                        scene().hash.clone()
+                    } else {
+                        format!("{arg}")
+                    };
+                    let _ = svc
+                        .get_scene(Request::new(pb::GetSceneRequest { scene_hash: hash }))
+                        .await;
+                }
+                8 => {
+                    let name = match arg % 4 {
+                        0 => String::new(),
+                        1 => "shot.exr".into(),
+                        2 => "job-000009.exr".into(),
+                        _ => "../x.exr".into(),
+                    };
+                    let _ = svc.submit_job(Request::new(submit_request(name))).await;
+                }
+                9 => {
+                    let job = if arg % 4 == 0 {
+                        main.clone()
+                    } else {
+                        format!("job-{:06}", arg % 5 + 2)
+                    };
+                    if job == main {
+                        tainted = true;
+                    }
+                    let _ = svc
+                        .cancel_job(Request::new(pb::CancelJobRequest { job_id: job }))
+                        .await;
+                }
+                10 => {
+                    if let Ok(s) = svc
+                        .get_job(Request::new(pb::GetJobRequest {
+                            job_id: format!("job-{:06}", arg % 4),
+                        }))
+                        .await
+                    {
+                        let s = s.into_inner();
+                        assert!(s.units_done <= s.units_total);
+                        assert!(s.noise_rms.is_finite() && s.noise_relative.is_finite());
+                    }
+                }
+                11 => {
+                    let listed = svc
+                        .list_workers(Request::new(pb::ListWorkersRequest {}))
+                        .await
+                        .expect("list workers")
+                        .into_inner()
+                        .workers;
+                    for w in &listed {
+                        assert!(w.leases <= 3, "{w:?}");
+                        assert!(!w.worker_id.contains('.'), "a secret listed: {w:?}");
+                    }
+                    let _ = svc
+                        .list_jobs(Request::new(pb::ListJobsRequest {}))
+                        .await
+                        .expect("list jobs");
+                }
+                _ => farm.expire(),
+            }
+        }
+        let done = svc
+            .get_job(Request::new(pb::GetJobRequest {
+                job_id: main.clone(),
+            }))
+            .await
+            .expect("main job")
+            .into_inner()
+            .state
+            == pb::JobState::Done as i32;
+        farm.close().await;
+        // Whatever happened, the store opens again.
+        let again = InProcess::open(config).expect("the store reopens");
+        again.close().await;
+        if done && !tainted {
+            let exr = std::fs::read(out.join(format!("{main}.exr"))).expect("the EXR");
+            assert!(
+                exr == local_exr(),
+                "the farm's EXR differs from tessera render's"
+            );
+        }
+    });
+});
