@@ -42,7 +42,7 @@ pub enum StoreError {
     #[error("state store: {0}")]
     Db(#[from] redb::Error),
     /// A stored record does not decode (a corrupt or foreign file).
-    #[error("state store: corrupt record {what}: {why}")]
+    #[error("state store: corrupt record {what}: {why}; refusing to start on it (move {FILE_NAME} out of the data directory to start a new, empty farm)")]
     Corrupt {
         /// Which record.
         what: String,

@@ -330,10 +330,18 @@ fn prepare(unit: &pb::WorkUnit, scene: &Scene) -> Result<(PixelRect, RenderSetti
             unit.sample_start, unit.sample_end, s.spp, s.batch
         ));
     }
+    // An unknown value is a coordinator newer than this worker: rendering it as some other
+    // strategy would return the wrong bits as if they were right.
     let strategy = match pb::Strategy::try_from(s.strategy) {
+        Ok(pb::Strategy::Unspecified | pb::Strategy::Mis) => Strategy::Mis,
         Ok(pb::Strategy::Bsdf) => Strategy::Bsdf,
         Ok(pb::Strategy::Nee) => Strategy::Nee,
-        _ => Strategy::Mis,
+        Err(_) => {
+            return Err(format!(
+                "unknown strategy {} (this worker is older than the coordinator)",
+                s.strategy
+            ))
+        }
     };
     Ok((
         rect,
@@ -697,5 +705,54 @@ pub async fn run(
     match refused {
         Some(why) => Err(WorkerError::Refused(why)),
         None => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scene() -> Scene {
+        let text = include_str!("../../../scenes/cornell-box.toml")
+            .replace("width = 256", "width = 8")
+            .replace("height = 256", "height = 8");
+        Scene::from_str(&text, Format::Toml, "c.toml", &Limits::default()).expect("scene")
+    }
+
+    fn unit(rect: pb::Rect, start: u32, end: u32, strategy: i32) -> pb::WorkUnit {
+        pb::WorkUnit {
+            rect: Some(rect),
+            sample_start: start,
+            sample_end: end,
+            settings: Some(pb::RenderSettings {
+                spp: 8,
+                seed: 1,
+                batch: 4,
+                strategy,
+            }),
+            ..pb::WorkUnit::default()
+        }
+    }
+
+    #[test]
+    fn units_a_worker_cannot_render_as_sent_are_refused_with_the_reason() {
+        let scene = scene();
+        let inside = pb::Rect {
+            x0: 4,
+            y0: 4,
+            width: 4,
+            height: 4,
+        };
+        let (rect, settings) =
+            prepare(&unit(inside, 4, 8, pb::Strategy::Nee as i32), &scene).expect("fits");
+        assert_eq!((rect.x0, rect.width), (4, 4));
+        assert_eq!(settings.strategy, Strategy::Nee);
+        let outside = pb::Rect { x0: 6, ..inside };
+        let e = prepare(&unit(outside, 0, 4, 1), &scene).expect_err("outside");
+        assert!(e.contains("outside the 8×8 image"), "{e}");
+        let e = prepare(&unit(inside, 4, 9, 1), &scene).expect_err("past spp");
+        assert!(e.contains("do not fit spp 8"), "{e}");
+        let e = prepare(&unit(inside, 0, 4, 99), &scene).expect_err("a strategy from the future");
+        assert!(e.contains("unknown strategy 99"), "{e}");
     }
 }
