@@ -1,4 +1,6 @@
-//! Pinhole cameras: the course notes' pitch/yaw model (eqs. 1–12) and look-at.
+//! Pinhole cameras: the pitch/yaw model of the course notes the renderer started from
+//! (A. Delval, "Path tracing: méthodes de Monte Carlo pour la synthèse d'images", Projet de
+//! Programmation Numérique, 2024, eqs. 1–12) and look-at.
 //!
 //! Both reduce to an eye, an orthonormal basis (forward t, right b, up v) and the size of one
 //! pixel on the image plane at distance 1. A film point in continuous pixel coordinates

@@ -65,7 +65,7 @@ pub struct RenderSettings {
     /// Throughput below which Russian roulette starts to end paths: a path survives with
     /// probability min(0.95, max(β)/threshold). The cap keeps a path between perfect mirrors
     /// finite. pbrt's rule is threshold 1; 0.25 keeps paths through the Cornell box's bright
-    /// walls alive, whose deep bounces carry much of its light, and measured 27% less
+    /// walls alive, whose deep bounces carry much of its light, and measured less
     /// relMSE·seconds there (docs/renderer.md).
     pub rr_threshold: f32,
 }

@@ -5,7 +5,7 @@
 //!
 //! Plain loops over `[f32; N]` were tried first and left to the compiler's vectoriser: it
 //! grouped a vector's x, y and z into one register instead of four lanes' x, and the tracer ran
-//! 20% slower than with explicit `Vec4`s. The eight-lane tracer is also compiled for AVX2 and
+//! slower than with explicit `Vec4`s (docs/renderer.md). The eight-lane tracer is also compiled for AVX2 and
 //! AVX-512 encodings of the same 128-bit operations (`wide::trace8`), which keep the bits.
 //!
 //! Every operation is the scalar IEEE operation on each lane, with no fused multiply-add and
@@ -49,7 +49,7 @@ impl<const N: usize> F<N> {
 
     /// Applies `f` to each group of four lanes as a glam `Vec4`: explicit SSE operations,
     /// which the compiler keeps lane for lane. (Plain loops over the lanes leave the grouping
-    /// to its vectoriser, which grouped a vector's x, y and z instead and ran 20% slower.)
+    /// to its vectoriser, which grouped a vector's x, y and z instead and ran slower.)
     #[inline(always)]
     fn chunks(self, f: impl Fn(Vec4) -> Vec4) -> Self {
         const { assert!(N.is_multiple_of(4) && N <= 32) };

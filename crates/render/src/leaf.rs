@@ -167,8 +167,8 @@ pub struct Leaves {
     /// times a bounding-box test, and most rays in a room pass its boxes by.
     others: Vec<(u32, Aabb)>,
     /// Whether the BVH is one leaf (the Cornell box): every query then reads the whole of
-    /// `blocks` and `others` without looking its leaf up, which saved 2.5% of a Cornell box
-    /// sample's instructions (docs/renderer.md).
+    /// `blocks` and `others` without looking its leaf up, which saves instructions on every
+    /// Cornell box sample (docs/renderer.md).
     single: bool,
     /// For a one-leaf BVH, each quad of `blocks` splatted across lanes, in the blocks' order:
     /// what [`Leaves::closest_lanes`] tests a packet of rays against.

@@ -188,7 +188,7 @@ fn cone_applies(dc2: f32, r2: f32) -> bool {
 /// Whether `x` is in (0, ∞); NaN is not. Written against `f32::MAX` so that it compiles to
 /// two float compares: LLVM turns `x > 0.0 && x.is_finite()`, and even `x < f32::INFINITY`,
 /// into a class test that x86 does with a dozen or more integer operations on the bits
-/// (1.6% of a Cornell box sample's instructions, docs/renderer.md).
+/// (docs/renderer.md).
 #[inline]
 fn positive_finite(x: f32) -> bool {
     x > 0.0 && x <= f32::MAX

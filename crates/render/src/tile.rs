@@ -354,8 +354,8 @@ pub fn render_tile(
     out.samples = samples.clone();
     let w = rect.width as usize;
     let batch = settings.batch.max(1);
-    // Scenes whose bounce the many-path tracer models take it: the same bits, about 1.3x the
-    // scalar trace's samples a second in the Cornell box (docs/renderer.md). `TESSERA_SCALAR`
+    // Scenes whose bounce the many-path tracer models take it: the same bits, and more
+    // samples a second than the scalar trace (docs/renderer.md). `TESSERA_SCALAR`
     // forces one path at a time and `TESSERA_LANES` (4, 8 or 16) the lane count, for timing them
     // against each other; neither can change a bit of the output.
     let wide = if std::env::var_os("TESSERA_SCALAR").is_some() {

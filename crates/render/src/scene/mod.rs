@@ -262,7 +262,7 @@ impl Scene {
     /// caller, [`crate::wide::Wide::new`], requires); `rays` holds the same rays one by one, for
     /// the exact tests of primitives other than quads. Crate-private because on other scenes
     /// it would answer "no hit": a ray-by-ray fallback here, even out of line, cost the Cornell
-    /// box 4% more instructions a sample.
+    /// box measurably more instructions a sample (docs/renderer.md).
     #[inline(always)]
     pub(crate) fn intersect_lanes<const N: usize>(
         &self,
@@ -693,7 +693,7 @@ fn build(desc: &SceneFile, limits: &Limits) -> Result<Scene, Invalid> {
             if w < 2 {
                 return Err((
                     fp.key("width"),
-                    "the pitch_yaw camera needs a width of at least 2 (the notes' h_x/(k−1))"
+                    "the pitch_yaw camera needs a width of at least 2 (its field of view spans the outermost pixel centres)"
                         .into(),
                 ));
             }
