@@ -456,6 +456,7 @@ pub async fn serve_when_ready(
     let svc = service::Service {
         shared: shared.clone(),
         parses: Arc::new(tokio::sync::Semaphore::new(MAX_CONCURRENT_PARSES)),
+        parsing: Arc::default(),
     };
     let incoming = conn::Limited::new(listener, max_connections, idle);
     ready();
@@ -503,6 +504,7 @@ impl InProcess {
         let service = Service {
             shared,
             parses: Arc::new(tokio::sync::Semaphore::new(MAX_CONCURRENT_PARSES)),
+            parsing: Arc::default(),
         };
         Ok(Self { service, writer })
     }
@@ -510,6 +512,14 @@ impl InProcess {
     /// The `Jobs` and `Workers` services.
     pub fn service(&self) -> &Service {
         &self.service
+    }
+
+    /// The most scene parses that have run at once.
+    pub fn peak_parses(&self) -> usize {
+        self.service
+            .parsing
+            .1
+            .load(std::sync::atomic::Ordering::SeqCst)
     }
 
     /// Lapses overdue leases, as the server's ticker does.

@@ -28,6 +28,11 @@ pub struct Service {
     pub(crate) shared: Arc<Shared>,
     /// Permits to parse a submitted scene ([`crate::MAX_CONCURRENT_PARSES`]).
     pub(crate) parses: Arc<tokio::sync::Semaphore>,
+    /// Parses running now, and the most that ever ran at once.
+    pub(crate) parsing: Arc<(
+        std::sync::atomic::AtomicUsize,
+        std::sync::atomic::AtomicUsize,
+    )>,
 }
 
 type Stream_<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send>>;
@@ -275,9 +280,14 @@ impl Jobs for Service {
             .await
             .map_err(|_| Status::unavailable("the coordinator is shutting down"))?;
         let text = req.scene_text;
+        let gauge = self.parsing.clone();
         let (scene, text, name) = tokio::task::spawn_blocking(move || {
+            use std::sync::atomic::Ordering::SeqCst;
+            let now = gauge.0.fetch_add(1, SeqCst) + 1;
+            gauge.1.fetch_max(now, SeqCst);
             let format = if json { Format::Json } else { Format::Toml };
             let r = Scene::from_str(&text, format, &name, &limits);
+            gauge.0.fetch_sub(1, SeqCst);
             (r, text, name)
         })
         .await
