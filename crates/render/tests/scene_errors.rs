@@ -72,7 +72,7 @@ fn parser_errors() {
     check(
         &HEAD.replace("eye = [0, 0, 5]", "eye = [0, 0, 3.9, 42, \"junk\"]"),
         4,
-        "camera.eye",
+        "camera.eye[4]",
         "invalid type",
     );
     check(
