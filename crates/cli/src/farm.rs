@@ -13,6 +13,12 @@ use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_client::JobsClient;
 use tessera_proto::{parse_token, Secret};
 use tessera_render::scene::Limits;
+use tessera_render::{DEFAULT_BATCH, DEFAULT_TILE, TILE_RANGE};
+
+/// clap's parser for a tile edge in [`TILE_RANGE`].
+fn tile_range() -> clap::builder::RangedI64ValueParser<u32> {
+    clap::value_parser!(u32).range(i64::from(*TILE_RANGE.start())..=i64::from(*TILE_RANGE.end()))
+}
 
 use crate::render::{check_extension, check_output_dir};
 use crate::{printable, progress_style};
@@ -137,7 +143,7 @@ pub struct CoordinatorArgs {
     #[arg(long, default_value_t = 30.0)]
     lease_timeout: f64,
     /// Default tile edge in pixels for jobs that do not choose one.
-    #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u32).range(4..=512))]
+    #[arg(long, default_value_t = DEFAULT_TILE, value_parser = tile_range())]
     tile_size: u32,
     /// Largest scene accepted, in bytes.
     #[arg(long, default_value_t = 32 << 20)]
@@ -199,10 +205,10 @@ pub struct SubmitArgs {
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Samples per batch (the same default as `tessera render`, so the bits match).
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=65536))]
+    #[arg(long, default_value_t = DEFAULT_BATCH, value_parser = crate::render::batch_range())]
     batch: u32,
     /// Tile edge in pixels (default: the coordinator's).
-    #[arg(long, value_parser = clap::value_parser!(u32).range(4..=512))]
+    #[arg(long, value_parser = tile_range())]
     tile_size: Option<u32>,
     /// Higher runs first.
     #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
@@ -412,8 +418,10 @@ async fn connect(args: &CoordinatorUrl) -> Result<Client> {
         anyhow!("cannot reach the coordinator at {url}: {msg}")
     })?;
     Ok(JobsClient::with_interceptor(channel, Bearer::new(&options))
-        .max_decoding_message_size(64 << 20)
-        .max_encoding_message_size(64 << 20))
+        .max_decoding_message_size(tessera_proto::MAX_MESSAGE_BYTES)
+        // What may be sent is the coordinator's to decide (its --max-scene-bytes): it refuses
+        // a message too large with a clear error.
+        .max_encoding_message_size(usize::MAX))
 }
 
 fn state_name(state: i32) -> String {

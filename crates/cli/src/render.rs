@@ -8,7 +8,12 @@ use anyhow::{bail, Context, Result};
 use indicatif::ProgressBar;
 use tessera_render::output::{render_metadata, write_exr, write_png_preview, ExrChannels, Preview};
 use tessera_render::scene::{Limits, Scene};
-use tessera_render::{render_frame, RenderSettings, Strategy};
+use tessera_render::{render_frame, RenderSettings, Strategy, BATCH_RANGE, DEFAULT_BATCH};
+
+/// clap's parser for a batch size in [`BATCH_RANGE`].
+pub fn batch_range() -> clap::builder::RangedI64ValueParser<u32> {
+    clap::value_parser!(u32).range(i64::from(*BATCH_RANGE.start())..=i64::from(*BATCH_RANGE.end()))
+}
 
 /// Arguments of `tessera render`.
 #[derive(Debug, clap::Args)]
@@ -29,7 +34,7 @@ pub struct RenderArgs {
     seed: u64,
     /// Samples per batch (part of the job's identity, like the seed; the farm uses the same
     /// default, so a farm job with the same settings gives the same bits).
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=65536))]
+    #[arg(long, default_value_t = DEFAULT_BATCH, value_parser = batch_range())]
     batch: u32,
     /// Also write an 8-bit sRGB PNG preview here.
     #[arg(long)]
@@ -76,11 +81,7 @@ impl StrategyArg {
 
     /// The protocol's value.
     pub fn to_pb(self) -> tessera_proto::v1::Strategy {
-        match self {
-            StrategyArg::Mis => tessera_proto::v1::Strategy::Mis,
-            StrategyArg::Bsdf => tessera_proto::v1::Strategy::Bsdf,
-            StrategyArg::Nee => tessera_proto::v1::Strategy::Nee,
-        }
+        self.to_strategy().into()
     }
 }
 

@@ -100,12 +100,12 @@ impl Config {
             data_dir: data_dir.into(),
             output_dir: None,
             lease_timeout: Duration::from_secs(30),
-            default_tile_size: 128,
+            default_tile_size: tessera_render::DEFAULT_TILE,
             limits: Limits {
                 max_bytes: 32 << 20,
                 ..Limits::default()
             },
-            max_message_bytes: 48 << 20,
+            max_message_bytes: tessera_proto::MAX_MESSAGE_BYTES,
             max_active_jobs: 1000,
             max_units_per_job: 1 << 24,
             token: None,

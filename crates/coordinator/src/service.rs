@@ -9,7 +9,7 @@ use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_server::Jobs;
 use tessera_proto::v1::workers_server::Workers;
 use tessera_render::scene::{Format, Scene};
-use tessera_render::{PixelRect, Strategy, TileSums, IMAGE_REVISION};
+use tessera_render::{PixelRect, Strategy, TileSums, BATCH_RANGE, IMAGE_REVISION, TILE_RANGE};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tokio_stream::Stream;
@@ -61,29 +61,12 @@ fn job_id(s: &str) -> Result<u64, Status> {
     })
 }
 
-fn strategy_to_pb(s: &str) -> pb::Strategy {
-    match Strategy::from_name(s) {
-        Some(Strategy::Bsdf) => pb::Strategy::Bsdf,
-        Some(Strategy::Nee) => pb::Strategy::Nee,
-        _ => pb::Strategy::Mis,
-    }
-}
-
 fn settings_pb(rec: &JobRecord) -> pb::RenderSettings {
     pb::RenderSettings {
         spp: rec.spp,
         seed: rec.seed,
         batch: rec.batch,
-        strategy: strategy_to_pb(&rec.strategy) as i32,
-    }
-}
-
-fn rect_pb(r: PixelRect) -> pb::Rect {
-    pb::Rect {
-        x0: r.x0,
-        y0: r.y0,
-        width: r.width,
-        height: r.height,
+        strategy: pb::Strategy::from(Strategy::from_name(&rec.strategy).unwrap_or_default()) as i32,
     }
 }
 
@@ -161,15 +144,10 @@ fn final_state(s: &pb::JobStatus) -> bool {
 /// Converts a result from the wire, checking only what can be checked without the job (the
 /// rest is [`Core::submit`](crate::state::Core::submit)'s). Public for the fuzz target.
 pub fn decode_result(r: pb::TileResult) -> Result<TileSums, Status> {
-    let rect = r
-        .rect
-        .ok_or_else(|| Status::invalid_argument("result has no rect"))?;
-    let rect = PixelRect {
-        x0: rect.x0,
-        y0: rect.y0,
-        width: rect.width,
-        height: rect.height,
-    };
+    let rect = PixelRect::from(
+        r.rect
+            .ok_or_else(|| Status::invalid_argument("result has no rect"))?,
+    );
     let n = rect.width as u64 * rect.height as u64;
     if r.sum.len() as u64 != 3 * n || r.sum_sq.len() as u64 != 3 * n || r.count.len() as u64 != n {
         return Err(Status::invalid_argument(format!(
@@ -229,10 +207,16 @@ impl Jobs for Service {
                 s.spp, limits.max_spp
             )));
         }
-        let batch = if s.batch == 0 { 16 } else { s.batch };
-        if batch > 65536 {
+        let batch = if s.batch == 0 {
+            tessera_render::DEFAULT_BATCH
+        } else {
+            s.batch
+        };
+        if !BATCH_RANGE.contains(&batch) {
             return Err(Status::invalid_argument(format!(
-                "batch {batch} must be between 1 and 65536"
+                "batch {batch} must be between {} and {}",
+                BATCH_RANGE.start(),
+                BATCH_RANGE.end()
             )));
         }
         let tile_size = if req.tile_size == 0 {
@@ -240,22 +224,15 @@ impl Jobs for Service {
         } else {
             req.tile_size
         };
-        if !(4..=512).contains(&tile_size) {
+        if !TILE_RANGE.contains(&tile_size) {
             return Err(Status::invalid_argument(format!(
-                "tile size {tile_size} must be between 4 and 512"
+                "tile size {tile_size} must be between {} and {}",
+                TILE_RANGE.start(),
+                TILE_RANGE.end()
             )));
         }
-        let strategy = match pb::Strategy::try_from(s.strategy) {
-            Ok(pb::Strategy::Unspecified | pb::Strategy::Mis) => Strategy::Mis,
-            Ok(pb::Strategy::Bsdf) => Strategy::Bsdf,
-            Ok(pb::Strategy::Nee) => Strategy::Nee,
-            Err(_) => {
-                return Err(Status::invalid_argument(format!(
-                    "unknown strategy {}",
-                    s.strategy
-                )))
-            }
-        };
+        let strategy = tessera_proto::convert::strategy_from_wire(s.strategy)
+            .map_err(|e| Status::invalid_argument(e.to_string()))?;
         if !req.output_name.is_empty() {
             check_output_name(&req.output_name).map_err(Status::invalid_argument)?;
             if is_default_output_name(&req.output_name) {
@@ -630,7 +607,7 @@ impl Workers for Service {
                             job_id: job_name(g.job),
                             scene_hash: job.rec.scene_hash.clone(),
                             settings: Some(settings_pb(&job.rec)),
-                            rect: Some(rect_pb(rect)),
+                            rect: Some(rect.into()),
                             tile_index: g.unit.tile,
                             batch_index: g.unit.batch,
                             sample_start: range.start,

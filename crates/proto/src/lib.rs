@@ -11,6 +11,12 @@ pub mod v1 {
 }
 
 pub mod client;
+pub mod convert;
+
+/// The largest gRPC message the coordinator and its workers accept by default (a scene of up
+/// to 32 MiB in a message, with room to spare); the coordinator raises it to fit a larger
+/// `--max-scene-bytes`.
+pub const MAX_MESSAGE_BYTES: usize = 48 << 20;
 
 /// Lease and job ids are strings on the wire so that their form can change without a protocol
 /// change; this is the longest kept in messages, to bound what a peer can make us store.

@@ -48,6 +48,20 @@ impl Strategy {
     }
 }
 
+/// Samples per batch when a render or job does not choose. The batch decides the order in
+/// which sums are added, so it is part of a job's identity: every entry point (`tessera
+/// render`, `tessera submit`, the coordinator) must use this one value for their bits to match.
+pub const DEFAULT_BATCH: u32 = 16;
+
+/// The batch sizes accepted everywhere.
+pub const BATCH_RANGE: std::ops::RangeInclusive<u32> = 1..=65536;
+
+/// The tile edges (in pixels) the farm accepts.
+pub const TILE_RANGE: std::ops::RangeInclusive<u32> = 4..=512;
+
+/// The coordinator's tile edge for jobs that do not choose one.
+pub const DEFAULT_TILE: u32 = 128;
+
 /// Everything besides the scene that decides a render's pixels.
 #[derive(Clone, Debug)]
 pub struct RenderSettings {
@@ -75,7 +89,7 @@ impl Default for RenderSettings {
         Self {
             seed: 0,
             spp: 64,
-            batch: 16,
+            batch: DEFAULT_BATCH,
             strategy: Strategy::Mis,
             rr_depth: 3,
             rr_threshold: 0.25,

@@ -38,7 +38,9 @@ pub mod shape;
 pub mod tile;
 pub mod wide;
 
-pub use integrator::{RenderSettings, Strategy};
+pub use integrator::{
+    RenderSettings, Strategy, BATCH_RANGE, DEFAULT_BATCH, DEFAULT_TILE, TILE_RANGE,
+};
 pub use tile::{assemble_frame, render_frame, render_tile, Image, PixelRect, TileSums};
 
 /// Revision of the renderer's output bits: bumped by every change that alters any bit that any

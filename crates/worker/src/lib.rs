@@ -25,10 +25,11 @@ use std::sync::{Arc, Mutex, RwLock};
 use std::time::Duration;
 
 use tessera_proto::client::{endpoint, Bearer, ClientOptions};
+use tessera_proto::convert::strategy_from_wire;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::workers_client::WorkersClient;
 use tessera_render::scene::{Format, Limits, Scene};
-use tessera_render::{render_tile, PixelRect, RenderSettings, Strategy, TileSums};
+use tessera_render::{render_tile, PixelRect, RenderSettings, TileSums};
 use tokio::sync::{mpsc, watch, OwnedSemaphorePermit, Semaphore};
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
@@ -61,7 +62,7 @@ impl Config {
             coordinator: coordinator.into(),
             threads: None,
             name: "worker".into(),
-            max_message_bytes: 48 << 20,
+            max_message_bytes: tessera_proto::MAX_MESSAGE_BYTES,
             max_backoff: Duration::from_secs(10),
             shutdown_grace: Duration::from_secs(30),
             client: ClientOptions::default(),
@@ -310,13 +311,7 @@ struct Ready {
 
 /// Checks a unit against its scene and turns it into renderer arguments.
 fn prepare(unit: &pb::WorkUnit, scene: &Scene) -> Result<(PixelRect, RenderSettings), String> {
-    let r = unit.rect.as_ref().ok_or("unit has no rect")?;
-    let rect = PixelRect {
-        x0: r.x0,
-        y0: r.y0,
-        width: r.width,
-        height: r.height,
-    };
+    let rect = PixelRect::from(unit.rect.ok_or("unit has no rect")?);
     if !rect.fits(scene.width, scene.height) {
         return Err(format!(
             "unit rect {rect:?} is outside the {}×{} image",
@@ -330,19 +325,9 @@ fn prepare(unit: &pb::WorkUnit, scene: &Scene) -> Result<(PixelRect, RenderSetti
             unit.sample_start, unit.sample_end, s.spp, s.batch
         ));
     }
-    // An unknown value is a coordinator newer than this worker: rendering it as some other
-    // strategy would return the wrong bits as if they were right.
-    let strategy = match pb::Strategy::try_from(s.strategy) {
-        Ok(pb::Strategy::Unspecified | pb::Strategy::Mis) => Strategy::Mis,
-        Ok(pb::Strategy::Bsdf) => Strategy::Bsdf,
-        Ok(pb::Strategy::Nee) => Strategy::Nee,
-        Err(_) => {
-            return Err(format!(
-                "unknown strategy {} (this worker is older than the coordinator)",
-                s.strategy
-            ))
-        }
-    };
+    // An unknown value is a coordinator newer than this worker.
+    let strategy = strategy_from_wire(s.strategy)
+        .map_err(|e| format!("{e} (this worker is older than the coordinator)"))?;
     Ok((
         rect,
         RenderSettings {
@@ -711,6 +696,7 @@ pub async fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use tessera_render::Strategy;
 
     fn scene() -> Scene {
         let text = include_str!("../../../scenes/cornell-box.toml")
