@@ -254,23 +254,13 @@ async fn lease_now(
 
 /// The result an honest worker sends for `u`.
 fn honest_result(scene: &Scene, settings: &RenderSettings, u: &pb::WorkUnit) -> pb::TileResult {
-    let r = u.rect.expect("rect");
-    let rect = PixelRect {
-        x0: r.x0,
-        y0: r.y0,
-        width: r.width,
-        height: r.height,
-    };
-    let sums = render_tile(scene, settings, rect, u.sample_start..u.sample_end);
-    pb::TileResult {
-        rect: u.rect,
-        sample_start: u.sample_start,
-        sample_end: u.sample_end,
-        sum: sums.sum.iter().flatten().copied().collect(),
-        sum_sq: sums.sum_sq.iter().flatten().copied().collect(),
-        count: sums.count,
-        nonfinite: sums.nonfinite,
-    }
+    let rect = PixelRect::from(u.rect.expect("rect"));
+    pb::TileResult::from(&render_tile(
+        scene,
+        settings,
+        rect,
+        u.sample_start..u.sample_end,
+    ))
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]

@@ -87,23 +87,13 @@ fn submit_request(output_name: String) -> pb::SubmitJobRequest {
 }
 
 fn honest(u: &pb::WorkUnit) -> pb::TileResult {
-    let r = u.rect.unwrap_or_default();
-    let rect = PixelRect {
-        x0: r.x0,
-        y0: r.y0,
-        width: r.width,
-        height: r.height,
-    };
-    let sums = render_tile(scene(), &settings(), rect, u.sample_start..u.sample_end);
-    pb::TileResult {
-        rect: u.rect,
-        sample_start: u.sample_start,
-        sample_end: u.sample_end,
-        sum: sums.sum.iter().flatten().copied().collect(),
-        sum_sq: sums.sum_sq.iter().flatten().copied().collect(),
-        count: sums.count,
-        nonfinite: sums.nonfinite,
-    }
+    let rect = PixelRect::from(u.rect.unwrap_or_default());
+    pb::TileResult::from(&render_tile(
+        scene(),
+        &settings(),
+        rect,
+        u.sample_start..u.sample_end,
+    ))
 }
 
 fn forged(u: &pb::WorkUnit, how: u8) -> pb::TileResult {

@@ -9,7 +9,7 @@ use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_server::Jobs;
 use tessera_proto::v1::workers_server::Workers;
 use tessera_render::scene::{Format, Scene};
-use tessera_render::{PixelRect, Strategy, TileSums, BATCH_RANGE, IMAGE_REVISION, TILE_RANGE};
+use tessera_render::{Strategy, TileSums, BATCH_RANGE, IMAGE_REVISION, TILE_RANGE};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tokio_stream::Stream;
@@ -144,39 +144,7 @@ fn final_state(s: &pb::JobStatus) -> bool {
 /// Converts a result from the wire, checking only what can be checked without the job (the
 /// rest is [`Core::submit`](crate::state::Core::submit)'s). Public for the fuzz target.
 pub fn decode_result(r: pb::TileResult) -> Result<TileSums, Status> {
-    let rect = PixelRect::from(
-        r.rect
-            .ok_or_else(|| Status::invalid_argument("result has no rect"))?,
-    );
-    let n = rect.width as u64 * rect.height as u64;
-    if r.sum.len() as u64 != 3 * n || r.sum_sq.len() as u64 != 3 * n || r.count.len() as u64 != n {
-        return Err(Status::invalid_argument(format!(
-            "result for a {}×{} rect has {} sums, {} squared sums and {} counts (want {}, {}, {})",
-            rect.width,
-            rect.height,
-            r.sum.len(),
-            r.sum_sq.len(),
-            r.count.len(),
-            3 * n,
-            3 * n,
-            n
-        )));
-    }
-    if r.sample_start > r.sample_end {
-        return Err(Status::invalid_argument(format!(
-            "result sample range {}..{} is backwards",
-            r.sample_start, r.sample_end
-        )));
-    }
-    let triples = |v: &[f64]| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-    Ok(TileSums {
-        rect,
-        samples: r.sample_start..r.sample_end,
-        sum: triples(&r.sum),
-        sum_sq: triples(&r.sum_sq),
-        count: r.count,
-        nonfinite: r.nonfinite,
-    })
+    TileSums::try_from(r).map_err(|e| Status::invalid_argument(e.to_string()))
 }
 
 impl Service {

@@ -2,7 +2,7 @@
 //! speaks the protocol uses these, so a value cannot mean one thing to the coordinator and
 //! another to a worker.
 
-use tessera_render::{PixelRect, Strategy};
+use tessera_render::{PixelRect, Strategy, TileSums};
 
 use crate::v1 as pb;
 
@@ -55,6 +55,84 @@ pub fn strategy_from_wire(v: i32) -> Result<Strategy, UnknownStrategy> {
     }
 }
 
+impl From<&TileSums> for pb::TileResult {
+    fn from(t: &TileSums) -> Self {
+        let flat = |v: &[[f64; 3]]| v.iter().flatten().copied().collect::<Vec<f64>>();
+        Self {
+            rect: Some(t.rect.into()),
+            sample_start: t.samples.start,
+            sample_end: t.samples.end,
+            sum: flat(&t.sum),
+            sum_sq: flat(&t.sum_sq),
+            count: t.count.clone(),
+            nonfinite: t.nonfinite,
+        }
+    }
+}
+
+/// Why a result's arrays cannot be the sums of its rectangle (what can be told without the
+/// job; the coordinator checks the rest against the unit).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum BadResult {
+    /// No rectangle.
+    #[error("result has no rect")]
+    NoRect,
+    /// Arrays of other lengths than the rectangle's.
+    #[error(
+        "result for a {width}×{height} rect has {sums} sums, {squares} squared sums and {counts} counts (want {}, {}, {})",
+        3 * width * height, 3 * width * height, width * height
+    )]
+    Lengths {
+        /// Rectangle width.
+        width: u64,
+        /// Rectangle height.
+        height: u64,
+        /// Sums sent.
+        sums: usize,
+        /// Squared sums sent.
+        squares: usize,
+        /// Counts sent.
+        counts: usize,
+    },
+    /// A sample range that ends before it starts.
+    #[error("result sample range {0}..{1} is backwards")]
+    Backwards(u32, u32),
+}
+
+impl TryFrom<pb::TileResult> for TileSums {
+    type Error = BadResult;
+
+    fn try_from(r: pb::TileResult) -> Result<Self, BadResult> {
+        let rect = PixelRect::from(r.rect.ok_or(BadResult::NoRect)?);
+        let (width, height) = (u64::from(rect.width), u64::from(rect.height));
+        let n = width * height;
+        if r.sum.len() as u64 != 3 * n
+            || r.sum_sq.len() as u64 != 3 * n
+            || r.count.len() as u64 != n
+        {
+            return Err(BadResult::Lengths {
+                width,
+                height,
+                sums: r.sum.len(),
+                squares: r.sum_sq.len(),
+                counts: r.count.len(),
+            });
+        }
+        if r.sample_start > r.sample_end {
+            return Err(BadResult::Backwards(r.sample_start, r.sample_end));
+        }
+        let triples = |v: &[f64]| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        Ok(TileSums {
+            rect,
+            samples: r.sample_start..r.sample_end,
+            sum: triples(&r.sum),
+            sum_sq: triples(&r.sum_sq),
+            count: r.count,
+            nonfinite: r.nonfinite,
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -73,5 +151,41 @@ mod tests {
             height: 4,
         };
         assert_eq!(PixelRect::from(pb::Rect::from(r)), r);
+    }
+
+    #[test]
+    fn tile_sums_round_trip_bit_exactly_and_bad_shapes_are_named() {
+        let rect = PixelRect {
+            x0: 2,
+            y0: 1,
+            width: 2,
+            height: 3,
+        };
+        let mut t = TileSums::empty(rect, 4);
+        t.samples = 4..8;
+        for (i, s) in t.sum.iter_mut().enumerate() {
+            *s = [i as f64 * 0.1, -0.0, f64::MIN_POSITIVE];
+        }
+        t.count[1] = 3;
+        t.nonfinite = 1;
+        let wire = pb::TileResult::from(&t);
+        assert_eq!(TileSums::try_from(wire.clone()), Ok(t));
+        let mut short = wire.clone();
+        short.count.pop();
+        let e = TileSums::try_from(short).expect_err("short");
+        assert_eq!(
+            e.to_string(),
+            "result for a 2×3 rect has 18 sums, 18 squared sums and 5 counts (want 18, 18, 6)"
+        );
+        let backwards = pb::TileResult {
+            sample_start: 9,
+            ..wire.clone()
+        };
+        assert_eq!(
+            TileSums::try_from(backwards),
+            Err(BadResult::Backwards(9, 8))
+        );
+        let no_rect = pb::TileResult { rect: None, ..wire };
+        assert_eq!(TileSums::try_from(no_rect), Err(BadResult::NoRect));
     }
 }

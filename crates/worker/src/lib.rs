@@ -492,23 +492,10 @@ async fn renderer(ctx: Arc<Ctx>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::Unboun
     }
 }
 
-fn result_pb(unit: &pb::WorkUnit, sums: &TileSums) -> pb::TileResult {
-    let flat = |v: &[[f64; 3]]| v.iter().flatten().copied().collect::<Vec<f64>>();
-    pb::TileResult {
-        rect: unit.rect,
-        sample_start: sums.samples.start,
-        sample_end: sums.samples.end,
-        sum: flat(&sums.sum),
-        sum_sq: flat(&sums.sum_sq),
-        count: sums.count.clone(),
-        nonfinite: sums.nonfinite,
-    }
-}
-
 /// Sends results, retrying through network errors.
 async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
     while let Some(done) = rx.recv().await {
-        let result = result_pb(&done.unit, &done.sums);
+        let result = pb::TileResult::from(&done.sums);
         let mut attempt = 0;
         loop {
             let sent_as = ctx.id();
