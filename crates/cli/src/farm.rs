@@ -13,7 +13,7 @@ use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_client::JobsClient;
 use tessera_proto::{parse_token, Secret};
 use tessera_render::scene::Limits;
-use tessera_render::{DEFAULT_BATCH, DEFAULT_TILE, TILE_RANGE};
+use tessera_render::{DEFAULT_TILE, TILE_RANGE};
 
 /// clap's parser for a tile edge in [`TILE_RANGE`].
 fn tile_range() -> clap::builder::RangedI64ValueParser<u32> {
@@ -198,15 +198,8 @@ pub struct SubmitArgs {
     scene: PathBuf,
     #[command(flatten)]
     url: CoordinatorUrl,
-    /// Samples per pixel.
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
-    spp: u32,
-    /// Job seed.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// Samples per batch (the same default as `tessera render`, so the bits match).
-    #[arg(long, default_value_t = DEFAULT_BATCH, value_parser = crate::render::batch_range())]
-    batch: u32,
+    #[command(flatten)]
+    settings: crate::render::SettingsArgs,
     /// Tile edge in pixels (default: the coordinator's).
     #[arg(long, value_parser = tile_range())]
     tile_size: Option<u32>,
@@ -216,9 +209,6 @@ pub struct SubmitArgs {
     /// File name of the EXR in the coordinator's output directory (default: JOB.exr).
     #[arg(long)]
     name: Option<String>,
-    /// Direct-lighting strategy.
-    #[arg(long, value_enum, default_value_t = crate::render::StrategyArg::Mis)]
-    strategy: crate::render::StrategyArg,
     /// Add variance-of-the-mean channels to the EXR.
     #[arg(long)]
     variance: bool,
@@ -659,12 +649,7 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
                 pb::SceneFormat::Toml
             } as i32,
             scene_name: args.scene.display().to_string(),
-            settings: Some(pb::RenderSettings {
-                spp: args.spp,
-                seed: args.seed,
-                batch: args.batch,
-                strategy: args.strategy.to_pb() as i32,
-            }),
+            settings: Some(pb::RenderSettings::from(&args.settings.to_settings())),
             tile_size: args.tile_size.unwrap_or(0),
             output_name: args.name.clone().unwrap_or_default(),
             priority: args.priority,

@@ -15,27 +15,51 @@ pub fn batch_range() -> clap::builder::RangedI64ValueParser<u32> {
     clap::value_parser!(u32).range(i64::from(*BATCH_RANGE.start())..=i64::from(*BATCH_RANGE.end()))
 }
 
+/// The settings that decide a render's bits: the same flags, defaults and ranges for `tessera
+/// render` and `tessera submit`, so that the two give the same image for the same command.
+#[derive(Debug, clap::Args)]
+pub struct SettingsArgs {
+    /// Samples per pixel.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    pub spp: u32,
+    /// Job seed: the same seed gives the same bits.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Samples per batch (part of the job's identity, like the seed; `render` and `submit`
+    /// share the default, so a farm job with the same settings gives the same bits).
+    #[arg(long, default_value_t = DEFAULT_BATCH, value_parser = batch_range())]
+    pub batch: u32,
+    /// Direct-lighting strategy (mis is the best; the others exist for comparisons).
+    #[arg(long, value_enum, default_value_t = StrategyArg::Mis)]
+    pub strategy: StrategyArg,
+}
+
+impl SettingsArgs {
+    /// The renderer's settings.
+    pub fn to_settings(&self) -> RenderSettings {
+        RenderSettings {
+            seed: self.seed,
+            spp: self.spp,
+            batch: self.batch,
+            strategy: self.strategy.to_strategy(),
+            ..RenderSettings::default()
+        }
+    }
+}
+
 /// Arguments of `tessera render`.
 #[derive(Debug, clap::Args)]
 pub struct RenderArgs {
     /// Scene file (TOML, or JSON by its .json extension).
     scene: PathBuf,
-    /// Samples per pixel.
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
-    spp: u32,
+    #[command(flatten)]
+    settings: SettingsArgs,
     /// Output OpenEXR file.
     #[arg(long, short)]
     output: PathBuf,
     /// Worker threads (default: every core).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
     threads: Option<u32>,
-    /// Job seed: the same seed gives the same bits.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// Samples per batch (part of the job's identity, like the seed; the farm uses the same
-    /// default, so a farm job with the same settings gives the same bits).
-    #[arg(long, default_value_t = DEFAULT_BATCH, value_parser = batch_range())]
-    batch: u32,
     /// Also write an 8-bit sRGB PNG preview here.
     #[arg(long)]
     preview: Option<PathBuf>,
@@ -48,9 +72,6 @@ pub struct RenderArgs {
     /// Add a per-pixel sample-count channel (samples) to the EXR.
     #[arg(long)]
     sample_count: bool,
-    /// Direct-lighting strategy (mis is the best; the others exist for comparisons).
-    #[arg(long, value_enum, default_value_t = StrategyArg::Mis)]
-    strategy: StrategyArg,
     /// Largest spp accepted.
     #[arg(long, default_value_t = Limits::default().max_spp)]
     max_spp: u32,
@@ -79,10 +100,6 @@ impl StrategyArg {
         }
     }
 
-    /// The protocol's value.
-    pub fn to_pb(self) -> tessera_proto::v1::Strategy {
-        self.to_strategy().into()
-    }
 }
 
 /// Fails early, before any rendering, if `out` cannot be written: its directory does not
@@ -133,10 +150,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
     if !args.exposure.is_finite() {
         bail!("--exposure must be a finite number, got {}", args.exposure);
     }
-    if args.spp > args.max_spp {
+    if args.settings.spp > args.max_spp {
         bail!(
             "--spp {} is above the limit of {} (raise it with --max-spp)",
-            args.spp,
+            args.settings.spp,
             args.max_spp
         );
     }
@@ -153,13 +170,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         ..Limits::default()
     };
     let scene = Scene::load(&args.scene, &limits)?;
-    let settings = RenderSettings {
-        seed: args.seed,
-        spp: args.spp,
-        batch: args.batch,
-        strategy: args.strategy.to_strategy(),
-        ..RenderSettings::default()
-    };
+    let settings = args.settings.to_settings();
     let mut pool = rayon::ThreadPoolBuilder::new();
     if let Some(t) = args.threads {
         pool = pool.num_threads(t as usize);

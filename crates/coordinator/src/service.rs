@@ -1,77 +1,88 @@
-//! The gRPC handlers: decode and check each request, call into [`Core`](crate::state::Core)
-//! under its lock, and wait for the store before replying where durability matters.
+//! The gRPC handlers: decode and check each request (the wire's strings become typed ids and
+//! settings here, through `tessera_proto`'s conversions), call into the
+//! [`Scheduler`] under its lock, and wait for the store before replying where durability
+//! matters.
 
 use std::pin::Pin;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use tessera_proto::convert::settings_from_wire;
+use tessera_proto::ids::{JobId, LeaseId, WorkerCredential};
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_server::Jobs;
 use tessera_proto::v1::workers_server::Workers;
 use tessera_render::scene::{Format, Scene};
-use tessera_render::{Strategy, TileSums, BATCH_RANGE, IMAGE_REVISION, TILE_RANGE};
+use tessera_render::{TileSums, IMAGE_REVISION, TILE_RANGE};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tokio_stream::Stream;
 use tonic::{Request, Response, Status};
 use tracing::{info, warn};
 
-use crate::state::{job_name, parse_job, truncate, Core, Job, Merged, Refusal, TileGrid, Unit};
-use crate::store::{JobPhase, JobRecord, Op, StoredScene};
-use crate::{
-    check_output_name, durable, finish_job, is_default_output_name, now_ms, output_path, Shared,
-};
+use crate::config::{MAX_CONCURRENT_PARSES, MAX_LEASES_PER_CALL};
+use crate::error::truncate;
+use crate::job::{Job, Unit};
+use crate::output::{check_output_name, finish_job, OutputNames};
+use crate::scheduler::{Admission, AdmissionLimits, Merged, Scheduler};
+use crate::shared::{durable, now_ms, Shared};
+use crate::store::{JobPhase, StoredScene};
 
 /// Both services over the same shared state.
 #[derive(Clone)]
 pub struct Service {
     pub(crate) shared: Arc<Shared>,
-    /// Permits to parse a submitted scene ([`crate::MAX_CONCURRENT_PARSES`]).
-    pub(crate) parses: Arc<tokio::sync::Semaphore>,
+    /// Permits to parse a submitted scene ([`MAX_CONCURRENT_PARSES`]).
+    parses: Arc<tokio::sync::Semaphore>,
     /// Parses running now, and the most that ever ran at once.
-    pub(crate) parsing: Arc<(
-        std::sync::atomic::AtomicUsize,
-        std::sync::atomic::AtomicUsize,
-    )>,
+    parsing: Arc<(AtomicUsize, AtomicUsize)>,
 }
 
 type Stream_<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send>>;
-
-impl From<Refusal> for Status {
-    fn from(r: Refusal) -> Self {
-        match r {
-            Refusal::NotFound(m) => Status::not_found(m),
-            Refusal::Invalid(m) => Status::invalid_argument(m),
-            Refusal::Precondition(m) => Status::failed_precondition(m),
-            Refusal::Denied(m) => Status::permission_denied(m),
-        }
-    }
-}
 
 fn internal(e: String) -> Status {
     Status::internal(format!("coordinator state store: {e}"))
 }
 
-fn job_id(s: &str) -> Result<u64, Status> {
-    parse_job(s).ok_or_else(|| {
-        Status::invalid_argument(format!(
-            "malformed job id {:?} (expected job-NNNNNN)",
-            truncate(s)
+fn job_id(s: &str) -> Result<JobId, Status> {
+    s.parse().map_err(|e: tessera_proto::ids::BadId| Status::invalid_argument(e.to_string()))
+}
+
+/// The credential a worker call quotes. A malformed one is as unknown as a wrong one, and
+/// gets the same answer (register again).
+fn credential(s: &str) -> Result<WorkerCredential, Status> {
+    s.parse().map_err(|e: tessera_proto::ids::BadId| {
+        Status::not_found(format!(
+            "unknown worker {:?} (the coordinator may have restarted): register again",
+            e.text
         ))
     })
 }
 
-fn settings_pb(rec: &JobRecord) -> pb::RenderSettings {
-    pb::RenderSettings {
-        spp: rec.spp,
-        seed: rec.seed,
-        batch: rec.batch,
-        strategy: pb::Strategy::from(Strategy::from_name(&rec.strategy).unwrap_or_default()) as i32,
+/// The lease ids a worker call lists: those that parse, and those that do not (which no
+/// lease of this coordinator's can be).
+fn lease_ids(ids: &[String]) -> Result<(Vec<LeaseId>, Vec<String>), Status> {
+    if ids.len() > MAX_LEASES_PER_CALL {
+        return Err(Status::invalid_argument(format!(
+            "the call lists {} leases; at most {MAX_LEASES_PER_CALL}",
+            ids.len()
+        )));
     }
+    let mut good = Vec::with_capacity(ids.len());
+    let mut bad = Vec::new();
+    for id in ids {
+        match id.parse() {
+            Ok(l) => good.push(l),
+            Err(_) => bad.push(truncate(id)),
+        }
+    }
+    Ok((good, bad))
 }
 
 /// A job's status as sent to clients.
-fn status(job: &Job, core: &Core) -> pb::JobStatus {
+fn status(job: &Job, core: &Scheduler) -> pb::JobStatus {
     let rec = &job.rec;
     let state = match rec.phase {
         JobPhase::Active if job.started => pb::JobState::Running,
@@ -95,16 +106,9 @@ fn status(job: &Job, core: &Core) -> pb::JobStatus {
         -1.0
     };
     let (noise_rms, noise_relative) = job.noise();
-    let units_leased = job
-        .issued
-        .values()
-        .filter(|ids| {
-            ids.iter()
-                .any(|l| core.leases.get(l).is_some_and(|x| x.active))
-        })
-        .count() as u64;
+    let units_leased = core.units_leased(job);
     pb::JobStatus {
-        job_id: job_name(rec.id),
+        job_id: job.id().to_string(),
         state: state as i32,
         priority: rec.priority,
         scene_hash: rec.scene_hash.clone(),
@@ -112,7 +116,7 @@ fn status(job: &Job, core: &Core) -> pb::JobStatus {
         output_name: rec.output_name.clone(),
         width: rec.width,
         height: rec.height,
-        settings: Some(settings_pb(rec)),
+        settings: Some(pb::RenderSettings::from(&job.settings())),
         tile_size: rec.tile_size,
         units_total: job.units_total(),
         units_done: if rec.phase == JobPhase::Done {
@@ -142,18 +146,32 @@ fn final_state(s: &pb::JobStatus) -> bool {
 }
 
 /// Converts a result from the wire, checking only what can be checked without the job (the
-/// rest is [`Core::submit`](crate::state::Core::submit)'s). Public for the fuzz target.
+/// rest is [`Scheduler::submit`]'s). Public for the fuzz target.
 pub fn decode_result(r: pb::TileResult) -> Result<TileSums, Status> {
     TileSums::try_from(r).map_err(|e| Status::invalid_argument(e.to_string()))
 }
 
 impl Service {
-    fn not_found(id: u64) -> Status {
-        Status::not_found(format!("unknown job {}", job_name(id)))
+    /// Both services over `shared`.
+    pub(crate) fn new(shared: Arc<Shared>) -> Self {
+        Self {
+            shared,
+            parses: Arc::new(tokio::sync::Semaphore::new(MAX_CONCURRENT_PARSES)),
+            parsing: Arc::default(),
+        }
     }
 
-    fn job_status(&self, id: u64) -> Result<pb::JobStatus, Status> {
-        let core = self.shared.core();
+    /// The most scene parses that have run at once.
+    pub(crate) fn peak_parses(&self) -> usize {
+        self.parsing.1.load(Ordering::SeqCst)
+    }
+
+    fn not_found(id: JobId) -> Status {
+        Status::not_found(format!("unknown job {id}"))
+    }
+
+    fn job_status(&self, id: JobId) -> Result<pb::JobStatus, Status> {
+        let core = self.shared.scheduler();
         let job = core.jobs.get(&id).ok_or_else(|| Self::not_found(id))?;
         Ok(status(job, &core))
     }
@@ -167,24 +185,13 @@ impl Jobs for Service {
     ) -> Result<Response<pb::SubmitJobResponse>, Status> {
         let req = request.into_inner();
         let config = &self.shared.config;
-        let s = req.settings.unwrap_or_default();
         let limits = config.limits.clone();
-        if s.spp == 0 || s.spp > limits.max_spp {
+        let settings = settings_from_wire(req.settings.as_ref())
+            .map_err(|e| Status::invalid_argument(e.to_string()))?;
+        if settings.spp > limits.max_spp {
             return Err(Status::invalid_argument(format!(
                 "spp {} must be between 1 and {}",
-                s.spp, limits.max_spp
-            )));
-        }
-        let batch = if s.batch == 0 {
-            tessera_render::DEFAULT_BATCH
-        } else {
-            s.batch
-        };
-        if !BATCH_RANGE.contains(&batch) {
-            return Err(Status::invalid_argument(format!(
-                "batch {batch} must be between {} and {}",
-                BATCH_RANGE.start(),
-                BATCH_RANGE.end()
+                settings.spp, limits.max_spp
             )));
         }
         let tile_size = if req.tile_size == 0 {
@@ -199,17 +206,9 @@ impl Jobs for Service {
                 TILE_RANGE.end()
             )));
         }
-        let strategy = tessera_proto::convert::strategy_from_wire(s.strategy)
-            .map_err(|e| Status::invalid_argument(e.to_string()))?;
-        if !req.output_name.is_empty() {
-            check_output_name(&req.output_name).map_err(Status::invalid_argument)?;
-            if is_default_output_name(&req.output_name) {
-                return Err(Status::invalid_argument(format!(
-                    "output name {} is kept for the job of that id; choose another name, or \
-                     none to get the job's own",
-                    req.output_name
-                )));
-            }
+        let output_name = Some(req.output_name).filter(|n| !n.is_empty());
+        if let Some(name) = &output_name {
+            check_output_name(name).map_err(Status::invalid_argument)?;
         }
         let json = req.scene_format == pb::SceneFormat::Json as i32;
         let name = if req.scene_name.is_empty() {
@@ -227,113 +226,49 @@ impl Jobs for Service {
         let text = req.scene_text;
         let gauge = self.parsing.clone();
         let (scene, text, name) = tokio::task::spawn_blocking(move || {
-            use std::sync::atomic::Ordering::SeqCst;
-            let now = gauge.0.fetch_add(1, SeqCst) + 1;
-            gauge.1.fetch_max(now, SeqCst);
+            let now = gauge.0.fetch_add(1, Ordering::SeqCst) + 1;
+            gauge.1.fetch_max(now, Ordering::SeqCst);
             let format = if json { Format::Json } else { Format::Toml };
             let r = Scene::from_str(&text, format, &name, &limits);
-            gauge.0.fetch_sub(1, SeqCst);
+            gauge.0.fetch_sub(1, Ordering::SeqCst);
             (r, text, name)
         })
         .await
         .map_err(|e| Status::internal(e.to_string()))?;
         let scene = scene.map_err(|e| Status::invalid_argument(e.to_string()))?;
-        let tiles = TileGrid::new(scene.width, scene.height, tile_size).len() as u64;
-        let units = tiles * spp_batches(s.spp, batch);
-        if units > config.max_units_per_job {
-            return Err(Status::resource_exhausted(format!(
-                "the job would have {units} work units, above the limit of {} (use larger tiles or batches)",
-                config.max_units_per_job
-            )));
-        }
-        let (id, rx) = {
-            let mut core = self.shared.core();
-            let active = core
-                .jobs
-                .values()
-                .filter(|j| j.rec.phase == JobPhase::Active)
-                .count();
-            if active >= config.max_active_jobs {
-                return Err(Status::resource_exhausted(format!(
-                    "{active} jobs are already queued or running, the limit is {}",
-                    config.max_active_jobs
-                )));
-            }
-            let mut id = core.next_job;
-            let output_name = if req.output_name.is_empty() {
-                // An id whose default name a file already has is passed over: the file is
-                // someone else's, and waiting for it to go would block every unnamed job.
-                let mut tries = 0;
-                while tries < 10_000
-                    && output_path(config, &format!("{}.exr", job_name(id))).exists()
-                {
-                    id += 1;
-                    tries += 1;
-                }
-                format!("{}.exr", job_name(id))
-            } else {
-                req.output_name
-            };
-            // A name stays with its job for good: re-using a finished job's name would change
-            // what `fetch` returns for it.
-            if let Some(other) = core
-                .jobs
-                .values()
-                .find(|j| j.rec.output_name == output_name)
-            {
-                return Err(Status::already_exists(format!(
-                    "output name {output_name} belongs to {}; choose another",
-                    job_name(other.rec.id)
-                )));
-            }
-            if output_path(config, &output_name).exists() {
-                return Err(Status::already_exists(format!(
-                    "output name {output_name}: a file of that name is already in the output \
-                     directory, and the coordinator never overwrites one; choose another"
-                )));
-            }
-            core.next_job = id + 1;
-            let rec = JobRecord {
-                id,
-                scene_hash: scene.hash.clone(),
-                scene_name: name.clone(),
-                width: scene.width,
-                height: scene.height,
-                spp: s.spp,
-                seed: s.seed,
-                batch,
-                strategy: strategy.name().to_string(),
-                tile_size,
-                output_name,
-                priority: req.priority,
-                variance: req.channels.as_ref().is_some_and(|c| c.variance),
-                sample_count: req.channels.as_ref().is_some_and(|c| c.sample_count),
-                phase: JobPhase::Active,
-                error: String::new(),
-                submitted_ms: now_ms(),
-                finished_ms: 0,
-                final_noise: (0.0, 0.0),
-                image_revision: IMAGE_REVISION,
-            };
-            let ops = vec![
-                Op::PutScene(scene.hash.clone(), StoredScene { text, json, name }),
-                Op::PutJob(rec.clone()),
-            ];
-            core.jobs.insert(id, Job::new(rec));
-            (id, self.shared.queue_write(ops))
+        let admission = Admission {
+            scene_hash: scene.hash.clone(),
+            scene: StoredScene { text, json, name },
+            width: scene.width,
+            height: scene.height,
+            settings: settings.clone(),
+            tile_size,
+            output_name,
+            priority: req.priority,
+            variance: req.channels.as_ref().is_some_and(|c| c.variance),
+            sample_count: req.channels.as_ref().is_some_and(|c| c.sample_count),
+        };
+        let bounds = AdmissionLimits {
+            max_active_jobs: config.max_active_jobs,
+            max_units_per_job: config.max_units_per_job,
+        };
+        let out_dir = config.output_dir();
+        let (id, units, rx) = {
+            let mut core = self.shared.scheduler();
+            let (id, ops) =
+                core.admit(admission, bounds, &OutputNames::new(&out_dir), now_ms())?;
+            let units = core.jobs.get(&id).map_or(0, |j| j.units_total());
+            (id, units, self.shared.queue_write(ops))
         };
         durable(rx).await.map_err(internal)?;
         info!(
-            "{} submitted: {}×{} at {} spp, {units} units",
-            job_name(id),
-            scene.width,
-            scene.height,
-            s.spp
+            "{id} submitted: {}×{} at {} spp, {units} units",
+            scene.width, scene.height, settings.spp
         );
         self.shared.bump_work();
         self.shared.bump_changed();
         Ok(Response::new(pb::SubmitJobResponse {
-            job_id: job_name(id),
+            job_id: id.to_string(),
             scene_hash: scene.hash,
             units,
         }))
@@ -376,7 +311,7 @@ impl Jobs for Service {
                 let Some(shared) = shared.upgrade() else {
                     return;
                 };
-                let core = shared.core();
+                let core = shared.scheduler();
                 let Some(job) = core.jobs.get(&id) else {
                     return;
                 };
@@ -392,7 +327,7 @@ impl Jobs for Service {
     ) -> Result<Response<pb::CancelJobResponse>, Status> {
         let id = job_id(&request.into_inner().job_id)?;
         let rx = {
-            let mut core = self.shared.core();
+            let mut core = self.shared.scheduler();
             let job = core.jobs.get(&id).ok_or_else(|| Self::not_found(id))?;
             if job.rec.phase != JobPhase::Active || job.finishing {
                 let s = status(job, &core);
@@ -402,7 +337,7 @@ impl Jobs for Service {
             self.shared.queue_write(ops)
         };
         durable(rx).await.map_err(internal)?;
-        info!("{} cancelled", job_name(id));
+        info!("{id} cancelled");
         self.shared.bump_changed();
         Ok(Response::new(pb::CancelJobResponse {
             state: pb::JobState::Cancelled as i32,
@@ -413,7 +348,7 @@ impl Jobs for Service {
         &self,
         _request: Request<pb::ListJobsRequest>,
     ) -> Result<Response<pb::ListJobsResponse>, Status> {
-        let core = self.shared.core();
+        let core = self.shared.scheduler();
         let jobs = core
             .schedule_order(false)
             .into_iter()
@@ -427,7 +362,7 @@ impl Jobs for Service {
         &self,
         _request: Request<pb::ListWorkersRequest>,
     ) -> Result<Response<pb::ListWorkersResponse>, Status> {
-        let core = self.shared.core();
+        let core = self.shared.scheduler();
         let now = Instant::now();
         let workers = core
             .workers
@@ -435,7 +370,7 @@ impl Jobs for Service {
             .map(|(&n, w)| {
                 let idle = now.duration_since(w.last_seen);
                 pb::WorkerInfo {
-                    worker_id: core.worker_name(n),
+                    worker_id: core.worker_id(n).to_string(),
                     name: w.name.clone(),
                     cores: w.cores,
                     version: w.version.clone(),
@@ -473,7 +408,7 @@ impl Jobs for Service {
                 s.job_id, s.units_done, s.units_total
             )));
         }
-        let path = output_path(&self.shared.config, &s.output_name);
+        let path = self.shared.config.output_path(&s.output_name);
         let data = tokio::fs::read(&path).await.map_err(|e| {
             Status::not_found(format!("{}'s output {}: {e}", s.job_id, s.output_name))
         })?;
@@ -501,10 +436,6 @@ fn new_secret() -> Result<String, Status> {
     Ok(b.iter().map(|x| format!("{x:02x}")).collect())
 }
 
-fn spp_batches(spp: u32, batch: u32) -> u64 {
-    spp.div_ceil(batch.max(1)) as u64
-}
-
 #[tonic::async_trait]
 impl Workers for Service {
     async fn register(
@@ -524,7 +455,7 @@ impl Workers for Service {
         }
         let lease = self.shared.config.lease_timeout;
         let secret = new_secret()?;
-        let mut core = self.shared.core();
+        let mut core = self.shared.scheduler();
         let n = core.register(
             truncate(&req.name),
             req.cores,
@@ -537,12 +468,12 @@ impl Workers for Service {
             .ok_or_else(|| Status::internal("a registered worker vanished"))?;
         info!(
             "worker {} ({}, {} cores) registered",
-            core.worker_name(n),
+            credential.id,
             truncate(&req.name).escape_debug(),
             req.cores
         );
         Ok(Response::new(pb::RegisterResponse {
-            worker_id: credential,
+            worker_id: credential.to_string(),
             lease_ms: lease.as_millis() as u32,
             heartbeat_ms: (lease / 4).as_millis().max(1) as u32,
         }))
@@ -553,15 +484,16 @@ impl Workers for Service {
         request: Request<pb::LeaseRequest>,
     ) -> Result<Response<pb::LeaseResponse>, Status> {
         let req = request.into_inner();
+        let cred = credential(&req.worker_id)?;
         let max = req.max_units.clamp(1, 64) as usize;
         let deadline = Instant::now() + Duration::from_millis(req.wait_ms.min(30_000) as u64);
         let mut work = self.shared.work.subscribe();
         loop {
             work.borrow_and_update();
             let units = {
-                let mut core = self.shared.core();
+                let mut core = self.shared.scheduler();
                 let now = Instant::now();
-                let w = core.touch_worker(&req.worker_id, now)?;
+                let w = core.touch_worker(&cred, now)?;
                 let granted = core.lease(w, max, now);
                 let lease_ms = core.lease_time.as_millis() as u32;
                 granted
@@ -571,10 +503,10 @@ impl Workers for Service {
                         let range = job.batch_range(g.unit.batch);
                         let rect = job.tiles.get(g.unit.tile)?;
                         Some(pb::WorkUnit {
-                            lease_id: core.lease_name(g.lease),
-                            job_id: job_name(g.job),
+                            lease_id: g.lease.to_string(),
+                            job_id: g.job.to_string(),
                             scene_hash: job.rec.scene_hash.clone(),
-                            settings: Some(settings_pb(&job.rec)),
+                            settings: Some(pb::RenderSettings::from(&job.settings())),
                             rect: Some(rect.into()),
                             tile_index: g.unit.tile,
                             batch_index: g.unit.batch,
@@ -605,16 +537,12 @@ impl Workers for Service {
         request: Request<pb::HeartbeatRequest>,
     ) -> Result<Response<pb::HeartbeatResponse>, Status> {
         let req = request.into_inner();
-        if req.lease_ids.len() > 4096 {
-            return Err(Status::invalid_argument(format!(
-                "heartbeat lists {} leases; at most 4096",
-                req.lease_ids.len()
-            )));
-        }
-        let mut core = self.shared.core();
+        let cred = credential(&req.worker_id)?;
+        let (ids, mut revoked) = lease_ids(&req.lease_ids)?;
+        let mut core = self.shared.scheduler();
         let now = Instant::now();
-        let w = core.touch_worker(&req.worker_id, now)?;
-        let revoked = core.heartbeat(w, &req.lease_ids, now);
+        let w = core.touch_worker(&cred, now)?;
+        revoked.extend(core.heartbeat(w, &ids, now).iter().map(LeaseId::to_string));
         Ok(Response::new(pb::HeartbeatResponse {
             revoked,
             lease_ms: core.lease_time.as_millis() as u32,
@@ -626,15 +554,20 @@ impl Workers for Service {
         request: Request<pb::SubmitResultRequest>,
     ) -> Result<Response<pb::SubmitResultResponse>, Status> {
         let req = request.into_inner();
+        let cred = credential(&req.worker_id)?;
         let job = job_id(&req.job_id)?;
+        let lease: LeaseId = req
+            .lease_id
+            .parse()
+            .map_err(|e: tessera_proto::ids::BadId| Status::invalid_argument(e.to_string()))?;
         let unit = Unit {
             tile: req.tile_index,
             batch: req.batch_index,
         };
         let (merged, rx) = {
-            let mut core = self.shared.core();
+            let mut core = self.shared.scheduler();
             let now = Instant::now();
-            let w = core.touch_worker(&req.worker_id, now)?;
+            let w = core.touch_worker(&cred, now)?;
             let decoded = req
                 .result
                 .ok_or_else(|| Status::invalid_argument("request has no result"))
@@ -643,15 +576,11 @@ impl Workers for Service {
                 Ok(s) => s,
                 Err(e) => {
                     core.count_bad_result(w);
-                    warn!(
-                        "result from {} refused: {}",
-                        truncate(&req.worker_id),
-                        e.message()
-                    );
+                    warn!("result from {} refused: {}", cred.id, e.message());
                     return Err(e);
                 }
             };
-            match core.submit(w, &req.lease_id, job, unit, sums, now) {
+            match core.submit(w, lease, job, unit, sums, now) {
                 Ok(Merged::New { ops, finished }) => {
                     let rx = self.shared.queue_write(ops);
                     (finished, Some(rx))
@@ -667,7 +596,7 @@ impl Workers for Service {
                     }))
                 }
                 Err(r) => {
-                    warn!("result from {} refused: {r:?}", truncate(&req.worker_id));
+                    warn!("result from {} refused: {r:?}", cred.id);
                     return Err(r.into());
                 }
             }
@@ -689,22 +618,18 @@ impl Workers for Service {
         request: Request<pb::ReleaseLeasesRequest>,
     ) -> Result<Response<pb::ReleaseLeasesResponse>, Status> {
         let req = request.into_inner();
-        if req.lease_ids.len() > 4096 {
-            return Err(Status::invalid_argument(format!(
-                "release lists {} leases; at most 4096",
-                req.lease_ids.len()
-            )));
-        }
+        let cred = credential(&req.worker_id)?;
+        let (ids, _) = lease_ids(&req.lease_ids)?;
         let (released, failed) = {
-            let mut core = self.shared.core();
-            let w = core.touch_worker(&req.worker_id, Instant::now())?;
+            let mut core = self.shared.scheduler();
+            let w = core.touch_worker(&cred, Instant::now())?;
             let failed = if req.cannot_render.is_empty() {
                 None
             } else {
-                let ops = core.cannot_render(w, &req.lease_ids, &req.cannot_render, now_ms());
+                let ops = core.cannot_render(w, &ids, &req.cannot_render, now_ms());
                 Some(self.shared.queue_write(ops))
             };
-            let n = core.release(w, &req.lease_ids);
+            let n = core.release(w, &ids);
             if req.goodbye {
                 if let Some(worker) = core.workers.get_mut(&w) {
                     worker.gone = true;

@@ -185,8 +185,8 @@ pub struct JobRecord {
     pub seed: u64,
     /// Samples per batch.
     pub batch: u32,
-    /// Strategy name (`mis`, `bsdf`, `nee`).
-    pub strategy: String,
+    /// Direct-lighting strategy (stored by name: `mis`, `bsdf`, `nee`).
+    pub strategy: tessera_render::Strategy,
     /// Tile edge.
     pub tile_size: u32,
     /// Output file name.
@@ -653,7 +653,7 @@ mod tests {
             spp: 4,
             seed: 1,
             batch: 2,
-            strategy: "mis".into(),
+            strategy: tessera_render::Strategy::Mis,
             tile_size: 64,
             output_name: "a.exr".into(),
             submitted_ms: 1,

@@ -4,7 +4,9 @@
 use std::time::{Duration, Instant};
 
 use proptest::prelude::*;
-use tessera_coordinator::state::{Core, Job, Merged, Unit};
+use tessera_coordinator::job::{Job, Unit};
+use tessera_coordinator::scheduler::{Merged, Scheduler};
+use tessera_proto::ids::JobId;
 use tessera_coordinator::store::JobRecord;
 use tessera_render::TileSums;
 
@@ -16,7 +18,7 @@ fn record(width: u32, spp: u32, batch: u32) -> JobRecord {
         batch,
         height: 3,
         seed: 0,
-        strategy: "mis".into(),
+        strategy: tessera_render::Strategy::Mis,
         tile_size: 2,
         output_name: "o.exr".into(),
         submitted_ms: 0,
@@ -45,8 +47,8 @@ fn result(job: &Job, u: Unit) -> TileSums {
 /// Leases every unit, submits them in `order` (indices into the lease order, repeats allowed),
 /// and returns each tile's sums as bits.
 fn merge(width: u32, spp: u32, batch: u32, order: &[usize]) -> Vec<Vec<u64>> {
-    let mut core = Core::new(1, Duration::from_secs(60));
-    core.jobs.insert(1, Job::new(record(width, spp, batch)));
+    let mut core = Scheduler::new(1, Duration::from_secs(60));
+    core.jobs.insert(JobId(1), Job::new(record(width, spp, batch)));
     let now = Instant::now();
     // One worker holds every unit here, to submit them in any order.
     core.max_leases_per_worker = usize::MAX;
@@ -56,9 +58,8 @@ fn merge(width: u32, spp: u32, batch: u32, order: &[usize]) -> Vec<Vec<u64>> {
     let mut merged = 0;
     for &i in order {
         let g = &granted[i % n];
-        let r = result(&core.jobs[&1], g.unit);
-        let name = core.lease_name(g.lease);
-        match core.submit(w, &name, 1, g.unit, r, now).expect("accepted") {
+        let r = result(&core.jobs[&JobId(1)], g.unit);
+        match core.submit(w, g.lease, JobId(1), g.unit, r, now).expect("accepted") {
             Merged::New { .. } => merged += 1,
             Merged::Duplicate => {}
             // Once every unit is in, the job stops taking results.
@@ -66,7 +67,7 @@ fn merge(width: u32, spp: u32, batch: u32, order: &[usize]) -> Vec<Vec<u64>> {
         }
     }
     assert_eq!(merged, n, "every unit merged exactly once");
-    core.jobs[&1]
+    core.jobs[&JobId(1)]
         .acc
         .values()
         .map(|a| {

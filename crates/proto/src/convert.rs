@@ -2,7 +2,7 @@
 //! speaks the protocol uses these, so a value cannot mean one thing to the coordinator and
 //! another to a worker.
 
-use tessera_render::{PixelRect, Strategy, TileSums};
+use tessera_render::{PixelRect, RenderSettings, Strategy, TileSums, BATCH_RANGE, DEFAULT_BATCH};
 
 use crate::v1 as pb;
 
@@ -53,6 +53,65 @@ pub fn strategy_from_wire(v: i32) -> Result<Strategy, UnknownStrategy> {
         Ok(pb::Strategy::Nee) => Ok(Strategy::Nee),
         Err(_) => Err(UnknownStrategy(v)),
     }
+}
+
+impl From<&RenderSettings> for pb::RenderSettings {
+    fn from(s: &RenderSettings) -> Self {
+        Self {
+            spp: s.spp,
+            seed: s.seed,
+            batch: s.batch,
+            strategy: pb::Strategy::from(s.strategy) as i32,
+        }
+    }
+}
+
+/// Why a message's render settings cannot be a render's.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum BadSettings {
+    /// The message has no settings.
+    #[error("no render settings")]
+    Missing,
+    /// No samples.
+    #[error("spp 0 must be at least 1")]
+    NoSamples,
+    /// A batch outside [`BATCH_RANGE`].
+    #[error("batch {0} must be between {min} and {max}", min = BATCH_RANGE.start(), max = BATCH_RANGE.end())]
+    Batch(u32),
+    /// A strategy this build does not know.
+    #[error(transparent)]
+    Strategy(#[from] UnknownStrategy),
+}
+
+/// The renderer's settings from a message's: an unset batch is [`DEFAULT_BATCH`] and an unset
+/// strategy MIS, as the protocol says. The rest of [`RenderSettings`] is not on the wire: every
+/// peer uses the renderer's defaults, which [`tessera_render::IMAGE_REVISION`] pins. Bounds
+/// that depend on a coordinator's configuration (the largest spp) are the coordinator's to
+/// check.
+impl TryFrom<&pb::RenderSettings> for RenderSettings {
+    type Error = BadSettings;
+
+    fn try_from(s: &pb::RenderSettings) -> Result<Self, BadSettings> {
+        if s.spp == 0 {
+            return Err(BadSettings::NoSamples);
+        }
+        let batch = if s.batch == 0 { DEFAULT_BATCH } else { s.batch };
+        if !BATCH_RANGE.contains(&batch) {
+            return Err(BadSettings::Batch(batch));
+        }
+        Ok(RenderSettings {
+            seed: s.seed,
+            spp: s.spp,
+            batch,
+            strategy: strategy_from_wire(s.strategy)?,
+            ..RenderSettings::default()
+        })
+    }
+}
+
+/// The settings of a message whose `settings` field is optional on the wire but required.
+pub fn settings_from_wire(s: Option<&pb::RenderSettings>) -> Result<RenderSettings, BadSettings> {
+    s.ok_or(BadSettings::Missing).and_then(RenderSettings::try_from)
 }
 
 impl From<&TileSums> for pb::TileResult {
@@ -151,6 +210,52 @@ mod tests {
             height: 4,
         };
         assert_eq!(PixelRect::from(pb::Rect::from(r)), r);
+    }
+
+    #[test]
+    fn render_settings_round_trip_and_defaults_and_bad_values_are_named() {
+        let s = RenderSettings {
+            seed: 7,
+            spp: 33,
+            batch: 5,
+            strategy: Strategy::Nee,
+            ..RenderSettings::default()
+        };
+        let back = RenderSettings::try_from(&pb::RenderSettings::from(&s)).expect("round trip");
+        assert_eq!(
+            (back.seed, back.spp, back.batch, back.strategy),
+            (7, 33, 5, Strategy::Nee)
+        );
+        let unset = RenderSettings::try_from(&pb::RenderSettings {
+            spp: 1,
+            ..Default::default()
+        })
+        .expect("defaults");
+        assert_eq!((unset.batch, unset.strategy), (DEFAULT_BATCH, Strategy::Mis));
+        let bad = |m: pb::RenderSettings| RenderSettings::try_from(&m).map(|_| ());
+        assert_eq!(bad(pb::RenderSettings::default()), Err(BadSettings::NoSamples));
+        let big = pb::RenderSettings {
+            spp: 1,
+            batch: 70_000,
+            ..Default::default()
+        };
+        assert_eq!(
+            RenderSettings::try_from(&big).map(|_| ()).map_err(|e| e.to_string()),
+            Err("batch 70000 must be between 1 and 65536".to_string())
+        );
+        let unknown = pb::RenderSettings {
+            spp: 1,
+            strategy: 42,
+            ..Default::default()
+        };
+        assert_eq!(
+            bad(unknown),
+            Err(BadSettings::Strategy(UnknownStrategy(42)))
+        );
+        assert_eq!(
+            settings_from_wire(None).map(|_| ()),
+            Err(BadSettings::Missing)
+        );
     }
 
     #[test]

@@ -12,6 +12,7 @@ pub mod v1 {
 
 pub mod client;
 pub mod convert;
+pub mod ids;
 
 /// The largest gRPC message the coordinator and its workers accept by default (a scene of up
 /// to 32 MiB in a message, with room to spare); the coordinator raises it to fit a larger

@@ -18,8 +18,10 @@ use crate::sampling::{
 use crate::scene::{Bsdf, Scene};
 
 /// How direct light is estimated. All three converge to the same image; `Mis` has the lowest
-/// variance, the others exist to test that claim.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+/// variance, the others exist to test that claim. Stored (in the coordinator's job records) by
+/// its lower-case [`Strategy::name`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Strategy {
     /// Next-event estimation and BSDF sampling, combined by the power heuristic.
     #[default]

@@ -25,7 +25,7 @@ use std::sync::{Arc, Mutex, RwLock};
 use std::time::Duration;
 
 use tessera_proto::client::{endpoint, Bearer, ClientOptions};
-use tessera_proto::convert::strategy_from_wire;
+use tessera_proto::convert::settings_from_wire;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::workers_client::WorkersClient;
 use tessera_render::scene::{Format, Limits, Scene};
@@ -318,26 +318,16 @@ fn prepare(unit: &pb::WorkUnit, scene: &Scene) -> Result<(PixelRect, RenderSetti
             scene.width, scene.height
         ));
     }
-    let s = unit.settings.as_ref().ok_or("unit has no settings")?;
-    if unit.sample_start >= unit.sample_end || unit.sample_end > s.spp || s.batch == 0 {
+    // An unknown strategy is a coordinator newer than this worker.
+    let settings = settings_from_wire(unit.settings.as_ref())
+        .map_err(|e| format!("unit settings: {e} (is this worker older than the coordinator?)"))?;
+    if unit.sample_start >= unit.sample_end || unit.sample_end > settings.spp {
         return Err(format!(
             "unit samples {}..{} do not fit spp {} in batches of {}",
-            unit.sample_start, unit.sample_end, s.spp, s.batch
+            unit.sample_start, unit.sample_end, settings.spp, settings.batch
         ));
     }
-    // An unknown value is a coordinator newer than this worker.
-    let strategy = strategy_from_wire(s.strategy)
-        .map_err(|e| format!("{e} (this worker is older than the coordinator)"))?;
-    Ok((
-        rect,
-        RenderSettings {
-            seed: s.seed,
-            spp: s.spp,
-            batch: s.batch,
-            strategy,
-            ..RenderSettings::default()
-        },
-    ))
+    Ok((rect, settings))
 }
 
 /// Leases units while there is room, and queues them for the renderer.

@@ -1,0 +1,100 @@
+//! The coordinator's settings, and the fixed bounds that are not settings.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use tessera_proto::Secret;
+use tessera_render::scene::Limits;
+
+/// Coordinator settings.
+#[derive(Clone, Debug)]
+pub struct Config {
+    /// Where the state database lives.
+    pub data_dir: PathBuf,
+    /// Where finished EXRs are written (default: `data_dir/output`).
+    pub output_dir: Option<PathBuf>,
+    /// How long a lease lasts without a heartbeat.
+    pub lease_timeout: Duration,
+    /// Tile edge when a job does not choose one.
+    pub default_tile_size: u32,
+    /// Bounds on submitted scenes and spp.
+    pub limits: Limits,
+    /// Largest gRPC message accepted, in bytes.
+    pub max_message_bytes: usize,
+    /// Most jobs that may be active (queued or running) at once.
+    pub max_active_jobs: usize,
+    /// Most work units one job may have.
+    pub max_units_per_job: u64,
+    /// When set, every RPC must carry `authorization: Bearer <token>`.
+    pub token: Option<Secret>,
+    /// When set, serve TLS only.
+    pub tls: Option<ServerTls>,
+    /// Refused results after which a worker is quarantined (no more leases or results).
+    pub quarantine_after: u64,
+    /// Most leases one worker registration may hold at once.
+    pub max_leases_per_worker: usize,
+    /// Most client connections open at once; more wait to be accepted until one closes.
+    pub max_connections: usize,
+    /// A connection that sends nothing (not even an answer to a keepalive ping) for this long
+    /// is closed.
+    pub idle_connection: Duration,
+}
+
+/// Scenes parsed at once by submissions: parsing a large scene takes many times its size in
+/// memory, so concurrent submissions of large scenes queue rather than all parse together.
+pub const MAX_CONCURRENT_PARSES: usize = 2;
+
+/// Streams one connection may have open at once.
+pub const MAX_STREAMS_PER_CONNECTION: u32 = 64;
+
+/// The coordinator's TLS identity, and optionally the CA its clients' certificates must chain to.
+#[derive(Clone, Debug)]
+pub struct ServerTls {
+    /// PEM certificate chain.
+    pub cert_pem: Vec<u8>,
+    /// PEM private key.
+    pub key_pem: Secret,
+    /// PEM CA: when set, clients must present a certificate it signed (mutual TLS).
+    pub client_ca_pem: Option<Vec<u8>>,
+}
+
+impl Config {
+    /// Defaults for a data directory.
+    pub fn new(data_dir: impl Into<PathBuf>) -> Self {
+        Self {
+            data_dir: data_dir.into(),
+            output_dir: None,
+            lease_timeout: Duration::from_secs(30),
+            default_tile_size: tessera_render::DEFAULT_TILE,
+            limits: Limits {
+                max_bytes: 32 << 20,
+                ..Limits::default()
+            },
+            max_message_bytes: tessera_proto::MAX_MESSAGE_BYTES,
+            max_active_jobs: 1000,
+            max_units_per_job: 1 << 24,
+            token: None,
+            tls: None,
+            quarantine_after: 5,
+            max_leases_per_worker: 8,
+            max_connections: 1024,
+            idle_connection: Duration::from_secs(60),
+        }
+    }
+
+    /// The directory finished EXRs go to.
+    pub fn output_dir(&self) -> PathBuf {
+        self.output_dir
+            .clone()
+            .unwrap_or_else(|| self.data_dir.join("output"))
+    }
+
+    /// Where the output named `name` is (or will be) written.
+    pub fn output_path(&self, name: &str) -> PathBuf {
+        self.output_dir().join(name)
+    }
+}
+
+/// Most leases one heartbeat or release may list: a worker holds at most its pipeline's few,
+/// so a longer list is a broken or hostile peer.
+pub const MAX_LEASES_PER_CALL: usize = 4096;

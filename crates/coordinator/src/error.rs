@@ -1,0 +1,63 @@
+//! Why the coordinator could not start, and why it refused a call.
+
+use tonic::Status;
+
+use crate::store::StoreError;
+
+/// Why the coordinator could not start or keep running.
+#[derive(Debug, thiserror::Error)]
+pub enum CoordinatorError {
+    /// The state store failed.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    /// A stored job could not be restored.
+    #[error("state store: {0}")]
+    Restore(String),
+    /// The output directory cannot be created.
+    #[error("output directory {path}: {source}")]
+    Output {
+        /// The directory.
+        path: String,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The gRPC server failed.
+    #[error("gRPC server: {0}")]
+    Transport(#[from] tonic::transport::Error),
+}
+
+/// Why the scheduler refused a call. Each kind maps to one gRPC status code, so a client can
+/// tell a mistake of its own from a state it must wait out.
+#[derive(Debug, PartialEq, Eq)]
+pub enum Refusal {
+    /// Unknown id (worker, job).
+    NotFound(String),
+    /// Malformed or inconsistent.
+    Invalid(String),
+    /// Not allowed in the current state (unknown lease).
+    Precondition(String),
+    /// The worker is quarantined.
+    Denied(String),
+    /// Over a limit of the coordinator's (active jobs, units per job).
+    Exhausted(String),
+    /// A name that is taken (output names).
+    Exists(String),
+}
+
+impl From<Refusal> for Status {
+    fn from(r: Refusal) -> Self {
+        match r {
+            Refusal::NotFound(m) => Status::not_found(m),
+            Refusal::Invalid(m) => Status::invalid_argument(m),
+            Refusal::Precondition(m) => Status::failed_precondition(m),
+            Refusal::Denied(m) => Status::permission_denied(m),
+            Refusal::Exhausted(m) => Status::resource_exhausted(m),
+            Refusal::Exists(m) => Status::already_exists(m),
+        }
+    }
+}
+
+/// At most 64 characters of a peer-supplied string, for error messages and logs.
+pub fn truncate(s: &str) -> String {
+    s.chars().take(tessera_proto::MAX_ID_LEN).collect()
+}

@@ -1,0 +1,441 @@
+//! A job in memory: its tiles as arithmetic, its per-tile accumulators, and the merge that
+//! folds results into them in batch order. Scheduling (which unit goes to whom) is the
+//! [`scheduler`](crate::scheduler)'s; this file knows nothing of workers or leases.
+
+use std::collections::{BTreeMap, HashMap, VecDeque};
+use std::ops::Range;
+use std::time::{Duration, Instant};
+
+use tessera_proto::ids::JobId;
+use tessera_render::{PixelRect, RenderSettings, TileSums};
+
+use crate::error::Refusal;
+use crate::store::{decode_sums, encode_sums, JobPhase, JobRecord, LoadedJob, Op};
+
+/// One work unit: a tile and a batch of sample indices.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Unit {
+    /// Tile index (row-major).
+    pub tile: u32,
+    /// Batch index.
+    pub batch: u32,
+}
+
+
+/// Merged sums of one tile: batches `0..next` folded in order, plus results that arrived early.
+#[derive(Debug, Default)]
+pub struct TileAcc {
+    /// Sums of batches `0..next` (allocated at the first merge).
+    pub sums: Option<TileSums>,
+    /// First batch not yet folded in.
+    pub next: u32,
+    /// Results for batches after `next`, waiting for their turn.
+    pub pending: BTreeMap<u32, TileSums>,
+    /// [`TileSums::noise_parts`] of `sums`.
+    pub noise: (f64, f64, u64),
+}
+
+/// A job's tiles, row-major, as arithmetic: a rectangle is computed when asked for, so a job
+/// of millions of tiles costs nothing at admission (or at a restart) for tiles not yet
+/// rendered.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TileGrid {
+    width: u32,
+    height: u32,
+    size: u32,
+    cols: u32,
+    rows: u32,
+}
+
+impl TileGrid {
+    /// The grid [`PixelRect::tiles`] cuts a `width` × `height` image into.
+    pub fn new(width: u32, height: u32, size: u32) -> Self {
+        let size = size.max(1);
+        Self {
+            width,
+            height,
+            size,
+            cols: width.div_ceil(size),
+            rows: height.div_ceil(size),
+        }
+    }
+
+    /// Number of tiles.
+    pub fn len(&self) -> usize {
+        self.cols as usize * self.rows as usize
+    }
+
+    /// Whether the image has no pixels.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Tile `i`'s rectangle, if there is such a tile.
+    pub fn get(&self, i: u32) -> Option<PixelRect> {
+        if i as usize >= self.len() {
+            return None;
+        }
+        let (x0, y0) = ((i % self.cols) * self.size, (i / self.cols) * self.size);
+        Some(PixelRect {
+            x0,
+            y0,
+            width: self.size.min(self.width - x0),
+            height: self.size.min(self.height - y0),
+        })
+    }
+}
+
+
+/// A job in memory.
+#[derive(Debug)]
+pub struct Job {
+    /// What is stored.
+    pub rec: JobRecord,
+    /// Its tiles, row-major.
+    pub tiles: TileGrid,
+    /// Batches per tile.
+    pub n_batches: u32,
+    /// Accumulators of the tiles that have results, made at a tile's first result (none
+    /// once the job has ended).
+    pub acc: BTreeMap<u32, TileAcc>,
+    /// The sum of every accumulator's `noise`, kept as results merge so that a status does
+    /// not walk every tile under the lock.
+    pub noise_total: (f64, f64, u64),
+    /// Next unit to hand out, in batch-major order (all tiles' batch 0, then batch 1, …), so
+    /// the image converges evenly and few results wait out of order.
+    pub cursor: u64,
+    /// Units whose lease lapsed or was handed back; served before the cursor.
+    pub requeue: VecDeque<Unit>,
+    /// Leases issued for units not yet merged.
+    pub issued: HashMap<Unit, Vec<u64>>,
+    /// Units merged or waiting in order.
+    pub units_done: u64,
+    /// Samples in those.
+    pub samples_done: u64,
+    /// Non-finite samples reported.
+    pub nonfinite: u64,
+    /// (time, samples_done) over the last seconds, for the rate.
+    pub rate: VecDeque<(Instant, u64)>,
+    /// A unit has been leased.
+    pub started: bool,
+    /// Every unit is in; the EXR is being written.
+    pub finishing: bool,
+}
+
+
+
+/// Whether one pixel's sums could come from `k` finite samples. The renderer's samples are
+/// f32, so each adds at most `f32::MAX` to a sum and `f32::MAX²` to a squared sum: a result
+/// inside these bounds cannot overflow an f64 total however many batches are merged, since a
+/// pixel has at most `u32::MAX` samples. Forged finite values near `f64::MAX` are refused
+/// here, before they can add up to infinity.
+pub fn pixel_in_range(sum: &[f64; 3], sum_sq: &[f64; 3], k: u32) -> bool {
+    let max = f32::MAX as f64;
+    let k = k as f64;
+    sum.iter().all(|v| (0.0..=k * max).contains(v))
+        && sum_sq.iter().all(|v| (0.0..=k * max * max).contains(v))
+}
+
+/// [`pixel_in_range`] for every pixel of a tile's sums.
+pub fn sums_in_range(t: &TileSums) -> bool {
+    t.sum
+        .iter()
+        .zip(&t.sum_sq)
+        .zip(&t.count)
+        .all(|((s, q), k)| pixel_in_range(s, q, *k))
+}
+
+/// Adds `sign` × `parts` to a job's running noise total.
+fn add_noise(total: &mut (f64, f64, u64), parts: (f64, f64, u64), sign: f64) {
+    total.0 += sign * parts.0;
+    total.1 += sign * parts.1;
+    total.2 = if sign > 0.0 {
+        total.2 + parts.2
+    } else {
+        total.2.saturating_sub(parts.2)
+    };
+}
+
+impl Job {
+    /// A job from its record, with the stored sums folded back in.
+    pub fn new(rec: JobRecord) -> Self {
+        let tiles = TileGrid::new(rec.width, rec.height, rec.tile_size);
+        let n_batches = rec.spp.div_ceil(rec.batch.max(1));
+        Self {
+            rec,
+            tiles,
+            n_batches,
+            acc: BTreeMap::new(),
+            noise_total: (0.0, 0.0, 0),
+            cursor: 0,
+            requeue: VecDeque::new(),
+            issued: HashMap::new(),
+            units_done: 0,
+            samples_done: 0,
+            nonfinite: 0,
+            rate: VecDeque::new(),
+            started: false,
+            finishing: false,
+        }
+    }
+
+    /// Rebuilds a job after a restart from what the store held.
+    pub fn restore(loaded: LoadedJob) -> Result<Self, String> {
+        let mut job = Self::new(loaded.record);
+        if job.rec.phase != JobPhase::Active {
+            return Ok(job);
+        }
+        for (tile, bytes) in loaded.tiles {
+            let rect = job
+                .tiles
+                .get(tile)
+                .ok_or_else(|| format!("tile {tile} is outside the job"))?;
+            let sums = decode_sums(&bytes, rect).map_err(|e| format!("tile {tile}: {e}"))?;
+            let batches = sums.samples.end.div_ceil(job.rec.batch);
+            if sums.samples.start != 0
+                || job.batch_range(batches.saturating_sub(1)).end != sums.samples.end
+            {
+                return Err(format!(
+                    "tile {tile}: sums cover samples {:?}",
+                    sums.samples
+                ));
+            }
+            job.units_done += batches as u64;
+            job.samples_done += rect.area() as u64 * sums.samples.end as u64;
+            job.nonfinite += sums.nonfinite;
+            if batches > job.n_batches || !sums_in_range(&sums) {
+                return Err(format!(
+                    "tile {tile}: sums out of range for {} spp",
+                    job.rec.spp
+                ));
+            }
+            let acc = job.acc.entry(tile).or_default();
+            acc.next = batches;
+            acc.noise = sums.noise_parts();
+            add_noise(&mut job.noise_total, acc.noise, 1.0);
+            acc.sums = Some(sums);
+        }
+        for ((tile, batch), bytes) in loaded.pending {
+            let rect = job
+                .tiles
+                .get(tile)
+                .ok_or_else(|| format!("tile {tile} is outside the job"))?;
+            let sums = decode_sums(&bytes, rect).map_err(|e| format!("tile {tile}: {e}"))?;
+            if sums.samples != job.batch_range(batch) {
+                return Err(format!(
+                    "tile {tile} batch {batch}: samples {:?}",
+                    sums.samples
+                ));
+            }
+            job.units_done += 1;
+            job.samples_done += rect.area() as u64 * sums.samples.len() as u64;
+            job.nonfinite += sums.nonfinite;
+            job.acc.entry(tile).or_default().pending.insert(batch, sums);
+        }
+        job.started = job.units_done > 0;
+        Ok(job)
+    }
+
+    /// The job's id.
+    pub fn id(&self) -> JobId {
+        JobId(self.rec.id)
+    }
+
+    /// Units in the job.
+    pub fn units_total(&self) -> u64 {
+        self.tiles.len() as u64 * self.n_batches as u64
+    }
+
+    /// Sample indices of batch `b`.
+    pub fn batch_range(&self, b: u32) -> Range<u32> {
+        let s = b.saturating_mul(self.rec.batch).min(self.rec.spp);
+        s..s.saturating_add(self.rec.batch).min(self.rec.spp)
+    }
+
+    /// The renderer settings of this job.
+    pub fn settings(&self) -> RenderSettings {
+        RenderSettings {
+            seed: self.rec.seed,
+            spp: self.rec.spp,
+            batch: self.rec.batch,
+            strategy: self.rec.strategy,
+            ..RenderSettings::default()
+        }
+    }
+
+    /// Whether the unit has been merged or is waiting its turn.
+    pub fn is_done(&self, u: Unit) -> bool {
+        self.rec.phase != JobPhase::Active
+            || self
+                .acc
+                .get(&u.tile)
+                .is_some_and(|a| u.batch < a.next || a.pending.contains_key(&u.batch))
+    }
+
+    /// Whether the job still takes leases and results.
+    pub fn is_live(&self) -> bool {
+        self.rec.phase == JobPhase::Active && !self.finishing
+    }
+
+    /// Merged samples per second over the last few seconds.
+    pub fn rate(&self) -> f64 {
+        match (self.rate.front(), self.rate.back()) {
+            (Some(a), Some(b)) if b.0 > a.0 => {
+                (b.1 - a.1) as f64 / b.0.duration_since(a.0).as_secs_f64()
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// RMS standard error of merged pixel means, and the same relative to the mean.
+    pub fn noise(&self) -> (f64, f64) {
+        if self.rec.phase != JobPhase::Active {
+            return self.rec.final_noise;
+        }
+        let (var, mean, n) = self.noise_total;
+        if n == 0 {
+            return (0.0, 0.0);
+        }
+        // The running total adds and takes away: rounding may leave a variance a hair below 0.
+        let rms = (var.max(0.0) / n as f64).sqrt();
+        let mean = mean / n as f64;
+        let rel = if mean > 0.0 { rms / mean } else { 0.0 };
+        let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
+        (finite(rms), finite(rel))
+    }
+
+    /// Checks a result against the unit it claims to be.
+    pub fn check_result(&self, u: Unit, r: &TileSums) -> Result<(), String> {
+        let rect = self
+            .tiles
+            .get(u.tile)
+            .ok_or_else(|| format!("the job has no tile {}", u.tile))?;
+        if r.rect != rect {
+            return Err(format!(
+                "result covers {}×{} at ({}, {}) but tile {} is {}×{} at ({}, {})",
+                r.rect.width,
+                r.rect.height,
+                r.rect.x0,
+                r.rect.y0,
+                u.tile,
+                rect.width,
+                rect.height,
+                rect.x0,
+                rect.y0
+            ));
+        }
+        let range = self.batch_range(u.batch);
+        if r.samples != range {
+            return Err(format!(
+                "result covers samples {:?} but batch {} is samples {:?}",
+                r.samples, u.batch, range
+            ));
+        }
+        r.check_shape().map_err(|e| e.to_string())?;
+        let per_pixel = range.len() as u64;
+        let mut missing = 0u64;
+        for (i, (s, q)) in r.sum.iter().zip(&r.sum_sq).enumerate() {
+            if s.iter().chain(q).any(|v| !v.is_finite() || *v < 0.0) {
+                return Err(format!(
+                    "pixel {i} of the result has a negative or non-finite sum ({s:?}, {q:?})"
+                ));
+            }
+            let k = r.count[i] as u64;
+            if k > per_pixel {
+                return Err(format!(
+                    "pixel {i} counts {k} samples in a batch of {per_pixel}"
+                ));
+            }
+            if !pixel_in_range(s, q, r.count[i]) {
+                return Err(format!(
+                    "pixel {i}'s sums ({s:?}, {q:?}) are larger than {k} samples of at most \
+                     f32::MAX each can add up to"
+                ));
+            }
+            missing += per_pixel - k;
+        }
+        if missing != r.nonfinite {
+            return Err(format!(
+                "result drops {missing} samples but reports {} non-finite",
+                r.nonfinite
+            ));
+        }
+        Ok(())
+    }
+
+    /// Folds a checked result for `unit` into its tile: at once if it is the tile's next batch
+    /// (with any early results it lets in after it), or else kept until its turn. Tiles fold
+    /// their batches in index order from zero, so the sums are the same bits whatever order
+    /// results arrive in. Returns the store changes and whether it was the job's last unit.
+    pub fn merge(&mut self, unit: Unit, sums: TileSums, now: Instant) -> Result<(Vec<Op>, bool), Refusal> {
+        let id = self.rec.id;
+        let samples = sums.rect.area() as u64 * sums.samples.len() as u64;
+        self.units_done += 1;
+        self.samples_done += samples;
+        self.nonfinite += sums.nonfinite;
+        self.rate.push_back((now, self.samples_done));
+        while self.rate.len() > 2
+            && self
+                .rate
+                .front()
+                .is_some_and(|f| now.duration_since(f.0) > Duration::from_secs(10))
+        {
+            self.rate.pop_front();
+        }
+        let mut ops = Vec::new();
+        let rect = sums.rect;
+        let acc = self.acc.entry(unit.tile).or_default();
+        if unit.batch == acc.next {
+            let total = acc.sums.get_or_insert_with(|| TileSums::empty(rect, 0));
+            total
+                .merge(&sums)
+                .map_err(|e| Refusal::Invalid(e.to_string()))?;
+            acc.next += 1;
+            while let Some(p) = acc.pending.remove(&acc.next) {
+                total
+                    .merge(&p)
+                    .map_err(|e| Refusal::Invalid(e.to_string()))?;
+                ops.push(Op::DelPending(id, unit.tile, acc.next));
+                acc.next += 1;
+            }
+            let noise = total.noise_parts();
+            add_noise(&mut self.noise_total, acc.noise, -1.0);
+            add_noise(&mut self.noise_total, noise, 1.0);
+            acc.noise = noise;
+            ops.push(Op::PutTile(id, unit.tile, encode_sums(total)));
+        } else {
+            ops.push(Op::PutPending(id, unit.tile, unit.batch, encode_sums(&sums)));
+            acc.pending.insert(unit.batch, sums);
+        }
+        let finished = self.units_done == self.units_total();
+        if finished {
+            self.finishing = true;
+        }
+        Ok((ops, finished))
+    }
+
+    /// Every tile's sums, row-major, for writing the frame. A tile without any (which would be
+    /// a bug once every unit is in) is black rather than left out of the frame.
+    pub fn frame_tiles(&self) -> Vec<TileSums> {
+        (0..self.tiles.len() as u32)
+            .filter_map(|t| {
+                let rect = self.tiles.get(t)?;
+                Some(
+                    self.acc
+                        .get(&t)
+                        .and_then(|a| a.sums.clone())
+                        .unwrap_or_else(|| TileSums::empty(rect, 0)),
+                )
+            })
+            .collect()
+    }
+
+    /// Forgets the job's units, sums and early results (it has ended): what is left is its
+    /// record. Returns the unit leases that were out, for the scheduler to drop.
+    pub fn clear(&mut self) -> Vec<u64> {
+        self.acc = BTreeMap::new();
+        self.noise_total = (0.0, 0.0, 0);
+        self.requeue.clear();
+        self.issued.drain().flat_map(|(_, ids)| ids).collect()
+    }
+}

@@ -1,0 +1,187 @@
+//! A job's output: the name its EXR gets, and the writing of the EXR once every unit is in.
+//!
+//! Names are never taken twice and files never overwritten: a name stays with its job for
+//! good (so `fetch` always returns that job's image), a default-form name `job-NNNNNN.exr` is
+//! kept for the job of that id, and a file already in the output directory is someone else's.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use tessera_proto::ids::JobId;
+use tessera_render::assemble_frame;
+use tessera_render::output::{render_metadata, write_new_exr, ExrChannels};
+use tracing::{error, info, warn};
+
+use crate::error::{truncate, Refusal};
+use crate::shared::{durable, now_ms, Shared};
+use crate::store::JobPhase;
+
+/// Whether `name` is an acceptable output file name: a plain file name, never a path.
+pub fn check_output_name(name: &str) -> Result<(), String> {
+    let ok = !name.is_empty()
+        && name.len() <= 128
+        && !name.starts_with('.')
+        && name.ends_with(".exr")
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'.' || b == b'_' || b == b'-');
+    if !ok {
+        return Err(format!(
+            "output name {:?} must be 1–128 letters, digits, '.', '_' or '-', not start with \
+             '.', and end in \".exr\"",
+            truncate(name)
+        ));
+    }
+    if JobId::is_default_output_name(name) {
+        return Err(format!(
+            "output name {name} is kept for the job of that id; choose another name, or none \
+             to get the job's own"
+        ));
+    }
+    Ok(())
+}
+
+/// Chooses output names in one output directory.
+pub struct OutputNames<'a> {
+    dir: &'a Path,
+}
+
+/// Most ids an unnamed job skips past files squatting on their default names.
+const MAX_SKIPPED_IDS: u64 = 10_000;
+
+impl<'a> OutputNames<'a> {
+    /// Names in `dir`.
+    pub fn new(dir: &'a Path) -> Self {
+        Self { dir }
+    }
+
+    /// Whether something (a file, a link, even a dangling one) has this name in the directory.
+    fn on_disk(&self, name: &str) -> bool {
+        self.dir.join(name).symlink_metadata().is_ok()
+    }
+
+    /// The id and output name of a new job: `asked` if given (checked for form already), else
+    /// the default name of `next` or, if a file already has that, of the first id after it
+    /// whose default name is free (waiting for the file to go would block every unnamed job).
+    /// `jobs` are the existing jobs' names.
+    pub fn choose<'j>(
+        &self,
+        next: JobId,
+        asked: Option<String>,
+        mut jobs: impl Iterator<Item = (JobId, &'j str)>,
+    ) -> Result<(JobId, String), Refusal> {
+        let mut id = next;
+        let name = match asked {
+            Some(name) => name,
+            None => {
+                while id.0 - next.0 < MAX_SKIPPED_IDS && self.on_disk(&id.default_output_name()) {
+                    id = JobId(id.0 + 1);
+                }
+                id.default_output_name()
+            }
+        };
+        if let Some((other, _)) = jobs.find(|(_, n)| *n == name) {
+            return Err(Refusal::Exists(format!(
+                "output name {name} belongs to {other}; choose another"
+            )));
+        }
+        if self.on_disk(&name) {
+            return Err(Refusal::Exists(format!(
+                "output name {name}: a file of that name is already in the output directory, \
+                 and the coordinator never overwrites one; choose another"
+            )));
+        }
+        Ok((id, name))
+    }
+}
+
+/// Writes a finished job's EXR, then records it as done (or failed).
+pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
+    let gathered = {
+        let scheduler = shared.scheduler();
+        scheduler
+            .jobs
+            .get(&id)
+            .map(|job| (job.rec.clone(), job.settings(), job.frame_tiles()))
+    };
+    let Some((rec, settings, tiles)) = gathered else {
+        return;
+    };
+    let dir = shared.config.output_dir();
+    let path = dir.join(&rec.output_name);
+    let written = tokio::task::spawn_blocking(move || {
+        let image = assemble_frame(rec.width, rec.height, rec.spp, &tiles)
+            .map_err(|e| e.to_string())?
+            .finalize();
+        let channels = ExrChannels {
+            variance: rec.variance,
+            samples: rec.sample_count,
+        };
+        // Never over another file: output names are unique among the coordinator's jobs, so a
+        // file already there was put there by someone else, and is theirs.
+        write_new_exr(
+            &path,
+            &image,
+            channels,
+            &render_metadata(&rec.scene_hash, &settings),
+        )
+        .map_err(|e| e.to_string())
+    })
+    .await
+    .map_err(|e| e.to_string())
+    .and_then(|r| r);
+    let rx = {
+        let mut scheduler = shared.scheduler();
+        let ops = match &written {
+            Ok(()) => scheduler.end_job(id, JobPhase::Done, String::new(), now_ms()),
+            Err(e) => scheduler.end_job(
+                id,
+                JobPhase::Failed,
+                format!("writing the EXR: {e}"),
+                now_ms(),
+            ),
+        };
+        shared.queue_write(ops)
+    };
+    match (&written, durable(rx).await) {
+        (Ok(()), Ok(())) => info!("{id} done → {}", dir.display()),
+        (Err(e), _) => warn!("{id} failed: {e}"),
+        (_, Err(e)) => error!("{id}: recording completion: {e}"),
+    }
+    shared.bump_changed();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_are_plain_files_and_default_forms_are_kept_for_their_jobs() {
+        for bad in ["", ".exr", "a/b.exr", "../x.exr", "x.png", ".hidden.exr", "job-000004.exr"] {
+            assert!(check_output_name(bad).is_err(), "{bad:?}");
+        }
+        assert!(check_output_name("shot_010-v2.exr").is_ok());
+    }
+
+    #[test]
+    fn an_unnamed_job_skips_ids_whose_default_name_a_file_has() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        std::fs::write(dir.path().join("job-000003.exr"), b"theirs").expect("write");
+        #[cfg(unix)]
+        std::os::unix::fs::symlink("/nonexistent", dir.path().join("job-000004.exr"))
+            .expect("link");
+        let names = OutputNames::new(dir.path());
+        let (id, name) = names.choose(JobId(3), None, std::iter::empty()).expect("free");
+        assert_eq!((id, name.as_str()), (JobId(5), "job-000005.exr"));
+        let taken = [(JobId(1), "a.exr")];
+        assert!(matches!(
+            names.choose(JobId(6), Some("a.exr".into()), taken.into_iter()),
+            Err(Refusal::Exists(m)) if m.contains("belongs to job-000001")
+        ));
+        std::fs::write(dir.path().join("b.exr"), b"theirs").expect("write");
+        assert!(matches!(
+            names.choose(JobId(6), Some("b.exr".into()), std::iter::empty()),
+            Err(Refusal::Exists(m)) if m.contains("never overwrites")
+        ));
+    }
+}

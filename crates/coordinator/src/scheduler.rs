@@ -1,0 +1,1237 @@
+//! Who gets which unit: workers and their registrations, leases and their deadlines, the
+//! queue of each job, speculation past slow holders, quarantine, and admission of new jobs.
+//! Every method is synchronous and short; the caller holds one mutex around [`Scheduler`] and
+//! turns the returned [`Op`]s into a durable commit before replying.
+//!
+//! Ids arrive typed ([`tessera_proto::ids`]): the handlers parse the wire's strings, and the
+//! scheduler only checks that an id is one it issued, in this boot, to this caller.
+
+use std::collections::{BTreeMap, HashMap};
+use std::time::{Duration, Instant};
+
+use tessera_proto::ids::{JobId, LeaseId, WorkerCredential, WorkerId};
+use tessera_render::{RenderSettings, TileSums, IMAGE_REVISION};
+
+use crate::error::Refusal;
+use crate::job::{Job, TileGrid, Unit};
+use crate::output::OutputNames;
+use crate::store::{JobPhase, JobRecord, LoadedJob, Op, StoredScene};
+
+/// A lease: a unit lent to a worker until `deadline`.
+#[derive(Debug)]
+pub struct Lease {
+    /// Job id.
+    pub job: JobId,
+    /// The unit.
+    pub unit: Unit,
+    /// Worker id.
+    pub worker: u64,
+    /// When it was issued: a holder that keeps a unit far longer than a unit takes is slow
+    /// (or hoarding), and others may race it.
+    pub issued: Instant,
+    /// When it lapses unless renewed.
+    pub deadline: Instant,
+    /// False once lapsed or handed back: the unit is back in the queue, but a late result
+    /// quoting this lease is still merged (once) if the unit is not done by then.
+    pub active: bool,
+}
+
+/// A worker as seen by the coordinator.
+#[derive(Debug)]
+pub struct Worker {
+    /// The secret half of its id, issued at registration: every later call must quote it, so
+    /// nobody who only saw the public id (`tessera workers` lists it) can act as this worker.
+    pub secret: String,
+    /// Name it gave.
+    pub name: String,
+    /// Cores it reported.
+    pub cores: u32,
+    /// Its version.
+    pub version: String,
+    /// Last call.
+    pub last_seen: Instant,
+    /// Units merged from it.
+    pub units_done: u64,
+    /// Samples merged from it.
+    pub samples_done: u64,
+    /// Results refused as invalid.
+    pub bad_results: u64,
+    /// Said goodbye.
+    pub gone: bool,
+    /// Sent too many invalid results: gets no more work.
+    pub quarantined: bool,
+}
+
+/// What happened to a result.
+#[derive(Debug)]
+pub enum Merged {
+    /// Merged; commit these ops, then reply. `finished` if it was the job's last unit.
+    New {
+        /// Store changes.
+        ops: Vec<Op>,
+        /// The job is complete.
+        finished: bool,
+    },
+    /// Already merged.
+    Duplicate,
+    /// Job ended.
+    Discarded,
+}
+
+
+/// A unit handed to a worker.
+#[derive(Debug)]
+pub struct Granted {
+    /// The lease.
+    pub lease: LeaseId,
+    /// The job.
+    pub job: JobId,
+    /// The unit.
+    pub unit: Unit,
+}
+
+/// A job to admit: a parsed scene and checked settings.
+#[derive(Debug)]
+pub struct Admission {
+    /// The scene's content hash.
+    pub scene_hash: String,
+    /// The scene as submitted (kept for workers to fetch).
+    pub scene: StoredScene,
+    /// Image width, from the scene.
+    pub width: u32,
+    /// Image height, from the scene.
+    pub height: u32,
+    /// Render settings, checked against the coordinator's limits.
+    pub settings: RenderSettings,
+    /// Tile edge, checked.
+    pub tile_size: u32,
+    /// The output name asked for (checked for form), or none for the job's own.
+    pub output_name: Option<String>,
+    /// Priority (higher first).
+    pub priority: i32,
+    /// Write variance channels.
+    pub variance: bool,
+    /// Write the sample-count channel.
+    pub sample_count: bool,
+}
+
+/// Bounds admission enforces.
+#[derive(Clone, Copy, Debug)]
+pub struct AdmissionLimits {
+    /// Most jobs queued or running at once.
+    pub max_active_jobs: usize,
+    /// Most work units one job may have.
+    pub max_units_per_job: u64,
+}
+
+/// All scheduling state.
+#[derive(Debug)]
+pub struct Scheduler {
+    /// Boot counter: part of every lease and worker id.
+    pub epoch: u64,
+    /// Jobs by id.
+    pub jobs: BTreeMap<JobId, Job>,
+    /// Next job id.
+    pub next_job: u64,
+    /// Leases by number.
+    pub leases: HashMap<u64, Lease>,
+    /// Next lease number.
+    pub next_lease: u64,
+    /// Workers by number.
+    pub workers: BTreeMap<u64, Worker>,
+    /// Next worker number.
+    pub next_worker: u64,
+    /// How long a lease lasts.
+    pub lease_time: Duration,
+    /// Invalid results after which a worker is quarantined.
+    pub quarantine_after: u64,
+    /// Most leases one registration may hold at once.
+    pub max_leases_per_worker: usize,
+}
+
+/// Most live leases one unit may have: its first holder and a few racers.
+pub const MAX_COPIES: usize = 3;
+
+/// Whether unit `u` of `job` has a live lease.
+fn has_active_lease(job: &Job, u: Unit, leases: &HashMap<u64, Lease>) -> bool {
+    job.issued
+        .get(&u)
+        .is_some_and(|ids| ids.iter().any(|l| leases.get(l).is_some_and(|x| x.active)))
+}
+
+/// A copy of a unit that is out already, for worker `w` to race, among those `w` does not
+/// hold: the one leased longest ago that has exactly one live lease, or else one whose live
+/// leases are all older than `slow` (held by slow or hoarding workers, which renew their leases
+/// but never finish), up to [`MAX_COPIES`] live leases a unit. Near the end of a job this keeps
+/// a slow, stuck or hostile worker from holding everyone up; the first result is merged and the
+/// others are duplicates.
+fn speculative_unit(
+    job: &Job,
+    w: u64,
+    leases: &HashMap<u64, Lease>,
+    now: Instant,
+    slow: Duration,
+) -> Option<Unit> {
+    let mut best: Option<(u64, Unit)> = None;
+    for (u, ids) in &job.issued {
+        if job.is_done(*u) {
+            continue;
+        }
+        let live: Vec<(u64, &Lease)> = ids
+            .iter()
+            .filter_map(|l| leases.get(l).filter(|x| x.active).map(|x| (*l, x)))
+            .collect();
+        let Some(&(oldest, _)) = live.first() else {
+            continue;
+        };
+        let all_slow = live
+            .iter()
+            .all(|(_, x)| now.saturating_duration_since(x.issued) >= slow);
+        let eligible = !live.iter().any(|(_, x)| x.worker == w)
+            && (live.len() == 1 || (all_slow && live.len() < MAX_COPIES));
+        if eligible && best.is_none_or(|(b, _)| oldest < b) {
+            best = Some((oldest, *u));
+        }
+    }
+    best.map(|(_, u)| u)
+}
+
+/// The next unit of `job` to hand out: one put back first, then the next in batch-major order
+/// (all tiles' batch 0, then batch 1, …), so the image converges evenly and few results wait
+/// out of order.
+fn next_unit(job: &mut Job, leases: &HashMap<u64, Lease>) -> Option<Unit> {
+    while let Some(u) = job.requeue.pop_front() {
+        if !job.is_done(u) && !has_active_lease(job, u, leases) {
+            return Some(u);
+        }
+    }
+    let n_tiles = (job.tiles.len() as u64).max(1);
+    while job.cursor < job.units_total() {
+        let u = Unit {
+            tile: (job.cursor % n_tiles) as u32,
+            batch: (job.cursor / n_tiles) as u32,
+        };
+        job.cursor += 1;
+        if !job.is_done(u) && !has_active_lease(job, u, leases) {
+            return Some(u);
+        }
+    }
+    None
+}
+
+/// Puts the unit of `lease` back at the front of its job's queue, if the job still needs it:
+/// a lease that lapsed, was handed back, or was taken from a quarantined worker. Returns
+/// whether the unit went back.
+fn requeue(jobs: &mut BTreeMap<JobId, Job>, lease: &mut Lease) -> bool {
+    lease.active = false;
+    match jobs.get_mut(&lease.job) {
+        Some(job) if job.is_live() && !job.is_done(lease.unit) => {
+            job.requeue.push_front(lease.unit);
+            true
+        }
+        _ => false,
+    }
+}
+
+impl Scheduler {
+    /// Empty state for boot `epoch`.
+    pub fn new(epoch: u64, lease_time: Duration) -> Self {
+        Self {
+            epoch,
+            jobs: BTreeMap::new(),
+            next_job: 1,
+            leases: HashMap::new(),
+            next_lease: 1,
+            workers: BTreeMap::new(),
+            next_worker: 1,
+            lease_time,
+            quarantine_after: 5,
+            max_leases_per_worker: 8,
+        }
+    }
+
+    /// Takes back the jobs a store held at start-up. Returns the store changes to make (a job
+    /// of another renderer revision fails; scenes no live job needs go) and the jobs whose
+    /// units were all in at the last stop, whose EXR is still to be written.
+    pub fn restore(
+        &mut self,
+        loaded: Vec<LoadedJob>,
+        stored_scenes: Vec<String>,
+        now_ms: i64,
+    ) -> Result<(Vec<Op>, Vec<JobId>), String> {
+        let mut to_finish = Vec::new();
+        let mut ops = Vec::new();
+        let mut failing = Vec::new();
+        for loaded in loaded {
+            let id = JobId(loaded.record.id);
+            let mut job = Job::restore(loaded).map_err(|e| format!("{id}: {e}"))?;
+            if job.rec.phase == JobPhase::Active && job.units_done == job.units_total() {
+                job.finishing = true;
+                to_finish.push(id);
+            } else if job.rec.phase == JobPhase::Active
+                && job.rec.image_revision != IMAGE_REVISION
+            {
+                // Accepted by a coordinator of another renderer revision. Its merged sums are
+                // that revision's bits; adding this revision's would give an image neither
+                // renders.
+                if job.started {
+                    failing.push((
+                        id,
+                        format!(
+                            "rendered in part by renderer image revision {}, and this \
+                             coordinator renders revision {IMAGE_REVISION}: its results cannot \
+                             be mixed; resubmit the job",
+                            job.rec.image_revision
+                        ),
+                    ));
+                } else {
+                    job.rec.image_revision = IMAGE_REVISION;
+                    ops.push(Op::PutJob(job.rec.clone()));
+                }
+            }
+            self.next_job = self.next_job.max(id.0 + 1);
+            self.jobs.insert(id, job);
+        }
+        // Failed once every job is in, so that a scene another job still needs is kept.
+        for (id, why) in failing {
+            tracing::warn!("{id}: {why}");
+            ops.extend(self.end_job(id, JobPhase::Failed, why, now_ms));
+        }
+        // Scenes that no live job needs (left by a coordinator that kept them all) go.
+        for hash in stored_scenes {
+            if !self.scene_is_live(&hash) {
+                ops.push(Op::DropScene(hash));
+            }
+        }
+        Ok((ops, to_finish))
+    }
+
+    /// Whether an active job renders the scene of this hash.
+    fn scene_is_live(&self, hash: &str) -> bool {
+        self.jobs
+            .values()
+            .any(|j| j.rec.phase == JobPhase::Active && j.rec.scene_hash == hash)
+    }
+
+    /// Admits a job: checks the coordinator's bounds, gives it an id and an output name no
+    /// other job or file has, and returns the store changes that record it.
+    pub fn admit(
+        &mut self,
+        a: Admission,
+        limits: AdmissionLimits,
+        names: &OutputNames<'_>,
+        now_ms: i64,
+    ) -> Result<(JobId, Vec<Op>), Refusal> {
+        let tiles = TileGrid::new(a.width, a.height, a.tile_size).len() as u64;
+        let units = tiles * u64::from(a.settings.spp.div_ceil(a.settings.batch.max(1)));
+        if units > limits.max_units_per_job {
+            return Err(Refusal::Exhausted(format!(
+                "the job would have {units} work units, above the limit of {} (use larger \
+                 tiles or batches)",
+                limits.max_units_per_job
+            )));
+        }
+        let active = self
+            .jobs
+            .values()
+            .filter(|j| j.rec.phase == JobPhase::Active)
+            .count();
+        if active >= limits.max_active_jobs {
+            return Err(Refusal::Exhausted(format!(
+                "{active} jobs are already queued or running, the limit is {}",
+                limits.max_active_jobs
+            )));
+        }
+        let (id, output_name) = names.choose(
+            JobId(self.next_job),
+            a.output_name,
+            self.jobs.values().map(|j| (j.id(), j.rec.output_name.as_str())),
+        )?;
+        self.next_job = id.0 + 1;
+        let s = &a.settings;
+        let rec = JobRecord {
+            id: id.0,
+            scene_hash: a.scene_hash.clone(),
+            scene_name: a.scene.name.clone(),
+            width: a.width,
+            height: a.height,
+            spp: s.spp,
+            seed: s.seed,
+            batch: s.batch,
+            strategy: s.strategy,
+            tile_size: a.tile_size,
+            output_name,
+            priority: a.priority,
+            variance: a.variance,
+            sample_count: a.sample_count,
+            phase: JobPhase::Active,
+            error: String::new(),
+            submitted_ms: now_ms,
+            finished_ms: 0,
+            final_noise: (0.0, 0.0),
+            image_revision: IMAGE_REVISION,
+        };
+        let ops = vec![
+            Op::PutScene(a.scene_hash, a.scene),
+            Op::PutJob(rec.clone()),
+        ];
+        self.jobs.insert(id, Job::new(rec));
+        Ok((id, ops))
+    }
+
+    /// A lease's id as sent: this boot and its number.
+    pub fn lease_id(&self, n: u64) -> LeaseId {
+        LeaseId {
+            epoch: self.epoch,
+            n,
+        }
+    }
+
+    /// The number of a lease issued in this boot. One from before a restart is stale rather
+    /// than confused with a new lease of the same number.
+    pub fn lease_number(&self, id: LeaseId) -> Result<u64, Refusal> {
+        if id.epoch != self.epoch {
+            return Err(Refusal::Precondition(format!(
+                "lease {id} is from before the coordinator restarted; drop it"
+            )));
+        }
+        Ok(id.n)
+    }
+
+    /// A worker's public id, as listed.
+    pub fn worker_id(&self, n: u64) -> WorkerId {
+        WorkerId {
+            epoch: self.epoch,
+            n,
+        }
+    }
+
+    /// The credential a worker quotes in its calls: the public id and its secret. Only
+    /// `Register`'s reply carries it.
+    pub fn worker_credential(&self, n: u64) -> Option<WorkerCredential> {
+        let w = self.workers.get(&n)?;
+        Some(WorkerCredential {
+            id: self.worker_id(n),
+            secret: w.secret.clone(),
+        })
+    }
+
+    /// Looks up a worker by the credential it quotes and marks it seen. A credential with a
+    /// wrong secret is as unknown as one never issued, so guessing reveals nothing.
+    pub fn touch_worker(&mut self, cred: &WorkerCredential, now: Instant) -> Result<u64, Refusal> {
+        use subtle::ConstantTimeEq;
+        let unknown = || {
+            Refusal::NotFound(format!(
+                "unknown worker {} (the coordinator may have restarted): register again",
+                cred.id
+            ))
+        };
+        if cred.id.epoch != self.epoch {
+            return Err(unknown());
+        }
+        let n = cred.id.n;
+        let w = self.workers.get_mut(&n).ok_or_else(unknown)?;
+        if !bool::from(w.secret.as_bytes().ct_eq(cred.secret.as_bytes())) {
+            return Err(unknown());
+        }
+        w.last_seen = now;
+        w.gone = false;
+        if w.quarantined {
+            return Err(Refusal::Denied(format!(
+                "worker {} is quarantined after {} invalid results",
+                cred.id, w.bad_results
+            )));
+        }
+        Ok(n)
+    }
+
+    /// Registers a worker and returns its number. `secret` must be unguessable (the service
+    /// draws it from the operating system's random source).
+    pub fn register(
+        &mut self,
+        name: String,
+        cores: u32,
+        version: String,
+        secret: String,
+        now: Instant,
+    ) -> u64 {
+        let n = self.next_worker;
+        self.next_worker += 1;
+        self.workers.insert(
+            n,
+            Worker {
+                secret,
+                name,
+                cores,
+                version,
+                last_seen: now,
+                units_done: 0,
+                samples_done: 0,
+                bad_results: 0,
+                gone: false,
+                quarantined: false,
+            },
+        );
+        n
+    }
+
+    /// Jobs in scheduling order: priority (high first), then submission order; only those
+    /// still taking leases if `live_only` (finished jobs accumulate, and leasing runs often).
+    pub fn schedule_order(&self, live_only: bool) -> Vec<JobId> {
+        let mut ids: Vec<(i32, JobId)> = self
+            .jobs
+            .values()
+            .filter(|j| !live_only || j.is_live())
+            .map(|j| (j.rec.priority, j.id()))
+            .collect();
+        ids.sort_by_key(|&(p, id)| (std::cmp::Reverse(p), id));
+        ids.into_iter().map(|(_, id)| id).collect()
+    }
+
+    /// Lapses overdue leases, putting their units back at the front of their job's queue.
+    /// Returns whether any unit became available.
+    pub fn expire(&mut self, now: Instant) -> bool {
+        let mut any = false;
+        for lease in self.leases.values_mut() {
+            if lease.active && lease.deadline <= now {
+                any |= requeue(&mut self.jobs, lease);
+            }
+        }
+        any
+    }
+
+    /// Leases up to `max` units to worker `w`: fresh units first (by job priority), then, if
+    /// there are none anywhere, speculative copies of outstanding ones.
+    pub fn lease(&mut self, w: u64, max: usize, now: Instant) -> Vec<Granted> {
+        self.expire(now);
+        let mut out = Vec::new();
+        if self.workers.get(&w).is_some_and(|x| x.quarantined) {
+            return out;
+        }
+        // A worker that already holds its share gets nothing more, however much it asks for:
+        // one registration cannot take a job's units out of everyone else's reach.
+        let max = max.min(self.max_leases_per_worker.saturating_sub(self.leases_of(w)));
+        let slow = self.lease_time;
+        for speculate in [false, true] {
+            for id in self.schedule_order(true) {
+                while out.len() < max {
+                    let Some(job) = self.jobs.get_mut(&id) else {
+                        break;
+                    };
+                    if !job.is_live() {
+                        break;
+                    }
+                    let next = if speculate {
+                        speculative_unit(job, w, &self.leases, now, slow)
+                    } else {
+                        next_unit(job, &self.leases)
+                    };
+                    let Some(unit) = next else {
+                        break;
+                    };
+                    let n = self.next_lease;
+                    self.next_lease += 1;
+                    job.issued.entry(unit).or_default().push(n);
+                    job.started = true;
+                    self.leases.insert(
+                        n,
+                        Lease {
+                            job: id,
+                            unit,
+                            worker: w,
+                            issued: now,
+                            deadline: now + self.lease_time,
+                            active: true,
+                        },
+                    );
+                    out.push(Granted {
+                        lease: self.lease_id(n),
+                        job: id,
+                        unit,
+                    });
+                }
+            }
+        }
+        out
+    }
+
+    /// The lease `id` if it is worker `w`'s, issued in this boot.
+    fn lease_of(&mut self, w: u64, id: LeaseId) -> Option<&mut Lease> {
+        let n = self.lease_number(id).ok()?;
+        self.leases.get_mut(&n).filter(|l| l.worker == w)
+    }
+
+    /// Renews worker `w`'s leases; returns those it should drop.
+    pub fn heartbeat(&mut self, w: u64, ids: &[LeaseId], now: Instant) -> Vec<LeaseId> {
+        let deadline = now + self.lease_time;
+        let mut revoked = Vec::new();
+        for &id in ids {
+            let n = self.lease_number(id).ok();
+            let keep = match n.and_then(|n| self.leases.get_mut(&n)) {
+                Some(l) if l.worker == w => {
+                    let live = self
+                        .jobs
+                        .get(&l.job)
+                        .is_some_and(|j| j.is_live() && !j.is_done(l.unit));
+                    if live && l.active {
+                        l.deadline = deadline;
+                    }
+                    live
+                }
+                _ => false,
+            };
+            if !keep {
+                revoked.push(id);
+            }
+        }
+        revoked
+    }
+
+    /// Hands leases back: their units go to the front of the queue.
+    pub fn release(&mut self, w: u64, ids: &[LeaseId]) -> u32 {
+        let mut n = 0;
+        for &id in ids {
+            let Some(number) = self.lease_of(w, id).filter(|l| l.active).map(|_| id.n) else {
+                continue;
+            };
+            if let Some(lease) = self.leases.get_mut(&number) {
+                n += u32::from(requeue(&mut self.jobs, lease));
+            }
+        }
+        n
+    }
+
+    /// Fails the jobs of the leases that worker `w` says it can never render, with its
+    /// reason; returns the store changes. Handing such a unit out again would only send it
+    /// back and forth (with its scene) for ever.
+    pub fn cannot_render(
+        &mut self,
+        w: u64,
+        ids: &[LeaseId],
+        reason: &str,
+        now_ms: i64,
+    ) -> Vec<Op> {
+        let who = format!(
+            "worker {} ({})",
+            self.worker_id(w),
+            self.workers
+                .get(&w)
+                .map(|x| x.name.escape_debug().to_string())
+                .unwrap_or_default()
+        );
+        let reason: String = reason.chars().take(500).collect();
+        let mut ops = Vec::new();
+        for &id in ids {
+            let Some((job, unit)) = self
+                .lease_of(w, id)
+                .filter(|l| l.active)
+                .map(|l| (l.job, l.unit))
+            else {
+                continue;
+            };
+            if !self.jobs.get(&job).is_some_and(|j| j.is_live()) {
+                continue;
+            }
+            let why = format!(
+                "{who} cannot render tile {} batch {}: {reason}",
+                unit.tile, unit.batch
+            );
+            tracing::warn!("{job}: {why}");
+            ops.extend(self.end_job(job, JobPhase::Failed, why, now_ms));
+        }
+        ops
+    }
+
+    /// Merges a result from worker `w`.
+    pub fn submit(
+        &mut self,
+        w: u64,
+        lease: LeaseId,
+        job_id: JobId,
+        unit: Unit,
+        sums: TileSums,
+        now: Instant,
+    ) -> Result<Merged, Refusal> {
+        let lease_n = self.lease_number(lease);
+        let Some(job) = self.jobs.get_mut(&job_id) else {
+            return Err(Refusal::NotFound(format!("unknown job {job_id}")));
+        };
+        if !job.is_live() {
+            return Ok(Merged::Discarded);
+        }
+        if unit.tile as usize >= job.tiles.len() || unit.batch >= job.n_batches {
+            return Err(Refusal::Invalid(format!(
+                "{job_id} has no tile {} batch {} ({} tiles × {} batches)",
+                unit.tile,
+                unit.batch,
+                job.tiles.len(),
+                job.n_batches
+            )));
+        }
+        if job.is_done(unit) {
+            return Ok(Merged::Duplicate);
+        }
+        let lease_n = lease_n?;
+        match self.leases.get(&lease_n) {
+            Some(l) if l.job == job_id && l.unit == unit && l.worker == w => {}
+            _ => {
+                return Err(Refusal::Precondition(format!(
+                    "lease {lease} was not issued to this worker for {job_id} tile {} batch {}",
+                    unit.tile, unit.batch
+                )))
+            }
+        }
+        if let Err(e) = job.check_result(unit, &sums) {
+            self.count_bad_result(w);
+            return Err(Refusal::Invalid(format!(
+                "{job_id} tile {} batch {}: {e}",
+                unit.tile, unit.batch
+            )));
+        }
+        let samples = sums.rect.area() as u64 * sums.samples.len() as u64;
+        for l in job.issued.remove(&unit).unwrap_or_default() {
+            self.leases.remove(&l);
+        }
+        let (ops, finished) = job.merge(unit, sums, now)?;
+        if let Some(worker) = self.workers.get_mut(&w) {
+            worker.units_done += 1;
+            worker.samples_done += samples;
+        }
+        Ok(Merged::New { ops, finished })
+    }
+
+    /// Ends a job (done, cancelled or failed): frees its units, leases and sums.
+    pub fn end_job(&mut self, id: JobId, phase: JobPhase, error: String, now_ms: i64) -> Vec<Op> {
+        let Some(job) = self.jobs.get_mut(&id) else {
+            return Vec::new();
+        };
+        if phase == JobPhase::Done {
+            job.rec.final_noise = job.noise();
+        }
+        job.rec.phase = phase;
+        job.rec.error = error;
+        job.rec.finished_ms = now_ms;
+        for l in job.clear() {
+            self.leases.remove(&l);
+        }
+        let mut ops = vec![Op::PutJob(job.rec.clone()), Op::DropSums(id.0)];
+        // A scene is kept while a live job needs it; without this every distinct scene ever
+        // submitted (cancelled ones too) would stay in the store for good.
+        let hash = job.rec.scene_hash.clone();
+        if !self.scene_is_live(&hash) {
+            ops.push(Op::DropScene(hash));
+        }
+        ops
+    }
+
+    /// Counts an invalid result against worker `w`, quarantining it (and taking back its
+    /// leases) once it reaches the limit.
+    pub fn count_bad_result(&mut self, w: u64) {
+        let id = self.worker_id(w);
+        let Some(worker) = self.workers.get_mut(&w) else {
+            return;
+        };
+        worker.bad_results += 1;
+        if worker.bad_results >= self.quarantine_after && !worker.quarantined {
+            worker.quarantined = true;
+            tracing::warn!(
+                "worker {id} ({}) quarantined after {} invalid results",
+                worker.name.escape_debug(),
+                worker.bad_results
+            );
+            for lease in self.leases.values_mut() {
+                if lease.worker == w && lease.active {
+                    requeue(&mut self.jobs, lease);
+                }
+            }
+        }
+    }
+
+    /// Leases held now by worker `w`.
+    pub fn leases_of(&self, w: u64) -> usize {
+        self.leases
+            .values()
+            .filter(|l| l.worker == w && l.active)
+            .count()
+    }
+
+    /// Live leases of a job's units.
+    pub fn units_leased(&self, job: &Job) -> u64 {
+        job.issued
+            .values()
+            .filter(|ids| ids.iter().any(|l| self.leases.get(l).is_some_and(|x| x.active)))
+            .count() as u64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tessera_render::{PixelRect, Strategy};
+
+    const JOB: JobId = JobId(1);
+
+    fn record(spp: u32, batch: u32) -> JobRecord {
+        JobRecord {
+            id: 1,
+            spp,
+            batch,
+            width: 4,
+            height: 2,
+            seed: 0,
+            strategy: Strategy::Mis,
+            tile_size: 2,
+            output_name: "o.exr".into(),
+            submitted_ms: 0,
+            ..JobRecord::default()
+        }
+    }
+
+    fn result(job: &Job, u: Unit, value: f64) -> TileSums {
+        let rect = job.tiles.get(u.tile).expect("tile");
+        let mut t = TileSums::empty(rect, 0);
+        t.samples = job.batch_range(u.batch);
+        let k = t.samples.len() as u32;
+        for i in 0..rect.area() {
+            t.sum[i] = [value; 3];
+            t.sum_sq[i] = [value * value; 3];
+            t.count[i] = k;
+        }
+        t
+    }
+
+    #[test]
+    fn units_are_batch_major_and_the_last_batch_is_short() {
+        let mut core = Scheduler::new(1, Duration::from_secs(5));
+        core.jobs.insert(JOB, Job::new(record(5, 2)));
+        let now = Instant::now();
+        let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+        let got: Vec<Unit> = core.lease(w, 100, now).iter().map(|g| g.unit).collect();
+        assert_eq!(got.len(), 6);
+        let want: Vec<Unit> = [(0, 0), (1, 0), (0, 1), (1, 1), (0, 2), (1, 2)]
+            .map(|(tile, batch)| Unit { tile, batch })
+            .to_vec();
+        assert_eq!(got, want);
+        assert_eq!(core.jobs[&JOB].batch_range(2), 4..5);
+    }
+
+    #[test]
+    fn out_of_order_results_merge_in_batch_order_once() {
+        let mut core = Scheduler::new(3, Duration::from_secs(5));
+        core.jobs.insert(JOB, Job::new(record(6, 2)));
+        let now = Instant::now();
+        let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+        let granted = core.lease(w, 100, now);
+        let names: Vec<(LeaseId, Unit)> = granted
+            .iter()
+            .map(|g| (g.lease, g.unit))
+            .collect();
+        // Tile 0's batches arrive 2, 0, 1; a copy of batch 0 arrives again.
+        let order = [2u32, 0, 1];
+        for b in order {
+            let (name, u) = names
+                .iter()
+                .find(|(_, u)| u.tile == 0 && u.batch == b)
+                .cloned()
+                .expect("leased");
+            let r = result(&core.jobs[&JOB], u, b as f64 + 1.0);
+            let m = core.submit(w, name, JOB, u, r, now).expect("merged");
+            assert!(matches!(m, Merged::New { .. }));
+        }
+        let (name, u) = names[0].clone();
+        let r = result(&core.jobs[&JOB], u, 1.0);
+        assert!(matches!(
+            core.submit(w, name, JOB, u, r, now),
+            Ok(Merged::Duplicate)
+        ));
+        let acc = &core.jobs[&JOB].acc[&0];
+        assert_eq!(acc.next, 3);
+        let sums = acc.sums.as_ref().expect("sums");
+        assert_eq!(sums.sum[0], [((0.0 + 1.0) + 2.0) + 3.0; 3]);
+        assert_eq!(sums.samples, 0..6);
+    }
+
+    #[test]
+    fn bad_results_are_refused_and_counted() {
+        let mut core = Scheduler::new(1, Duration::from_secs(5));
+        core.jobs.insert(JOB, Job::new(record(4, 2)));
+        let now = Instant::now();
+        let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+        let g = core.lease(w, 1, now).remove(0);
+        let name = g.lease;
+        let job = &core.jobs[&JOB];
+        let mut nan = result(job, g.unit, 1.0);
+        nan.sum[1][2] = f64::NAN;
+        let mut short = result(job, g.unit, 1.0);
+        short.count.pop();
+        let mut wrong_range = result(job, g.unit, 1.0);
+        wrong_range.samples = 1..3;
+        let mut lying = result(job, g.unit, 1.0);
+        lying.count[0] = 1;
+        for bad in [nan, short, wrong_range, lying] {
+            assert!(matches!(
+                core.submit(w, name, JOB, g.unit, bad, now),
+                Err(Refusal::Invalid(_))
+            ));
+        }
+        assert_eq!(core.workers[&w].bad_results, 4);
+        let other = Unit { tile: 1, batch: 0 };
+        let r = result(&core.jobs[&JOB], other, 1.0);
+        assert!(matches!(
+            core.submit(w, name, JOB, other, r, now),
+            Err(Refusal::Precondition(_))
+        ));
+        let r = result(&core.jobs[&JOB], g.unit, 1.0);
+        assert!(matches!(
+            core.submit(w, LeaseId { epoch: 0, n: 1 }, JOB, g.unit, r, now),
+            Err(Refusal::Precondition(_))
+        ));
+        assert_eq!(core.jobs[&JOB].units_done, 0);
+    }
+
+    #[test]
+    fn lapsed_leases_requeue_and_late_results_still_count_once() {
+        let mut core = Scheduler::new(1, Duration::from_secs(5));
+        core.jobs.insert(JOB, Job::new(record(2, 2)));
+        let t0 = Instant::now();
+        let a = core.register("a".into(), 1, "v".into(), "s".into(), t0);
+        let b = core.register("b".into(), 1, "v".into(), "s".into(), t0);
+        let first = core.lease(a, 1, t0).remove(0);
+        let later = t0 + Duration::from_secs(6);
+        let again = core.lease(b, 1, later).remove(0);
+        assert_eq!(first.unit, again.unit, "the lapsed unit is served first");
+        let r = result(&core.jobs[&JOB], first.unit, 1.0);
+        let name = first.lease;
+        assert!(matches!(
+            core.submit(a, name, JOB, first.unit, r.clone(), later),
+            Ok(Merged::New { .. })
+        ));
+        let name = again.lease;
+        assert!(matches!(
+            core.submit(b, name, JOB, again.unit, r, later),
+            Ok(Merged::Duplicate)
+        ));
+        assert_eq!(
+            core.heartbeat(b, &[name], later),
+            vec![name]
+        );
+    }
+
+    #[test]
+    fn idle_workers_race_the_oldest_outstanding_unit_once_the_queue_is_empty() {
+        let mut core = Scheduler::new(1, Duration::from_secs(60));
+        core.jobs.insert(JOB, Job::new(record(2, 2)));
+        let now = Instant::now();
+        let slow = core.register("slow".into(), 1, "v".into(), "s".into(), now);
+        let fast = core.register("fast".into(), 1, "v".into(), "s".into(), now);
+        let held = core.lease(slow, 2, now);
+        assert_eq!(held.len(), 2);
+        // No fresh unit is left: the fast worker gets a copy of the oldest unit, then of the
+        // other, and nothing more (each unit is raced at most once).
+        let copies = core.lease(fast, 5, now);
+        let units: Vec<Unit> = copies.iter().map(|g| g.unit).collect();
+        assert_eq!(units, vec![held[0].unit, held[1].unit]);
+        assert!(core.lease(fast, 5, now).is_empty());
+        // The copy's result wins; the slow original is then a duplicate.
+        let r = result(&core.jobs[&JOB], copies[0].unit, 1.0);
+        let name = copies[0].lease;
+        assert!(matches!(
+            core.submit(fast, name, JOB, copies[0].unit, r.clone(), now),
+            Ok(Merged::New { .. })
+        ));
+        let name = held[0].lease;
+        assert!(matches!(
+            core.submit(slow, name, JOB, held[0].unit, r, now),
+            Ok(Merged::Duplicate)
+        ));
+    }
+
+    #[test]
+    fn a_worker_that_keeps_sending_bad_results_is_quarantined() {
+        let mut core = Scheduler::new(1, Duration::from_secs(60));
+        core.quarantine_after = 3;
+        core.jobs.insert(JOB, Job::new(record(8, 2)));
+        let now = Instant::now();
+        let w = core.register("bad".into(), 1, "v".into(), "s".into(), now);
+        let id = core.worker_credential(w).expect("registered");
+        let g = core.lease(w, 2, now);
+        let name = g[0].lease;
+        for _ in 0..3 {
+            let mut r = result(&core.jobs[&JOB], g[0].unit, 1.0);
+            r.sum[0][0] = f64::INFINITY;
+            assert!(matches!(
+                core.submit(w, name, JOB, g[0].unit, r, now),
+                Err(Refusal::Invalid(_))
+            ));
+        }
+        assert!(core.workers[&w].quarantined);
+        assert!(matches!(
+            core.touch_worker(&id, now),
+            Err(Refusal::Denied(_))
+        ));
+        assert!(core.lease(w, 1, now).is_empty());
+        assert_eq!(core.leases_of(w), 0, "its leases were taken back");
+        let other = core.register("good".into(), 1, "v".into(), "s".into(), now);
+        let mut units: Vec<Unit> = core.lease(other, 2, now).iter().map(|g| g.unit).collect();
+        units.sort();
+        let mut want = vec![g[0].unit, g[1].unit];
+        want.sort();
+        assert_eq!(units, want, "its units are handed out again first");
+    }
+
+    #[test]
+    fn the_tile_grid_matches_pixel_rect_tiles() {
+        for (w, h, size) in [
+            (1, 1, 4),
+            (17, 5, 4),
+            (64, 64, 16),
+            (100, 3, 7),
+            (3, 100, 128),
+        ] {
+            let grid = TileGrid::new(w, h, size);
+            let all = PixelRect::tiles(w, h, size);
+            assert_eq!(grid.len(), all.len());
+            for (i, r) in all.iter().enumerate() {
+                assert_eq!(grid.get(i as u32), Some(*r), "{w}×{h}/{size} tile {i}");
+            }
+            assert_eq!(grid.get(all.len() as u32), None);
+        }
+    }
+
+    #[test]
+    fn admission_allocates_nothing_per_tile() {
+        // 8192² at tile 4: 4M tiles. The job is accepted and leased with no per-tile memory;
+        // only the tiles that get results have accumulators.
+        let mut rec = record(1, 1);
+        rec.width = 8192;
+        rec.height = 8192;
+        rec.tile_size = 4;
+        let job = Job::new(rec);
+        assert_eq!(job.units_total(), 4 << 20);
+        assert!(job.acc.is_empty());
+        let mut core = Scheduler::new(1, Duration::from_secs(5));
+        core.jobs.insert(JOB, job);
+        let now = Instant::now();
+        let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+        let g = core.lease(w, 1, now).remove(0);
+        let r = result(&core.jobs[&JOB], g.unit, 1.0);
+        let name = g.lease;
+        assert!(matches!(
+            core.submit(w, name, JOB, g.unit, r, now),
+            Ok(Merged::New { .. })
+        ));
+        assert_eq!(core.jobs[&JOB].acc.len(), 1);
+        let (rms, _) = core.jobs[&JOB].noise();
+        assert!(rms.is_finite());
+    }
+
+    #[test]
+    fn forged_finite_sums_that_would_overflow_when_merged_are_refused() {
+        let mut core = Scheduler::new(1, Duration::from_secs(5));
+        core.jobs.insert(JOB, Job::new(record(4, 2)));
+        let now = Instant::now();
+        let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+        let g = core.lease(w, 8, now);
+        // Two results of 1.7e308 each are finite, but their sum is not.
+        for unit in [g[0].unit, g[2].unit] {
+            let name = g.iter().find(|x| x.unit == unit).expect("leased").lease;
+            let mut r = result(&core.jobs[&JOB], unit, 1.0);
+            r.sum_sq[0] = [1.7e308; 3];
+            assert!(
+                matches!(core.submit(w, name, JOB, unit, r, now), Err(Refusal::Invalid(m)) if m.contains("f32::MAX")),
+            );
+            let mut r = result(&core.jobs[&JOB], unit, 1.0);
+            r.sum[1] = [1e300, 0.0, 0.0];
+            assert!(matches!(
+                core.submit(w, name, JOB, unit, r, now),
+                Err(Refusal::Invalid(_))
+            ));
+        }
+        // The largest honest values merge, and stay finite through every batch.
+        for unit in [g[0].unit, g[2].unit] {
+            let name = g.iter().find(|x| x.unit == unit).expect("leased").lease;
+            let mut r = result(&core.jobs[&JOB], unit, 1.0);
+            let k = r.count[0] as f64;
+            let m = f32::MAX as f64;
+            r.sum[0] = [k * m; 3];
+            r.sum_sq[0] = [k * m * m; 3];
+            assert!(matches!(
+                core.submit(w, name, JOB, unit, r, now),
+                Ok(Merged::New { .. })
+            ));
+        }
+        let sums = core.jobs[&JOB].acc[&0].sums.as_ref().expect("sums");
+        assert!(sums.sum_sq[0].iter().all(|v| v.is_finite()));
+        let (rms, rel) = core.jobs[&JOB].noise();
+        assert!(rms.is_finite() && rel.is_finite());
+        // What is stored of a job with such noise loads again.
+        let ops = core.end_job(JOB, JobPhase::Done, String::new(), 1);
+        let Some(Op::PutJob(rec)) = ops.first() else {
+            panic!("no record")
+        };
+        let mut rec = rec.clone();
+        rec.final_noise = (f64::INFINITY, f64::NAN);
+        let json = serde_json::to_vec(&rec).expect("json");
+        let back: JobRecord = serde_json::from_slice(&json).expect("loads");
+        assert_eq!(back.final_noise, (0.0, 0.0));
+        let nulls: JobRecord = serde_json::from_slice(
+            &String::from_utf8(json)
+                .expect("utf8")
+                .replace("[0.0,0.0]", "[null,null]")
+                .into_bytes(),
+        )
+        .expect("a null noise loads");
+        assert_eq!(nulls.final_noise, (0.0, 0.0));
+    }
+
+    #[test]
+    fn ids_are_bound_to_the_registration_that_got_them() {
+        let mut core = Scheduler::new(1, Duration::from_secs(5));
+        core.jobs.insert(JOB, Job::new(record(4, 2)));
+        let now = Instant::now();
+        let honest = core.register("honest".into(), 1, "v".into(), "secret-a".into(), now);
+        let thief = core.register("thief".into(), 1, "v".into(), "secret-b".into(), now);
+        // The public id alone, or with another secret, is an unknown worker.
+        let public = core.worker_id(honest);
+        for secret in ["secret-b", "", "secret-a-longer"] {
+            let forged = WorkerCredential {
+                id: public,
+                secret: secret.into(),
+            };
+            assert!(
+                matches!(core.touch_worker(&forged, now), Err(Refusal::NotFound(_))),
+                "{secret}"
+            );
+        }
+        // The right secret under another boot's id is unknown too.
+        let stale = WorkerCredential {
+            id: WorkerId { epoch: 0, ..public },
+            secret: "secret-a".into(),
+        };
+        assert!(matches!(
+            core.touch_worker(&stale, now),
+            Err(Refusal::NotFound(_))
+        ));
+        let cred = core.worker_credential(honest).expect("registered");
+        assert_eq!(core.touch_worker(&cred, now), Ok(honest));
+        // A result under another worker's lease is refused, and does not count against it.
+        let g = core.lease(honest, 1, now).remove(0);
+        let name = g.lease;
+        let r = result(&core.jobs[&JOB], g.unit, 1.0);
+        assert!(matches!(
+            core.submit(thief, name, JOB, g.unit, r.clone(), now),
+            Err(Refusal::Precondition(_))
+        ));
+        assert_eq!(core.workers[&honest].bad_results, 0);
+        assert_eq!(core.jobs[&JOB].units_done, 0);
+        assert!(matches!(
+            core.submit(honest, name, JOB, g.unit, r, now),
+            Ok(Merged::New { .. })
+        ));
+        // Nor can another worker renew, release or refuse the honest worker's leases.
+        let g = core.lease(honest, 1, now).remove(0);
+        let name = g.lease;
+        assert_eq!(
+            core.heartbeat(thief, &[name], now),
+            vec![name]
+        );
+        assert_eq!(core.release(thief, &[name]), 0);
+        assert!(core
+            .cannot_render(thief, &[name], "no", 1)
+            .is_empty());
+        assert!(core.jobs[&JOB].is_live());
+    }
+
+    #[test]
+    fn hoarding_registrations_cannot_stall_a_job() {
+        let lease = Duration::from_secs(5);
+        let mut core = Scheduler::new(1, lease);
+        core.max_leases_per_worker = 8;
+        core.jobs.insert(JOB, Job::new(record(8, 2)));
+        let t0 = Instant::now();
+        let h1 = core.register("h1".into(), 1, "v".into(), "a".into(), t0);
+        let h2 = core.register("h2".into(), 1, "v".into(), "b".into(), t0);
+        // Each asks for everything and gets its share, no more: h1 all 8 units, h2 a racing
+        // copy of each (each had one live lease), so every unit now has two holders.
+        let a = core.lease(h1, 64, t0);
+        assert_eq!(a.len(), 8);
+        assert!(core.lease(h1, 64, t0).is_empty(), "h1 is at its share");
+        let b = core.lease(h2, 64, t0);
+        assert_eq!(b.len(), 8);
+        let honest = core.register("honest".into(), 1, "v".into(), "c".into(), t0);
+        assert!(
+            core.lease(honest, 4, t0).is_empty(),
+            "fresh hoards are not raced yet: the holders may just be busy"
+        );
+        // The hoarders keep renewing and never send anything.
+        let mut t = t0;
+        let mut all: Vec<LeaseId> = a
+            .iter()
+            .chain(&b)
+            .map(|g| g.lease)
+            .collect();
+        all.sort();
+        for _ in 0..3 {
+            t += lease / 2;
+            core.heartbeat(h1, &all, t);
+            core.heartbeat(h2, &all, t);
+        }
+        // Past a lease time since they were issued, the hoarded units are slow: the honest
+        // worker gets copies, up to its share, and finishes every unit.
+        let mut done = 0;
+        let total = core.jobs[&JOB].units_total() as usize;
+        while done < total {
+            let got = core.lease(honest, 4, t);
+            assert!(
+                !got.is_empty(),
+                "the honest worker starves after {done} units"
+            );
+            for g in got {
+                let r = result(&core.jobs[&JOB], g.unit, 1.0);
+                let name = g.lease;
+                if let Ok(Merged::New { .. }) = core.submit(honest, name, JOB, g.unit, r, t) {
+                    done += 1;
+                }
+            }
+            t += Duration::from_millis(10);
+        }
+        assert!(
+            core.jobs[&JOB].finishing,
+            "the job finished without the hoarders"
+        );
+    }
+
+    #[test]
+    fn a_unit_a_worker_cannot_render_fails_its_job_once_with_the_reason() {
+        let mut core = Scheduler::new(1, Duration::from_secs(5));
+        core.jobs.insert(JOB, Job::new(record(4, 2)));
+        let now = Instant::now();
+        let w = core.register("small".into(), 1, "v".into(), "s".into(), now);
+        let g = core.lease(w, 1, now).remove(0);
+        let name = g.lease;
+        let ops = core.cannot_render(
+            w,
+            &[name],
+            "scene.toml: film.width 20000 is above 16384",
+            5,
+        );
+        assert!(ops
+            .iter()
+            .any(|o| matches!(o, Op::PutJob(r) if r.phase == JobPhase::Failed)));
+        let job = &core.jobs[&JOB];
+        assert_eq!(job.rec.phase, JobPhase::Failed);
+        assert!(
+            job.rec.error.contains("cannot render tile"),
+            "{}",
+            job.rec.error
+        );
+        assert!(
+            job.rec.error.contains("film.width 20000"),
+            "{}",
+            job.rec.error
+        );
+        // The unit is not handed out again.
+        assert!(core.lease(w, 8, now).is_empty());
+        assert!(core.cannot_render(w, &[name], "again", 6).is_empty());
+    }
+}

@@ -1,0 +1,189 @@
+//! The server: TLS, the bearer-token check on every call, connection limits, the lease
+//! ticker, and the two services over the shared state. [`serve`] runs it on a listener the
+//! caller binds (port 0 in tests) until a shutdown future completes.
+
+use std::future::Future;
+use std::sync::Arc;
+use std::time::Duration;
+
+use tessera_proto::v1::jobs_server::JobsServer;
+use tessera_proto::v1::workers_server::WorkersServer;
+use tessera_proto::Secret;
+use tonic::service::interceptor::InterceptedService;
+use tonic::transport::{Certificate, Identity, ServerTlsConfig};
+
+use crate::config::{Config, MAX_STREAMS_PER_CONNECTION};
+use crate::conn;
+use crate::error::CoordinatorError;
+use crate::output::finish_job;
+use crate::service::Service;
+use crate::shared::{writer, Shared};
+
+/// requests have drained and queued state writes are durable.
+pub async fn serve(
+    config: Config,
+    listener: tokio::net::TcpListener,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<(), CoordinatorError> {
+    serve_when_ready(config, listener, shutdown, || {}).await
+}
+
+/// [`serve`], calling `ready` once the TLS identity is loaded and the store is open and
+/// restored: the moment to tell a person or a script that the coordinator is up. Any error
+/// before that (a bad key, a damaged store) comes back instead, and `ready` is not called.
+pub async fn serve_when_ready(
+    config: Config,
+    listener: tokio::net::TcpListener,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+    ready: impl FnOnce(),
+) -> Result<(), CoordinatorError> {
+    let max_msg = config.max_message_bytes;
+    let lease_timeout = config.lease_timeout;
+    let auth = AuthCheck::new(config.token.as_ref());
+    let mut builder = tonic::transport::Server::builder()
+        // A connection that sends nothing is closed rather than kept for ever, and one
+        // connection cannot open unbounded streams.
+        .http2_keepalive_interval(Some(Duration::from_secs(30)))
+        .http2_keepalive_timeout(Some(Duration::from_secs(20)))
+        .max_concurrent_streams(Some(MAX_STREAMS_PER_CONNECTION));
+    if let Some(tls) = &config.tls {
+        let mut cfg = ServerTlsConfig::new()
+            .identity(Identity::from_pem(&tls.cert_pem, tls.key_pem.expose()));
+        if let Some(ca) = &tls.client_ca_pem {
+            cfg = cfg.client_ca_root(Certificate::from_pem(ca));
+        }
+        builder = builder.tls_config(cfg)?;
+    }
+    let (max_connections, idle) = (config.max_connections, config.idle_connection);
+    let (shared, rx, to_finish) = Shared::open(config)?;
+    let writer = tokio::spawn(writer(shared.store.clone(), rx));
+    for id in to_finish {
+        tokio::spawn(finish_job(shared.clone(), id));
+    }
+    // Lapsed leases are noticed here as well as on each lease call, so that a long-polling
+    // worker wakes up for a unit whose holder died.
+    let ticker = {
+        let shared = Arc::downgrade(&shared);
+        let period = (lease_timeout / 8).clamp(Duration::from_millis(50), Duration::from_secs(1));
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(period);
+            loop {
+                tick.tick().await;
+                let Some(shared) = shared.upgrade() else {
+                    return;
+                };
+                let any = shared.scheduler().expire(std::time::Instant::now());
+                if any {
+                    shared.bump_work();
+                }
+            }
+        })
+    };
+    let svc = Service::new(shared.clone());
+    let incoming = conn::Limited::new(listener, max_connections, idle);
+    ready();
+    let result = builder
+        .add_service(InterceptedService::new(
+            JobsServer::new(svc.clone())
+                .max_decoding_message_size(max_msg)
+                .max_encoding_message_size(max_msg),
+            auth.clone(),
+        ))
+        .add_service(InterceptedService::new(
+            WorkersServer::new(svc)
+                .max_decoding_message_size(max_msg)
+                .max_encoding_message_size(max_msg),
+            auth,
+        ))
+        .serve_with_incoming_shutdown(incoming, shutdown)
+        .await;
+    ticker.abort();
+    drop(shared);
+    // The writer ends when the last sender (inside Shared) is gone; give stragglers (watch
+    // streams finishing their last message) a moment, then stop waiting.
+    let _ = tokio::time::timeout(Duration::from_secs(5), writer).await;
+    result?;
+    Ok(())
+}
+
+/// Both services over a store, with no network, transport or auth in between: what
+/// [`serve`] runs, for driving sequences of calls in-process (the `rpc_surface` fuzz target).
+/// Made inside a tokio runtime, which runs its state writer.
+#[doc(hidden)]
+pub struct InProcess {
+    service: Service,
+    writer: tokio::task::JoinHandle<()>,
+}
+
+impl InProcess {
+    /// Opens the store under `config.data_dir` and restores its jobs, as [`serve`] does.
+    pub fn open(config: Config) -> Result<Self, CoordinatorError> {
+        let (shared, rx, to_finish) = Shared::open(config)?;
+        let writer = tokio::spawn(writer(shared.store.clone(), rx));
+        for id in to_finish {
+            tokio::spawn(finish_job(shared.clone(), id));
+        }
+        let service = Service::new(shared);
+        Ok(Self { service, writer })
+    }
+
+    /// The `Jobs` and `Workers` services.
+    pub fn service(&self) -> &Service {
+        &self.service
+    }
+
+    /// The most scene parses that have run at once.
+    pub fn peak_parses(&self) -> usize {
+        self.service.peak_parses()
+    }
+
+    /// Lapses overdue leases, as the server's ticker does.
+    pub fn expire(&self) {
+        if self.service.shared.scheduler().expire(std::time::Instant::now()) {
+            self.service.shared.bump_work();
+        }
+    }
+
+    /// Stops, once every queued write is durable and the store is closed.
+    pub async fn close(self) {
+        drop(self.service);
+        let _ = self.writer.await;
+    }
+}
+
+/// Checks the bearer token of every call, in constant time: both sides are hashed first, so
+/// neither the comparison's time nor its length depends on how much of the token matched.
+#[derive(Clone)]
+struct AuthCheck(Option<[u8; 32]>);
+
+impl AuthCheck {
+    fn new(token: Option<&Secret>) -> Self {
+        Self(token.map(|t| sha256(t.expose().as_bytes())))
+    }
+}
+
+fn sha256(b: &[u8]) -> [u8; 32] {
+    use sha2::Digest;
+    sha2::Sha256::digest(b).into()
+}
+
+impl tonic::service::Interceptor for AuthCheck {
+    fn call(&mut self, request: tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> {
+        use subtle::ConstantTimeEq;
+        let Some(want) = &self.0 else {
+            return Ok(request);
+        };
+        let presented = request
+            .metadata()
+            .get("authorization")
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.strip_prefix("Bearer "));
+        match presented {
+            None => Err(tonic::Status::unauthenticated(
+                "this coordinator requires a token (--token-file or TESSERA_TOKEN)",
+            )),
+            Some(t) if bool::from(sha256(t.as_bytes()).ct_eq(want)) => Ok(request),
+            Some(_) => Err(tonic::Status::unauthenticated("wrong token")),
+        }
+    }
+}

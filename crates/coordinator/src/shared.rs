@@ -1,0 +1,150 @@
+//! The state every handler and background task shares: the scheduler behind one mutex, the
+//! store, and the commit writer that makes changes durable in groups, in the order they were
+//! made.
+
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use tokio::sync::{mpsc, oneshot, watch};
+use tracing::{error, info};
+
+use crate::config::Config;
+use crate::error::CoordinatorError;
+use crate::scheduler::Scheduler;
+use crate::store::{JobPhase, Op, Store};
+use tessera_proto::ids::JobId;
+
+/// A batch of store changes and who waits for them to be durable.
+pub(crate) struct Write {
+    ops: Vec<Op>,
+    done: oneshot::Sender<Result<(), String>>,
+}
+
+/// State shared by the RPC handlers and background tasks.
+pub(crate) struct Shared {
+    scheduler: Mutex<Scheduler>,
+    pub(crate) store: Arc<Store>,
+    writes: mpsc::UnboundedSender<Write>,
+    /// Bumped whenever a job's status changes (watchers wake on it).
+    pub(crate) changed: watch::Sender<u64>,
+    /// Bumped whenever units become available (long-polling leases wake on it).
+    pub(crate) work: watch::Sender<u64>,
+    pub(crate) config: Config,
+}
+
+/// The shared state, the writer's queue, and jobs whose units were all in at the last stop.
+pub(crate) type Opened = (Arc<Shared>, mpsc::UnboundedReceiver<Write>, Vec<JobId>);
+
+impl Shared {
+    /// Opens the store under `config.data_dir`, restores its jobs, and builds the shared state.
+    pub(crate) fn open(config: Config) -> Result<Opened, CoordinatorError> {
+        let out = config.output_dir();
+        std::fs::create_dir_all(&out).map_err(|source| CoordinatorError::Output {
+            path: out.display().to_string(),
+            source,
+        })?;
+        let store = Arc::new(Store::open(&config.data_dir)?);
+        let epoch = store.next_epoch()?;
+        let mut scheduler = Scheduler::new(epoch, config.lease_timeout);
+        scheduler.quarantine_after = config.quarantine_after.max(1);
+        scheduler.max_leases_per_worker = config.max_leases_per_worker.max(1);
+        let (ops, to_finish) = scheduler
+            .restore(store.load()?, store.scene_hashes()?, now_ms())
+            .map_err(CoordinatorError::Restore)?;
+        if !ops.is_empty() {
+            store.apply(&ops)?;
+        }
+        let active = scheduler
+            .jobs
+            .values()
+            .filter(|j| j.rec.phase == JobPhase::Active)
+            .count();
+        info!(
+            "state at {}: boot {epoch}, {} jobs ({active} active)",
+            config.data_dir.display(),
+            scheduler.jobs.len()
+        );
+        let (writes, rx) = mpsc::unbounded_channel();
+        let shared = Arc::new(Shared {
+            scheduler: Mutex::new(scheduler),
+            store,
+            writes,
+            changed: watch::channel(0).0,
+            work: watch::channel(0).0,
+            config,
+        });
+        Ok((shared, rx, to_finish))
+    }
+
+    /// Locks the scheduling state. A panic while holding the lock is a bug; the state it left
+    /// is still consistent enough to serve (every mutation is a sequence of plain assignments),
+    /// so poisoning is ignored rather than turned into a crash loop.
+    pub(crate) fn scheduler(&self) -> MutexGuard<'_, Scheduler> {
+        self.scheduler.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Wakes status watchers.
+    pub(crate) fn bump_changed(&self) {
+        self.changed.send_modify(|v| *v = v.wrapping_add(1));
+    }
+
+    /// Wakes workers waiting for units.
+    pub(crate) fn bump_work(&self) {
+        self.work.send_modify(|v| *v = v.wrapping_add(1));
+    }
+
+    /// Queues store changes. Called with the scheduler's lock held, so commits follow merge
+    /// order.
+    pub(crate) fn queue_write(&self, ops: Vec<Op>) -> oneshot::Receiver<Result<(), String>> {
+        let (done, rx) = oneshot::channel();
+        if self.writes.send(Write { ops, done }).is_err() {
+            error!("state writer has stopped");
+        }
+        rx
+    }
+}
+
+/// Waits for a queued write to be durable.
+pub(crate) async fn durable(rx: oneshot::Receiver<Result<(), String>>) -> Result<(), String> {
+    rx.await
+        .map_err(|_| "state writer stopped".to_string())
+        .and_then(|r| r)
+}
+
+/// Unix time in milliseconds.
+pub(crate) fn now_ms() -> i64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_millis() as i64)
+        .unwrap_or(0)
+}
+
+/// Commits queued writes in groups: one fsync covers every result that arrived meanwhile.
+pub(crate) async fn writer(store: Arc<Store>, mut rx: mpsc::UnboundedReceiver<Write>) {
+    while let Some(first) = rx.recv().await {
+        let mut group = vec![first];
+        while group.len() < 256 {
+            match rx.try_recv() {
+                Ok(w) => group.push(w),
+                Err(_) => break,
+            }
+        }
+        let mut ops = Vec::new();
+        let mut waiters = Vec::new();
+        for w in group {
+            ops.extend(w.ops);
+            waiters.push(w.done);
+        }
+        let store = store.clone();
+        let result = tokio::task::spawn_blocking(move || store.apply(&ops))
+            .await
+            .map_err(|e| e.to_string())
+            .and_then(|r| r.map_err(|e| e.to_string()));
+        if let Err(e) = &result {
+            error!("state commit failed: {e}");
+        }
+        for w in waiters {
+            let _ = w.send(result.clone());
+        }
+    }
+}
