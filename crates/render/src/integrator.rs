@@ -11,11 +11,10 @@
 
 use glam::{Vec2, Vec3A};
 
-use crate::math::{offset_ray_origin, Frame, Ray};
-use crate::sampling::{
-    cosine_hemisphere_pdf, power_heuristic, square_to_cosine_hemisphere, PixelSampler,
-};
-use crate::scene::{Bsdf, Scene};
+use crate::bsdf::{fresnel_dielectric, reflect, refract, sample_diffuse, Bsdf};
+use crate::math::{offset_ray_origin, Ray};
+use crate::sampling::{cosine_hemisphere_pdf, power_heuristic, PixelSampler};
+use crate::scene::Scene;
 
 /// How direct light is estimated. All three converge to the same image; `Mis` has the lowest
 /// variance, the others exist to test that claim. Stored (in the coordinator's job records) by
@@ -97,26 +96,6 @@ impl Default for RenderSettings {
             rr_threshold: 0.25,
         }
     }
-}
-
-/// Fresnel reflectance of a smooth dielectric for unpolarised light. `cos_i` ≥ 0 is on the
-/// incident side; `eta` = n_transmitted / n_incident. Returns (F, cos θt), F = 1 under total
-/// internal reflection.
-#[inline]
-pub fn fresnel_dielectric(cos_i: f32, eta: f32) -> (f32, f32) {
-    let sin2_t = (1.0 - cos_i * cos_i).max(0.0) / (eta * eta);
-    if sin2_t >= 1.0 {
-        return (1.0, 0.0);
-    }
-    let cos_t = (1.0 - sin2_t).sqrt();
-    let r_par = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
-    let r_perp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
-    (0.5 * (r_par * r_par + r_perp * r_perp), cos_t)
-}
-
-#[inline]
-fn reflect(d: Vec3A, n: Vec3A) -> Vec3A {
-    d - n * (2.0 * d.dot(n))
 }
 
 /// The radiance estimate of one camera sample of pixel (`x`, `y`): the sample `sampler` (made
@@ -245,12 +224,11 @@ fn trace(
                         }
                     }
                 }
-                let local = square_to_cosine_hemisphere(Vec2::new(u0, u1));
-                let wi = Frame::from_normal(n).to_world(local);
+                let (wi, pdf) = sample_diffuse(n, Vec2::new(u0, u1));
                 // f·cos/pdf = (ρ/π)·cos / (cos/π) = ρ.
                 beta *= albedo;
                 specular = false;
-                prev_pdf = cosine_hemisphere_pdf(local.z);
+                prev_pdf = pdf;
                 if !(prev_pdf > 0.0) {
                     break;
                 }
@@ -271,7 +249,7 @@ fn trace(
                     Ray::new(offset_ray_origin(sp.p, sp.err, n), reflect(ray.d, n))
                 } else {
                     // Radiance is compressed by 1/η² entering a denser medium.
-                    let wt = (-wo / eta + n * (cos_i / eta - cos_t)).normalize();
+                    let wt = refract(wo, n, eta, cos_i, cos_t);
                     beta /= eta * eta;
                     eta_scale *= eta * eta;
                     Ray::new(offset_ray_origin(sp.p, sp.err, -n), wt)
@@ -290,30 +268,4 @@ fn trace(
         ray = Ray::new(next.o, next.d.normalize());
     }
     l
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn fresnel_limits() {
-        let (f, _) = fresnel_dielectric(1.0, 1.5);
-        assert!(
-            (f - 0.04).abs() < 1e-6,
-            "normal incidence ((n-1)/(n+1))², got {f}"
-        );
-        assert_eq!(
-            fresnel_dielectric(0.1, 1.0 / 1.5).0,
-            1.0,
-            "total internal reflection"
-        );
-        let (f, c) = fresnel_dielectric(0.0, 1.5);
-        assert!((f - 1.0).abs() < 1e-6 && c.is_finite());
-        assert_eq!(
-            fresnel_dielectric(0.7, 1.0).0,
-            0.0,
-            "index-matched: no reflection"
-        );
-    }
 }

@@ -24,14 +24,16 @@
 //! let image = sums.finalize();
 //! ```
 
-pub mod bvh;
+pub mod accel;
+pub mod bsdf;
 pub mod camera;
+pub mod film;
 pub mod integrator;
 pub mod lanes;
-pub mod leaf;
 pub mod light;
 pub mod math;
 pub mod output;
+pub mod packet;
 pub mod sampling;
 pub mod scene;
 pub mod shape;
@@ -41,7 +43,8 @@ pub mod wide;
 pub use integrator::{
     RenderSettings, Strategy, BATCH_RANGE, DEFAULT_BATCH, DEFAULT_TILE, TILE_RANGE,
 };
-pub use tile::{assemble_frame, render_frame, render_tile, Image, PixelRect, TileSums};
+pub use film::{assemble_frame, Image, MergeError, PixelRect, TileSums};
+pub use tile::{render_frame, render_tile};
 
 /// Revision of the renderer's output bits: bumped by every change that alters any bit that any
 /// render returns (a new sampler, a reordered sum, a different warp). One job's partial sums

@@ -9,7 +9,7 @@ use exr::prelude::{
     FlatSamples, Layer, LayerAttributes, Text, WritableImage,
 };
 
-use crate::tile::Image;
+use crate::film::Image;
 
 /// Errors writing or reading images.
 #[derive(Debug, thiserror::Error)]

@@ -16,11 +16,12 @@ use glam::Vec3A;
 
 use crate::integrator::{RenderSettings, Strategy};
 use crate::lanes::{dot, splat3, transpose3, v3, F, M, V3};
-use crate::leaf::Rays;
+use crate::packet::Rays;
 use crate::light::LightShape;
 use crate::math::{gamma, Ray};
 use crate::sampling::{power_heuristic, sin_cos_polynomials, PixelSampler};
-use crate::scene::{Bsdf, Scene};
+use crate::bsdf::Bsdf;
+use crate::scene::Scene;
 use crate::shape::{Parallelogram, Shape};
 
 /// The many-path tracer for one scene and its settings.
@@ -289,7 +290,8 @@ impl<'a> Wide<'a> {
         let scene = self.scene;
         let settings = self.settings;
         let ray_of = |lane| Ray::new(lane3(&s.o, lane), lane3(&s.d, lane));
-        let hits = scene.intersect_lanes(
+        let hits = scene.accel().intersect_lanes(
+            &scene.prims,
             &Rays::from_lanes(load3(&s.o), load3(&s.d)),
             ray_of,
             s.active,
@@ -411,7 +413,13 @@ impl<'a> Wide<'a> {
             let sda = v3(|c| sd[c].0);
             let shadow = |lane| Ray::new(lane3(&po, lane), lane3(&sda, lane));
             let blocked =
-                scene.occluded_lanes(&Rays::from_lanes(p_out, sd), shadow, nee, 1.0 - 1e-4);
+                scene.accel().occluded_lanes(
+                    &scene.prims,
+                    &Rays::from_lanes(p_out, sd),
+                    shadow,
+                    nee,
+                    1.0 - 1e-4,
+                );
             let add = nee & !blocked;
             if add != 0 {
                 let mask = M::from_bits(add);

@@ -645,7 +645,7 @@ fn samplers_at_the_domain_edges_stay_finite() {
     // Total internal reflection and grazing Fresnel.
     for cos in [0.0f32, 1e-8, 0.1, 1.0] {
         for eta in [1.5f32, 1.0 / 1.5] {
-            let (f, ct) = tessera_render::integrator::fresnel_dielectric(cos, eta);
+            let (f, ct) = tessera_render::bsdf::fresnel_dielectric(cos, eta);
             assert!(
                 (0.0..=1.0).contains(&f) && ct.is_finite(),
                 "{cos} {eta}: {f} {ct}"

@@ -17,11 +17,11 @@ use sha2::{Digest, Sha256};
 pub use format::*;
 pub use locate::{line_col, KeyPath, Seg};
 
-use crate::bvh::Bvh;
+use crate::accel::Accel;
+use crate::bsdf::Bsdf;
 use crate::camera::Camera;
-use crate::leaf::{Leaves, RayX4};
 use crate::light::{Light, LightShape, Lights};
-use crate::math::{v3, Aabb, Ray};
+use crate::math::{v3, Ray};
 use crate::shape::{Hit, Shape, Transformed};
 
 /// Which syntax a scene is written in.
@@ -100,17 +100,6 @@ impl fmt::Display for SceneError {
     }
 }
 
-/// A material's scattering part.
-#[derive(Clone, Copy, Debug)]
-pub enum Bsdf {
-    /// Lambertian with this albedo.
-    Diffuse(Vec3A),
-    /// Perfect mirror with this reflectance.
-    Mirror(Vec3A),
-    /// Smooth dielectric with this relative index of refraction (inside / outside).
-    Dielectric(f32),
-}
-
 /// A runtime material.
 #[derive(Clone, Copy, Debug)]
 pub struct Material {
@@ -184,9 +173,7 @@ pub struct Scene {
     pub max_depth: Option<u32>,
     /// SHA-256 of the scene text, hex: the scene's content address.
     pub hash: String,
-    bvh: Bvh,
-    leaves: Leaves,
-    unbounded: Vec<u32>,
+    accel: Accel,
 }
 
 impl Scene {
@@ -235,136 +222,24 @@ impl Scene {
     /// Closest hit along `ray` with t in (0, t_max).
     #[inline]
     pub fn intersect(&self, ray: &Ray, t_max: f32) -> Option<Hit> {
-        let test = |p: u32, t_max: f32| self.prims[p as usize].shape.intersect(ray, t_max);
-        let mut best: Option<Hit> = None;
-        let mut t = t_max;
-        for &p in &self.unbounded {
-            if let Some((tp, part)) = test(p, t) {
-                t = tp;
-                best = Some(Hit { t, prim: p, part });
-            }
-        }
-        let r4 = RayX4::new(ray);
-        self.bvh.traverse(ray, t, |leaf, t_max| {
-            match self.leaves.closest(leaf, &r4, t_max, test) {
-                Some((t, prim, part)) => {
-                    best = Some(Hit { t, prim, part });
-                    t
-                }
-                None => t_max,
-            }
-        });
-        best
-    }
-
-    /// [`Scene::intersect`] with t_max = ∞ for the lanes of `r` set in `active`, for a scene
-    /// of one BVH leaf and no unbounded primitives ([`Scene::is_one_leaf`], which the only
-    /// caller, [`crate::wide::Wide::new`], requires); `rays` holds the same rays one by one, for
-    /// the exact tests of primitives other than quads. Crate-private because on other scenes
-    /// it would answer "no hit": a ray-by-ray fallback here, even out of line, cost the Cornell
-    /// box measurably more instructions a sample (docs/renderer.md).
-    #[inline(always)]
-    pub(crate) fn intersect_lanes<const N: usize>(
-        &self,
-        r: &crate::leaf::Rays<N>,
-        ray: impl Fn(usize) -> Ray,
-        active: u32,
-    ) -> crate::leaf::LaneHits<N> {
-        debug_assert!(self.is_one_leaf());
-        self.leaves
-            .closest_lanes(
-                r,
-                active,
-                #[inline(always)]
-                |p, lanes, t_max| match &self.prims[p as usize].shape {
-                    Shape::Cuboid { min, max, xf } => {
-                        let t_max = crate::lanes::F(*t_max);
-                        let (hit, t, face) = crate::shape::cuboid_lanes(
-                            *min,
-                            *max,
-                            xf,
-                            r.origins(),
-                            r.directions(),
-                            t_max,
-                        );
-                        (hit, t.0, face)
-                    }
-                    shape => {
-                        let (mut hit, mut t, mut part) = (0, [0.0; N], [0; N]);
-                        for lane in (0..N).filter(|lane| lanes >> lane & 1 == 1) {
-                            if let Some((tl, pl)) = shape.intersect(&ray(lane), t_max[lane]) {
-                                hit |= 1 << lane;
-                                (t[lane], part[lane]) = (tl, pl);
-                            }
-                        }
-                        (hit, t, part)
-                    }
-                },
-            )
-            .unwrap_or(crate::leaf::LaneHits {
-                hit: 0,
-                t: [0.0; N],
-                prim: [0; N],
-                part: [0; N],
-            })
-    }
-
-    /// [`Scene::occluded`] for the lanes of `r` set in `active`, for a scene of one BVH leaf
-    /// and no unbounded primitives (as [`Scene::intersect_lanes`]): bit i is set when
-    /// something blocks lane i in (0, t_max).
-    #[inline(always)]
-    pub(crate) fn occluded_lanes<const N: usize>(
-        &self,
-        r: &crate::leaf::Rays<N>,
-        ray: impl Fn(usize) -> Ray,
-        active: u32,
-        t_max: f32,
-    ) -> u32 {
-        debug_assert!(self.is_one_leaf());
-        self.leaves
-            .any_lanes(
-                r,
-                active,
-                t_max,
-                #[inline(always)]
-                |p, lanes| match &self.prims[p as usize].shape {
-                    Shape::Cuboid { min, max, xf } => {
-                        let t = crate::lanes::F::splat(t_max);
-                        crate::shape::cuboid_lanes(*min, *max, xf, r.origins(), r.directions(), t).0
-                    }
-                    shape => (0..N)
-                        .filter(|lane| lanes >> lane & 1 == 1)
-                        .filter(|&lane| shape.blocks(&ray(lane), t_max))
-                        .fold(0, |bits, lane| bits | 1 << lane),
-                },
-            )
-            .unwrap_or(0)
-    }
-
-    /// Whether the whole scene is one BVH leaf with nothing unbounded: the scenes whose
-    /// queries the packet tests answer.
-    pub fn is_one_leaf(&self) -> bool {
-        self.unbounded.is_empty() && self.leaves.is_single()
+        self.accel.intersect(&self.prims, ray, t_max)
     }
 
     /// Whether anything blocks `ray` for t in (0, t_max).
     #[inline]
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
-        let blocks = |p: u32| self.prims[p as usize].shape.blocks(ray, t_max);
-        if self.unbounded.iter().any(|&p| blocks(p)) {
-            return true;
-        }
-        // Any hit will do: a negative t_max tells the traversal to stop at the first one.
-        let r4 = RayX4::new(ray);
-        let mut hit = false;
-        self.bvh.traverse(ray, t_max, |leaf, t| {
-            if self.leaves.any(leaf, &r4, t, blocks) {
-                hit = true;
-                return -1.0;
-            }
-            t
-        });
-        hit
+        self.accel.occluded(&self.prims, ray, t_max)
+    }
+
+    /// Whether the whole scene is one BVH leaf with nothing unbounded: the scenes whose
+    /// queries the packet tests answer ([`Accel::is_one_leaf`]).
+    pub fn is_one_leaf(&self) -> bool {
+        self.accel.is_one_leaf()
+    }
+
+    /// The scene's ray queries.
+    pub fn accel(&self) -> &Accel {
+        &self.accel
     }
 }
 
@@ -945,12 +820,7 @@ fn build(desc: &SceneFile, limits: &Limits) -> Result<Scene, Invalid> {
             light,
         });
     }
-    let bounds: Vec<Aabb> = prims.iter().map(|p| p.shape.bounds()).collect();
-    let (bounded, unbounded): (Vec<u32>, Vec<u32>) =
-        (0..prims.len() as u32).partition(|&i| bounds[i as usize].is_finite());
-    let bvh = Bvh::build(&bounds, &bounded);
-    let shapes: Vec<&Shape> = prims.iter().map(|p| &p.shape).collect();
-    let leaves = Leaves::build(&shapes, bvh.order(), bvh.leaves());
+    let accel = Accel::build(&prims);
     Ok(Scene {
         camera,
         width: w,
@@ -961,9 +831,7 @@ fn build(desc: &SceneFile, limits: &Limits) -> Result<Scene, Invalid> {
         environment,
         max_depth: desc.render.max_depth,
         hash: String::new(),
-        bvh,
-        leaves,
-        unbounded,
+        accel,
     })
 }
 

@@ -11,8 +11,9 @@ use std::ops::Range;
 
 use glam::{Vec3A, Vec4};
 
-use crate::lanes::{dot, splat3, v3, F, M, V3};
-use crate::math::{Aabb, Ray};
+use crate::lanes::{dot, splat3, F, M, V3};
+use crate::packet::{LaneHits, RayX4, Rays, MAX_LANES};
+use crate::math::Aabb;
 use crate::shape::{Parallelogram, Shape};
 
 /// Parallelograms in lanes: four different quads against one ray splatted across the lanes
@@ -125,29 +126,6 @@ fn in_range<const N: usize>(t: F<N>, t_max: F<N>) -> M<N> {
     t.cmpgt(F::ZERO) & t.cmplt(t_max)
 }
 
-/// A ray's components splatted across four lanes, made once per query, with what the bounding
-/// box test of the other primitives needs.
-#[derive(Clone, Copy, Debug)]
-pub struct RayX4 {
-    o: V3<4>,
-    d: V3<4>,
-    origin: Vec3A,
-    inv_d: Vec3A,
-}
-
-impl RayX4 {
-    /// Splats `ray`.
-    #[inline]
-    pub fn new(ray: &Ray) -> Self {
-        Self {
-            o: splat3(ray.o),
-            d: splat3(ray.d),
-            origin: ray.o,
-            inv_d: ray.d.recip(),
-        }
-    }
-}
-
 /// A leaf's quad blocks, and its other primitives with their bounds.
 type LeafParts<'a> = (&'a [Quads4], &'a [(u32, Aabb)]);
 
@@ -214,7 +192,7 @@ impl Leaves {
     }
 
     /// The closest hit with t in (0, t_max) among the primitives of `leaf` (a range
-    /// [`crate::bvh::Bvh::traverse`] passed), as (t, primitive, part): its quads here, its other
+    /// [`crate::accel::bvh::Bvh::traverse`] passed), as (t, primitive, part): its quads here, its other
     /// primitives by `other`, which returns (t, part). Ties go to the earlier quad, then to the
     /// quads.
     #[inline]
@@ -284,9 +262,6 @@ impl Leaves {
     }
 }
 
-/// How many lanes a packet query takes at most (its answers' lanes are bits of a `u32`).
-pub const MAX_LANES: usize = 16;
-
 /// One quad, to be splatted across the lanes and tested against a packet of rays at once.
 #[derive(Clone, Debug)]
 struct SplatQuad {
@@ -318,73 +293,6 @@ impl SplatQuad {
             return (crossed, t);
         }
         (crossed & q.within_edges(&r.o, &r.d, t), t)
-    }
-}
-
-/// The closest hits of a packet: the lanes with one (bits), and each lane's t, primitive and
-/// part (meaningful where its bit is set).
-#[derive(Clone, Copy, Debug)]
-pub struct LaneHits<const N: usize> {
-    /// Lanes with a hit.
-    pub hit: u32,
-    /// Ray parameters.
-    pub t: [f32; N],
-    /// Primitives.
-    pub prim: [u32; N],
-    /// Parts of the primitives (a box's face).
-    pub part: [u32; N],
-}
-
-/// `N` rays in structure-of-arrays lanes.
-#[derive(Clone, Copy, Debug)]
-pub struct Rays<const N: usize> {
-    o: V3<N>,
-    d: V3<N>,
-    inv_d: V3<N>,
-}
-
-impl<const N: usize> Rays<N> {
-    /// The origins.
-    #[inline(always)]
-    pub fn origins(&self) -> &V3<N> {
-        &self.o
-    }
-
-    /// The directions.
-    #[inline(always)]
-    pub fn directions(&self) -> &V3<N> {
-        &self.d
-    }
-
-    /// Rays whose origins and directions are already in lanes.
-    #[inline(always)]
-    pub fn from_lanes(o: V3<N>, d: V3<N>) -> Self {
-        Self {
-            o,
-            d,
-            inv_d: v3(|c| d[c].recip()),
-        }
-    }
-
-    /// The lanes whose rays meet `b`, with t_max per lane: [`Aabb::hit`]'s answer for each,
-    /// computed the way its guarded branch does (an axis whose slab distance is NaN is
-    /// unconstrained), which is the answer of its fast branch wherever there is no NaN.
-    #[inline(always)]
-    fn hit_box(&self, b: &Aabb, t_max: F<N>) -> M<N> {
-        let mut near = F::NEG_INFINITY;
-        let mut far = F::INFINITY;
-        for axis in 0..3 {
-            let t0 = (F::splat(b.min[axis]) - self.o[axis]) * self.inv_d[axis];
-            let t1 = (F::splat(b.max[axis]) - self.o[axis]) * self.inv_d[axis];
-            let nan = t0.is_nan_mask() | t1.is_nan_mask();
-            near = near.max(F::select(nan, F::NEG_INFINITY, t0.min(t1)));
-            far = far.min(F::select(
-                nan,
-                F::INFINITY,
-                t0.max(t1) * crate::math::FAR_INFLATION,
-            ));
-        }
-        near.max(F::ZERO).cmple(far.min(t_max))
     }
 }
 
@@ -481,6 +389,7 @@ impl Leaves {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::math::Ray;
     use crate::sampling::HashRng;
 
     /// Each lane gives the scalar test's answer and the same t, bit for bit, including rays

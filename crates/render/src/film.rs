@@ -1,0 +1,309 @@
+//! The film: pixel rectangles, the partial sums a render returns for one ([`TileSums`]: f64
+//! sum of RGB, f64 sum of squares, sample count per pixel), their merging, and the finished
+//! [`Image`] they assemble into. Rendering them is [`crate::tile`]'s.
+//!
+//! Sums are f64 and merged in a fixed order: two sample ranges cut at a batch boundary merge to
+//! exactly the bits of rendering their union in one call, and tiles are inserted into a frame
+//! without arithmetic, so the frame's bits are its tiles' bits.
+
+use std::ops::Range;
+
+/// A rectangle of pixels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct PixelRect {
+    /// Left column.
+    pub x0: u32,
+    /// Top row.
+    pub y0: u32,
+    /// Width (> 0).
+    pub width: u32,
+    /// Height (> 0).
+    pub height: u32,
+}
+
+impl PixelRect {
+    /// Number of pixels.
+    pub fn area(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+
+    /// Whether it lies inside a `width` × `height` image.
+    pub fn fits(&self, width: u32, height: u32) -> bool {
+        self.width > 0
+            && self.height > 0
+            && self.x0.checked_add(self.width).is_some_and(|r| r <= width)
+            && self
+                .y0
+                .checked_add(self.height)
+                .is_some_and(|b| b <= height)
+    }
+
+    /// Cuts a `width` × `height` image into tiles of at most `size` × `size`, row-major.
+    pub fn tiles(width: u32, height: u32, size: u32) -> Vec<PixelRect> {
+        let size = size.max(1);
+        let mut v = Vec::new();
+        for y0 in (0..height).step_by(size as usize) {
+            for x0 in (0..width).step_by(size as usize) {
+                v.push(PixelRect {
+                    x0,
+                    y0,
+                    width: size.min(width - x0),
+                    height: size.min(height - y0),
+                });
+            }
+        }
+        v
+    }
+}
+
+/// Per-pixel partial sums of a rectangle over a contiguous range of sample indices.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TileSums {
+    /// The pixels covered.
+    pub rect: PixelRect,
+    /// The sample indices covered.
+    pub samples: Range<u32>,
+    /// Σ radiance, row-major.
+    pub sum: Vec<[f64; 3]>,
+    /// Σ radiance², row-major.
+    pub sum_sq: Vec<[f64; 3]>,
+    /// Samples accumulated per pixel (fewer than the range only if some were non-finite).
+    pub count: Vec<u32>,
+    /// Non-finite samples that were counted and left out of the sums.
+    pub nonfinite: u64,
+}
+
+/// Why two partial sums cannot be merged.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum MergeError {
+    /// Different rectangles.
+    #[error("tile {got:?} does not match {expected:?}")]
+    Rect {
+        /// The accumulator's rectangle.
+        expected: PixelRect,
+        /// The other's.
+        got: PixelRect,
+    },
+    /// Merging out of order would change the bits.
+    #[error("samples {got:?} do not continue {have:?}: merges must follow sample order")]
+    Order {
+        /// The accumulator's range.
+        have: Range<u32>,
+        /// The other's.
+        got: Range<u32>,
+    },
+    /// Arrays of the wrong length.
+    #[error("partial sums hold {got} pixels where the tile has {expected}")]
+    Shape {
+        /// Pixels in the rectangle.
+        expected: usize,
+        /// Entries present.
+        got: usize,
+    },
+}
+
+impl TileSums {
+    /// Empty sums (sample range `start..start`).
+    pub fn empty(rect: PixelRect, start: u32) -> Self {
+        let n = rect.area();
+        Self {
+            rect,
+            samples: start..start,
+            sum: vec![[0.0; 3]; n],
+            sum_sq: vec![[0.0; 3]; n],
+            count: vec![0; n],
+            nonfinite: 0,
+        }
+    }
+
+    /// Checks the array lengths against the rectangle.
+    pub fn check_shape(&self) -> Result<(), MergeError> {
+        let n = self.rect.area();
+        for len in [self.sum.len(), self.sum_sq.len(), self.count.len()] {
+            if len != n {
+                return Err(MergeError::Shape {
+                    expected: n,
+                    got: len,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Adds `next`, which must cover the same rectangle and the samples right after ours.
+    pub fn merge(&mut self, next: &TileSums) -> Result<(), MergeError> {
+        if next.rect != self.rect {
+            return Err(MergeError::Rect {
+                expected: self.rect,
+                got: next.rect,
+            });
+        }
+        next.check_shape()?;
+        if next.samples.start != self.samples.end {
+            return Err(MergeError::Order {
+                have: self.samples.clone(),
+                got: next.samples.clone(),
+            });
+        }
+        for i in 0..self.sum.len() {
+            for c in 0..3 {
+                self.sum[i][c] += next.sum[i][c];
+                self.sum_sq[i][c] += next.sum_sq[i][c];
+            }
+            self.count[i] += next.count[i];
+        }
+        self.samples.end = next.samples.end;
+        self.nonfinite += next.nonfinite;
+        Ok(())
+    }
+
+    /// Copies a tile's sums into this larger accumulator (which must contain its rectangle and
+    /// cover the same samples).
+    pub fn insert(&mut self, tile: &TileSums) -> Result<(), MergeError> {
+        let (r, t) = (self.rect, tile.rect);
+        if t.x0 < r.x0
+            || t.y0 < r.y0
+            || t.x0 + t.width > r.x0 + r.width
+            || t.y0 + t.height > r.y0 + r.height
+        {
+            return Err(MergeError::Rect {
+                expected: r,
+                got: t,
+            });
+        }
+        if tile.samples != self.samples {
+            return Err(MergeError::Order {
+                have: self.samples.clone(),
+                got: tile.samples.clone(),
+            });
+        }
+        tile.check_shape()?;
+        for row in 0..t.height {
+            let src = (row * t.width) as usize;
+            let dst = ((t.y0 - r.y0 + row) * r.width + (t.x0 - r.x0)) as usize;
+            let w = t.width as usize;
+            self.sum[dst..dst + w].copy_from_slice(&tile.sum[src..src + w]);
+            self.sum_sq[dst..dst + w].copy_from_slice(&tile.sum_sq[src..src + w]);
+            self.count[dst..dst + w].copy_from_slice(&tile.count[src..src + w]);
+        }
+        self.nonfinite += tile.nonfinite;
+        Ok(())
+    }
+
+    /// (Σ variance of the mean, Σ mean, pixels with data), each pixel's channels averaged: the
+    /// parts of [`Image::noise`], so a merger can add them up tile by tile without building
+    /// the image.
+    pub fn noise_parts(&self) -> (f64, f64, u64) {
+        let (mut var, mut mean, mut n) = (0.0, 0.0, 0u64);
+        for i in 0..self.sum.len() {
+            let k = self.count[i] as f64;
+            if k < 1.0 {
+                continue;
+            }
+            n += 1;
+            for c in 0..3 {
+                let m = self.sum[i][c] / k;
+                mean += m / 3.0;
+                if k > 1.0 {
+                    var +=
+                        ((self.sum_sq[i][c] - self.sum[i][c] * m) / (k - 1.0)).max(0.0) / k / 3.0;
+                }
+            }
+        }
+        (var, mean, n)
+    }
+
+    /// Mean radiance, variance of the mean and sample count per pixel.
+    pub fn finalize(&self) -> Image {
+        let n = self.sum.len();
+        let mut rgb = Vec::with_capacity(n);
+        let mut variance = Vec::with_capacity(n);
+        for i in 0..n {
+            let k = self.count[i] as f64;
+            let mut m = [0f32; 3];
+            let mut v = [0f32; 3];
+            if k > 0.0 {
+                for c in 0..3 {
+                    let mean = self.sum[i][c] / k;
+                    m[c] = mean as f32;
+                    if k > 1.0 {
+                        // Unbiased sample variance over k, clamped at 0 against cancellation.
+                        let s2 = ((self.sum_sq[i][c] - self.sum[i][c] * mean) / (k - 1.0)).max(0.0);
+                        v[c] = (s2 / k) as f32;
+                    }
+                }
+            }
+            rgb.push(m);
+            variance.push(v);
+        }
+        Image {
+            width: self.rect.width,
+            height: self.rect.height,
+            rgb,
+            variance,
+            count: self.count.clone(),
+            nonfinite: self.nonfinite,
+        }
+    }
+}
+
+/// A finished image.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Image {
+    /// Width.
+    pub width: u32,
+    /// Height.
+    pub height: u32,
+    /// Mean radiance per pixel, row-major, row 0 at the top.
+    pub rgb: Vec<[f32; 3]>,
+    /// Variance of each pixel's mean (sample variance / count).
+    pub variance: Vec<[f32; 3]>,
+    /// Samples per pixel.
+    pub count: Vec<u32>,
+    /// Non-finite samples left out.
+    pub nonfinite: u64,
+}
+
+impl Image {
+    /// Noise summary: root-mean-square standard error of pixel means (luminance-weighted
+    /// channels averaged), and the same relative to the mean pixel value.
+    pub fn noise(&self) -> (f64, f64) {
+        let n = self.rgb.len().max(1) as f64;
+        let var: f64 = self
+            .variance
+            .iter()
+            .map(|v| (v[0] + v[1] + v[2]) as f64 / 3.0)
+            .sum::<f64>()
+            / n;
+        let mean: f64 = self
+            .rgb
+            .iter()
+            .map(|c| (c[0] + c[1] + c[2]) as f64 / 3.0)
+            .sum::<f64>()
+            / n;
+        let rms = var.sqrt();
+        (rms, if mean > 0.0 { rms / mean } else { 0.0 })
+    }
+}
+
+/// Assembles a `width` × `height` frame from tiles that each cover samples `0..spp` and
+/// together partition it (the local renderer's last step, and the farm coordinator's).
+pub fn assemble_frame(
+    width: u32,
+    height: u32,
+    spp: u32,
+    tiles: &[TileSums],
+) -> Result<TileSums, MergeError> {
+    let full = PixelRect {
+        x0: 0,
+        y0: 0,
+        width,
+        height,
+    };
+    let mut frame = TileSums::empty(full, 0);
+    frame.samples = 0..spp;
+    for t in tiles {
+        frame.insert(t)?;
+    }
+    Ok(frame)
+}
