@@ -7,7 +7,9 @@ use std::time::{Duration, Instant};
 
 use libfuzzer_sys::fuzz_target;
 use prost::Message;
-use tessera_coordinator::state::{Core, Job, Merged, Unit};
+use tessera_coordinator::job::{Job, Unit};
+use tessera_coordinator::scheduler::{Merged, Scheduler};
+use tessera_proto::ids::JobId;
 use tessera_coordinator::store::{decode_sums, JobRecord};
 use tessera_proto::v1 as pb;
 
@@ -19,7 +21,7 @@ fn job() -> Job {
         spp: 7,
         seed: 0,
         batch: 3,
-        strategy: "mis".into(),
+        strategy: tessera_render::Strategy::Mis,
         tile_size: 4,
         output_name: "o.exr".into(),
         submitted_ms: 0,
@@ -33,8 +35,8 @@ fuzz_target!(|data: &[u8]| {
     let Ok(req) = pb::SubmitResultRequest::decode(data) else {
         return;
     };
-    let mut core = Core::new(1, Duration::from_secs(60));
-    core.jobs.insert(1, j);
+    let mut core = Scheduler::new(1, Duration::from_secs(60));
+    core.jobs.insert(JobId(1), j);
     let now = Instant::now();
     let w = core.register("fuzz".into(), 1, "0".into(), "s".into(), now);
     let _ = core.lease(w, 64, now);
@@ -46,9 +48,13 @@ fuzz_target!(|data: &[u8]| {
         tile: req.tile_index,
         batch: req.batch_index,
     };
-    // Lease ids of this core are "L1-1".."L1-6": the fuzzer can find them.
-    if let Ok(Merged::New { .. }) = core.submit(w, &req.lease_id, 1, unit, sums.clone(), now) {
-        let job = &core.jobs[&1];
+    // Lease ids of this scheduler are "L1-1".."L1-6": the fuzzer can find them. They are
+    // parsed as the handlers parse them.
+    let Ok(lease) = req.lease_id.parse() else {
+        return;
+    };
+    if let Ok(Merged::New { .. }) = core.submit(w, lease, JobId(1), unit, sums.clone(), now) {
+        let job = &core.jobs[&JobId(1)];
         assert!(job.check_result(unit, &sums).is_ok());
     }
 });

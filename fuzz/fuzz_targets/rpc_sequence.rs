@@ -1,5 +1,5 @@
 //! Sequences of worker calls from several fake workers, honest and hostile, against the
-//! coordinator's scheduling state ([`Core`], which every `Workers` RPC goes through under the
+//! coordinator's scheduling state ([`Scheduler`], which every `Workers` RPC goes through under the
 //! coordinator's lock): register, lease, heartbeat, release, refuse, submit (honest, forged,
 //! under another worker's lease), time passing, and a second job being cancelled.
 //!
@@ -13,7 +13,9 @@
 use std::time::{Duration, Instant};
 
 use libfuzzer_sys::fuzz_target;
-use tessera_coordinator::state::{Core, Job, Merged, Unit};
+use tessera_coordinator::job::{Job, Unit};
+use tessera_coordinator::scheduler::{Merged, Scheduler};
+use tessera_proto::ids::{JobId, LeaseId};
 use tessera_coordinator::store::{JobPhase, JobRecord};
 use tessera_render::TileSums;
 
@@ -27,7 +29,7 @@ fn record(id: u64) -> JobRecord {
         spp: 9,
         seed: 0,
         batch: 2,
-        strategy: "mis".into(),
+        strategy: tessera_render::Strategy::Mis,
         tile_size: 4,
         output_name: format!("o{id}.exr"),
         ..JobRecord::default()
@@ -71,10 +73,10 @@ fn forged(job: &Job, u: Unit, how: u8) -> TileSums {
 struct Fake {
     id: u64,
     hostile: bool,
-    leases: Vec<(String, u64, Unit)>,
+    leases: Vec<(LeaseId, JobId, Unit)>,
 }
 
-fn check(core: &Core) {
+fn check(core: &Scheduler) {
     for (&w, _) in &core.workers {
         assert!(
             core.leases_of(w) <= core.max_leases_per_worker,
@@ -102,10 +104,10 @@ fn check(core: &Core) {
 }
 
 fuzz_target!(|data: &[u8]| {
-    let mut core = Core::new(1, LEASE);
+    let mut core = Scheduler::new(1, LEASE);
     core.max_leases_per_worker = 4;
-    core.jobs.insert(1, Job::new(record(1)));
-    core.jobs.insert(2, Job::new(record(2)));
+    core.jobs.insert(JobId(1), Job::new(record(1)));
+    core.jobs.insert(JobId(2), Job::new(record(2)));
     core.next_job = 3;
     let mut now = Instant::now();
     let mut fakes: Vec<Fake> = Vec::new();
@@ -134,15 +136,16 @@ fuzz_target!(|data: &[u8]| {
                 let f = pick(fakes.len());
                 let w = fakes[f].id;
                 for g in core.lease(w, (arg % 8) as usize + 1, now) {
-                    let name = core.lease_name(g.lease);
-                    fakes[f].leases.push((name, g.job, g.unit));
+                    fakes[f].leases.push((g.lease, g.job, g.unit));
                 }
             }
             2 if !fakes.is_empty() => {
                 let f = &fakes[pick(fakes.len())];
-                let mut ids: Vec<String> = f.leases.iter().map(|l| l.0.clone()).collect();
-                ids.push(format!("L1-{arg}"));
-                ids.push("garbage".into());
+                let mut ids: Vec<LeaseId> = f.leases.iter().map(|l| l.0).collect();
+                // A lease number of this boot that may be another worker's, and one of
+                // another boot.
+                ids.push(LeaseId { epoch: 1, n: arg.into() });
+                ids.push(LeaseId { epoch: 0, n: 1 });
                 core.heartbeat(f.id, &ids, now);
             }
             3 if !fakes.is_empty() => {
@@ -174,7 +177,7 @@ fuzz_target!(|data: &[u8]| {
                     honest(j, unit)
                 };
                 let in_range_lie = lie && arg % 7 == 6;
-                let r = core.submit(w, &name, job, unit, sums, now);
+                let r = core.submit(w, name, job, unit, sums, now);
                 if owner != f {
                     assert!(
                         !matches!(r, Ok(Merged::New { .. })),
@@ -188,7 +191,7 @@ fuzz_target!(|data: &[u8]| {
                         arg % 7
                     );
                 }
-                if in_range_lie && job == 1 && matches!(r, Ok(Merged::New { .. })) {
+                if in_range_lie && job == JobId(1) && matches!(r, Ok(Merged::New { .. })) {
                     tainted = true;
                 }
                 if owner == f {
@@ -200,13 +203,13 @@ fuzz_target!(|data: &[u8]| {
                 // A worker that says it cannot render one of job 2's units fails job 2 only.
                 let i = pick(fakes.len());
                 let f = &mut fakes[i];
-                if let Some(i) = f.leases.iter().position(|l| l.1 == 2) {
+                if let Some(i) = f.leases.iter().position(|l| l.1 == JobId(2)) {
                     let l = f.leases.remove(i);
                     core.cannot_render(f.id, &[l.0], "too big", 1);
                 }
             }
             8 => {
-                core.end_job(2, JobPhase::Cancelled, String::new(), 1);
+                core.end_job(JobId(2), JobPhase::Cancelled, String::new(), 1);
             }
             _ => {}
         }
@@ -216,25 +219,24 @@ fuzz_target!(|data: &[u8]| {
     // Liveness: the hostile workers keep their leases alive and never finish; a fresh honest
     // worker must still get job 1 done.
     let h = core.register("honest".into(), 1, "v".into(), "h".into(), now);
-    let total = core.jobs[&1].units_total();
+    let total = core.jobs[&JobId(1)].units_total();
     for round in 0.. {
-        if !core.jobs[&1].is_live() {
+        if !core.jobs[&JobId(1)].is_live() {
             break;
         }
         assert!(
             round < 10 * total + 50,
             "job 1 stalled with {} of {total} units",
-            core.jobs[&1].units_done
+            core.jobs[&JobId(1)].units_done
         );
         for f in fakes.iter().filter(|f| f.hostile) {
-            let ids: Vec<String> = f.leases.iter().map(|l| l.0.clone()).collect();
+            let ids: Vec<LeaseId> = f.leases.iter().map(|l| l.0).collect();
             core.heartbeat(f.id, &ids, now);
         }
         for g in core.lease(h, 4, now) {
-            let name = core.lease_name(g.lease);
             let j = &core.jobs[&g.job];
             let sums = honest(j, g.unit);
-            let _ = core.submit(h, &name, g.job, g.unit, sums, now);
+            let _ = core.submit(h, g.lease, g.job, g.unit, sums, now);
         }
         check(&core);
         now += LEASE / 2;
@@ -243,7 +245,7 @@ fuzz_target!(|data: &[u8]| {
         return;
     }
     // Every merged result was honest: the sums are the in-order fold, bit for bit.
-    let job = &core.jobs[&1];
+    let job = &core.jobs[&JobId(1)];
     if job.rec.phase != JobPhase::Active {
         return;
     }

@@ -99,7 +99,6 @@ impl StrategyArg {
             StrategyArg::Nee => Strategy::Nee,
         }
     }
-
 }
 
 /// Fails early, before any rendering, if `out` cannot be written: its directory does not

@@ -21,7 +21,6 @@ pub struct Unit {
     pub batch: u32,
 }
 
-
 /// Merged sums of one tile: batches `0..next` folded in order, plus results that arrived early.
 #[derive(Debug, Default)]
 pub struct TileAcc {
@@ -85,7 +84,6 @@ impl TileGrid {
     }
 }
 
-
 /// A job in memory.
 #[derive(Debug)]
 pub struct Job {
@@ -121,8 +119,6 @@ pub struct Job {
     /// Every unit is in; the EXR is being written.
     pub finishing: bool,
 }
-
-
 
 /// Whether one pixel's sums could come from `k` finite samples. The renderer's samples are
 /// f32, so each adds at most `f32::MAX` to a sum and `f32::MAX²` to a squared sum: a result
@@ -367,7 +363,12 @@ impl Job {
     /// (with any early results it lets in after it), or else kept until its turn. Tiles fold
     /// their batches in index order from zero, so the sums are the same bits whatever order
     /// results arrive in. Returns the store changes and whether it was the job's last unit.
-    pub fn merge(&mut self, unit: Unit, sums: TileSums, now: Instant) -> Result<(Vec<Op>, bool), Refusal> {
+    pub fn merge(
+        &mut self,
+        unit: Unit,
+        sums: TileSums,
+        now: Instant,
+    ) -> Result<(Vec<Op>, bool), Refusal> {
         let id = self.rec.id;
         let samples = sums.rect.area() as u64 * sums.samples.len() as u64;
         self.units_done += 1;
@@ -404,7 +405,12 @@ impl Job {
             acc.noise = noise;
             ops.push(Op::PutTile(id, unit.tile, encode_sums(total)));
         } else {
-            ops.push(Op::PutPending(id, unit.tile, unit.batch, encode_sums(&sums)));
+            ops.push(Op::PutPending(
+                id,
+                unit.tile,
+                unit.batch,
+                encode_sums(&sums),
+            ));
             acc.pending.insert(unit.batch, sums);
         }
         let finished = self.units_done == self.units_total();

@@ -157,7 +157,15 @@ mod tests {
 
     #[test]
     fn names_are_plain_files_and_default_forms_are_kept_for_their_jobs() {
-        for bad in ["", ".exr", "a/b.exr", "../x.exr", "x.png", ".hidden.exr", "job-000004.exr"] {
+        for bad in [
+            "",
+            ".exr",
+            "a/b.exr",
+            "../x.exr",
+            "x.png",
+            ".hidden.exr",
+            "job-000004.exr",
+        ] {
             assert!(check_output_name(bad).is_err(), "{bad:?}");
         }
         assert!(check_output_name("shot_010-v2.exr").is_ok());
@@ -171,7 +179,9 @@ mod tests {
         std::os::unix::fs::symlink("/nonexistent", dir.path().join("job-000004.exr"))
             .expect("link");
         let names = OutputNames::new(dir.path());
-        let (id, name) = names.choose(JobId(3), None, std::iter::empty()).expect("free");
+        let (id, name) = names
+            .choose(JobId(3), None, std::iter::empty())
+            .expect("free");
         assert_eq!((id, name.as_str()), (JobId(5), "job-000005.exr"));
         let taken = [(JobId(1), "a.exr")];
         assert!(matches!(

@@ -78,7 +78,6 @@ pub enum Merged {
     Discarded,
 }
 
-
 /// A unit handed to a worker.
 #[derive(Debug)]
 pub struct Granted {
@@ -268,8 +267,7 @@ impl Scheduler {
             if job.rec.phase == JobPhase::Active && job.units_done == job.units_total() {
                 job.finishing = true;
                 to_finish.push(id);
-            } else if job.rec.phase == JobPhase::Active
-                && job.rec.image_revision != IMAGE_REVISION
+            } else if job.rec.phase == JobPhase::Active && job.rec.image_revision != IMAGE_REVISION
             {
                 // Accepted by a coordinator of another renderer revision. Its merged sums are
                 // that revision's bits; adding this revision's would give an image neither
@@ -345,7 +343,9 @@ impl Scheduler {
         let (id, output_name) = names.choose(
             JobId(self.next_job),
             a.output_name,
-            self.jobs.values().map(|j| (j.id(), j.rec.output_name.as_str())),
+            self.jobs
+                .values()
+                .map(|j| (j.id(), j.rec.output_name.as_str())),
         )?;
         self.next_job = id.0 + 1;
         let s = &a.settings;
@@ -371,10 +371,7 @@ impl Scheduler {
             final_noise: (0.0, 0.0),
             image_revision: IMAGE_REVISION,
         };
-        let ops = vec![
-            Op::PutScene(a.scene_hash, a.scene),
-            Op::PutJob(rec.clone()),
-        ];
+        let ops = vec![Op::PutScene(a.scene_hash, a.scene), Op::PutJob(rec.clone())];
         self.jobs.insert(id, Job::new(rec));
         Ok((id, ops))
     }
@@ -604,13 +601,7 @@ impl Scheduler {
     /// Fails the jobs of the leases that worker `w` says it can never render, with its
     /// reason; returns the store changes. Handing such a unit out again would only send it
     /// back and forth (with its scene) for ever.
-    pub fn cannot_render(
-        &mut self,
-        w: u64,
-        ids: &[LeaseId],
-        reason: &str,
-        now_ms: i64,
-    ) -> Vec<Op> {
+    pub fn cannot_render(&mut self, w: u64, ids: &[LeaseId], reason: &str, now_ms: i64) -> Vec<Op> {
         let who = format!(
             "worker {} ({})",
             self.worker_id(w),
@@ -759,7 +750,10 @@ impl Scheduler {
     pub fn units_leased(&self, job: &Job) -> u64 {
         job.issued
             .values()
-            .filter(|ids| ids.iter().any(|l| self.leases.get(l).is_some_and(|x| x.active)))
+            .filter(|ids| {
+                ids.iter()
+                    .any(|l| self.leases.get(l).is_some_and(|x| x.active))
+            })
             .count() as u64
     }
 }
@@ -822,10 +816,7 @@ mod tests {
         let now = Instant::now();
         let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
         let granted = core.lease(w, 100, now);
-        let names: Vec<(LeaseId, Unit)> = granted
-            .iter()
-            .map(|g| (g.lease, g.unit))
-            .collect();
+        let names: Vec<(LeaseId, Unit)> = granted.iter().map(|g| (g.lease, g.unit)).collect();
         // Tile 0's batches arrive 2, 0, 1; a copy of batch 0 arrives again.
         let order = [2u32, 0, 1];
         for b in order {
@@ -911,10 +902,7 @@ mod tests {
             core.submit(b, name, JOB, again.unit, r, later),
             Ok(Merged::Duplicate)
         ));
-        assert_eq!(
-            core.heartbeat(b, &[name], later),
-            vec![name]
-        );
+        assert_eq!(core.heartbeat(b, &[name], later), vec![name]);
     }
 
     #[test]
@@ -1131,14 +1119,9 @@ mod tests {
         // Nor can another worker renew, release or refuse the honest worker's leases.
         let g = core.lease(honest, 1, now).remove(0);
         let name = g.lease;
-        assert_eq!(
-            core.heartbeat(thief, &[name], now),
-            vec![name]
-        );
+        assert_eq!(core.heartbeat(thief, &[name], now), vec![name]);
         assert_eq!(core.release(thief, &[name]), 0);
-        assert!(core
-            .cannot_render(thief, &[name], "no", 1)
-            .is_empty());
+        assert!(core.cannot_render(thief, &[name], "no", 1).is_empty());
         assert!(core.jobs[&JOB].is_live());
     }
 
@@ -1165,11 +1148,7 @@ mod tests {
         );
         // The hoarders keep renewing and never send anything.
         let mut t = t0;
-        let mut all: Vec<LeaseId> = a
-            .iter()
-            .chain(&b)
-            .map(|g| g.lease)
-            .collect();
+        let mut all: Vec<LeaseId> = a.iter().chain(&b).map(|g| g.lease).collect();
         all.sort();
         for _ in 0..3 {
             t += lease / 2;
@@ -1209,12 +1188,7 @@ mod tests {
         let w = core.register("small".into(), 1, "v".into(), "s".into(), now);
         let g = core.lease(w, 1, now).remove(0);
         let name = g.lease;
-        let ops = core.cannot_render(
-            w,
-            &[name],
-            "scene.toml: film.width 20000 is above 16384",
-            5,
-        );
+        let ops = core.cannot_render(w, &[name], "scene.toml: film.width 20000 is above 16384", 5);
         assert!(ops
             .iter()
             .any(|o| matches!(o, Op::PutJob(r) if r.phase == JobPhase::Failed)));

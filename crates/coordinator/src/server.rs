@@ -139,7 +139,12 @@ impl InProcess {
 
     /// Lapses overdue leases, as the server's ticker does.
     pub fn expire(&self) {
-        if self.service.shared.scheduler().expire(std::time::Instant::now()) {
+        if self
+            .service
+            .shared
+            .scheduler()
+            .expire(std::time::Instant::now())
+        {
             self.service.shared.bump_work();
         }
     }

@@ -47,7 +47,8 @@ fn internal(e: String) -> Status {
 }
 
 fn job_id(s: &str) -> Result<JobId, Status> {
-    s.parse().map_err(|e: tessera_proto::ids::BadId| Status::invalid_argument(e.to_string()))
+    s.parse()
+        .map_err(|e: tessera_proto::ids::BadId| Status::invalid_argument(e.to_string()))
 }
 
 /// The credential a worker call quotes. A malformed one is as unknown as a wrong one, and
@@ -255,8 +256,7 @@ impl Jobs for Service {
         let out_dir = config.output_dir();
         let (id, units, rx) = {
             let mut core = self.shared.scheduler();
-            let (id, ops) =
-                core.admit(admission, bounds, &OutputNames::new(&out_dir), now_ms())?;
+            let (id, ops) = core.admit(admission, bounds, &OutputNames::new(&out_dir), now_ms())?;
             let units = core.jobs.get(&id).map_or(0, |j| j.units_total());
             (id, units, self.shared.queue_write(ops))
         };

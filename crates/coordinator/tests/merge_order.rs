@@ -6,8 +6,8 @@ use std::time::{Duration, Instant};
 use proptest::prelude::*;
 use tessera_coordinator::job::{Job, Unit};
 use tessera_coordinator::scheduler::{Merged, Scheduler};
-use tessera_proto::ids::JobId;
 use tessera_coordinator::store::JobRecord;
+use tessera_proto::ids::JobId;
 use tessera_render::TileSums;
 
 fn record(width: u32, spp: u32, batch: u32) -> JobRecord {
@@ -48,7 +48,8 @@ fn result(job: &Job, u: Unit) -> TileSums {
 /// and returns each tile's sums as bits.
 fn merge(width: u32, spp: u32, batch: u32, order: &[usize]) -> Vec<Vec<u64>> {
     let mut core = Scheduler::new(1, Duration::from_secs(60));
-    core.jobs.insert(JobId(1), Job::new(record(width, spp, batch)));
+    core.jobs
+        .insert(JobId(1), Job::new(record(width, spp, batch)));
     let now = Instant::now();
     // One worker holds every unit here, to submit them in any order.
     core.max_leases_per_worker = usize::MAX;
@@ -59,7 +60,10 @@ fn merge(width: u32, spp: u32, batch: u32, order: &[usize]) -> Vec<Vec<u64>> {
     for &i in order {
         let g = &granted[i % n];
         let r = result(&core.jobs[&JobId(1)], g.unit);
-        match core.submit(w, g.lease, JobId(1), g.unit, r, now).expect("accepted") {
+        match core
+            .submit(w, g.lease, JobId(1), g.unit, r, now)
+            .expect("accepted")
+        {
             Merged::New { .. } => merged += 1,
             Merged::Duplicate => {}
             // Once every unit is in, the job stops taking results.

@@ -111,7 +111,8 @@ impl TryFrom<&pb::RenderSettings> for RenderSettings {
 
 /// The settings of a message whose `settings` field is optional on the wire but required.
 pub fn settings_from_wire(s: Option<&pb::RenderSettings>) -> Result<RenderSettings, BadSettings> {
-    s.ok_or(BadSettings::Missing).and_then(RenderSettings::try_from)
+    s.ok_or(BadSettings::Missing)
+        .and_then(RenderSettings::try_from)
 }
 
 impl From<&TileSums> for pb::TileResult {
@@ -231,16 +232,24 @@ mod tests {
             ..Default::default()
         })
         .expect("defaults");
-        assert_eq!((unset.batch, unset.strategy), (DEFAULT_BATCH, Strategy::Mis));
+        assert_eq!(
+            (unset.batch, unset.strategy),
+            (DEFAULT_BATCH, Strategy::Mis)
+        );
         let bad = |m: pb::RenderSettings| RenderSettings::try_from(&m).map(|_| ());
-        assert_eq!(bad(pb::RenderSettings::default()), Err(BadSettings::NoSamples));
+        assert_eq!(
+            bad(pb::RenderSettings::default()),
+            Err(BadSettings::NoSamples)
+        );
         let big = pb::RenderSettings {
             spp: 1,
             batch: 70_000,
             ..Default::default()
         };
         assert_eq!(
-            RenderSettings::try_from(&big).map(|_| ()).map_err(|e| e.to_string()),
+            RenderSettings::try_from(&big)
+                .map(|_| ())
+                .map_err(|e| e.to_string()),
             Err("batch 70000 must be between 1 and 65536".to_string())
         );
         let unknown = pb::RenderSettings {

@@ -213,12 +213,19 @@ mod tests {
     #[test]
     fn other_spellings_and_junk_are_refused_by_name() {
         for s in [
-            "", "job-", "job-+00001", "job-00000a", "JOB-000001",
-            "job-000001 ", "job-99999999999999999999999",
+            "",
+            "job-",
+            "job-+00001",
+            "job-00000a",
+            "JOB-000001",
+            "job-000001 ",
+            "job-99999999999999999999999",
         ] {
             assert!(s.parse::<JobId>().is_err(), "{s:?}");
         }
-        for s in ["", "L", "L1", "L1-", "L-1", "L01-2", "L1-02", "L+1-2", "L1-2-3", "l1-2"] {
+        for s in [
+            "", "L", "L1", "L1-", "L-1", "L01-2", "L1-02", "L+1-2", "L1-2-3", "l1-2",
+        ] {
             assert!(s.parse::<LeaseId>().is_err(), "{s:?}");
         }
         for s in ["w1-2", "w1-2.", ".x", "w1.x", "wx-2.s"] {
@@ -227,7 +234,9 @@ mod tests {
         let e = "x".repeat(500).parse::<LeaseId>().expect_err("junk");
         assert_eq!(e.text.len(), MAX_ID_LEN);
         assert!(e.to_string().starts_with("malformed lease id"), "{e}");
-        let e = "w1-x.topsecret".parse::<WorkerCredential>().expect_err("bad");
+        let e = "w1-x.topsecret"
+            .parse::<WorkerCredential>()
+            .expect_err("bad");
         assert!(!e.to_string().contains("topsecret"), "{e}");
     }
 }

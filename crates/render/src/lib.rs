@@ -40,10 +40,10 @@ pub mod shape;
 pub mod tile;
 pub mod wide;
 
+pub use film::{assemble_frame, Image, MergeError, PixelRect, TileSums};
 pub use integrator::{
     RenderSettings, Strategy, BATCH_RANGE, DEFAULT_BATCH, DEFAULT_TILE, TILE_RANGE,
 };
-pub use film::{assemble_frame, Image, MergeError, PixelRect, TileSums};
 pub use tile::{render_frame, render_tile};
 
 /// Revision of the renderer's output bits: bumped by every change that alters any bit that any

@@ -14,13 +14,13 @@ use std::ops::Range;
 
 use glam::Vec3A;
 
+use crate::bsdf::Bsdf;
 use crate::integrator::{RenderSettings, Strategy};
 use crate::lanes::{dot, splat3, transpose3, v3, F, M, V3};
-use crate::packet::Rays;
 use crate::light::LightShape;
 use crate::math::{gamma, Ray};
+use crate::packet::Rays;
 use crate::sampling::{power_heuristic, sin_cos_polynomials, PixelSampler};
-use crate::bsdf::Bsdf;
 use crate::scene::Scene;
 use crate::shape::{Parallelogram, Shape};
 
@@ -412,14 +412,13 @@ impl<'a> Wide<'a> {
             let po = v3(|c| p_out[c].0);
             let sda = v3(|c| sd[c].0);
             let shadow = |lane| Ray::new(lane3(&po, lane), lane3(&sda, lane));
-            let blocked =
-                scene.accel().occluded_lanes(
-                    &scene.prims,
-                    &Rays::from_lanes(p_out, sd),
-                    shadow,
-                    nee,
-                    1.0 - 1e-4,
-                );
+            let blocked = scene.accel().occluded_lanes(
+                &scene.prims,
+                &Rays::from_lanes(p_out, sd),
+                shadow,
+                nee,
+                1.0 - 1e-4,
+            );
             let add = nee & !blocked;
             if add != 0 {
                 let mask = M::from_bits(add);

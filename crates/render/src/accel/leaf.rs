@@ -12,8 +12,8 @@ use std::ops::Range;
 use glam::{Vec3A, Vec4};
 
 use crate::lanes::{dot, splat3, F, M, V3};
-use crate::packet::{LaneHits, RayX4, Rays, MAX_LANES};
 use crate::math::Aabb;
+use crate::packet::{LaneHits, RayX4, Rays, MAX_LANES};
 use crate::shape::{Parallelogram, Shape};
 
 /// Parallelograms in lanes: four different quads against one ray splatted across the lanes

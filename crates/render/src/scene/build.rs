@@ -1,0 +1,530 @@
+//! Validation and conversion of a parsed scene file (the serde types of `format`) into the
+//! runtime [`Scene`]: each part of the file has a builder of its own, and every error is a key
+//! path with a message, which [`Scene::from_str`] turns into file:line:column.
+
+use std::collections::BTreeMap;
+
+use glam::{Affine3A, Mat3, Vec3, Vec3A};
+
+use super::{
+    CameraModel, Environment, EnvironmentKind, KeyPath, Limits, Material, MaterialKind, ObjectDesc,
+    Primitive, Scene, SceneFile, Seg, ShapeKind, TransformDesc,
+};
+use crate::accel::Accel;
+use crate::bsdf::Bsdf;
+use crate::camera::Camera;
+use crate::light::{Light, LightShape, Lights};
+use crate::math::v3;
+use crate::shape::{Shape, Transformed};
+
+/// What is wrong, and where in the file.
+pub(super) type Invalid = (KeyPath, String);
+
+fn root(k: &str) -> KeyPath {
+    KeyPath(vec![Seg::Key(k.to_string())])
+}
+
+fn finite3(v: [f32; 3], path: &KeyPath) -> Result<Vec3A, Invalid> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(v3(v))
+    } else {
+        Err((path.clone(), format!("must be finite numbers, got {v:?}")))
+    }
+}
+
+fn color(v: [f32; 3], path: &KeyPath, max_one: bool) -> Result<Vec3A, Invalid> {
+    let c = finite3(v, path)?;
+    if c.min_element() < 0.0 {
+        return Err((path.clone(), format!("must not be negative, got {v:?}")));
+    }
+    if max_one && c.max_element() > 1.0 {
+        return Err((
+            path.clone(),
+            format!(
+                "must be at most 1 (a surface cannot reflect more than it receives), got {v:?}"
+            ),
+        ));
+    }
+    Ok(c)
+}
+
+fn positive(x: f32, path: &KeyPath) -> Result<f32, Invalid> {
+    if x.is_finite() && x > 0.0 {
+        Ok(x)
+    } else {
+        Err((
+            path.clone(),
+            format!("must be a finite number greater than 0, got {x}"),
+        ))
+    }
+}
+
+fn finite(x: f32, path: &KeyPath) -> Result<f32, Invalid> {
+    if x.is_finite() {
+        Ok(x)
+    } else {
+        Err((path.clone(), format!("must be a finite number, got {x}")))
+    }
+}
+
+/// Rejects fields that do not belong to the chosen kind, so a typo'd or misplaced key is an
+/// error rather than silently ignored.
+fn only(
+    path: &KeyPath,
+    kind: &str,
+    present: &[(&str, bool)],
+    allowed: &[&str],
+) -> Result<(), Invalid> {
+    for (name, is) in present {
+        if *is && !allowed.contains(name) {
+            return Err((path.key(name), format!("`{name}` does not apply to {kind}")));
+        }
+    }
+    Ok(())
+}
+
+/// The value of a key that `kind` cannot do without, or an error at that key saying so.
+fn required<T>(value: Option<T>, path: &KeyPath, kind: &str, name: &str) -> Result<T, Invalid> {
+    value.ok_or_else(|| (path.key(name), format!("{kind} needs `{name}`")))
+}
+
+fn build_transform(t: &TransformDesc, path: &KeyPath) -> Result<Affine3A, Invalid> {
+    let m = if let Some(rows) = t.matrix {
+        if t.translate.is_some() || t.rotate.is_some() || t.scale.is_some() {
+            return Err((
+                path.key("matrix"),
+                "give either `matrix` or translate/rotate/scale, not both".into(),
+            ));
+        }
+        for (r, row) in rows.iter().enumerate() {
+            for (c, x) in row.iter().enumerate() {
+                if !x.is_finite() {
+                    return Err((
+                        path.key("matrix").index(r),
+                        format!("element {c} must be finite, got {x}"),
+                    ));
+                }
+            }
+        }
+        if rows[3] != [0.0, 0.0, 0.0, 1.0] {
+            return Err((
+                path.key("matrix").index(3),
+                format!(
+                    "the last row of an affine matrix must be [0, 0, 0, 1], got {:?}",
+                    rows[3]
+                ),
+            ));
+        }
+        let col = |c: usize| Vec3::new(rows[0][c], rows[1][c], rows[2][c]);
+        Affine3A::from_mat3_translation(Mat3::from_cols(col(0), col(1), col(2)), col(3))
+    } else {
+        let mut m = Affine3A::IDENTITY;
+        if let Some(s) = t.scale {
+            let s = finite3(s, &path.key("scale"))?;
+            m = Affine3A::from_scale(s.into()) * m;
+        }
+        if let Some(r) = &t.rotate {
+            let rp = path.key("rotate");
+            let axis = finite3(r.axis, &rp.key("axis"))?;
+            let axis = axis
+                .try_normalize()
+                .ok_or_else(|| (rp.key("axis"), "rotation axis must not be zero".to_string()))?;
+            let deg = finite(r.degrees, &rp.key("degrees"))?;
+            // In f64, rounded once: f32 `sin_cos` is picked per CPU at load time and may round
+            // differently, and every worker must build the same geometry bits.
+            let r = glam::DMat3::from_axis_angle(axis.as_dvec3(), f64::from(deg).to_radians());
+            let r = Mat3::from_cols(r.x_axis.as_vec3(), r.y_axis.as_vec3(), r.z_axis.as_vec3());
+            m = Affine3A::from_mat3(r) * m;
+        }
+        if let Some(tr) = t.translate {
+            let tr = finite3(tr, &path.key("translate"))?;
+            m = Affine3A::from_translation(tr.into()) * m;
+        }
+        m
+    };
+    let lin = m.matrix3;
+    let det = lin.determinant();
+    let scale = lin.x_axis.length() * lin.y_axis.length() * lin.z_axis.length();
+    if !(det.abs() > 1e-6 * scale) || !det.is_finite() || scale == 0.0 {
+        return Err((
+            path.clone(),
+            format!("transform is degenerate (determinant {det:e}): it flattens the shape"),
+        ));
+    }
+    Ok(m)
+}
+
+/// Whether the linear part is a rotation times a uniform scale; returns the scale.
+fn similarity_scale(m: &Affine3A) -> Option<f32> {
+    let (x, y, z) = (m.matrix3.x_axis, m.matrix3.y_axis, m.matrix3.z_axis);
+    let (lx, ly, lz) = (x.length(), y.length(), z.length());
+    let tol = 1e-5 * lx;
+    let ortho =
+        x.dot(y).abs() <= tol * ly && y.dot(z).abs() <= tol * lz && x.dot(z).abs() <= tol * lz;
+    ((lx - ly).abs() <= tol && (lx - lz).abs() <= tol && ortho).then_some(lx)
+}
+
+/// The runtime scene for a parsed file, or the first thing wrong with it.
+pub(super) fn build(desc: &SceneFile, limits: &Limits) -> Result<Scene, Invalid> {
+    if desc.version != 1 {
+        return Err((
+            root("version"),
+            format!(
+                "unsupported version {}; this tessera reads version 1",
+                desc.version
+            ),
+        ));
+    }
+    let (w, h) = film_size(desc, limits)?;
+    let camera = build_camera(desc, w, h)?;
+    let environment = build_environment(desc)?;
+    let (materials, names) = build_materials(desc)?;
+    if desc.objects.len() > limits.max_objects {
+        return Err((
+            root("objects"),
+            format!(
+                "{} objects is above the limit of {}",
+                desc.objects.len(),
+                limits.max_objects
+            ),
+        ));
+    }
+    let mut prims = Vec::with_capacity(desc.objects.len());
+    let mut lights = Vec::new();
+    for (i, o) in desc.objects.iter().enumerate() {
+        let op = root("objects").index(i);
+        let material = *names.get(o.material.as_str()).ok_or_else(|| {
+            let known: Vec<&str> = names.keys().copied().collect();
+            (
+                op.key("material"),
+                format!(
+                    "material `{}` is not defined (defined: {})",
+                    o.material,
+                    if known.is_empty() {
+                        "none".to_string()
+                    } else {
+                        known.join(", ")
+                    }
+                ),
+            )
+        })?;
+        let emits = materials[material as usize].emission.max_element() > 0.0;
+        let shape = build_shape(o, &op, emits)?;
+        let bounds = shape.bounds();
+        if o.shape != ShapeKind::Plane && !bounds.is_finite() {
+            return Err((
+                op.clone(),
+                "object is too large: its bounds overflow f32".into(),
+            ));
+        }
+        let light = if emits {
+            add_lights(&shape, &materials[material as usize], &mut lights)
+        } else {
+            u32::MAX
+        };
+        prims.push(Primitive {
+            shape,
+            material,
+            light,
+        });
+    }
+    let accel = Accel::build(&prims);
+    Ok(Scene {
+        camera,
+        width: w,
+        height: h,
+        prims,
+        materials,
+        lights: Lights::new(lights),
+        environment,
+        max_depth: desc.render.max_depth,
+        hash: String::new(),
+        accel,
+    })
+}
+
+/// The film's size, within the limits.
+fn film_size(desc: &SceneFile, limits: &Limits) -> Result<(u32, u32), Invalid> {
+    let fp = root("film");
+    let (w, h) = (desc.film.width, desc.film.height);
+    for (name, v) in [("width", w), ("height", h)] {
+        if v == 0 {
+            return Err((fp.key(name), "must be at least 1".into()));
+        }
+        if v > limits.max_resolution {
+            return Err((
+                fp.key(name),
+                format!("{v} is above the limit of {}", limits.max_resolution),
+            ));
+        }
+    }
+    if w as u64 * h as u64 > limits.max_pixels {
+        return Err((
+            fp.clone(),
+            format!("{w}×{h} is above the limit of {} pixels", limits.max_pixels),
+        ));
+    }
+    Ok((w, h))
+}
+
+/// The camera of a `w` × `h` film.
+fn build_camera(desc: &SceneFile, w: u32, h: u32) -> Result<Camera, Invalid> {
+    let fp = root("film");
+    let cp = root("camera");
+    let c = &desc.camera;
+    let eye = finite3(c.eye, &cp.key("eye"))?;
+    let fov = finite(c.fov, &cp.key("fov"))?;
+    if !(fov > 0.0 && fov < 180.0) {
+        return Err((
+            cp.key("fov"),
+            format!("field of view must be in (0°, 180°), got {fov}°"),
+        ));
+    }
+    let present = [
+        ("target", c.target.is_some()),
+        ("up", c.up.is_some()),
+        ("pitch", c.pitch.is_some()),
+        ("yaw", c.yaw.is_some()),
+    ];
+    let camera = match c.model {
+        CameraModel::LookAt => {
+            only(&cp, "a look_at camera", &present, &["target", "up"])?;
+            let target = required(c.target, &cp, "a look_at camera", "target")?;
+            let target = finite3(target, &cp.key("target"))?;
+            let up = finite3(c.up.unwrap_or([0.0, 1.0, 0.0]), &cp.key("up"))?;
+            Camera::look_at(eye, target, up, fov.to_radians(), w, h).ok_or_else(|| {
+                (
+                    cp.clone(),
+                    "degenerate camera: target equals eye, or up is parallel to the view direction"
+                        .to_string(),
+                )
+            })?
+        }
+        CameraModel::PitchYaw => {
+            only(&cp, "a pitch_yaw camera", &present, &["pitch", "yaw"])?;
+            if w < 2 {
+                return Err((
+                    fp.key("width"),
+                    "the pitch_yaw camera needs a width of at least 2 (its field of view spans the outermost pixel centres)"
+                        .into(),
+                ));
+            }
+            let pitch = finite(c.pitch.unwrap_or(0.0), &cp.key("pitch"))?;
+            let yaw = finite(c.yaw.unwrap_or(0.0), &cp.key("yaw"))?;
+            Camera::pitch_yaw(
+                eye,
+                pitch.to_radians(),
+                yaw.to_radians(),
+                fov.to_radians(),
+                w,
+                h,
+            )
+        }
+    };
+    Ok(camera)
+}
+
+/// The environment, if the file has one.
+fn build_environment(desc: &SceneFile) -> Result<Option<Environment>, Invalid> {
+    let environment = match &desc.environment {
+        None => None,
+        Some(e) => {
+            let ep = root("environment");
+            let present = [
+                ("radiance", e.radiance.is_some()),
+                ("top", e.top.is_some()),
+                ("bottom", e.bottom.is_some()),
+            ];
+            Some(match e.kind {
+                EnvironmentKind::Constant => {
+                    only(&ep, "a constant environment", &present, &["radiance"])?;
+                    let r = required(e.radiance, &ep, "a constant environment", "radiance")?;
+                    Environment::Constant(color(r, &ep.key("radiance"), false)?)
+                }
+                EnvironmentKind::Gradient => {
+                    only(&ep, "a gradient environment", &present, &["top", "bottom"])?;
+                    let top = required(e.top, &ep, "a gradient environment", "top")?;
+                    let bottom = required(e.bottom, &ep, "a gradient environment", "bottom")?;
+                    Environment::Gradient {
+                        top: color(top, &ep.key("top"), false)?,
+                        bottom: color(bottom, &ep.key("bottom"), false)?,
+                    }
+                }
+            })
+        }
+    };
+    Ok(environment)
+}
+
+/// The materials, and each one's index by name.
+fn build_materials(desc: &SceneFile) -> Result<(Vec<Material>, BTreeMap<&str, u32>), Invalid> {
+    let mut materials = Vec::with_capacity(desc.materials.len());
+    let mut names = BTreeMap::new();
+    for (name, m) in &desc.materials {
+        let mp = root("materials").key(name);
+        let present = [
+            ("albedo", m.albedo.is_some()),
+            ("reflectance", m.reflectance.is_some()),
+            ("ior", m.ior.is_some()),
+        ];
+        let bsdf = match m.kind {
+            MaterialKind::Diffuse => {
+                only(&mp, "a diffuse material", &present, &["albedo"])?;
+                let a = required(m.albedo, &mp, "a diffuse material", "albedo")?;
+                Bsdf::Diffuse(color(a, &mp.key("albedo"), true)?)
+            }
+            MaterialKind::Mirror => {
+                only(&mp, "a mirror material", &present, &["reflectance"])?;
+                Bsdf::Mirror(color(
+                    m.reflectance.unwrap_or([1.0; 3]),
+                    &mp.key("reflectance"),
+                    true,
+                )?)
+            }
+            MaterialKind::Dielectric => {
+                only(&mp, "a dielectric material", &present, &["ior"])?;
+                let ior = required(m.ior, &mp, "a dielectric material", "ior")?;
+                Bsdf::Dielectric(positive(ior, &mp.key("ior"))?)
+            }
+        };
+        let emission = match m.emission {
+            Some(e) => color(e, &mp.key("emission"), false)?,
+            None => Vec3A::ZERO,
+        };
+        if m.two_sided.is_some() && m.kind == MaterialKind::Dielectric && m.emission.is_none() {
+            return Err((
+                mp.key("two_sided"),
+                "a dielectric has two sides by nature; `two_sided` does not apply".into(),
+            ));
+        }
+        names.insert(name.as_str(), materials.len() as u32);
+        materials.push(Material {
+            bsdf,
+            emission,
+            two_sided: m.two_sided.unwrap_or(false),
+        });
+    }
+    Ok((materials, names))
+}
+
+/// An object's shape, in world space. `emits` rules out shapes that cannot be lights.
+fn build_shape(o: &ObjectDesc, op: &KeyPath, emits: bool) -> Result<Shape, Invalid> {
+    let xf = match &o.transform {
+        Some(t) => build_transform(t, &op.key("transform"))?,
+        None => Affine3A::IDENTITY,
+    };
+    let present = [
+        ("center", o.center.is_some()),
+        ("radius", o.radius.is_some()),
+        ("min", o.min.is_some()),
+        ("max", o.max.is_some()),
+        ("size", o.size.is_some()),
+        ("point", o.point.is_some()),
+        ("normal", o.normal.is_some()),
+    ];
+    let shape = match o.shape {
+        ShapeKind::Sphere => {
+            only(&op, "a sphere", &present, &["center", "radius"])?;
+            let c = finite3(o.center.unwrap_or([0.0; 3]), &op.key("center"))?;
+            let r = positive(o.radius.unwrap_or(1.0), &op.key("radius"))?;
+            match similarity_scale(&xf) {
+                Some(s) => Shape::Sphere {
+                    center: xf.transform_point3a(c),
+                    radius: r * s,
+                },
+                None => {
+                    if emits {
+                        return Err((op.key("transform"), "an emissive sphere must use a uniform scale (light sampling needs a true sphere)".into()));
+                    }
+                    let m = xf
+                        * Affine3A::from_translation(c.into())
+                        * Affine3A::from_scale(Vec3::splat(r));
+                    Shape::Ellipsoid(Transformed::new(m))
+                }
+            }
+        }
+        ShapeKind::Box => {
+            only(&op, "a box", &present, &["min", "max"])?;
+            let lo = finite3(o.min.unwrap_or([-1.0; 3]), &op.key("min"))?;
+            let hi = finite3(o.max.unwrap_or([1.0; 3]), &op.key("max"))?;
+            if !(hi.cmpgt(lo).all()) {
+                return Err((
+                    op.key("max"),
+                    format!(
+                        "box size must be positive on every axis: min {:?}, max {:?}",
+                        lo.to_array(),
+                        hi.to_array()
+                    ),
+                ));
+            }
+            Shape::Cuboid {
+                min: lo,
+                max: hi,
+                xf: Transformed::new(xf),
+            }
+        }
+        ShapeKind::Rect => {
+            only(&op, "a rect", &present, &["size"])?;
+            let [sw, sh] = o.size.unwrap_or([2.0, 2.0]);
+            let sw = positive(sw, &op.key("size").index(0))?;
+            let sh = positive(sh, &op.key("size").index(1))?;
+            let t = Transformed::new(xf);
+            let p0 = xf.transform_point3a(Vec3A::new(-sw / 2.0, -sh / 2.0, 0.0));
+            let e1 = xf.transform_vector3a(Vec3A::new(sw, 0.0, 0.0));
+            let e2 = xf.transform_vector3a(Vec3A::new(0.0, sh, 0.0));
+            let n = (t.normal_matrix * Vec3A::Z).normalize();
+            Shape::Parallelogram(crate::shape::Parallelogram::new(p0, e1, e2, n))
+        }
+        ShapeKind::Plane => {
+            only(&op, "a plane", &present, &["point", "normal"])?;
+            if emits {
+                return Err((
+                    op.key("material"),
+                    "an infinite plane cannot emit (its power would be infinite); use a rect"
+                        .into(),
+                ));
+            }
+            let p = finite3(o.point.unwrap_or([0.0; 3]), &op.key("point"))?;
+            let n = finite3(o.normal.unwrap_or([0.0, 1.0, 0.0]), &op.key("normal"))?;
+            let n = n.try_normalize().ok_or_else(|| {
+                (
+                    op.key("normal"),
+                    "plane normal must not be zero".to_string(),
+                )
+            })?;
+            let t = Transformed::new(xf);
+            Shape::Plane {
+                point: xf.transform_point3a(p),
+                normal: (t.normal_matrix * n).normalize(),
+            }
+        }
+    };
+    Ok(shape)
+}
+
+/// Adds the lights of an emissive shape (one per face of a box) and returns the first one's
+/// index.
+fn add_lights(shape: &Shape, mat: &Material, lights: &mut Vec<Light>) -> u32 {
+    let first = lights.len() as u32;
+    let mut add = |s: LightShape| {
+        lights.push(Light {
+            shape: s,
+            radiance: mat.emission,
+            two_sided: mat.two_sided,
+        })
+    };
+    match &shape {
+        Shape::Sphere { center, radius } => add(LightShape::Sphere {
+            center: *center,
+            radius: *radius,
+        }),
+        Shape::Parallelogram(q) => add(LightShape::Quad(q.clone())),
+        Shape::Cuboid { min, max, xf } => {
+            for f in Shape::cuboid_faces(*min, *max, xf) {
+                add(LightShape::Quad(f));
+            }
+        }
+        Shape::Ellipsoid(_) | Shape::Plane { .. } => unreachable!("rejected above"),
+    }
+    first
+}
