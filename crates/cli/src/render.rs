@@ -8,7 +8,7 @@ use anyhow::{bail, Context, Result};
 use indicatif::ProgressBar;
 use tessera_render::output::{render_metadata, write_exr, write_png_preview, ExrChannels, Preview};
 use tessera_render::scene::{Limits, Scene};
-use tessera_render::{render_frame, RenderSettings, Strategy, BATCH_RANGE, DEFAULT_BATCH};
+use tessera_render::{render_frame, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_BATCH};
 
 /// clap's parser for a batch size in [`BATCH_RANGE`].
 pub fn batch_range() -> clap::builder::RangedI64ValueParser<u32> {
@@ -72,6 +72,10 @@ pub struct RenderArgs {
     /// Add a per-pixel sample-count channel (samples) to the EXR.
     #[arg(long)]
     sample_count: bool,
+    /// Which path tracer runs. Every choice gives the same bits; it is for timing the tracers
+    /// against each other.
+    #[arg(long, value_enum, default_value_t = TracerArg::Auto)]
+    tracer: TracerArg,
     /// Largest spp accepted.
     #[arg(long, default_value_t = Limits::default().max_spp)]
     max_spp: u32,
@@ -97,6 +101,33 @@ impl StrategyArg {
             StrategyArg::Mis => Strategy::Mis,
             StrategyArg::Bsdf => Strategy::Bsdf,
             StrategyArg::Nee => Strategy::Nee,
+        }
+    }
+}
+
+/// `--tracer` values.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum TracerArg {
+    /// The many-path tracer where it applies, else one path at a time.
+    Auto,
+    /// One path at a time.
+    Scalar,
+    /// The many-path tracer, 4 lanes.
+    Lanes4,
+    /// The many-path tracer, 8 lanes.
+    Lanes8,
+    /// The many-path tracer, 16 lanes.
+    Lanes16,
+}
+
+impl TracerArg {
+    fn to_tracer(self) -> Tracer {
+        match self {
+            TracerArg::Auto => Tracer::Auto,
+            TracerArg::Scalar => Tracer::Scalar,
+            TracerArg::Lanes4 => Tracer::Lanes(4),
+            TracerArg::Lanes8 => Tracer::Lanes(8),
+            TracerArg::Lanes16 => Tracer::Lanes(16),
         }
     }
 }
@@ -169,7 +200,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
         ..Limits::default()
     };
     let scene = Scene::load(&args.scene, &limits)?;
-    let settings = args.settings.to_settings();
+    let settings = RenderSettings {
+        tracer: args.tracer.to_tracer(),
+        ..args.settings.to_settings()
+    };
     let mut pool = rayon::ThreadPoolBuilder::new();
     if let Some(t) = args.threads {
         pool = pool.num_threads(t as usize);

@@ -555,3 +555,42 @@ fn bench_measures_a_peer_command_point_by_point_and_rejects_its_bad_answers() {
     let r = run("while read s n k; do echo \"tessera,$s,$n,$k,2,0.5,0.001,0.02\"; echo done; done");
     assert_clean_failure(&r, &["may not be named tessera"]);
 }
+
+/// `--tracer` picks how the samples are traced, never what they are: every tracer writes the
+/// same EXR bytes for the Cornell box, the scene the many-path tracer applies to.
+#[test]
+fn every_tracer_writes_the_same_exr() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let mut files = Vec::new();
+    for tracer in ["auto", "scalar", "lanes4", "lanes8", "lanes16"] {
+        let out = dir.path().join(format!("{tracer}.exr"));
+        let r = tessera(&[
+            "render",
+            &repo("scenes/cornell-box.toml"),
+            "--spp",
+            "3",
+            "--batch",
+            "2",
+            "--tracer",
+            tracer,
+            "--output",
+            out.to_str().expect("utf8"),
+        ]);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        files.push((tracer, std::fs::read(&out).expect("exr")));
+    }
+    for (tracer, bytes) in &files[1..] {
+        assert!(bytes == &files[0].1, "--tracer {tracer} differs from auto");
+    }
+    let bad = tessera(&[
+        "render",
+        &repo("scenes/cornell-box.toml"),
+        "--spp",
+        "1",
+        "--tracer",
+        "lanes5",
+        "--output",
+        "x.exr",
+    ]);
+    assert_clean_failure(&bad, &["--tracer"]);
+}

@@ -63,6 +63,21 @@ pub const TILE_RANGE: std::ops::RangeInclusive<u32> = 4..=512;
 /// The coordinator's tile edge for jobs that do not choose one.
 pub const DEFAULT_TILE: u32 = 128;
 
+/// Which path tracer renders. Every choice gives the same bits (`tests/wide.rs` compares the
+/// many-path tracer with the scalar one sample by sample), so this is no part of a job's
+/// identity and never travels to workers: it exists to time the tracers against each other.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Tracer {
+    /// The many-path tracer for scenes whose bounce it models, the scalar one for the rest.
+    #[default]
+    Auto,
+    /// One path at a time, always.
+    Scalar,
+    /// The many-path tracer with this many lanes (4, 8 or 16) where it applies; other counts,
+    /// and other scenes, trace one path at a time.
+    Lanes(usize),
+}
+
 /// Everything besides the scene that decides a render's pixels.
 #[derive(Clone, Debug)]
 pub struct RenderSettings {
@@ -83,6 +98,8 @@ pub struct RenderSettings {
     /// walls alive, whose deep bounces carry much of its light, and measured less
     /// relMSE·seconds there (docs/renderer.md).
     pub rr_threshold: f32,
+    /// Which tracer runs (the same bits whichever).
+    pub tracer: Tracer,
 }
 
 impl Default for RenderSettings {
@@ -94,6 +111,7 @@ impl Default for RenderSettings {
             strategy: Strategy::Mis,
             rr_depth: 3,
             rr_threshold: 0.25,
+            tracer: Tracer::Auto,
         }
     }
 }

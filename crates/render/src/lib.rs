@@ -42,7 +42,7 @@ pub mod wide;
 
 pub use film::{assemble_frame, Image, MergeError, PixelRect, TileSums};
 pub use integrator::{
-    RenderSettings, Strategy, BATCH_RANGE, DEFAULT_BATCH, DEFAULT_TILE, TILE_RANGE,
+    RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_BATCH, DEFAULT_TILE, TILE_RANGE,
 };
 pub use tile::{render_frame, render_tile};
 

@@ -13,7 +13,7 @@ use std::ops::Range;
 use rayon::prelude::*;
 
 use crate::film::{assemble_frame, PixelRect, TileSums};
-use crate::integrator::{sample_pixel, RenderSettings};
+use crate::integrator::{sample_pixel, RenderSettings, Tracer};
 use crate::sampling::PixelSampler;
 use crate::scene::Scene;
 
@@ -79,19 +79,11 @@ pub fn render_tile(
     let w = rect.width as usize;
     let batch = settings.batch.max(1);
     // Scenes whose bounce the many-path tracer models take it: the same bits, and more
-    // samples a second than the scalar trace (docs/renderer.md). `TESSERA_SCALAR`
-    // forces one path at a time and `TESSERA_LANES` (4, 8 or 16) the lane count, for timing them
-    // against each other; neither can change a bit of the output.
-    let wide = if std::env::var_os("TESSERA_SCALAR").is_some() {
-        None
-    } else {
-        let lanes = std::env::var("TESSERA_LANES")
-            .ok()
-            .and_then(|v| v.parse().ok());
-        crate::wide::Wide::new(scene, settings).and_then(|w| match lanes {
-            Some(n) => w.with_lanes(n),
-            None => Some(w),
-        })
+    // samples a second than the scalar trace (docs/renderer.md).
+    let wide = match settings.tracer {
+        Tracer::Scalar => None,
+        Tracer::Auto => crate::wide::Wide::new(scene, settings),
+        Tracer::Lanes(n) => crate::wide::Wide::new(scene, settings).and_then(|w| w.with_lanes(n)),
     };
     let nonfinite: u64 = out
         .sum
