@@ -27,7 +27,7 @@ while [ $# -gt 0 ]; do
     esac
 done
 
-cargo build --release -p tessera-cli
+cargo build --release -p tessera-cli --features bench
 mkdir -p target/bench
 peers=()
 if command -v python3 >/dev/null; then

@@ -30,6 +30,7 @@ macro_rules! errln {
     }};
 }
 
+#[cfg(feature = "bench")]
 mod bench;
 mod farm;
 mod render;
@@ -62,7 +63,16 @@ enum Command {
     Fetch(farm::FetchArgs),
     /// Measure speed against error: timed renders at 4…4096 spp, relMSE against references,
     /// and a report with a log–log plot (and peers' figures, if given).
+    #[cfg(feature = "bench")]
     Bench(bench::BenchArgs),
+    /// Measure speed against error (in builds with the `bench` feature only).
+    #[cfg(not(feature = "bench"))]
+    #[command(disable_help_flag = true)]
+    Bench {
+        /// Ignored: this build has no benchmark harness.
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true, hide = true)]
+        args: Vec<String>,
+    },
 }
 
 fn main() -> ExitCode {
@@ -77,7 +87,13 @@ fn main() -> ExitCode {
         Command::Cancel(args) => farm::cancel(args),
         Command::Workers(args) => farm::workers(args),
         Command::Fetch(args) => farm::fetch(args),
+        #[cfg(feature = "bench")]
         Command::Bench(args) => bench::run(args),
+        #[cfg(not(feature = "bench"))]
+        Command::Bench { .. } => Err(anyhow::anyhow!(
+            "this tessera was built without the benchmark harness; build one with \
+             `cargo build --release -p tessera-cli --features bench` (bench/speed-vs-error.sh does)"
+        )),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -61,3 +61,26 @@ pub fn tessera_at(args: &[&str], url: &str) -> Output {
         .output()
         .expect("run tessera")
 }
+
+/// Runs `tessera` with `args` and nothing else set.
+pub fn tessera(args: &[&str]) -> Output {
+    Command::new(BIN).args(args).output().expect("run tessera")
+}
+
+/// Writes `text` to `dir/name` and returns the path.
+pub fn write(dir: &std::path::Path, name: &str, text: &str) -> String {
+    let p = dir.join(name);
+    std::fs::write(&p, text).expect("write scene");
+    p.display().to_string()
+}
+
+/// Fails with stderr and asserts the message is a one-line error, not a panic.
+pub fn assert_clean_failure(out: &Output, needles: &[&str]) {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "should fail: {stderr}");
+    assert!(!stderr.contains("panicked"), "panic: {stderr}");
+    assert!(!stderr.contains("RUST_BACKTRACE"), "panic: {stderr}");
+    for n in needles {
+        assert!(stderr.contains(n), "missing {n:?} in: {stderr}");
+    }
+}

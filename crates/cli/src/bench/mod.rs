@@ -1,0 +1,308 @@
+//! `tessera bench`: speed against error.
+//!
+//! Renders each scene at 4, 16, … spp with several seeds, times every render, and measures
+//! relMSE = mean over pixels and channels of (I − R)²/(R² + 0.01) against a converged
+//! reference. It writes a CSV, a markdown report and a log–log plot of error against time.
+//! Rows from peers (other renderers, measured by `bench/mitsuba_peer.py` in the same run) are
+//! read from CSV files in the same format, or measured point by point, interleaved with
+//! tessera's own, by a peer command (`--peer-command`, see [`PeerCommand`]), and compared: the
+//! equal-time relMSE ratio is the ratio of relMSE·seconds, which is constant once error falls
+//! as 1/time.
+
+//!
+//! Built only with the `bench` feature (`cargo build --release -p tessera-cli --features
+//! bench`), so that the farm and render commands never compile beside the plotting library.
+//! The parts: [`peer`] (CSV rows and the peer protocol), [`stats`], [`report`] and [`plot`].
+
+mod peer;
+mod plot;
+mod report;
+mod stats;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use tessera_render::output::{
+    read_exr_provenance, read_exr_rgb, render_metadata, write_exr, ExrChannels, RgbImage,
+};
+use tessera_render::scene::{Limits, Scene};
+use tessera_render::{render_frame, RenderSettings};
+
+use peer::{PeerCommand, Row, CSV_HEADER};
+use report::{measured_clock_ghz, report};
+use stats::rel_mse;
+
+/// Arguments of `tessera bench`.
+#[derive(Debug, clap::Args)]
+pub struct BenchArgs {
+    /// Scene files (default: the bundled cornell-box, spheres and glass-mirror scenes).
+    #[arg(long = "scene")]
+    scenes: Vec<PathBuf>,
+    /// Largest spp: renders at 4, 16, 64, … up to this (a power of 4).
+    #[arg(long, default_value_t = 4096, value_parser = clap::value_parser!(u32).range(4..=65536))]
+    max_spp: u32,
+    /// Seeds per spp.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
+    seeds: u32,
+    /// Worker threads (default: every core).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    threads: Option<u32>,
+    /// A converged reference for a scene, as NAME=FILE.exr (NAME is the scene file's stem, and
+    /// must be one of the scenes benchmarked).
+    /// cornell-box defaults to the independent Mitsuba reference in tests/data; other scenes
+    /// without one get a tessera render at --reference-spp, cached under --cache.
+    #[arg(long = "reference")]
+    references: Vec<String>,
+    /// Samples per pixel of the references tessera renders itself.
+    #[arg(long, default_value_t = 16384, value_parser = clap::value_parser!(u32).range(1..))]
+    reference_spp: u32,
+    /// Where self-rendered references are cached (keyed by scene hash and spp).
+    #[arg(long, default_value = "target/bench-cache")]
+    cache: PathBuf,
+    /// CSV files of peer measurements (same columns as the CSV this writes).
+    #[arg(long = "peer")]
+    peers: Vec<PathBuf>,
+    /// A peer renderer to measure interleaved with tessera, run with `sh -c`: after each of
+    /// tessera's points it is asked for the same scene, spp and seed (one `SCENE SPP SEED` line
+    /// on its stdin) and answers with CSV rows and a `done` line, so that both renderers are
+    /// timed within seconds of each other and a slow minute of a shared machine falls on both.
+    /// `bench/mitsuba_peer.py --serve` is one.
+    #[arg(long)]
+    peer_command: Option<String>,
+    /// Output directory.
+    #[arg(long, default_value = "docs/benchmarks")]
+    out: PathBuf,
+    /// Base name of the report files (NAME.csv, NAME.md, NAME.svg).
+    #[arg(long, default_value = "speed-vs-error")]
+    name: String,
+}
+
+/// The `--reference NAME=FILE.exr` arguments by scene name, checked before anything renders:
+/// a malformed one, a name given twice or a name that is none of `names` is an error, since a
+/// reference silently ignored would leave the report measured against another one.
+fn given_references<'a>(
+    args: &'a BenchArgs,
+    names: &[String],
+) -> Result<BTreeMap<&'a str, &'a Path>> {
+    let mut given = BTreeMap::new();
+    for r in &args.references {
+        let (name, file) = r
+            .split_once('=')
+            .with_context(|| format!("--reference {r:?}: expected NAME=FILE.exr"))?;
+        if !names.iter().any(|n| n == name) {
+            bail!(
+                "--reference {r:?}: no scene is named {name:?} (the scenes are {})",
+                names.join(", ")
+            );
+        }
+        if given.insert(name, Path::new(file)).is_some() {
+            bail!("--reference {r:?}: {name} is given a reference twice");
+        }
+    }
+    Ok(given)
+}
+
+/// The reference for `name`: given, the bundled independent one, or rendered here (cached).
+fn reference(
+    args: &BenchArgs,
+    given: Option<&Path>,
+    name: &str,
+    scene: &Scene,
+    pool: &rayon::ThreadPool,
+) -> Result<(RgbImage, String)> {
+    if let Some(file) = given {
+        let img = read_exr_rgb(file)?;
+        let origin = read_exr_provenance(file)?
+            .unwrap_or_else(|| "its header does not say where it came from".into());
+        return Ok((img, format!("`{}` ({origin})", file.display())));
+    }
+    let bundled = Path::new("tests/data").join(format!("{name}-reference.exr"));
+    if bundled.is_file() {
+        return Ok((
+            read_exr_rgb(&bundled)?,
+            format!(
+                "`{}` (independent: Mitsuba 3, 16384 spp)",
+                bundled.display()
+            ),
+        ));
+    }
+    let spp = args.reference_spp;
+    let cached = args.cache.join(format!("{}-{spp}.exr", &scene.hash[..16]));
+    if !cached.is_file() {
+        std::fs::create_dir_all(&args.cache)
+            .with_context(|| format!("creating {}", args.cache.display()))?;
+        errln!(
+            "rendering a {spp}-spp reference of {name} (cached as {})",
+            cached.display()
+        );
+        // A seed no benchmark render uses, so the reference's noise is independent.
+        let settings = RenderSettings {
+            seed: u64::MAX,
+            spp,
+            ..RenderSettings::default()
+        };
+        let img = pool
+            .install(|| render_frame(scene, &settings, &|_| {}))
+            .finalize();
+        write_exr(
+            &cached,
+            &img,
+            ExrChannels::default(),
+            &render_metadata(&scene.hash, &settings),
+        )?;
+    }
+    Ok((
+        read_exr_rgb(&cached)?,
+        format!("tessera at {spp} spp, seed 2⁶⁴−1 (`{}`)", cached.display()),
+    ))
+}
+
+/// Runs `tessera bench`.
+pub fn run(args: BenchArgs) -> Result<()> {
+    if !args.max_spp.is_power_of_two() || !args.max_spp.trailing_zeros().is_multiple_of(2) {
+        bail!(
+            "--max-spp must be a power of 4 (4, 16, 64, …), got {}",
+            args.max_spp
+        );
+    }
+    if !args.out.is_dir() {
+        bail!("output directory {} does not exist", args.out.display());
+    }
+    let scenes = if args.scenes.is_empty() {
+        ["cornell-box", "spheres", "glass-mirror"]
+            .iter()
+            .map(|s| PathBuf::from(format!("scenes/{s}.toml")))
+            .collect()
+    } else {
+        args.scenes.clone()
+    };
+    let names = scenes
+        .iter()
+        .map(|path| {
+            path.file_stem()
+                .and_then(|s| s.to_str())
+                .map(str::to_string)
+                .with_context(|| format!("{}: a scene file needs a UTF-8 name", path.display()))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let given = given_references(&args, &names)?;
+    let mut peer_rows = Vec::new();
+    for file in &args.peers {
+        let text =
+            std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
+        for (i, line) in text.lines().enumerate() {
+            if i == 0 && line.trim() == CSV_HEADER || line.trim().is_empty() {
+                continue;
+            }
+            peer_rows.push(Row::parse(line, &format!("{}:{}", file.display(), i + 1))?);
+        }
+    }
+    let mut peer = args
+        .peer_command
+        .as_deref()
+        .map(PeerCommand::start)
+        .transpose()?;
+    let mut pool = rayon::ThreadPoolBuilder::new();
+    if let Some(t) = args.threads {
+        pool = pool.num_threads(t as usize);
+    }
+    let pool = pool.build().context("starting the render threads")?;
+    let threads = pool.current_num_threads();
+    let clock_ghz = measured_clock_ghz();
+
+    let mut rows = Vec::new();
+    let mut references = Vec::new();
+    for (path, name) in scenes.iter().zip(&names) {
+        let scene = Scene::load(path, &Limits::default())?;
+        let (reference, source) = reference(
+            &args,
+            given.get(name.as_str()).copied(),
+            name,
+            &scene,
+            &pool,
+        )?;
+        if (reference.width, reference.height) != (scene.width as usize, scene.height as usize) {
+            bail!(
+                "the reference for {name} is {}×{}, the scene {}×{}",
+                reference.width,
+                reference.height,
+                scene.width,
+                scene.height
+            );
+        }
+        references.push((name.clone(), source));
+        // Warm-up (page faults, thread start), not timed.
+        let warm = RenderSettings {
+            spp: 1,
+            ..RenderSettings::default()
+        };
+        pool.install(|| render_frame(&scene, &warm, &|_| {}));
+        let mut spp = 4;
+        while spp <= args.max_spp {
+            for seed in 0..args.seeds as u64 {
+                let settings = RenderSettings {
+                    seed: 1 + seed,
+                    spp,
+                    ..RenderSettings::default()
+                };
+                let start = Instant::now();
+                let sums = pool.install(|| render_frame(&scene, &settings, &|_| {}));
+                let seconds = start.elapsed().as_secs_f64();
+                let img = sums.finalize();
+                let samples = scene.width as f64 * scene.height as f64 * spp as f64;
+                let row = Row {
+                    renderer: "tessera".into(),
+                    scene: name.clone(),
+                    spp,
+                    seed: settings.seed,
+                    threads,
+                    seconds,
+                    msamples_per_s: samples / seconds / 1e6,
+                    relmse: rel_mse(&img, &reference),
+                };
+                errln!("{}", row.to_csv());
+                rows.push(row);
+                if let Some(peer) = peer.as_mut() {
+                    for row in peer.measure(name, spp, settings.seed)? {
+                        errln!("{}", row.to_csv());
+                        rows.push(row);
+                    }
+                }
+            }
+            spp *= 4;
+        }
+    }
+    drop(peer);
+    rows.extend(peer_rows);
+
+    let base = args.out.join(&args.name);
+    let csv = std::iter::once(CSV_HEADER.to_string())
+        .chain(rows.iter().map(Row::to_csv))
+        .collect::<Vec<_>>()
+        .join("\n")
+        + "\n";
+    let csv_path = base.with_extension("csv");
+    std::fs::write(&csv_path, csv).with_context(|| format!("writing {}", csv_path.display()))?;
+    let svg_path = base.with_extension("svg");
+    plot::plot(&rows, &svg_path)?;
+    let md_path = base.with_extension("md");
+    let md = report(
+        &rows,
+        &references,
+        &args,
+        threads,
+        clock_ghz,
+        &svg_path,
+        &csv_path,
+    );
+    std::fs::write(&md_path, md).with_context(|| format!("writing {}", md_path.display()))?;
+    outln!(
+        "wrote {}, {} and {}",
+        md_path.display(),
+        csv_path.display(),
+        svg_path.display()
+    );
+    Ok(())
+}

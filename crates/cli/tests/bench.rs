@@ -1,0 +1,258 @@
+//! `tessera bench` (built with the `bench` feature: `.ci/run` runs these with
+//! `cargo test --release -p tessera-cli --features bench --test bench`), driven as a user would.
+#![cfg(feature = "bench")]
+
+mod common;
+
+use std::path::Path;
+
+use common::{assert_clean_failure, repo, tessera, write};
+
+/// A 12×8 scene that renders in moments, named `tiny`, for the bench's tests.
+fn tiny_bench_scene(dir: &Path) -> String {
+    write(
+        dir,
+        "tiny.toml",
+        "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 0, 4]\ntarget = [0, 0, 0]\nfov = 40\n\
+         [film]\nwidth = 12\nheight = 8\n[environment]\ntype = \"constant\"\nradiance = [1, 1, 1]\n\
+         [materials.m]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"m\"\n",
+    )
+}
+
+#[test]
+fn bench_writes_csv_markdown_and_plot_with_peer_ratios() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let scene = tiny_bench_scene(dir.path());
+    let peer = write(
+        dir.path(),
+        "peer.csv",
+        "renderer,scene,spp,seed,threads,seconds,msamples_per_s,relmse\n\
+         other,tiny,4,1,2,0.5,0.001,0.02\nother,tiny,16,1,2,2.0,0.001,0.005\n",
+    );
+    let out = dir.path().join("out");
+    std::fs::create_dir(&out).expect("mkdir");
+    let cache = dir.path().join("cache");
+    let args = |peer: &str| {
+        vec![
+            "bench".to_string(),
+            "--scene".into(),
+            scene.clone(),
+            "--max-spp".into(),
+            "16".into(),
+            "--seeds".into(),
+            "2".into(),
+            "--reference-spp".into(),
+            "64".into(),
+            "--cache".into(),
+            cache.display().to_string(),
+            "--out".into(),
+            out.display().to_string(),
+            "--peer".into(),
+            peer.to_string(),
+        ]
+    };
+    let a = args(&peer);
+    let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let csv = std::fs::read_to_string(out.join("speed-vs-error.csv")).expect("csv");
+    // 2 spp levels × 2 seeds of tessera, plus the peer's 2 rows.
+    assert_eq!(csv.lines().count(), 1 + 4 + 2, "{csv}");
+    let ours: Vec<f64> = csv
+        .lines()
+        .filter(|l| l.starts_with("tessera,tiny,"))
+        .map(|l| {
+            l.rsplit(',')
+                .next()
+                .expect("relmse")
+                .parse()
+                .expect("number")
+        })
+        .collect();
+    assert!(ours.iter().all(|e| e.is_finite() && *e > 0.0), "{csv}");
+    let md = std::fs::read_to_string(out.join("speed-vs-error.md")).expect("md");
+    assert!(
+        md.contains("| tiny | other |") && md.contains("| tiny | tessera | 16 |"),
+        "{md}"
+    );
+    // The equal-time ratio at each spp the peer and tessera both measured.
+    assert!(
+        md.contains("## Equal-time relMSE by spp")
+            && md.contains("| tiny | other | 4 |")
+            && md.contains("| tiny | other | 16 |"),
+        "{md}"
+    );
+    assert!(
+        md.contains("Machine:") && md.contains("tessera bench"),
+        "{md}"
+    );
+    // The clock is a timing, so only its form is checked: a finite, positive figure.
+    let clock: f64 = md
+        .split("clock ")
+        .nth(1)
+        .and_then(|rest| rest.split(" GHz").next())
+        .and_then(|x| x.parse().ok())
+        .expect("the machine line gives the measured clock");
+    assert!(clock.is_finite() && clock > 0.0, "{md}");
+    let simd = md
+        .split("vector extensions: ")
+        .nth(1)
+        .and_then(|rest| rest.split(';').next())
+        .expect("the machine line gives the vector extensions");
+    #[cfg(target_arch = "x86_64")]
+    assert_eq!(
+        simd.split(", ").any(|x| x == "AVX2"),
+        std::arch::is_x86_feature_detected!("avx2"),
+        "{simd}"
+    );
+    assert!(!simd.is_empty(), "{md}");
+    let svg = std::fs::read_to_string(out.join("speed-vs-error.svg")).expect("svg");
+    assert!(svg.starts_with("<svg") && svg.contains("polyline"), "{svg}");
+    assert_eq!(
+        std::fs::read_dir(&cache).expect("cache").count(),
+        1,
+        "the reference is cached"
+    );
+    // A reference given by file is described by what its header says of its origin.
+    let cached = std::fs::read_dir(&cache)
+        .expect("cache")
+        .next()
+        .expect("one entry")
+        .expect("entry")
+        .path();
+    let mut a = args(&peer);
+    a.extend(["--reference".into(), format!("tiny={}", cached.display())]);
+    let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let md = std::fs::read_to_string(out.join("speed-vs-error.md")).expect("md");
+    assert!(
+        md.contains(&format!(
+            "- tiny: `{}` (tessera render: scene_sha256=",
+            cached.display()
+        )) && md.contains("spp=64, seed=18446744073709551615"),
+        "{md}"
+    );
+
+    let bad = write(dir.path(), "bad.csv", "other,tiny,4,1,2,NaN,1,1\n");
+    let a = args(&bad);
+    let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_clean_failure(&r, &["bad.csv:1", "seconds"]);
+    let r = tessera(&[
+        "bench",
+        "--max-spp",
+        "8",
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    assert_clean_failure(&r, &["--max-spp", "power of 4"]);
+    let mut a = args(&peer);
+    a.extend(["--reference".into(), "tiny".into()]);
+    let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_clean_failure(&r, &["--reference \"tiny\"", "NAME=FILE.exr"]);
+    // A reference for no scene of the run, or two for one, is refused before anything renders,
+    // rather than left unused.
+    let mut a = args(&peer);
+    a.extend(["--reference".into(), "tyni=ref.exr".into()]);
+    let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_clean_failure(
+        &r,
+        &[
+            "--reference \"tyni=ref.exr\"",
+            "no scene is named \"tyni\"",
+            "tiny",
+        ],
+    );
+    let mut a = args(&peer);
+    a.extend([
+        "--reference".into(),
+        "tiny=a.exr".into(),
+        "--reference".into(),
+        "tiny=b.exr".into(),
+    ]);
+    let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_clean_failure(&r, &["--reference \"tiny=b.exr\"", "twice"]);
+    let mut a = args(&peer);
+    let spp = a.iter().position(|x| x == "--reference-spp").expect("flag") + 1;
+    a[spp] = "0".into();
+    let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_clean_failure(&r, &["--reference-spp"]);
+    let mut a = args(&peer);
+    let wrong_size = format!("tiny={}", repo("tests/data/cornell-box-reference.exr"));
+    a.extend(["--reference".into(), wrong_size]);
+    let r = tessera(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_clean_failure(&r, &["reference for tiny is 256×256", "12×8"]);
+}
+
+/// `--peer-command` asks the peer for each point right after tessera measures it, and every
+/// wrong answer (a row for another point, a malformed row, an error line, an early exit) ends
+/// the run with an error that names the peer's line or the point it failed at.
+#[test]
+fn bench_measures_a_peer_command_point_by_point_and_rejects_its_bad_answers() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let scene = tiny_bench_scene(dir.path());
+    let out = dir.path().join("out");
+    std::fs::create_dir(&out).expect("mkdir");
+    let cache = dir.path().join("cache").display().to_string();
+    let run = |peer: &str| {
+        tessera(&[
+            "bench",
+            "--scene",
+            &scene,
+            "--max-spp",
+            "16",
+            "--seeds",
+            "2",
+            "--reference-spp",
+            "64",
+            "--cache",
+            &cache,
+            "--out",
+            out.to_str().expect("utf8"),
+            "--peer-command",
+            peer,
+        ])
+    };
+    // The peer logs each request it gets, so the test sees the order of the points.
+    let log = dir.path().join("asked.txt");
+    let r = run(&format!(
+        "while read s n k; do echo \"$s $n $k\" >> '{}'; \
+         echo \"other,$s,$n,$k,2,0.5,0.001,0.02\"; echo done; done",
+        log.display()
+    ));
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let asked = std::fs::read_to_string(&log).expect("the peer was asked");
+    assert_eq!(asked, "tiny 4 1\ntiny 4 2\ntiny 16 1\ntiny 16 2\n");
+    let csv = std::fs::read_to_string(out.join("speed-vs-error.csv")).expect("csv");
+    // tessera's 4 points, each followed by the peer's.
+    let renderers: Vec<&str> = csv
+        .lines()
+        .skip(1)
+        .map(|l| &l[..l.find(',').expect("row")])
+        .collect();
+    assert_eq!(renderers, ["tessera", "other"].repeat(4), "{csv}");
+    let md = std::fs::read_to_string(out.join("speed-vs-error.md")).expect("md");
+    assert!(
+        md.contains("interleaved") && md.contains("| tiny | other |"),
+        "{md}"
+    );
+
+    let r = run("while read s n k; do echo \"other,$s,999,$k,2,0.5,0.001,0.02\"; echo done; done");
+    assert_clean_failure(
+        &r,
+        &["--peer-command output line 1", "999 spp", "`tiny 4 1`"],
+    );
+    let r = run("read l; echo other,tiny,4,1,2,NaN,1,1; echo done");
+    assert_clean_failure(&r, &["--peer-command output line 1", "seconds"]);
+    let r = run("while read l; do echo 'error: no counterpart of this scene'; done");
+    assert_clean_failure(
+        &r,
+        &["failed at `tiny 4 1`", "no counterpart of this scene"],
+    );
+    let r = run("read l; exit 3");
+    assert_clean_failure(
+        &r,
+        &["ended (exit status: 3)", "before it answered `tiny 4 1`"],
+    );
+    let r = run("while read s n k; do echo \"tessera,$s,$n,$k,2,0.5,0.001,0.02\"; echo done; done");
+    assert_clean_failure(&r, &["may not be named tessera"]);
+}
