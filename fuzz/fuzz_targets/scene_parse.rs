@@ -24,13 +24,9 @@ fuzz_target!(|data: &[u8]| {
                     spp: 1,
                     ..Default::default()
                 };
-                let _ = tessera_render::integrator::sample_pixel(
-                    &scene,
-                    &settings,
-                    scene.width / 2,
-                    scene.height / 2,
-                    0,
-                );
+                let (x, y) = (scene.width / 2, scene.height / 2);
+                let sampler = tessera_render::sampling::PixelSampler::new(settings.seed, x, y, 0);
+                let _ = tessera_render::integrator::sample_pixel(&scene, &settings, x, y, &sampler);
             }
             Err(e) => assert!(!e.to_string().is_empty()),
         }
