@@ -8,7 +8,7 @@ mod common;
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
 
-use common::{repo, tessera_at, worker, Proc, BIN};
+use common::{repo, start_coordinator, tessera_at, worker, Proc, BIN};
 
 fn tessera(args: &[&str], url: &str) -> Output {
     tessera_at(args, url)
@@ -16,23 +16,14 @@ fn tessera(args: &[&str], url: &str) -> Output {
 
 use std::time::{Duration, Instant};
 
-fn coordinator(data: &Path, port: u16, log: &Path) -> Proc {
+/// A coordinator listening on `listen`, logging to `log`; returns it and the address it bound.
+fn coordinator(data: &Path, listen: &str, log: &Path) -> (Proc, String) {
     let log = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
         .open(log)
         .expect("log");
-    Proc(
-        Command::new(BIN)
-            .args(["coordinator", "--listen", &format!("127.0.0.1:{port}")])
-            .arg("--data-dir")
-            .arg(data)
-            .args(["--lease-timeout", "2"])
-            .stdout(Stdio::null())
-            .stderr(log)
-            .spawn()
-            .expect("start coordinator"),
-    )
+    start_coordinator(listen, data, &["--lease-timeout", "2"], Stdio::from(log))
 }
 
 /// (units done, units total, units leased) from `tessera status JOB`, if the coordinator
@@ -72,11 +63,6 @@ fn sigkilled_workers_and_coordinator_do_not_change_a_bit() {
     let dir = tempfile::tempdir().expect("tmp");
     let data = dir.path().join("data");
     let log = dir.path().join("coordinator.log");
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .expect("free port")
-        .port();
-    let url = format!("http://127.0.0.1:{port}");
     let scene = dir.path().join("box.toml");
     std::fs::write(
         &scene,
@@ -89,7 +75,10 @@ fn sigkilled_workers_and_coordinator_do_not_change_a_bit() {
     let scene = scene.to_str().expect("utf8").to_string();
     let settings = ["--spp", "512", "--batch", "4", "--seed", "11"];
 
-    let mut coord = coordinator(&data, port, &log);
+    // The server picks its port; after its SIGKILL it comes back on the same one, as a
+    // supervised coordinator would, so that workers and clients keep their URL.
+    let (mut coord, addr) = coordinator(&data, "127.0.0.1:0", &log);
+    let url = format!("http://{addr}");
     let mut workers: Vec<Proc> = (0..4).map(|i| worker(&url, &format!("w{i}"))).collect();
     let started = Instant::now();
     let job = loop {
@@ -138,7 +127,7 @@ fn sigkilled_workers_and_coordinator_do_not_change_a_bit() {
             coord.kill9();
             events.push(format!("coordinator SIGKILL at {last_done}/{total} units"));
             std::thread::sleep(Duration::from_millis(300));
-            coord = coordinator(&data, port, &log);
+            coord = coordinator(&data, &addr, &log).0;
             coordinator_killed = true;
             // What was acknowledged survived: progress resumes from the store, less at most
             // the results whose commit was still queued (a few per worker).

@@ -8,7 +8,7 @@ mod common;
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
 
-use common::{repo, tessera_at, worker, Proc, BIN};
+use common::{repo, start_coordinator, tessera_at, worker, Proc, BIN};
 
 fn tessera(args: &[&str], url: &str) -> Output {
     tessera_at(args, url)
@@ -16,27 +16,15 @@ fn tessera(args: &[&str], url: &str) -> Output {
 
 use std::time::{Duration, Instant};
 
-/// Starts a coordinator on port 0 and returns it with its URL (read from its stdout).
+/// Starts a coordinator on port 0 and returns it with its URL.
 fn coordinator(data: &Path) -> (Proc, String) {
-    let mut child = Command::new(BIN)
-        .args(["coordinator", "--listen", "127.0.0.1:0", "--data-dir"])
-        .arg(data)
-        .args(["--lease-timeout", "5"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("start coordinator");
-    let stdout = child.stdout.take().expect("stdout");
-    let mut line = String::new();
-    BufReader::new(stdout)
-        .read_line(&mut line)
-        .expect("read the listening line");
-    let addr = line
-        .trim()
-        .strip_prefix("listening on ")
-        .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
-        .to_string();
-    (Proc(child), format!("http://{addr}"))
+    let (proc, addr) = start_coordinator(
+        "127.0.0.1:0",
+        data,
+        &["--lease-timeout", "5"],
+        Stdio::null(),
+    );
+    (proc, format!("http://{addr}"))
 }
 
 fn one_line_failure(out: &Output, needle: &str) {

@@ -33,6 +33,38 @@ impl Drop for Proc {
     }
 }
 
+/// Starts `tessera coordinator --listen LISTEN --data-dir DATA` with `extra` arguments and its
+/// stderr to `stderr`, and returns it with the address it bound, read from its "listening on"
+/// line: with port 0 the server picks the port itself, so no test ever binds a port, drops it
+/// and hopes it is still free.
+pub fn start_coordinator(
+    listen: &str,
+    data: &std::path::Path,
+    extra: &[&str],
+    stderr: Stdio,
+) -> (Proc, String) {
+    use std::io::{BufRead, BufReader};
+    let mut child = Command::new(BIN)
+        .args(["coordinator", "--listen", listen, "--data-dir"])
+        .arg(data)
+        .args(extra)
+        .stdout(Stdio::piped())
+        .stderr(stderr)
+        .spawn()
+        .expect("start coordinator");
+    let stdout = child.stdout.take().expect("stdout");
+    let mut line = String::new();
+    BufReader::new(stdout)
+        .read_line(&mut line)
+        .expect("read the listening line");
+    let addr = line
+        .trim()
+        .strip_prefix("listening on ")
+        .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
+        .to_string();
+    (Proc(child), addr)
+}
+
 /// A `tessera worker` process with one render thread.
 pub fn worker(url: &str, name: &str) -> Proc {
     Proc(

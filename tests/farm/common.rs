@@ -1,0 +1,354 @@
+//! Fixtures shared by the farm tests: an in-process coordinator on a port it binds itself (port
+//! 0), in-process workers, clients, and bounded waits.
+#![allow(dead_code)] // each behaviour's file uses its own subset
+
+pub use std::net::SocketAddr;
+pub use std::path::{Path, PathBuf};
+pub use std::time::Duration;
+
+pub use tessera_coordinator::store::{JobRecord, Op, Store};
+pub use tessera_coordinator::{serve, Config};
+pub use tessera_proto::client::{endpoint, Bearer, ClientOptions, ClientTls};
+pub use tessera_proto::v1 as pb;
+pub use tessera_proto::v1::jobs_client::JobsClient;
+pub use tessera_proto::v1::workers_client::WorkersClient;
+pub use tessera_proto::Secret;
+pub use tessera_render::output::{render_metadata, write_exr, ExrChannels};
+pub use tessera_render::scene::{Format, Limits, Scene};
+pub use tessera_render::{render_frame, RenderSettings, IMAGE_REVISION};
+pub use tessera_render::{render_tile, PixelRect};
+pub use tokio::sync::oneshot;
+pub use tonic::service::interceptor::InterceptedService;
+pub use tonic::transport::Channel;
+
+/// A `Jobs` client with a (possibly empty) token attached.
+pub type Client = JobsClient<InterceptedService<Channel, Bearer>>;
+
+/// Connects a `Jobs` client to `url` with `options`.
+pub async fn client_with(url: &str, options: &ClientOptions) -> Client {
+    let channel = endpoint(url, options)
+        .expect("endpoint")
+        .connect()
+        .await
+        .expect("connect");
+    JobsClient::with_interceptor(channel, Bearer::new(options))
+}
+
+/// The Cornell box shrunk to `size`² so a farm run takes a second or two.
+pub fn scene_text(size: u32) -> String {
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-box.toml"),
+    )
+    .expect("read cornell-box.toml");
+    text.replace("width = 256", &format!("width = {size}"))
+        .replace("height = 256", &format!("height = {size}"))
+}
+
+/// A coordinator on an ephemeral port, stopped when dropped.
+pub struct Coordinator {
+    /// The address the server bound (port 0 resolved).
+    pub addr: SocketAddr,
+    stop: Option<oneshot::Sender<()>>,
+    task: tokio::task::JoinHandle<()>,
+    /// Its output directory.
+    pub out: PathBuf,
+}
+
+impl Coordinator {
+    pub async fn start(data: &Path, lease: Duration) -> Self {
+        Self::start_with(data, lease, |_| {}).await
+    }
+
+    pub async fn start_with(data: &Path, lease: Duration, edit: impl FnOnce(&mut Config)) -> Self {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+            .await
+            .expect("bind");
+        Self::serve_on(listener, data, lease, edit)
+    }
+
+    /// A coordinator on `data` again, at the address an earlier one (now stopped) had bound
+    /// itself, as a coordinator restarted by its supervisor would be: workers keep their URL.
+    pub async fn restart_at(addr: SocketAddr, data: &Path, lease: Duration) -> Self {
+        // The old server's socket may take a moment to be released.
+        let listener = wait_for("the old coordinator's port to be free", async || {
+            tokio::net::TcpListener::bind(addr).await.ok()
+        })
+        .await;
+        Self::serve_on(listener, data, lease, |_| {})
+    }
+
+    fn serve_on(
+        listener: tokio::net::TcpListener,
+        data: &Path,
+        lease: Duration,
+        edit: impl FnOnce(&mut Config),
+    ) -> Self {
+        let addr = listener.local_addr().expect("addr");
+        let mut config = Config::new(data);
+        config.lease_timeout = lease;
+        edit(&mut config);
+        let out = config.output_dir();
+        let (tx, rx) = oneshot::channel::<()>();
+        let task = tokio::spawn(async move {
+            serve(config, listener, async {
+                let _ = rx.await;
+            })
+            .await
+            .expect("coordinator");
+        });
+        Self {
+            addr,
+            stop: Some(tx),
+            task,
+            out,
+        }
+    }
+
+    pub fn url(&self) -> String {
+        format!("http://{}", self.addr)
+    }
+
+    pub async fn client(&self) -> Client {
+        client_with(&self.url(), &ClientOptions::default()).await
+    }
+
+    pub async fn stop(mut self) {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+        let _ = (&mut self.task).await;
+    }
+}
+
+/// A worker task; dropping the handle (abort) kills it without any goodbye.
+pub fn worker(url: &str, name: &str) -> tokio::task::JoinHandle<()> {
+    worker_with(url, name, ClientOptions::default())
+}
+
+pub fn worker_with(url: &str, name: &str, client: ClientOptions) -> tokio::task::JoinHandle<()> {
+    let mut config = tessera_worker::Config::new(url);
+    config.threads = Some(1);
+    config.name = name.into();
+    config.client = client;
+    tokio::spawn(async move {
+        tessera_worker::run(config, std::future::pending())
+            .await
+            .expect("worker");
+    })
+}
+
+pub async fn submit(
+    client: &mut Client,
+    text: &str,
+    spp: u32,
+    batch: u32,
+    priority: i32,
+) -> String {
+    client
+        .submit_job(pb::SubmitJobRequest {
+            scene_text: text.into(),
+            scene_format: pb::SceneFormat::Toml as i32,
+            scene_name: "cornell.toml".into(),
+            settings: Some(pb::RenderSettings {
+                spp,
+                seed: 7,
+                batch,
+                strategy: pb::Strategy::Mis as i32,
+            }),
+            tile_size: 16,
+            output_name: String::new(),
+            priority,
+            channels: None,
+        })
+        .await
+        .expect("submit")
+        .into_inner()
+        .job_id
+}
+
+/// A job's current status.
+pub async fn job_status(client: &mut Client, job: &str) -> pb::JobStatus {
+    client
+        .get_job(pb::GetJobRequest { job_id: job.into() })
+        .await
+        .expect("status")
+        .into_inner()
+}
+
+/// How long any test waits for a farm to get somewhere before it fails, naming what it waited
+/// for. Far above what a healthy farm needs on the slowest machine the tests run on.
+pub const PATIENCE: Duration = Duration::from_secs(120);
+
+/// Asks `check` every few milliseconds until it answers `Some`, and returns that; fails the
+/// test, naming `what`, if [`PATIENCE`] passes first. Every poll loop of these tests is this
+/// one, so that none can hang a test run.
+pub async fn wait_for<T>(what: &str, mut check: impl AsyncFnMut() -> Option<T>) -> T {
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    loop {
+        if let Some(v) = check().await {
+            return v;
+        }
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "gave up after {PATIENCE:?} waiting for {what}"
+        );
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+}
+
+/// Follows WatchJob to the end and returns the final status.
+pub async fn wait(client: &mut Client, job: &str) -> pb::JobStatus {
+    let mut stream = client
+        .watch_job(pb::WatchJobRequest {
+            job_id: job.into(),
+            interval_ms: 200,
+        })
+        .await
+        .expect("watch")
+        .into_inner();
+    let mut last = None;
+    let fut = async {
+        while let Some(s) = stream.message().await.expect("stream") {
+            last = Some(s);
+        }
+    };
+    tokio::time::timeout(PATIENCE, fut)
+        .await
+        .expect("the job did not finish in time");
+    last.expect("at least one status")
+}
+
+pub async fn fetch(client: &mut Client, job: &str) -> Vec<u8> {
+    let mut stream = client
+        .fetch_result(pb::FetchResultRequest { job_id: job.into() })
+        .await
+        .expect("fetch")
+        .into_inner();
+    let mut out = Vec::new();
+    while let Some(c) = stream.message().await.expect("chunk") {
+        out.extend_from_slice(&c.data);
+    }
+    out
+}
+
+/// The bytes `tessera render` writes for the same job.
+pub fn local_exr(text: &str, spp: u32, batch: u32, dir: &Path) -> Vec<u8> {
+    let scene =
+        Scene::from_str(text, Format::Toml, "cornell.toml", &Limits::default()).expect("scene");
+    let settings = job_settings(spp, batch);
+    let image = render_frame(&scene, &settings, &|_| {}).finalize();
+    let path = dir.join("local.exr");
+    write_exr(
+        &path,
+        &image,
+        ExrChannels::default(),
+        &render_metadata(&scene.hash, &settings),
+    )
+    .expect("write");
+    std::fs::read(path).expect("read")
+}
+
+/// The render settings `submit` gives a job of `spp` samples in batches of `batch`.
+pub fn job_settings(spp: u32, batch: u32) -> RenderSettings {
+    RenderSettings {
+        seed: 7,
+        spp,
+        batch,
+        ..RenderSettings::default()
+    }
+}
+
+/// A `Workers` client for driving the protocol by hand.
+pub fn workers_client(url: &str) -> WorkersClient<Channel> {
+    WorkersClient::new(
+        endpoint(url, &ClientOptions::default())
+            .expect("endpoint")
+            .connect_lazy(),
+    )
+}
+
+/// Registers a hand-driven worker named `name` rendering image revision `revision`; returns
+/// its id.
+pub async fn register_as(
+    workers: &mut WorkersClient<Channel>,
+    name: &str,
+    version: &str,
+    revision: u32,
+) -> Result<String, tonic::Status> {
+    let r = workers
+        .register(pb::RegisterRequest {
+            name: name.into(),
+            cores: 1,
+            version: version.into(),
+            image_revision: revision,
+        })
+        .await?;
+    Ok(r.into_inner().worker_id)
+}
+
+/// Leases up to `max` units for worker `id` without waiting for work.
+pub async fn lease_now(
+    workers: &mut WorkersClient<Channel>,
+    id: &str,
+    max: u32,
+) -> Result<Vec<pb::WorkUnit>, tonic::Status> {
+    let r = workers
+        .lease(pb::LeaseRequest {
+            worker_id: id.into(),
+            max_units: max,
+            wait_ms: 0,
+        })
+        .await?;
+    Ok(r.into_inner().units)
+}
+
+/// The result an honest worker sends for `u`.
+pub fn honest_result(scene: &Scene, settings: &RenderSettings, u: &pb::WorkUnit) -> pb::TileResult {
+    let rect = PixelRect::from(u.rect.expect("rect"));
+    pb::TileResult::from(&render_tile(
+        scene,
+        settings,
+        rect,
+        u.sample_start..u.sample_end,
+    ))
+}
+
+/// With one worker and one client using `options`, renders `text` at 4 spp and checks the
+/// bits against a local render.
+pub async fn render_one_job(url: &str, options: &ClientOptions, text: &str, dir: &Path) {
+    let w = worker_with(url, "one", options.clone());
+    let mut client = client_with(url, options).await;
+    let job = submit(&mut client, text, 4, 2, 0).await;
+    assert_eq!(
+        wait(&mut client, &job).await.state,
+        pb::JobState::Done as i32
+    );
+    assert!(fetch(&mut client, &job).await == local_exr(text, 4, 2, dir));
+    w.abort();
+}
+
+/// A submission with an output name.
+pub async fn submit_named(
+    client: &mut Client,
+    text: &str,
+    name: &str,
+) -> Result<String, tonic::Status> {
+    client
+        .submit_job(pb::SubmitJobRequest {
+            scene_text: text.into(),
+            scene_format: pb::SceneFormat::Toml as i32,
+            scene_name: "cornell.toml".into(),
+            settings: Some(pb::RenderSettings {
+                spp: 2,
+                seed: 7,
+                batch: 2,
+                strategy: pb::Strategy::Mis as i32,
+            }),
+            tile_size: 16,
+            output_name: name.into(),
+            priority: 0,
+            channels: None,
+        })
+        .await
+        .map(|r| r.into_inner().job_id)
+}

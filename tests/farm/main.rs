@@ -1,0 +1,22 @@
+//! End-to-end farm tests: a coordinator and workers in-process on loopback (port 0), driven
+//! through the real gRPC API, one behaviour per file (as tonic's integration tests are
+//! organised), in one test binary so that they link once. The farm's EXR must be bit-identical
+//! to the local renderer's.
+
+mod common;
+
+mod auth;
+mod bad_submissions;
+mod connections;
+mod forged_results;
+mod leases;
+mod output_names;
+mod parses;
+mod priorities;
+mod restart;
+mod revisions;
+mod same_bits;
+mod scene_gc;
+mod tls;
+mod unrenderable;
+mod worker_death;
