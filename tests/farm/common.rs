@@ -7,7 +7,7 @@ pub use std::path::{Path, PathBuf};
 pub use std::time::Duration;
 
 pub use tessera_coordinator::store::{JobRecord, Op, Store};
-pub use tessera_coordinator::{serve, Config};
+pub use tessera_coordinator::{Config, Spawned};
 pub use tessera_proto::client::{endpoint, Bearer, ClientOptions, ClientTls};
 pub use tessera_proto::v1 as pb;
 pub use tessera_proto::v1::jobs_client::JobsClient;
@@ -17,7 +17,6 @@ pub use tessera_render::output::{render_metadata, write_exr, ExrChannels};
 pub use tessera_render::scene::{Format, Limits, Scene};
 pub use tessera_render::{render_frame, RenderSettings, IMAGE_REVISION};
 pub use tessera_render::{render_tile, PixelRect};
-pub use tokio::sync::oneshot;
 pub use tonic::service::interceptor::InterceptedService;
 pub use tonic::transport::Channel;
 
@@ -44,14 +43,13 @@ pub fn scene_text(size: u32) -> String {
         .replace("height = 256", &format!("height = {size}"))
 }
 
-/// A coordinator on an ephemeral port, stopped when dropped.
+/// A coordinator on a port it bound itself, with its output directory.
 pub struct Coordinator {
     /// The address the server bound (port 0 resolved).
     pub addr: SocketAddr,
-    stop: Option<oneshot::Sender<()>>,
-    task: tokio::task::JoinHandle<()>,
     /// Its output directory.
     pub out: PathBuf,
+    server: Spawned,
 }
 
 impl Coordinator {
@@ -60,10 +58,14 @@ impl Coordinator {
     }
 
     pub async fn start_with(data: &Path, lease: Duration, edit: impl FnOnce(&mut Config)) -> Self {
-        let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
-            .await
-            .expect("bind");
-        Self::serve_on(listener, data, lease, edit)
+        let config = Self::config(data, lease, edit);
+        let out = config.output_dir();
+        let server = Spawned::start(config, "127.0.0.1:0").await.expect("bind");
+        Self {
+            addr: server.addr,
+            out,
+            server,
+        }
     }
 
     /// A coordinator on `data` again, at the address an earlier one (now stopped) had bound
@@ -74,34 +76,20 @@ impl Coordinator {
             tokio::net::TcpListener::bind(addr).await.ok()
         })
         .await;
-        Self::serve_on(listener, data, lease, |_| {})
+        let config = Self::config(data, lease, |_| {});
+        let out = config.output_dir();
+        Self {
+            addr,
+            out,
+            server: Spawned::on(config, listener),
+        }
     }
 
-    fn serve_on(
-        listener: tokio::net::TcpListener,
-        data: &Path,
-        lease: Duration,
-        edit: impl FnOnce(&mut Config),
-    ) -> Self {
-        let addr = listener.local_addr().expect("addr");
+    fn config(data: &Path, lease: Duration, edit: impl FnOnce(&mut Config)) -> Config {
         let mut config = Config::new(data);
         config.lease_timeout = lease;
         edit(&mut config);
-        let out = config.output_dir();
-        let (tx, rx) = oneshot::channel::<()>();
-        let task = tokio::spawn(async move {
-            serve(config, listener, async {
-                let _ = rx.await;
-            })
-            .await
-            .expect("coordinator");
-        });
-        Self {
-            addr,
-            stop: Some(tx),
-            task,
-            out,
-        }
+        config
     }
 
     pub fn url(&self) -> String {
@@ -112,11 +100,8 @@ impl Coordinator {
         client_with(&self.url(), &ClientOptions::default()).await
     }
 
-    pub async fn stop(mut self) {
-        if let Some(tx) = self.stop.take() {
-            let _ = tx.send(());
-        }
-        let _ = (&mut self.task).await;
+    pub async fn stop(self) {
+        self.server.stop().await.expect("coordinator");
     }
 }
 

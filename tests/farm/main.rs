@@ -9,7 +9,7 @@ mod auth;
 mod bad_submissions;
 mod connections;
 mod forged_results;
-mod leases;
+mod bound_ids;
 mod output_names;
 mod parses;
 mod priorities;

@@ -21,6 +21,9 @@ pub enum CoordinatorError {
         /// Why.
         source: std::io::Error,
     },
+    /// The task serving in-process ([`crate::Spawned`]) panicked or was cancelled.
+    #[error("coordinator task: {0}")]
+    Task(String),
     /// The gRPC server failed.
     #[error("gRPC server: {0}")]
     Transport(#[from] tonic::transport::Error),

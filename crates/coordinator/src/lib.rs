@@ -40,5 +40,5 @@ pub mod store;
 
 pub use config::{Config, ServerTls, MAX_CONCURRENT_PARSES, MAX_STREAMS_PER_CONNECTION};
 pub use error::CoordinatorError;
-pub use server::{serve, serve_when_ready, InProcess};
+pub use server::{serve, serve_when_ready, InProcess, Spawned};
 pub use service::{decode_result, Service};

@@ -106,6 +106,58 @@ pub async fn serve_when_ready(
     Ok(())
 }
 
+/// A coordinator serving in this process on a port it bound itself, until stopped: what tests
+/// (and anything else embedding a farm, as quickwit's sandbox does a cluster) start on port 0.
+pub struct Spawned {
+    /// The address it bound (port 0 resolved).
+    pub addr: std::net::SocketAddr,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    task: tokio::task::JoinHandle<Result<(), CoordinatorError>>,
+}
+
+impl Spawned {
+    /// Binds `listen` (`127.0.0.1:0` for a free port) and serves `config` there. Must be
+    /// called inside a tokio runtime.
+    pub async fn start(config: Config, listen: &str) -> std::io::Result<Self> {
+        let listener = tokio::net::TcpListener::bind(listen).await?;
+        Ok(Self::on(config, listener))
+    }
+
+    /// Serves `config` on a listener the caller bound (the address of a coordinator that
+    /// stopped, to restart it where its workers look for it).
+    pub fn on(config: Config, listener: tokio::net::TcpListener) -> Self {
+        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+        // A listener whose address cannot be read is unusable anyway; serve reports it.
+        let addr = listener
+            .local_addr()
+            .unwrap_or_else(|_| std::net::SocketAddr::from(([127, 0, 0, 1], 0)));
+        let task = tokio::spawn(serve(config, listener, async {
+            let _ = rx.await;
+        }));
+        Self {
+            addr,
+            stop: Some(tx),
+            task,
+        }
+    }
+
+    /// The URL clients use: `http://ADDR`.
+    pub fn url(&self) -> String {
+        format!("http://{}", self.addr)
+    }
+
+    /// Stops it and waits until queued state writes are durable; returns how serving ended.
+    pub async fn stop(mut self) -> Result<(), CoordinatorError> {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+        match (&mut self.task).await {
+            Ok(r) => r,
+            Err(e) => Err(CoordinatorError::Task(e.to_string())),
+        }
+    }
+}
+
 /// Both services over a store, with no network, transport or auth in between: what
 /// [`serve`] runs, for driving sequences of calls in-process (the `rpc_surface` fuzz target).
 /// Made inside a tokio runtime, which runs its state writer.

@@ -141,11 +141,11 @@ impl Ctx {
 
     /// Sleeps for a backoff step; false if shutdown began meanwhile.
     async fn backoff(&self, attempt: &mut u32) -> bool {
-        let ms = (100u64 << (*attempt).min(10)).min(self.config.max_backoff.as_millis() as u64);
+        let delay = backoff_delay(*attempt, self.config.max_backoff);
         *attempt += 1;
         let mut stop = self.stop.clone();
         tokio::select! {
-            _ = tokio::time::sleep(Duration::from_millis(ms)) => !self.stopping(),
+            _ = tokio::time::sleep(delay) => !self.stopping(),
             _ = stop.wait_for(|s| *s) => false,
         }
     }
@@ -333,7 +333,7 @@ fn prepare(unit: &pb::WorkUnit, scene: &Scene) -> Result<(PixelRect, RenderSetti
 /// Leases units while there is room, and queues them for the renderer.
 async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
     // The units rendering and one queued ahead.
-    let slots = Arc::new(Semaphore::new(OVERLAP + 1));
+    let slots = Arc::new(Semaphore::new(MAX_HELD_UNITS));
     let mut attempt = 0;
     let mut stop = ctx.stop.clone();
     loop {
@@ -430,6 +430,12 @@ struct Done {
 /// the other keeps the rest of the pool busy (rayon steals across both).
 const OVERLAP: usize = 2;
 
+/// The most units a worker holds leases for at once: those rendering or waiting for their
+/// result to be acknowledged, and one queued ahead. A unit keeps its slot until its result is
+/// acknowledged, so results waiting to be sent count too, and a worker whose units render
+/// faster than results are committed cannot lease without bound.
+pub const MAX_HELD_UNITS: usize = OVERLAP + 1;
+
 /// Renders queued units on the whole pool, [`OVERLAP`] at a time.
 async fn renderer(ctx: Arc<Ctx>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::UnboundedSender<Done>) {
     let mut stop = ctx.stop.clone();
@@ -482,6 +488,13 @@ async fn renderer(ctx: Arc<Ctx>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::Unboun
     }
 }
 
+/// The wait before retry number `attempt` (from 0) of a call the coordinator did not answer:
+/// 100 ms, doubling, never above `max`. Every retry loop of the worker waits this long, so a
+/// farm of workers whose coordinator restarts reconnects quickly without hammering it.
+pub fn backoff_delay(attempt: u32, max: Duration) -> Duration {
+    Duration::from_millis(100u64 << attempt.min(10)).min(max)
+}
+
 /// Sends results, retrying through network errors.
 async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
     while let Some(done) = rx.recv().await {
@@ -510,10 +523,9 @@ async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
                     }
                     // Keep retrying during shutdown too, but not past the grace period
                     // (enforced by the caller's timeout).
-                    let ms =
-                        (100u64 << attempt.min(10)).min(ctx.config.max_backoff.as_millis() as u64);
+                    let delay = backoff_delay(attempt, ctx.config.max_backoff);
                     attempt += 1;
-                    tokio::time::sleep(Duration::from_millis(ms)).await;
+                    tokio::time::sleep(delay).await;
                 }
                 Err(e) => {
                     warn!(
@@ -695,6 +707,22 @@ mod tests {
             }),
             ..pb::WorkUnit::default()
         }
+    }
+
+    #[test]
+    fn backoff_doubles_from_a_tenth_of_a_second_up_to_the_cap() {
+        let cap = Duration::from_secs(10);
+        let waits: Vec<u128> = (0..9).map(|a| backoff_delay(a, cap).as_millis()).collect();
+        assert_eq!(
+            waits,
+            [100, 200, 400, 800, 1600, 3200, 6400, 10_000, 10_000]
+        );
+        // However long a coordinator stays away, the shift never overflows.
+        assert_eq!(backoff_delay(u32::MAX, cap), cap);
+        assert_eq!(
+            backoff_delay(3, Duration::from_millis(250)).as_millis(),
+            250
+        );
     }
 
     #[test]

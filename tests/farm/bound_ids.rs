@@ -1,45 +1,7 @@
-//! Leases: how many a worker holds, and that they are bound to it.
+//! Leases and ids are bound to the worker that got them. (How many a worker holds is the
+//! worker crate's test: `crates/worker/tests/pipeline.rs`.)
 
 use crate::common::*;
-
-#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
-async fn a_stock_worker_holds_no_more_than_its_pipeline() {
-    // Tiny units (a 16² tile, one sample) render far faster than results are committed: a
-    // worker that did not count results waiting to be sent would lease without bound.
-    let dir = tempfile::tempdir().expect("tempdir");
-    let coord = Coordinator::start_with(&dir.path().join("data"), Duration::from_secs(30), |c| {
-        // The coordinator's own cap must not hide the worker's behaviour.
-        c.max_leases_per_worker = 100_000;
-    })
-    .await;
-    let text = scene_text(64);
-    let mut client = coord.client().await;
-    let job = submit(&mut client, &text, 64, 1, 0).await;
-    let w = worker(&coord.url(), "stock");
-    let mut most = 0;
-    wait_for("the stock worker's job to finish", async || {
-        let listed = client
-            .list_workers(pb::ListWorkersRequest {})
-            .await
-            .expect("workers")
-            .into_inner()
-            .workers;
-        most = most.max(listed.iter().map(|w| w.leases).max().unwrap_or(0));
-        let s = job_status(&mut client, &job).await;
-        assert!(
-            s.state == pb::JobState::Running as i32
-                || s.state == pb::JobState::Queued as i32
-                || s.state == pb::JobState::Done as i32,
-            "{s:?}"
-        );
-        (s.state == pb::JobState::Done as i32).then_some(())
-    })
-    .await;
-    assert!(most >= 1, "the sampling never saw a lease");
-    assert!(most <= 3, "a stock worker held {most} leases at once");
-    w.abort();
-    coord.stop().await;
-}
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn ids_and_leases_are_bound_to_the_worker_that_got_them() {
