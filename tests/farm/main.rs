@@ -7,9 +7,9 @@ mod common;
 
 mod auth;
 mod bad_submissions;
+mod bound_ids;
 mod connections;
 mod forged_results;
-mod bound_ids;
 mod output_names;
 mod parses;
 mod priorities;

@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use anyhow::{anyhow, bail, Context, Result};
 use indicatif::ProgressBar;
-use tessera_coordinator::ServerTls;
+use tessera_coordinator::{config, ServerTls};
 use tessera_proto::client::{endpoint, Bearer, ClientOptions, ClientTls};
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_client::JobsClient;
@@ -140,13 +140,13 @@ pub struct CoordinatorArgs {
     #[arg(long)]
     output_dir: Option<PathBuf>,
     /// Seconds a lease lasts without a heartbeat before its unit is handed to another worker.
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, default_value_t = config::DEFAULT_LEASE_TIMEOUT.as_secs_f64())]
     lease_timeout: f64,
     /// Default tile edge in pixels for jobs that do not choose one.
     #[arg(long, default_value_t = DEFAULT_TILE, value_parser = tile_range())]
     tile_size: u32,
     /// Largest scene accepted, in bytes.
-    #[arg(long, default_value_t = 32 << 20)]
+    #[arg(long, default_value_t = config::DEFAULT_MAX_SCENE_BYTES)]
     max_scene_bytes: usize,
     /// Largest spp accepted.
     #[arg(long, default_value_t = Limits::default().max_spp)]
@@ -168,13 +168,13 @@ pub struct CoordinatorArgs {
     #[arg(long, requires = "tls_cert")]
     tls_client_ca: Option<PathBuf>,
     /// Invalid results after which a worker is quarantined.
-    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, default_value_t = config::DEFAULT_QUARANTINE_AFTER, value_parser = clap::value_parser!(u64).range(1..))]
     quarantine_after: u64,
     /// Most units one worker may hold at once (a stock worker holds at most 3).
-    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    #[arg(long, default_value_t = config::DEFAULT_MAX_LEASES_PER_WORKER as u32, value_parser = clap::value_parser!(u32).range(1..=4096))]
     max_leases_per_worker: u32,
     /// Most client connections open at once.
-    #[arg(long, default_value_t = 1024, value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, default_value_t = config::DEFAULT_MAX_CONNECTIONS as u32, value_parser = clap::value_parser!(u32).range(1..))]
     max_connections: u32,
 }
 

@@ -40,6 +40,21 @@ pub struct Config {
     pub idle_connection: Duration,
 }
 
+/// How long a lease lasts without a heartbeat, unless configured.
+pub const DEFAULT_LEASE_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// The largest scene accepted, in bytes, unless configured.
+pub const DEFAULT_MAX_SCENE_BYTES: usize = 32 << 20;
+
+/// Refused results after which a worker is quarantined, unless configured.
+pub const DEFAULT_QUARANTINE_AFTER: u64 = 5;
+
+/// Most leases one worker registration may hold, unless configured.
+pub const DEFAULT_MAX_LEASES_PER_WORKER: usize = 8;
+
+/// Most client connections open at once, unless configured.
+pub const DEFAULT_MAX_CONNECTIONS: usize = 1024;
+
 /// Scenes parsed at once by submissions: parsing a large scene takes many times its size in
 /// memory, so concurrent submissions of large scenes queue rather than all parse together.
 pub const MAX_CONCURRENT_PARSES: usize = 2;
@@ -64,10 +79,10 @@ impl Config {
         Self {
             data_dir: data_dir.into(),
             output_dir: None,
-            lease_timeout: Duration::from_secs(30),
+            lease_timeout: DEFAULT_LEASE_TIMEOUT,
             default_tile_size: tessera_render::DEFAULT_TILE,
             limits: Limits {
-                max_bytes: 32 << 20,
+                max_bytes: DEFAULT_MAX_SCENE_BYTES,
                 ..Limits::default()
             },
             max_message_bytes: tessera_proto::MAX_MESSAGE_BYTES,
@@ -75,9 +90,9 @@ impl Config {
             max_units_per_job: 1 << 24,
             token: None,
             tls: None,
-            quarantine_after: 5,
-            max_leases_per_worker: 8,
-            max_connections: 1024,
+            quarantine_after: DEFAULT_QUARANTINE_AFTER,
+            max_leases_per_worker: DEFAULT_MAX_LEASES_PER_WORKER,
+            max_connections: DEFAULT_MAX_CONNECTIONS,
             idle_connection: Duration::from_secs(60),
         }
     }

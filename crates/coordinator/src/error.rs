@@ -21,7 +21,7 @@ pub enum CoordinatorError {
         /// Why.
         source: std::io::Error,
     },
-    /// The task serving in-process ([`crate::Spawned`]) panicked or was cancelled.
+    /// The task serving in-process ([`crate::server::Spawned`]) panicked or was cancelled.
     #[error("coordinator task: {0}")]
     Task(String),
     /// The gRPC server failed.

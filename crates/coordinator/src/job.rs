@@ -445,3 +445,27 @@ impl Job {
         self.issued.drain().flat_map(|(_, ids)| ids).collect()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_tile_grid_matches_pixel_rect_tiles() {
+        for (w, h, size) in [
+            (1, 1, 4),
+            (17, 5, 4),
+            (64, 64, 16),
+            (100, 3, 7),
+            (3, 100, 128),
+        ] {
+            let grid = TileGrid::new(w, h, size);
+            let all = PixelRect::tiles(w, h, size);
+            assert_eq!(grid.len(), all.len());
+            for (i, r) in all.iter().enumerate() {
+                assert_eq!(grid.get(i as u32), Some(*r), "{w}×{h}/{size} tile {i}");
+            }
+            assert_eq!(grid.get(all.len() as u32), None);
+        }
+    }
+}

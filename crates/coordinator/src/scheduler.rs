@@ -13,7 +13,7 @@ use tessera_proto::ids::{JobId, LeaseId, WorkerCredential, WorkerId};
 use tessera_render::{RenderSettings, TileSums, IMAGE_REVISION};
 
 use crate::error::Refusal;
-use crate::job::{Job, TileGrid, Unit};
+use crate::job::{Job, Unit};
 use crate::output::OutputNames;
 use crate::store::{JobPhase, JobRecord, LoadedJob, Op, StoredScene};
 
@@ -320,15 +320,6 @@ impl Scheduler {
         names: &OutputNames<'_>,
         now_ms: i64,
     ) -> Result<(JobId, Vec<Op>), Refusal> {
-        let tiles = TileGrid::new(a.width, a.height, a.tile_size).len() as u64;
-        let units = tiles * u64::from(a.settings.spp.div_ceil(a.settings.batch.max(1)));
-        if units > limits.max_units_per_job {
-            return Err(Refusal::Exhausted(format!(
-                "the job would have {units} work units, above the limit of {} (use larger \
-                 tiles or batches)",
-                limits.max_units_per_job
-            )));
-        }
         let active = self
             .jobs
             .values()
@@ -340,17 +331,9 @@ impl Scheduler {
                 limits.max_active_jobs
             )));
         }
-        let (id, output_name) = names.choose(
-            JobId(self.next_job),
-            a.output_name,
-            self.jobs
-                .values()
-                .map(|j| (j.id(), j.rec.output_name.as_str())),
-        )?;
-        self.next_job = id.0 + 1;
         let s = &a.settings;
-        let rec = JobRecord {
-            id: id.0,
+        let mut job = Job::new(JobRecord {
+            id: 0,
             scene_hash: a.scene_hash.clone(),
             scene_name: a.scene.name.clone(),
             width: a.width,
@@ -360,7 +343,7 @@ impl Scheduler {
             batch: s.batch,
             strategy: s.strategy,
             tile_size: a.tile_size,
-            output_name,
+            output_name: String::new(),
             priority: a.priority,
             variance: a.variance,
             sample_count: a.sample_count,
@@ -370,9 +353,32 @@ impl Scheduler {
             finished_ms: 0,
             final_noise: (0.0, 0.0),
             image_revision: IMAGE_REVISION,
-        };
-        let ops = vec![Op::PutScene(a.scene_hash, a.scene), Op::PutJob(rec.clone())];
-        self.jobs.insert(id, Job::new(rec));
+        });
+        // The job's own count, so that admission and scheduling cannot disagree on it; a job
+        // costs nothing per unit until its units render, so making it first is free.
+        let units = job.units_total();
+        if units > limits.max_units_per_job {
+            return Err(Refusal::Exhausted(format!(
+                "the job would have {units} work units, above the limit of {} (use larger \
+                 tiles or batches)",
+                limits.max_units_per_job
+            )));
+        }
+        let (id, output_name) = names.choose(
+            JobId(self.next_job),
+            a.output_name,
+            self.jobs
+                .values()
+                .map(|j| (j.id(), j.rec.output_name.as_str())),
+        )?;
+        self.next_job = id.0 + 1;
+        job.rec.id = id.0;
+        job.rec.output_name = output_name;
+        let ops = vec![
+            Op::PutScene(a.scene_hash, a.scene),
+            Op::PutJob(job.rec.clone()),
+        ];
+        self.jobs.insert(id, job);
         Ok((id, ops))
     }
 
@@ -761,7 +767,7 @@ impl Scheduler {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use tessera_render::{PixelRect, Strategy};
+    use tessera_render::Strategy;
 
     const JOB: JobId = JobId(1);
 
@@ -829,7 +835,7 @@ mod tests {
             let m = core.submit(w, name, JOB, u, r, now).expect("merged");
             assert!(matches!(m, Merged::New { .. }));
         }
-        let (name, u) = names[0].clone();
+        let (name, u) = names[0];
         let r = result(&core.jobs[&JOB], u, 1.0);
         assert!(matches!(
             core.submit(w, name, JOB, u, r, now),
@@ -965,25 +971,6 @@ mod tests {
         let mut want = vec![g[0].unit, g[1].unit];
         want.sort();
         assert_eq!(units, want, "its units are handed out again first");
-    }
-
-    #[test]
-    fn the_tile_grid_matches_pixel_rect_tiles() {
-        for (w, h, size) in [
-            (1, 1, 4),
-            (17, 5, 4),
-            (64, 64, 16),
-            (100, 3, 7),
-            (3, 100, 128),
-        ] {
-            let grid = TileGrid::new(w, h, size);
-            let all = PixelRect::tiles(w, h, size);
-            assert_eq!(grid.len(), all.len());
-            for (i, r) in all.iter().enumerate() {
-                assert_eq!(grid.get(i as u32), Some(*r), "{w}×{h}/{size} tile {i}");
-            }
-            assert_eq!(grid.get(all.len() as u32), None);
-        }
     }
 
     #[test]
@@ -1207,5 +1194,67 @@ mod tests {
         // The unit is not handed out again.
         assert!(core.lease(w, 8, now).is_empty());
         assert!(core.cannot_render(w, &[name], "again", 6).is_empty());
+    }
+
+    #[test]
+    fn admission_checks_its_bounds_and_names_each_job_once() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let names = OutputNames::new(dir.path());
+        let mut core = Scheduler::new(1, Duration::from_secs(5));
+        let job = |name: Option<&str>| Admission {
+            scene_hash: "h".into(),
+            scene: StoredScene {
+                text: String::new(),
+                json: false,
+                name: "s".into(),
+            },
+            width: 8,
+            height: 8,
+            settings: RenderSettings {
+                spp: 4,
+                batch: 2,
+                ..RenderSettings::default()
+            },
+            tile_size: 4,
+            output_name: name.map(Into::into),
+            priority: 0,
+            variance: false,
+            sample_count: false,
+        };
+        let limits = AdmissionLimits {
+            max_active_jobs: 2,
+            max_units_per_job: 8,
+        };
+        // 4 tiles × 2 batches: 8 units, at the limit.
+        let (a, ops) = core.admit(job(None), limits, &names, 1).expect("admitted");
+        assert_eq!(a, JobId(1));
+        assert_eq!(core.jobs[&a].rec.output_name, "job-000001.exr");
+        assert_eq!(core.jobs[&a].units_total(), 8);
+        assert!(matches!(&ops[..], [Op::PutScene(..), Op::PutJob(r)] if r.id == 1));
+        let fewer = AdmissionLimits {
+            max_units_per_job: 7,
+            ..limits
+        };
+        assert!(matches!(
+            core.admit(job(None), fewer, &names, 1),
+            Err(Refusal::Exhausted(m)) if m.contains("8 work units")
+        ));
+        let (b, _) = core
+            .admit(job(Some("shot.exr")), limits, &names, 1)
+            .expect("named");
+        assert_eq!(b, JobId(2), "a refused job takes no id");
+        assert!(matches!(
+            core.admit(job(None), limits, &names, 1),
+            Err(Refusal::Exhausted(m)) if m.contains("2 jobs")
+        ));
+        core.end_job(a, JobPhase::Cancelled, String::new(), 2);
+        assert!(matches!(
+            core.admit(job(Some("shot.exr")), limits, &names, 2),
+            Err(Refusal::Exists(m)) if m.contains("job-000002")
+        ));
+        let (c, _) = core
+            .admit(job(None), limits, &names, 3)
+            .expect("room again");
+        assert_eq!(c, JobId(3));
     }
 }

@@ -424,7 +424,7 @@ fn build_shape(o: &ObjectDesc, op: &KeyPath, emits: bool) -> Result<Shape, Inval
     ];
     let shape = match o.shape {
         ShapeKind::Sphere => {
-            only(&op, "a sphere", &present, &["center", "radius"])?;
+            only(op, "a sphere", &present, &["center", "radius"])?;
             let c = finite3(o.center.unwrap_or([0.0; 3]), &op.key("center"))?;
             let r = positive(o.radius.unwrap_or(1.0), &op.key("radius"))?;
             match similarity_scale(&xf) {
@@ -444,7 +444,7 @@ fn build_shape(o: &ObjectDesc, op: &KeyPath, emits: bool) -> Result<Shape, Inval
             }
         }
         ShapeKind::Box => {
-            only(&op, "a box", &present, &["min", "max"])?;
+            only(op, "a box", &present, &["min", "max"])?;
             let lo = finite3(o.min.unwrap_or([-1.0; 3]), &op.key("min"))?;
             let hi = finite3(o.max.unwrap_or([1.0; 3]), &op.key("max"))?;
             if !(hi.cmpgt(lo).all()) {
@@ -464,7 +464,7 @@ fn build_shape(o: &ObjectDesc, op: &KeyPath, emits: bool) -> Result<Shape, Inval
             }
         }
         ShapeKind::Rect => {
-            only(&op, "a rect", &present, &["size"])?;
+            only(op, "a rect", &present, &["size"])?;
             let [sw, sh] = o.size.unwrap_or([2.0, 2.0]);
             let sw = positive(sw, &op.key("size").index(0))?;
             let sh = positive(sh, &op.key("size").index(1))?;
@@ -476,7 +476,7 @@ fn build_shape(o: &ObjectDesc, op: &KeyPath, emits: bool) -> Result<Shape, Inval
             Shape::Parallelogram(crate::shape::Parallelogram::new(p0, e1, e2, n))
         }
         ShapeKind::Plane => {
-            only(&op, "a plane", &present, &["point", "normal"])?;
+            only(op, "a plane", &present, &["point", "normal"])?;
             if emits {
                 return Err((
                     op.key("material"),
