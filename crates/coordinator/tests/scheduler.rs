@@ -1,0 +1,502 @@
+//! The scheduler's rules, call by call: batch-major order, in-order merging, refusal and
+//! quarantine of bad results, lapsed leases, speculation past slow and hoarding holders, ids
+//! bound to their registration, units no worker can render, and admission.
+
+use std::time::{Duration, Instant};
+
+use tessera_coordinator::error::Refusal;
+use tessera_coordinator::job::{Job, Unit};
+use tessera_coordinator::output::OutputNames;
+use tessera_coordinator::scheduler::{Admission, AdmissionLimits, Merged, Scheduler};
+use tessera_coordinator::store::{JobPhase, JobRecord, Op, StoredScene};
+use tessera_proto::ids::{JobId, LeaseId, WorkerCredential, WorkerId};
+use tessera_render::{RenderSettings, Strategy, TileSums};
+
+const JOB: JobId = JobId(1);
+
+fn record(spp: u32, batch: u32) -> JobRecord {
+    JobRecord {
+        id: 1,
+        spp,
+        batch,
+        width: 4,
+        height: 2,
+        seed: 0,
+        strategy: Strategy::Mis,
+        tile_size: 2,
+        output_name: "o.exr".into(),
+        submitted_ms: 0,
+        ..JobRecord::default()
+    }
+}
+
+fn result(job: &Job, u: Unit, value: f64) -> TileSums {
+    let rect = job.tiles.get(u.tile).expect("tile");
+    let mut t = TileSums::empty(rect, 0);
+    t.samples = job.batch_range(u.batch);
+    let k = t.samples.len() as u32;
+    for i in 0..rect.area() {
+        t.sum[i] = [value; 3];
+        t.sum_sq[i] = [value * value; 3];
+        t.count[i] = k;
+    }
+    t
+}
+
+#[test]
+fn units_are_batch_major_and_the_last_batch_is_short() {
+    let mut core = Scheduler::new(1, Duration::from_secs(5));
+    core.jobs.insert(JOB, Job::new(record(5, 2)));
+    let now = Instant::now();
+    let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+    let got: Vec<Unit> = core.lease(w, 100, now).iter().map(|g| g.unit).collect();
+    assert_eq!(got.len(), 6);
+    let want: Vec<Unit> = [(0, 0), (1, 0), (0, 1), (1, 1), (0, 2), (1, 2)]
+        .map(|(tile, batch)| Unit { tile, batch })
+        .to_vec();
+    assert_eq!(got, want);
+    assert_eq!(core.jobs[&JOB].batch_range(2), 4..5);
+}
+
+#[test]
+fn out_of_order_results_merge_in_batch_order_once() {
+    let mut core = Scheduler::new(3, Duration::from_secs(5));
+    core.jobs.insert(JOB, Job::new(record(6, 2)));
+    let now = Instant::now();
+    let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+    let granted = core.lease(w, 100, now);
+    let names: Vec<(LeaseId, Unit)> = granted.iter().map(|g| (g.lease, g.unit)).collect();
+    // Tile 0's batches arrive 2, 0, 1; a copy of batch 0 arrives again.
+    let order = [2u32, 0, 1];
+    for b in order {
+        let (name, u) = names
+            .iter()
+            .find(|(_, u)| u.tile == 0 && u.batch == b)
+            .cloned()
+            .expect("leased");
+        let r = result(&core.jobs[&JOB], u, b as f64 + 1.0);
+        let m = core.submit(w, name, JOB, u, r, now).expect("merged");
+        assert!(matches!(m, Merged::New { .. }));
+    }
+    let (name, u) = names[0];
+    let r = result(&core.jobs[&JOB], u, 1.0);
+    assert!(matches!(
+        core.submit(w, name, JOB, u, r, now),
+        Ok(Merged::Duplicate)
+    ));
+    let acc = &core.jobs[&JOB].acc[&0];
+    assert_eq!(acc.next, 3);
+    let sums = acc.sums.as_ref().expect("sums");
+    assert_eq!(sums.sum[0], [((0.0 + 1.0) + 2.0) + 3.0; 3]);
+    assert_eq!(sums.samples, 0..6);
+}
+
+#[test]
+fn bad_results_are_refused_and_counted() {
+    let mut core = Scheduler::new(1, Duration::from_secs(5));
+    core.jobs.insert(JOB, Job::new(record(4, 2)));
+    let now = Instant::now();
+    let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+    let g = core.lease(w, 1, now).remove(0);
+    let name = g.lease;
+    let job = &core.jobs[&JOB];
+    let mut nan = result(job, g.unit, 1.0);
+    nan.sum[1][2] = f64::NAN;
+    let mut short = result(job, g.unit, 1.0);
+    short.count.pop();
+    let mut wrong_range = result(job, g.unit, 1.0);
+    wrong_range.samples = 1..3;
+    let mut lying = result(job, g.unit, 1.0);
+    lying.count[0] = 1;
+    for bad in [nan, short, wrong_range, lying] {
+        assert!(matches!(
+            core.submit(w, name, JOB, g.unit, bad, now),
+            Err(Refusal::Invalid(_))
+        ));
+    }
+    assert_eq!(core.workers[&w].bad_results, 4);
+    let other = Unit { tile: 1, batch: 0 };
+    let r = result(&core.jobs[&JOB], other, 1.0);
+    assert!(matches!(
+        core.submit(w, name, JOB, other, r, now),
+        Err(Refusal::Precondition(_))
+    ));
+    let r = result(&core.jobs[&JOB], g.unit, 1.0);
+    assert!(matches!(
+        core.submit(w, LeaseId { epoch: 0, n: 1 }, JOB, g.unit, r, now),
+        Err(Refusal::Precondition(_))
+    ));
+    assert_eq!(core.jobs[&JOB].units_done, 0);
+}
+
+#[test]
+fn lapsed_leases_requeue_and_late_results_still_count_once() {
+    let mut core = Scheduler::new(1, Duration::from_secs(5));
+    core.jobs.insert(JOB, Job::new(record(2, 2)));
+    let t0 = Instant::now();
+    let a = core.register("a".into(), 1, "v".into(), "s".into(), t0);
+    let b = core.register("b".into(), 1, "v".into(), "s".into(), t0);
+    let first = core.lease(a, 1, t0).remove(0);
+    let later = t0 + Duration::from_secs(6);
+    let again = core.lease(b, 1, later).remove(0);
+    assert_eq!(first.unit, again.unit, "the lapsed unit is served first");
+    let r = result(&core.jobs[&JOB], first.unit, 1.0);
+    let name = first.lease;
+    assert!(matches!(
+        core.submit(a, name, JOB, first.unit, r.clone(), later),
+        Ok(Merged::New { .. })
+    ));
+    let name = again.lease;
+    assert!(matches!(
+        core.submit(b, name, JOB, again.unit, r, later),
+        Ok(Merged::Duplicate)
+    ));
+    assert_eq!(core.heartbeat(b, &[name], later), vec![name]);
+}
+
+#[test]
+fn idle_workers_race_the_oldest_outstanding_unit_once_the_queue_is_empty() {
+    let mut core = Scheduler::new(1, Duration::from_secs(60));
+    core.jobs.insert(JOB, Job::new(record(2, 2)));
+    let now = Instant::now();
+    let slow = core.register("slow".into(), 1, "v".into(), "s".into(), now);
+    let fast = core.register("fast".into(), 1, "v".into(), "s".into(), now);
+    let held = core.lease(slow, 2, now);
+    assert_eq!(held.len(), 2);
+    // No fresh unit is left: the fast worker gets a copy of the oldest unit, then of the
+    // other, and nothing more (each unit is raced at most once).
+    let copies = core.lease(fast, 5, now);
+    let units: Vec<Unit> = copies.iter().map(|g| g.unit).collect();
+    assert_eq!(units, vec![held[0].unit, held[1].unit]);
+    assert!(core.lease(fast, 5, now).is_empty());
+    // The copy's result wins; the slow original is then a duplicate.
+    let r = result(&core.jobs[&JOB], copies[0].unit, 1.0);
+    let name = copies[0].lease;
+    assert!(matches!(
+        core.submit(fast, name, JOB, copies[0].unit, r.clone(), now),
+        Ok(Merged::New { .. })
+    ));
+    let name = held[0].lease;
+    assert!(matches!(
+        core.submit(slow, name, JOB, held[0].unit, r, now),
+        Ok(Merged::Duplicate)
+    ));
+}
+
+#[test]
+fn a_worker_that_keeps_sending_bad_results_is_quarantined() {
+    let mut core = Scheduler::new(1, Duration::from_secs(60));
+    core.quarantine_after = 3;
+    core.jobs.insert(JOB, Job::new(record(8, 2)));
+    let now = Instant::now();
+    let w = core.register("bad".into(), 1, "v".into(), "s".into(), now);
+    let id = core.worker_credential(w).expect("registered");
+    let g = core.lease(w, 2, now);
+    let name = g[0].lease;
+    for _ in 0..3 {
+        let mut r = result(&core.jobs[&JOB], g[0].unit, 1.0);
+        r.sum[0][0] = f64::INFINITY;
+        assert!(matches!(
+            core.submit(w, name, JOB, g[0].unit, r, now),
+            Err(Refusal::Invalid(_))
+        ));
+    }
+    assert!(core.workers[&w].quarantined);
+    assert!(matches!(
+        core.touch_worker(&id, now),
+        Err(Refusal::Denied(_))
+    ));
+    assert!(core.lease(w, 1, now).is_empty());
+    assert_eq!(core.leases_of(w), 0, "its leases were taken back");
+    let other = core.register("good".into(), 1, "v".into(), "s".into(), now);
+    let mut units: Vec<Unit> = core.lease(other, 2, now).iter().map(|g| g.unit).collect();
+    units.sort();
+    let mut want = vec![g[0].unit, g[1].unit];
+    want.sort();
+    assert_eq!(units, want, "its units are handed out again first");
+}
+
+#[test]
+fn admission_allocates_nothing_per_tile() {
+    // 8192² at tile 4: 4M tiles. The job is accepted and leased with no per-tile memory;
+    // only the tiles that get results have accumulators.
+    let mut rec = record(1, 1);
+    rec.width = 8192;
+    rec.height = 8192;
+    rec.tile_size = 4;
+    let job = Job::new(rec);
+    assert_eq!(job.units_total(), 4 << 20);
+    assert!(job.acc.is_empty());
+    let mut core = Scheduler::new(1, Duration::from_secs(5));
+    core.jobs.insert(JOB, job);
+    let now = Instant::now();
+    let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+    let g = core.lease(w, 1, now).remove(0);
+    let r = result(&core.jobs[&JOB], g.unit, 1.0);
+    let name = g.lease;
+    assert!(matches!(
+        core.submit(w, name, JOB, g.unit, r, now),
+        Ok(Merged::New { .. })
+    ));
+    assert_eq!(core.jobs[&JOB].acc.len(), 1);
+    let (rms, _) = core.jobs[&JOB].noise();
+    assert!(rms.is_finite());
+}
+
+#[test]
+fn forged_finite_sums_that_would_overflow_when_merged_are_refused() {
+    let mut core = Scheduler::new(1, Duration::from_secs(5));
+    core.jobs.insert(JOB, Job::new(record(4, 2)));
+    let now = Instant::now();
+    let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+    let g = core.lease(w, 8, now);
+    // Two results of 1.7e308 each are finite, but their sum is not.
+    for unit in [g[0].unit, g[2].unit] {
+        let name = g.iter().find(|x| x.unit == unit).expect("leased").lease;
+        let mut r = result(&core.jobs[&JOB], unit, 1.0);
+        r.sum_sq[0] = [1.7e308; 3];
+        assert!(
+            matches!(core.submit(w, name, JOB, unit, r, now), Err(Refusal::Invalid(m)) if m.contains("f32::MAX")),
+        );
+        let mut r = result(&core.jobs[&JOB], unit, 1.0);
+        r.sum[1] = [1e300, 0.0, 0.0];
+        assert!(matches!(
+            core.submit(w, name, JOB, unit, r, now),
+            Err(Refusal::Invalid(_))
+        ));
+    }
+    // The largest honest values merge, and stay finite through every batch.
+    for unit in [g[0].unit, g[2].unit] {
+        let name = g.iter().find(|x| x.unit == unit).expect("leased").lease;
+        let mut r = result(&core.jobs[&JOB], unit, 1.0);
+        let k = r.count[0] as f64;
+        let m = f32::MAX as f64;
+        r.sum[0] = [k * m; 3];
+        r.sum_sq[0] = [k * m * m; 3];
+        assert!(matches!(
+            core.submit(w, name, JOB, unit, r, now),
+            Ok(Merged::New { .. })
+        ));
+    }
+    let sums = core.jobs[&JOB].acc[&0].sums.as_ref().expect("sums");
+    assert!(sums.sum_sq[0].iter().all(|v| v.is_finite()));
+    let (rms, rel) = core.jobs[&JOB].noise();
+    assert!(rms.is_finite() && rel.is_finite());
+    // What is stored of a job with such noise loads again.
+    let ops = core.end_job(JOB, JobPhase::Done, String::new(), 1);
+    let Some(Op::PutJob(rec)) = ops.first() else {
+        panic!("no record")
+    };
+    let mut rec = rec.clone();
+    rec.final_noise = (f64::INFINITY, f64::NAN);
+    let json = serde_json::to_vec(&rec).expect("json");
+    let back: JobRecord = serde_json::from_slice(&json).expect("loads");
+    assert_eq!(back.final_noise, (0.0, 0.0));
+    let nulls: JobRecord = serde_json::from_slice(
+        &String::from_utf8(json)
+            .expect("utf8")
+            .replace("[0.0,0.0]", "[null,null]")
+            .into_bytes(),
+    )
+    .expect("a null noise loads");
+    assert_eq!(nulls.final_noise, (0.0, 0.0));
+}
+
+#[test]
+fn ids_are_bound_to_the_registration_that_got_them() {
+    let mut core = Scheduler::new(1, Duration::from_secs(5));
+    core.jobs.insert(JOB, Job::new(record(4, 2)));
+    let now = Instant::now();
+    let honest = core.register("honest".into(), 1, "v".into(), "secret-a".into(), now);
+    let thief = core.register("thief".into(), 1, "v".into(), "secret-b".into(), now);
+    // The public id alone, or with another secret, is an unknown worker.
+    let public = core.worker_id(honest);
+    for secret in ["secret-b", "", "secret-a-longer"] {
+        let forged = WorkerCredential {
+            id: public,
+            secret: secret.into(),
+        };
+        assert!(
+            matches!(core.touch_worker(&forged, now), Err(Refusal::NotFound(_))),
+            "{secret}"
+        );
+    }
+    // The right secret under another boot's id is unknown too.
+    let stale = WorkerCredential {
+        id: WorkerId { epoch: 0, ..public },
+        secret: "secret-a".into(),
+    };
+    assert!(matches!(
+        core.touch_worker(&stale, now),
+        Err(Refusal::NotFound(_))
+    ));
+    let cred = core.worker_credential(honest).expect("registered");
+    assert_eq!(core.touch_worker(&cred, now), Ok(honest));
+    // A result under another worker's lease is refused, and does not count against it.
+    let g = core.lease(honest, 1, now).remove(0);
+    let name = g.lease;
+    let r = result(&core.jobs[&JOB], g.unit, 1.0);
+    assert!(matches!(
+        core.submit(thief, name, JOB, g.unit, r.clone(), now),
+        Err(Refusal::Precondition(_))
+    ));
+    assert_eq!(core.workers[&honest].bad_results, 0);
+    assert_eq!(core.jobs[&JOB].units_done, 0);
+    assert!(matches!(
+        core.submit(honest, name, JOB, g.unit, r, now),
+        Ok(Merged::New { .. })
+    ));
+    // Nor can another worker renew, release or refuse the honest worker's leases.
+    let g = core.lease(honest, 1, now).remove(0);
+    let name = g.lease;
+    assert_eq!(core.heartbeat(thief, &[name], now), vec![name]);
+    assert_eq!(core.release(thief, &[name]), 0);
+    assert!(core.cannot_render(thief, &[name], "no", 1).is_empty());
+    assert!(core.jobs[&JOB].is_live());
+}
+
+#[test]
+fn hoarding_registrations_cannot_stall_a_job() {
+    let lease = Duration::from_secs(5);
+    let mut core = Scheduler::new(1, lease);
+    core.max_leases_per_worker = 8;
+    core.jobs.insert(JOB, Job::new(record(8, 2)));
+    let t0 = Instant::now();
+    let h1 = core.register("h1".into(), 1, "v".into(), "a".into(), t0);
+    let h2 = core.register("h2".into(), 1, "v".into(), "b".into(), t0);
+    // Each asks for everything and gets its share, no more: h1 all 8 units, h2 a racing
+    // copy of each (each had one live lease), so every unit now has two holders.
+    let a = core.lease(h1, 64, t0);
+    assert_eq!(a.len(), 8);
+    assert!(core.lease(h1, 64, t0).is_empty(), "h1 is at its share");
+    let b = core.lease(h2, 64, t0);
+    assert_eq!(b.len(), 8);
+    let honest = core.register("honest".into(), 1, "v".into(), "c".into(), t0);
+    assert!(
+        core.lease(honest, 4, t0).is_empty(),
+        "fresh hoards are not raced yet: the holders may just be busy"
+    );
+    // The hoarders keep renewing and never send anything.
+    let mut t = t0;
+    let mut all: Vec<LeaseId> = a.iter().chain(&b).map(|g| g.lease).collect();
+    all.sort();
+    for _ in 0..3 {
+        t += lease / 2;
+        core.heartbeat(h1, &all, t);
+        core.heartbeat(h2, &all, t);
+    }
+    // Past a lease time since they were issued, the hoarded units are slow: the honest
+    // worker gets copies, up to its share, and finishes every unit.
+    let mut done = 0;
+    let total = core.jobs[&JOB].units_total() as usize;
+    while done < total {
+        let got = core.lease(honest, 4, t);
+        assert!(
+            !got.is_empty(),
+            "the honest worker starves after {done} units"
+        );
+        for g in got {
+            let r = result(&core.jobs[&JOB], g.unit, 1.0);
+            let name = g.lease;
+            if let Ok(Merged::New { .. }) = core.submit(honest, name, JOB, g.unit, r, t) {
+                done += 1;
+            }
+        }
+        t += Duration::from_millis(10);
+    }
+    assert!(
+        core.jobs[&JOB].finishing,
+        "the job finished without the hoarders"
+    );
+}
+
+#[test]
+fn a_unit_a_worker_cannot_render_fails_its_job_once_with_the_reason() {
+    let mut core = Scheduler::new(1, Duration::from_secs(5));
+    core.jobs.insert(JOB, Job::new(record(4, 2)));
+    let now = Instant::now();
+    let w = core.register("small".into(), 1, "v".into(), "s".into(), now);
+    let g = core.lease(w, 1, now).remove(0);
+    let name = g.lease;
+    let ops = core.cannot_render(w, &[name], "scene.toml: film.width 20000 is above 16384", 5);
+    assert!(ops
+        .iter()
+        .any(|o| matches!(o, Op::PutJob(r) if r.phase == JobPhase::Failed)));
+    let job = &core.jobs[&JOB];
+    assert_eq!(job.rec.phase, JobPhase::Failed);
+    assert!(
+        job.rec.error.contains("cannot render tile"),
+        "{}",
+        job.rec.error
+    );
+    assert!(
+        job.rec.error.contains("film.width 20000"),
+        "{}",
+        job.rec.error
+    );
+    // The unit is not handed out again.
+    assert!(core.lease(w, 8, now).is_empty());
+    assert!(core.cannot_render(w, &[name], "again", 6).is_empty());
+}
+
+#[test]
+fn admission_checks_its_bounds_and_names_each_job_once() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let names = OutputNames::new(dir.path());
+    let mut core = Scheduler::new(1, Duration::from_secs(5));
+    let job = |name: Option<&str>| Admission {
+        scene_hash: "h".into(),
+        scene: StoredScene {
+            text: String::new(),
+            json: false,
+            name: "s".into(),
+        },
+        width: 8,
+        height: 8,
+        settings: RenderSettings {
+            spp: 4,
+            batch: 2,
+            ..RenderSettings::default()
+        },
+        tile_size: 4,
+        output_name: name.map(Into::into),
+        priority: 0,
+        variance: false,
+        sample_count: false,
+    };
+    let limits = AdmissionLimits {
+        max_active_jobs: 2,
+        max_units_per_job: 8,
+    };
+    // 4 tiles × 2 batches: 8 units, at the limit.
+    let (a, ops) = core.admit(job(None), limits, &names, 1).expect("admitted");
+    assert_eq!(a, JobId(1));
+    assert_eq!(core.jobs[&a].rec.output_name, "job-000001.exr");
+    assert_eq!(core.jobs[&a].units_total(), 8);
+    assert!(matches!(&ops[..], [Op::PutScene(..), Op::PutJob(r)] if r.id == 1));
+    let fewer = AdmissionLimits {
+        max_units_per_job: 7,
+        ..limits
+    };
+    assert!(matches!(
+        core.admit(job(None), fewer, &names, 1),
+        Err(Refusal::Exhausted(m)) if m.contains("8 work units")
+    ));
+    let (b, _) = core
+        .admit(job(Some("shot.exr")), limits, &names, 1)
+        .expect("named");
+    assert_eq!(b, JobId(2), "a refused job takes no id");
+    assert!(matches!(
+        core.admit(job(None), limits, &names, 1),
+        Err(Refusal::Exhausted(m)) if m.contains("2 jobs")
+    ));
+    core.end_job(a, JobPhase::Cancelled, String::new(), 2);
+    assert!(matches!(
+        core.admit(job(Some("shot.exr")), limits, &names, 2),
+        Err(Refusal::Exists(m)) if m.contains("job-000002")
+    ));
+    let (c, _) = core
+        .admit(job(None), limits, &names, 3)
+        .expect("room again");
+    assert_eq!(c, JobId(3));
+}
