@@ -19,12 +19,7 @@ async fn ids_and_leases_are_bound_to_the_worker_that_got_them() {
         .await
         .expect("register");
     // What anyone can see of the honest worker: its public id, without the secret.
-    let listed = client
-        .list_workers(pb::ListWorkersRequest {})
-        .await
-        .expect("workers")
-        .into_inner()
-        .workers;
+    let listed = list_workers(&mut client).await;
     let public = listed
         .iter()
         .find(|w| w.name == "honest")
@@ -78,12 +73,7 @@ async fn ids_and_leases_are_bound_to_the_worker_that_got_them() {
             .expect_err("forged id");
         assert_eq!(e.code(), tonic::Code::NotFound);
     }
-    let listed = client
-        .list_workers(pb::ListWorkersRequest {})
-        .await
-        .expect("workers")
-        .into_inner()
-        .workers;
+    let listed = list_workers(&mut client).await;
     let h = listed.iter().find(|w| w.name == "honest").expect("listed");
     assert_eq!((h.bad_results, h.quarantined), (0, false));
     // The honest worker's result still merges.

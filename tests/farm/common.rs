@@ -122,6 +122,20 @@ pub fn worker_with(url: &str, name: &str, client: ClientOptions) -> tokio::task:
     })
 }
 
+/// The request the tests submit: the scene at `spp` in batches of `batch`, seed 7, 16-pixel
+/// tiles.
+pub fn submit_request(text: &str, spp: u32, batch: u32) -> pb::SubmitJobRequest {
+    pb::SubmitJobRequest {
+        scene_text: text.into(),
+        scene_format: pb::SceneFormat::Toml as i32,
+        scene_name: "cornell.toml".into(),
+        settings: Some(pb::RenderSettings::from(&job_settings(spp, batch))),
+        tile_size: 16,
+        ..Default::default()
+    }
+}
+
+/// Submits `text` and returns the job id.
 pub async fn submit(
     client: &mut Client,
     text: &str,
@@ -131,24 +145,23 @@ pub async fn submit(
 ) -> String {
     client
         .submit_job(pb::SubmitJobRequest {
-            scene_text: text.into(),
-            scene_format: pb::SceneFormat::Toml as i32,
-            scene_name: "cornell.toml".into(),
-            settings: Some(pb::RenderSettings {
-                spp,
-                seed: 7,
-                batch,
-                strategy: pb::Strategy::Mis as i32,
-            }),
-            tile_size: 16,
-            output_name: String::new(),
             priority,
-            channels: None,
+            ..submit_request(text, spp, batch)
         })
         .await
         .expect("submit")
         .into_inner()
         .job_id
+}
+
+/// The workers the coordinator lists.
+pub async fn list_workers(client: &mut Client) -> Vec<pb::WorkerInfo> {
+    client
+        .list_workers(pb::ListWorkersRequest {})
+        .await
+        .expect("workers")
+        .into_inner()
+        .workers
 }
 
 /// A job's current status.
@@ -320,19 +333,8 @@ pub async fn submit_named(
 ) -> Result<String, tonic::Status> {
     client
         .submit_job(pb::SubmitJobRequest {
-            scene_text: text.into(),
-            scene_format: pb::SceneFormat::Toml as i32,
-            scene_name: "cornell.toml".into(),
-            settings: Some(pb::RenderSettings {
-                spp: 2,
-                seed: 7,
-                batch: 2,
-                strategy: pb::Strategy::Mis as i32,
-            }),
-            tile_size: 16,
             output_name: name.into(),
-            priority: 0,
-            channels: None,
+            ..submit_request(text, 2, 2)
         })
         .await
         .map(|r| r.into_inner().job_id)

@@ -93,12 +93,7 @@ async fn forged_results_are_refused_and_leave_the_image_unaffected() {
         .await
         .expect_err("quarantined");
     assert_eq!(e.code(), tonic::Code::PermissionDenied);
-    let listed = client
-        .list_workers(pb::ListWorkersRequest {})
-        .await
-        .expect("workers")
-        .into_inner()
-        .workers;
+    let listed = list_workers(&mut client).await;
     let f = listed.iter().find(|w| w.name == "forger").expect("listed");
     assert!(f.quarantined);
     assert_eq!(f.bad_results, 5);

@@ -24,12 +24,7 @@ async fn a_worker_registers_once_after_a_coordinator_restart() {
     let mut client = coord.client().await;
     let s = wait(&mut client, &job).await;
     assert_eq!(s.state, pb::JobState::Done as i32);
-    let listed = client
-        .list_workers(pb::ListWorkersRequest {})
-        .await
-        .expect("workers")
-        .into_inner()
-        .workers;
+    let listed = list_workers(&mut client).await;
     assert_eq!(listed.len(), 1, "ghost registrations: {listed:?}");
     w.abort();
     coord.stop().await;

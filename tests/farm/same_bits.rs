@@ -24,12 +24,7 @@ async fn three_workers_render_the_same_bits_as_a_local_render() {
     let local = local_exr(&text, 24, 8, dir.path());
     assert!(farm == local, "farm EXR differs from the local render");
 
-    let listed = client
-        .list_workers(pb::ListWorkersRequest {})
-        .await
-        .expect("workers")
-        .into_inner()
-        .workers;
+    let listed = list_workers(&mut client).await;
     assert_eq!(listed.len(), 3);
     assert_eq!(listed.iter().map(|w| w.units_done).sum::<u64>(), 27);
     for w in workers {

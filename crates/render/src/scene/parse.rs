@@ -41,7 +41,21 @@ pub(super) fn locate(
         Format::Toml => locate::toml_span(text, path),
         Format::Json => locate::json_span(text, path),
     };
-    let (line, column) = span.map_or((1, 1), |s| line_col(text, s.start));
+    error_at(
+        file,
+        span.map_or((1, 1), |s| line_col(text, s.start)),
+        path,
+        message,
+    )
+}
+
+/// An error at (line, column) and key `path` of `file`.
+fn error_at(
+    file: &str,
+    (line, column): (usize, usize),
+    path: &KeyPath,
+    message: String,
+) -> SceneError {
     SceneError {
         file: file.into(),
         line,
@@ -88,19 +102,13 @@ pub(super) fn parse(text: &str, format: Format, file: &str) -> Result<SceneFile,
                     message = format!("syntax error: {message}");
                 }
                 let path = unknown_key_path(path, &message);
-                let (line, column) = match inner.span() {
+                let at = match inner.span() {
                     Some(s) => line_col(text, s.start),
                     None => {
                         locate::toml_span(text, &path).map_or((1, 1), |s| line_col(text, s.start))
                     }
                 };
-                SceneError {
-                    file: file.into(),
-                    line,
-                    column,
-                    path: path.to_string(),
-                    message,
-                }
+                error_at(file, at, &path, message)
             })
         }
         Format::Json => {
@@ -113,13 +121,7 @@ pub(super) fn parse(text: &str, format: Format, file: &str) -> Result<SceneFile,
                 // serde_json appends " at line L column C"; keep the message without it.
                 let message = full.split(" at line ").next().unwrap_or(&full).to_string();
                 let path = unknown_key_path(path, &message);
-                SceneError {
-                    file: file.into(),
-                    line: inner.line(),
-                    column: inner.column(),
-                    path: path.to_string(),
-                    message,
-                }
+                error_at(file, (inner.line(), inner.column()), &path, message)
             })
         }
     }
