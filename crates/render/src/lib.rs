@@ -10,11 +10,13 @@
 //! merged in batch order, the same job gives the same bits however the frame is cut into
 //! tiles, threads, batches of work or machines.
 //!
-//! Modules follow pbrt's split: [`math`] and [`shape`] (geometry and intersection), [`bvh`]
-//! and [`leaf`] (its leaves, quads four at a time), [`sampling`] (sample generation and warps),
-//! [`light`], [`camera`], [`scene`] (file format, validation, runtime scene), [`integrator`],
-//! [`lanes`] (f32 SIMD lanes of any width) and [`wide`] (the integrator four or eight paths at
-//! a time, for the scenes whose bounce it models, with the same bits), [`tile`] (partial sums) and [`output`] (EXR, PNG).
+//! Modules follow pbrt-v4's split: [`math`] and [`shape`] (geometry and intersection),
+//! [`accel`] (the ray queries: a BVH whose leaves test quads four at a time), [`packet`] (rays
+//! in SIMD lanes), [`sampling`] (sample generation and warps), [`bsdf`], [`light`], [`camera`],
+//! [`scene`] (file format, parsing, validation, runtime scene), [`integrator`], [`lanes`] (f32
+//! SIMD lanes of any width) and [`wide`] (the integrator four to sixteen paths at a time, for
+//! the scenes whose bounce it models, with the same bits), [`film`] (partial sums and images),
+//! [`tile`] (the render driver) and [`output`] (EXR, PNG).
 //!
 //! ```no_run
 //! use tessera_render::{scene::{Limits, Scene}, RenderSettings, render_frame};

@@ -307,7 +307,7 @@ impl Leaves {
     /// `active`) gets the closest hit with t in (0, ∞), the same as [`Leaves::closest`] gives
     /// its ray, ties included. `other(p, lanes, t_max)` tests the rays of `lanes` (bits)
     /// against other primitive `p`, each with its own t_max, and answers as
-    /// [`crate::shape::cuboid_lanes`] does: the lanes with a hit, their t and their parts.
+    /// `shape::cuboid_lanes` does: the lanes with a hit, their t and their parts.
     #[inline(always)]
     pub fn closest_lanes<const N: usize>(
         &self,
