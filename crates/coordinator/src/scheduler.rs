@@ -148,9 +148,6 @@ pub struct Scheduler {
     pub max_leases_per_worker: usize,
 }
 
-/// Most live leases one unit may have: its first holder and a few racers.
-pub const MAX_COPIES: usize = 3;
-
 /// Whether unit `u` of `job` has a live lease.
 fn has_active_lease(job: &Job, u: Unit, leases: &HashMap<u64, Lease>) -> bool {
     job.issued
@@ -161,9 +158,12 @@ fn has_active_lease(job: &Job, u: Unit, leases: &HashMap<u64, Lease>) -> bool {
 /// A copy of a unit that is out already, for worker `w` to race, among those `w` does not
 /// hold: the one leased longest ago that has exactly one live lease, or else one whose live
 /// leases are all older than `slow` (held by slow or hoarding workers, which renew their leases
-/// but never finish), up to [`MAX_COPIES`] live leases a unit. Near the end of a job this keeps
-/// a slow, stuck or hostile worker from holding everyone up; the first result is merged and the
-/// others are duplicates.
+/// but never finish). Near the end of a job this keeps a slow, stuck or hostile worker from
+/// holding everyone up; the first result is merged and the others are duplicates.
+///
+/// Copies are limited in rate, not in number: a new copy is fresh, so the next one waits until
+/// it too is `slow`. A cap on the number would let as many hoarding registrations fill it and
+/// keep the unit from every honest worker for good.
 fn speculative_unit(
     job: &Job,
     w: u64,
@@ -186,8 +186,7 @@ fn speculative_unit(
         let all_slow = live
             .iter()
             .all(|(_, x)| now.saturating_duration_since(x.issued) >= slow);
-        let eligible = !live.iter().any(|(_, x)| x.worker == w)
-            && (live.len() == 1 || (all_slow && live.len() < MAX_COPIES));
+        let eligible = !live.iter().any(|(_, x)| x.worker == w) && (live.len() == 1 || all_slow);
         if eligible && best.is_none_or(|(b, _)| oldest < b) {
             best = Some((oldest, *u));
         }

@@ -410,6 +410,53 @@ fn hoarding_registrations_cannot_stall_a_job() {
     );
 }
 
+/// Found by the `rpc_sequence` fuzz target (job 1 stalled with 19 of 20 units): three hoarding
+/// registrations took the first lease and two racing copies of a unit, the most copies a unit
+/// could have, and renewed them for ever, so no honest worker could ever race it. Copies are
+/// now limited in rate (one more each time every holder has had the unit a lease time), not in
+/// number, so however many hoarders there are, an honest worker gets a copy.
+#[test]
+fn any_number_of_hoarders_cannot_keep_a_unit_from_an_honest_worker() {
+    let lease = Duration::from_secs(5);
+    let mut core = Scheduler::new(1, lease);
+    core.jobs.insert(JOB, Job::new(record(2, 2)));
+    let total = core.jobs[&JOB].units_total() as usize;
+    let mut t = Instant::now();
+    let hoarders: Vec<u64> = (0..5)
+        .map(|i| core.register(format!("h{i}"), 1, "v".into(), format!("s{i}"), t))
+        .collect();
+    let mut held: Vec<Vec<LeaseId>> = vec![Vec::new(); hoarders.len()];
+    // Each hoarder takes whatever it can, renews everything it holds, and never sends a result.
+    for _ in 0..20 {
+        for (h, mine) in hoarders.iter().zip(&mut held) {
+            mine.extend(core.lease(*h, 64, t).iter().map(|g| g.lease));
+            core.heartbeat(*h, mine, t);
+        }
+        t += lease / 2;
+    }
+    let copies = core.jobs[&JOB].issued.values().map(Vec::len).max();
+    assert!(
+        copies >= Some(3),
+        "the hoarders hold {copies:?} copies of a unit"
+    );
+    let honest = core.register("honest".into(), 1, "v".into(), "c".into(), t);
+    let mut done = 0;
+    for _ in 0..10 {
+        for (h, mine) in hoarders.iter().zip(&held) {
+            core.heartbeat(*h, mine, t);
+        }
+        for g in core.lease(honest, 4, t) {
+            let r = result(&core.jobs[&JOB], g.unit, 1.0);
+            if let Ok(Merged::New { .. }) = core.submit(honest, g.lease, JOB, g.unit, r, t) {
+                done += 1;
+            }
+        }
+        t += lease / 2;
+    }
+    assert_eq!(done, total, "the honest worker got {done} of {total} units");
+    assert!(core.jobs[&JOB].finishing);
+}
+
 #[test]
 fn a_unit_a_worker_cannot_render_fails_its_job_once_with_the_reason() {
     let mut core = Scheduler::new(1, Duration::from_secs(5));
