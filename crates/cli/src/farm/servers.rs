@@ -1,0 +1,155 @@
+//! `tessera coordinator` and `tessera worker`: the servers, run until Ctrl-C or SIGTERM.
+
+use std::io::Write as _;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{bail, Context, Result};
+use tessera_coordinator::{config, ServerTls};
+use tessera_proto::Secret;
+use tessera_render::scene::Limits;
+use tessera_render::DEFAULT_TILE;
+
+use super::{
+    init_logging, load_token, read_file, runtime, shutdown_signal, tile_range, CoordinatorUrl,
+};
+
+/// Arguments of `tessera coordinator`.
+#[derive(Debug, clap::Args)]
+pub struct CoordinatorArgs {
+    /// Address to listen on (use 0.0.0.0:7878 to accept workers from other machines).
+    #[arg(long, default_value = "127.0.0.1:7878")]
+    listen: String,
+    /// Directory for the durable state (jobs, scenes, merged sums).
+    #[arg(long)]
+    data_dir: PathBuf,
+    /// Directory for finished EXRs (default: DATA_DIR/output).
+    #[arg(long)]
+    output_dir: Option<PathBuf>,
+    /// Seconds a lease lasts without a heartbeat before its unit is handed to another worker.
+    #[arg(long, default_value_t = config::DEFAULT_LEASE_TIMEOUT.as_secs_f64())]
+    lease_timeout: f64,
+    /// Default tile edge in pixels for jobs that do not choose one.
+    #[arg(long, default_value_t = DEFAULT_TILE, value_parser = tile_range())]
+    tile_size: u32,
+    /// Largest scene accepted, in bytes.
+    #[arg(long, default_value_t = config::DEFAULT_MAX_SCENE_BYTES)]
+    max_scene_bytes: usize,
+    /// Largest spp accepted.
+    #[arg(long, default_value_t = Limits::default().max_spp)]
+    max_spp: u32,
+    /// Largest image width or height accepted.
+    #[arg(long, default_value_t = Limits::default().max_resolution)]
+    max_resolution: u32,
+    /// File holding the farm's token; every RPC must then carry it (default: the
+    /// TESSERA_TOKEN environment variable, if set; without either, no token is required).
+    #[arg(long)]
+    token_file: Option<PathBuf>,
+    /// PEM certificate chain to serve TLS with (needs --tls-key).
+    #[arg(long, requires = "tls_key")]
+    tls_cert: Option<PathBuf>,
+    /// PEM private key of --tls-cert.
+    #[arg(long, requires = "tls_cert")]
+    tls_key: Option<PathBuf>,
+    /// PEM CA: clients must present a certificate it signed (mutual TLS; needs --tls-cert).
+    #[arg(long, requires = "tls_cert")]
+    tls_client_ca: Option<PathBuf>,
+    /// Invalid results after which a worker is quarantined.
+    #[arg(long, default_value_t = config::DEFAULT_QUARANTINE_AFTER, value_parser = clap::value_parser!(u64).range(1..))]
+    quarantine_after: u64,
+    /// Most units one worker may hold at once (a stock worker holds at most 3).
+    #[arg(long, default_value_t = config::DEFAULT_MAX_LEASES_PER_WORKER as u32, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    max_leases_per_worker: u32,
+    /// Most client connections open at once.
+    #[arg(long, default_value_t = config::DEFAULT_MAX_CONNECTIONS as u32, value_parser = clap::value_parser!(u32).range(1..))]
+    max_connections: u32,
+}
+
+/// Arguments of `tessera worker`.
+#[derive(Debug, clap::Args)]
+pub struct WorkerArgs {
+    #[command(flatten)]
+    url: CoordinatorUrl,
+    /// Render threads (default: every core).
+    #[arg(long, env = "TESSERA_WORKER_THREADS", value_parser = clap::value_parser!(u32).range(1..=4096))]
+    threads: Option<u32>,
+    /// Name shown by `tessera workers` (default: the host name).
+    #[arg(long)]
+    name: Option<String>,
+}
+
+/// Runs `tessera coordinator`.
+pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
+    if !(args.lease_timeout.is_finite() && (0.1..=86_400.0).contains(&args.lease_timeout)) {
+        bail!(
+            "--lease-timeout must be between 0.1 and 86400 seconds, got {}",
+            args.lease_timeout
+        );
+    }
+    init_logging();
+    let mut config = tessera_coordinator::Config::new(&args.data_dir);
+    config.output_dir = args.output_dir;
+    config.lease_timeout = Duration::from_secs_f64(args.lease_timeout);
+    config.default_tile_size = args.tile_size;
+    config.limits.max_bytes = args.max_scene_bytes;
+    config.limits.max_spp = args.max_spp;
+    config.limits.max_resolution = args.max_resolution;
+    config.max_message_bytes = config
+        .max_message_bytes
+        .max(args.max_scene_bytes + (1 << 20));
+    config.quarantine_after = args.quarantine_after;
+    config.max_leases_per_worker = args.max_leases_per_worker as usize;
+    config.max_connections = args.max_connections as usize;
+    config.token = load_token(args.token_file.as_deref())?;
+    if let (Some(cert), Some(key)) = (&args.tls_cert, &args.tls_key) {
+        config.tls = Some(ServerTls {
+            cert_pem: read_file("--tls-cert", cert)?,
+            key_pem: Secret::new(String::from_utf8_lossy(&read_file("--tls-key", key)?)),
+            client_ca_pem: args
+                .tls_client_ca
+                .as_deref()
+                .map(|p| read_file("--tls-client-ca", p))
+                .transpose()?,
+        });
+    }
+    let auth = match (&config.token, &config.tls) {
+        (Some(_), Some(_)) => "token and TLS",
+        (Some(_), None) => "token (no TLS: the token crosses the network in clear)",
+        (None, Some(_)) => "TLS, no token",
+        (None, None) => "none: anyone who can connect may submit, lease and fetch",
+    };
+    runtime()?.block_on(async {
+        let listener = tokio::net::TcpListener::bind(&args.listen)
+            .await
+            .with_context(|| format!("--listen {}: cannot listen", args.listen))?;
+        let addr = listener.local_addr()?;
+        // Said once the store is open and the TLS key loaded, so that a script (or a person)
+        // waiting for it knows the coordinator is really up; a failure before that is the
+        // one line of the error instead. stdout is line-buffered, so the newline sends it.
+        // Best effort: a script that read it and closed the pipe must not stop the server.
+        let ready = move || {
+            tracing::info!("auth: {auth}");
+            let _ = writeln!(std::io::stdout(), "listening on {addr}");
+        };
+        tessera_coordinator::serve_when_ready(config, listener, shutdown_signal(), ready).await?;
+        Ok(())
+    })
+}
+
+/// Runs `tessera worker`.
+pub fn worker(args: WorkerArgs) -> Result<()> {
+    init_logging();
+    let options = args.url.options()?;
+    let mut config = tessera_worker::Config::new(args.url.coordinator);
+    config.client = options;
+    config.threads = args.threads.map(|t| t as usize);
+    config.name = match args.name {
+        Some(n) => n,
+        None => hostname::get()
+            .ok()
+            .and_then(|h| h.into_string().ok())
+            .unwrap_or_else(|| "worker".into()),
+    };
+    runtime()?.block_on(tessera_worker::run(config, shutdown_signal()))?;
+    Ok(())
+}
