@@ -81,7 +81,7 @@ impl Coordinator {
         Self {
             addr,
             out,
-            server: Spawned::on(config, listener),
+            server: Spawned::on(config, listener).expect("serve on the old address"),
         }
     }
 

@@ -557,10 +557,13 @@ impl Scheduler {
         out
     }
 
-    /// The lease `id` if it is worker `w`'s, issued in this boot.
-    fn lease_of(&mut self, w: u64, id: LeaseId) -> Option<&mut Lease> {
+    /// The number of lease `id` if it was issued in this boot to worker `w`.
+    fn held_by(&self, w: u64, id: LeaseId) -> Option<u64> {
         let n = self.lease_number(id).ok()?;
-        self.leases.get_mut(&n).filter(|l| l.worker == w)
+        self.leases
+            .get(&n)
+            .is_some_and(|l| l.worker == w)
+            .then_some(n)
     }
 
     /// Renews worker `w`'s leases; returns those it should drop.
@@ -568,20 +571,17 @@ impl Scheduler {
         let deadline = now + self.lease_time;
         let mut revoked = Vec::new();
         for &id in ids {
-            let n = self.lease_number(id).ok();
-            let keep = match n.and_then(|n| self.leases.get_mut(&n)) {
-                Some(l) if l.worker == w => {
-                    let live = self
-                        .jobs
-                        .get(&l.job)
-                        .is_some_and(|j| j.is_live() && !j.is_done(l.unit));
-                    if live && l.active {
-                        l.deadline = deadline;
-                    }
-                    live
+            let lease = self.held_by(w, id).and_then(|n| self.leases.get_mut(&n));
+            let keep = lease.is_some_and(|l| {
+                let live = self
+                    .jobs
+                    .get(&l.job)
+                    .is_some_and(|j| j.is_live() && !j.is_done(l.unit));
+                if live && l.active {
+                    l.deadline = deadline;
                 }
-                _ => false,
-            };
+                live
+            });
             if !keep {
                 revoked.push(id);
             }
@@ -591,16 +591,14 @@ impl Scheduler {
 
     /// Hands leases back: their units go to the front of the queue.
     pub fn release(&mut self, w: u64, ids: &[LeaseId]) -> u32 {
-        let mut n = 0;
+        let mut released = 0;
         for &id in ids {
-            let Some(number) = self.lease_of(w, id).filter(|l| l.active).map(|_| id.n) else {
-                continue;
-            };
-            if let Some(lease) = self.leases.get_mut(&number) {
-                n += u32::from(requeue(&mut self.jobs, lease));
+            let lease = self.held_by(w, id).and_then(|n| self.leases.get_mut(&n));
+            if let Some(lease) = lease.filter(|l| l.active) {
+                released += u32::from(requeue(&mut self.jobs, lease));
             }
         }
-        n
+        released
     }
 
     /// Fails the jobs of the leases that worker `w` says it can never render, with its
@@ -618,11 +616,8 @@ impl Scheduler {
         let reason: String = reason.chars().take(500).collect();
         let mut ops = Vec::new();
         for &id in ids {
-            let Some((job, unit)) = self
-                .lease_of(w, id)
-                .filter(|l| l.active)
-                .map(|l| (l.job, l.unit))
-            else {
+            let lease = self.held_by(w, id).and_then(|n| self.leases.get(&n));
+            let Some((job, unit)) = lease.filter(|l| l.active).map(|l| (l.job, l.unit)) else {
                 continue;
             };
             if !self.jobs.get(&job).is_some_and(|j| j.is_live()) {

@@ -119,26 +119,22 @@ impl Spawned {
     /// Binds `listen` (`127.0.0.1:0` for a free port) and serves `config` there. Must be
     /// called inside a tokio runtime.
     pub async fn start(config: Config, listen: &str) -> std::io::Result<Self> {
-        let listener = tokio::net::TcpListener::bind(listen).await?;
-        Ok(Self::on(config, listener))
+        Self::on(config, tokio::net::TcpListener::bind(listen).await?)
     }
 
     /// Serves `config` on a listener the caller bound (the address of a coordinator that
     /// stopped, to restart it where its workers look for it).
-    pub fn on(config: Config, listener: tokio::net::TcpListener) -> Self {
+    pub fn on(config: Config, listener: tokio::net::TcpListener) -> std::io::Result<Self> {
+        let addr = listener.local_addr()?;
         let (tx, rx) = tokio::sync::oneshot::channel::<()>();
-        // A listener whose address cannot be read is unusable anyway; serve reports it.
-        let addr = listener
-            .local_addr()
-            .unwrap_or_else(|_| std::net::SocketAddr::from(([127, 0, 0, 1], 0)));
         let task = tokio::spawn(serve(config, listener, async {
             let _ = rx.await;
         }));
-        Self {
+        Ok(Self {
             addr,
             stop: Some(tx),
             task,
-        }
+        })
     }
 
     /// The URL clients use: `http://ADDR`.

@@ -88,56 +88,54 @@ fn epoch_and_number(s: &str, prefix: char) -> Option<(u64, u64)> {
     Some((canonical_u64(e)?, canonical_u64(n)?))
 }
 
-/// A lease: the coordinator's boot (`epoch`) and a number, `L{epoch}-{n}`. The epoch lets the
-/// coordinator tell a lease from before a restart from a new one with the same number.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct LeaseId {
-    /// The coordinator boot that issued it.
-    pub epoch: u64,
-    /// Its number within that boot.
-    pub n: u64,
+/// An id of one coordinator boot (`epoch`) and a number within it, written
+/// `{prefix}{epoch}-{n}`: two types of one form, so that a lease id can never be passed where a
+/// worker id is meant.
+macro_rules! epoch_id {
+    ($(#[$doc:meta])* $name:ident, $prefix:literal, $kind:literal, $form:literal) => {
+        $(#[$doc])*
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+        pub struct $name {
+            /// The coordinator boot that issued it.
+            pub epoch: u64,
+            /// Its number within that boot.
+            pub n: u64,
+        }
+
+        impl fmt::Display for $name {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                write!(f, concat!($prefix, "{}-{}"), self.epoch, self.n)
+            }
+        }
+
+        impl FromStr for $name {
+            type Err = BadId;
+
+            fn from_str(s: &str) -> Result<Self, BadId> {
+                epoch_and_number(s, $prefix)
+                    .map(|(epoch, n)| $name { epoch, n })
+                    .ok_or_else(|| BadId::new($kind, $form, s))
+            }
+        }
+    };
 }
 
-impl fmt::Display for LeaseId {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "L{}-{}", self.epoch, self.n)
-    }
-}
+epoch_id!(
+    /// A lease: `L{epoch}-{n}`. The epoch lets the coordinator tell a lease from before a
+    /// restart from a new one with the same number.
+    LeaseId,
+    'L',
+    "lease",
+    "L<boot>-<number>"
+);
 
-impl FromStr for LeaseId {
-    type Err = BadId;
-
-    fn from_str(s: &str) -> Result<Self, BadId> {
-        epoch_and_number(s, 'L')
-            .map(|(epoch, n)| LeaseId { epoch, n })
-            .ok_or_else(|| BadId::new("lease", "L<boot>-<number>", s))
-    }
-}
-
-/// A worker's public id, as `tessera workers` lists it: `w{epoch}-{n}`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct WorkerId {
-    /// The coordinator boot it registered with.
-    pub epoch: u64,
-    /// Its number within that boot.
-    pub n: u64,
-}
-
-impl fmt::Display for WorkerId {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "w{}-{}", self.epoch, self.n)
-    }
-}
-
-impl FromStr for WorkerId {
-    type Err = BadId;
-
-    fn from_str(s: &str) -> Result<Self, BadId> {
-        epoch_and_number(s, 'w')
-            .map(|(epoch, n)| WorkerId { epoch, n })
-            .ok_or_else(|| BadId::new("worker", "w<boot>-<number>", s))
-    }
-}
+epoch_id!(
+    /// A worker's public id, as `tessera workers` lists it: `w{epoch}-{n}`.
+    WorkerId,
+    'w',
+    "worker",
+    "w<boot>-<number>"
+);
 
 /// What a worker quotes in its calls: its public id and the secret only `Register`'s reply
 /// carries, `{id}.{secret}`. Anyone can read the public id from `tessera workers`; only the
