@@ -15,7 +15,8 @@
 //! unreachable are retried with capped exponential backoff, and a worker that the coordinator
 //! no longer knows (after a restart) registers again.
 //!
-//! On shutdown the worker stops leasing, finishes and sends the unit it is rendering (units
+//! On shutdown the worker stops leasing (taking the answer of a lease call already under way,
+//! so that no unit granted in it is lost), finishes and sends the unit it is rendering (units
 //! take seconds at most), hands queued units back, and says goodbye.
 
 use std::collections::{HashMap, HashSet};
@@ -330,6 +331,9 @@ fn prepare(unit: &pb::WorkUnit, scene: &Scene) -> Result<(PixelRect, RenderSetti
     Ok((rect, settings))
 }
 
+/// The longest a lease call waits at the coordinator for a unit to come free.
+const LEASE_WAIT: Duration = Duration::from_secs(2);
+
 /// Leases units while there is room, and queues them for the renderer.
 async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
     // The units rendering and one queued ahead.
@@ -345,12 +349,26 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
         let req = pb::LeaseRequest {
             worker_id: req_id.clone(),
             max_units: 1,
-            wait_ms: 2000,
+            wait_ms: LEASE_WAIT.as_millis() as u32,
         };
         let mut client = ctx.client.clone();
-        let resp = tokio::select! {
-            r = client.lease(req) => r,
-            _ = stop.wait_for(|s| *s) => return,
+        let call = client.lease(req);
+        tokio::pin!(call);
+        let answered = tokio::select! {
+            r = &mut call => Some(r),
+            _ = stop.wait_for(|s| *s) => None,
+        };
+        let Some(resp) = answered else {
+            // The coordinator may have granted units in the answer already on its way: dropping
+            // the call would leave them leased to nobody until their leases lapse. The call is
+            // a long poll of at most LEASE_WAIT, so take its answer and keep its units as held,
+            // for the shutdown to hand back at once.
+            let late = tokio::time::timeout(LEASE_WAIT + Duration::from_secs(1), call).await;
+            if let Ok(Ok(r)) = late {
+                let units = r.into_inner().units;
+                lock(&ctx.held).extend(units.into_iter().map(|u| u.lease_id));
+            }
+            return;
         };
         let units = match resp {
             Ok(r) => {
