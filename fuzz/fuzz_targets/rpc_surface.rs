@@ -78,6 +78,7 @@ fn submit_request(output_name: String) -> pb::SubmitJobRequest {
             seed: 3,
             batch: BATCH,
             strategy: pb::Strategy::Mis as i32,
+            ..Default::default()
         }),
         tile_size: 4,
         output_name,

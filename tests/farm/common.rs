@@ -231,16 +231,25 @@ pub async fn fetch(client: &mut Client, job: &str) -> Vec<u8> {
 
 /// The bytes `tessera render` writes for the same job.
 pub fn local_exr(text: &str, spp: u32, batch: u32, dir: &Path) -> Vec<u8> {
+    local_exr_with(text, &job_settings(spp, batch), ExrChannels::default(), dir)
+}
+
+/// The bytes `tessera render` writes for `settings` and `channels`.
+pub fn local_exr_with(
+    text: &str,
+    settings: &RenderSettings,
+    channels: ExrChannels,
+    dir: &Path,
+) -> Vec<u8> {
     let scene =
         Scene::from_str(text, Format::Toml, "cornell.toml", &Limits::default()).expect("scene");
-    let settings = job_settings(spp, batch);
-    let image = render_frame(&scene, &settings, &|_| {}).finalize();
+    let image = render_frame(&scene, settings, &|_| {}).finalize();
     let path = dir.join("local.exr");
     write_exr(
         &path,
         &image,
-        ExrChannels::default(),
-        &render_metadata(&scene.hash, &settings),
+        channels,
+        &render_metadata(&scene.hash, settings),
     )
     .expect("write");
     std::fs::read(path).expect("read")

@@ -5,6 +5,7 @@
 
 mod common;
 
+mod adaptive;
 mod auth;
 mod bad_submissions;
 mod bound_ids;

@@ -8,7 +8,10 @@ use anyhow::{bail, Context, Result};
 use indicatif::ProgressBar;
 use tessera_render::output::{render_metadata, write_exr, write_png_preview, ExrChannels, Preview};
 use tessera_render::scene::{Limits, Scene};
-use tessera_render::{render_frame, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_BATCH};
+use tessera_render::{
+    render_frame, Adaptive, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_BATCH,
+    DEFAULT_TILE,
+};
 
 /// clap's parser for a batch size in [`BATCH_RANGE`].
 pub fn batch_range() -> clap::builder::RangedI64ValueParser<u32> {
@@ -32,16 +35,34 @@ pub struct SettingsArgs {
     /// Direct-lighting strategy (mis is the best; the others exist for comparisons).
     #[arg(long, value_enum, default_value_t = StrategyArg::Mis)]
     pub strategy: StrategyArg,
+    /// Adaptive sampling: each tile stops once the RMS standard error of its pixel means is
+    /// at most this fraction of their mean (e.g. 0.01), and --spp becomes the cap. Tiles are
+    /// --tile-size pixels, which is then part of the render's identity.
+    #[arg(long, value_parser = noise_target)]
+    pub noise_target: Option<f64>,
+}
+
+/// clap's parser for a noise target in [`NOISE_TARGET_RANGE`].
+fn noise_target(s: &str) -> Result<f64, String> {
+    let t: f64 = s
+        .parse()
+        .map_err(|_| format!("{s:?} is not a number (a relative error such as 0.01)"))?;
+    Adaptive::new(t, DEFAULT_TILE)
+        .map(|a| a.noise_target)
+        .map_err(|e| e.to_string())
 }
 
 impl SettingsArgs {
-    /// The renderer's settings.
-    pub fn to_settings(&self) -> RenderSettings {
+    /// The renderer's settings, with noise decisions (if any) for tiles of `tile` pixels.
+    pub fn to_settings(&self, tile: u32) -> RenderSettings {
         RenderSettings {
             seed: self.seed,
             spp: self.spp,
             batch: self.batch,
             strategy: self.strategy.to_strategy(),
+            adaptive: self
+                .noise_target
+                .map(|noise_target| Adaptive { noise_target, tile }),
             ..RenderSettings::default()
         }
     }
@@ -57,6 +78,11 @@ pub struct RenderArgs {
     /// Output OpenEXR file.
     #[arg(long, short)]
     output: PathBuf,
+    /// Tile edge in pixels for --noise-target's decisions (the farm's default tile, so that
+    /// `tessera submit` with the same flags gives the same bits). Without a noise target the
+    /// tiles cannot change a bit.
+    #[arg(long, default_value_t = DEFAULT_TILE, value_parser = crate::farm::tile_range())]
+    tile_size: u32,
     /// Worker threads (default: every core).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
     threads: Option<u32>,
@@ -202,7 +228,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let scene = Scene::load(&args.scene, &limits)?;
     let settings = RenderSettings {
         tracer: args.tracer.to_tracer(),
-        ..args.settings.to_settings()
+        ..args.settings.to_settings(args.tile_size)
     };
     let mut pool = rayon::ThreadPoolBuilder::new();
     if let Some(t) = args.threads {
@@ -245,14 +271,23 @@ pub fn run(args: RenderArgs) -> Result<()> {
         )?;
     }
     let (noise, rel) = image.noise();
+    let samples = done.load(Ordering::Relaxed);
+    let spp = match settings.adaptive {
+        None => format!("{} spp", settings.spp),
+        Some(a) => format!(
+            "{:.1} spp on average (noise target {}, cap {})",
+            samples as f64 / (scene.width as f64 * scene.height as f64),
+            a.noise_target,
+            settings.spp
+        ),
+    };
     outln!(
-        "rendered {}×{} at {} spp in {:.2} s on {} threads: {:.2} Msamples/s, noise σ≈{:.4} ({:.2}% of mean), {} non-finite samples dropped → {}",
+        "rendered {}×{} at {spp} in {:.2} s on {} threads: {:.2} Msamples/s, noise σ≈{:.4} ({:.2}% of mean), {} non-finite samples dropped → {}",
         scene.width,
         scene.height,
-        settings.spp,
         secs,
         pool.current_num_threads(),
-        total as f64 / secs / 1e6,
+        samples as f64 / secs / 1e6,
         noise,
         rel * 100.0,
         image.nonfinite,

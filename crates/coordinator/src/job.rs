@@ -2,12 +2,13 @@
 //! folds results into them in batch order. Scheduling (which unit goes to whom) is the
 //! [`scheduler`](crate::scheduler)'s; this file knows nothing of workers or leases.
 
-use std::collections::{BTreeMap, HashMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
 use std::ops::Range;
 use std::time::{Duration, Instant};
 
 use tessera_proto::ids::JobId;
-use tessera_render::{PixelRect, RenderSettings, TileSums};
+use tessera_render::adaptive::{min_batches, wants_more};
+use tessera_render::{Adaptive, PixelRect, RenderSettings, TileSums};
 
 use crate::error::Refusal;
 use crate::store::{decode_sums, encode_sums, JobPhase, JobRecord, LoadedJob, Op};
@@ -91,8 +92,18 @@ pub struct Job {
     pub rec: JobRecord,
     /// Its tiles, row-major.
     pub tiles: TileGrid,
-    /// Batches per tile.
+    /// Batches per tile (the most, with a noise target).
     pub n_batches: u32,
+    /// Batches every tile takes before its first noise decision ([`n_batches`](Self::n_batches)
+    /// without a noise target): the cursor hands these out, decisions the rest.
+    pub first_batches: u32,
+    /// Batches that tiles' noise decisions released, lowest batch first: `(batch, tile)`.
+    pub ready: BTreeSet<(u32, u32)>,
+    /// Tiles that need no more batches.
+    pub tiles_closed: u64,
+    /// Units the job will take at least: every tile's first batches, and one more for each
+    /// decision to go on. The job's whole count without a noise target.
+    pub units_planned: u64,
     /// Accumulators of the tiles that have results, made at a tile's first result (none
     /// once the job has ended).
     pub acc: BTreeMap<u32, TileAcc>,
@@ -157,10 +168,19 @@ impl Job {
     pub fn new(rec: JobRecord) -> Self {
         let tiles = TileGrid::new(rec.width, rec.height, rec.tile_size);
         let n_batches = rec.spp.div_ceil(rec.batch.max(1));
+        let first_batches = if rec.noise_target > 0.0 {
+            min_batches(rec.batch).min(n_batches)
+        } else {
+            n_batches
+        };
         Self {
             rec,
             tiles,
             n_batches,
+            first_batches,
+            ready: BTreeSet::new(),
+            tiles_closed: 0,
+            units_planned: tiles.len() as u64 * first_batches as u64,
             acc: BTreeMap::new(),
             noise_total: (0.0, 0.0, 0),
             cursor: 0,
@@ -228,6 +248,18 @@ impl Job {
             job.nonfinite += sums.nonfinite;
             job.acc.entry(tile).or_default().pending.insert(batch, sums);
         }
+        // The decisions the merges made before the stop, made again from the same sums.
+        let decided: Vec<u32> = job
+            .acc
+            .iter()
+            .filter(|(_, a)| a.next >= job.first_batches)
+            .map(|(t, _)| *t)
+            .collect();
+        for tile in decided {
+            let next = job.acc[&tile].next;
+            job.units_planned += (next - job.first_batches) as u64;
+            job.decide(tile);
+        }
         job.started = job.units_done > 0;
         Ok(job)
     }
@@ -237,9 +269,65 @@ impl Job {
         JobId(self.rec.id)
     }
 
-    /// Units in the job.
+    /// Units in the job: the most it can take (with a noise target, tiles may stop before).
     pub fn units_total(&self) -> u64 {
         self.tiles.len() as u64 * self.n_batches as u64
+    }
+
+    /// (units in all, units done, samples in all, samples done) for a status. With a noise
+    /// target the totals are what the decisions so far commit the job to, and grow as tiles
+    /// decide to go on; once the job is done they are what it took.
+    pub fn progress(&self) -> (u64, u64, u64, u64) {
+        let rec = &self.rec;
+        if rec.phase == JobPhase::Done && rec.final_counts != (0, 0) {
+            let (u, s) = rec.final_counts;
+            return (u, u, s, s);
+        }
+        let full = rec.width as u64 * rec.height as u64 * rec.spp as u64;
+        if rec.phase == JobPhase::Done || rec.noise_target <= 0.0 {
+            let done = if rec.phase == JobPhase::Done {
+                (self.units_total(), full)
+            } else {
+                (self.units_done, self.samples_done)
+            };
+            return (self.units_total(), done.0, full, done.1);
+        }
+        let per_unit = (rec.width as u64 * rec.height as u64 * rec.batch as u64)
+            .div_ceil(self.tiles.len().max(1) as u64);
+        let to_come = self.units_planned.saturating_sub(self.units_done) * per_unit;
+        (
+            self.units_planned.max(self.units_done),
+            self.units_done,
+            (self.samples_done + to_come).min(full),
+            self.samples_done,
+        )
+    }
+
+    /// Units handed out by the cursor: every tile's first batches.
+    pub fn units_first(&self) -> u64 {
+        self.tiles.len() as u64 * self.first_batches as u64
+    }
+
+    /// Whether every tile has all the batches it will take, merged.
+    pub fn all_closed(&self) -> bool {
+        self.tiles_closed == self.tiles.len() as u64
+    }
+
+    /// The noise decision for `tile`, whose batches `0..next` are merged and which has had its
+    /// first batches: either its next batch is released, or it is closed. Every decision is
+    /// made here, from merged sums only, so that the same job stops every tile at the same
+    /// batch whatever order results come in, and after a restart.
+    fn decide(&mut self, tile: u32) {
+        let Some(acc) = self.acc.get(&tile) else {
+            return;
+        };
+        let end = acc.next.saturating_mul(self.rec.batch).min(self.rec.spp);
+        if acc.next < self.n_batches && wants_more(&self.settings(), end, acc.noise) {
+            self.ready.insert((acc.next, tile));
+            self.units_planned += 1;
+        } else {
+            self.tiles_closed += 1;
+        }
     }
 
     /// Sample indices of batch `b`.
@@ -255,6 +343,10 @@ impl Job {
             spp: self.rec.spp,
             batch: self.rec.batch,
             strategy: self.rec.strategy,
+            adaptive: (self.rec.noise_target > 0.0).then_some(Adaptive {
+                noise_target: self.rec.noise_target,
+                tile: self.rec.tile_size,
+            }),
             ..RenderSettings::default()
         }
     }
@@ -386,7 +478,9 @@ impl Job {
         let mut ops = Vec::new();
         let rect = sums.rect;
         let acc = self.acc.entry(unit.tile).or_default();
+        let mut advanced = false;
         if unit.batch == acc.next {
+            advanced = true;
             let total = acc.sums.get_or_insert_with(|| TileSums::empty(rect, 0));
             total
                 .merge(&sums)
@@ -413,7 +507,10 @@ impl Job {
             ));
             acc.pending.insert(unit.batch, sums);
         }
-        let finished = self.units_done == self.units_total();
+        if advanced && self.acc[&unit.tile].next >= self.first_batches {
+            self.decide(unit.tile);
+        }
+        let finished = self.all_closed();
         if finished {
             self.finishing = true;
         }

@@ -194,9 +194,10 @@ fn speculative_unit(
     best.map(|(_, u)| u)
 }
 
-/// The next unit of `job` to hand out: one put back first, then the next in batch-major order
-/// (all tiles' batch 0, then batch 1, …), so the image converges evenly and few results wait
-/// out of order.
+/// The next unit of `job` to hand out: one put back first, then the next of every tile's first
+/// batches in batch-major order (all tiles' batch 0, then batch 1, …), so the image converges
+/// evenly and few results wait out of order; then, with a noise target, the batches that
+/// tiles' noise decisions released, lowest first.
 fn next_unit(job: &mut Job, leases: &HashMap<u64, Lease>) -> Option<Unit> {
     while let Some(u) = job.requeue.pop_front() {
         if !job.is_done(u) && !has_active_lease(job, u, leases) {
@@ -204,12 +205,18 @@ fn next_unit(job: &mut Job, leases: &HashMap<u64, Lease>) -> Option<Unit> {
         }
     }
     let n_tiles = (job.tiles.len() as u64).max(1);
-    while job.cursor < job.units_total() {
+    while job.cursor < job.units_first() {
         let u = Unit {
             tile: (job.cursor % n_tiles) as u32,
             batch: (job.cursor / n_tiles) as u32,
         };
         job.cursor += 1;
+        if !job.is_done(u) && !has_active_lease(job, u, leases) {
+            return Some(u);
+        }
+    }
+    while let Some((batch, tile)) = job.ready.pop_first() {
+        let u = Unit { tile, batch };
         if !job.is_done(u) && !has_active_lease(job, u, leases) {
             return Some(u);
         }
@@ -263,7 +270,7 @@ impl Scheduler {
         for loaded in loaded {
             let id = JobId(loaded.record.id);
             let mut job = Job::restore(loaded).map_err(|e| format!("{id}: {e}"))?;
-            if job.rec.phase == JobPhase::Active && job.units_done == job.units_total() {
+            if job.rec.phase == JobPhase::Active && job.all_closed() {
                 job.finishing = true;
                 to_finish.push(id);
             } else if job.rec.phase == JobPhase::Active && job.rec.image_revision != IMAGE_REVISION
@@ -352,6 +359,8 @@ impl Scheduler {
             finished_ms: 0,
             final_noise: (0.0, 0.0),
             image_revision: IMAGE_REVISION,
+            noise_target: s.adaptive.map_or(0.0, |a| a.noise_target),
+            final_counts: (0, 0),
         });
         // The job's own count, so that admission and scheduling cannot disagree on it; a job
         // costs nothing per unit until its units render, so making it first is free.
@@ -698,6 +707,7 @@ impl Scheduler {
         };
         if phase == JobPhase::Done {
             job.rec.final_noise = job.noise();
+            job.rec.final_counts = (job.units_done, job.samples_done);
         }
         job.rec.phase = phase;
         job.rec.error = error;

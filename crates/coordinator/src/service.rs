@@ -92,17 +92,12 @@ fn status(job: &Job, core: &Scheduler) -> pb::JobStatus {
         JobPhase::Cancelled => pb::JobState::Cancelled,
         JobPhase::Failed => pb::JobState::Failed,
     };
-    let samples_total = rec.width as u64 * rec.height as u64 * rec.spp as u64;
-    let samples_done = if rec.phase == JobPhase::Done {
-        samples_total
-    } else {
-        job.samples_done
-    };
+    let (units_total, units_done, samples_total, samples_done) = job.progress();
     let rate = job.rate();
     let eta = if rec.phase == JobPhase::Done {
         0.0
     } else if rate > 0.0 && rec.phase == JobPhase::Active {
-        (samples_total - samples_done) as f64 / rate
+        samples_total.saturating_sub(samples_done) as f64 / rate
     } else {
         -1.0
     };
@@ -119,12 +114,8 @@ fn status(job: &Job, core: &Scheduler) -> pb::JobStatus {
         height: rec.height,
         settings: Some(pb::RenderSettings::from(&job.settings())),
         tile_size: rec.tile_size,
-        units_total: job.units_total(),
-        units_done: if rec.phase == JobPhase::Done {
-            job.units_total()
-        } else {
-            job.units_done
-        },
+        units_total,
+        units_done,
         samples_total,
         samples_done,
         samples_per_second: rate,
@@ -187,7 +178,7 @@ impl Jobs for Service {
         let req = request.into_inner();
         let config = &self.shared.config;
         let limits = config.limits.clone();
-        let settings = settings_from_wire(req.settings.as_ref())
+        let mut settings = settings_from_wire(req.settings.as_ref())
             .map_err(|e| Status::invalid_argument(e.to_string()))?;
         if settings.spp > limits.max_spp {
             return Err(Status::invalid_argument(format!(
@@ -206,6 +197,10 @@ impl Jobs for Service {
                 TILE_RANGE.start(),
                 TILE_RANGE.end()
             )));
+        }
+        if let Some(a) = &mut settings.adaptive {
+            // Noise decisions are per unit tile: the job's tiles are the target's.
+            a.tile = tile_size;
         }
         let output_name = Some(req.output_name).filter(|n| !n.is_empty());
         if let Some(name) = &output_name {

@@ -219,6 +219,14 @@ pub struct JobRecord {
     /// written before revisions were recorded).
     #[serde(default)]
     pub image_revision: u32,
+    /// Noise target of an adaptive job (0: every pixel takes `spp` samples; absent in records
+    /// written before adaptive sampling, which had none).
+    #[serde(default)]
+    pub noise_target: f64,
+    /// Units and samples merged, kept once the job is done (an adaptive job's tiles stop at
+    /// different counts; (0, 0) in records written before adaptive sampling).
+    #[serde(default)]
+    pub final_counts: (u64, u64),
 }
 
 fn finite_pair<S: serde::Serializer>(v: &(f64, f64), s: S) -> Result<S::Ok, S::Error> {

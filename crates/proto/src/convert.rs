@@ -2,7 +2,11 @@
 //! speaks the protocol uses these, so a value cannot mean one thing to the coordinator and
 //! another to a worker.
 
-use tessera_render::{PixelRect, RenderSettings, Strategy, TileSums, BATCH_RANGE, DEFAULT_BATCH};
+use tessera_render::adaptive::BadNoiseTarget;
+use tessera_render::{
+    Adaptive, PixelRect, RenderSettings, Strategy, TileSums, BATCH_RANGE, DEFAULT_BATCH,
+    DEFAULT_TILE,
+};
 
 use crate::v1 as pb;
 
@@ -62,12 +66,13 @@ impl From<&RenderSettings> for pb::RenderSettings {
             seed: s.seed,
             batch: s.batch,
             strategy: pb::Strategy::from(s.strategy) as i32,
+            noise_target: s.adaptive.map_or(0.0, |a| a.noise_target),
         }
     }
 }
 
 /// Why a message's render settings cannot be a render's.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum BadSettings {
     /// The message has no settings.
     #[error("no render settings")]
@@ -81,13 +86,17 @@ pub enum BadSettings {
     /// A strategy this build does not know.
     #[error(transparent)]
     Strategy(#[from] UnknownStrategy),
+    /// A noise target outside the accepted range.
+    #[error(transparent)]
+    NoiseTarget(#[from] BadNoiseTarget),
 }
 
 /// The renderer's settings from a message's: an unset batch is [`DEFAULT_BATCH`] and an unset
 /// strategy MIS, as the protocol says. The rest of [`RenderSettings`] is not on the wire: every
 /// peer uses the renderer's defaults, which [`tessera_render::IMAGE_REVISION`] pins. Bounds
 /// that depend on a coordinator's configuration (the largest spp) are the coordinator's to
-/// check.
+/// check. A noise target's tiles are not in this message: they are the job's `tile_size`, which
+/// the coordinator puts in at admission; until then they are [`DEFAULT_TILE`].
 impl TryFrom<&pb::RenderSettings> for RenderSettings {
     type Error = BadSettings;
 
@@ -104,6 +113,11 @@ impl TryFrom<&pb::RenderSettings> for RenderSettings {
             spp: s.spp,
             batch,
             strategy: strategy_from_wire(s.strategy)?,
+            adaptive: if s.noise_target == 0.0 {
+                None
+            } else {
+                Some(Adaptive::new(s.noise_target, DEFAULT_TILE)?)
+            },
             ..RenderSettings::default()
         })
     }

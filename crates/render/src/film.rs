@@ -160,6 +160,29 @@ impl TileSums {
     /// Copies a tile's sums into this larger accumulator (which must contain its rectangle and
     /// cover the same samples).
     pub fn insert(&mut self, tile: &TileSums) -> Result<(), MergeError> {
+        if tile.samples != self.samples {
+            return Err(MergeError::Order {
+                have: self.samples.clone(),
+                got: tile.samples.clone(),
+            });
+        }
+        self.insert_any(tile)
+    }
+
+    /// [`TileSums::insert`] for a tile that may cover fewer samples than this accumulator's
+    /// range (as long as it starts where the range does and ends inside it): an adaptive
+    /// render's tiles stop at different batches.
+    pub fn insert_upto(&mut self, tile: &TileSums) -> Result<(), MergeError> {
+        if tile.samples.start != self.samples.start || tile.samples.end > self.samples.end {
+            return Err(MergeError::Order {
+                have: self.samples.clone(),
+                got: tile.samples.clone(),
+            });
+        }
+        self.insert_any(tile)
+    }
+
+    fn insert_any(&mut self, tile: &TileSums) -> Result<(), MergeError> {
         let (r, t) = (self.rect, tile.rect);
         if t.x0 < r.x0
             || t.y0 < r.y0
@@ -169,12 +192,6 @@ impl TileSums {
             return Err(MergeError::Rect {
                 expected: r,
                 got: t,
-            });
-        }
-        if tile.samples != self.samples {
-            return Err(MergeError::Order {
-                have: self.samples.clone(),
-                got: tile.samples.clone(),
             });
         }
         tile.check_shape()?;
@@ -294,6 +311,27 @@ pub fn assemble_frame(
     spp: u32,
     tiles: &[TileSums],
 ) -> Result<TileSums, MergeError> {
+    assemble(width, height, spp, tiles, TileSums::insert)
+}
+
+/// [`assemble_frame`] for an adaptive render: each tile covers samples `0..k` for its own `k`
+/// of at most `spp` (the cap); the `count` per pixel says how many each took.
+pub fn assemble_frame_upto(
+    width: u32,
+    height: u32,
+    spp: u32,
+    tiles: &[TileSums],
+) -> Result<TileSums, MergeError> {
+    assemble(width, height, spp, tiles, TileSums::insert_upto)
+}
+
+fn assemble(
+    width: u32,
+    height: u32,
+    spp: u32,
+    tiles: &[TileSums],
+    insert: fn(&mut TileSums, &TileSums) -> Result<(), MergeError>,
+) -> Result<TileSums, MergeError> {
     let full = PixelRect {
         x0: 0,
         y0: 0,
@@ -303,7 +341,7 @@ pub fn assemble_frame(
     let mut frame = TileSums::empty(full, 0);
     frame.samples = 0..spp;
     for t in tiles {
-        frame.insert(t)?;
+        insert(&mut frame, t)?;
     }
     Ok(frame)
 }

@@ -100,6 +100,10 @@ pub struct RenderSettings {
     pub rr_threshold: f32,
     /// Which tracer runs (the same bits whichever).
     pub tracer: Tracer,
+    /// Noise-targeted adaptive sampling: `None` gives every pixel `spp` samples (the unbiased
+    /// default); `Some` makes `spp` a cap and stops each tile once its noise meets the target
+    /// ([`crate::adaptive`]). Part of a job's identity when set.
+    pub adaptive: Option<crate::adaptive::Adaptive>,
 }
 
 impl Default for RenderSettings {
@@ -112,6 +116,7 @@ impl Default for RenderSettings {
             rr_depth: 3,
             rr_threshold: 0.25,
             tracer: Tracer::Auto,
+            adaptive: None,
         }
     }
 }

@@ -27,6 +27,7 @@
 //! ```
 
 pub mod accel;
+pub mod adaptive;
 pub mod bsdf;
 pub mod camera;
 pub mod film;
@@ -42,7 +43,8 @@ pub mod shape;
 pub mod tile;
 pub mod wide;
 
-pub use film::{assemble_frame, Image, MergeError, PixelRect, TileSums};
+pub use adaptive::Adaptive;
+pub use film::{assemble_frame, assemble_frame_upto, Image, MergeError, PixelRect, TileSums};
 pub use integrator::{
     RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_BATCH, DEFAULT_TILE, TILE_RANGE,
 };

@@ -58,21 +58,28 @@ pub fn render_metadata(
     scene_hash: &str,
     settings: &crate::RenderSettings,
 ) -> Vec<(String, String)> {
-    vec![
+    let mut meta = vec![
         ("scene_sha256".to_string(), scene_hash.to_string()),
         ("spp".to_string(), settings.spp.to_string()),
         ("seed".to_string(), settings.seed.to_string()),
         ("batch".to_string(), settings.batch.to_string()),
         ("strategy".to_string(), settings.strategy.name().to_string()),
-        (
-            "renderer".to_string(),
-            format!(
-                "tessera {} image revision {}",
-                env!("CARGO_PKG_VERSION"),
-                crate::IMAGE_REVISION
-            ),
+    ];
+    // Only an adaptive render names its target and tiles, so the header (and the bytes) of
+    // every other render stay what they were.
+    if let Some(a) = settings.adaptive {
+        meta.push(("noise_target".to_string(), a.noise_target.to_string()));
+        meta.push(("adaptive_tile".to_string(), a.tile.to_string()));
+    }
+    meta.push((
+        "renderer".to_string(),
+        format!(
+            "tessera {} image revision {}",
+            env!("CARGO_PKG_VERSION"),
+            crate::IMAGE_REVISION
         ),
-    ]
+    ));
+    meta
 }
 
 /// `metadata` pairs go into one `tessera` text-vector header attribute as `key=value`. One

@@ -12,7 +12,8 @@ use std::ops::Range;
 
 use rayon::prelude::*;
 
-use crate::film::{assemble_frame, PixelRect, TileSums};
+use crate::adaptive::tile_wants_more;
+use crate::film::{assemble_frame, assemble_frame_upto, PixelRect, TileSums};
 use crate::integrator::{sample_pixel, RenderSettings, Tracer};
 use crate::sampling::PixelSampler;
 use crate::scene::Scene;
@@ -183,33 +184,42 @@ fn wide_row(
     bad
 }
 
-/// Renders the whole frame for `settings.spp` samples, tile by tile and batch by batch, calling
-/// `progress` with the number of samples finished after each tile batch.
+/// Renders the whole frame, tile by tile and batch by batch, calling `progress` with the number
+/// of samples finished after each tile batch. Each tile takes `settings.spp` samples, or, with
+/// a noise target, batches until [`crate::adaptive::tile_wants_more`] says it has enough: the
+/// decision the farm's coordinator makes from the same sums, so both stop every tile at the
+/// same batch.
 pub fn render_frame(
     scene: &Scene,
     settings: &RenderSettings,
     progress: &(dyn Fn(u64) + Sync),
 ) -> TileSums {
     let batch = settings.batch.max(1);
-    let tiles = PixelRect::tiles(scene.width, scene.height, 32);
+    // Without a noise target the tiles' shape cannot change a bit; with one it decides where
+    // samples go, and must be the job's.
+    let size = settings.adaptive.map_or(32, |a| a.tile.max(1));
+    let tiles = PixelRect::tiles(scene.width, scene.height, size);
     let done: Vec<TileSums> = tiles
         .par_iter()
         .map(|&rect| {
             let mut acc = TileSums::empty(rect, 0);
-            let mut s = 0;
-            while s < settings.spp {
+            while tile_wants_more(settings, &acc) {
+                let s = acc.samples.end;
                 let e = s.saturating_add(batch).min(settings.spp);
                 let part = render_tile(scene, settings, rect, s..e);
                 acc.merge(&part)
                     .expect("same rectangle, contiguous samples");
                 progress(rect.area() as u64 * (e - s) as u64);
-                s = e;
             }
             acc
         })
         .collect();
-    assemble_frame(scene.width, scene.height, settings.spp, &done)
-        .expect("tiles partition the frame and cover 0..spp")
+    if settings.adaptive.is_some() {
+        assemble_frame_upto(scene.width, scene.height, settings.spp, &done)
+    } else {
+        assemble_frame(scene.width, scene.height, settings.spp, &done)
+    }
+    .expect("tiles partition the frame and cover samples from 0")
 }
 
 #[cfg(test)]

@@ -722,6 +722,7 @@ mod tests {
                 seed: 1,
                 batch: 4,
                 strategy,
+                ..Default::default()
             }),
             ..pb::WorkUnit::default()
         }

@@ -17,6 +17,7 @@ use tonic::Code;
 use super::{runtime, tile_range, CoordinatorUrl};
 use crate::render::{check_extension, check_output_dir};
 use crate::{printable, progress_style};
+use tessera_render::DEFAULT_TILE;
 
 /// Arguments of `tessera submit`.
 #[derive(Debug, clap::Args)]
@@ -357,7 +358,7 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
                 pb::SceneFormat::Toml
             } as i32,
             scene_name: args.scene.display().to_string(),
-            settings: Some(pb::RenderSettings::from(&args.settings.to_settings())),
+            settings: Some(pb::RenderSettings::from(&args.settings.to_settings(args.tile_size.unwrap_or(DEFAULT_TILE)))),
             tile_size: args.tile_size.unwrap_or(0),
             output_name: args.name.clone().unwrap_or_default(),
             priority: args.priority,
@@ -419,6 +420,13 @@ fn print_job(s: &pb::JobStatus) -> std::io::Result<()> {
         settings.batch,
         s.tile_size
     );
+    if settings.noise_target > 0.0 {
+        outln!(
+            "  adaptive   noise target {} per tile ({} spp is the cap)",
+            settings.noise_target,
+            settings.spp
+        );
+    }
     outln!("  priority   {}", s.priority);
     outln!(
         "  progress   {}/{} units ({} leased), {}/{} samples",

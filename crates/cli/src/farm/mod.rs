@@ -20,7 +20,7 @@ pub use client::{
 pub use servers::{coordinator, worker, CoordinatorArgs, WorkerArgs};
 
 /// clap's parser for a tile edge in [`TILE_RANGE`].
-fn tile_range() -> clap::builder::RangedI64ValueParser<u32> {
+pub(crate) fn tile_range() -> clap::builder::RangedI64ValueParser<u32> {
     clap::value_parser!(u32).range(i64::from(*TILE_RANGE.start())..=i64::from(*TILE_RANGE.end()))
 }
 
