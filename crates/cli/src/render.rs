@@ -7,7 +7,7 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use indicatif::ProgressBar;
 use tessera_render::output::{render_metadata, write_exr, write_png_preview, ExrChannels, Preview};
-use tessera_render::scene::{Limits, Scene};
+use tessera_render::scene::{Limits, Scene, FIRST_FRAME};
 use tessera_render::{
     render_frame, Adaptive, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_BATCH,
     DEFAULT_TILE,
@@ -83,6 +83,10 @@ pub struct RenderArgs {
     /// tiles cannot change a bit.
     #[arg(long, default_value_t = DEFAULT_TILE, value_parser = crate::farm::tile_range())]
     tile_size: u32,
+    /// Frame of the scene's [animation] to render (the EXR's header names it; the farm's
+    /// frame N of `tessera submit --frames` is this render's bits).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(0..=9_999_999))]
+    frame: Option<u32>,
     /// Worker threads (default: every core).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
     threads: Option<u32>,
@@ -225,9 +229,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
         max_resolution: args.max_resolution,
         ..Limits::default()
     };
-    let scene = Scene::load(&args.scene, &limits)?;
+    let scene = Scene::load_at(&args.scene, &limits, args.frame.unwrap_or(FIRST_FRAME))?;
     let settings = RenderSettings {
         tracer: args.tracer.to_tracer(),
+        frame: args.frame,
         ..args.settings.to_settings(args.tile_size)
     };
     let mut pool = rayon::ThreadPoolBuilder::new();

@@ -67,6 +67,7 @@ impl From<&RenderSettings> for pb::RenderSettings {
             batch: s.batch,
             strategy: pb::Strategy::from(s.strategy) as i32,
             noise_target: s.adaptive.map_or(0.0, |a| a.noise_target),
+            frame: s.frame,
         }
     }
 }
@@ -118,6 +119,7 @@ impl TryFrom<&pb::RenderSettings> for RenderSettings {
             } else {
                 Some(Adaptive::new(s.noise_target, DEFAULT_TILE)?)
             },
+            frame: s.frame,
             ..RenderSettings::default()
         })
     }

@@ -104,6 +104,11 @@ pub struct RenderSettings {
     /// default); `Some` makes `spp` a cap and stops each tile once its noise meets the target
     /// ([`crate::adaptive`]). Part of a job's identity when set.
     pub adaptive: Option<crate::adaptive::Adaptive>,
+    /// The frame of an animated scene this render is of (`None`: a render that names no
+    /// frame, of a still scene or of an animated scene's first frame). It chooses the scene
+    /// built from the file ([`crate::scene::Scene::from_str_at`]) and goes into the EXR's
+    /// header, so it is part of the render's identity when set.
+    pub frame: Option<u32>,
 }
 
 impl Default for RenderSettings {
@@ -117,6 +122,7 @@ impl Default for RenderSettings {
             rr_threshold: 0.25,
             tracer: Tracer::Auto,
             adaptive: None,
+            frame: None,
         }
     }
 }

@@ -67,6 +67,9 @@ pub fn render_metadata(
     ];
     // Only an adaptive render names its target and tiles, so the header (and the bytes) of
     // every other render stay what they were.
+    if let Some(f) = settings.frame {
+        meta.push(("frame".to_string(), f.to_string()));
+    }
     if let Some(a) = settings.adaptive {
         meta.push(("noise_target".to_string(), a.noise_target.to_string()));
         meta.push(("adaptive_tile".to_string(), a.tile.to_string()));

@@ -29,7 +29,7 @@ use tessera_proto::client::{endpoint, Bearer, ClientOptions};
 use tessera_proto::convert::settings_from_wire;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::workers_client::WorkersClient;
-use tessera_render::scene::{Format, Limits, Scene};
+use tessera_render::scene::{Format, Limits, Scene, FIRST_FRAME};
 use tessera_render::{render_tile, PixelRect, RenderSettings, TileSums};
 use tokio::sync::{mpsc, watch, OwnedSemaphorePermit, Semaphore};
 use tonic::service::interceptor::InterceptedService;
@@ -104,10 +104,11 @@ struct Ctx {
     held: Mutex<HashSet<String>>,
     /// Leases the coordinator no longer wants.
     revoked: Mutex<HashSet<String>>,
-    scenes: Mutex<HashMap<String, Arc<Scene>>>,
-    /// Scenes this worker cannot render, by hash, with the reason: fetched and refused once,
-    /// not again for every unit.
-    refused_scenes: Mutex<HashMap<String, String>>,
+    /// Scenes built, by hash and frame (at most [`MAX_CACHED_SCENES`]).
+    scenes: Mutex<HashMap<(String, Option<u32>), Arc<Scene>>>,
+    /// Scenes this worker cannot render, by hash and frame, with the reason: fetched and
+    /// refused once, not again for every unit.
+    refused_scenes: Mutex<HashMap<(String, Option<u32>), String>>,
     /// Held while registering, so that the tasks that all learn at once that the coordinator
     /// forgot this worker register it once, not once each.
     registering: tokio::sync::Mutex<()>,
@@ -213,23 +214,39 @@ impl Ctx {
         }
     }
 
-    /// The scene of a unit, fetched and parsed once per hash. A scene that does not parse
-    /// here (or breaks this worker's limits) is an `Err(Unrenderable)`, remembered.
-    async fn scene(&self, hash: &str) -> Result<Arc<Scene>, SceneError> {
-        if let Some(s) = lock(&self.scenes).get(hash) {
+    /// The scene of a unit at its frame, fetched and built once per hash and frame. A scene
+    /// that does not parse here (or breaks this worker's limits) is an `Err(Unrenderable)`,
+    /// remembered.
+    async fn scene(&self, hash: &str, frame: Option<u32>) -> Result<Arc<Scene>, SceneError> {
+        let key = (hash.to_string(), frame);
+        if let Some(s) = lock(&self.scenes).get(&key) {
             return Ok(s.clone());
         }
-        if let Some(why) = lock(&self.refused_scenes).get(hash) {
+        if let Some(why) = lock(&self.refused_scenes).get(&key) {
             return Err(SceneError::Unrenderable(why.clone()));
         }
-        let scene = self.fetch_scene(hash).await;
-        if let Err(SceneError::Unrenderable(why)) = &scene {
-            lock(&self.refused_scenes).insert(hash.to_string(), why.clone());
+        let scene = self.fetch_scene(hash, frame).await;
+        match &scene {
+            Err(SceneError::Unrenderable(why)) => {
+                lock(&self.refused_scenes).insert(key, why.clone());
+            }
+            Ok(s) => {
+                let mut scenes = lock(&self.scenes);
+                // Frames come mostly in order: an animation's earlier frames are done with,
+                // and each built frame holds its own geometry.
+                if scenes.len() >= MAX_CACHED_SCENES {
+                    if let Some(old) = scenes.keys().min_by_key(|(_, f)| *f).cloned() {
+                        scenes.remove(&old);
+                    }
+                }
+                scenes.insert(key, s.clone());
+            }
+            Err(SceneError::Unavailable(_)) => {}
         }
         scene
     }
 
-    async fn fetch_scene(&self, hash: &str) -> Result<Arc<Scene>, SceneError> {
+    async fn fetch_scene(&self, hash: &str, frame: Option<u32>) -> Result<Arc<Scene>, SceneError> {
         let mut attempt = 0;
         let resp = loop {
             let req = pb::GetSceneRequest {
@@ -247,11 +264,12 @@ impl Ctx {
             Format::Toml
         };
         let scene = tokio::task::spawn_blocking(move || {
-            Scene::from_str(
+            Scene::from_str_at(
                 &resp.scene_text,
                 format,
                 &resp.scene_name,
                 &Limits::default(),
+                frame.unwrap_or(FIRST_FRAME),
             )
         })
         .await
@@ -263,9 +281,7 @@ impl Ctx {
                 scene.hash
             )));
         }
-        let scene = Arc::new(scene);
-        lock(&self.scenes).insert(hash.to_string(), scene.clone());
-        Ok(scene)
+        Ok(Arc::new(scene))
     }
 
     async fn release(&self, leases: Vec<String>, goodbye: bool) {
@@ -331,6 +347,9 @@ fn prepare(unit: &pb::WorkUnit, scene: &Scene) -> Result<(PixelRect, RenderSetti
     Ok((rect, settings))
 }
 
+/// Built scenes a worker keeps (one per scene and frame).
+const MAX_CACHED_SCENES: usize = 4;
+
 /// The longest a lease call waits at the coordinator for a unit to come free.
 const LEASE_WAIT: Duration = Duration::from_secs(2);
 
@@ -395,7 +414,8 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
         let mut slot = Some(slot);
         for unit in units {
             lock(&ctx.held).insert(unit.lease_id.clone());
-            let prepared = match ctx.scene(&unit.scene_hash).await {
+            let frame = unit.settings.as_ref().and_then(|s| s.frame);
+            let prepared = match ctx.scene(&unit.scene_hash, frame).await {
                 Ok(scene) => prepare(&unit, &scene)
                     .map(|p| (scene, p))
                     .map_err(SceneError::Unrenderable),

@@ -14,6 +14,7 @@
 //! bench`), so that the farm and render commands never compile beside the plotting library.
 //! The parts: [`peer`] (CSV rows and the peer protocol), [`stats`], [`report`] and [`plot`].
 
+mod adaptive;
 mod peer;
 mod plot;
 mod report;
@@ -77,6 +78,14 @@ pub struct BenchArgs {
     /// Base name of the report files (NAME.csv, NAME.md, NAME.svg).
     #[arg(long, default_value = "speed-vs-error")]
     name: String,
+    /// Also measure noise-targeted adaptive sampling against uniform sampling: each scene at
+    /// a ladder of noise targets capped at --max-spp, right after its uniform points, reported
+    /// as the time each mode needs for the same relMSE (NAME-adaptive.md and .csv).
+    #[arg(long)]
+    adaptive: bool,
+    /// Tile edge, in pixels, of the adaptive renders' noise decisions.
+    #[arg(long, default_value_t = 32, value_parser = crate::farm::tile_range())]
+    adaptive_tile: u32,
 }
 
 /// The `--reference NAME=FILE.exr` arguments by scene name, checked before anything renders:
@@ -213,6 +222,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let clock_ghz = measured_clock_ghz();
 
     let mut rows = Vec::new();
+    let mut adaptive_points = Vec::new();
     let mut references = Vec::new();
     for (path, name) in scenes.iter().zip(&names) {
         let scene = Scene::load(path, &Limits::default())?;
@@ -273,6 +283,10 @@ pub fn run(args: BenchArgs) -> Result<()> {
             }
             spp *= 4;
         }
+        if args.adaptive {
+            let knobs = (args.max_spp, args.adaptive_tile, args.seeds);
+            adaptive_points.extend(adaptive::measure(&scene, name, &reference, &pool, knobs)?);
+        }
     }
     drop(peer);
     rows.extend(peer_rows);
@@ -298,6 +312,39 @@ pub fn run(args: BenchArgs) -> Result<()> {
         &csv_path,
     );
     std::fs::write(&md_path, md).with_context(|| format!("writing {}", md_path.display()))?;
+    if args.adaptive {
+        let base = args.out.join(format!("{}-adaptive", args.name));
+        let (cap, tile) = (args.max_spp, args.adaptive_tile);
+        let csv = std::iter::once(adaptive::CSV_HEADER.to_string())
+            .chain(
+                adaptive_points
+                    .iter()
+                    .map(|p| adaptive::to_csv(p, cap, tile)),
+            )
+            .collect::<Vec<_>>()
+            .join("\n")
+            + "\n";
+        let csv_path = base.with_extension("csv");
+        std::fs::write(&csv_path, csv)
+            .with_context(|| format!("writing {}", csv_path.display()))?;
+        let mut md = adaptive::report(&rows, &adaptive_points, cap, tile, &report::command());
+        md += &format!(
+            "\nMachine: {}, {threads} threads. Data: [`{}`]({}); the uniform points are those \
+             of [`{}`]({}).\n",
+            report::machine(clock_ghz),
+            csv_path.display(),
+            csv_path
+                .file_name()
+                .map_or_else(String::new, |f| f.to_string_lossy().into()),
+            md_path.display(),
+            md_path
+                .file_name()
+                .map_or_else(String::new, |f| f.to_string_lossy().into()),
+        );
+        let path = base.with_extension("md");
+        std::fs::write(&path, md).with_context(|| format!("writing {}", path.display()))?;
+        outln!("wrote {} and {}", path.display(), csv_path.display());
+    }
     outln!(
         "wrote {}, {} and {}",
         md_path.display(),

@@ -97,14 +97,11 @@ pub(super) fn report(
 ) -> String {
     let all = series(rows);
     let mut md = String::new();
-    // Quoted as a shell would need them, so that the line can be run again as it stands
-    // (a --peer-command is one argument with spaces).
-    let command: Vec<String> = std::env::args().map(|a| shell_quote(&a)).collect();
     let _ = writeln!(md, "# Speed against error\n");
     let _ = writeln!(
         md,
         "Made by `{}` (tessera on {threads} threads).\n",
-        command.join(" ")
+        command()
     );
     let _ = writeln!(md, "Machine: {}.\n", machine(clock_ghz));
     let peers = match (&args.peer_command, args.peers.is_empty()) {
@@ -210,6 +207,15 @@ pub(super) fn report(
         }
     }
     md
+}
+
+/// The command line this process was run with, each argument quoted as a shell would need it
+/// (a --peer-command is one argument with spaces), so that it can be run again as it stands.
+pub(super) fn command() -> String {
+    std::env::args()
+        .map(|a| shell_quote(&a))
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 /// `arg` as one shell word: as it is when that is safe, else in single quotes.

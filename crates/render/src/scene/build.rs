@@ -88,7 +88,7 @@ fn required<T>(value: Option<T>, path: &KeyPath, kind: &str, name: &str) -> Resu
     value.ok_or_else(|| (path.key(name), format!("{kind} needs `{name}`")))
 }
 
-fn build_transform(t: &TransformDesc, path: &KeyPath) -> Result<Affine3A, Invalid> {
+pub(super) fn build_transform(t: &TransformDesc, path: &KeyPath) -> Result<Affine3A, Invalid> {
     let m = if let Some(rows) = t.matrix {
         if t.translate.is_some() || t.rotate.is_some() || t.scale.is_some() {
             return Err((

@@ -41,6 +41,69 @@ pub struct SceneFile {
     /// The objects.
     #[serde(default)]
     pub objects: Vec<ObjectDesc>,
+    /// Keyframes, if the scene moves.
+    pub animation: Option<AnimationDesc>,
+}
+
+/// `[animation]`: keyframes for the camera and for objects' transforms, by frame number.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AnimationDesc {
+    /// Camera keys, in increasing frame order.
+    #[serde(default)]
+    pub camera: Vec<CameraKeyDesc>,
+    /// One track per animated object.
+    #[serde(default)]
+    pub objects: Vec<ObjectTrackDesc>,
+}
+
+/// One camera keyframe: the camera's fields that move (every key gives the same ones).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraKeyDesc {
+    /// Frame number (may be fractional).
+    pub frame: f64,
+    /// Eye position.
+    #[serde(default, deserialize_with = "maybe_three")]
+    pub eye: Option<[f32; 3]>,
+    /// Look-at target.
+    #[serde(default, deserialize_with = "maybe_three")]
+    pub target: Option<[f32; 3]>,
+    /// Up vector.
+    #[serde(default, deserialize_with = "maybe_three")]
+    pub up: Option<[f32; 3]>,
+    /// Horizontal field of view, degrees.
+    pub fov: Option<f32>,
+    /// Pitch, degrees (pitch_yaw cameras).
+    pub pitch: Option<f32>,
+    /// Yaw, degrees (pitch_yaw cameras).
+    pub yaw: Option<f32>,
+}
+
+/// The keyframes of one object (by its index in `objects`).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObjectTrackDesc {
+    /// Index of the object in `objects`, from 0.
+    pub object: usize,
+    /// Keys, in increasing frame order.
+    pub keys: Vec<ObjectKeyDesc>,
+}
+
+/// One object keyframe: a transform applied after the object's own.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObjectKeyDesc {
+    /// Frame number (may be fractional).
+    pub frame: f64,
+    /// Translation (default none).
+    #[serde(default, deserialize_with = "maybe_three")]
+    pub translate: Option<[f32; 3]>,
+    /// Rotation (default none), interpolated by slerp.
+    pub rotate: Option<RotateDesc>,
+    /// Scale (default 1).
+    #[serde(default, deserialize_with = "maybe_three")]
+    pub scale: Option<[f32; 3]>,
 }
 
 /// Which camera model.
@@ -204,7 +267,7 @@ pub struct ObjectDesc {
 }
 
 /// An affine transform: a full matrix, or translate · rotate · scale (scale applied first).
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TransformDesc {
     /// Row-major 4×4 matrix whose last row is 0 0 0 1; a point p maps to M·[p, 1].

@@ -5,6 +5,7 @@
 //! path, whether it comes from the parser (syntax, unknown key, wrong type) or from validation
 //! (a NaN radius, a missing material, a degenerate transform, a limit).
 
+mod animate;
 mod build;
 mod format;
 mod locate;
@@ -21,6 +22,10 @@ use sha2::{Digest, Sha256};
 
 pub use format::*;
 pub use locate::{line_col, KeyPath, Seg};
+
+/// The frame a scene is built at when none is asked for: frames are numbered from 1, as farm
+/// users number them (`--frames 1-240`).
+pub const FIRST_FRAME: u32 = 1;
 
 use crate::accel::Accel;
 use crate::bsdf::Bsdf;
@@ -184,6 +189,22 @@ pub struct Scene {
 impl Scene {
     /// Reads, parses, validates and builds a scene file.
     pub fn load(path: &Path, limits: &Limits) -> Result<Self, SceneError> {
+        Self::load_at(path, limits, FIRST_FRAME)
+    }
+
+    /// Parses, validates and builds a scene from text; `file` names it in errors. An animated
+    /// scene is built at frame 1 ([`Scene::from_str_at`]).
+    pub fn from_str(
+        text: &str,
+        format: Format,
+        file: &str,
+        limits: &Limits,
+    ) -> Result<Self, SceneError> {
+        Self::from_str_at(text, format, file, limits, FIRST_FRAME)
+    }
+
+    /// [`Scene::load`] at `frame` of the scene's `[animation]`.
+    pub fn load_at(path: &Path, limits: &Limits, frame: u32) -> Result<Self, SceneError> {
         let file = path.display().to_string();
         let meta = std::fs::metadata(path).map_err(|e| io_error(&file, e))?;
         if meta.len() > limits.max_bytes as u64 {
@@ -197,15 +218,17 @@ impl Scene {
             ));
         }
         let text = std::fs::read_to_string(path).map_err(|e| io_error(&file, e))?;
-        Self::from_str(&text, Format::from_path(path), &file, limits)
+        Self::from_str_at(&text, Format::from_path(path), &file, limits, frame)
     }
 
-    /// Parses, validates and builds a scene from text; `file` names it in errors.
-    pub fn from_str(
+    /// [`Scene::from_str`] at `frame` of the scene's `[animation]` (a scene without one is
+    /// the same at every frame).
+    pub fn from_str_at(
         text: &str,
         format: Format,
         file: &str,
         limits: &Limits,
+        frame: u32,
     ) -> Result<Self, SceneError> {
         if text.len() > limits.max_bytes {
             return Err(at_start(
@@ -218,7 +241,8 @@ impl Scene {
             ));
         }
         let desc = parse(text, format, file)?;
-        let mut scene = build(&desc, limits)
+        let mut scene = animate::at_frame(&desc, f64::from(frame))
+            .and_then(|desc| build(&desc, limits))
             .map_err(|(path, message)| locate(text, format, file, &path, message))?;
         scene.hash = hex(&Sha256::digest(text.as_bytes()));
         Ok(scene)
