@@ -234,15 +234,22 @@ pub fn local_exr(text: &str, spp: u32, batch: u32, dir: &Path) -> Vec<u8> {
     local_exr_with(text, &job_settings(spp, batch), ExrChannels::default(), dir)
 }
 
-/// The bytes `tessera render` writes for `settings` and `channels`.
+/// The bytes `tessera render` writes for `settings` (at its frame) and `channels`.
 pub fn local_exr_with(
     text: &str,
     settings: &RenderSettings,
     channels: ExrChannels,
     dir: &Path,
 ) -> Vec<u8> {
-    let scene =
-        Scene::from_str(text, Format::Toml, "cornell.toml", &Limits::default()).expect("scene");
+    let frame = settings.frame.unwrap_or(tessera_render::scene::FIRST_FRAME);
+    let scene = Scene::from_str_at(
+        text,
+        Format::Toml,
+        "cornell.toml",
+        &Limits::default(),
+        frame,
+    )
+    .expect("scene");
     let image = render_frame(&scene, settings, &|_| {}).finalize();
     let path = dir.join("local.exr");
     write_exr(

@@ -11,6 +11,7 @@ mod bad_submissions;
 mod bound_ids;
 mod connections;
 mod forged_results;
+mod frames;
 mod output_names;
 mod parses;
 mod priorities;

@@ -40,9 +40,13 @@ pub struct SettingsArgs {
     /// --tile-size pixels, which is then part of the render's identity.
     #[arg(long, value_parser = noise_target)]
     pub noise_target: Option<f64>,
+    /// Frame of the scene's `[animation]` to render (the EXR's header then names it, and it is
+    /// part of the render's identity).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(0..=9_999_999))]
+    pub frame: Option<u32>,
 }
 
-/// clap's parser for a noise target in [`NOISE_TARGET_RANGE`].
+/// clap's parser for a noise target in [`tessera_render::adaptive::NOISE_TARGET_RANGE`].
 fn noise_target(s: &str) -> Result<f64, String> {
     let t: f64 = s
         .parse()
@@ -63,6 +67,7 @@ impl SettingsArgs {
             adaptive: self
                 .noise_target
                 .map(|noise_target| Adaptive { noise_target, tile }),
+            frame: self.frame,
             ..RenderSettings::default()
         }
     }
@@ -83,10 +88,6 @@ pub struct RenderArgs {
     /// tiles cannot change a bit.
     #[arg(long, default_value_t = DEFAULT_TILE, value_parser = crate::farm::tile_range())]
     tile_size: u32,
-    /// Frame of the scene's [animation] to render (the EXR's header names it; the farm's
-    /// frame N of `tessera submit --frames` is this render's bits).
-    #[arg(long, value_parser = clap::value_parser!(u32).range(0..=9_999_999))]
-    frame: Option<u32>,
     /// Worker threads (default: every core).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
     threads: Option<u32>,
@@ -229,10 +230,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
         max_resolution: args.max_resolution,
         ..Limits::default()
     };
-    let scene = Scene::load_at(&args.scene, &limits, args.frame.unwrap_or(FIRST_FRAME))?;
+    let frame = args.settings.frame.unwrap_or(FIRST_FRAME);
+    let scene = Scene::load_at(&args.scene, &limits, frame)?;
     let settings = RenderSettings {
         tracer: args.tracer.to_tracer(),
-        frame: args.frame,
         ..args.settings.to_settings(args.tile_size)
     };
     let mut pool = rayon::ThreadPoolBuilder::new();

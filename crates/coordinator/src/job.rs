@@ -347,6 +347,7 @@ impl Job {
                 noise_target: self.rec.noise_target,
                 tile: self.rec.tile_size,
             }),
+            frame: self.rec.frame,
             ..RenderSettings::default()
         }
     }

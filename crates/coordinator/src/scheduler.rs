@@ -361,6 +361,7 @@ impl Scheduler {
             image_revision: IMAGE_REVISION,
             noise_target: s.adaptive.map_or(0.0, |a| a.noise_target),
             final_counts: (0, 0),
+            frame: s.frame,
         });
         // The job's own count, so that admission and scheduling cannot disagree on it; a job
         // costs nothing per unit until its units render, so making it first is free.

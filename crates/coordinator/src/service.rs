@@ -14,7 +14,7 @@ use tessera_proto::ids::{JobId, LeaseId, WorkerCredential};
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_server::Jobs;
 use tessera_proto::v1::workers_server::Workers;
-use tessera_render::scene::{Format, Scene};
+use tessera_render::scene::{Format, Scene, FIRST_FRAME};
 use tessera_render::{TileSums, IMAGE_REVISION, TILE_RANGE};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
@@ -220,12 +220,13 @@ impl Jobs for Service {
             .await
             .map_err(|_| Status::unavailable("the coordinator is shutting down"))?;
         let text = req.scene_text;
+        let frame = settings.frame.unwrap_or(FIRST_FRAME);
         let gauge = self.parsing.clone();
         let (scene, text, name) = tokio::task::spawn_blocking(move || {
             let now = gauge.0.fetch_add(1, Ordering::SeqCst) + 1;
             gauge.1.fetch_max(now, Ordering::SeqCst);
             let format = if json { Format::Json } else { Format::Toml };
-            let r = Scene::from_str(&text, format, &name, &limits);
+            let r = Scene::from_str_at(&text, format, &name, &limits, frame);
             gauge.0.fetch_sub(1, Ordering::SeqCst);
             (r, text, name)
         })

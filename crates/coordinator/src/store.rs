@@ -227,6 +227,10 @@ pub struct JobRecord {
     /// different counts; (0, 0) in records written before adaptive sampling).
     #[serde(default)]
     pub final_counts: (u64, u64),
+    /// The frame of the scene's `[animation]` the job renders (`None`: none named, and no
+    /// frame in the EXR's header).
+    #[serde(default)]
+    pub frame: Option<u32>,
 }
 
 fn finite_pair<S: serde::Serializer>(v: &(f64, f64), s: S) -> Result<S::Ok, S::Error> {

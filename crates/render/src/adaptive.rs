@@ -127,7 +127,7 @@ mod tests {
         RenderSettings {
             spp: 1024,
             batch: 16,
-            adaptive: Some(Adaptive::new(target, 8).unwrap()),
+            adaptive: Some(Adaptive::new(target, 8).expect("target")),
             ..RenderSettings::default()
         }
     }

@@ -105,10 +105,10 @@ struct Ctx {
     /// Leases the coordinator no longer wants.
     revoked: Mutex<HashSet<String>>,
     /// Scenes built, by hash and frame (at most [`MAX_CACHED_SCENES`]).
-    scenes: Mutex<HashMap<(String, Option<u32>), Arc<Scene>>>,
+    scenes: Mutex<HashMap<SceneKey, Arc<Scene>>>,
     /// Scenes this worker cannot render, by hash and frame, with the reason: fetched and
     /// refused once, not again for every unit.
-    refused_scenes: Mutex<HashMap<(String, Option<u32>), String>>,
+    refused_scenes: Mutex<HashMap<SceneKey, String>>,
     /// Held while registering, so that the tasks that all learn at once that the coordinator
     /// forgot this worker register it once, not once each.
     registering: tokio::sync::Mutex<()>,
@@ -346,6 +346,9 @@ fn prepare(unit: &pb::WorkUnit, scene: &Scene) -> Result<(PixelRect, RenderSetti
     }
     Ok((rect, settings))
 }
+
+/// A built scene's identity: the scene's hash and the frame it is built at.
+type SceneKey = (String, Option<u32>);
 
 /// Built scenes a worker keeps (one per scene and frame).
 const MAX_CACHED_SCENES: usize = 4;

@@ -420,6 +420,9 @@ fn print_job(s: &pb::JobStatus) -> std::io::Result<()> {
         settings.batch,
         s.tile_size
     );
+    if let Some(f) = settings.frame {
+        outln!("  frame      {f}");
+    }
     if settings.noise_target > 0.0 {
         outln!(
             "  adaptive   noise target {} per tile ({} spp is the cap)",
