@@ -329,3 +329,66 @@ fn every_tracer_writes_the_same_exr() {
     ]);
     assert_clean_failure(&bad, &["--tracer"]);
 }
+
+#[test]
+fn noise_targets_and_frames_reach_the_exr_header() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("a.exr");
+    let o = out.to_str().expect("utf8");
+    let r = tessera(&[
+        "render",
+        &repo("scenes/cornell-box.toml"),
+        "--spp",
+        "256",
+        "--noise-target",
+        "0.5",
+        "--tile-size",
+        "64",
+        "--sample-count",
+        "--output",
+        o,
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let stdout = String::from_utf8_lossy(&r.stdout);
+    assert!(
+        stdout.contains("spp on average (noise target 0.5, cap 256)"),
+        "{stdout}"
+    );
+    let meta = read_exr_metadata(&out).expect("metadata");
+    for m in ["noise_target=0.5", "adaptive_tile=64", "spp=256"] {
+        assert!(meta.iter().any(|x| x == m), "{m}: {meta:?}");
+    }
+    let r = tessera(&[
+        "render",
+        &repo("scenes/cornell-animated.toml"),
+        "--spp",
+        "1",
+        "--frame",
+        "12",
+        "--output",
+        o,
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let meta = read_exr_metadata(&out).expect("metadata");
+    assert!(meta.iter().any(|x| x == "frame=12"), "{meta:?}");
+    let scene = repo("scenes/cornell-box.toml");
+    for (value, want) in [
+        ("0", "noise target 0 must be"),
+        ("2", "between"),
+        ("lots", "not a number"),
+    ] {
+        assert_clean_failure(
+            &tessera(&[
+                "render",
+                &scene,
+                "--spp",
+                "4",
+                "--noise-target",
+                value,
+                "--output",
+                o,
+            ]),
+            &["--noise-target", want],
+        );
+    }
+}
