@@ -16,8 +16,11 @@ fuzz_target!(|data: &[u8]| {
         max_bytes: 1 << 16,
         max_spp: 1024,
     };
+    // A frame from the input too, so that `[animation]` keys are interpolated between, held
+    // before the first and after the last.
+    let frame = data.len() as u32 % 64;
     for format in [Format::Toml, Format::Json] {
-        match Scene::from_str(text, format, "fuzz", &limits) {
+        match Scene::from_str_at(text, format, "fuzz", &limits, frame) {
             Ok(scene) => {
                 // A scene that loads must be renderable: trace one sample of its centre.
                 let settings = tessera_render::RenderSettings {
