@@ -322,7 +322,7 @@ impl Job {
             return;
         };
         let end = acc.next.saturating_mul(self.rec.batch).min(self.rec.spp);
-        if acc.next < self.n_batches && wants_more(&self.settings(), end, acc.noise) {
+        if wants_more(&self.settings(), end, acc.noise) {
             self.ready.insert((acc.next, tile));
             self.units_planned += 1;
         } else {

@@ -8,8 +8,8 @@ use std::path::Path;
 use std::sync::Arc;
 
 use tessera_proto::ids::JobId;
+use tessera_render::assemble_render;
 use tessera_render::output::{render_metadata, write_new_exr, ExrChannels};
-use tessera_render::{assemble_frame, assemble_frame_upto};
 use tracing::{error, info, warn};
 
 use crate::error::{truncate, Refusal};
@@ -110,12 +110,7 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
     let dir = shared.config.output_dir();
     let path = dir.join(&rec.output_name);
     let written = tokio::task::spawn_blocking(move || {
-        let assemble = if settings.adaptive.is_some() {
-            assemble_frame_upto
-        } else {
-            assemble_frame
-        };
-        let image = assemble(rec.width, rec.height, rec.spp, &tiles)
+        let image = assemble_render(&settings, rec.width, rec.height, &tiles)
             .map_err(|e| e.to_string())?
             .finalize();
         let channels = ExrChannels {

@@ -96,8 +96,11 @@ pub fn wants_more(settings: &RenderSettings, end: u32, noise: (f64, f64, u64)) -
 
 /// [`wants_more`] for a tile's sums.
 pub fn tile_wants_more(settings: &RenderSettings, sums: &TileSums) -> bool {
-    // Sums at the cap need no noise estimate, which walks every pixel.
-    sums.samples.end < settings.spp && wants_more(settings, sums.samples.end, sums.noise_parts())
+    let end = sums.samples.end;
+    // The noise estimate walks every pixel: a render without a target, and sums at the cap,
+    // need none.
+    end < settings.spp
+        && (settings.adaptive.is_none() || wants_more(settings, end, sums.noise_parts()))
 }
 
 #[cfg(test)]

@@ -304,7 +304,7 @@ impl Image {
 }
 
 /// Assembles a `width` × `height` frame from tiles that each cover samples `0..spp` and
-/// together partition it (the local renderer's last step, and the farm coordinator's).
+/// together partition it ([`assemble_render`] for a render without a noise target).
 pub fn assemble_frame(
     width: u32,
     height: u32,
@@ -314,15 +314,21 @@ pub fn assemble_frame(
     assemble(width, height, spp, tiles, TileSums::insert)
 }
 
-/// [`assemble_frame`] for an adaptive render: each tile covers samples `0..k` for its own `k`
-/// of at most `spp` (the cap); the `count` per pixel says how many each took.
-pub fn assemble_frame_upto(
+/// The frame of a render with `settings`: [`assemble_frame`] at `settings.spp`, or for an
+/// adaptive render, whose tiles stop at different batches, tiles that each cover samples `0..k`
+/// for their own `k` of at most `spp` (the cap; the `count` per pixel says how many each took).
+pub fn assemble_render(
+    settings: &crate::RenderSettings,
     width: u32,
     height: u32,
-    spp: u32,
     tiles: &[TileSums],
 ) -> Result<TileSums, MergeError> {
-    assemble(width, height, spp, tiles, TileSums::insert_upto)
+    let insert = if settings.adaptive.is_some() {
+        TileSums::insert_upto
+    } else {
+        TileSums::insert
+    };
+    assemble(width, height, settings.spp, tiles, insert)
 }
 
 fn assemble(

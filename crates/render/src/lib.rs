@@ -44,7 +44,7 @@ pub mod tile;
 pub mod wide;
 
 pub use adaptive::Adaptive;
-pub use film::{assemble_frame, assemble_frame_upto, Image, MergeError, PixelRect, TileSums};
+pub use film::{assemble_frame, assemble_render, Image, MergeError, PixelRect, TileSums};
 pub use integrator::{
     RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_BATCH, DEFAULT_TILE, TILE_RANGE,
 };

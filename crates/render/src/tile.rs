@@ -13,7 +13,7 @@ use std::ops::Range;
 use rayon::prelude::*;
 
 use crate::adaptive::tile_wants_more;
-use crate::film::{assemble_frame, assemble_frame_upto, PixelRect, TileSums};
+use crate::film::{assemble_render, PixelRect, TileSums};
 use crate::integrator::{sample_pixel, RenderSettings, Tracer};
 use crate::sampling::PixelSampler;
 use crate::scene::Scene;
@@ -214,12 +214,8 @@ pub fn render_frame(
             acc
         })
         .collect();
-    if settings.adaptive.is_some() {
-        assemble_frame_upto(scene.width, scene.height, settings.spp, &done)
-    } else {
-        assemble_frame(scene.width, scene.height, settings.spp, &done)
-    }
-    .expect("tiles partition the frame and cover samples from 0")
+    assemble_render(settings, scene.width, scene.height, &done)
+        .expect("tiles partition the frame and cover samples from 0")
 }
 
 #[cfg(test)]

@@ -95,12 +95,7 @@ fn the_thread_count_does_not_change_an_adaptive_render() {
 #[test]
 fn an_adaptive_render_still_gives_the_furnace_answer() {
     let (rho, le) = ([0.8f64, 0.5, 0.3], [0.5f64, 1.0, 2.0]);
-    let text = format!(
-        "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0.1, 0.2, 0.0]\ntarget = [1, 0.3, 0.2]\nfov = 90\n[film]\nwidth = 32\nheight = 32\n\
-         [materials.shell]\ntype = \"diffuse\"\nalbedo = {rho:?}\nemission = {le:?}\ntwo_sided = true\n\
-         [[objects]]\nshape = \"sphere\"\nmaterial = \"shell\"\nradius = 2.0\n"
-    );
-    let s = scene(&text);
+    let s = scene(&common::closed_sphere(rho, le, 32, 32));
     let settings = adaptive(1024, 16, 0.006, 8);
     let frame = render_frame(&s, &settings, &|_| {});
     let counts: Vec<u32> = frame.count.clone();

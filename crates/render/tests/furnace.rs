@@ -17,12 +17,7 @@ fn image_mean(img: &tessera_render::Image) -> ([f64; 3], [f64; 3]) {
 #[test]
 fn closed_emitting_sphere_gives_le_over_one_minus_albedo() {
     let (rho, le) = ([0.8f64, 0.5, 0.3], [0.5f64, 1.0, 2.0]);
-    let text = format!(
-        "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0.1, 0.2, 0.0]\ntarget = [1, 0.3, 0.2]\nfov = 90\n[film]\nwidth = 24\nheight = 16\n\
-         [materials.shell]\ntype = \"diffuse\"\nalbedo = {rho:?}\nemission = {le:?}\ntwo_sided = true\n\
-         [[objects]]\nshape = \"sphere\"\nmaterial = \"shell\"\nradius = 2.0\n"
-    );
-    let s = scene(&text);
+    let s = scene(&common::closed_sphere(rho, le, 24, 16));
     // Both Russian roulette rules: pbrt's (threshold 1) and the default.
     let cases = [Strategy::Bsdf, Strategy::Nee, Strategy::Mis]
         .into_iter()

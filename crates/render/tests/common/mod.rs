@@ -20,6 +20,16 @@ pub fn scene(text: &str) -> Scene {
         .unwrap_or_else(|e| panic!("{e}"))
 }
 
+/// A closed, two-sided diffuse sphere of albedo `rho` emitting `le`, seen from inside on a
+/// `width` × `height` film: the furnace whose radiance is Le/(1 − ρ) everywhere.
+pub fn closed_sphere(rho: [f64; 3], le: [f64; 3], width: u32, height: u32) -> String {
+    format!(
+        "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0.1, 0.2, 0.0]\ntarget = [1, 0.3, 0.2]\nfov = 90\n[film]\nwidth = {width}\nheight = {height}\n\
+         [materials.shell]\ntype = \"diffuse\"\nalbedo = {rho:?}\nemission = {le:?}\ntwo_sided = true\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"shell\"\nradius = 2.0\n"
+    )
+}
+
 pub fn render(scene: &Scene, settings: &RenderSettings) -> Image {
     render_frame(scene, settings, &|_| {}).finalize()
 }
