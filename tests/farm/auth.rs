@@ -41,6 +41,7 @@ async fn a_token_is_required_on_every_service() {
         let e = client
             .fetch_result(pb::FetchResultRequest {
                 job_id: "job-000001".into(),
+                frame: None,
             })
             .await
             .expect_err("fetch without the token");

@@ -218,7 +218,10 @@ pub async fn wait(client: &mut Client, job: &str) -> pb::JobStatus {
 
 pub async fn fetch(client: &mut Client, job: &str) -> Vec<u8> {
     let mut stream = client
-        .fetch_result(pb::FetchResultRequest { job_id: job.into() })
+        .fetch_result(pb::FetchResultRequest {
+            job_id: job.into(),
+            frame: None,
+        })
         .await
         .expect("fetch")
         .into_inner();

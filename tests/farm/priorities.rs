@@ -50,6 +50,7 @@ async fn priorities_order_jobs_and_cancel_frees_units() {
     let err = client
         .fetch_result(pb::FetchResultRequest {
             job_id: doomed.clone(),
+            frame: None,
         })
         .await
         .expect_err("a cancelled job has no result");

@@ -325,3 +325,96 @@ fn a_damaged_store_is_refused_at_start() {
     assert!(!out.status.success());
     assert!(!String::from_utf8_lossy(&out.stdout).contains("listening"));
 }
+
+/// A frame range as a user runs it: `submit --frames … --wait --output DIR` saves every frame,
+/// each the bytes `tessera render --frame N` writes; `status` shows the frames, and `fetch`
+/// gets one frame or all of them.
+#[test]
+fn a_frame_range_is_submitted_followed_and_fetched_frame_by_frame() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, url) = coordinator(&dir.path().join("data"));
+    let _w = worker(&url, "a");
+    let scene = repo("scenes/cornell-animated.toml");
+    let shots = dir.path().join("shots");
+    let s = |p: &Path| p.to_str().expect("utf8").to_string();
+    let job = [scene.as_str(), "--spp", "4", "--batch", "4"];
+    let mut submit = vec![
+        "submit", "--frames", "1-48:47", "--name", "shot.exr", "--wait",
+    ];
+    submit.extend(job);
+    let shots_arg = s(&shots);
+    submit.extend(["--output", shots_arg.as_str()]);
+    let out = tessera(&submit, &url);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("job-000001 frame 48 →"), "{stdout}");
+    for frame in ["1", "48"] {
+        let local = dir.path().join(format!("local-{frame}.exr"));
+        let mut render = vec!["render", "--frame", frame, "--output"];
+        let local_arg = s(&local);
+        render.push(&local_arg);
+        render.extend(job);
+        let out = tessera(&render, &url);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let farm = shots.join(format!("shot.{frame:0>4}.exr"));
+        assert!(
+            std::fs::read(&farm).expect("farm frame") == std::fs::read(&local).expect("local"),
+            "frame {frame}: the farm's EXR differs from tessera render --frame's"
+        );
+    }
+    let out = tessera(&["status", "job-000001"], &url);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("frames     1-48:47, 2 frames: 2 done") && text.contains("shot.####.exr"),
+        "{text}"
+    );
+    let one = dir.path().join("one.exr");
+    let out = tessera(
+        &["fetch", "job-000001", "--frame", "48", "-o", &s(&one)],
+        &url,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        std::fs::read(&one).expect("one")
+            == std::fs::read(shots.join("shot.0048.exr")).expect("48")
+    );
+    let all = dir.path().join("all");
+    let out = tessera(&["fetch", "job-000001", "-o", &s(&all)], &url);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(all.join("shot.0001.exr").is_file() && all.join("shot.0048.exr").is_file());
+    // Bad ranges are refused (as clap words a bad flag), naming what is wrong.
+    for (args, needle) in [
+        (
+            &["--frames", "48-1"][..],
+            "frames 48-1: the last frame is before the first",
+        ),
+        (&["--frames", "1-3", "--frame", "2"], "cannot be used with"),
+    ] {
+        let mut submit = vec!["submit", scene.as_str()];
+        submit.extend(args);
+        let out = tessera(&submit, &url);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && stderr.contains(needle) && !stderr.contains("panicked"),
+            "{stderr}"
+        );
+    }
+    let out = tessera(&["fetch", "job-000001", "-o", &s(&one)], &url);
+    one_line_failure(&out, "names a directory");
+}

@@ -23,8 +23,10 @@ pub struct Config {
     pub max_message_bytes: usize,
     /// Most jobs that may be active (queued or running) at once.
     pub max_active_jobs: usize,
-    /// Most work units one job may have.
+    /// Most work units one job may have (each frame of a frame-range job).
     pub max_units_per_job: u64,
+    /// Most frames one frame-range job may have.
+    pub max_frames_per_job: u64,
     /// When set, every RPC must carry `authorization: Bearer <token>`.
     pub token: Option<Secret>,
     /// When set, serve TLS only.
@@ -88,6 +90,7 @@ impl Config {
             max_message_bytes: tessera_proto::MAX_MESSAGE_BYTES,
             max_active_jobs: 1000,
             max_units_per_job: 1 << 24,
+            max_frames_per_job: 10_000,
             token: None,
             tls: None,
             quarantine_after: DEFAULT_QUARANTINE_AFTER,

@@ -10,6 +10,7 @@ use std::sync::Arc;
 use tessera_proto::ids::JobId;
 use tessera_render::assemble_render;
 use tessera_render::output::{render_metadata, write_new_exr, ExrChannels};
+use tessera_render::scene::FrameRange;
 use tracing::{error, info, warn};
 
 use crate::error::{truncate, Refusal};
@@ -92,6 +93,54 @@ impl<'a> OutputNames<'a> {
             )));
         }
         Ok((id, name))
+    }
+}
+
+impl OutputNames<'_> {
+    /// The id and frame output names of a new frame-range job: `STEM.####.exr` for each
+    /// frame (at least four digits), `STEM` the asked name without `.exr`, else the range's
+    /// id, skipping ids whose names a file already has as [`choose`](Self::choose) does.
+    pub fn choose_range<'j>(
+        &self,
+        next: JobId,
+        asked: Option<String>,
+        frames: FrameRange,
+        jobs: impl Iterator<Item = (JobId, &'j str)>,
+    ) -> Result<(JobId, Vec<String>), Refusal> {
+        let names = |stem: &str| -> Vec<String> {
+            frames
+                .iter()
+                .map(|f| format!("{stem}.{f:04}.exr"))
+                .collect()
+        };
+        let taken: std::collections::HashMap<&str, JobId> = jobs.map(|(j, n)| (n, j)).collect();
+        let mut id = next;
+        let names = match asked {
+            Some(name) => names(name.strip_suffix(".exr").unwrap_or(&name)),
+            None => loop {
+                let stem = id.to_string();
+                let n = names(&stem);
+                if id.0 - next.0 >= MAX_SKIPPED_IDS || !n.iter().any(|n| self.on_disk(n)) {
+                    break n;
+                }
+                // Past the squatted id and as many more as the range's frames would take.
+                id = JobId(id.0 + 1 + n.len() as u64);
+            },
+        };
+        for name in &names {
+            if let Some(other) = taken.get(name.as_str()) {
+                return Err(Refusal::Exists(format!(
+                    "output name {name} belongs to {other}; choose another"
+                )));
+            }
+            if self.on_disk(name) {
+                return Err(Refusal::Exists(format!(
+                    "output name {name}: a file of that name is already in the output \
+                     directory, and the coordinator never overwrites one; choose another"
+                )));
+            }
+        }
+        Ok((id, names))
     }
 }
 

@@ -15,7 +15,8 @@ use tessera_render::{RenderSettings, TileSums, IMAGE_REVISION};
 use crate::error::Refusal;
 use crate::job::{Job, Unit};
 use crate::output::OutputNames;
-use crate::store::{JobPhase, JobRecord, LoadedJob, Op, StoredScene};
+use crate::store::{JobPhase, JobRecord, LoadedJob, Op, RangeRef, StoredScene};
+use tessera_render::scene::FrameRange;
 
 /// A lease: a unit lent to a worker until `deadline`.
 #[derive(Debug)]
@@ -112,6 +113,9 @@ pub struct Admission {
     pub variance: bool,
     /// Write the sample-count channel.
     pub sample_count: bool,
+    /// The frames of a frame-range job (`settings.frame` is then each frame's own); `None`
+    /// for a job of one frame.
+    pub frames: Option<FrameRange>,
 }
 
 /// Bounds admission enforces.
@@ -119,8 +123,10 @@ pub struct Admission {
 pub struct AdmissionLimits {
     /// Most jobs queued or running at once.
     pub max_active_jobs: usize,
-    /// Most work units one job may have.
+    /// Most work units one job may have (one frame of a frame-range job).
     pub max_units_per_job: u64,
+    /// Most frames one frame-range job may have.
+    pub max_frames_per_job: u64,
 }
 
 /// All scheduling state.
@@ -130,6 +136,9 @@ pub struct Scheduler {
     pub epoch: u64,
     /// Jobs by id.
     pub jobs: BTreeMap<JobId, Job>,
+    /// Frame-range jobs: each range's id and its frames' jobs, in frame order. A range has no
+    /// job of its own; its state is its frames'.
+    pub ranges: BTreeMap<JobId, Vec<JobId>>,
     /// Next job id.
     pub next_job: u64,
     /// Leases by number.
@@ -244,6 +253,7 @@ impl Scheduler {
         Self {
             epoch,
             jobs: BTreeMap::new(),
+            ranges: BTreeMap::new(),
             next_job: 1,
             leases: HashMap::new(),
             next_lease: 1,
@@ -294,6 +304,10 @@ impl Scheduler {
                 }
             }
             self.next_job = self.next_job.max(id.0 + 1);
+            if let Some(r) = job.rec.range {
+                // Loaded in id order, which is frame order.
+                self.ranges.entry(JobId(r.id)).or_default().push(id);
+            }
             self.jobs.insert(id, job);
         }
         // Failed once every job is in, so that a scene another job still needs is kept.
@@ -318,7 +332,9 @@ impl Scheduler {
     }
 
     /// Admits a job: checks the coordinator's bounds, gives it an id and an output name no
-    /// other job or file has, and returns the store changes that record it.
+    /// other job or file has, and returns the store changes that record it. A frame-range job
+    /// becomes one job per frame, in frame order (the scheduling order then finishes the first
+    /// frames first), under the range's id, which is returned.
     pub fn admit(
         &mut self,
         a: Admission,
@@ -326,10 +342,13 @@ impl Scheduler {
         names: &OutputNames<'_>,
         now_ms: i64,
     ) -> Result<(JobId, Vec<Op>), Refusal> {
+        // A frame-range job counts once, as its user submitted it.
+        let mut ranges = std::collections::BTreeSet::new();
         let active = self
             .jobs
             .values()
             .filter(|j| j.rec.phase == JobPhase::Active)
+            .filter(|j| j.rec.range.is_none_or(|r| ranges.insert(r.id)))
             .count();
         if active >= limits.max_active_jobs {
             return Err(Refusal::Exhausted(format!(
@@ -337,8 +356,17 @@ impl Scheduler {
                 limits.max_active_jobs
             )));
         }
+        if let Some(r) = a.frames {
+            if r.len() > limits.max_frames_per_job {
+                return Err(Refusal::Exhausted(format!(
+                    "frames {r} are {} frames, above the limit of {} per job",
+                    r.len(),
+                    limits.max_frames_per_job
+                )));
+            }
+        }
         let s = &a.settings;
-        let mut job = Job::new(JobRecord {
+        let record = |frame: Option<u32>| JobRecord {
             id: 0,
             scene_hash: a.scene_hash.clone(),
             scene_name: a.scene.name.clone(),
@@ -361,34 +389,64 @@ impl Scheduler {
             image_revision: IMAGE_REVISION,
             noise_target: s.adaptive.map_or(0.0, |a| a.noise_target),
             final_counts: (0, 0),
-            frame: s.frame,
-        });
+            frame,
+            range: None,
+        };
         // The job's own count, so that admission and scheduling cannot disagree on it; a job
-        // costs nothing per unit until its units render, so making it first is free.
-        let units = job.units_total();
+        // costs nothing per unit until its units render, so making it first is free. Every
+        // frame of a range has the same count.
+        let first = Job::new(record(a.frames.map_or(s.frame, |r| Some(r.first))));
+        let units = first.units_total();
         if units > limits.max_units_per_job {
             return Err(Refusal::Exhausted(format!(
-                "the job would have {units} work units, above the limit of {} (use larger \
+                "the job would have {units} work units{}, above the limit of {} (use larger \
                  tiles or batches)",
+                if a.frames.is_some() { " per frame" } else { "" },
                 limits.max_units_per_job
             )));
         }
-        let (id, output_name) = names.choose(
-            JobId(self.next_job),
-            a.output_name,
-            self.jobs
-                .values()
-                .map(|j| (j.id(), j.rec.output_name.as_str())),
-        )?;
-        self.next_job = id.0 + 1;
-        job.rec.id = id.0;
-        job.rec.output_name = output_name;
-        let ops = vec![
-            Op::PutScene(a.scene_hash, a.scene),
-            Op::PutJob(job.rec.clone()),
-        ];
-        self.jobs.insert(id, job);
-        Ok((id, ops))
+        let taken = self
+            .jobs
+            .values()
+            .map(|j| (j.id(), j.rec.output_name.as_str()));
+        let Some(frames) = a.frames else {
+            let (id, output_name) = names.choose(JobId(self.next_job), a.output_name, taken)?;
+            let mut job = first;
+            self.next_job = id.0 + 1;
+            job.rec.id = id.0;
+            job.rec.output_name = output_name;
+            let ops = vec![
+                Op::PutScene(a.scene_hash, a.scene),
+                Op::PutJob(job.rec.clone()),
+            ];
+            self.jobs.insert(id, job);
+            return Ok((id, ops));
+        };
+        let (range_id, output_names) =
+            names.choose_range(JobId(self.next_job), a.output_name, frames, taken)?;
+        let range = RangeRef {
+            id: range_id.0,
+            frames,
+        };
+        let mut ops = vec![Op::PutScene(a.scene_hash.clone(), a.scene.clone())];
+        let mut members = Vec::with_capacity(output_names.len());
+        for ((frame, output_name), id) in frames.iter().zip(output_names).zip(range_id.0 + 1..) {
+            let mut job = Job::new(record(Some(frame)));
+            job.rec.id = id;
+            job.rec.output_name = output_name;
+            job.rec.range = Some(range);
+            ops.push(Op::PutJob(job.rec.clone()));
+            members.push(JobId(id));
+            self.jobs.insert(JobId(id), job);
+        }
+        self.next_job = members.last().map_or(range_id.0, |m| m.0) + 1;
+        self.ranges.insert(range_id, members);
+        Ok((range_id, ops))
+    }
+
+    /// The jobs `id` names: a frame-range job's frames, or the job itself.
+    pub fn members(&self, id: JobId) -> Vec<JobId> {
+        self.ranges.get(&id).cloned().unwrap_or_else(|| vec![id])
     }
 
     /// A lease's id as sent: this boot and its number.

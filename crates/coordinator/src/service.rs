@@ -14,7 +14,7 @@ use tessera_proto::ids::{JobId, LeaseId, WorkerCredential};
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_server::Jobs;
 use tessera_proto::v1::workers_server::Workers;
-use tessera_render::scene::{Format, Scene, FIRST_FRAME};
+use tessera_render::scene::{Format, FrameRange, Scene, FIRST_FRAME};
 use tessera_render::{TileSums, IMAGE_REVISION, TILE_RANGE};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
@@ -127,6 +127,149 @@ fn status(job: &Job, core: &Scheduler) -> pb::JobStatus {
         submitted_unix_ms: rec.submitted_ms,
         finished_unix_ms: rec.finished_ms,
         units_leased,
+        frames: Vec::new(),
+        frame_range: None,
+        range_job_id: rec
+            .range
+            .map(|r| JobId(r.id).to_string())
+            .unwrap_or_default(),
+    }
+}
+
+/// A frame-range job's status: its frames' statuses folded into one, and each frame's own.
+fn range_status(id: JobId, members: &[JobId], core: &Scheduler) -> Option<pb::JobStatus> {
+    let frames: Vec<pb::JobStatus> = members
+        .iter()
+        .filter_map(|m| core.jobs.get(m))
+        .map(|j| status(j, core))
+        .collect();
+    let first = frames.first()?;
+    let range = core.jobs.get(&members[0])?.rec.range?;
+    let state_of = |s: &pb::JobStatus| pb::JobState::try_from(s.state).unwrap_or_default();
+    let any = |st: pb::JobState| frames.iter().any(|s| state_of(s) == st);
+    let state = if any(pb::JobState::Running) {
+        pb::JobState::Running
+    } else if any(pb::JobState::Queued) {
+        // Some frames done (or failed) and none started since: the range has started.
+        if frames.iter().all(|s| state_of(s) == pb::JobState::Queued) {
+            pb::JobState::Queued
+        } else {
+            pb::JobState::Running
+        }
+    } else if any(pb::JobState::Failed) {
+        pb::JobState::Failed
+    } else if any(pb::JobState::Cancelled) {
+        pb::JobState::Cancelled
+    } else {
+        pb::JobState::Done
+    };
+    let failed: Vec<String> = frames
+        .iter()
+        .filter(|s| state_of(s) == pb::JobState::Failed)
+        .map(|s| {
+            let frame = s
+                .settings
+                .as_ref()
+                .and_then(|x| x.frame)
+                .unwrap_or_default();
+            format!("frame {frame} ({}): {}", s.job_id, s.error)
+        })
+        .collect();
+    let error = match failed.len() {
+        0 => String::new(),
+        n => format!(
+            "{n} of {} frames failed; {}",
+            frames.len(),
+            failed.first().map_or("", |f| f.as_str())
+        ),
+    };
+    let sum = |f: fn(&pb::JobStatus) -> u64| frames.iter().map(f).sum::<u64>();
+    let (samples_total, samples_done) = (sum(|s| s.samples_total), sum(|s| s.samples_done));
+    let rate: f64 = frames.iter().map(|s| s.samples_per_second).sum();
+    let eta = match state {
+        pb::JobState::Done => 0.0,
+        pb::JobState::Running | pb::JobState::Queued if rate > 0.0 => {
+            samples_total.saturating_sub(samples_done) as f64 / rate
+        }
+        _ => -1.0,
+    };
+    // The worst frame's noise: the figure a user waiting for the whole range needs.
+    let worst = frames
+        .iter()
+        .max_by(|a, b| a.noise_relative.total_cmp(&b.noise_relative))
+        .map_or((0.0, 0.0), |s| (s.noise_rms, s.noise_relative));
+    let ended = !matches!(state, pb::JobState::Running | pb::JobState::Queued);
+    let mut settings = first.settings;
+    if let Some(s) = &mut settings {
+        s.frame = None;
+    }
+    Some(pb::JobStatus {
+        job_id: id.to_string(),
+        state: state as i32,
+        priority: first.priority,
+        scene_hash: first.scene_hash.clone(),
+        scene_name: first.scene_name.clone(),
+        output_name: range_output_pattern(&first.output_name),
+        width: first.width,
+        height: first.height,
+        settings,
+        tile_size: first.tile_size,
+        units_total: sum(|s| s.units_total),
+        units_done: sum(|s| s.units_done),
+        samples_total,
+        samples_done,
+        samples_per_second: rate,
+        eta_seconds: eta,
+        noise_rms: worst.0,
+        noise_relative: worst.1,
+        nonfinite_samples: sum(|s| s.nonfinite_samples),
+        error,
+        submitted_unix_ms: first.submitted_unix_ms,
+        finished_unix_ms: if ended {
+            frames.iter().map(|s| s.finished_unix_ms).max().unwrap_or(0)
+        } else {
+            0
+        },
+        units_leased: sum(|s| s.units_leased),
+        frame_range: Some(pb::FrameRange {
+            first: range.frames.first,
+            last: range.frames.last,
+            step: range.frames.step,
+        }),
+        range_job_id: String::new(),
+        frames: frames
+            .into_iter()
+            .map(|s| pb::FrameStatus {
+                frame: s
+                    .settings
+                    .as_ref()
+                    .and_then(|x| x.frame)
+                    .unwrap_or_default(),
+                job_id: s.job_id,
+                state: s.state,
+                units_done: s.units_done,
+                units_total: s.units_total,
+                output_name: s.output_name,
+                error: s.error,
+            })
+            .collect(),
+    })
+}
+
+/// `shot.0001.exr` → `shot.####.exr`: how a range's output names are shown.
+fn range_output_pattern(first_frame_name: &str) -> String {
+    let stem = first_frame_name
+        .strip_suffix(".exr")
+        .unwrap_or(first_frame_name);
+    let stem = stem.rsplit_once('.').map_or(stem, |(s, _)| s);
+    format!("{stem}.####.exr")
+}
+
+/// The status of job `id`, a one-frame job or a frame-range job.
+fn status_of(core: &Scheduler, id: JobId) -> Option<pb::JobStatus> {
+    match core.ranges.get(&id) {
+        Some(members) => range_status(id, members, core),
+        None => core.jobs.get(&id).map(|j| status(j, core)),
     }
 }
 
@@ -164,8 +307,7 @@ impl Service {
 
     fn job_status(&self, id: JobId) -> Result<pb::JobStatus, Status> {
         let core = self.shared.scheduler();
-        let job = core.jobs.get(&id).ok_or_else(|| Self::not_found(id))?;
-        Ok(status(job, &core))
+        status_of(&core, id).ok_or_else(|| Self::not_found(id))
     }
 }
 
@@ -202,6 +344,18 @@ impl Jobs for Service {
             // Noise decisions are per unit tile: the job's tiles are the target's.
             a.tile = tile_size;
         }
+        let frames = match req.frames {
+            Some(_) if settings.frame.is_some() => {
+                return Err(Status::invalid_argument(
+                    "a job names either one frame or a frame range, not both",
+                ))
+            }
+            Some(r) => Some(
+                FrameRange::new(r.first, r.last, r.step)
+                    .map_err(|e| Status::invalid_argument(e.to_string()))?,
+            ),
+            None => None,
+        };
         let output_name = Some(req.output_name).filter(|n| !n.is_empty());
         if let Some(name) = &output_name {
             check_output_name(name).map_err(Status::invalid_argument)?;
@@ -220,7 +374,9 @@ impl Jobs for Service {
             .await
             .map_err(|_| Status::unavailable("the coordinator is shutting down"))?;
         let text = req.scene_text;
-        let frame = settings.frame.unwrap_or(FIRST_FRAME);
+        // A range's scene is checked at its first frame; a frame that cannot be built fails
+        // alone, when a worker says so.
+        let frame = frames.map_or(settings.frame.unwrap_or(FIRST_FRAME), |r| r.first);
         let gauge = self.parsing.clone();
         let (scene, text, name) = tokio::task::spawn_blocking(move || {
             let now = gauge.0.fetch_add(1, Ordering::SeqCst) + 1;
@@ -244,21 +400,29 @@ impl Jobs for Service {
             priority: req.priority,
             variance: req.channels.as_ref().is_some_and(|c| c.variance),
             sample_count: req.channels.as_ref().is_some_and(|c| c.sample_count),
+            frames,
         };
         let bounds = AdmissionLimits {
             max_active_jobs: config.max_active_jobs,
             max_units_per_job: config.max_units_per_job,
+            max_frames_per_job: config.max_frames_per_job,
         };
         let out_dir = config.output_dir();
         let (id, units, rx) = {
             let mut core = self.shared.scheduler();
             let (id, ops) = core.admit(admission, bounds, &OutputNames::new(&out_dir), now_ms())?;
-            let units = core.jobs.get(&id).map_or(0, |j| j.units_total());
+            let units = core
+                .members(id)
+                .iter()
+                .filter_map(|m| core.jobs.get(m))
+                .map(|j| j.units_total())
+                .sum::<u64>();
             (id, units, self.shared.queue_write(ops))
         };
         durable(rx).await.map_err(internal)?;
+        let n_frames = frames.map_or(1, |r| r.len()) as u32;
         info!(
-            "{id} submitted: {}×{} at {} spp, {units} units",
+            "{id} submitted: {}×{} at {} spp, {n_frames} frame(s), {units} units",
             scene.width, scene.height, settings.spp
         );
         self.shared.bump_work();
@@ -267,6 +431,7 @@ impl Jobs for Service {
             job_id: id.to_string(),
             scene_hash: scene.hash,
             units,
+            frames: n_frames,
         }))
     }
 
@@ -308,10 +473,10 @@ impl Jobs for Service {
                     return;
                 };
                 let core = shared.scheduler();
-                let Some(job) = core.jobs.get(&id) else {
+                let Some(s) = status_of(&core, id) else {
                     return;
                 };
-                msg = status(job, &core);
+                msg = s;
             }
         });
         Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
@@ -324,12 +489,25 @@ impl Jobs for Service {
         let id = job_id(&request.into_inner().job_id)?;
         let rx = {
             let mut core = self.shared.scheduler();
-            let job = core.jobs.get(&id).ok_or_else(|| Self::not_found(id))?;
-            if job.rec.phase != JobPhase::Active || job.finishing {
-                let s = status(job, &core);
+            // A frame-range job is cancelled as a whole: every frame still active.
+            let live: Vec<JobId> = core
+                .members(id)
+                .into_iter()
+                .filter(|m| {
+                    core.jobs
+                        .get(m)
+                        .is_some_and(|j| j.rec.phase == JobPhase::Active && !j.finishing)
+                })
+                .collect();
+            if live.is_empty() {
+                let s = status_of(&core, id).ok_or_else(|| Self::not_found(id))?;
                 return Ok(Response::new(pb::CancelJobResponse { state: s.state }));
             }
-            let ops = core.end_job(id, JobPhase::Cancelled, String::new(), now_ms());
+            let now = now_ms();
+            let ops = live
+                .into_iter()
+                .flat_map(|m| core.end_job(m, JobPhase::Cancelled, String::new(), now))
+                .collect();
             self.shared.queue_write(ops)
         };
         durable(rx).await.map_err(internal)?;
@@ -345,11 +523,17 @@ impl Jobs for Service {
         _request: Request<pb::ListJobsRequest>,
     ) -> Result<Response<pb::ListJobsResponse>, Status> {
         let core = self.shared.scheduler();
+        // A frame-range job is one row, where its first frame would be.
         let jobs = core
             .schedule_order(false)
             .into_iter()
-            .filter_map(|id| core.jobs.get(&id))
-            .map(|j| status(j, &core))
+            .filter_map(|id| match core.jobs.get(&id)?.rec.range {
+                None => status_of(&core, id),
+                Some(r) if core.ranges.get(&JobId(r.id))?.first() == Some(&id) => {
+                    status_of(&core, JobId(r.id))
+                }
+                Some(_) => None,
+            })
             .collect();
         Ok(Response::new(pb::ListJobsResponse { jobs }))
     }
@@ -389,8 +573,31 @@ impl Jobs for Service {
         &self,
         request: Request<pb::FetchResultRequest>,
     ) -> Result<Response<Self::FetchResultStream>, Status> {
-        let id = job_id(&request.into_inner().job_id)?;
+        let req = request.into_inner();
+        let id = job_id(&req.job_id)?;
         let s = self.job_status(id)?;
+        let s = match (req.frame, s.frames.is_empty()) {
+            (None, false) => {
+                return Err(Status::failed_precondition(format!(
+                    "{id} is a range of {} frames: fetch them one at a time by frame",
+                    s.frames.len()
+                )))
+            }
+            (Some(f), false) => {
+                let Some(frame) = s.frames.iter().find(|x| x.frame == f) else {
+                    let r = s.frame_range.unwrap_or_default();
+                    return Err(Status::not_found(format!(
+                        "{id} renders frames {}-{}:{}, which do not include frame {f}",
+                        r.first, r.last, r.step
+                    )));
+                };
+                self.job_status(job_id(&frame.job_id)?)?
+            }
+            (Some(f), true) if s.settings.as_ref().and_then(|x| x.frame) != Some(f) => {
+                return Err(Status::not_found(format!("{id} does not render frame {f}")));
+            }
+            _ => s,
+        };
         if s.state != pb::JobState::Done as i32 {
             let state = pb::JobState::try_from(s.state)
                 .map(|st| {

@@ -231,6 +231,20 @@ pub struct JobRecord {
     /// frame in the EXR's header).
     #[serde(default)]
     pub frame: Option<u32>,
+    /// The frame-range job this frame belongs to, if any: its id (taken from the job ids, but
+    /// no job of its own: the range is its frames) and the frames it renders. Every frame
+    /// keeps it, so a restart rebuilds the range from its frames' records alone.
+    #[serde(default)]
+    pub range: Option<RangeRef>,
+}
+
+/// A frame-range job, as each of its frames records it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RangeRef {
+    /// The range's job id.
+    pub id: u64,
+    /// Its frames.
+    pub frames: tessera_render::scene::FrameRange,
 }
 
 fn finite_pair<S: serde::Serializer>(v: &(f64, f64), s: S) -> Result<S::Ok, S::Error> {

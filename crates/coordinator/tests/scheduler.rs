@@ -10,6 +10,7 @@ use tessera_coordinator::output::OutputNames;
 use tessera_coordinator::scheduler::{Admission, AdmissionLimits, Merged, Scheduler};
 use tessera_coordinator::store::{JobPhase, JobRecord, Op, StoredScene};
 use tessera_proto::ids::{JobId, LeaseId, WorkerCredential, WorkerId};
+use tessera_render::scene::FrameRange;
 use tessera_render::{RenderSettings, Strategy, TileSums};
 
 const JOB: JobId = JobId(1);
@@ -510,10 +511,12 @@ fn admission_checks_its_bounds_and_names_each_job_once() {
         priority: 0,
         variance: false,
         sample_count: false,
+        frames: None,
     };
     let limits = AdmissionLimits {
         max_active_jobs: 2,
         max_units_per_job: 8,
+        max_frames_per_job: 100,
     };
     // 4 tiles × 2 batches: 8 units, at the limit.
     let (a, ops) = core.admit(job(None), limits, &names, 1).expect("admitted");
@@ -546,4 +549,109 @@ fn admission_checks_its_bounds_and_names_each_job_once() {
         .admit(job(None), limits, &names, 3)
         .expect("room again");
     assert_eq!(c, JobId(3));
+}
+
+#[test]
+fn a_frame_range_is_one_job_of_frame_jobs_in_frame_order() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let names = OutputNames::new(dir.path());
+    let mut core = Scheduler::new(1, Duration::from_secs(5));
+    let job = |name: Option<&str>, frames: Option<&str>| Admission {
+        scene_hash: "h".into(),
+        scene: StoredScene {
+            text: String::new(),
+            json: false,
+            name: "s".into(),
+        },
+        width: 8,
+        height: 8,
+        settings: RenderSettings {
+            spp: 4,
+            batch: 2,
+            ..RenderSettings::default()
+        },
+        tile_size: 4,
+        output_name: name.map(Into::into),
+        priority: 0,
+        variance: false,
+        sample_count: false,
+        frames: frames.map(|f| f.parse::<FrameRange>().expect("range")),
+    };
+    let limits = AdmissionLimits {
+        max_active_jobs: 2,
+        max_units_per_job: 8,
+        max_frames_per_job: 4,
+    };
+    let (range, ops) = core
+        .admit(job(None, Some("3-9:3")), limits, &names, 1)
+        .expect("admitted");
+    assert_eq!(range, JobId(1));
+    assert!(
+        !core.jobs.contains_key(&range),
+        "a range has no job of its own"
+    );
+    let members = core.members(range);
+    assert_eq!(members, [JobId(2), JobId(3), JobId(4)]);
+    let got: Vec<_> = members
+        .iter()
+        .map(|m| {
+            let r = &core.jobs[m].rec;
+            (r.frame, r.output_name.as_str(), r.range.map(|x| x.id))
+        })
+        .collect();
+    assert_eq!(
+        got,
+        [
+            (Some(3), "job-000001.0003.exr", Some(1)),
+            (Some(6), "job-000001.0006.exr", Some(1)),
+            (Some(9), "job-000001.0009.exr", Some(1)),
+        ]
+    );
+    assert!(matches!(
+        &ops[..],
+        [
+            Op::PutScene(..),
+            Op::PutJob(_),
+            Op::PutJob(_),
+            Op::PutJob(_)
+        ]
+    ));
+    // The first frame's units go first: a user sees frame 3 before frame 9 is started.
+    let now = Instant::now();
+    let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+    let g = core.lease(w, 4, now);
+    assert!(g.iter().all(|g| g.job == JobId(2)), "{g:?}");
+    // Too many frames, or a name a frame of another range has, are refused and take no id.
+    assert!(matches!(
+        core.admit(job(None, Some("1-5")), limits, &names, 1),
+        Err(Refusal::Exhausted(m)) if m.contains("5 frames") && m.contains("limit of 4")
+    ));
+    let (named, _) = core
+        .admit(job(Some("shot.exr"), Some("1-2")), limits, &names, 1)
+        .expect("named range");
+    assert_eq!(named, JobId(5));
+    assert_eq!(core.jobs[&JobId(7)].rec.output_name, "shot.0002.exr");
+    // Two ranges of three and two frames are two jobs against the active limit.
+    assert!(matches!(
+        core.admit(job(None, None), limits, &names, 1),
+        Err(Refusal::Exhausted(m)) if m.contains("2 jobs")
+    ));
+    for m in core.members(named) {
+        core.end_job(m, JobPhase::Cancelled, String::new(), 2);
+    }
+    assert!(matches!(
+        core.admit(job(Some("shot.exr"), Some("2-3")), limits, &names, 2),
+        Err(Refusal::Exists(m)) if m.contains("shot.0002.exr") && m.contains("job-000007")
+    ));
+    // A file in the output directory with a range frame's default name moves the range on.
+    std::fs::write(dir.path().join("job-000008.0001.exr"), b"x").expect("squat");
+    let (next, _) = core
+        .admit(job(None, Some("1-2")), limits, &names, 3)
+        .expect("room again");
+    assert_eq!(
+        next,
+        JobId(11),
+        "past job-000008 and the two ids its frames would take"
+    );
+    assert_eq!(core.jobs[&JobId(12)].rec.output_name, "job-000011.0001.exr");
 }

@@ -74,11 +74,20 @@ impl JobId {
         format!("{self}.exr")
     }
 
-    /// Whether `name` is the default output name of some job. Such names are kept for the jobs
-    /// they name, so that nobody can take a later job's name in advance.
+    /// Whether `name` is the default output name of some job, or of a frame of some
+    /// frame-range job (`job-NNNNNN.####.exr`). Such names are kept for the jobs they name, so
+    /// that nobody can take a later job's name in advance.
     pub fn is_default_output_name(name: &str) -> bool {
-        name.strip_suffix(".exr")
-            .is_some_and(|stem| stem.parse::<JobId>().is_ok())
+        let Some(stem) = name.strip_suffix(".exr") else {
+            return false;
+        };
+        let stem = match stem.rsplit_once('.') {
+            Some((id, frame)) if !frame.is_empty() && frame.bytes().all(|b| b.is_ascii_digit()) => {
+                id
+            }
+            _ => stem,
+        };
+        stem.parse::<JobId>().is_ok()
     }
 }
 
@@ -205,6 +214,10 @@ mod tests {
         assert!(JobId::is_default_output_name("job-000004.exr"));
         assert_eq!("job-4".parse::<JobId>(), Ok(JobId(4)));
         assert!(!JobId::is_default_output_name("job.exr"));
+        // A frame of a frame-range job's default names, too.
+        assert!(JobId::is_default_output_name("job-000004.0012.exr"));
+        assert!(!JobId::is_default_output_name("job-000004.x.exr"));
+        assert!(!JobId::is_default_output_name("shot.0012.exr"));
         assert_eq!(JobId(4).default_output_name(), "job-000004.exr");
     }
 

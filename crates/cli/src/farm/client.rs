@@ -17,6 +17,7 @@ use tonic::Code;
 use super::{runtime, tile_range, CoordinatorUrl};
 use crate::render::{check_extension, check_output_dir};
 use crate::{printable, progress_style};
+use tessera_render::scene::FrameRange;
 use tessera_render::DEFAULT_TILE;
 
 /// Arguments of `tessera submit`.
@@ -43,10 +44,15 @@ pub struct SubmitArgs {
     /// Add a per-pixel sample-count channel to the EXR.
     #[arg(long)]
     sample_count: bool,
-    /// Follow the job with a progress bar, then fetch its EXR.
+    /// Render frames FIRST-LAST[:STEP] of the scene's [animation] as one job, one EXR per
+    /// frame (NAME.####.exr); the first frames finish first.
+    #[arg(long, value_name = "FIRST-LAST[:STEP]", conflicts_with = "frame")]
+    frames: Option<FrameRange>,
+    /// Follow the job with a progress bar, then fetch its EXR (a frame range's EXRs).
     #[arg(long)]
     wait: bool,
-    /// Where `--wait` saves the EXR (default: the job's output name, here).
+    /// Where `--wait` saves the EXR (default: the job's output name, here); for `--frames`,
+    /// the directory the frames' EXRs go to.
     #[arg(long, short)]
     output: Option<PathBuf>,
 }
@@ -83,9 +89,13 @@ pub struct FetchArgs {
     job: String,
     #[command(flatten)]
     url: CoordinatorUrl,
-    /// Where to save the EXR.
+    /// Where to save the EXR; for a frame-range job without `--frame`, the directory every
+    /// finished frame's EXR goes to (under its NAME.####.exr).
     #[arg(long, short)]
     output: PathBuf,
+    /// One frame of a frame-range job.
+    #[arg(long)]
+    frame: Option<u32>,
     /// Wait for the job to finish first.
     #[arg(long)]
     wait: bool,
@@ -212,6 +222,20 @@ impl IdleFarm {
 
 /// Follows a job until it ends, with a progress bar on stderr; errors unless it is done.
 async fn follow(client: &mut Client, url: &str, job: &str) -> Result<pb::JobStatus> {
+    done(job, follow_to_end(client, url, job).await?)
+}
+
+/// `s` if its job is done, else an error that says how it ended.
+fn done(job: &str, s: pb::JobStatus) -> Result<pb::JobStatus> {
+    match pb::JobState::try_from(s.state) {
+        Ok(pb::JobState::Done) => Ok(s),
+        Ok(pb::JobState::Failed) => bail!("{job} failed: {}", s.error),
+        _ => bail!("{job} ended {}", state_name(s.state)),
+    }
+}
+
+/// Follows a job until it ends, with a progress bar on stderr, and returns its last status.
+async fn follow_to_end(client: &mut Client, url: &str, job: &str) -> Result<pb::JobStatus> {
     let bar = ProgressBar::new(1);
     bar.set_style(progress_style("{percent:>3}% {wide_msg}"));
     let mut last: Option<pb::JobStatus> = None;
@@ -284,18 +308,23 @@ async fn follow(client: &mut Client, url: &str, job: &str) -> Result<pb::JobStat
         }
     }
     bar.finish_and_clear();
-    let s = last.ok_or_else(|| anyhow!("{job}: the coordinator closed the stream"))?;
-    match pb::JobState::try_from(s.state) {
-        Ok(pb::JobState::Done) => Ok(s),
-        Ok(pb::JobState::Failed) => bail!("{job} failed: {}", s.error),
-        _ => bail!("{job} ended {}", state_name(s.state)),
-    }
+    last.ok_or_else(|| anyhow!("{job}: the coordinator closed the stream"))
 }
 
-/// Streams a done job's EXR into `out` (atomically: temp file, then rename).
-async fn download(client: &mut Client, url: &str, job: &str, out: &Path) -> Result<u64> {
+/// Streams a done job's EXR (one frame's, for a frame-range job) into `out` (atomically:
+/// temp file, then rename).
+async fn download(
+    client: &mut Client,
+    url: &str,
+    job: &str,
+    frame: Option<u32>,
+    out: &Path,
+) -> Result<u64> {
     let mut stream = client
-        .fetch_result(pb::FetchResultRequest { job_id: job.into() })
+        .fetch_result(pb::FetchResultRequest {
+            job_id: job.into(),
+            frame,
+        })
         .await
         .map_err(|e| rpc_error(url, job, e))?
         .into_inner();
@@ -332,14 +361,75 @@ async fn download(client: &mut Client, url: &str, job: &str, out: &Path) -> Resu
     Ok(data.len() as u64)
 }
 
+/// Downloads every finished frame of frame-range job `s` into `dir`, each under its output
+/// name, and says which did not finish (an error, after the others are saved).
+async fn download_frames(
+    client: &mut Client,
+    url: &str,
+    s: &pb::JobStatus,
+    dir: &Path,
+) -> Result<()> {
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("{}: cannot create the directory", dir.display()))?;
+    let mut missing = Vec::new();
+    for f in &s.frames {
+        if f.state != pb::JobState::Done as i32 {
+            missing.push(format!("{} ({})", f.frame, state_name(f.state)));
+            continue;
+        }
+        let out = dir.join(&f.output_name);
+        let bytes = download(client, url, &s.job_id, Some(f.frame), &out).await?;
+        outln!(
+            "{} frame {} → {} ({bytes} bytes)",
+            s.job_id,
+            f.frame,
+            out.display()
+        );
+    }
+    if !missing.is_empty() {
+        let why = if s.error.is_empty() {
+            String::new()
+        } else {
+            format!(" ({})", printable(&s.error))
+        };
+        bail!(
+            "{}: {} of {} frames not saved, not done: {}{why}",
+            s.job_id,
+            missing.len(),
+            s.frames.len(),
+            missing.join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// Checks `--output` for a frame range: a directory, or a name for a new one.
+fn check_frames_dir(dir: &Path) -> Result<()> {
+    let exr = dir
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+    if (dir.exists() && !dir.is_dir()) || (exr && !dir.is_dir()) {
+        bail!(
+            "--output {}: a frame range is saved as one EXR per frame, so --output names a \
+             directory (or fetch one frame with --frame N)",
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
 /// Runs `tessera submit`.
 pub fn submit(args: SubmitArgs) -> Result<()> {
     if let Some(o) = &args.output {
         if !args.wait {
             bail!("--output needs --wait (or use `tessera fetch JOB --output FILE` later)");
         }
-        check_extension("--output", o, "exr")?;
-        check_output_dir(o)?;
+        if args.frames.is_some() {
+            check_frames_dir(o)?;
+        } else {
+            check_extension("--output", o, "exr")?;
+            check_output_dir(o)?;
+        }
     }
     let text = std::fs::read_to_string(&args.scene)
         .with_context(|| format!("{}: cannot read the scene", args.scene.display()))?;
@@ -366,6 +456,11 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
                 variance: args.variance,
                 sample_count: args.sample_count,
             }),
+            frames: args.frames.map(|r| pb::FrameRange {
+                first: r.first,
+                last: r.last,
+                step: r.step,
+            }),
         };
         let resp = client
             .submit_job(req)
@@ -377,12 +472,18 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
             return Ok(());
         }
         errln!("{} submitted ({} units)", resp.job_id, resp.units);
+        if args.frames.is_some() {
+            errln!("{} frames", resp.frames);
+            let s = follow_to_end(&mut client, &url, &resp.job_id).await?;
+            let dir = args.output.clone().unwrap_or_else(|| PathBuf::from("."));
+            return download_frames(&mut client, &url, &s, &dir).await;
+        }
         let s = follow(&mut client, &url, &resp.job_id).await?;
         let out = args
             .output
             .clone()
             .unwrap_or_else(|| PathBuf::from(&s.output_name));
-        let bytes = download(&mut client, &url, &resp.job_id, &out).await?;
+        let bytes = download(&mut client, &url, &resp.job_id, None, &out).await?;
         let secs = (s.finished_unix_ms - s.submitted_unix_ms) as f64 / 1000.0;
         outln!(
             "{} done: {}×{} at {} spp in {:.2} s, noise σ≈{:.4} ({:.2}% of mean) → {} ({bytes} bytes)",
@@ -423,6 +524,9 @@ fn print_job(s: &pb::JobStatus) -> std::io::Result<()> {
     if let Some(f) = settings.frame {
         outln!("  frame      {f}");
     }
+    if !s.range_job_id.is_empty() {
+        outln!("  range      a frame of {}", s.range_job_id);
+    }
     if settings.noise_target > 0.0 {
         outln!(
             "  adaptive   noise target {} per tile ({} spp is the cap)",
@@ -451,6 +555,42 @@ fn print_job(s: &pb::JobStatus) -> std::io::Result<()> {
         s.nonfinite_samples
     );
     outln!("  output     {}", s.output_name);
+    if let Some(r) = s.frame_range {
+        let count = |st: pb::JobState| s.frames.iter().filter(|f| f.state == st as i32).count();
+        outln!(
+            "  frames     {}-{}:{}, {} frames: {} done, {} running, {} queued, {} failed, {} \
+             cancelled",
+            r.first,
+            r.last,
+            r.step,
+            s.frames.len(),
+            count(pb::JobState::Done),
+            count(pb::JobState::Running),
+            count(pb::JobState::Queued),
+            count(pb::JobState::Failed),
+            count(pb::JobState::Cancelled)
+        );
+        outln!(
+            "  {:>8} {:<12} {:<10} {:>12}  OUTPUT",
+            "FRAME",
+            "JOB",
+            "STATE",
+            "UNITS"
+        );
+        for f in &s.frames {
+            outln!(
+                "  {:>8} {:<12} {:<10} {:>12}  {}",
+                f.frame,
+                f.job_id,
+                state_name(f.state),
+                format!("{}/{}", f.units_done, f.units_total),
+                f.output_name
+            );
+            if !f.error.is_empty() {
+                outln!("  {:>8} error: {}", "", printable(&f.error));
+            }
+        }
+    }
     Ok(())
 }
 
@@ -571,15 +711,41 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
 
 /// Runs `tessera fetch`.
 pub fn fetch(args: FetchArgs) -> Result<()> {
-    check_extension("--output", &args.output, "exr")?;
-    check_output_dir(&args.output)?;
+    // A name that can only be a file is checked before anything is asked of the coordinator;
+    // one that may be a frame range's directory once the job says what it is.
+    let maybe_dir =
+        args.frame.is_none() && (args.output.is_dir() || args.output.extension().is_none());
+    if !maybe_dir {
+        check_extension("--output", &args.output, "exr")?;
+        check_output_dir(&args.output)?;
+    }
     let url = args.url.coordinator.clone();
     runtime()?.block_on(async {
         let mut client = connect(&args.url).await?;
-        if args.wait {
-            follow(&mut client, &url, &args.job).await?;
+        let s = if args.wait {
+            follow_to_end(&mut client, &url, &args.job).await?
+        } else {
+            client
+                .get_job(pb::GetJobRequest {
+                    job_id: args.job.clone(),
+                })
+                .await
+                .map_err(|e| rpc_error(&url, &args.job, e))?
+                .into_inner()
+        };
+        // A whole frame range goes into a directory; one frame, or a one-frame job, to a file.
+        if !s.frames.is_empty() && args.frame.is_none() {
+            check_frames_dir(&args.output)?;
+            return download_frames(&mut client, &url, &s, &args.output).await;
         }
-        let bytes = download(&mut client, &url, &args.job, &args.output).await?;
+        if args.wait && s.frames.is_empty() {
+            done(&args.job, s)?;
+        }
+        if maybe_dir {
+            check_extension("--output", &args.output, "exr")?;
+            check_output_dir(&args.output)?;
+        }
+        let bytes = download(&mut client, &url, &args.job, args.frame, &args.output).await?;
         outln!("{} → {} ({bytes} bytes)", args.job, args.output.display());
         Ok(())
     })

@@ -8,6 +8,7 @@
 mod animate;
 mod build;
 mod format;
+mod frames;
 mod locate;
 mod parse;
 
@@ -21,6 +22,7 @@ use glam::Vec3A;
 use sha2::{Digest, Sha256};
 
 pub use format::*;
+pub use frames::{BadFrameRange, FrameRange};
 pub use locate::{line_col, KeyPath, Seg};
 
 /// The frame a scene is built at when none is asked for: frames are numbered from 1, as farm
