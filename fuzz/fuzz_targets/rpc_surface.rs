@@ -1,8 +1,8 @@
 //! Sequences of gRPC calls from several fake workers and a client, through the coordinator's
 //! real service handlers and its redb store (`InProcess`: everything `serve` runs but the
 //! network): Register, Lease, Heartbeat, SubmitResult (honest, forged, under another worker's
-//! lease or id), ReleaseLeases (with and without `cannot_render`), GetScene, SubmitJob,
-//! CancelJob, GetJob, ListWorkers, ListJobs.
+//! lease or id), ReleaseLeases (with and without `cannot_render`), GetScene, SubmitJob
+//! (one frame or frame ranges, good and bad), CancelJob, GetJob, ListWorkers, ListJobs.
 //!
 //! Checks: no call panics; no result under another worker's lease or a forged id is merged;
 //! no worker holds more than its share; every status is finite. At the end the coordinator is
@@ -68,7 +68,7 @@ fn local_exr() -> &'static [u8] {
     })
 }
 
-fn submit_request(output_name: String) -> pb::SubmitJobRequest {
+fn submit_request(output_name: String, frames: Option<pb::FrameRange>) -> pb::SubmitJobRequest {
     pb::SubmitJobRequest {
         scene_text: scene_text().into(),
         scene_format: pb::SceneFormat::Toml as i32,
@@ -84,6 +84,7 @@ fn submit_request(output_name: String) -> pb::SubmitJobRequest {
         output_name,
         priority: 0,
         channels: None,
+        frames,
     }
 }
 
@@ -138,7 +139,7 @@ fuzz_target!(|data: &[u8]| {
         let farm = InProcess::open(config.clone()).expect("a fresh store opens");
         let svc = farm.service();
         let main = svc
-            .submit_job(Request::new(submit_request(String::new())))
+            .submit_job(Request::new(submit_request(String::new(), None)))
             .await
             .expect("the main job")
             .into_inner()
@@ -281,7 +282,17 @@ fuzz_target!(|data: &[u8]| {
                         2 => "job-000009.exr".into(),
                         _ => "../x.exr".into(),
                     };
-                    let _ = svc.submit_job(Request::new(submit_request(name))).await;
+                    let range = |first, last, step| Some(pb::FrameRange { first, last, step });
+                    let frames = match arg / 4 % 5 {
+                        0 => None,
+                        1 => range(1, 3, 1),
+                        2 => range(0, u32::MAX, u32::MAX),
+                        3 => range(5, 1, 1),
+                        _ => range(1, 2, 0),
+                    };
+                    let _ = svc
+                        .submit_job(Request::new(submit_request(name, frames)))
+                        .await;
                 }
                 9 => {
                     let job = if arg % 4 == 0 {

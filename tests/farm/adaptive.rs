@@ -13,7 +13,7 @@ async fn an_adaptive_job_gives_the_local_bits_across_a_coordinator_restart() {
     let text = scene_text(64);
     let (spp, batch, tile) = (512, 8, 16);
     let settings = RenderSettings {
-        adaptive: Some(Adaptive::new(0.1, tile).expect("target")),
+        adaptive: Some(Adaptive::new(0.025, tile).expect("target")),
         ..job_settings(spp, batch)
     };
     let mut client = coord.client().await;

@@ -35,9 +35,9 @@ pub struct SettingsArgs {
     /// Direct-lighting strategy (mis is the best; the others exist for comparisons).
     #[arg(long, value_enum, default_value_t = StrategyArg::Mis)]
     pub strategy: StrategyArg,
-    /// Adaptive sampling: each tile stops once the RMS standard error of its pixel means is
-    /// at most this fraction of their mean (e.g. 0.01), and --spp becomes the cap. Tiles are
-    /// --tile-size pixels, which is then part of the render's identity.
+    /// Adaptive sampling: samples go to the tiles where they lower the image's relative error
+    /// most, until its expected value (√relMSE, e.g. 0.02) is this, and --spp becomes the cap.
+    /// Tiles are --tile-size pixels, which is then part of the render's identity.
     #[arg(long, value_parser = noise_target)]
     pub noise_target: Option<f64>,
     /// Frame of the scene's `[animation]` to render (the EXR's header then names it, and it is

@@ -7,7 +7,7 @@ use std::ops::Range;
 use std::time::{Duration, Instant};
 
 use tessera_proto::ids::JobId;
-use tessera_render::adaptive::{min_batches, wants_more};
+use tessera_render::adaptive::{min_batches, neyman_scale, tile_wants_more, wants_more};
 use tessera_render::{Adaptive, PixelRect, RenderSettings, TileSums};
 
 use crate::error::Refusal;
@@ -101,6 +101,9 @@ pub struct Job {
     pub ready: BTreeSet<(u32, u32)>,
     /// Tiles that need no more batches.
     pub tiles_closed: u64,
+    /// Tiles whose first batches (the adaptive pilot) are all merged: decisions wait until
+    /// every tile's are, which fixes the image's scale.
+    pub pilots_in: u64,
     /// Units the job will take at least: every tile's first batches, and one more for each
     /// decision to go on. The job's whole count without a noise target.
     pub units_planned: u64,
@@ -180,6 +183,7 @@ impl Job {
             first_batches,
             ready: BTreeSet::new(),
             tiles_closed: 0,
+            pilots_in: 0,
             units_planned: tiles.len() as u64 * first_batches as u64,
             acc: BTreeMap::new(),
             noise_total: (0.0, 0.0, 0),
@@ -255,10 +259,19 @@ impl Job {
             .filter(|(_, a)| a.next >= job.first_batches)
             .map(|(t, _)| *t)
             .collect();
-        for tile in decided {
+        job.pilots_in = decided.len() as u64;
+        for &tile in &decided {
             let next = job.acc[&tile].next;
             job.units_planned += (next - job.first_batches) as u64;
-            job.decide(tile);
+        }
+        if job.scale().is_some() {
+            for tile in decided {
+                job.decide(tile);
+            }
+        } else if job.pilots_in == job.tiles.len() as u64 && !job.past_pilot() {
+            // Every pilot was in at the stop, and the scale not yet kept: the sums are the
+            // pilots the scale is computed from.
+            job.fix_scale();
         }
         job.started = job.units_done > 0;
         Ok(job)
@@ -313,16 +326,59 @@ impl Job {
         self.tiles_closed == self.tiles.len() as u64
     }
 
+    /// Whether some tile has results past its pilot.
+    fn past_pilot(&self) -> bool {
+        let first = self.first_batches;
+        self.acc
+            .values()
+            .any(|a| a.next > first || a.pending.keys().any(|&b| b >= first))
+    }
+
+    /// An adaptive job with results past its tiles' pilots and no scale: one accepted before
+    /// the scale was kept (by an earlier rule), whose decisions cannot be made again.
+    pub fn lost_scale(&self) -> bool {
+        self.rec.noise_target > 0.0 && self.rec.adaptive_scale.is_none() && self.past_pilot()
+    }
+
+    /// The scale decisions are made under: 0 for a job without a noise target (whose tiles
+    /// all run to `spp`), the adaptive scale once every tile's pilot is in, else none yet.
+    fn scale(&self) -> Option<f64> {
+        if self.rec.noise_target <= 0.0 {
+            Some(0.0)
+        } else {
+            self.rec.adaptive_scale
+        }
+    }
+
+    /// Computes the adaptive scale from every tile's pilot sums, in tile order, and makes
+    /// every tile's first decision under it.
+    fn fix_scale(&mut self) {
+        let pilots = self.acc.values().filter_map(|a| a.sums.as_ref());
+        self.rec.adaptive_scale = Some(neyman_scale(self.rec.noise_target, pilots));
+        let tiles: Vec<u32> = self.acc.keys().copied().collect();
+        for tile in tiles {
+            self.decide(tile);
+        }
+    }
+
     /// The noise decision for `tile`, whose batches `0..next` are merged and which has had its
     /// first batches: either its next batch is released, or it is closed. Every decision is
     /// made here, from merged sums only, so that the same job stops every tile at the same
     /// batch whatever order results come in, and after a restart.
     fn decide(&mut self, tile: u32) {
+        let Some(scale) = self.scale() else {
+            return;
+        };
         let Some(acc) = self.acc.get(&tile) else {
             return;
         };
         let end = acc.next.saturating_mul(self.rec.batch).min(self.rec.spp);
-        if wants_more(&self.settings(), end, acc.noise) {
+        let settings = self.settings();
+        let more = match &acc.sums {
+            Some(sums) => tile_wants_more(&settings, sums, scale),
+            None => wants_more(&settings, end, 0.0, scale),
+        };
+        if more {
             self.ready.insert((acc.next, tile));
             self.units_planned += 1;
         } else {
@@ -479,6 +535,7 @@ impl Job {
         let mut ops = Vec::new();
         let rect = sums.rect;
         let acc = self.acc.entry(unit.tile).or_default();
+        let before = acc.next;
         let mut advanced = false;
         if unit.batch == acc.next {
             advanced = true;
@@ -509,7 +566,16 @@ impl Job {
             acc.pending.insert(unit.batch, sums);
         }
         if advanced && self.acc[&unit.tile].next >= self.first_batches {
-            self.decide(unit.tile);
+            if before < self.first_batches {
+                self.pilots_in += 1;
+            }
+            if self.scale().is_some() {
+                self.decide(unit.tile);
+            } else if self.pilots_in == self.tiles.len() as u64 {
+                // The last pilot: the scale is kept with the tile's sums, in one commit.
+                self.fix_scale();
+                ops.push(Op::PutJob(self.rec.clone()));
+            }
         }
         let finished = self.all_closed();
         if finished {

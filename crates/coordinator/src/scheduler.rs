@@ -279,8 +279,22 @@ impl Scheduler {
         let mut failing = Vec::new();
         for loaded in loaded {
             let id = JobId(loaded.record.id);
+            let scale = loaded.record.adaptive_scale;
             let mut job = Job::restore(loaded).map_err(|e| format!("{id}: {e}"))?;
-            if job.rec.phase == JobPhase::Active && job.all_closed() {
+            if job.rec.adaptive_scale != scale {
+                // The last pilot was merged just before the stop; the scale is computed once
+                // more from the same sums, and kept now.
+                ops.push(Op::PutJob(job.rec.clone()));
+            }
+            if job.rec.phase == JobPhase::Active && job.lost_scale() {
+                failing.push((
+                    id,
+                    "an adaptive job accepted by a coordinator with an earlier adaptive rule, \
+                     whose tiles went past their pilots under it: its decisions cannot be made \
+                     again; resubmit the job"
+                        .to_string(),
+                ));
+            } else if job.rec.phase == JobPhase::Active && job.all_closed() {
                 job.finishing = true;
                 to_finish.push(id);
             } else if job.rec.phase == JobPhase::Active && job.rec.image_revision != IMAGE_REVISION
@@ -391,6 +405,7 @@ impl Scheduler {
             final_counts: (0, 0),
             frame,
             range: None,
+            adaptive_scale: None,
         };
         // The job's own count, so that admission and scheduling cannot disagree on it; a job
         // costs nothing per unit until its units render, so making it first is free. Every

@@ -236,6 +236,11 @@ pub struct JobRecord {
     /// keeps it, so a restart rebuilds the range from its frames' records alone.
     #[serde(default)]
     pub range: Option<RangeRef>,
+    /// An adaptive job's Neyman scale ([`tessera_render::adaptive::neyman_scale`]), set once
+    /// every tile's pilot is merged. Kept because it cannot be computed again once tiles have
+    /// gone past their pilots; JSON writes an f64 so that it reads back to the same bits.
+    #[serde(default)]
+    pub adaptive_scale: Option<f64>,
 }
 
 /// A frame-range job, as each of its frames records it.

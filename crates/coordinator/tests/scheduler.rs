@@ -655,3 +655,74 @@ fn a_frame_range_is_one_job_of_frame_jobs_in_frame_order() {
     );
     assert_eq!(core.jobs[&JobId(12)].rec.output_name, "job-000011.0001.exr");
 }
+
+#[test]
+fn an_adaptive_job_past_its_pilots_without_a_kept_scale_fails_at_restore_and_others_resume() {
+    // 256 spp in batches of 32: a pilot of 2 batches (64 samples), then decisions.
+    let adaptive = |id: u64, end: u32, scale: Option<f64>| {
+        let rec = JobRecord {
+            id,
+            noise_target: 0.05,
+            adaptive_scale: scale,
+            phase: JobPhase::Active,
+            image_revision: tessera_render::IMAGE_REVISION,
+            output_name: format!("o{id}.exr"),
+            ..record(256, 32)
+        };
+        let job = Job::new(rec.clone());
+        let tiles = (0..job.tiles.len() as u32)
+            .map(|t| {
+                let rect = job.tiles.get(t).expect("tile");
+                let mut sums = TileSums::empty(rect, 0);
+                sums.samples = 0..end;
+                for i in 0..rect.area() {
+                    sums.sum[i] = [end as f64 * 0.5; 3];
+                    sums.sum_sq[i] = [end as f64 * 0.5; 3];
+                    sums.count[i] = end;
+                }
+                (t, tessera_coordinator::store::encode_sums(&sums))
+            })
+            .collect();
+        tessera_coordinator::store::LoadedJob {
+            record: rec,
+            tiles,
+            pending: Vec::new(),
+        }
+    };
+    let mut core = Scheduler::new(1, Duration::from_secs(5));
+    // Job 1 went past its pilots with no scale kept; job 2 has every pilot in and no scale
+    // yet (the scale is computed at restore and kept); job 3 kept its scale.
+    let (ops, _) = core
+        .restore(
+            vec![
+                adaptive(1, 96, None),
+                adaptive(2, 64, None),
+                adaptive(3, 96, Some(40.0)),
+            ],
+            Vec::new(),
+            5,
+        )
+        .expect("restore");
+    let j1 = &core.jobs[&JobId(1)];
+    assert_eq!(j1.rec.phase, JobPhase::Failed);
+    assert!(
+        j1.rec.error.contains("earlier adaptive rule"),
+        "{}",
+        j1.rec.error
+    );
+    let j2 = &core.jobs[&JobId(2)];
+    assert_eq!(j2.rec.phase, JobPhase::Active);
+    let scale = j2
+        .rec
+        .adaptive_scale
+        .expect("scale computed from the pilots");
+    assert!(scale > 0.0);
+    assert!(ops
+        .iter()
+        .any(|op| matches!(op, Op::PutJob(r) if r.id == 2 && r.adaptive_scale == Some(scale))));
+    let j3 = &core.jobs[&JobId(3)];
+    assert_eq!(
+        (j3.rec.phase, j3.rec.adaptive_scale),
+        (JobPhase::Active, Some(40.0))
+    );
+}

@@ -12,7 +12,7 @@ use std::ops::Range;
 
 use rayon::prelude::*;
 
-use crate::adaptive::tile_wants_more;
+use crate::adaptive::{neyman_scale, pilot_samples, tile_wants_more};
 use crate::film::{assemble_render, PixelRect, TileSums};
 use crate::integrator::{sample_pixel, RenderSettings, Tracer};
 use crate::sampling::PixelSampler;
@@ -186,9 +186,9 @@ fn wide_row(
 
 /// Renders the whole frame, tile by tile and batch by batch, calling `progress` with the number
 /// of samples finished after each tile batch. Each tile takes `settings.spp` samples, or, with
-/// a noise target, batches until [`crate::adaptive::tile_wants_more`] says it has enough: the
-/// decision the farm's coordinator makes from the same sums, so both stop every tile at the
-/// same batch.
+/// a noise target, its pilot, and then batches until [`crate::adaptive::tile_wants_more`] says
+/// it has enough under the scale every tile's pilot gives: the decisions the farm's coordinator
+/// makes from the same sums, so both stop every tile at the same batch.
 pub fn render_frame(
     scene: &Scene,
     settings: &RenderSettings,
@@ -199,21 +199,34 @@ pub fn render_frame(
     // samples go, and must be the job's.
     let size = settings.adaptive.map_or(32, |a| a.tile.max(1));
     let tiles = PixelRect::tiles(scene.width, scene.height, size);
-    let done: Vec<TileSums> = tiles
+    // Batch by batch up to `until` (each batch merged in index order, as the farm merges).
+    let step = |acc: &mut TileSums, until: u32| {
+        let s = acc.samples.end;
+        let e = s.saturating_add(batch).min(until);
+        let part = render_tile(scene, settings, acc.rect, s..e);
+        acc.merge(&part)
+            .expect("same rectangle, contiguous samples");
+        progress(acc.rect.area() as u64 * (e - s) as u64);
+    };
+    let pilot = pilot_samples(settings);
+    let mut done: Vec<TileSums> = tiles
         .par_iter()
         .map(|&rect| {
             let mut acc = TileSums::empty(rect, 0);
-            while tile_wants_more(settings, &acc) {
-                let s = acc.samples.end;
-                let e = s.saturating_add(batch).min(settings.spp);
-                let part = render_tile(scene, settings, rect, s..e);
-                acc.merge(&part)
-                    .expect("same rectangle, contiguous samples");
-                progress(rect.area() as u64 * (e - s) as u64);
+            while acc.samples.end < pilot {
+                step(&mut acc, pilot);
             }
             acc
         })
         .collect();
+    if let Some(a) = settings.adaptive {
+        let scale = neyman_scale(a.noise_target, &done);
+        done.par_iter_mut().for_each(|acc| {
+            while tile_wants_more(settings, acc, scale) {
+                step(acc, settings.spp);
+            }
+        });
+    }
     assemble_render(settings, scene.width, scene.height, &done)
         .expect("tiles partition the frame and cover samples from 0")
 }

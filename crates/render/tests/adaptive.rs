@@ -1,10 +1,11 @@
-//! Noise-targeted adaptive sampling: every tile stops at the first batch whose merged sums
-//! meet the target, the bits are the same for any thread count, and the answer stays right.
+//! Noise-targeted adaptive sampling: every tile stops at the first batch at which its merged
+//! sums reach its Neyman count under the scale of every tile's pilot, the bits are the same for
+//! any thread count, and the answer stays right.
 
 mod common;
 
 use common::{load, region_stats, scene};
-use tessera_render::adaptive::{min_batches, tile_wants_more};
+use tessera_render::adaptive::{min_batches, neyman_scale, tile_wants_more};
 use tessera_render::{render_frame, render_tile, Adaptive, PixelRect, RenderSettings, TileSums};
 
 fn adaptive(spp: u32, batch: u32, target: f64, tile: u32) -> RenderSettings {
@@ -35,9 +36,9 @@ fn tile_counts(frame: &TileSums, tiles: &[PixelRect]) -> Vec<u32> {
 }
 
 #[test]
-fn every_tile_stops_at_the_first_batch_whose_sums_meet_the_target() {
+fn every_tile_stops_at_the_first_batch_whose_sums_reach_its_neyman_count() {
     let s = load("cornell-box.toml");
-    let settings = adaptive(256, 8, 0.12, 64);
+    let settings = adaptive(256, 8, 0.04, 64);
     let frame = render_frame(&s, &settings, &|_| {});
     let tiles = PixelRect::tiles(s.width, s.height, 64);
     let counts = tile_counts(&frame, &tiles);
@@ -50,14 +51,28 @@ fn every_tile_stops_at_the_first_batch_whose_sums_meet_the_target() {
         min >= min_batches(8) * 8,
         "a tile stopped before the minimum"
     );
-    for (rect, &k) in tiles.iter().zip(&counts) {
-        // The tile batch by batch, as a farm merges it: the first boundary at which it wants
-        // no more must be where the frame's tile stopped, with the same bits.
-        let mut acc = TileSums::empty(*rect, 0);
-        while tile_wants_more(&settings, &acc) {
-            let e = (acc.samples.end + 8).min(settings.spp);
-            acc.merge(&render_tile(&s, &settings, *rect, acc.samples.end..e))
-                .expect("in order");
+    // Each tile batch by batch, as a farm merges it: the pilots first, then, under the scale
+    // they give, the first boundary at which a tile wants no more must be where the frame's
+    // tile stopped, with the same bits.
+    let step = |acc: &mut TileSums| {
+        let e = (acc.samples.end + 8).min(settings.spp);
+        acc.merge(&render_tile(&s, &settings, acc.rect, acc.samples.end..e))
+            .expect("in order");
+    };
+    let pilots: Vec<TileSums> = tiles
+        .iter()
+        .map(|rect| {
+            let mut acc = TileSums::empty(*rect, 0);
+            while acc.samples.end < min_batches(8) * 8 {
+                step(&mut acc);
+            }
+            acc
+        })
+        .collect();
+    let scale = neyman_scale(0.04, &pilots);
+    for ((rect, &k), mut acc) in tiles.iter().zip(&counts).zip(pilots) {
+        while tile_wants_more(&settings, &acc, scale) {
+            step(&mut acc);
         }
         assert_eq!(acc.samples.end, k, "tile {rect:?}");
         for y in 0..rect.height {
@@ -74,7 +89,7 @@ fn every_tile_stops_at_the_first_batch_whose_sums_meet_the_target() {
 #[test]
 fn the_thread_count_does_not_change_an_adaptive_render() {
     let s = load("glass-mirror.toml");
-    let settings = adaptive(128, 16, 0.3, 32);
+    let settings = adaptive(128, 16, 0.1, 32);
     let run = |threads| {
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -87,6 +102,7 @@ fn the_thread_count_does_not_change_an_adaptive_render() {
     assert!(one == two, "1 and 2 threads differ");
     let tiles = PixelRect::tiles(s.width, s.height, 32);
     let counts = tile_counts(&one, &tiles);
+    eprintln!("samples per tile: {counts:?}");
     assert!(counts.iter().any(|&k| k < 128) && counts.contains(&128));
 }
 
@@ -96,7 +112,7 @@ fn the_thread_count_does_not_change_an_adaptive_render() {
 fn an_adaptive_render_still_gives_the_furnace_answer() {
     let (rho, le) = ([0.8f64, 0.5, 0.3], [0.5f64, 1.0, 2.0]);
     let s = scene(&common::closed_sphere(rho, le, 32, 32));
-    let settings = adaptive(1024, 16, 0.006, 8);
+    let settings = adaptive(1024, 8, 0.006, 2);
     let frame = render_frame(&s, &settings, &|_| {});
     let counts: Vec<u32> = frame.count.clone();
     let mean_spp = counts.iter().map(|&k| k as f64).sum::<f64>() / counts.len() as f64;

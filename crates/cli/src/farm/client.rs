@@ -44,8 +44,8 @@ pub struct SubmitArgs {
     /// Add a per-pixel sample-count channel to the EXR.
     #[arg(long)]
     sample_count: bool,
-    /// Render frames FIRST-LAST[:STEP] of the scene's [animation] as one job, one EXR per
-    /// frame (NAME.####.exr); the first frames finish first.
+    /// Render frames FIRST-LAST or FIRST-LAST:STEP of the scene's `[animation]` as one job,
+    /// one EXR per frame (NAME.####.exr); the first frames finish first.
     #[arg(long, value_name = "FIRST-LAST[:STEP]", conflicts_with = "frame")]
     frames: Option<FrameRange>,
     /// Follow the job with a progress bar, then fetch its EXR (a frame range's EXRs).
@@ -529,7 +529,7 @@ fn print_job(s: &pb::JobStatus) -> std::io::Result<()> {
     }
     if settings.noise_target > 0.0 {
         outln!(
-            "  adaptive   noise target {} per tile ({} spp is the cap)",
+            "  adaptive   noise target {} (expected √relMSE of the image; {} spp is the cap)",
             settings.noise_target,
             settings.spp
         );
