@@ -109,6 +109,8 @@ struct Ctx {
     /// Scenes this worker cannot render, by hash and frame, with the reason: fetched and
     /// refused once, not again for every unit.
     refused_scenes: Mutex<HashMap<SceneKey, String>>,
+    /// Texts of animated scenes, for building their other frames without fetching them again.
+    texts: Mutex<Texts>,
     /// Held while registering, so that the tasks that all learn at once that the coordinator
     /// forgot this worker register it once, not once each.
     registering: tokio::sync::Mutex<()>,
@@ -247,15 +249,16 @@ impl Ctx {
     }
 
     async fn fetch_scene(&self, hash: &str, frame: Option<u32>) -> Result<Arc<Scene>, SceneError> {
-        let mut attempt = 0;
-        let resp = loop {
-            let req = pb::GetSceneRequest {
-                scene_hash: hash.to_string(),
-            };
-            match self.client.clone().get_scene(req).await {
-                Ok(r) => break r.into_inner(),
-                Err(e) if transient(&e) && self.backoff(&mut attempt).await => continue,
-                Err(e) => return Err(SceneError::Unavailable(e.message().to_string())),
+        // A unit with a frame is one frame of an animation: its text builds the others too.
+        let kept = frame.and_then(|_| lock(&self.texts).get(hash));
+        let resp = match kept {
+            Some(text) => text,
+            None => {
+                let text = Arc::new(self.fetch_text(hash).await?);
+                if frame.is_some() {
+                    lock(&self.texts).put(hash, text.clone());
+                }
+                text
             }
         };
         let format = if resp.scene_format == pb::SceneFormat::Json as i32 {
@@ -276,12 +279,27 @@ impl Ctx {
         .map_err(|e| SceneError::Unavailable(e.to_string()))?
         .map_err(|e| SceneError::Unrenderable(e.to_string()))?;
         if scene.hash != hash {
+            lock(&self.texts).kept.retain(|(h, _)| h != hash);
             return Err(SceneError::Unavailable(format!(
                 "scene {hash} arrived with hash {}",
                 scene.hash
             )));
         }
         Ok(Arc::new(scene))
+    }
+
+    async fn fetch_text(&self, hash: &str) -> Result<pb::GetSceneResponse, SceneError> {
+        let mut attempt = 0;
+        loop {
+            let req = pb::GetSceneRequest {
+                scene_hash: hash.to_string(),
+            };
+            match self.client.clone().get_scene(req).await {
+                Ok(r) => return Ok(r.into_inner()),
+                Err(e) if transient(&e) && self.backoff(&mut attempt).await => continue,
+                Err(e) => return Err(SceneError::Unavailable(e.message().to_string())),
+            }
+        }
     }
 
     async fn release(&self, leases: Vec<String>, goodbye: bool) {
@@ -352,6 +370,36 @@ type SceneKey = (String, Option<u32>);
 
 /// Built scenes a worker keeps (one per scene and frame).
 const MAX_CACHED_SCENES: usize = 4;
+
+/// Scene texts a worker keeps for the frames it has not built yet: a frame-range job's frames
+/// share one text (up to the coordinator's scene limit, 32 MiB), which is fetched once rather
+/// than once a frame.
+#[derive(Default)]
+struct Texts {
+    /// By hash, the most recently used last.
+    kept: Vec<(String, Arc<pb::GetSceneResponse>)>,
+}
+
+impl Texts {
+    /// Texts kept at most.
+    const MAX: usize = 2;
+
+    fn get(&mut self, hash: &str) -> Option<Arc<pb::GetSceneResponse>> {
+        let i = self.kept.iter().position(|(h, _)| h == hash)?;
+        let entry = self.kept.remove(i);
+        let text = entry.1.clone();
+        self.kept.push(entry);
+        Some(text)
+    }
+
+    fn put(&mut self, hash: &str, text: Arc<pb::GetSceneResponse>) {
+        self.kept.retain(|(h, _)| h != hash);
+        if self.kept.len() >= Self::MAX {
+            self.kept.remove(0);
+        }
+        self.kept.push((hash.to_string(), text));
+    }
+}
 
 /// The longest a lease call waits at the coordinator for a unit to come free.
 const LEASE_WAIT: Duration = Duration::from_secs(2);
@@ -668,6 +716,7 @@ pub async fn run(
         revoked: Mutex::new(HashSet::new()),
         scenes: Mutex::new(HashMap::new()),
         refused_scenes: Mutex::new(HashMap::new()),
+        texts: Mutex::new(Texts::default()),
         registering: tokio::sync::Mutex::new(()),
         stop,
         refused: Mutex::new(None),
@@ -749,6 +798,29 @@ mod tests {
             }),
             ..pb::WorkUnit::default()
         }
+    }
+
+    #[test]
+    fn scene_texts_are_kept_for_the_two_animations_used_last() {
+        let text = |name: &str| {
+            Arc::new(pb::GetSceneResponse {
+                scene_name: name.into(),
+                ..Default::default()
+            })
+        };
+        let mut t = Texts::default();
+        t.put("a", text("a"));
+        t.put("b", text("b"));
+        // Using a keeps it: the next text pushes b out, not a.
+        assert_eq!(t.get("a").expect("a").scene_name, "a");
+        t.put("c", text("c"));
+        assert!(t.get("b").is_none());
+        assert_eq!(t.get("a").expect("a").scene_name, "a");
+        assert_eq!(t.get("c").expect("c").scene_name, "c");
+        // Put again, a text is not kept twice.
+        t.put("c", text("c2"));
+        assert_eq!(t.kept.len(), 2);
+        assert_eq!(t.get("c").expect("c").scene_name, "c2");
     }
 
     #[test]
