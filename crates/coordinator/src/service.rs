@@ -185,7 +185,12 @@ fn range_status(id: JobId, members: &[JobId], core: &Scheduler) -> Option<pb::Jo
     };
     let sum = |f: fn(&pb::JobStatus) -> u64| frames.iter().map(f).sum::<u64>();
     let (samples_total, samples_done) = (sum(|s| s.samples_total), sum(|s| s.samples_done));
-    let rate: f64 = frames.iter().map(|s| s.samples_per_second).sum();
+    // Ended frames keep their last rate for a while; only the frames still going add up.
+    let rate: f64 = frames
+        .iter()
+        .filter(|s| matches!(state_of(s), pb::JobState::Running | pb::JobState::Queued))
+        .map(|s| s.samples_per_second)
+        .sum();
     let eta = match state {
         pb::JobState::Done => 0.0,
         pb::JobState::Running | pb::JobState::Queued if rate > 0.0 => {
