@@ -65,6 +65,10 @@ enum Command {
     /// and a report with a log–log plot (and peers' figures, if given).
     #[cfg(feature = "bench")]
     Bench(bench::BenchArgs),
+    /// Run many simulated workers against one coordinator on loopback and report its
+    /// throughput, lease latency, CPU, memory and bytes written.
+    #[cfg(feature = "bench")]
+    Loadtest(bench::load::LoadArgs),
     /// Measure speed against error (in builds with the `bench` feature only).
     #[cfg(not(feature = "bench"))]
     #[command(disable_help_flag = true)]
@@ -89,6 +93,8 @@ fn main() -> ExitCode {
         Command::Fetch(args) => farm::fetch(args),
         #[cfg(feature = "bench")]
         Command::Bench(args) => bench::run(args),
+        #[cfg(feature = "bench")]
+        Command::Loadtest(args) => bench::load::run(args),
         #[cfg(not(feature = "bench"))]
         Command::Bench { .. } => Err(anyhow::anyhow!(
             "this tessera was built without the benchmark harness; build one with \

@@ -256,3 +256,47 @@ fn bench_measures_a_peer_command_point_by_point_and_rejects_its_bad_answers() {
     let r = run("while read s n k; do echo \"tessera,$s,$n,$k,2,0.5,0.001,0.02\"; echo done; done");
     assert_clean_failure(&r, &["may not be named tessera"]);
 }
+
+#[test]
+fn loadtest_runs_simulated_workers_against_a_coordinator_and_reports_what_it_measured() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("out");
+    let o = tessera(&[
+        "loadtest",
+        "--workers",
+        "3,12",
+        "--seconds",
+        "1",
+        "--name",
+        "lt",
+        "--out-dir",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let csv = std::fs::read_to_string(out.join("lt.csv")).expect("csv");
+    let rows: Vec<Vec<&str>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert_eq!(rows.len(), 2, "{csv}");
+    for (row, workers) in rows.iter().zip(["3", "12"]) {
+        assert_eq!(row[0], workers);
+        let merged: u64 = row[2].parse().expect("units merged");
+        assert!(merged > 0, "no unit merged: {csv}");
+        // Every simulated result is an honest render: none may be refused or duplicated.
+        assert_eq!(row[3], "0", "{csv}");
+        for f in &row[4..] {
+            let v: f64 = f.parse().expect("a number");
+            assert!(v.is_finite() && v >= 0.0, "{csv}");
+        }
+    }
+    let md = std::fs::read_to_string(out.join("lt.md")).expect("md");
+    assert!(
+        md.contains("Made by `tessera loadtest --workers 3,12"),
+        "{md}"
+    );
+    assert!(md.contains("Machine: "), "{md}");
+    let bad = tessera(&["loadtest", "--workers", "0"]);
+    assert_clean_failure(&bad, &["--workers"]);
+}

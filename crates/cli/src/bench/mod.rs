@@ -15,6 +15,7 @@
 //! The parts: [`peer`] (CSV rows and the peer protocol), [`stats`], [`report`] and [`plot`].
 
 mod adaptive;
+pub mod load;
 mod peer;
 mod plot;
 mod report;

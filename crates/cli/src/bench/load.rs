@@ -1,0 +1,495 @@
+//! `tessera loadtest`: many simulated workers against one real coordinator on loopback.
+//!
+//! The coordinator is a `tessera coordinator` process of its own (this binary), so that its
+//! CPU time, memory and bytes written can be read from `/proc` without counting the
+//! simulated workers'. The workers are tasks in this process, each with its own connection
+//! and registration, doing what a stock worker does with one unit at a time: lease, render,
+//! submit. They really render (a 4×4-pixel tile, one sample), so every result is the exact sum
+//! an honest worker sends and the coordinator's checks and merges run as in production, while a
+//! unit costs microseconds and the coordinator, not the renderer, is what is measured.
+
+use std::fmt::Write as _;
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, bail, Context, Result};
+use tessera_proto::v1 as pb;
+use tessera_proto::v1::jobs_client::JobsClient;
+use tessera_proto::v1::workers_client::WorkersClient;
+use tessera_render::scene::{Format, Limits, Scene};
+use tessera_render::{render_tile, PixelRect, RenderSettings};
+use tonic::transport::Channel;
+
+/// Arguments of `tessera loadtest`.
+#[derive(Debug, clap::Args)]
+pub struct LoadArgs {
+    /// Simulated worker counts, one run each.
+    #[arg(long, value_delimiter = ',', default_values_t = [10usize, 100, 1000])]
+    workers: Vec<usize>,
+    /// Seconds each run is measured for, once its workers have registered.
+    #[arg(long, default_value_t = 20)]
+    seconds: u64,
+    /// The report's name: OUT_DIR/NAME.md and OUT_DIR/NAME.csv.
+    #[arg(long, default_value = "loadtest")]
+    name: String,
+    /// Where the report goes.
+    #[arg(long, default_value = "docs/benchmarks")]
+    out_dir: PathBuf,
+    /// Give the coordinator CPU 0 and the simulated workers the others (with `taskset`), so
+    /// that the workers' load does not take the coordinator's core.
+    #[arg(long)]
+    split_cores: bool,
+}
+
+/// The job every run renders: a 16×16 Cornell box in 4-pixel tiles, one sample a unit, so a
+/// unit is 16 paths and the job has more units (16 tiles × 65,536 batches) than any run merges.
+const SPP: u32 = 65_536;
+const TILE: u32 = 4;
+
+fn scene_text() -> String {
+    include_str!("../../../../scenes/cornell-box.toml")
+        .replace("width = 256", "width = 16")
+        .replace("height = 256", "height = 16")
+}
+
+fn settings() -> RenderSettings {
+    RenderSettings {
+        spp: SPP,
+        batch: 1,
+        seed: 7,
+        ..RenderSettings::default()
+    }
+}
+
+/// One run's figures.
+#[derive(Clone, Debug)]
+struct Run {
+    workers: usize,
+    seconds: f64,
+    merged: u64,
+    refused: u64,
+    lease_p50_ms: f64,
+    lease_p99_ms: f64,
+    lease_max_ms: f64,
+    probe_p50_ms: f64,
+    probe_p99_ms: f64,
+    cpu_share: f64,
+    rss_mib: f64,
+    peak_rss_mib: f64,
+    bytes_per_unit: f64,
+}
+
+/// The coordinator process, killed when dropped.
+struct Coordinator(Child);
+
+impl Drop for Coordinator {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// (CPU seconds, RSS MiB, peak RSS MiB, bytes written to storage) of process `pid`.
+fn proc_figures(pid: u32) -> Result<(f64, f64, f64, u64)> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat"))?;
+    // Fields after the command name, which is in parentheses and may hold spaces.
+    let after = stat
+        .rsplit_once(')')
+        .map(|(_, a)| a)
+        .ok_or_else(|| anyhow!("/proc/{pid}/stat: no command name"))?;
+    let fields: Vec<&str> = after.split_whitespace().collect();
+    // utime and stime are fields 14 and 15 of stat(5), 12 and 13 after the name and state.
+    let ticks: f64 = fields
+        .get(11..13)
+        .ok_or_else(|| anyhow!("/proc/{pid}/stat: too short"))?
+        .iter()
+        .map(|f| f.parse::<f64>().unwrap_or(0.0))
+        .sum();
+    // Linux's USER_HZ is 100 on every architecture tessera builds for.
+    let cpu = ticks / 100.0;
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status"))?;
+    let kib = |key: &str| {
+        status
+            .lines()
+            .find(|l| l.starts_with(key))
+            .and_then(|l| l.split_whitespace().nth(1)?.parse::<f64>().ok())
+            .unwrap_or(0.0)
+    };
+    let io = std::fs::read_to_string(format!("/proc/{pid}/io")).unwrap_or_default();
+    let written = io
+        .lines()
+        .find(|l| l.starts_with("write_bytes:"))
+        .and_then(|l| l.split_whitespace().nth(1)?.parse::<u64>().ok())
+        .unwrap_or(0);
+    Ok((cpu, kib("VmRSS:") / 1024.0, kib("VmHWM:") / 1024.0, written))
+}
+
+fn percentile(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let i = ((sorted.len() - 1) as f64 * p).round() as usize;
+    sorted[i.min(sorted.len() - 1)]
+}
+
+/// What the simulated workers share: when to stop, and what they saw.
+struct Shared {
+    scene: Scene,
+    settings: RenderSettings,
+    measuring: AtomicBool,
+    stop: AtomicBool,
+    merged: AtomicU64,
+    refused: AtomicU64,
+    latencies: Mutex<Vec<f64>>,
+    /// The probe worker's: one more worker on a thread of its own, whose round trips are the
+    /// coordinator's answer time under the others' load, not the load generator's queueing.
+    probe_latencies: Mutex<Vec<f64>>,
+}
+
+/// One simulated worker: registers, then leases one unit at a time, renders and submits it,
+/// until told to stop.
+async fn simulated_worker(url: String, n: usize, shared: Arc<Shared>, probe: bool) -> Result<()> {
+    let channel = Channel::from_shared(url)?.connect().await?;
+    let mut client = WorkersClient::new(channel);
+    let id = client
+        .register(pb::RegisterRequest {
+            name: format!("load-{n}"),
+            cores: 1,
+            version: env!("CARGO_PKG_VERSION").into(),
+            image_revision: tessera_render::IMAGE_REVISION,
+        })
+        .await?
+        .into_inner()
+        .worker_id;
+    let mut mine = Vec::new();
+    while !shared.stop.load(Ordering::Relaxed) {
+        let start = Instant::now();
+        let units = client
+            .lease(pb::LeaseRequest {
+                worker_id: id.clone(),
+                max_units: 1,
+                wait_ms: 200,
+            })
+            .await?
+            .into_inner()
+            .units;
+        let measuring = shared.measuring.load(Ordering::Relaxed);
+        if measuring && !units.is_empty() {
+            mine.push(start.elapsed().as_secs_f64() * 1e3);
+        }
+        for u in units {
+            let rect = PixelRect::from(u.rect.ok_or_else(|| anyhow!("a unit without a rect"))?);
+            let sums = render_tile(
+                &shared.scene,
+                &shared.settings,
+                rect,
+                u.sample_start..u.sample_end,
+            );
+            let outcome = client
+                .submit_result(pb::SubmitResultRequest {
+                    worker_id: id.clone(),
+                    lease_id: u.lease_id,
+                    job_id: u.job_id,
+                    tile_index: u.tile_index,
+                    batch_index: u.batch_index,
+                    result: Some(pb::TileResult::from(&sums)),
+                })
+                .await?
+                .into_inner()
+                .outcome;
+            if shared.measuring.load(Ordering::Relaxed) {
+                if outcome == pb::ResultOutcome::Merged as i32 {
+                    shared.merged.fetch_add(1, Ordering::Relaxed);
+                } else {
+                    shared.refused.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+        }
+    }
+    let to = if probe {
+        &shared.probe_latencies
+    } else {
+        &shared.latencies
+    };
+    to.lock()
+        .map_err(|_| anyhow!("a worker panicked"))?
+        .extend(mine);
+    Ok(())
+}
+
+/// One run with `workers` simulated workers for `seconds`.
+async fn run_one(workers: usize, seconds: u64, split_cores: bool) -> Result<Run> {
+    let dir = tempfile::tempdir()?;
+    let exe = std::env::current_exe()?;
+    let mut command = if split_cores {
+        let mut c = Command::new("taskset");
+        c.args(["-c", "0"]).arg(exe);
+        c
+    } else {
+        Command::new(exe)
+    };
+    let mut child = command
+        .args(["coordinator", "--listen", "127.0.0.1:0", "--data-dir"])
+        .arg(dir.path().join("data"))
+        .args(["--max-connections", &(workers + 64).to_string()])
+        .args(["--tile-size", &TILE.to_string()])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .context("starting the coordinator")?;
+    let stdout = child.stdout.take().ok_or_else(|| anyhow!("no stdout"))?;
+    let coordinator = Coordinator(child);
+    let pid = coordinator.0.id();
+    let mut line = String::new();
+    BufReader::new(stdout).read_line(&mut line)?;
+    let addr = line
+        .trim()
+        .strip_prefix("listening on ")
+        .ok_or_else(|| anyhow!("the coordinator said {line:?}"))?;
+    let url = format!("http://{addr}");
+    let mut jobs = JobsClient::connect(url.clone()).await?;
+    jobs.submit_job(pb::SubmitJobRequest {
+        scene_text: scene_text(),
+        scene_name: "cornell-16.toml".into(),
+        settings: Some(pb::RenderSettings::from(&settings())),
+        tile_size: TILE,
+        ..Default::default()
+    })
+    .await
+    .map_err(|e| anyhow!("submit: {}", e.message()))?;
+    let shared = Arc::new(Shared {
+        scene: Scene::from_str(
+            &scene_text(),
+            Format::Toml,
+            "cornell-16",
+            &Limits::default(),
+        )?,
+        settings: settings(),
+        measuring: AtomicBool::new(false),
+        stop: AtomicBool::new(false),
+        merged: AtomicU64::new(0),
+        refused: AtomicU64::new(0),
+        latencies: Mutex::new(Vec::new()),
+        probe_latencies: Mutex::new(Vec::new()),
+    });
+    let tasks: Vec<_> = (0..workers)
+        .map(|n| tokio::spawn(simulated_worker(url.clone(), n, shared.clone(), false)))
+        .collect();
+    let probe = {
+        let (url, shared) = (url.clone(), shared.clone());
+        std::thread::spawn(move || -> Result<()> {
+            tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()?
+                .block_on(simulated_worker(url, workers, shared, true))
+        })
+    };
+    // Registered and leasing: wait until the coordinator lists them all.
+    let start = Instant::now();
+    loop {
+        let listed = jobs
+            .list_workers(pb::ListWorkersRequest {})
+            .await
+            .map_err(|e| anyhow!("list workers: {}", e.message()))?
+            .into_inner()
+            .workers
+            .len();
+        if listed > workers {
+            break;
+        }
+        if start.elapsed() > Duration::from_secs(120) {
+            bail!("only {listed} of {workers} workers registered in 120 s");
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let before = proc_figures(pid)?;
+    let t0 = Instant::now();
+    shared.measuring.store(true, Ordering::Relaxed);
+    tokio::time::sleep(Duration::from_secs(seconds)).await;
+    shared.measuring.store(false, Ordering::Relaxed);
+    let elapsed = t0.elapsed().as_secs_f64();
+    let after = proc_figures(pid)?;
+    shared.stop.store(true, Ordering::Relaxed);
+    for t in tasks {
+        t.await??;
+    }
+    probe
+        .join()
+        .map_err(|_| anyhow!("the probe worker panicked"))??;
+    drop(coordinator);
+    let merged = shared.merged.load(Ordering::Relaxed);
+    let mut lat = std::mem::take(
+        &mut *shared
+            .latencies
+            .lock()
+            .map_err(|_| anyhow!("a worker panicked"))?,
+    );
+    lat.sort_by(f64::total_cmp);
+    let mut probe_lat = std::mem::take(
+        &mut *shared
+            .probe_latencies
+            .lock()
+            .map_err(|_| anyhow!("a worker panicked"))?,
+    );
+    probe_lat.sort_by(f64::total_cmp);
+    Ok(Run {
+        workers,
+        seconds: elapsed,
+        merged,
+        refused: shared.refused.load(Ordering::Relaxed),
+        lease_p50_ms: percentile(&lat, 0.5),
+        lease_p99_ms: percentile(&lat, 0.99),
+        lease_max_ms: lat.last().copied().unwrap_or(f64::NAN),
+        probe_p50_ms: percentile(&probe_lat, 0.5),
+        probe_p99_ms: percentile(&probe_lat, 0.99),
+        cpu_share: (after.0 - before.0) / elapsed,
+        rss_mib: after.1,
+        peak_rss_mib: after.2,
+        bytes_per_unit: (after.3.saturating_sub(before.3)) as f64 / merged.max(1) as f64,
+    })
+}
+
+/// Runs `tessera loadtest`.
+pub fn run(args: LoadArgs) -> Result<()> {
+    if args.workers.is_empty() || args.workers.contains(&0) || args.seconds == 0 {
+        bail!("--workers needs counts of at least 1, and --seconds at least 1");
+    }
+    let clock = super::report::measured_clock_ghz();
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    if args.split_cores {
+        if cores < 2 {
+            bail!("--split-cores needs at least 2 cores, and {cores} is available");
+        }
+        // Before the runtime starts: its threads inherit this thread's CPUs.
+        let own = std::process::id().to_string();
+        let others = format!("1-{}", cores - 1);
+        let ok = Command::new("taskset")
+            .args(["-p", "-c", &others, &own])
+            .stdout(Stdio::null())
+            .status()
+            .context("running taskset (util-linux) for --split-cores")?
+            .success();
+        if !ok {
+            bail!("taskset could not move the load generator to CPUs {others}");
+        }
+    }
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?;
+    let mut runs = Vec::new();
+    for &n in &args.workers {
+        errln!("{n} simulated workers for {} s …", args.seconds);
+        let r = runtime.block_on(run_one(n, args.seconds, args.split_cores))?;
+        errln!(
+            "  {:.0} units merged/s, lease p50 {:.2} ms p99 {:.2} ms (probe {:.2}/{:.2}), coordinator CPU {:.0}% RSS {:.1} MiB, {:.0} bytes written per unit",
+            r.merged as f64 / r.seconds,
+            r.lease_p50_ms,
+            r.lease_p99_ms,
+            r.probe_p50_ms,
+            r.probe_p99_ms,
+            r.cpu_share * 100.0,
+            r.rss_mib,
+            r.bytes_per_unit
+        );
+        runs.push(r);
+    }
+    let command = std::iter::once("tessera".to_string())
+        .chain(std::env::args().skip(1))
+        .collect::<Vec<_>>()
+        .join(" ");
+    std::fs::create_dir_all(&args.out_dir)?;
+    let csv = args.out_dir.join(format!("{}.csv", args.name));
+    let md = args.out_dir.join(format!("{}.md", args.name));
+    std::fs::write(&csv, to_csv(&runs))?;
+    std::fs::write(
+        &md,
+        report(
+            &runs,
+            &command,
+            &super::report::machine(clock),
+            args.split_cores,
+        ),
+    )?;
+    outln!("wrote {} and {}", md.display(), csv.display());
+    Ok(())
+}
+
+fn to_csv(runs: &[Run]) -> String {
+    let mut s = String::from(
+        "workers,seconds,units_merged,units_refused,units_per_s,lease_p50_ms,lease_p99_ms,lease_max_ms,probe_p50_ms,probe_p99_ms,coordinator_cpu_share,rss_mib,peak_rss_mib,bytes_written_per_unit\n",
+    );
+    for r in runs {
+        let _ = writeln!(
+            s,
+            "{},{:.3},{},{},{:.1},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.1},{:.1},{:.1}",
+            r.workers,
+            r.seconds,
+            r.merged,
+            r.refused,
+            r.merged as f64 / r.seconds,
+            r.lease_p50_ms,
+            r.lease_p99_ms,
+            r.lease_max_ms,
+            r.probe_p50_ms,
+            r.probe_p99_ms,
+            r.cpu_share,
+            r.rss_mib,
+            r.peak_rss_mib,
+            r.bytes_per_unit
+        );
+    }
+    s
+}
+
+fn report(runs: &[Run], command: &str, machine: &str, split: bool) -> String {
+    let mut md = String::from("# Many workers against one coordinator\n\n");
+    let _ = writeln!(md, "Made by `{command}`.\n");
+    let _ = writeln!(md, "Machine: {machine}.\n");
+    let _ =
+        writeln!(
+        md,
+        "A `tessera coordinator` process on loopback, with its store on this machine's disk; N \
+         simulated workers in one other process, each with its own connection and \
+         registration, leasing one unit at a time, rendering it for real (a 4×4 tile of a \
+         16×16 Cornell box, one sample: 16 paths) and submitting it. The coordinator's CPU \
+         time and bytes written come from `/proc/PID/stat` and `/proc/PID/io` over the \
+         measured window, its memory from `/proc/PID/status` at the window's end. Lease \
+         latency is a `Lease` call's round trip, for calls that returned a unit, as the N \
+         workers saw it (their own process's queueing included) and as one more worker, the \
+         probe, saw it from a thread of its own. {}\n",
+        if split { "The coordinator ran on CPU 0 alone, the simulated workers on the others \
+         (`--split-cores`)." } else { "Both processes shared the machine's cores." }
+    );
+    let _ = writeln!(
+        md,
+        "| workers | units merged/s | lease p50 ms | lease p99 ms | lease max ms | probe p50 ms | probe p99 ms | coordinator CPU (cores) | RSS MiB | peak RSS MiB | bytes written per unit |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+    );
+    for r in runs {
+        let _ = writeln!(
+            md,
+            "| {} | {:.0} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.1} | {:.1} | {:.0} |",
+            r.workers,
+            r.merged as f64 / r.seconds,
+            r.lease_p50_ms,
+            r.lease_p99_ms,
+            r.lease_max_ms,
+            r.probe_p50_ms,
+            r.probe_p99_ms,
+            r.cpu_share,
+            r.rss_mib,
+            r.peak_rss_mib,
+            r.bytes_per_unit
+        );
+    }
+    let refused: u64 = runs.iter().map(|r| r.refused).sum();
+    let _ = writeln!(
+        md,
+        "\nResults not merged (duplicates or refusals) during the measured windows: {refused}."
+    );
+    md
+}
