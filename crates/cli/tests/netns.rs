@@ -29,13 +29,18 @@ impl Drop for Net {
     }
 }
 
-fn ip(args: &[&str]) -> bool {
-    Command::new("ip")
+/// Whether `program ARGS` ran and succeeded.
+fn succeeds(program: &str, args: &[&str]) -> bool {
+    Command::new(program)
         .args(args)
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .status()
         .is_ok_and(|s| s.success())
+}
+
+fn ip(args: &[&str]) -> bool {
+    succeeds("ip", args)
 }
 
 fn must(args: &[&str]) {
@@ -255,65 +260,43 @@ fn a_farm_across_namespaces_survives_a_cut_link_and_gives_the_local_bytes() {
         );
         std::thread::sleep(Duration::from_millis(100));
     }
-    let farm = dir.path().join("farm.exr");
-    ok(&net.client(
-        &[
-            "fetch",
-            &job,
-            "--wait",
-            "--output",
-            farm.to_str().expect("utf8"),
-        ],
-        &url,
-    ));
-    assert!(
-        std::fs::read(&farm).expect("farm") == std::fs::read(&local).expect("local"),
-        "the farm's EXR after a cut link differs from tessera render's"
-    );
+    // Waits for `job`, fetches its EXR into `file` and compares it with the local render.
+    let same_as_local = |job: &str, file: &str, after: &str| {
+        let out = dir.path().join(file);
+        ok(&net.client(
+            &[
+                "fetch",
+                job,
+                "--wait",
+                "--output",
+                out.to_str().expect("utf8"),
+            ],
+            &url,
+        ));
+        assert!(
+            std::fs::read(&out).expect("fetched") == std::fs::read(&local).expect("local"),
+            "the farm's EXR {after} differs from tessera render's"
+        );
+    };
+    same_as_local(&job, "farm.exr", "after a cut link");
 
     // The same over links with delay and loss, where netem exists.
-    let netem = |ns: &str, i: usize, add: bool| {
-        let link = format!("tw{}x{i}", std::process::id() % 100_000);
-        let mut args = vec!["-n", ns, "qdisc", if add { "add" } else { "del" }, "dev"];
-        args.push(&link);
-        args.push("root");
-        if add {
-            args.extend(["netem", "delay", "50ms", "10ms", "loss", "1%"]);
-        }
-        ip_tc(&args)
+    let netem = |i: usize| {
+        let link = net.worker_link(i);
+        let ns = &net.workers[i - 1];
+        let qdisc = ["qdisc", "add", "dev", &link, "root", "netem"];
+        let netem = ["delay", "50ms", "10ms", "loss", "1%"];
+        let args: Vec<&str> = ["-n", ns].into_iter().chain(qdisc).chain(netem).collect();
+        succeeds("tc", &args)
     };
-    if !netem(&net.workers[0], 1, true) {
+    if !netem(1) {
         eprintln!(
             "netem is not available here (no sch_netem): the run over delayed, lossy links is \
              skipped"
         );
         return;
     }
-    assert!(netem(&net.workers[1], 2, true), "netem on worker 2's link");
+    assert!(netem(2), "netem on worker 2's link");
     let job = ok(&net.client(&submit, &url)).trim().to_string();
-    let slow = dir.path().join("netem.exr");
-    ok(&net.client(
-        &[
-            "fetch",
-            &job,
-            "--wait",
-            "--output",
-            slow.to_str().expect("utf8"),
-        ],
-        &url,
-    ));
-    assert!(
-        std::fs::read(&slow).expect("netem") == std::fs::read(&local).expect("local"),
-        "the farm's EXR over delayed, lossy links differs from tessera render's"
-    );
-}
-
-/// `tc ARGS` (the first two being `-n NS`), true if it succeeded.
-fn ip_tc(args: &[&str]) -> bool {
-    Command::new("tc")
-        .args(args)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success())
+    same_as_local(&job, "netem.exr", "over delayed, lossy links");
 }

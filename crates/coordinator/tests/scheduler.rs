@@ -487,12 +487,10 @@ fn a_unit_a_worker_cannot_render_fails_its_job_once_with_the_reason() {
     assert!(core.cannot_render(w, &[name], "again", 6).is_empty());
 }
 
-#[test]
-fn admission_checks_its_bounds_and_names_each_job_once() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let names = OutputNames::new(dir.path());
-    let mut core = Scheduler::new(1, Duration::from_secs(5));
-    let job = |name: Option<&str>| Admission {
+/// An 8×8 job in 4-pixel tiles at 4 spp in batches of 2 (8 units a frame), named `name` (or
+/// not), of the frames `frames` (or one).
+fn admission(name: Option<&str>, frames: Option<&str>) -> Admission {
+    Admission {
         scene_hash: "h".into(),
         scene: StoredScene {
             text: String::new(),
@@ -511,8 +509,16 @@ fn admission_checks_its_bounds_and_names_each_job_once() {
         priority: 0,
         variance: false,
         sample_count: false,
-        frames: None,
-    };
+        frames: frames.map(|f| f.parse::<FrameRange>().expect("range")),
+    }
+}
+
+#[test]
+fn admission_checks_its_bounds_and_names_each_job_once() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let names = OutputNames::new(dir.path());
+    let mut core = Scheduler::new(1, Duration::from_secs(5));
+    let job = |name: Option<&str>| admission(name, None);
     let limits = AdmissionLimits {
         max_active_jobs: 2,
         max_units_per_job: 8,
@@ -556,27 +562,7 @@ fn a_frame_range_is_one_job_of_frame_jobs_in_frame_order() {
     let dir = tempfile::tempdir().expect("tempdir");
     let names = OutputNames::new(dir.path());
     let mut core = Scheduler::new(1, Duration::from_secs(5));
-    let job = |name: Option<&str>, frames: Option<&str>| Admission {
-        scene_hash: "h".into(),
-        scene: StoredScene {
-            text: String::new(),
-            json: false,
-            name: "s".into(),
-        },
-        width: 8,
-        height: 8,
-        settings: RenderSettings {
-            spp: 4,
-            batch: 2,
-            ..RenderSettings::default()
-        },
-        tile_size: 4,
-        output_name: name.map(Into::into),
-        priority: 0,
-        variance: false,
-        sample_count: false,
-        frames: frames.map(|f| f.parse::<FrameRange>().expect("range")),
-    };
+    let job = admission;
     let limits = AdmissionLimits {
         max_active_jobs: 2,
         max_units_per_job: 8,

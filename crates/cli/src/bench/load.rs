@@ -323,20 +323,12 @@ async fn run_one(workers: usize, seconds: u64, split_cores: bool) -> Result<Run>
         .map_err(|_| anyhow!("the probe worker panicked"))??;
     drop(coordinator);
     let merged = shared.merged.load(Ordering::Relaxed);
-    let mut lat = std::mem::take(
-        &mut *shared
-            .latencies
-            .lock()
-            .map_err(|_| anyhow!("a worker panicked"))?,
-    );
-    lat.sort_by(f64::total_cmp);
-    let mut probe_lat = std::mem::take(
-        &mut *shared
-            .probe_latencies
-            .lock()
-            .map_err(|_| anyhow!("a worker panicked"))?,
-    );
-    probe_lat.sort_by(f64::total_cmp);
+    let sorted = |m: &Mutex<Vec<f64>>| -> Result<Vec<f64>> {
+        let mut v = std::mem::take(&mut *m.lock().map_err(|_| anyhow!("a worker panicked"))?);
+        v.sort_by(f64::total_cmp);
+        Ok(v)
+    };
+    let (lat, probe_lat) = (sorted(&shared.latencies)?, sorted(&shared.probe_latencies)?);
     Ok(Run {
         workers,
         seconds: elapsed,
@@ -419,29 +411,54 @@ pub fn run(args: LoadArgs) -> Result<()> {
     Ok(())
 }
 
+impl Run {
+    /// The measured columns, in the reports' order.
+    fn columns(&self) -> [f64; 10] {
+        [
+            self.merged as f64 / self.seconds,
+            self.lease_p50_ms,
+            self.lease_p99_ms,
+            self.lease_max_ms,
+            self.probe_p50_ms,
+            self.probe_p99_ms,
+            self.cpu_share,
+            self.rss_mib,
+            self.peak_rss_mib,
+            self.bytes_per_unit,
+        ]
+    }
+}
+
+/// [`Run::columns`]' names, and the decimals the markdown table gives each.
+const COLUMNS: [(&str, &str, usize); 10] = [
+    ("units_per_s", "units merged/s", 0),
+    ("lease_p50_ms", "lease p50 ms", 2),
+    ("lease_p99_ms", "lease p99 ms", 2),
+    ("lease_max_ms", "lease max ms", 2),
+    ("probe_p50_ms", "probe p50 ms", 2),
+    ("probe_p99_ms", "probe p99 ms", 2),
+    ("coordinator_cpu_share", "coordinator CPU (cores)", 2),
+    ("rss_mib", "RSS MiB", 1),
+    ("peak_rss_mib", "peak RSS MiB", 1),
+    ("bytes_written_per_unit", "bytes written per unit", 0),
+];
+
 fn to_csv(runs: &[Run]) -> String {
-    let mut s = String::from(
-        "workers,seconds,units_merged,units_refused,units_per_s,lease_p50_ms,lease_p99_ms,lease_max_ms,probe_p50_ms,probe_p99_ms,coordinator_cpu_share,rss_mib,peak_rss_mib,bytes_written_per_unit\n",
-    );
+    let mut s = String::from("workers,seconds,units_merged,units_refused");
+    for (name, _, _) in COLUMNS {
+        let _ = write!(s, ",{name}");
+    }
+    s.push('\n');
     for r in runs {
-        let _ = writeln!(
+        let _ = write!(
             s,
-            "{},{:.3},{},{},{:.1},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.1},{:.1},{:.1}",
-            r.workers,
-            r.seconds,
-            r.merged,
-            r.refused,
-            r.merged as f64 / r.seconds,
-            r.lease_p50_ms,
-            r.lease_p99_ms,
-            r.lease_max_ms,
-            r.probe_p50_ms,
-            r.probe_p99_ms,
-            r.cpu_share,
-            r.rss_mib,
-            r.peak_rss_mib,
-            r.bytes_per_unit
+            "{},{:.3},{},{}",
+            r.workers, r.seconds, r.merged, r.refused
         );
+        for v in r.columns() {
+            let _ = write!(s, ",{v:.3}");
+        }
+        s.push('\n');
     }
     s
 }
@@ -450,8 +467,13 @@ fn report(runs: &[Run], command: &str, machine: &str, split: bool) -> String {
     let mut md = String::from("# Many workers against one coordinator\n\n");
     let _ = writeln!(md, "Made by `{command}`.\n");
     let _ = writeln!(md, "Machine: {machine}.\n");
-    let _ =
-        writeln!(
+    let cores = if split {
+        "The coordinator ran on CPU 0 alone, the simulated workers on the others \
+         (`--split-cores`)."
+    } else {
+        "Both processes shared the machine's cores."
+    };
+    let _ = writeln!(
         md,
         "A `tessera coordinator` process on loopback, with its store on this machine's disk; N \
          simulated workers in one other process, each with its own connection and \
@@ -461,30 +483,21 @@ fn report(runs: &[Run], command: &str, machine: &str, split: bool) -> String {
          measured window, its memory from `/proc/PID/status` at the window's end. Lease \
          latency is a `Lease` call's round trip, for calls that returned a unit, as the N \
          workers saw it (their own process's queueing included) and as one more worker, the \
-         probe, saw it from a thread of its own. {}\n",
-        if split { "The coordinator ran on CPU 0 alone, the simulated workers on the others \
-         (`--split-cores`)." } else { "Both processes shared the machine's cores." }
+         probe, saw it from a thread of its own. {cores}\n"
     );
-    let _ = writeln!(
-        md,
-        "| workers | units merged/s | lease p50 ms | lease p99 ms | lease max ms | probe p50 ms | probe p99 ms | coordinator CPU (cores) | RSS MiB | peak RSS MiB | bytes written per unit |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
-    );
+    md.push_str("| workers |");
+    for (_, title, _) in COLUMNS {
+        let _ = write!(md, " {title} |");
+    }
+    md.push_str("\n|---:|");
+    md.push_str(&"---:|".repeat(COLUMNS.len()));
+    md.push('\n');
     for r in runs {
-        let _ = writeln!(
-            md,
-            "| {} | {:.0} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.1} | {:.1} | {:.0} |",
-            r.workers,
-            r.merged as f64 / r.seconds,
-            r.lease_p50_ms,
-            r.lease_p99_ms,
-            r.lease_max_ms,
-            r.probe_p50_ms,
-            r.probe_p99_ms,
-            r.cpu_share,
-            r.rss_mib,
-            r.peak_rss_mib,
-            r.bytes_per_unit
-        );
+        let _ = write!(md, "| {} |", r.workers);
+        for (v, (_, _, decimals)) in r.columns().into_iter().zip(COLUMNS) {
+            let _ = write!(md, " {v:.decimals$} |");
+        }
+        md.push('\n');
     }
     let refused: u64 = runs.iter().map(|r| r.refused).sum();
     let _ = writeln!(
