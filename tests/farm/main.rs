@@ -6,6 +6,7 @@
 mod common;
 
 mod adaptive;
+mod audit;
 mod auth;
 mod bad_submissions;
 mod bound_ids;

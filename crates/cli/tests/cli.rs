@@ -197,6 +197,13 @@ fn bad_flags_and_paths_are_refused() {
         ]),
         &["--exposure"],
     );
+    for bad in ["1.5", "-0.1", "NaN"] {
+        let bad = format!("--audit={bad}");
+        assert_clean_failure(
+            &tessera(&["coordinator", "--data-dir", "/nonexistent-dir/d", &bad]),
+            &["--audit must be a fraction between 0 and 1"],
+        );
+    }
 }
 
 #[test]

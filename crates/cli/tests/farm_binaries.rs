@@ -418,3 +418,52 @@ fn a_frame_range_is_submitted_followed_and_fetched_frame_by_frame() {
     let out = tessera(&["fetch", "job-000001", "-o", &s(&one)], &url);
     one_line_failure(&out, "names a directory");
 }
+
+/// `tessera coordinator --audit 1` as docs/farm.md gives it: every unit is rendered by both
+/// workers and compared before it is merged; the EXR is still `tessera render`'s bytes, and
+/// `tessera workers` shows the audits each passed.
+#[test]
+fn an_auditing_coordinator_checks_every_unit_and_keeps_the_bits() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, addr) = start_coordinator(
+        "127.0.0.1:0",
+        &dir.path().join("data"),
+        &["--audit", "1"],
+        Stdio::null(),
+    );
+    let url = format!("http://{addr}");
+    let _a = worker(&url, "a");
+    let _b = worker(&url, "b");
+    let scene = repo("scenes/spheres.toml");
+    let job = [scene.as_str(), "--spp", "8", "--batch", "4", "--seed", "3"];
+    let farm = dir.path().join("farm.exr");
+    let local = dir.path().join("local.exr");
+    for (cmd, out) in [("submit", &farm), ("render", &local)] {
+        let mut args = vec![cmd];
+        args.extend(job);
+        args.extend(["--output", out.to_str().expect("utf8")]);
+        if cmd == "submit" {
+            args.push("--wait");
+        }
+        let o = tessera(&args, &url);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    assert!(
+        std::fs::read(&farm).expect("farm") == std::fs::read(&local).expect("local"),
+        "the audited farm's EXR differs from tessera render's"
+    );
+    let out = tessera(&["workers"], &url);
+    let table = String::from_utf8_lossy(&out.stdout);
+    let audits = table
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let cols: Vec<&str> = l.split_whitespace().collect();
+            cols[cols.len() - 2].parse::<u64>().expect("AUDITS column")
+        })
+        .sum::<u64>();
+    assert!(table.contains("AUDITS"), "{table}");
+    // Every unit was merged once two copies agreed: each merge passed two workers' audits.
+    assert!(audits >= 2, "{table}");
+    assert!(!table.contains("convicted"), "{table}");
+}

@@ -35,6 +35,9 @@ pub struct Config {
     pub quarantine_after: u64,
     /// Most leases one worker registration may hold at once.
     pub max_leases_per_worker: usize,
+    /// Fraction (0 to 1) of units rendered a second time by another worker and compared bit
+    /// for bit; 0 audits nothing, and jobs pay nothing for it (docs/farm.md, "Audits").
+    pub audit: f64,
     /// Most client connections open at once; more wait to be accepted until one closes.
     pub max_connections: usize,
     /// A connection that sends nothing (not even an answer to a keepalive ping) for this long
@@ -95,6 +98,7 @@ impl Config {
             tls: None,
             quarantine_after: DEFAULT_QUARANTINE_AFTER,
             max_leases_per_worker: DEFAULT_MAX_LEASES_PER_WORKER,
+            audit: 0.0,
             max_connections: DEFAULT_MAX_CONNECTIONS,
             idle_connection: Duration::from_secs(60),
         }

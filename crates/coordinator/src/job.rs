@@ -33,6 +33,94 @@ pub struct TileAcc {
     pub pending: BTreeMap<u32, TileSums>,
     /// [`TileSums::noise_parts`] of `sums`.
     pub noise: (f64, f64, u64),
+    /// Audited jobs only: where each batch in `0..next` came from.
+    pub by: Vec<Source>,
+    /// Audited jobs only: where each early result came from.
+    pub pending_by: BTreeMap<u32, Source>,
+}
+
+/// The contributor of a batch no audit can take back: merged before this boot (whose workers
+/// are gone), or settled by two workers' agreeing bits.
+pub const NOBODY: u64 = 0;
+
+/// Where a merged result of an audited job came from: the worker, and the merge's serial,
+/// which its kept copy carries too. A rebuild folds a kept copy only if its serial is the
+/// merge's: a copy written by an earlier merge of the same unit (one an audit took back) may
+/// still be all the store has while the newer one waits to be committed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Source {
+    /// Worker number in this boot, or [`NOBODY`].
+    pub worker: u64,
+    /// The merge's serial; 0 for one merged before this boot, whose stored copy is the one
+    /// the last commit before the stop left, and so the one merged.
+    pub serial: u64,
+}
+
+impl Source {
+    /// A result merged before this boot.
+    pub const RESTORED: Source = Source {
+        worker: NOBODY,
+        serial: 0,
+    };
+
+    /// Whether a kept copy of `serial` is this merge's.
+    fn matches(&self, serial: u64) -> bool {
+        self.serial == 0 || self.serial == serial
+    }
+}
+
+/// A unit of an audited job rendered by more than one worker, waiting for two to agree.
+#[derive(Debug, Default)]
+pub struct AuditHold {
+    /// Each worker's result, in arrival order; one worker at most once.
+    pub results: Vec<(u64, TileSums)>,
+    /// Two results disagreed: every worker here is a suspect until two agree.
+    pub disputed: bool,
+}
+
+/// A source of the results an audited job kept ([`Op::PutUnit`]): the store, in the
+/// coordinator. `()` keeps none, and a tile folded again without them renders every batch
+/// again, which is slower and gives the same bits.
+pub trait KeptUnits {
+    /// Tile `tile`'s kept results of job `job`: batch → (serial, sums).
+    fn kept(&self, job: u64, tile: u32, rect: PixelRect) -> BTreeMap<u32, (u64, TileSums)>;
+}
+
+impl KeptUnits for () {
+    fn kept(&self, _: u64, _: u32, _: PixelRect) -> BTreeMap<u32, (u64, TileSums)> {
+        BTreeMap::new()
+    }
+}
+
+impl KeptUnits for crate::store::Store {
+    fn kept(&self, job: u64, tile: u32, rect: PixelRect) -> BTreeMap<u32, (u64, TileSums)> {
+        self.kept_units(job, tile, rect)
+            .unwrap_or_else(|e| {
+                tracing::warn!(
+                    "job {job} tile {tile}: kept results unreadable ({e}); rendering it again"
+                );
+                Vec::new()
+            })
+            .into_iter()
+            .map(|(b, serial, sums)| (b, (serial, sums)))
+            .collect()
+    }
+}
+
+/// Whether two results are the same bits: what an audit compares.
+pub fn same_bits(a: &TileSums, b: &TileSums) -> bool {
+    let px = |x: &[[f64; 3]], y: &[[f64; 3]]| {
+        x.len() == y.len()
+            && x.iter()
+                .zip(y)
+                .all(|(p, q)| p.iter().zip(q).all(|(u, v)| u.to_bits() == v.to_bits()))
+    };
+    a.rect == b.rect
+        && a.samples == b.samples
+        && a.nonfinite == b.nonfinite
+        && a.count == b.count
+        && px(&a.sum, &b.sum)
+        && px(&a.sum_sq, &b.sum_sq)
 }
 
 /// A job's tiles, row-major, as arithmetic: a rectangle is computed when asked for, so a job
@@ -132,6 +220,9 @@ pub struct Job {
     pub started: bool,
     /// Every unit is in; the EXR is being written.
     pub finishing: bool,
+    /// Audited jobs: units rendered more than once and not yet settled (kept in memory only:
+    /// after a restart such a unit is rendered again).
+    pub audits: HashMap<Unit, AuditHold>,
 }
 
 /// Whether one pixel's sums could come from `k` finite samples. The renderer's samples are
@@ -196,6 +287,7 @@ impl Job {
             rate: VecDeque::new(),
             started: false,
             finishing: false,
+            audits: HashMap::new(),
         }
     }
 
@@ -229,8 +321,12 @@ impl Job {
                     job.rec.spp
                 ));
             }
+            let audited = job.rec.audited;
             let acc = job.acc.entry(tile).or_default();
             acc.next = batches;
+            if audited {
+                acc.by = vec![Source::RESTORED; batches as usize];
+            }
             acc.noise = sums.noise_parts();
             add_noise(&mut job.noise_total, acc.noise, 1.0);
             acc.sums = Some(sums);
@@ -250,7 +346,12 @@ impl Job {
             job.units_done += 1;
             job.samples_done += rect.area() as u64 * sums.samples.len() as u64;
             job.nonfinite += sums.nonfinite;
-            job.acc.entry(tile).or_default().pending.insert(batch, sums);
+            let audited = job.rec.audited;
+            let acc = job.acc.entry(tile).or_default();
+            acc.pending.insert(batch, sums);
+            if audited {
+                acc.pending_by.insert(batch, Source::RESTORED);
+            }
         }
         // The decisions the merges made before the stop, made again from the same sums.
         let decided: Vec<u32> = job
@@ -512,13 +613,18 @@ impl Job {
     /// (with any early results it lets in after it), or else kept until its turn. Tiles fold
     /// their batches in index order from zero, so the sums are the same bits whatever order
     /// results arrive in. Returns the store changes and whether it was the job's last unit.
+    ///
+    /// `by` is the worker it came from: an audited job keeps each result and its source, so
+    /// that an audit can take back a worker's results later ([`Job::take_back`]).
     pub fn merge(
         &mut self,
         unit: Unit,
         sums: TileSums,
+        by: Source,
         now: Instant,
     ) -> Result<(Vec<Op>, bool), Refusal> {
         let id = self.rec.id;
+        let audited = self.rec.audited;
         let samples = sums.rect.area() as u64 * sums.samples.len() as u64;
         self.units_done += 1;
         self.samples_done += samples;
@@ -533,6 +639,15 @@ impl Job {
             self.rate.pop_front();
         }
         let mut ops = Vec::new();
+        if audited {
+            ops.push(Op::PutUnit(
+                id,
+                unit.tile,
+                unit.batch,
+                by.serial,
+                encode_sums(&sums),
+            ));
+        }
         let rect = sums.rect;
         let acc = self.acc.entry(unit.tile).or_default();
         let before = acc.next;
@@ -544,11 +659,18 @@ impl Job {
                 .merge(&sums)
                 .map_err(|e| Refusal::Invalid(e.to_string()))?;
             acc.next += 1;
+            if audited {
+                acc.by.push(by);
+            }
             while let Some(p) = acc.pending.remove(&acc.next) {
                 total
                     .merge(&p)
                     .map_err(|e| Refusal::Invalid(e.to_string()))?;
                 ops.push(Op::DelPending(id, unit.tile, acc.next));
+                if audited {
+                    let from = acc.pending_by.remove(&acc.next);
+                    acc.by.push(from.unwrap_or(Source::RESTORED));
+                }
                 acc.next += 1;
             }
             let noise = total.noise_parts();
@@ -564,6 +686,9 @@ impl Job {
                 encode_sums(&sums),
             ));
             acc.pending.insert(unit.batch, sums);
+            if audited {
+                acc.pending_by.insert(unit.batch, by);
+            }
         }
         if advanced && self.acc[&unit.tile].next >= self.first_batches {
             if before < self.first_batches {
@@ -582,6 +707,131 @@ impl Job {
             self.finishing = true;
         }
         Ok((ops, finished))
+    }
+
+    /// Takes back every result worker `w` gave this audited, live job. Its early results and
+    /// audit copies are dropped. Each tile it gave a merged batch to is folded again, in batch
+    /// order from zero, from the kept results of the others, up to the first batch that is
+    /// its own or whose kept copy the store cannot give back; later kept batches wait as early
+    /// results. Every batch taken back goes to the front of the queue, to be rendered again.
+    /// Returns the store changes and the number of units taken back.
+    pub fn take_back(&mut self, w: u64, kept: &dyn KeptUnits) -> (Vec<Op>, u64) {
+        let id = self.rec.id;
+        let mut ops = Vec::new();
+        // Units counted as done that go back, and units held for an audit that lose a copy.
+        let mut again: Vec<Unit> = Vec::new();
+        let mut held: Vec<Unit> = Vec::new();
+        for (u, hold) in &mut self.audits {
+            if hold.results.iter().any(|(k, _)| *k == w) {
+                hold.results.retain(|(k, _)| *k != w);
+                held.push(*u);
+            }
+        }
+        self.audits.retain(|_, h| !h.results.is_empty());
+        let touched: Vec<u32> = self
+            .acc
+            .iter()
+            .filter(|(_, a)| {
+                a.by.iter()
+                    .chain(a.pending_by.values())
+                    .any(|s| s.worker == w)
+            })
+            .map(|(t, _)| *t)
+            .collect();
+        for t in touched {
+            let Some(rect) = self.tiles.get(t) else {
+                continue;
+            };
+            let first = self.first_batches;
+            let Some(acc) = self.acc.get_mut(&t) else {
+                continue;
+            };
+            let mine: Vec<u32> = acc
+                .pending_by
+                .iter()
+                .filter(|(_, s)| s.worker == w)
+                .map(|(b, _)| *b)
+                .collect();
+            let mut lost = Vec::new();
+            for b in mine {
+                acc.pending_by.remove(&b);
+                if let Some(p) = acc.pending.remove(&b) {
+                    lost.push(p);
+                }
+                ops.push(Op::DelPending(id, t, b));
+                again.push(Unit { tile: t, batch: b });
+            }
+            if acc.by.iter().any(|s| s.worker == w) {
+                let mut copies = kept.kept(id, t, rect);
+                let old = acc.sums.take();
+                let old_next = acc.next;
+                let by = std::mem::take(&mut acc.by);
+                let mut total: Option<TileSums> = None;
+                let mut next = 0u32;
+                for (b, src) in (0..old_next).zip(by) {
+                    let copy = copies
+                        .remove(&b)
+                        .filter(|(serial, _)| src.worker != w && src.matches(*serial));
+                    match copy {
+                        Some((_, s)) if next == b => {
+                            // Kept copies were checked when they were merged.
+                            let sum = total.get_or_insert_with(|| TileSums::empty(rect, 0));
+                            if sum.merge(&s).is_err() {
+                                again.push(Unit { tile: t, batch: b });
+                                continue;
+                            }
+                            acc.by.push(src);
+                            next += 1;
+                        }
+                        Some((_, s)) => {
+                            ops.push(Op::PutPending(id, t, b, encode_sums(&s)));
+                            acc.pending.insert(b, s);
+                            acc.pending_by.insert(b, src);
+                        }
+                        None => again.push(Unit { tile: t, batch: b }),
+                    }
+                }
+                self.nonfinite = self
+                    .nonfinite
+                    .saturating_sub(old.map_or(0, |o| o.nonfinite));
+                self.nonfinite += total.as_ref().map_or(0, |s| s.nonfinite);
+                self.nonfinite += acc
+                    .pending
+                    .iter()
+                    .filter(|(b, _)| **b < old_next)
+                    .map(|(_, p)| p.nonfinite)
+                    .sum::<u64>();
+                let noise = total.as_ref().map_or((0.0, 0.0, 0), |s| s.noise_parts());
+                add_noise(&mut self.noise_total, acc.noise, -1.0);
+                add_noise(&mut self.noise_total, noise, 1.0);
+                acc.noise = noise;
+                ops.push(match &total {
+                    Some(s) => Op::PutTile(id, t, encode_sums(s)),
+                    None => Op::DelTile(id, t),
+                });
+                acc.sums = total;
+                acc.next = next;
+                if old_next >= first && next < first {
+                    self.pilots_in = self.pilots_in.saturating_sub(1);
+                    self.tiles_closed = self.tiles_closed.saturating_sub(1);
+                }
+            }
+            for p in lost {
+                self.nonfinite = self.nonfinite.saturating_sub(p.nonfinite);
+            }
+        }
+        let taken = again.len() as u64;
+        for u in &again {
+            let area = self.tiles.get(u.tile).map_or(0, |r| r.area() as u64);
+            self.units_done = self.units_done.saturating_sub(1);
+            self.samples_done = self
+                .samples_done
+                .saturating_sub(area * self.batch_range(u.batch).len() as u64);
+        }
+        for u in again.into_iter().chain(held) {
+            self.requeue.push_front(u);
+        }
+        (ops, taken)
     }
 
     /// Every tile's sums, row-major, for writing the frame. A tile without any (which would be
@@ -606,6 +856,7 @@ impl Job {
         self.acc = BTreeMap::new();
         self.noise_total = (0.0, 0.0, 0);
         self.requeue.clear();
+        self.audits.clear();
         self.issued.drain().flat_map(|(_, ids)| ids).collect()
     }
 }

@@ -6,16 +6,16 @@
 //! Ids arrive typed ([`tessera_proto::ids`]): the handlers parse the wire's strings, and the
 //! scheduler only checks that an id is one it issued, in this boot, to this caller.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::time::{Duration, Instant};
 
 use tessera_proto::ids::{JobId, LeaseId, WorkerCredential, WorkerId};
 use tessera_render::{RenderSettings, TileSums, IMAGE_REVISION};
 
 use crate::error::Refusal;
-use crate::job::{Job, Unit};
+use crate::job::{same_bits, AuditHold, Job, KeptUnits, Source, Unit, NOBODY};
 use crate::output::OutputNames;
-use crate::store::{JobPhase, JobRecord, LoadedJob, Op, RangeRef, StoredScene};
+use crate::store::{AuditRecord, JobPhase, JobRecord, LoadedJob, Op, RangeRef, StoredScene};
 use tessera_render::scene::FrameRange;
 
 /// A lease: a unit lent to a worker until `deadline`.
@@ -59,8 +59,18 @@ pub struct Worker {
     pub bad_results: u64,
     /// Said goodbye.
     pub gone: bool,
-    /// Sent too many invalid results: gets no more work.
+    /// Sent too many invalid results, or convicted by an audit: gets no more work.
     pub quarantined: bool,
+    /// Why an audit convicted it, if one did.
+    pub convicted: Option<String>,
+    /// Audited units whose copies disagree and that it rendered: while there are any it is a
+    /// suspect and gets no work, until two workers agree on each.
+    pub disputes: BTreeSet<(JobId, Unit)>,
+    /// Its results that another worker's copy matched bit for bit.
+    pub audits_passed: u64,
+    /// Audited jobs it gave results to: those already ended when it is convicted are named
+    /// in the conviction's record.
+    pub jobs: BTreeSet<JobId>,
 }
 
 /// What happened to a result.
@@ -77,6 +87,11 @@ pub enum Merged {
     Duplicate,
     /// Job ended.
     Discarded,
+    /// Accepted and held for an audit: another worker renders the unit too, and it is merged
+    /// once two copies agree. Held results live in memory only (a restart renders the unit
+    /// again), so there is nothing to commit; the worker is told it was merged, so that it
+    /// cannot tell an audited unit from another.
+    Held,
 }
 
 /// A unit handed to a worker.
@@ -155,6 +170,17 @@ pub struct Scheduler {
     pub quarantine_after: u64,
     /// Most leases one registration may hold at once.
     pub max_leases_per_worker: usize,
+    /// Fraction of the units of audited jobs rendered a second time by another worker; jobs
+    /// admitted while it is above 0 are audited ([`JobRecord::audited`]).
+    pub audit: f64,
+    /// State of the generator that picks audited units. Workers cannot see it, so a worker
+    /// cannot tell which of its units will be checked.
+    pub audit_rng: u64,
+    /// Serial of the last merge into an audited job ([`Source`]); starts at `epoch << 40` so
+    /// that serials are not reused across boots.
+    pub serial: u64,
+    /// Convictions in this boot.
+    pub convictions: u64,
 }
 
 /// Whether unit `u` of `job` has a live lease.
@@ -195,7 +221,9 @@ fn speculative_unit(
         let all_slow = live
             .iter()
             .all(|(_, x)| now.saturating_duration_since(x.issued) >= slow);
-        let eligible = !live.iter().any(|(_, x)| x.worker == w) && (live.len() == 1 || all_slow);
+        let eligible = !live.iter().any(|(_, x)| x.worker == w)
+            && !audit_excludes(job, *u, w)
+            && (live.len() == 1 || all_slow);
         if eligible && best.is_none_or(|(b, _)| oldest < b) {
             best = Some((oldest, *u));
         }
@@ -207,11 +235,26 @@ fn speculative_unit(
 /// batches in batch-major order (all tiles' batch 0, then batch 1, …), so the image converges
 /// evenly and few results wait out of order; then, with a noise target, the batches that
 /// tiles' noise decisions released, lowest first.
-fn next_unit(job: &mut Job, leases: &HashMap<u64, Lease>) -> Option<Unit> {
+fn next_unit(job: &mut Job, w: u64, leases: &HashMap<u64, Lease>) -> Option<Unit> {
+    // An audited unit goes to a worker that has not rendered it: those set aside for the
+    // workers that have wait at the front for the next one.
+    let mut aside = Vec::new();
+    let mut found = None;
     while let Some(u) = job.requeue.pop_front() {
         if !job.is_done(u) && !has_active_lease(job, u, leases) {
-            return Some(u);
+            if audit_excludes(job, u, w) {
+                aside.push(u);
+                continue;
+            }
+            found = Some(u);
+            break;
         }
+    }
+    for u in aside.into_iter().rev() {
+        job.requeue.push_front(u);
+    }
+    if found.is_some() {
+        return found;
     }
     let n_tiles = (job.tiles.len() as u64).max(1);
     while job.cursor < job.units_first() {
@@ -231,6 +274,13 @@ fn next_unit(job: &mut Job, leases: &HashMap<u64, Lease>) -> Option<Unit> {
         }
     }
     None
+}
+
+/// Whether worker `w` has a copy of unit `u` held for its audit already.
+fn audit_excludes(job: &Job, u: Unit, w: u64) -> bool {
+    job.audits
+        .get(&u)
+        .is_some_and(|h| h.results.iter().any(|(k, _)| *k == w))
 }
 
 /// Puts the unit of `lease` back at the front of its job's queue, if the job still needs it:
@@ -262,7 +312,25 @@ impl Scheduler {
             lease_time,
             quarantine_after: 5,
             max_leases_per_worker: 8,
+            audit: 0.0,
+            audit_rng: epoch.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1,
+            serial: epoch << 40,
+            convictions: 0,
         }
+    }
+
+    /// Whether the next unit of an audited job is checked: a draw from a xorshift generator
+    /// the service seeds from the operating system.
+    fn draw_audit(&mut self) -> bool {
+        if self.audit <= 0.0 {
+            return false;
+        }
+        let mut x = self.audit_rng;
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        self.audit_rng = x;
+        ((x >> 11) as f64 / (1u64 << 53) as f64) < self.audit
     }
 
     /// Takes back the jobs a store held at start-up. Returns the store changes to make (a job
@@ -406,6 +474,10 @@ impl Scheduler {
             frame,
             range: None,
             adaptive_scale: None,
+            // An adaptive job's decisions follow its merged sums; taking results back would
+            // need them made again from the start, which is not built: such jobs are not
+            // audited (docs/farm.md).
+            audited: self.audit > 0.0 && s.adaptive.is_none(),
         };
         // The job's own count, so that admission and scheduling cannot disagree on it; a job
         // costs nothing per unit until its units render, so making it first is free. Every
@@ -521,6 +593,12 @@ impl Scheduler {
         }
         w.last_seen = now;
         w.gone = false;
+        if let Some(why) = &w.convicted {
+            return Err(Refusal::Denied(format!(
+                "worker {} is quarantined: {why}",
+                cred.id
+            )));
+        }
         if w.quarantined {
             return Err(Refusal::Denied(format!(
                 "worker {} is quarantined after {} invalid results",
@@ -555,6 +633,10 @@ impl Scheduler {
                 bad_results: 0,
                 gone: false,
                 quarantined: false,
+                convicted: None,
+                disputes: BTreeSet::new(),
+                audits_passed: 0,
+                jobs: BTreeSet::new(),
             },
         );
         n
@@ -590,7 +672,11 @@ impl Scheduler {
     pub fn lease(&mut self, w: u64, max: usize, now: Instant) -> Vec<Granted> {
         self.expire(now);
         let mut out = Vec::new();
-        if self.workers.get(&w).is_some_and(|x| x.quarantined) {
+        if self
+            .workers
+            .get(&w)
+            .is_some_and(|x| x.quarantined || !x.disputes.is_empty())
+        {
             return out;
         }
         // A worker that already holds its share gets nothing more, however much it asks for:
@@ -609,7 +695,7 @@ impl Scheduler {
                     let next = if speculate {
                         speculative_unit(job, w, &self.leases, now, slow)
                     } else {
-                        next_unit(job, &self.leases)
+                        next_unit(job, w, &self.leases)
                     };
                     let Some(unit) = next else {
                         break;
@@ -716,7 +802,8 @@ impl Scheduler {
         ops
     }
 
-    /// Merges a result from worker `w`.
+    /// Merges a result from worker `w`, for a scheduler with no kept results to rebuild
+    /// from ([`Scheduler::submit_kept`] with `()`).
     pub fn submit(
         &mut self,
         w: u64,
@@ -725,6 +812,24 @@ impl Scheduler {
         unit: Unit,
         sums: TileSums,
         now: Instant,
+    ) -> Result<Merged, Refusal> {
+        self.submit_kept(w, lease, job_id, unit, sums, now, &(), 0)
+    }
+
+    /// Merges a result from worker `w`; in an audited job, it may instead be held for its
+    /// audit, and the audit may convict a worker, whose results are then taken back from every
+    /// live job and their tiles folded again from `kept`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn submit_kept(
+        &mut self,
+        w: u64,
+        lease: LeaseId,
+        job_id: JobId,
+        unit: Unit,
+        sums: TileSums,
+        now: Instant,
+        kept: &dyn KeptUnits,
+        now_ms: i64,
     ) -> Result<Merged, Refusal> {
         let lease_n = self.lease_number(lease);
         let Some(job) = self.jobs.get_mut(&job_id) else {
@@ -766,12 +871,205 @@ impl Scheduler {
         for l in job.issued.remove(&unit).unwrap_or_default() {
             self.leases.remove(&l);
         }
-        let (ops, finished) = job.merge(unit, sums, now)?;
+        let mut ops = Vec::new();
+        let mut from = w;
+        let mut sums = sums;
+        if job.rec.audited {
+            match self.audit_step(w, job_id, unit, sums, kept, now_ms) {
+                Some((agreed, by, convict_ops)) => {
+                    sums = agreed;
+                    from = by;
+                    ops = convict_ops;
+                }
+                None => return Ok(Merged::Held),
+            }
+        }
+        let Some(job) = self.jobs.get_mut(&job_id) else {
+            return Ok(Merged::Discarded);
+        };
+        self.serial += 1;
+        let source = Source {
+            worker: from,
+            serial: self.serial,
+        };
+        let (merge_ops, finished) = job.merge(unit, sums, source, now)?;
+        ops.extend(merge_ops);
         if let Some(worker) = self.workers.get_mut(&w) {
             worker.units_done += 1;
             worker.samples_done += samples;
+            if job.rec.audited {
+                worker.jobs.insert(job_id);
+            }
         }
         Ok(Merged::New { ops, finished })
+    }
+
+    /// The audit of a checked result for `unit` of audited job `job_id` from worker `w`.
+    /// Returns the result to merge now, the worker it counts as from, and the store changes of
+    /// any conviction; or `None` if it is held (for another worker's copy).
+    ///
+    /// A unit drawn for an audit is held and handed to another worker. When a copy matches a
+    /// held one bit for bit, the unit is settled: the matching result is merged (as from
+    /// [`NOBODY`], since two workers vouch for it) and every worker whose copy differs is
+    /// convicted. Copies that differ with no match make every worker involved a suspect (no
+    /// work) and send the unit to yet another worker: rendering is deterministic, so the
+    /// third copy decides.
+    fn audit_step(
+        &mut self,
+        w: u64,
+        job_id: JobId,
+        unit: Unit,
+        sums: TileSums,
+        kept: &dyn KeptUnits,
+        now_ms: i64,
+    ) -> Option<(TileSums, u64, Vec<Op>)> {
+        let job = self.jobs.get_mut(&job_id)?;
+        let Some(hold) = job.audits.get_mut(&unit) else {
+            if !self.draw_audit() {
+                return Some((sums, w, Vec::new()));
+            }
+            let job = self.jobs.get_mut(&job_id)?;
+            job.audits.insert(
+                unit,
+                AuditHold {
+                    results: vec![(w, sums)],
+                    disputed: false,
+                },
+            );
+            job.requeue.push_front(unit);
+            return None;
+        };
+        if !hold.results.iter().any(|(_, s)| same_bits(s, &sums)) {
+            hold.results.push((w, sums));
+            hold.disputed = true;
+            let suspects: Vec<u64> = hold.results.iter().map(|(k, _)| *k).collect();
+            job.requeue.push_front(unit);
+            tracing::warn!(
+                "{job_id} tile {} batch {}: {} workers' copies differ; each is a suspect until \
+                 another worker's copy matches one",
+                unit.tile,
+                unit.batch,
+                suspects.len()
+            );
+            for k in suspects {
+                if let Some(x) = self.workers.get_mut(&k) {
+                    x.disputes.insert((job_id, unit));
+                }
+                self.take_leases(k);
+            }
+            return None;
+        }
+        let hold = job.audits.remove(&unit).unwrap_or_default();
+        let (agree, wrong): (Vec<_>, Vec<_>) =
+            hold.results.iter().partition(|(_, s)| same_bits(s, &sums));
+        let wrong: Vec<u64> = wrong.iter().map(|(k, _)| *k).collect();
+        for (k, _) in &hold.results {
+            if let Some(x) = self.workers.get_mut(k) {
+                x.disputes.remove(&(job_id, unit));
+            }
+        }
+        for k in agree.iter().map(|(k, _)| *k).chain([w]) {
+            if let Some(x) = self.workers.get_mut(&k) {
+                x.audits_passed += 1;
+            }
+        }
+        let mut ops = Vec::new();
+        for k in wrong {
+            let why = format!(
+                "an audit found its result for {job_id} tile {} batch {} differs from two other \
+                 workers'",
+                unit.tile, unit.batch
+            );
+            ops.extend(self.convict(k, why, (job_id, unit), kept, now_ms));
+        }
+        Some((sums, NOBODY, ops))
+    }
+
+    /// Takes back worker `w`'s live leases: their units go to the front of their queues.
+    fn take_leases(&mut self, w: u64) {
+        for lease in self.leases.values_mut() {
+            if lease.worker == w && lease.active {
+                requeue(&mut self.jobs, lease);
+            }
+        }
+    }
+
+    /// Convicts worker `w` of returning wrong results: it gets no more work, and every result
+    /// it gave a live audited job is taken back ([`Job::take_back`]) and rendered again by
+    /// others. Returns the store changes, a durable [`AuditRecord`] among them.
+    pub fn convict(
+        &mut self,
+        w: u64,
+        why: String,
+        caught_on: (JobId, Unit),
+        kept: &dyn KeptUnits,
+        now_ms: i64,
+    ) -> Vec<Op> {
+        let id = self.worker_id(w);
+        let Some(worker) = self.workers.get_mut(&w) else {
+            return Vec::new();
+        };
+        if worker.convicted.is_some() {
+            return Vec::new();
+        }
+        worker.convicted = Some(why.clone());
+        worker.quarantined = true;
+        worker.disputes.clear();
+        let name = worker.name.clone();
+        let contributed = std::mem::take(&mut worker.jobs);
+        self.take_leases(w);
+        let mut ops = Vec::new();
+        let mut rebuilt = Vec::new();
+        let mut finished = Vec::new();
+        let mut units = 0;
+        for (job_id, job) in &mut self.jobs {
+            if !job.rec.audited {
+                continue;
+            }
+            if !job.is_live() {
+                if contributed.contains(job_id) {
+                    finished.push(job_id.0);
+                }
+                continue;
+            }
+            let (job_ops, taken) = job.take_back(w, kept);
+            if !job_ops.is_empty() || taken > 0 {
+                rebuilt.push(job_id.0);
+            }
+            units += taken;
+            ops.extend(job_ops);
+        }
+        self.convictions += 1;
+        tracing::warn!(
+            "worker {id} ({}) convicted: {why}; {units} of its units in {} live jobs go back to \
+             be rendered again{}",
+            name.escape_debug(),
+            rebuilt.len(),
+            if finished.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    "; it also gave results to jobs that had already finished: {}",
+                    finished
+                        .iter()
+                        .map(|j| JobId(*j).to_string())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )
+            }
+        );
+        ops.push(Op::PutAudit(AuditRecord {
+            epoch: self.epoch,
+            n: self.convictions,
+            time_ms: now_ms,
+            worker: id.to_string(),
+            name,
+            caught_on: (caught_on.0 .0, caught_on.1.tile, caught_on.1.batch),
+            units_requeued: units,
+            jobs_rebuilt: rebuilt,
+            jobs_finished: finished,
+        }));
+        ops
     }
 
     /// Ends a job (done, cancelled or failed): frees its units, leases and sums.

@@ -566,6 +566,9 @@ impl Jobs for Service {
                     alive: !w.gone && idle <= core.lease_time,
                     bad_results: w.bad_results,
                     quarantined: w.quarantined,
+                    convicted: w.convicted.clone().unwrap_or_default(),
+                    audits_passed: w.audits_passed,
+                    suspect: !w.disputes.is_empty(),
                 }
             })
             .collect();
@@ -788,7 +791,16 @@ impl Workers for Service {
                     return Err(e);
                 }
             };
-            match core.submit(w, lease, job, unit, sums, now) {
+            match core.submit_kept(
+                w,
+                lease,
+                job,
+                unit,
+                sums,
+                now,
+                &*self.shared.store,
+                now_ms(),
+            ) {
                 Ok(Merged::New { ops, finished }) => {
                     let rx = self.shared.queue_write(ops);
                     (finished, Some(rx))
@@ -798,6 +810,9 @@ impl Workers for Service {
                         outcome: pb::ResultOutcome::Duplicate as i32,
                     }))
                 }
+                // Told merged, like any accepted result: a worker must not learn which of
+                // its units are audited.
+                Ok(Merged::Held) => (false, None),
                 Ok(Merged::Discarded) => {
                     return Ok(Response::new(pb::SubmitResultResponse {
                         outcome: pb::ResultOutcome::Discarded as i32,

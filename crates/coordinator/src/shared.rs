@@ -48,6 +48,17 @@ impl Shared {
         let mut scheduler = Scheduler::new(epoch, config.lease_timeout);
         scheduler.quarantine_after = config.quarantine_after.max(1);
         scheduler.max_leases_per_worker = config.max_leases_per_worker.max(1);
+        scheduler.audit = if config.audit.is_finite() {
+            config.audit.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let mut seed = [0u8; 8];
+        // Without a random source the audit still runs, on a sequence a worker could
+        // reproduce only by knowing the boot number and this code.
+        if getrandom::getrandom(&mut seed).is_ok() {
+            scheduler.audit_rng = u64::from_le_bytes(seed) | 1;
+        }
         let (ops, to_finish) = scheduler
             .restore(store.load()?, store.scene_hashes()?, now_ms())
             .map_err(CoordinatorError::Restore)?;

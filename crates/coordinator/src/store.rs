@@ -25,6 +25,11 @@ const JOBS: TableDefinition<u64, &[u8]> = TableDefinition::new("jobs");
 const TILES: TableDefinition<(u64, u32), &[u8]> = TableDefinition::new("tiles");
 /// (job, tile, batch) → a result that arrived before its predecessors were merged.
 const PENDING: TableDefinition<(u64, u32, u32), &[u8]> = TableDefinition::new("pending");
+/// (job, tile, batch) → one unit's result as merged, kept for audited jobs only, so that a
+/// tile can be folded again without the units of a worker an audit convicted.
+const UNITS: TableDefinition<(u64, u32, u32), &[u8]> = TableDefinition::new("units");
+/// (boot, number) → an [`AuditRecord`] (JSON): a worker convicted by an audit.
+const AUDITS: TableDefinition<(u64, u64), &[u8]> = TableDefinition::new("audits");
 /// Counters.
 const META: TableDefinition<&str, u64> = TableDefinition::new("meta");
 
@@ -122,6 +127,21 @@ fn pending_key(job: u64, tile: u32, batch: u32) -> [u8; 16] {
     let mut k = [0u8; 16];
     k[..12].copy_from_slice(&tile_key(job, tile));
     k[12..].copy_from_slice(&batch.to_le_bytes());
+    k
+}
+
+/// The checksummed key of a kept unit: the pending key's bytes under another table's tag, so
+/// that a value moved between the two tables by damage is caught too.
+fn unit_key(job: u64, tile: u32, batch: u32) -> [u8; 17] {
+    let mut k = [b'u'; 17];
+    k[1..].copy_from_slice(&pending_key(job, tile, batch));
+    k
+}
+
+fn audit_key(epoch: u64, n: u64) -> [u8; 17] {
+    let mut k = [b'a'; 17];
+    k[1..9].copy_from_slice(&epoch.to_le_bytes());
+    k[9..].copy_from_slice(&n.to_le_bytes());
     k
 }
 
@@ -231,6 +251,10 @@ pub struct JobRecord {
     /// frame in the EXR's header).
     #[serde(default)]
     pub frame: Option<u32>,
+    /// Audited: every unit's result is kept until the job ends ([`Op::PutUnit`]), and a
+    /// fraction of its units is rendered twice (false in records written before audits).
+    #[serde(default)]
+    pub audited: bool,
     /// The frame-range job this frame belongs to, if any: its id (taken from the job ids, but
     /// no job of its own: the range is its frames) and the frames it renders. Every frame
     /// keeps it, so a restart rebuilds the range from its frames' records alone.
@@ -273,12 +297,42 @@ pub enum Op {
     PutTile(u64, u32, Vec<u8>),
     /// Keep an early result.
     PutPending(u64, u32, u32, Vec<u8>),
-    /// Forget an early result (it has been merged).
+    /// Forget an early result (it has been merged, or it came from a convicted worker).
     DelPending(u64, u32, u32),
+    /// Forget a tile's merged sums (an audit took every batch of it back).
+    DelTile(u64, u32),
+    /// Keep one unit's result of an audited job, with its merge's serial (table `units`).
+    PutUnit(u64, u32, u32, u64, Vec<u8>),
+    /// Record a conviction.
+    PutAudit(AuditRecord),
     /// Forget every sum of a job (it has ended).
     DropSums(u64),
     /// Forget a scene no live job uses (the job that used it has ended).
     DropScene(String),
+}
+
+/// A worker an audit convicted: two other workers rendered one of its units to other bits.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct AuditRecord {
+    /// The coordinator's boot when it happened.
+    pub epoch: u64,
+    /// Conviction number within that boot.
+    pub n: u64,
+    /// Unix ms.
+    pub time_ms: i64,
+    /// The worker's public id.
+    pub worker: String,
+    /// The name it gave.
+    pub name: String,
+    /// The unit the audit caught it on: job, tile, batch.
+    pub caught_on: (u64, u32, u32),
+    /// Units of live jobs taken back to be rendered again: its own, and those whose tile had
+    /// to be folded again without a stored copy.
+    pub units_requeued: u64,
+    /// Live jobs whose sums were rebuilt.
+    pub jobs_rebuilt: Vec<u64>,
+    /// Jobs it contributed to that had already finished: their images may hold its results.
+    pub jobs_finished: Vec<u64>,
 }
 
 /// A job as loaded at start-up.
@@ -355,6 +409,8 @@ impl Store {
             let mut jobs = tx.open_table(JOBS).map_err(dberr)?;
             let mut tiles = tx.open_table(TILES).map_err(dberr)?;
             let mut pending = tx.open_table(PENDING).map_err(dberr)?;
+            tx.open_table(UNITS).map_err(dberr)?;
+            tx.open_table(AUDITS).map_err(dberr)?;
             let mut meta = tx.open_table(META).map_err(dberr)?;
             let format = meta.get("format").map_err(dberr)?.map(|g| g.value());
             match format {
@@ -520,6 +576,63 @@ impl Store {
             })
     }
 
+    /// The kept results of one tile of an audited job: (batch, merge serial, sums). A damaged
+    /// one is left out (the caller renders it again), so a rebuild never folds in bits the
+    /// store cannot vouch for.
+    pub fn kept_units(
+        &self,
+        job: u64,
+        tile: u32,
+        rect: PixelRect,
+    ) -> Result<Vec<(u32, u64, TileSums)>, StoreError> {
+        guarded(Path::new(FILE_NAME), || {
+            let tx = self.db()?.begin_read().map_err(dberr)?;
+            let units = tx.open_table(UNITS).map_err(dberr)?;
+            let mut out = Vec::new();
+            for row in units
+                .range((job, tile, 0)..=(job, tile, u32::MAX))
+                .map_err(dberr)?
+            {
+                let (k, v) = row.map_err(dberr)?;
+                let (_, _, b) = k.value();
+                let what = || format!("job {job} tile {tile} kept batch {b}");
+                let decoded = unseal(what, &unit_key(job, tile, b), v.value())
+                    .map_err(|e| e.to_string())
+                    .and_then(|bytes| {
+                        let (serial, sums) = bytes
+                            .split_first_chunk::<8>()
+                            .ok_or("shorter than its serial")?;
+                        Ok((u64::from_le_bytes(*serial), decode_sums(sums, rect)?))
+                    });
+                match decoded {
+                    Ok((serial, sums)) => out.push((b, serial, sums)),
+                    Err(e) => tracing::warn!("job {job} tile {tile} kept batch {b}: {e}"),
+                }
+            }
+            Ok(out)
+        })
+    }
+
+    /// Every recorded conviction, oldest first.
+    pub fn audits(&self) -> Result<Vec<AuditRecord>, StoreError> {
+        let tx = self.db()?.begin_read().map_err(dberr)?;
+        let audits = tx.open_table(AUDITS).map_err(dberr)?;
+        let mut out = Vec::new();
+        for row in audits.iter().map_err(dberr)? {
+            let (k, v) = row.map_err(dberr)?;
+            let (e, n) = k.value();
+            let what = || format!("audit {e}-{n}");
+            let bytes = unseal(what, &audit_key(e, n), v.value())?;
+            out.push(
+                serde_json::from_slice(bytes).map_err(|err| StoreError::Corrupt {
+                    what: what(),
+                    why: err.to_string(),
+                })?,
+            );
+        }
+        Ok(out)
+    }
+
     /// Applies `ops` in order as one durable transaction.
     pub fn apply(&self, ops: &[Op]) -> Result<(), StoreError> {
         let tx = self.db()?.begin_write().map_err(dberr)?;
@@ -528,6 +641,8 @@ impl Store {
             let mut jobs = tx.open_table(JOBS).map_err(dberr)?;
             let mut tiles = tx.open_table(TILES).map_err(dberr)?;
             let mut pending = tx.open_table(PENDING).map_err(dberr)?;
+            let mut units = tx.open_table(UNITS).map_err(dberr)?;
+            let mut audits = tx.open_table(AUDITS).map_err(dberr)?;
             for op in ops {
                 match op {
                     Op::PutScene(hash, scene) => {
@@ -570,6 +685,31 @@ impl Store {
                     Op::DelPending(job, tile, batch) => {
                         pending.remove((*job, *tile, *batch)).map_err(dberr)?;
                     }
+                    Op::DelTile(job, tile) => {
+                        tiles.remove((*job, *tile)).map_err(dberr)?;
+                    }
+                    Op::PutUnit(job, tile, batch, serial, bytes) => {
+                        let mut value = serial.to_le_bytes().to_vec();
+                        value.extend_from_slice(bytes);
+                        units
+                            .insert(
+                                (*job, *tile, *batch),
+                                seal(&unit_key(*job, *tile, *batch), &value).as_slice(),
+                            )
+                            .map_err(dberr)?;
+                    }
+                    Op::PutAudit(r) => {
+                        let bytes = serde_json::to_vec(r).map_err(|e| StoreError::Corrupt {
+                            what: format!("audit {}-{}", r.epoch, r.n),
+                            why: e.to_string(),
+                        })?;
+                        audits
+                            .insert(
+                                (r.epoch, r.n),
+                                seal(&audit_key(r.epoch, r.n), &bytes).as_slice(),
+                            )
+                            .map_err(dberr)?;
+                    }
                     Op::DropScene(hash) => {
                         scenes.remove(hash.as_str()).map_err(dberr)?;
                     }
@@ -578,6 +718,9 @@ impl Store {
                             .retain_in((*job, 0)..=(*job, u32::MAX), |_, _| false)
                             .map_err(dberr)?;
                         pending
+                            .retain_in((*job, 0, 0)..=(*job, u32::MAX, u32::MAX), |_, _| false)
+                            .map_err(dberr)?;
+                        units
                             .retain_in((*job, 0, 0)..=(*job, u32::MAX, u32::MAX), |_, _| false)
                             .map_err(dberr)?;
                     }

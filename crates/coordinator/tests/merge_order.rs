@@ -68,6 +68,7 @@ fn merge(width: u32, spp: u32, batch: u32, order: &[usize]) -> Vec<Vec<u64>> {
             Merged::Duplicate => {}
             // Once every unit is in, the job stops taking results.
             Merged::Discarded => assert_eq!(merged, n, "discarded before the job finished"),
+            Merged::Held => panic!("held for an audit in a job that is not audited"),
         }
     }
     assert_eq!(merged, n, "every unit merged exactly once");

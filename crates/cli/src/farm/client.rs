@@ -674,7 +674,7 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
             .into_inner()
             .workers;
         outln!(
-            "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>9}",
+            "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>6} {:>9}",
             "WORKER",
             "NAME",
             "CORES",
@@ -683,16 +683,21 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
             "UNITS",
             "SAMPLES",
             "BAD",
+            "AUDITS",
             "SEEN"
         );
-        for w in workers {
+        for w in &workers {
             outln!(
-                "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>8.1}s",
+                "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>6} {:>8.1}s",
                 w.worker_id,
                 printable(&w.name),
                 w.cores,
-                if w.quarantined {
+                if !w.convicted.is_empty() {
+                    "convicted"
+                } else if w.quarantined {
                     "quarantined"
+                } else if w.suspect {
+                    "suspect"
                 } else if w.alive {
                     "alive"
                 } else {
@@ -702,7 +707,17 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
                 w.units_done,
                 w.samples_done,
                 w.bad_results,
+                w.audits_passed,
                 w.last_seen_ms_ago as f64 / 1000.0
+            );
+        }
+        let convicted: Vec<_> = workers.iter().filter(|w| !w.convicted.is_empty()).collect();
+        for w in convicted {
+            outln!(
+                "{} ({}): {}",
+                w.worker_id,
+                printable(&w.name),
+                printable(&w.convicted)
             );
         }
         Ok(())

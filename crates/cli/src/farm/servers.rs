@@ -60,6 +60,12 @@ pub struct CoordinatorArgs {
     /// Most units one worker may hold at once (a stock worker holds at most 3).
     #[arg(long, default_value_t = config::DEFAULT_MAX_LEASES_PER_WORKER as u32, value_parser = clap::value_parser!(u32).range(1..=4096))]
     max_leases_per_worker: u32,
+    /// Fraction of units (0 to 1) that a second worker renders too, compared bit for bit
+    /// with the first; a worker caught returning other bits is quarantined and its results
+    /// are rendered again (docs/farm.md, "Audits"). Needs at least two workers, and three to
+    /// settle a disagreement.
+    #[arg(long, default_value_t = 0.0)]
+    audit: f64,
     /// Most client connections open at once.
     #[arg(long, default_value_t = config::DEFAULT_MAX_CONNECTIONS as u32, value_parser = clap::value_parser!(u32).range(1..))]
     max_connections: u32,
@@ -86,8 +92,15 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
             args.lease_timeout
         );
     }
+    if !(args.audit.is_finite() && (0.0..=1.0).contains(&args.audit)) {
+        bail!(
+            "--audit must be a fraction between 0 and 1, got {}",
+            args.audit
+        );
+    }
     init_logging();
     let mut config = tessera_coordinator::Config::new(&args.data_dir);
+    config.audit = args.audit;
     config.output_dir = args.output_dir;
     config.lease_timeout = Duration::from_secs_f64(args.lease_timeout);
     config.default_tile_size = args.tile_size;

@@ -1,0 +1,331 @@
+//! Audits, call by call: a worker whose wrong results were merged unchecked is caught by a
+//! checked one, convicted when a third copy settles the dispute, and every result it gave is
+//! taken back, its tiles folded again from the kept results in the real store, so the job
+//! ends with the honest bits.
+
+use std::time::{Duration, Instant};
+
+use tessera_coordinator::error::Refusal;
+use tessera_coordinator::job::{same_bits, Job, KeptUnits, Unit};
+use tessera_coordinator::scheduler::{Granted, Merged, Scheduler};
+use tessera_coordinator::store::{JobRecord, Op, Store};
+use tessera_proto::ids::JobId;
+use tessera_render::{Strategy, TileSums};
+
+const JOB: JobId = JobId(1);
+
+/// An 8×2 image in 2×2 tiles (4 tiles) at 8 spp in batches of 1: 32 units.
+fn record(audited: bool) -> JobRecord {
+    JobRecord {
+        id: 1,
+        spp: 8,
+        batch: 1,
+        width: 8,
+        height: 2,
+        seed: 0,
+        strategy: Strategy::Mis,
+        tile_size: 2,
+        output_name: "o.exr".into(),
+        audited,
+        ..JobRecord::default()
+    }
+}
+
+/// The honest result of a unit: values that differ by pixel, tile and batch, so that any
+/// batch folded twice, left out or out of order changes the bits.
+fn honest(job: &Job, u: Unit) -> TileSums {
+    let rect = job.tiles.get(u.tile).expect("tile");
+    let mut t = TileSums::empty(rect, 0);
+    t.samples = job.batch_range(u.batch);
+    let k = t.samples.len() as u32;
+    for i in 0..rect.area() {
+        let v = 0.1 + (u.tile as f64) * 0.37 + (u.batch as f64).sqrt() * 0.11 + i as f64 * 0.013;
+        t.sum[i] = [v, v * 0.5, v * 0.25];
+        t.sum_sq[i] = [v * v, v * v * 0.25, v * v * 0.0625];
+        t.count[i] = k;
+    }
+    t
+}
+
+/// Plausible but wrong: every sum 1% high, still finite and in range.
+fn forged(job: &Job, u: Unit) -> TileSums {
+    let mut t = honest(job, u);
+    for p in t.sum.iter_mut().chain(t.sum_sq.iter_mut()) {
+        for c in p {
+            *c *= 1.01;
+        }
+    }
+    t
+}
+
+/// The scheduler and a real store every commit goes to, as the coordinator's writer would.
+struct Farm {
+    core: Scheduler,
+    store: Store,
+    _dir: tempfile::TempDir,
+    now: Instant,
+}
+
+impl Farm {
+    fn new(audited: bool) -> Self {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let store = Store::open(dir.path()).expect("store");
+        let mut core = Scheduler::new(1, Duration::from_secs(60));
+        core.jobs.insert(JOB, Job::new(record(audited)));
+        Farm {
+            core,
+            store,
+            _dir: dir,
+            now: Instant::now(),
+        }
+    }
+
+    fn worker(&mut self, name: &str) -> u64 {
+        self.core
+            .register(name.into(), 1, "v".into(), name.into(), self.now)
+    }
+
+    fn lease(&mut self, w: u64) -> Option<Granted> {
+        self.core.lease(w, 1, self.now).into_iter().next()
+    }
+
+    /// Sends a result and commits what it changed; returns the outcome.
+    fn send(&mut self, w: u64, g: &Granted, r: TileSums) -> Merged {
+        let m = self
+            .core
+            .submit_kept(w, g.lease, g.job, g.unit, r, self.now, &self.store, 0)
+            .expect("accepted");
+        if let Merged::New { ops, .. } = &m {
+            self.store.apply(ops).expect("commit");
+        }
+        m
+    }
+
+    fn job(&self) -> &Job {
+        &self.core.jobs[&JOB]
+    }
+
+    /// Honest workers `ws` render what is left, in turn, until the job finishes.
+    fn finish(&mut self, ws: &[u64]) {
+        for _ in 0..1000 {
+            for &w in ws {
+                let Some(g) = self.lease(w) else { continue };
+                let r = honest(self.job(), g.unit);
+                if let Merged::New { finished: true, .. } = self.send(w, &g, r) {
+                    return;
+                }
+            }
+        }
+        panic!("the job does not finish");
+    }
+}
+
+/// Each tile's honest sums, folded in batch order from zero.
+fn honest_frame(job: &Job) -> Vec<TileSums> {
+    (0..job.tiles.len() as u32)
+        .map(|tile| {
+            let rect = job.tiles.get(tile).expect("tile");
+            let mut total = TileSums::empty(rect, 0);
+            for batch in 0..job.n_batches {
+                total
+                    .merge(&honest(job, Unit { tile, batch }))
+                    .expect("merge");
+            }
+            total
+        })
+        .collect()
+}
+
+fn same_frame(a: &[TileSums], b: &[TileSums]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| same_bits(x, y))
+}
+
+#[test]
+fn a_convicted_worker_has_every_result_taken_back_and_the_job_ends_with_the_honest_bits() {
+    let mut farm = Farm::new(true);
+    let (a, b, liar) = (farm.worker("a"), farm.worker("b"), farm.worker("liar"));
+
+    // Unaudited phase: the liar's second result is wrong, and merged unchecked.
+    farm.core.audit = 0.0;
+    let mut liar_units = Vec::new();
+    let mut liar_results = 0;
+    for round in 0..4 {
+        for w in [a, b, liar] {
+            let g = farm.lease(w).expect("a unit");
+            let r = if w == liar {
+                liar_results += 1;
+                liar_units.push(g.unit);
+                if liar_results == 2 {
+                    forged(farm.job(), g.unit)
+                } else {
+                    honest(farm.job(), g.unit)
+                }
+            } else {
+                honest(farm.job(), g.unit)
+            };
+            assert!(
+                matches!(farm.send(w, &g, r), Merged::New { .. }),
+                "round {round}: unaudited results merge at once"
+            );
+        }
+    }
+    assert!(
+        !same_frame(&farm.job().frame_tiles(), &honest_frame(farm.job())[..]),
+        "the forged unit is in the sums"
+    );
+    let done_before = farm.job().units_done;
+
+    // Every unit is checked from now on. The liar forges one: it is held, not merged.
+    farm.core.audit = 1.0;
+    let g = farm.lease(liar).expect("a unit");
+    let caught = g.unit;
+    assert!(matches!(
+        farm.send(liar, &g, forged(farm.job(), caught)),
+        Merged::Held
+    ));
+    assert_eq!(
+        farm.job().units_done,
+        done_before,
+        "a held result is not done"
+    );
+    // Its copy goes to another worker, first in line.
+    let ga = farm.lease(a).expect("the copy");
+    assert_eq!(ga.unit, caught);
+    assert!(matches!(
+        farm.send(a, &ga, honest(farm.job(), caught)),
+        Merged::Held
+    ));
+    // The copies differ: both are suspects and get no work until a third copy settles it.
+    assert!(farm.lease(a).is_none(), "a suspect gets no work");
+    assert!(farm.lease(liar).is_none(), "a suspect gets no work");
+    let gb = farm.lease(b).expect("the third copy");
+    assert_eq!(gb.unit, caught);
+    let Merged::New { ops, finished } = farm.send(b, &gb, honest(farm.job(), caught)) else {
+        panic!("the settled unit merges");
+    };
+    assert!(!finished);
+    let record = ops
+        .iter()
+        .find_map(|op| match op {
+            Op::PutAudit(r) => Some(r.clone()),
+            _ => None,
+        })
+        .expect("the conviction is recorded");
+    assert_eq!(record.name, "liar");
+    assert_eq!(record.caught_on, (1, caught.tile, caught.batch));
+    // Every kept copy was in the store: exactly the liar's merged units render again, the
+    // honest ones it had merged among them, and no one else's.
+    assert_eq!(record.units_requeued, liar_units.len() as u64);
+    assert_eq!(record.jobs_rebuilt, vec![1]);
+    assert_eq!(farm.store.audits().expect("audits"), vec![record]);
+    // The liar is out; the honest worker is cleared.
+    let liar_cred = farm.core.worker_credential(liar).expect("cred");
+    match farm.core.touch_worker(&liar_cred, farm.now) {
+        Err(Refusal::Denied(m)) => assert!(m.contains("audit"), "{m}"),
+        other => panic!("a convicted worker is refused, got {other:?}"),
+    }
+    assert!(farm.core.workers[&a].disputes.is_empty());
+    assert_eq!(farm.core.workers[&a].audits_passed, 1);
+
+    // The honest workers finish the job, checking each other.
+    farm.finish(&[a, b]);
+    assert!(
+        same_frame(&farm.job().frame_tiles(), &honest_frame(farm.job())),
+        "the finished sums are the honest bits"
+    );
+    assert_eq!(farm.job().units_done, farm.job().units_total());
+}
+
+/// Without kept copies (the store lost them, or none were kept), a rebuild renders the tiles'
+/// batches again: slower, and the same bits.
+#[test]
+fn without_kept_copies_the_touched_tiles_render_again_to_the_same_bits() {
+    let mut farm = Farm::new(true);
+    let (a, b, liar) = (farm.worker("a"), farm.worker("b"), farm.worker("liar"));
+    farm.core.audit = 0.0;
+    let mut liar_units = 0;
+    for _ in 0..3 {
+        for w in [a, b, liar] {
+            let g = farm.lease(w).expect("a unit");
+            let r = if w == liar {
+                liar_units += 1;
+                forged(farm.job(), g.unit)
+            } else {
+                honest(farm.job(), g.unit)
+            };
+            farm.send(w, &g, r);
+        }
+    }
+    let job = JOB;
+    let unit = farm.lease(a).expect("a unit").unit;
+    let ops = farm.core.convict(liar, "test".into(), (job, unit), &(), 0);
+    let taken = ops
+        .iter()
+        .find_map(|op| match op {
+            Op::PutAudit(r) => Some(r.units_requeued),
+            _ => None,
+        })
+        .expect("recorded");
+    assert!(
+        taken > liar_units,
+        "{taken} units go back, more than the liar's {liar_units}: its tiles' other batches too"
+    );
+    farm.store.apply(&ops).expect("commit");
+    farm.core.audit = 0.0;
+    farm.finish(&[a, b]);
+    assert!(same_frame(
+        &farm.job().frame_tiles(),
+        &honest_frame(farm.job())
+    ));
+}
+
+/// A job admitted without audits keeps no copies: it pays nothing for the feature.
+#[test]
+fn an_unaudited_job_keeps_no_copies() {
+    let mut farm = Farm::new(false);
+    let w = farm.worker("w");
+    farm.core.audit = 1.0;
+    let g = farm.lease(w).expect("a unit");
+    let Merged::New { ops, .. } = farm.send(w, &g, honest(farm.job(), g.unit)) else {
+        panic!("merged at once: the job is not audited");
+    };
+    assert!(!ops.iter().any(|op| matches!(op, Op::PutUnit(..))));
+    assert!(
+        ().kept(1, 0, farm.job().tiles.get(0).expect("tile"))
+            .is_empty()
+    );
+}
+
+/// An audited unit never goes back to a worker that has rendered it: with one worker, it
+/// waits for another.
+#[test]
+fn an_audit_copy_goes_to_another_worker() {
+    let mut farm = Farm::new(true);
+    let a = farm.worker("a");
+    farm.core.audit = 1.0;
+    let g = farm.lease(a).expect("a unit");
+    assert!(matches!(
+        farm.send(a, &g, honest(farm.job(), g.unit)),
+        Merged::Held
+    ));
+    // The rest merge unchecked: only the one copy waits.
+    farm.core.audit = 0.0;
+    for _ in 0..40 {
+        if let Some(next) = farm.lease(a) {
+            assert_ne!(
+                next.unit, g.unit,
+                "the copy went to the worker that rendered it"
+            );
+            farm.send(a, &next, honest(farm.job(), next.unit));
+        }
+    }
+    let b = farm.worker("b");
+    let copy = farm.lease(b).expect("the copy");
+    assert_eq!(copy.unit, g.unit);
+    assert!(matches!(
+        farm.send(b, &copy, honest(farm.job(), g.unit)),
+        Merged::New { .. }
+    ));
+    assert_eq!(farm.core.workers[&a].audits_passed, 1);
+    assert_eq!(farm.core.workers[&b].audits_passed, 1);
+}

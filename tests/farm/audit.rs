@@ -1,0 +1,118 @@
+//! Audits on a running farm: a worker that returns plausible but wrong finite sums (every sum
+//! 1% high) on one unit in 50 is caught, convicted and its results rendered again by the
+//! honest workers, and the EXR is bit-identical to `tessera render`'s.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+
+use crate::common::*;
+
+/// The liar: leases one unit at a time, renders it for real, scales one result in 50, and
+/// keeps going until the coordinator refuses it or the test stops it. Returns how many wrong
+/// results it sent.
+async fn liar(url: String, text: String, settings: RenderSettings, stop: Arc<AtomicBool>) -> u64 {
+    let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
+    let mut client = workers_client(&url);
+    let id = register_as(&mut client, "liar", "0", IMAGE_REVISION)
+        .await
+        .expect("register");
+    let (mut sent, mut forged) = (0u64, 0u64);
+    while !stop.load(Ordering::Relaxed) {
+        let units = match lease_now(&mut client, &id, 1).await {
+            Ok(u) => u,
+            Err(e) if e.code() == tonic::Code::PermissionDenied => {
+                assert!(e.message().contains("audit"), "{e:?}");
+                break;
+            }
+            Err(e) => panic!("lease: {e:?}"),
+        };
+        let Some(u) = units.into_iter().next() else {
+            tokio::time::sleep(Duration::from_millis(2)).await;
+            continue;
+        };
+        let mut r = honest_result(&scene, &settings, &u);
+        sent += 1;
+        if sent % 50 == 7 {
+            forged += 1;
+            for v in r.sum.iter_mut().chain(r.sum_sq.iter_mut()) {
+                *v *= 1.01;
+            }
+        }
+        let _ = client
+            .submit_result(pb::SubmitResultRequest {
+                worker_id: id.clone(),
+                lease_id: u.lease_id.clone(),
+                job_id: u.job_id.clone(),
+                tile_index: u.tile_index,
+                batch_index: u.batch_index,
+                result: Some(r),
+            })
+            .await;
+    }
+    forged
+}
+
+/// With `--audit 0.6`, a job of 2048 units: the liar sends some 20 wrong results, each
+/// merged unchecked with probability 0.4, so the ones merged before it is caught must be taken
+/// back; the chance that none of them is checked is about 0.4^20 ≈ 1e-8.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_lying_worker_is_convicted_and_the_image_is_still_bit_identical() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start_with(&dir.path().join("data"), Duration::from_secs(30), |c| {
+        c.audit = 0.6;
+    })
+    .await;
+    let url = coord.url();
+    let text = scene_text(32);
+    let (spp, batch) = (32, 1);
+    let mut client = coord.client().await;
+    let job = client
+        .submit_job(pb::SubmitJobRequest {
+            tile_size: 4,
+            ..submit_request(&text, spp, batch)
+        })
+        .await
+        .expect("submit")
+        .into_inner()
+        .job_id;
+    let stop = Arc::new(AtomicBool::new(false));
+    let liar = tokio::spawn(liar(
+        url.clone(),
+        text.clone(),
+        job_settings(spp, batch),
+        stop.clone(),
+    ));
+    let honest = [worker(&url, "honest-a"), worker(&url, "honest-b")];
+    let status = wait(&mut client, &job).await;
+    assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
+    stop.store(true, Ordering::Relaxed);
+    let forged = liar.await.expect("liar");
+    assert!(forged > 0, "the liar sent no wrong result");
+
+    let workers = list_workers(&mut client).await;
+    let liar_info = workers.iter().find(|w| w.name == "liar").expect("listed");
+    assert!(
+        liar_info.convicted.contains("audit") && liar_info.quarantined,
+        "{liar_info:?}"
+    );
+    let passed = AtomicU64::new(0);
+    for w in workers.iter().filter(|w| w.name.starts_with("honest")) {
+        assert!(
+            w.convicted.is_empty() && !w.quarantined && !w.suspect,
+            "{w:?}"
+        );
+        passed.fetch_add(w.audits_passed, Ordering::Relaxed);
+    }
+    assert!(passed.load(Ordering::Relaxed) > 0, "no audit ran");
+
+    let farm = fetch(&mut client, &job).await;
+    let local = local_exr(&text, spp, batch, dir.path());
+    assert!(
+        farm == local,
+        "the farm's EXR differs from tessera render's"
+    );
+    for h in honest {
+        h.abort();
+    }
+    coord.stop().await;
+}
