@@ -445,13 +445,7 @@ fn relay_process() {
         std::thread::spawn(move || {
             let mut buf = vec![0u8; 64 * 1024];
             let mut last = Instant::now();
-            loop {
-                let Ok(k) = from_client.read(&mut buf) else {
-                    break;
-                };
-                if k == 0 {
-                    break;
-                }
+            while let Ok(k @ 1..) = from_client.read(&mut buf) {
                 rng ^= rng << 13;
                 rng ^= rng >> 7;
                 rng ^= rng << 17;

@@ -1087,6 +1087,11 @@ impl Scheduler {
         for l in job.clear() {
             self.leases.remove(&l);
         }
+        // A dispute over a unit of a job that has ended will never be settled: its suspects
+        // are cleared of it rather than kept from work for good.
+        for w in self.workers.values_mut() {
+            w.disputes.retain(|(j, _)| *j != id);
+        }
         let mut ops = vec![Op::PutJob(job.rec.clone()), Op::DropSums(id.0)];
         // A scene is kept while a live job needs it; without this every distinct scene ever
         // submitted (cancelled ones too) would stay in the store for good.

@@ -329,3 +329,33 @@ fn an_audit_copy_goes_to_another_worker() {
     assert_eq!(farm.core.workers[&a].audits_passed, 1);
     assert_eq!(farm.core.workers[&b].audits_passed, 1);
 }
+
+/// Suspects of a dispute in a job that ends (cancelled here) before a third copy settles it
+/// are cleared of it, rather than kept from work for good.
+#[test]
+fn a_dispute_in_a_job_that_ends_clears_its_suspects() {
+    let mut farm = Farm::new(true);
+    let (a, liar) = (farm.worker("a"), farm.worker("liar"));
+    farm.core.audit = 1.0;
+    let g = farm.lease(liar).expect("a unit");
+    farm.send(liar, &g, forged(farm.job(), g.unit));
+    let copy = farm.lease(a).expect("the copy");
+    assert_eq!(copy.unit, g.unit);
+    farm.send(a, &copy, honest(farm.job(), g.unit));
+    assert!(farm.lease(a).is_none(), "a suspect gets no work");
+    farm.core.end_job(
+        JOB,
+        tessera_coordinator::store::JobPhase::Cancelled,
+        String::new(),
+        0,
+    );
+    farm.core.jobs.insert(
+        JobId(2),
+        Job::new(JobRecord {
+            id: 2,
+            ..record(true)
+        }),
+    );
+    assert!(farm.lease(a).is_some(), "cleared once the job ended");
+    assert!(farm.core.workers[&liar].disputes.is_empty());
+}
