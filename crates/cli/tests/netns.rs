@@ -322,7 +322,10 @@ fn a_farm_across_namespaces_survives_a_cut_link_and_gives_the_local_bytes() {
         for i in 1..=2 {
             let name = format!("{what}{i}");
             while worker_row(&net, &url, &name).is_none_or(|r| r.state != "alive") {
-                assert!(start.elapsed() < Duration::from_secs(60), "{name} never registered");
+                assert!(
+                    start.elapsed() < Duration::from_secs(60),
+                    "{name} never registered"
+                );
                 std::thread::sleep(Duration::from_millis(20));
             }
         }

@@ -276,6 +276,21 @@ fn next_unit(job: &mut Job, w: u64, leases: &HashMap<u64, Lease>) -> Option<Unit
     None
 }
 
+/// The lowest disputed unit of `job` that worker `w` has not rendered and nobody holds: the
+/// only work a suspect gets.
+fn disputed_unit(job: &Job, w: u64, leases: &HashMap<u64, Lease>) -> Option<Unit> {
+    job.audits
+        .iter()
+        .filter(|(u, h)| {
+            h.disputed
+                && !audit_excludes(job, **u, w)
+                && !job.is_done(**u)
+                && !has_active_lease(job, **u, leases)
+        })
+        .map(|(u, _)| *u)
+        .min()
+}
+
 /// Whether worker `w` has a copy of unit `u` held for its audit already.
 fn audit_excludes(job: &Job, u: Unit, w: u64) -> bool {
     job.audits
@@ -672,13 +687,13 @@ impl Scheduler {
     pub fn lease(&mut self, w: u64, max: usize, now: Instant) -> Vec<Granted> {
         self.expire(now);
         let mut out = Vec::new();
-        if self
-            .workers
-            .get(&w)
-            .is_some_and(|x| x.quarantined || !x.disputes.is_empty())
-        {
+        if self.workers.get(&w).is_some_and(|x| x.quarantined) {
             return out;
         }
+        // A suspect gets no ordinary work until its dispute is settled, but it may render the
+        // deciding copy of another dispute: two copies must still agree, so it cannot settle
+        // one alone, and without it a farm whose every worker is a suspect would wait for ever.
+        let suspect = self.workers.get(&w).is_some_and(|x| !x.disputes.is_empty());
         // A worker that already holds its share gets nothing more, however much it asks for:
         // one registration cannot take a job's units out of everyone else's reach.
         let max = max.min(self.max_leases_per_worker.saturating_sub(self.leases_of(w)));
@@ -692,7 +707,11 @@ impl Scheduler {
                     if !job.is_live() {
                         break;
                     }
-                    let next = if speculate {
+                    let next = if suspect {
+                        (!speculate)
+                            .then(|| disputed_unit(job, w, &self.leases))
+                            .flatten()
+                    } else if speculate {
                         speculative_unit(job, w, &self.leases, now, slow)
                     } else {
                         next_unit(job, w, &self.leases)

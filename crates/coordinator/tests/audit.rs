@@ -359,3 +359,49 @@ fn a_dispute_in_a_job_that_ends_clears_its_suspects() {
     assert!(farm.lease(a).is_some(), "cleared once the job ended");
     assert!(farm.core.workers[&liar].disputes.is_empty());
 }
+
+/// Three honest workers, each a suspect in a dispute with a different liar, settle each
+/// other's disputes: a suspect gets no ordinary work but may render another dispute's deciding
+/// copy. Without that the farm waited for ever (found by the `rpc_sequence` fuzz target with
+/// audits: "job 1 stalled with 8 of 20 units").
+#[test]
+fn suspects_settle_each_others_disputes() {
+    let mut farm = Farm::new(true);
+    let honest_ws: Vec<u64> = ["x", "y", "z"].map(|n| farm.worker(n)).to_vec();
+    let liars: Vec<u64> = ["l1", "l2", "l3"].map(|n| farm.worker(n)).to_vec();
+    farm.core.audit = 1.0;
+    // Each liar takes a unit before any answers (two liars sending the same lie for one unit
+    // would agree: a limit of audits, docs/farm.md).
+    let grants: Vec<Granted> = liars
+        .iter()
+        .map(|&l| farm.lease(l).expect("a unit"))
+        .collect();
+    for (&l, g) in liars.iter().zip(&grants) {
+        assert!(matches!(
+            farm.send(l, g, forged(farm.job(), g.unit)),
+            Merged::Held
+        ));
+    }
+    // Each honest worker takes one of the held units before any answers.
+    let copies: Vec<Granted> = honest_ws
+        .iter()
+        .map(|&w| farm.lease(w).expect("a copy"))
+        .collect();
+    for (&w, g) in honest_ws.iter().zip(&copies) {
+        assert!(matches!(
+            farm.send(w, g, honest(farm.job(), g.unit)),
+            Merged::Held
+        ));
+    }
+    assert!(honest_ws
+        .iter()
+        .all(|w| !farm.core.workers[w].disputes.is_empty()));
+    farm.finish(&honest_ws);
+    for l in &liars {
+        assert!(farm.core.workers[l].convicted.is_some(), "liar {l}");
+    }
+    assert!(same_frame(
+        &farm.job().frame_tiles(),
+        &honest_frame(farm.job())
+    ));
+}
