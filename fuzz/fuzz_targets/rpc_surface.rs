@@ -8,6 +8,7 @@
 //! no worker holds more than its share; every status is finite. At the end the coordinator is
 //! closed and opened again on the same store, which must load; and if the main job finished
 //! from honest results only, its EXR must be the bytes `tessera render` writes.
+//! Inputs of odd length run the coordinator with `--audit 0.5`.
 #![no_main]
 
 use std::sync::OnceLock;
@@ -134,6 +135,11 @@ fuzz_target!(|data: &[u8]| {
         .expect("tmp");
     let mut config = Config::new(dir.path());
     config.max_leases_per_worker = 3;
+    // Inputs of odd length run with audits: half the accepted results are held for a second
+    // copy, and the audited job keeps every unit's result in the store, which must reopen.
+    if data.len() % 2 == 1 {
+        config.audit = 0.5;
+    }
     let out = config.output_dir();
     rt.block_on(async {
         let farm = InProcess::open(config.clone()).expect("a fresh store opens");

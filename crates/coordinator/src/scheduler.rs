@@ -850,6 +850,19 @@ impl Scheduler {
         kept: &dyn KeptUnits,
         now_ms: i64,
     ) -> Result<Merged, Refusal> {
+        // The handlers refuse a quarantined worker's calls already (`touch_worker`); refused here
+        // too, so that no path merges a result from a worker an audit convicted after its results
+        // were taken back.
+        if let Some(x) = self.workers.get(&w).filter(|x| x.quarantined) {
+            return Err(Refusal::Denied(format!(
+                "worker {} is quarantined{}",
+                self.worker_id(w),
+                x.convicted
+                    .as_ref()
+                    .map(|why| format!(": {why}"))
+                    .unwrap_or_default()
+            )));
+        }
         let lease_n = self.lease_number(lease);
         let Some(job) = self.jobs.get_mut(&job_id) else {
             return Err(Refusal::NotFound(format!("unknown job {job_id}")));
@@ -867,6 +880,15 @@ impl Scheduler {
             )));
         }
         if job.is_done(unit) {
+            return Ok(Merged::Duplicate);
+        }
+        // A copy from a worker whose copy is held already must not count as a second one: a
+        // liar would settle its own lie.
+        if job
+            .audits
+            .get(&unit)
+            .is_some_and(|h| h.results.iter().any(|(k, _)| *k == w))
+        {
             return Ok(Merged::Duplicate);
         }
         let lease_n = lease_n?;
@@ -962,7 +984,6 @@ impl Scheduler {
             hold.results.push((w, sums));
             hold.disputed = true;
             let suspects: Vec<u64> = hold.results.iter().map(|(k, _)| *k).collect();
-            job.requeue.push_front(unit);
             tracing::warn!(
                 "{job_id} tile {} batch {}: {} workers' copies differ; each is a suspect until \
                  another worker's copy matches one",
@@ -975,6 +996,10 @@ impl Scheduler {
                     x.disputes.insert((job_id, unit));
                 }
                 self.take_leases(k);
+            }
+            // Ahead of the suspects' units just put back: the deciding copy goes first.
+            if let Some(job) = self.jobs.get_mut(&job_id) {
+                job.requeue.push_front(unit);
             }
             return None;
         }

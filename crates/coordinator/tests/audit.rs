@@ -405,3 +405,36 @@ fn suspects_settle_each_others_disputes() {
         &honest_frame(farm.job())
     ));
 }
+
+/// A convicted worker's late result, under a lease it got before it was caught, is refused:
+/// a lease taken back is otherwise still honoured once, which would let the liar's result in
+/// after its others were taken out (found by the `rpc_sequence` fuzz target with audits).
+#[test]
+fn a_convicted_workers_late_result_is_refused() {
+    let mut farm = Farm::new(true);
+    let (a, b, liar) = (farm.worker("a"), farm.worker("b"), farm.worker("liar"));
+    farm.core.audit = 1.0;
+    let first = farm.lease(liar).expect("a unit");
+    let late = farm.lease(liar).expect("another unit");
+    farm.send(liar, &first, forged(farm.job(), first.unit));
+    let copy = farm.lease(a).expect("the copy");
+    assert_eq!(copy.unit, first.unit);
+    farm.send(a, &copy, honest(farm.job(), first.unit));
+    let third = farm.lease(b).expect("the third copy");
+    assert_eq!(third.unit, first.unit);
+    farm.send(b, &third, honest(farm.job(), first.unit));
+    assert!(farm.core.workers[&liar].convicted.is_some());
+    let done = farm.job().units_done;
+    let r = farm.core.submit_kept(
+        liar,
+        late.lease,
+        late.job,
+        late.unit,
+        forged(farm.job(), late.unit),
+        farm.now,
+        &farm.store,
+        0,
+    );
+    assert!(matches!(r, Err(Refusal::Denied(_))), "{r:?}");
+    assert_eq!(farm.job().units_done, done);
+}
