@@ -108,6 +108,25 @@ impl Net {
         c
     }
 
+    /// A worker (`--threads 1`) in each worker namespace, worker `i` reaching the coordinator
+    /// at `urls[i - 1]` and named `{prefix}{i}`.
+    fn workers_at(&self, urls: &[String; 2], prefix: &str) -> Vec<Proc> {
+        (1..=2)
+            .map(|i| {
+                let name = format!("{prefix}{i}");
+                let args = ["worker", "--coordinator", &urls[i - 1], "--threads", "1"];
+                Proc(
+                    self.tessera(&self.workers[i - 1], &args)
+                        .args(["--name", &name])
+                        .stdout(Stdio::null())
+                        .stderr(Stdio::null())
+                        .spawn()
+                        .expect("worker"),
+                )
+            })
+            .collect()
+    }
+
     fn client(&self, args: &[&str], url: &str) -> Output {
         self.tessera(&self.coord, args)
             .env("TESSERA_COORDINATOR", url)
@@ -190,28 +209,8 @@ fn a_farm_across_namespaces_survives_a_cut_link_and_gives_the_local_bytes() {
     BufReader::new(stdout).read_line(&mut line).expect("line");
     let port = line.trim().rsplit(':').next().expect("port").to_string();
     let url = format!("http://127.0.0.1:{port}");
-    let workers: Vec<Proc> = (1..=2)
-        .map(|i| {
-            Proc(
-                net.tessera(
-                    &net.workers[i - 1],
-                    &[
-                        "worker",
-                        "--coordinator",
-                        &format!("http://10.213.{i}.1:{port}"),
-                        "--threads",
-                        "1",
-                        "--name",
-                        &format!("w{i}"),
-                    ],
-                )
-                .stdout(Stdio::null())
-                .stderr(Stdio::null())
-                .spawn()
-                .expect("worker"),
-            )
-        })
-        .collect();
+    let direct_urls = [1, 2].map(|i| format!("http://10.213.{i}.1:{port}"));
+    let workers = net.workers_at(&direct_urls, "w");
     let scene = repo("scenes/cornell-box.toml");
     // Units of 128² pixels × 16 samples, the farm's default size.
     let job_flags = [
@@ -295,28 +294,7 @@ fn a_farm_across_namespaces_survives_a_cut_link_and_gives_the_local_bytes() {
     };
     drop(workers);
     let timed_job = |urls: [String; 2], what: &str| -> Duration {
-        let workers: Vec<Proc> = (1..=2)
-            .map(|i| {
-                Proc(
-                    net.tessera(
-                        &net.workers[i - 1],
-                        &[
-                            "worker",
-                            "--coordinator",
-                            &urls[i - 1],
-                            "--threads",
-                            "1",
-                            "--name",
-                            &format!("{what}{i}"),
-                        ],
-                    )
-                    .stdout(Stdio::null())
-                    .stderr(Stdio::null())
-                    .spawn()
-                    .expect("worker"),
-                )
-            })
-            .collect();
+        let workers = net.workers_at(&urls, what);
         // Timed from when both are registered, so that what is measured is the job.
         let start = Instant::now();
         for i in 1..=2 {
@@ -336,14 +314,13 @@ fn a_farm_across_namespaces_survives_a_cut_link_and_gives_the_local_bytes() {
         drop(workers);
         took
     };
-    let direct = timed_job(
-        [1, 2].map(|i| format!("http://10.213.{i}.1:{port}")),
-        "direct",
-    );
+    let direct = timed_job(direct_urls.clone(), "direct");
     let (slowed, how) = if netem(1) {
         assert!(netem(2), "netem on worker 2's link");
-        let urls = [1, 2].map(|i| format!("http://10.213.{i}.1:{port}"));
-        (timed_job(urls, "netem"), "netem: 50 ms ± 10 ms, 1% loss")
+        (
+            timed_job(direct_urls, "netem"),
+            "netem: 50 ms ± 10 ms, 1% loss",
+        )
     } else {
         let lossy = (1..=2).all(|i| {
             let link = net.worker_link(i);
