@@ -94,16 +94,12 @@ impl KeptUnits for () {
 
 impl KeptUnits for crate::store::Store {
     fn kept(&self, job: u64, tile: u32, rect: PixelRect) -> BTreeMap<u32, (u64, TileSums)> {
-        self.kept_units(job, tile, rect)
-            .unwrap_or_else(|e| {
-                tracing::warn!(
-                    "job {job} tile {tile}: kept results unreadable ({e}); rendering it again"
-                );
-                Vec::new()
-            })
-            .into_iter()
-            .map(|(b, serial, sums)| (b, (serial, sums)))
-            .collect()
+        self.kept_units(job, tile, rect).unwrap_or_else(|e| {
+            tracing::warn!(
+                "job {job} tile {tile}: kept results unreadable ({e}); rendering it again"
+            );
+            BTreeMap::new()
+        })
     }
 }
 

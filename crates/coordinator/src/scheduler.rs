@@ -73,6 +73,24 @@ pub struct Worker {
     pub jobs: BTreeSet<JobId>,
 }
 
+impl Worker {
+    /// Why this worker, whose public id is `id`, gets nothing: quarantined after invalid
+    /// results, or convicted by an audit; `None` if it may work.
+    fn refusal(&self, id: WorkerId) -> Option<Refusal> {
+        if let Some(why) = &self.convicted {
+            return Some(Refusal::Denied(format!(
+                "worker {id} is quarantined: {why}"
+            )));
+        }
+        self.quarantined.then(|| {
+            Refusal::Denied(format!(
+                "worker {id} is quarantined after {} invalid results",
+                self.bad_results
+            ))
+        })
+    }
+}
+
 /// What happened to a result.
 #[derive(Debug)]
 pub enum Merged {
@@ -608,19 +626,10 @@ impl Scheduler {
         }
         w.last_seen = now;
         w.gone = false;
-        if let Some(why) = &w.convicted {
-            return Err(Refusal::Denied(format!(
-                "worker {} is quarantined: {why}",
-                cred.id
-            )));
+        match w.refusal(cred.id) {
+            Some(r) => Err(r),
+            None => Ok(n),
         }
-        if w.quarantined {
-            return Err(Refusal::Denied(format!(
-                "worker {} is quarantined after {} invalid results",
-                cred.id, w.bad_results
-            )));
-        }
-        Ok(n)
     }
 
     /// Registers a worker and returns its number. `secret` must be unguessable (the service
@@ -853,15 +862,12 @@ impl Scheduler {
         // The handlers refuse a quarantined worker's calls already (`touch_worker`); refused here
         // too, so that no path merges a result from a worker an audit convicted after its results
         // were taken back.
-        if let Some(x) = self.workers.get(&w).filter(|x| x.quarantined) {
-            return Err(Refusal::Denied(format!(
-                "worker {} is quarantined{}",
-                self.worker_id(w),
-                x.convicted
-                    .as_ref()
-                    .map(|why| format!(": {why}"))
-                    .unwrap_or_default()
-            )));
+        if let Some(r) = self
+            .workers
+            .get(&w)
+            .and_then(|x| x.refusal(self.worker_id(w)))
+        {
+            return Err(r);
         }
         let lease_n = self.lease_number(lease);
         let Some(job) = self.jobs.get_mut(&job_id) else {
@@ -884,11 +890,7 @@ impl Scheduler {
         }
         // A copy from a worker whose copy is held already must not count as a second one: a
         // liar would settle its own lie.
-        if job
-            .audits
-            .get(&unit)
-            .is_some_and(|h| h.results.iter().any(|(k, _)| *k == w))
-        {
+        if audit_excludes(job, unit, w) {
             return Ok(Merged::Duplicate);
         }
         let lease_n = lease_n?;
@@ -912,19 +914,14 @@ impl Scheduler {
         for l in job.issued.remove(&unit).unwrap_or_default() {
             self.leases.remove(&l);
         }
-        let mut ops = Vec::new();
-        let mut from = w;
-        let mut sums = sums;
-        if job.rec.audited {
+        let (sums, from, mut ops) = if job.rec.audited {
             match self.audit_step(w, job_id, unit, sums, kept, now_ms) {
-                Some((agreed, by, convict_ops)) => {
-                    sums = agreed;
-                    from = by;
-                    ops = convict_ops;
-                }
+                Some(settled) => settled,
                 None => return Ok(Merged::Held),
             }
-        }
+        } else {
+            (sums, w, Vec::new())
+        };
         let Some(job) = self.jobs.get_mut(&job_id) else {
             return Ok(Merged::Discarded);
         };

@@ -9,6 +9,7 @@
 //! structures are checked by redb; a panic inside it on a badly damaged file is caught and
 //! reported the same way.
 
+use std::collections::BTreeMap;
 use std::ops::Range;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
@@ -576,7 +577,7 @@ impl Store {
             })
     }
 
-    /// The kept results of one tile of an audited job: (batch, merge serial, sums). A damaged
+    /// The kept results of one tile of an audited job: batch → (merge serial, sums). A damaged
     /// one is left out (the caller renders it again), so a rebuild never folds in bits the
     /// store cannot vouch for.
     pub fn kept_units(
@@ -584,11 +585,11 @@ impl Store {
         job: u64,
         tile: u32,
         rect: PixelRect,
-    ) -> Result<Vec<(u32, u64, TileSums)>, StoreError> {
+    ) -> Result<BTreeMap<u32, (u64, TileSums)>, StoreError> {
         guarded(Path::new(FILE_NAME), || {
             let tx = self.db()?.begin_read().map_err(dberr)?;
             let units = tx.open_table(UNITS).map_err(dberr)?;
-            let mut out = Vec::new();
+            let mut out = BTreeMap::new();
             for row in units
                 .range((job, tile, 0)..=(job, tile, u32::MAX))
                 .map_err(dberr)?
@@ -605,7 +606,9 @@ impl Store {
                         Ok((u64::from_le_bytes(*serial), decode_sums(sums, rect)?))
                     });
                 match decoded {
-                    Ok((serial, sums)) => out.push((b, serial, sums)),
+                    Ok(kept) => {
+                        out.insert(b, kept);
+                    }
                     Err(e) => tracing::warn!("job {job} tile {tile} kept batch {b}: {e}"),
                 }
             }

@@ -711,8 +711,7 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
                 w.last_seen_ms_ago as f64 / 1000.0
             );
         }
-        let convicted: Vec<_> = workers.iter().filter(|w| !w.convicted.is_empty()).collect();
-        for w in convicted {
+        for w in workers.iter().filter(|w| !w.convicted.is_empty()) {
             outln!(
                 "{} ({}): {}",
                 w.worker_id,
