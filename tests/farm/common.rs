@@ -47,6 +47,8 @@ pub fn scene_text(size: u32) -> String {
 pub struct Coordinator {
     /// The address the server bound (port 0 resolved).
     pub addr: SocketAddr,
+    /// The dashboard's address, when it serves one.
+    pub http: Option<SocketAddr>,
     /// Its output directory.
     pub out: PathBuf,
     server: Spawned,
@@ -63,6 +65,26 @@ impl Coordinator {
         let server = Spawned::start(config, "127.0.0.1:0").await.expect("bind");
         Self {
             addr: server.addr,
+            http: None,
+            out,
+            server,
+        }
+    }
+
+    /// A coordinator serving its dashboard too, on another port it bound itself.
+    pub async fn start_with_dashboard(
+        data: &Path,
+        lease: Duration,
+        edit: impl FnOnce(&mut Config),
+    ) -> Self {
+        let config = Self::config(data, lease, edit);
+        let out = config.output_dir();
+        let server = Spawned::start_with_dashboard(config, "127.0.0.1:0", "127.0.0.1:0")
+            .await
+            .expect("bind");
+        Self {
+            addr: server.addr,
+            http: server.http_addr,
             out,
             server,
         }
@@ -80,6 +102,7 @@ impl Coordinator {
         let out = config.output_dir();
         Self {
             addr,
+            http: None,
             out,
             server: Spawned::on(config, listener).expect("serve on the old address"),
         }
@@ -357,4 +380,65 @@ pub async fn submit_named(
         })
         .await
         .map(|r| r.into_inner().job_id)
+}
+
+/// An HTTP reply, whole.
+#[derive(Debug)]
+pub struct Reply {
+    pub status: u16,
+    pub headers: hyper::HeaderMap,
+    pub body: Vec<u8>,
+}
+
+impl Reply {
+    pub fn text(&self) -> String {
+        String::from_utf8_lossy(&self.body).into_owned()
+    }
+
+    pub fn header(&self, name: &str) -> Option<&str> {
+        self.headers.get(name).and_then(|v| v.to_str().ok())
+    }
+}
+
+/// One HTTP/1.1 request to `addr` on a connection of its own.
+pub async fn http(
+    addr: SocketAddr,
+    method: &str,
+    path: &str,
+    headers: &[(&str, &str)],
+    body: &str,
+) -> Reply {
+    use http_body_util::BodyExt;
+    let tcp = tokio::net::TcpStream::connect(addr).await.expect("connect");
+    let (mut send, conn) = hyper::client::conn::http1::handshake(hyper_util::rt::TokioIo::new(tcp))
+        .await
+        .expect("handshake");
+    tokio::spawn(conn);
+    let mut req = hyper::Request::builder()
+        .method(method)
+        .uri(path)
+        .header("host", addr.to_string());
+    for (k, v) in headers {
+        req = req.header(*k, *v);
+    }
+    let req = req
+        .body(http_body_util::Full::new(hyper::body::Bytes::from(
+            body.to_string(),
+        )))
+        .expect("request");
+    let r = send.send_request(req).await.expect("send");
+    let status = r.status().as_u16();
+    let headers = r.headers().clone();
+    let body = r
+        .into_body()
+        .collect()
+        .await
+        .expect("body")
+        .to_bytes()
+        .to_vec();
+    Reply {
+        status,
+        headers,
+        body,
+    }
 }

@@ -11,6 +11,7 @@ mod auth;
 mod bad_submissions;
 mod bound_ids;
 mod connections;
+mod dashboard;
 mod forged_results;
 mod frames;
 mod output_names;

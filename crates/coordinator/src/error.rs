@@ -24,6 +24,9 @@ pub enum CoordinatorError {
     /// The task serving in-process ([`crate::server::Spawned`]) panicked or was cancelled.
     #[error("coordinator task: {0}")]
     Task(String),
+    /// The dashboard could not start (its TLS identity, say).
+    #[error("dashboard: {0}")]
+    Http(String),
     /// The gRPC server failed.
     #[error("gRPC server: {0}")]
     Transport(#[from] tonic::transport::Error),

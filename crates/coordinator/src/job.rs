@@ -22,6 +22,35 @@ pub struct Unit {
     pub batch: u32,
 }
 
+/// A running total's recent rate: (time, total) points over the last ten seconds.
+#[derive(Debug, Default)]
+pub struct Rate(VecDeque<(Instant, u64)>);
+
+impl Rate {
+    /// Notes that the total was `total` at `now`.
+    pub fn record(&mut self, now: Instant, total: u64) {
+        self.0.push_back((now, total));
+        while self.0.len() > 2
+            && self
+                .0
+                .front()
+                .is_some_and(|f| now.duration_since(f.0) > Duration::from_secs(10))
+        {
+            self.0.pop_front();
+        }
+    }
+
+    /// Growth per second between the oldest and newest points (0 when unknown).
+    pub fn per_second(&self) -> f64 {
+        match (self.0.front(), self.0.back()) {
+            (Some(a), Some(b)) if b.0 > a.0 => {
+                b.1.saturating_sub(a.1) as f64 / b.0.duration_since(a.0).as_secs_f64()
+            }
+            _ => 0.0,
+        }
+    }
+}
+
 /// Merged sums of one tile: batches `0..next` folded in order, plus results that arrived early.
 #[derive(Debug, Default)]
 pub struct TileAcc {
@@ -210,8 +239,8 @@ pub struct Job {
     pub samples_done: u64,
     /// Non-finite samples reported.
     pub nonfinite: u64,
-    /// (time, samples_done) over the last seconds, for the rate.
-    pub rate: VecDeque<(Instant, u64)>,
+    /// Merged samples over the last seconds.
+    pub rate: Rate,
     /// A unit has been leased.
     pub started: bool,
     /// Every unit is in; the EXR is being written.
@@ -280,7 +309,7 @@ impl Job {
             units_done: 0,
             samples_done: 0,
             nonfinite: 0,
-            rate: VecDeque::new(),
+            rate: Rate::default(),
             started: false,
             finishing: false,
             audits: HashMap::new(),
@@ -521,12 +550,7 @@ impl Job {
 
     /// Merged samples per second over the last few seconds.
     pub fn rate(&self) -> f64 {
-        match (self.rate.front(), self.rate.back()) {
-            (Some(a), Some(b)) if b.0 > a.0 => {
-                (b.1 - a.1) as f64 / b.0.duration_since(a.0).as_secs_f64()
-            }
-            _ => 0.0,
-        }
+        self.rate.per_second()
     }
 
     /// RMS standard error of merged pixel means, and the same relative to the mean.
@@ -625,15 +649,7 @@ impl Job {
         self.units_done += 1;
         self.samples_done += samples;
         self.nonfinite += sums.nonfinite;
-        self.rate.push_back((now, self.samples_done));
-        while self.rate.len() > 2
-            && self
-                .rate
-                .front()
-                .is_some_and(|f| now.duration_since(f.0) > Duration::from_secs(10))
-        {
-            self.rate.pop_front();
-        }
+        self.rate.record(now, self.samples_done);
         let mut ops = Vec::new();
         if audited {
             ops.push(Op::PutUnit(

@@ -25,14 +25,18 @@
 //! - `shared` (the scheduler behind its lock, and the commit writer), `service` (the gRPC
 //!   handlers, which parse the wire into typed values and call the scheduler), `conn`
 //!   (connection limits) and [`server`] (TLS, auth, wiring: [`serve`]).
+//! - [`metrics`] (timings and the Prometheus text) and `http` (the dashboard and `/metrics`,
+//!   served when [`Listeners::http`] is given: `tessera coordinator --http ADDR`).
 
 mod conn;
+mod http;
 mod service;
 mod shared;
 
 pub mod config;
 pub mod error;
 pub mod job;
+pub mod metrics;
 pub mod output;
 pub mod scheduler;
 pub mod server;
@@ -40,5 +44,5 @@ pub mod store;
 
 pub use config::{Config, ServerTls, MAX_CONCURRENT_PARSES, MAX_STREAMS_PER_CONNECTION};
 pub use error::CoordinatorError;
-pub use server::{serve, serve_when_ready, InProcess, Spawned};
+pub use server::{serve, serve_when_ready, InProcess, Listeners, Spawned};
 pub use service::{decode_result, Service};

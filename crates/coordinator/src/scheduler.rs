@@ -13,7 +13,7 @@ use tessera_proto::ids::{JobId, LeaseId, WorkerCredential, WorkerId};
 use tessera_render::{RenderSettings, TileSums, IMAGE_REVISION};
 
 use crate::error::Refusal;
-use crate::job::{same_bits, AuditHold, Job, KeptUnits, Source, Unit, NOBODY};
+use crate::job::{same_bits, AuditHold, Job, KeptUnits, Rate, Source, Unit, NOBODY};
 use crate::output::OutputNames;
 use crate::store::{AuditRecord, JobPhase, JobRecord, LoadedJob, Op, RangeRef, StoredScene};
 use tessera_render::scene::FrameRange;
@@ -71,6 +71,10 @@ pub struct Worker {
     /// Audited jobs it gave results to: those already ended when it is convicted are named
     /// in the conviction's record.
     pub jobs: BTreeSet<JobId>,
+    /// The address it registered from (empty when unknown).
+    pub host: String,
+    /// Its merged samples over the last seconds.
+    pub rate: Rate,
 }
 
 impl Worker {
@@ -199,6 +203,29 @@ pub struct Scheduler {
     pub serial: u64,
     /// Convictions in this boot.
     pub convictions: u64,
+    /// What happened to units and results since this boot, for metrics.
+    pub counters: Counters,
+}
+
+/// Totals since the coordinator started, exported as Prometheus counters (docs/farm.md,
+/// "Metrics"). Kept by the scheduler, under its lock, because it is the one place that knows
+/// what became of each lease and result.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counters {
+    /// Units handed out (a unit raced by several workers counts once a lease).
+    pub units_leased: u64,
+    /// Units merged into their tiles.
+    pub units_merged: u64,
+    /// Results for units merged already (a raced or retried unit).
+    pub units_duplicate: u64,
+    /// Results for jobs that had ended.
+    pub units_discarded: u64,
+    /// Results held for an audit.
+    pub units_held: u64,
+    /// Results refused (malformed, forged, quoting another's lease, from a quarantined worker).
+    pub results_refused: u64,
+    /// Samples in the merged units.
+    pub samples_merged: u64,
 }
 
 /// Whether unit `u` of `job` has a live lease.
@@ -349,6 +376,7 @@ impl Scheduler {
             audit_rng: epoch.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1,
             serial: epoch << 40,
             convictions: 0,
+            counters: Counters::default(),
         }
     }
 
@@ -661,6 +689,8 @@ impl Scheduler {
                 disputes: BTreeSet::new(),
                 audits_passed: 0,
                 jobs: BTreeSet::new(),
+                host: String::new(),
+                rate: Rate::default(),
             },
         );
         n
@@ -751,6 +781,7 @@ impl Scheduler {
                 }
             }
         }
+        self.counters.units_leased += out.len() as u64;
         out
     }
 
@@ -859,6 +890,35 @@ impl Scheduler {
         kept: &dyn KeptUnits,
         now_ms: i64,
     ) -> Result<Merged, Refusal> {
+        let samples = sums.rect.area() as u64 * sums.samples.len() as u64;
+        let outcome = self.take_result(w, lease, job_id, unit, sums, now, kept, now_ms);
+        let c = &mut self.counters;
+        match &outcome {
+            Ok(Merged::New { .. }) => {
+                c.units_merged += 1;
+                c.samples_merged += samples;
+            }
+            Ok(Merged::Duplicate) => c.units_duplicate += 1,
+            Ok(Merged::Discarded) => c.units_discarded += 1,
+            Ok(Merged::Held) => c.units_held += 1,
+            Err(_) => c.results_refused += 1,
+        }
+        outcome
+    }
+
+    /// [`Scheduler::submit_kept`] without the counting.
+    #[allow(clippy::too_many_arguments)]
+    fn take_result(
+        &mut self,
+        w: u64,
+        lease: LeaseId,
+        job_id: JobId,
+        unit: Unit,
+        sums: TileSums,
+        now: Instant,
+        kept: &dyn KeptUnits,
+        now_ms: i64,
+    ) -> Result<Merged, Refusal> {
         // The handlers refuse a quarantined worker's calls already (`touch_worker`); refused here
         // too, so that no path merges a result from a worker an audit convicted after its results
         // were taken back.
@@ -935,6 +995,7 @@ impl Scheduler {
         if let Some(worker) = self.workers.get_mut(&w) {
             worker.units_done += 1;
             worker.samples_done += samples;
+            worker.rate.record(now, worker.samples_done);
             if job.rec.audited {
                 worker.jobs.insert(job_id);
             }

@@ -22,10 +22,26 @@ use crate::shared::{writer, Shared};
 /// requests have drained and queued state writes are durable.
 pub async fn serve(
     config: Config,
-    listener: tokio::net::TcpListener,
+    listeners: impl Into<Listeners>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<(), CoordinatorError> {
-    serve_when_ready(config, listener, shutdown, || {}).await
+    serve_when_ready(config, listeners, shutdown, || {}).await
+}
+
+/// Where the coordinator listens: the gRPC API, and optionally the dashboard and metrics
+/// (HTTP). A bare listener converts into one with no dashboard.
+#[derive(Debug)]
+pub struct Listeners {
+    /// The gRPC API (`tessera.v1.Jobs`, `tessera.v1.Workers`).
+    pub grpc: tokio::net::TcpListener,
+    /// The dashboard and `/metrics`; none unless asked for (`--http`).
+    pub http: Option<tokio::net::TcpListener>,
+}
+
+impl From<tokio::net::TcpListener> for Listeners {
+    fn from(grpc: tokio::net::TcpListener) -> Self {
+        Self { grpc, http: None }
+    }
 }
 
 /// [`serve`], calling `ready` once the TLS identity is loaded and the store is open and
@@ -33,10 +49,14 @@ pub async fn serve(
 /// before that (a bad key, a damaged store) comes back instead, and `ready` is not called.
 pub async fn serve_when_ready(
     config: Config,
-    listener: tokio::net::TcpListener,
+    listeners: impl Into<Listeners>,
     shutdown: impl Future<Output = ()> + Send + 'static,
     ready: impl FnOnce(),
 ) -> Result<(), CoordinatorError> {
+    let Listeners {
+        grpc: listener,
+        http,
+    } = listeners.into();
     let max_msg = config.max_message_bytes;
     let lease_timeout = config.lease_timeout;
     let auth = AuthCheck::new(config.token.as_ref());
@@ -56,7 +76,7 @@ pub async fn serve_when_ready(
     }
     let (max_connections, idle) = (config.max_connections, config.idle_connection);
     let (shared, rx, to_finish) = Shared::open(config)?;
-    let writer = tokio::spawn(writer(shared.store.clone(), rx));
+    let writer = tokio::spawn(writer(shared.store.clone(), rx, shared.metrics.clone()));
     for id in to_finish {
         tokio::spawn(finish_job(shared.clone(), id));
     }
@@ -81,6 +101,27 @@ pub async fn serve_when_ready(
     };
     let svc = Service::new(shared.clone());
     let incoming = conn::Limited::new(listener, max_connections, idle);
+    // One shutdown for both servers: the caller's, or the gRPC server's failure.
+    let (stop_tx, stop) = tokio::sync::watch::channel(false);
+    let stop_tx = Arc::new(stop_tx);
+    {
+        let stop_tx = stop_tx.clone();
+        tokio::spawn(async move {
+            shutdown.await;
+            let _ = stop_tx.send(true);
+        });
+    }
+    let dashboard = match http {
+        Some(l) => {
+            let task = tokio::spawn(crate::http::serve(svc.clone(), l, stop.clone()));
+            Some(task)
+        }
+        None => None,
+    };
+    let mut grpc_stop = stop.clone();
+    let shutdown = async move {
+        let _ = grpc_stop.wait_for(|s| *s).await;
+    };
     ready();
     let result = builder
         .add_service(InterceptedService::new(
@@ -97,13 +138,21 @@ pub async fn serve_when_ready(
         ))
         .serve_with_incoming_shutdown(incoming, shutdown)
         .await;
+    let _ = stop_tx.send(true);
+    let dashboard = match dashboard {
+        Some(task) => task
+            .await
+            .map_err(|e| CoordinatorError::Task(e.to_string()))
+            .and_then(|r| r),
+        None => Ok(()),
+    };
     ticker.abort();
     drop(shared);
     // The writer ends when the last sender (inside Shared) is gone; give stragglers (watch
     // streams finishing their last message) a moment, then stop waiting.
     let _ = tokio::time::timeout(Duration::from_secs(5), writer).await;
     result?;
-    Ok(())
+    dashboard
 }
 
 /// A coordinator serving in this process on a port it bound itself, until stopped: what tests
@@ -111,6 +160,8 @@ pub async fn serve_when_ready(
 pub struct Spawned {
     /// The address it bound (port 0 resolved).
     pub addr: std::net::SocketAddr,
+    /// The dashboard's address, when it serves one.
+    pub http_addr: Option<std::net::SocketAddr>,
     stop: Option<tokio::sync::oneshot::Sender<()>>,
     task: tokio::task::JoinHandle<Result<(), CoordinatorError>>,
 }
@@ -125,13 +176,39 @@ impl Spawned {
     /// Serves `config` on a listener the caller bound (the address of a coordinator that
     /// stopped, to restart it where its workers look for it).
     pub fn on(config: Config, listener: tokio::net::TcpListener) -> std::io::Result<Self> {
-        let addr = listener.local_addr()?;
+        Self::serving(config, listener.into())
+    }
+
+    /// Binds `listen` for the gRPC API and `http` for the dashboard (`127.0.0.1:0` for free
+    /// ports) and serves `config` there.
+    pub async fn start_with_dashboard(
+        config: Config,
+        listen: &str,
+        http: &str,
+    ) -> std::io::Result<Self> {
+        Self::serving(
+            config,
+            Listeners {
+                grpc: tokio::net::TcpListener::bind(listen).await?,
+                http: Some(tokio::net::TcpListener::bind(http).await?),
+            },
+        )
+    }
+
+    fn serving(config: Config, listeners: Listeners) -> std::io::Result<Self> {
+        let addr = listeners.grpc.local_addr()?;
+        let http_addr = listeners
+            .http
+            .as_ref()
+            .map(|l| l.local_addr())
+            .transpose()?;
         let (tx, rx) = tokio::sync::oneshot::channel::<()>();
-        let task = tokio::spawn(serve(config, listener, async {
+        let task = tokio::spawn(serve(config, listeners, async {
             let _ = rx.await;
         }));
         Ok(Self {
             addr,
+            http_addr,
             stop: Some(tx),
             task,
         })
@@ -167,7 +244,7 @@ impl InProcess {
     /// Opens the store under `config.data_dir` and restores its jobs, as [`serve`] does.
     pub fn open(config: Config) -> Result<Self, CoordinatorError> {
         let (shared, rx, to_finish) = Shared::open(config)?;
-        let writer = tokio::spawn(writer(shared.store.clone(), rx));
+        let writer = tokio::spawn(writer(shared.store.clone(), rx, shared.metrics.clone()));
         for id in to_finish {
             tokio::spawn(finish_job(shared.clone(), id));
         }
@@ -215,7 +292,7 @@ impl AuthCheck {
     }
 }
 
-fn sha256(b: &[u8]) -> [u8; 32] {
+pub(crate) fn sha256(b: &[u8]) -> [u8; 32] {
     use sha2::Digest;
     sha2::Sha256::digest(b).into()
 }

@@ -569,6 +569,8 @@ impl Jobs for Service {
                     convicted: w.convicted.clone().unwrap_or_default(),
                     audits_passed: w.audits_passed,
                     suspect: !w.disputes.is_empty(),
+                    host: w.host.clone(),
+                    samples_per_second: w.rate.per_second(),
                 }
             })
             .collect();
@@ -653,6 +655,10 @@ impl Workers for Service {
         &self,
         request: Request<pb::RegisterRequest>,
     ) -> Result<Response<pb::RegisterResponse>, Status> {
+        let host = request
+            .remote_addr()
+            .map(|a| a.ip().to_string())
+            .unwrap_or_default();
         let req = request.into_inner();
         if req.image_revision != IMAGE_REVISION {
             return Err(Status::failed_precondition(format!(
@@ -674,6 +680,9 @@ impl Workers for Service {
             secret,
             Instant::now(),
         );
+        if let Some(w) = core.workers.get_mut(&n) {
+            w.host = host;
+        }
         let credential = core
             .worker_credential(n)
             .ok_or_else(|| Status::internal("a registered worker vanished"))?;
@@ -764,6 +773,7 @@ impl Workers for Service {
         &self,
         request: Request<pb::SubmitResultRequest>,
     ) -> Result<Response<pb::SubmitResultResponse>, Status> {
+        let arrived = Instant::now();
         let req = request.into_inner();
         let cred = credential(&req.worker_id)?;
         let job = job_id(&req.job_id)?;
@@ -787,6 +797,7 @@ impl Workers for Service {
                 Ok(s) => s,
                 Err(e) => {
                     core.count_bad_result(w);
+                    core.counters.results_refused += 1;
                     warn!("result from {} refused: {}", cred.id, e.message());
                     return Err(e);
                 }
@@ -826,6 +837,7 @@ impl Workers for Service {
         };
         if let Some(rx) = rx {
             durable(rx).await.map_err(internal)?;
+            self.shared.metrics.merge.observe(arrived.elapsed());
         }
         if merged {
             tokio::spawn(finish_job(self.shared.clone(), job));

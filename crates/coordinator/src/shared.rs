@@ -10,6 +10,7 @@ use tracing::{error, info};
 
 use crate::config::Config;
 use crate::error::CoordinatorError;
+use crate::metrics::Metrics;
 use crate::scheduler::Scheduler;
 use crate::store::{JobPhase, Op, Store};
 use tessera_proto::ids::JobId;
@@ -30,6 +31,8 @@ pub(crate) struct Shared {
     /// Bumped whenever units become available (long-polling leases wake on it).
     pub(crate) work: watch::Sender<u64>,
     pub(crate) config: Config,
+    /// Timings recorded outside the scheduler's lock (the writer holds it too).
+    pub(crate) metrics: Arc<Metrics>,
 }
 
 /// The shared state, the writer's queue, and jobs whose units were all in at the last stop.
@@ -83,6 +86,7 @@ impl Shared {
             changed: watch::channel(0).0,
             work: watch::channel(0).0,
             config,
+            metrics: Arc::default(),
         });
         Ok((shared, rx, to_finish))
     }
@@ -131,7 +135,11 @@ pub(crate) fn now_ms() -> i64 {
 }
 
 /// Commits queued writes in groups: one fsync covers every result that arrived meanwhile.
-pub(crate) async fn writer(store: Arc<Store>, mut rx: mpsc::UnboundedReceiver<Write>) {
+pub(crate) async fn writer(
+    store: Arc<Store>,
+    mut rx: mpsc::UnboundedReceiver<Write>,
+    metrics: Arc<Metrics>,
+) {
     while let Some(first) = rx.recv().await {
         let mut group = vec![first];
         while group.len() < 256 {
@@ -147,10 +155,16 @@ pub(crate) async fn writer(store: Arc<Store>, mut rx: mpsc::UnboundedReceiver<Wr
             waiters.push(w.done);
         }
         let store = store.clone();
+        let bytes: u64 = ops.iter().map(Op::payload_len).sum();
+        let start = std::time::Instant::now();
         let result = tokio::task::spawn_blocking(move || store.apply(&ops))
             .await
             .map_err(|e| e.to_string())
             .and_then(|r| r.map_err(|e| e.to_string()));
+        metrics.commit.observe(start.elapsed());
+        metrics
+            .written_bytes
+            .fetch_add(bytes, std::sync::atomic::Ordering::Relaxed);
         if let Err(e) = &result {
             error!("state commit failed: {e}");
         }

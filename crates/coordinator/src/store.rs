@@ -312,6 +312,22 @@ pub enum Op {
     DropScene(String),
 }
 
+impl Op {
+    /// Bytes of the value this op writes, before sealing (0 for a deletion): what metrics
+    /// count as written.
+    pub fn payload_len(&self) -> u64 {
+        match self {
+            Op::PutScene(_, scene) => scene.text.len() as u64,
+            Op::PutTile(_, _, b) | Op::PutPending(_, _, _, b) | Op::PutUnit(_, _, _, _, b) => {
+                b.len() as u64
+            }
+            // Records are a few hundred bytes of JSON: counted as their fixed overhead only.
+            Op::PutJob(_) | Op::PutAudit(_) => 256,
+            Op::DelPending(..) | Op::DelTile(..) | Op::DropSums(_) | Op::DropScene(_) => 0,
+        }
+    }
+}
+
 /// A worker an audit convicted: two other workers rendered one of its units to other bits.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct AuditRecord {

@@ -241,15 +241,21 @@ pub fn write_png_preview(path: &Path, image: &Image, preview: Preview) -> Result
         message: e.to_string(),
     };
     let mut writer = enc.write_header().map_err(png_err)?;
-    let scale = preview.exposure.exp2();
-    let data: Vec<u8> = image
-        .rgb
-        .iter()
-        .flat_map(|p| p.map(|c| to_srgb8(aces(c * scale))))
-        .collect();
-    writer.write_image_data(&data).map_err(png_err)?;
+    writer
+        .write_image_data(&tone_map(&image.rgb, preview))
+        .map_err(png_err)?;
     writer.finish().map_err(png_err)?;
     Ok(())
+}
+
+/// 8-bit sRGB values (R, G, B per pixel) of linear radiance, as previews show it: exposure,
+/// then the ACES filmic curve (Narkowicz's fit), then the sRGB transfer function. The farm's
+/// dashboard maps its previews with this too, so they show what `--preview` would.
+pub fn tone_map(rgb: &[[f32; 3]], preview: Preview) -> Vec<u8> {
+    let scale = preview.exposure.exp2();
+    rgb.iter()
+        .flat_map(|p| p.map(|c| to_srgb8(aces(c * scale))))
+        .collect()
 }
 
 fn aces(x: f32) -> f32 {

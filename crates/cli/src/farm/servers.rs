@@ -69,6 +69,10 @@ pub struct CoordinatorArgs {
     /// Most client connections open at once.
     #[arg(long, default_value_t = config::DEFAULT_MAX_CONNECTIONS as u32, value_parser = clap::value_parser!(u32).range(1..))]
     max_connections: u32,
+    /// Address to serve the web dashboard and Prometheus metrics (/metrics) on, e.g.
+    /// 127.0.0.1:7880; off unless given. Same token and TLS as the gRPC API.
+    #[arg(long, value_name = "ADDR")]
+    http: Option<String>,
 }
 
 /// Arguments of `tessera worker`.
@@ -136,6 +140,20 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
             .await
             .with_context(|| format!("--listen {}: cannot listen", args.listen))?;
         let addr = listener.local_addr()?;
+        let http = match &args.http {
+            Some(a) => Some(
+                tokio::net::TcpListener::bind(a)
+                    .await
+                    .with_context(|| format!("--http {a}: cannot listen"))?,
+            ),
+            None => None,
+        };
+        let http_addr = http.as_ref().map(|l| l.local_addr()).transpose()?;
+        let scheme = if config.tls.is_some() {
+            "https"
+        } else {
+            "http"
+        };
         // Said once the store is open and the TLS key loaded, so that a script (or a person)
         // waiting for it knows the coordinator is really up; a failure before that is the
         // one line of the error instead. stdout is line-buffered, so the newline sends it.
@@ -143,8 +161,15 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
         let ready = move || {
             tracing::info!("auth: {auth}");
             let _ = writeln!(std::io::stdout(), "listening on {addr}");
+            if let Some(h) = http_addr {
+                let _ = writeln!(std::io::stdout(), "dashboard on {scheme}://{h}/");
+            }
         };
-        tessera_coordinator::serve_when_ready(config, listener, shutdown_signal(), ready).await?;
+        let listeners = tessera_coordinator::Listeners {
+            grpc: listener,
+            http,
+        };
+        tessera_coordinator::serve_when_ready(config, listeners, shutdown_signal(), ready).await?;
         Ok(())
     })
 }

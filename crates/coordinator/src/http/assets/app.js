@@ -1,0 +1,218 @@
+// The dashboard: three views over the coordinator's JSON, refreshed every second. No build
+// step and no dependencies, so the coordinator serves it as it is.
+"use strict";
+
+const main = document.getElementById("main");
+const POLL_MS = 1000;
+
+function el(tag, attrs = {}, ...children) {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k === "class") e.className = v;
+    else if (k.startsWith("on")) e.addEventListener(k.slice(2), v);
+    else e.setAttribute(k, v);
+  }
+  for (const c of children) e.append(c instanceof Node ? c : String(c));
+  return e;
+}
+
+async function api(path, opts = {}) {
+  const r = await fetch(path, { credentials: "same-origin", ...opts });
+  if (r.status === 401) { location.reload(); throw new Error("logged out"); }
+  const body = await r.json();
+  if (!r.ok) throw new Error(body.error || r.statusText);
+  return body;
+}
+
+const fmt = {
+  pct: (a, b) => (b > 0 ? (100 * a / b) : 0),
+  msps: (s) => (s > 0 ? (s / 1e6).toFixed(2) : "–"),
+  noise: (r) => (r > 0 ? (100 * r).toFixed(2) + "%" : "–"),
+  eta: (s) => {
+    if (s < 0) return "–";
+    if (s < 60) return Math.round(s) + " s";
+    if (s < 3600) return Math.round(s / 60) + " min";
+    return (s / 3600).toFixed(1) + " h";
+  },
+  count: (n) => n.toLocaleString("en-US"),
+  ago: (ms) => (ms < 1000 ? "now" : ms < 60000 ? Math.round(ms / 1000) + " s ago" : Math.round(ms / 60000) + " min ago"),
+};
+
+function bar(done, total) {
+  const p = fmt.pct(done, total);
+  return el("span", {}, el("span", { class: "bar" }, el("span", { style: `width:${p.toFixed(1)}%` })), " ", p.toFixed(1) + "%");
+}
+
+function stateTag(s) { return el("span", { class: "state " + s }, s); }
+
+function live(s) { return s === "queued" || s === "running"; }
+
+async function cancel(id) {
+  if (!confirm(`Cancel ${id}?`)) return;
+  try { await api(`/api/jobs/${id}/cancel`, { method: "POST" }); } catch (e) { alert(e.message); }
+  refresh();
+}
+
+// ---- job list
+
+function jobsView(jobs) {
+  const rows = jobs.map((j) => el("tr", { "data-job": j.id },
+    el("td", {}, el("a", { href: `/jobs/${j.id}` }, j.id)),
+    el("td", {}, j.scene),
+    el("td", {}, stateTag(j.state)),
+    el("td", {}, bar(j.samples_done, j.samples_total)),
+    el("td", { class: "num" }, `${fmt.count(j.samples_done)} / ${fmt.count(j.samples_total)}`),
+    el("td", { class: "num" }, fmt.msps(j.samples_per_second)),
+    el("td", { class: "num" }, fmt.noise(j.noise_relative)),
+    el("td", { class: "num" }, j.state === "done" ? "done" : fmt.eta(j.eta_seconds)),
+    el("td", { class: "num" }, j.priority),
+    el("td", {}, live(j.state) ? el("button", { class: "danger", onclick: () => cancel(j.id) }, "Cancel") : ""),
+  ));
+  return [
+    el("h1", {}, "Jobs ", el("span", { class: "muted" }, `(${jobs.length})`)),
+    jobs.length === 0 ? el("p", { class: "muted" }, "No jobs yet: tessera submit SCENE --spp N") :
+    el("table", { id: "jobs" },
+      el("thead", {}, el("tr", {}, ...["Job", "Scene", "State", "Progress", "Samples", "Msamples/s", "Noise", "ETA", "Priority", ""].map((h, i) => el("th", { class: i >= 4 && i <= 8 ? "num" : "" }, h)))),
+      el("tbody", {}, ...rows)),
+  ];
+}
+
+// ---- one job
+
+const preview = { exposure: 0, view: "color", shown: null, loading: false, lastLoad: 0 };
+
+function previewUrl(id, tag) {
+  return `/api/jobs/${id}/preview.png?exposure=${preview.exposure}&view=${preview.view}&t=${tag}`;
+}
+
+// Loads the next preview off screen and swaps it in once decoded, so the picture never
+// flickers; at most one load at a time, and at most one a second.
+function updatePreview(j) {
+  const img = document.getElementById("preview");
+  if (!img || preview.loading) return;
+  const tag = `${j.units_done}-${j.state}-${preview.exposure}-${preview.view}`;
+  if (tag === preview.shown) return;
+  if (live(j.state) && Date.now() - preview.lastLoad < 1000) return;
+  if (j.units_done === 0 && live(j.state)) return;
+  preview.loading = true;
+  preview.lastLoad = Date.now();
+  const next = new Image();
+  next.onload = () => {
+    img.src = next.src;
+    img.dataset.units = j.units_done;
+    img.dataset.state = j.state;
+    img.dataset.view = preview.view;
+    preview.shown = tag;
+    preview.loading = false;
+    document.getElementById("preview-note").textContent =
+      preview.view === "noise" ? "relative noise per tile: blue 0.1%, green 3%, red 100%" : "";
+  };
+  next.onerror = async () => {
+    preview.loading = false;
+    preview.shown = tag;
+    let msg = "no preview";
+    try { const r = await fetch(next.src); msg = (await r.json()).error; } catch (_) { /* keep the default */ }
+    document.getElementById("preview-note").textContent = msg;
+  };
+  next.src = previewUrl(j.id, tag);
+}
+
+function jobView(j) {
+  const stats = [
+    ["State", stateTag(j.state)],
+    ["Progress", bar(j.samples_done, j.samples_total)],
+    ["Units", `${fmt.count(j.units_done)} / ${fmt.count(j.units_total)} (${j.units_leased} leased)`],
+    ["Samples", `${fmt.count(j.samples_done)} / ${fmt.count(j.samples_total)}`],
+    ["Msamples/s", fmt.msps(j.samples_per_second)],
+    ["Noise", `${fmt.noise(j.noise_relative)} (rms ${j.noise_rms.toPrecision(3)})`],
+    ["ETA", j.state === "done" ? "done" : fmt.eta(j.eta_seconds)],
+    ["Image", `${j.width}×${j.height}, ${j.spp} spp, seed ${j.seed}`],
+    ["Priority", j.priority],
+    ["Output", j.output],
+  ];
+  if (j.error) stats.push(["Error", el("span", { class: "error" }, j.error)]);
+  const side = [el("dl", { class: "stats", id: "stats" }, ...stats.flatMap(([k, v]) => [el("dt", {}, k), el("dd", { id: "stat-" + k.toLowerCase().replace(/\W/g, "") }, v)]))];
+  const actions = el("p", { class: "controls" });
+  if (live(j.state)) actions.append(el("button", { class: "danger", onclick: () => cancel(j.id) }, "Cancel"));
+  if (j.state === "done" && j.frames.length === 0) actions.append(el("a", { id: "download", href: `/api/jobs/${j.id}/output.exr`, download: j.output }, "Download EXR"));
+  side.push(actions);
+  if (j.frames.length > 0) {
+    side.push(el("table", { id: "frames" },
+      el("thead", {}, el("tr", {}, el("th", {}, "Frame"), el("th", {}, "State"), el("th", {}, "Units"), el("th", {}, ""))),
+      el("tbody", {}, ...j.frames.map((f) => el("tr", {},
+        el("td", {}, el("a", { href: `/jobs/${f.id}` }, f.frame)),
+        el("td", {}, stateTag(f.state)),
+        el("td", { class: "num" }, `${f.units_done}/${f.units_total}`),
+        el("td", {}, f.state === "done" ? el("a", { href: `/api/jobs/${j.id}/output.exr?frame=${f.frame}`, download: f.output }, "EXR") : ""))))));
+    return [el("h1", {}, `${j.id} `, el("span", { class: "muted" }, `${j.scene}, ${j.frames.length} frames`)), el("div", { class: "job" }, el("div", {}, el("p", { class: "muted" }, "A frame range: open a frame for its preview.")), el("div", {}, ...side))];
+  }
+  let img = document.getElementById("preview");
+  let box;
+  if (img && img.dataset.job === j.id) {
+    box = img.closest(".preview-col");
+  } else {
+    img = el("img", { id: "preview", alt: "preview", "data-job": j.id, width: j.width, height: j.height });
+    // Small frames are shown up to twice their size, pixels kept sharp.
+    img.style.width = `min(100%, ${2 * j.width}px)`;
+    img.style.height = "auto";
+    const expo = el("input", { id: "exposure", type: "range", min: "-6", max: "6", step: "0.5", value: String(preview.exposure) });
+    const expoLabel = el("span", { id: "exposure-value" }, `${preview.exposure} EV`);
+    expo.addEventListener("input", () => { preview.exposure = Number(expo.value); expoLabel.textContent = `${preview.exposure} EV`; preview.lastLoad = 0; refresh(); });
+    const toggle = el("button", { id: "view-toggle" }, preview.view === "noise" ? "Show image" : "Show noise");
+    toggle.addEventListener("click", () => { preview.view = preview.view === "noise" ? "color" : "noise"; toggle.textContent = preview.view === "noise" ? "Show image" : "Show noise"; preview.lastLoad = 0; refresh(); });
+    box = el("div", { class: "preview-col" },
+      el("div", { class: "preview" }, img),
+      el("div", { class: "controls" }, el("label", { for: "exposure" }, "Exposure"), expo, expoLabel, toggle, el("span", { id: "preview-note", class: "muted" }, "")));
+  }
+  return [el("h1", {}, `${j.id} `, el("span", { class: "muted" }, j.scene)), el("div", { class: "job" }, box, el("div", {}, ...side))];
+}
+
+// ---- workers
+
+function workersView(ws) {
+  const rows = ws.map((w) => el("tr", {},
+    el("td", {}, w.name, el("div", { class: "muted" }, w.id)),
+    el("td", {}, w.host || "–"),
+    el("td", { class: "num" }, w.threads),
+    el("td", {}, stateTag(w.state), w.convicted ? el("div", { class: "error" }, w.convicted) : ""),
+    el("td", { class: "num" }, w.leases),
+    el("td", { class: "num" }, fmt.count(w.units_done)),
+    el("td", { class: "num" }, fmt.msps(w.samples_per_second)),
+    el("td", { class: "num" }, w.bad_results),
+    el("td", { class: "num" }, w.audits_passed),
+    el("td", {}, fmt.ago(w.last_seen_ms_ago)),
+  ));
+  return [
+    el("h1", {}, "Workers ", el("span", { class: "muted" }, `(${ws.filter((w) => w.state === "alive").length} alive)`)),
+    ws.length === 0 ? el("p", { class: "muted" }, "No workers yet: tessera worker --coordinator URL") :
+    el("table", { id: "workers" },
+      el("thead", {}, el("tr", {}, ...["Worker", "Host", "Threads", "State", "Leases", "Units done", "Msamples/s", "Bad results", "Audits passed", "Last heartbeat"].map((h, i) => el("th", { class: [2, 4, 5, 6, 7, 8].includes(i) ? "num" : "" }, h)))),
+      el("tbody", {}, ...rows)),
+  ];
+}
+
+// ---- routing and polling
+
+async function refresh() {
+  const path = location.pathname;
+  try {
+    let nodes;
+    let job = null;
+    if (path === "/workers") {
+      nodes = workersView(await api("/api/workers"));
+    } else if (path.startsWith("/jobs/")) {
+      job = await api(`/api/jobs/${encodeURIComponent(path.slice(6))}`);
+      nodes = jobView(job);
+    } else {
+      nodes = jobsView(await api("/api/jobs"));
+    }
+    main.replaceChildren(...nodes);
+    if (job && job.frames.length === 0) updatePreview(job);
+  } catch (e) {
+    main.replaceChildren(el("p", { class: "error", id: "error" }, e.message));
+  }
+}
+
+document.getElementById(location.pathname === "/workers" ? "nav-workers" : "nav-jobs").classList.add("active");
+refresh();
+setInterval(refresh, POLL_MS);

@@ -1,0 +1,692 @@
+//! The dashboard and metrics over HTTP (`tessera coordinator --http ADDR`): a few pages with
+//! no build step, the JSON they read, a progressive preview of each job, the finished EXR, and
+//! Prometheus metrics at `/metrics` (docs/farm.md, "Dashboard and metrics").
+//!
+//! It answers from the same state as the gRPC API, through the same handlers where one exists
+//! (a job's status, the lists, cancel), so the two never disagree. With a token configured,
+//! every request but the login form's must carry it: as `Authorization: Bearer`, or as the
+//! session cookie the login sets. With TLS configured it serves TLS only, with the same
+//! identity and client CA as the gRPC API.
+
+mod preview;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::body::Body;
+use axum::extract::{Path, Query, Request, State};
+use axum::http::{header, HeaderMap, HeaderValue, Method, StatusCode};
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Form, Json, Router};
+use serde_json::{json, Value};
+use tessera_proto::ids::JobId;
+use tessera_proto::v1 as pb;
+use tessera_proto::v1::jobs_server::Jobs;
+use tokio::net::TcpListener;
+use tokio::sync::watch;
+use tokio_rustls::rustls;
+use tonic::Request as RpcRequest;
+use tracing::{debug, warn};
+
+use crate::config::ServerTls;
+use crate::error::CoordinatorError;
+use crate::metrics::{Gauges, WorkerLine};
+use crate::service::Service;
+use crate::store::{JobPhase, FILE_NAME};
+
+use preview::{NoPreview, Previews, View};
+
+/// Most HTTP connections open at once; more wait to be accepted.
+const MAX_CONNECTIONS: usize = 256;
+
+/// A client has this long to finish its TLS handshake and send a request's headers.
+const HANDSHAKE: Duration = Duration::from_secs(10);
+
+/// The session cookie's name.
+const COOKIE: &str = "tessera_session";
+
+/// The dashboard's state: the service it answers through, its previews, and what a request
+/// must present.
+#[derive(Clone)]
+struct App {
+    svc: Service,
+    previews: Arc<Previews>,
+    auth: Arc<Auth>,
+}
+
+/// What a request must present when a token is configured: the token's hash (for the bearer
+/// header) and the session value (for the cookie), both compared in constant time.
+struct Auth {
+    token: Option<[u8; 32]>,
+    session: Option<String>,
+    secure: bool,
+}
+
+impl Auth {
+    fn new(token: Option<&tessera_proto::Secret>, secure: bool) -> Self {
+        Self {
+            token: token.map(|t| crate::server::sha256(t.expose().as_bytes())),
+            // Derived from the token, not the token itself: a cookie that leaks does not
+            // give away the farm's token (which the workers and clients use too), and every
+            // session ends when the token is changed.
+            session: token.map(|t| {
+                crate::server::sha256(
+                    format!("tessera dashboard session\0{}", t.expose()).as_bytes(),
+                )
+                .iter()
+                .map(|b| format!("{b:02x}"))
+                .collect()
+            }),
+            secure,
+        }
+    }
+
+    fn token_ok(&self, presented: &str) -> bool {
+        use subtle::ConstantTimeEq;
+        self.token.is_some_and(|want| {
+            bool::from(crate::server::sha256(presented.as_bytes()).ct_eq(&want))
+        })
+    }
+
+    fn allows(&self, headers: &HeaderMap) -> bool {
+        use subtle::ConstantTimeEq;
+        let Some(session) = &self.session else {
+            return true;
+        };
+        let bearer = headers
+            .get(header::AUTHORIZATION)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.strip_prefix("Bearer "));
+        if bearer.is_some_and(|t| self.token_ok(t)) {
+            return true;
+        }
+        headers
+            .get_all(header::COOKIE)
+            .iter()
+            .filter_map(|v| v.to_str().ok())
+            .flat_map(|v| v.split(';'))
+            .filter_map(|kv| kv.trim().strip_prefix(COOKIE)?.strip_prefix('='))
+            .any(|v| v.len() == session.len() && bool::from(v.as_bytes().ct_eq(session.as_bytes())))
+    }
+}
+
+/// The routes, behind the token check.
+fn router(app: App) -> Router {
+    Router::new()
+        .route("/", get(page))
+        .route("/jobs/{id}", get(page))
+        .route("/workers", get(page))
+        .route("/static/app.js", get(app_js))
+        .route("/static/style.css", get(style_css))
+        .route("/api/jobs", get(list_jobs))
+        .route("/api/jobs/{id}", get(job))
+        .route("/api/jobs/{id}/cancel", post(cancel))
+        .route("/api/jobs/{id}/preview.png", get(preview_png))
+        .route("/api/jobs/{id}/output.exr", get(output_exr))
+        .route("/api/workers", get(list_workers))
+        .route("/metrics", get(metrics))
+        .route("/login", post(login))
+        .route("/logout", post(logout))
+        .fallback(not_found)
+        .layer(axum::middleware::from_fn_with_state(app.clone(), check))
+        .with_state(app)
+}
+
+/// Lets a request through if it carries the token (or is the login form's), else answers 401:
+/// the login page to a browser, a line of text to anything else.
+async fn check(State(app): State<App>, req: Request, next: Next) -> Response {
+    let open = req.method() == Method::POST && req.uri().path() == "/login";
+    if open || app.auth.allows(req.headers()) {
+        return next.run(req).await;
+    }
+    let browser = req
+        .headers()
+        .get(header::ACCEPT)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|a| a.contains("text/html"));
+    unauthorized(browser, req.uri().path(), None)
+}
+
+fn unauthorized(browser: bool, next: &str, message: Option<&str>) -> Response {
+    let mut r = if browser {
+        (
+            StatusCode::UNAUTHORIZED,
+            [(header::CONTENT_TYPE, "text/html; charset=utf-8")],
+            login_page(next, message),
+        )
+            .into_response()
+    } else {
+        (
+            StatusCode::UNAUTHORIZED,
+            "this dashboard requires the farm's token: send Authorization: Bearer TOKEN, or \
+             log in from a browser\n",
+        )
+            .into_response()
+    };
+    r.headers_mut().insert(
+        header::WWW_AUTHENTICATE,
+        HeaderValue::from_static("Bearer realm=\"tessera\""),
+    );
+    r
+}
+
+/// Where to go after logging in: a path of this site only, never another site's address.
+fn local_path(next: &str) -> &str {
+    let ok = next.starts_with('/')
+        && !next.starts_with("//")
+        && !next.contains('\\')
+        && next.bytes().all(|b| b.is_ascii_graphic());
+    if ok {
+        next
+    } else {
+        "/"
+    }
+}
+
+fn escape_html(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+        .replace('\'', "&#39;")
+}
+
+fn login_page(next: &str, message: Option<&str>) -> String {
+    include_str!("assets/login.html")
+        .replace("{next}", &escape_html(local_path(next)))
+        .replace(
+            "{message}",
+            &message
+                .map(|m| format!("<p class=\"error\">{}</p>", escape_html(m)))
+                .unwrap_or_default(),
+        )
+}
+
+#[derive(serde::Deserialize)]
+struct LoginForm {
+    token: String,
+    #[serde(default)]
+    next: String,
+}
+
+async fn login(State(app): State<App>, Form(form): Form<LoginForm>) -> Response {
+    let Some(session) = &app.auth.session else {
+        return redirect(local_path(&form.next), None);
+    };
+    if !app.auth.token_ok(&form.token) {
+        // Slows guessing down; a real token is far too long to guess anyway.
+        tokio::time::sleep(Duration::from_millis(250)).await;
+        return unauthorized(true, &form.next, Some("wrong token"));
+    }
+    let secure = if app.auth.secure { "; Secure" } else { "" };
+    let cookie =
+        format!("{COOKIE}={session}; Path=/; HttpOnly; SameSite=Strict; Max-Age=2592000{secure}");
+    redirect(local_path(&form.next), Some(cookie))
+}
+
+async fn logout() -> Response {
+    redirect(
+        "/",
+        Some(format!(
+            "{COOKIE}=; Path=/; HttpOnly; SameSite=Strict; Max-Age=0"
+        )),
+    )
+}
+
+fn redirect(to: &str, cookie: Option<String>) -> Response {
+    let mut r = (StatusCode::SEE_OTHER, [(header::LOCATION, to.to_string())]).into_response();
+    if let Some(c) = cookie.and_then(|c| HeaderValue::from_str(&c).ok()) {
+        r.headers_mut().insert(header::SET_COOKIE, c);
+    }
+    r
+}
+
+async fn not_found() -> Response {
+    (StatusCode::NOT_FOUND, "no such page\n").into_response()
+}
+
+async fn page() -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, "text/html; charset=utf-8"),
+            (header::CACHE_CONTROL, "no-cache"),
+        ],
+        include_str!("assets/index.html"),
+    )
+        .into_response()
+}
+
+async fn app_js() -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, "text/javascript; charset=utf-8"),
+            (header::CACHE_CONTROL, "no-cache"),
+        ],
+        include_str!("assets/app.js"),
+    )
+        .into_response()
+}
+
+async fn style_css() -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, "text/css; charset=utf-8"),
+            (header::CACHE_CONTROL, "no-cache"),
+        ],
+        include_str!("assets/style.css"),
+    )
+        .into_response()
+}
+
+/// A gRPC refusal as an HTTP answer with the same message.
+fn refused(s: tonic::Status) -> Response {
+    use tonic::Code;
+    let code = match s.code() {
+        Code::NotFound => StatusCode::NOT_FOUND,
+        Code::InvalidArgument => StatusCode::BAD_REQUEST,
+        Code::FailedPrecondition => StatusCode::CONFLICT,
+        Code::PermissionDenied | Code::Unauthenticated => StatusCode::FORBIDDEN,
+        _ => StatusCode::INTERNAL_SERVER_ERROR,
+    };
+    (code, Json(json!({ "error": s.message() }))).into_response()
+}
+
+fn state_name(state: i32) -> &'static str {
+    match pb::JobState::try_from(state) {
+        Ok(pb::JobState::Queued) => "queued",
+        Ok(pb::JobState::Running) => "running",
+        Ok(pb::JobState::Done) => "done",
+        Ok(pb::JobState::Cancelled) => "cancelled",
+        Ok(pb::JobState::Failed) => "failed",
+        _ => "unknown",
+    }
+}
+
+/// A job's status as the dashboard reads it: `tessera status`'s fields, named for JSON.
+fn job_json(s: &pb::JobStatus) -> Value {
+    let settings = s.settings.unwrap_or_default();
+    json!({
+        "id": s.job_id,
+        "state": state_name(s.state),
+        "priority": s.priority,
+        "scene": s.scene_name,
+        "output": s.output_name,
+        "width": s.width,
+        "height": s.height,
+        "spp": settings.spp,
+        "seed": settings.seed,
+        "frame": settings.frame,
+        "noise_target": settings.noise_target,
+        "tile_size": s.tile_size,
+        "units_done": s.units_done,
+        "units_total": s.units_total,
+        "units_leased": s.units_leased,
+        "samples_done": s.samples_done,
+        "samples_total": s.samples_total,
+        "samples_per_second": s.samples_per_second,
+        "eta_seconds": s.eta_seconds,
+        "noise_rms": s.noise_rms,
+        "noise_relative": s.noise_relative,
+        "nonfinite_samples": s.nonfinite_samples,
+        "error": s.error,
+        "submitted_unix_ms": s.submitted_unix_ms,
+        "finished_unix_ms": s.finished_unix_ms,
+        "range_id": s.range_job_id,
+        "frames": s.frames.iter().map(|f| json!({
+            "frame": f.frame,
+            "id": f.job_id,
+            "state": state_name(f.state),
+            "units_done": f.units_done,
+            "units_total": f.units_total,
+            "output": f.output_name,
+            "error": f.error,
+        })).collect::<Vec<_>>(),
+    })
+}
+
+async fn list_jobs(State(app): State<App>) -> Response {
+    match app
+        .svc
+        .list_jobs(RpcRequest::new(pb::ListJobsRequest {}))
+        .await
+    {
+        Ok(r) => Json(r.into_inner().jobs.iter().map(job_json).collect::<Vec<_>>()).into_response(),
+        Err(s) => refused(s),
+    }
+}
+
+async fn job(State(app): State<App>, Path(id): Path<String>) -> Response {
+    let req = RpcRequest::new(pb::GetJobRequest { job_id: id });
+    match app.svc.get_job(req).await {
+        Ok(r) => Json(job_json(r.get_ref())).into_response(),
+        Err(s) => refused(s),
+    }
+}
+
+async fn cancel(State(app): State<App>, Path(id): Path<String>) -> Response {
+    let req = RpcRequest::new(pb::CancelJobRequest { job_id: id });
+    match app.svc.cancel_job(req).await {
+        Ok(r) => Json(json!({ "state": state_name(r.get_ref().state) })).into_response(),
+        Err(s) => refused(s),
+    }
+}
+
+async fn list_workers(State(app): State<App>) -> Response {
+    let req = RpcRequest::new(pb::ListWorkersRequest {});
+    match app.svc.list_workers(req).await {
+        Ok(r) => Json(
+            r.into_inner()
+                .workers
+                .iter()
+                .map(|w| {
+                    let state = if w.convicted.is_empty() && !w.quarantined {
+                        if w.suspect {
+                            "suspect"
+                        } else if w.alive {
+                            "alive"
+                        } else {
+                            "gone"
+                        }
+                    } else if w.convicted.is_empty() {
+                        "quarantined"
+                    } else {
+                        "convicted"
+                    };
+                    json!({
+                        "id": w.worker_id,
+                        "name": w.name,
+                        "host": w.host,
+                        "threads": w.cores,
+                        "version": w.version,
+                        "state": state,
+                        "leases": w.leases,
+                        "units_done": w.units_done,
+                        "samples_done": w.samples_done,
+                        "samples_per_second": w.samples_per_second,
+                        "bad_results": w.bad_results,
+                        "quarantined": w.quarantined,
+                        "convicted": w.convicted,
+                        "audits_passed": w.audits_passed,
+                        "last_seen_ms_ago": w.last_seen_ms_ago,
+                    })
+                })
+                .collect::<Vec<_>>(),
+        )
+        .into_response(),
+        Err(s) => refused(s),
+    }
+}
+
+#[derive(serde::Deserialize)]
+struct PreviewQuery {
+    #[serde(default)]
+    exposure: f32,
+    #[serde(default)]
+    view: Option<String>,
+}
+
+async fn preview_png(
+    State(app): State<App>,
+    Path(id): Path<String>,
+    Query(q): Query<PreviewQuery>,
+) -> Response {
+    let id: JobId = match id.parse() {
+        Ok(id) => id,
+        Err(e) => return refused(tonic::Status::invalid_argument(format!("{e}"))),
+    };
+    let view = match q.view.as_deref() {
+        None | Some("color") => View::Color,
+        Some("noise") => View::Noise,
+        Some(v) => {
+            return refused(tonic::Status::invalid_argument(format!(
+                "view {:?}: expected color or noise",
+                crate::error::truncate(v)
+            )))
+        }
+    };
+    let exposure = if q.exposure.is_finite() {
+        q.exposure
+    } else {
+        0.0
+    };
+    match app.previews.png(&app.svc.shared, id, exposure, view).await {
+        Ok(png) => (
+            [
+                (header::CONTENT_TYPE, "image/png"),
+                (header::CACHE_CONTROL, "no-store"),
+            ],
+            Body::from(png.as_ref().clone()),
+        )
+            .into_response(),
+        Err(NoPreview::Unknown) => refused(tonic::Status::not_found(format!("unknown job {id}"))),
+        Err(NoPreview::Range) => refused(tonic::Status::failed_precondition(format!(
+            "{id} is a frame range: open one of its frames for a preview"
+        ))),
+        Err(NoPreview::Gone(m)) => refused(tonic::Status::failed_precondition(m)),
+        Err(NoPreview::Failed(m)) => refused(tonic::Status::internal(m)),
+    }
+}
+
+#[derive(serde::Deserialize)]
+struct OutputQuery {
+    frame: Option<u32>,
+}
+
+async fn output_exr(
+    State(app): State<App>,
+    Path(id): Path<String>,
+    Query(q): Query<OutputQuery>,
+) -> Response {
+    use tokio_stream::StreamExt as _;
+    let req = RpcRequest::new(pb::FetchResultRequest {
+        job_id: id,
+        frame: q.frame,
+    });
+    let mut stream = match app.svc.fetch_result(req).await {
+        Ok(r) => r.into_inner(),
+        Err(s) => return refused(s),
+    };
+    let mut data = Vec::new();
+    let mut name = String::new();
+    while let Some(chunk) = stream.next().await {
+        match chunk {
+            Ok(c) => {
+                data.extend_from_slice(&c.data);
+                name = c.output_name;
+            }
+            Err(s) => return refused(s),
+        }
+    }
+    // Output names are checked at submission (no quotes, separators or control characters).
+    let disposition = format!("attachment; filename=\"{}\"", name.replace('"', ""));
+    let mut r = ([(header::CONTENT_TYPE, "image/x-exr")], Body::from(data)).into_response();
+    if let Ok(v) = HeaderValue::from_str(&disposition) {
+        r.headers_mut().insert(header::CONTENT_DISPOSITION, v);
+    }
+    r
+}
+
+async fn metrics(State(app): State<App>) -> Response {
+    let shared = &app.svc.shared;
+    let mut g = {
+        let core = shared.scheduler();
+        let now = std::time::Instant::now();
+        let mut by_state = [0u64; 5];
+        for j in core.jobs.values() {
+            let i = match j.rec.phase {
+                JobPhase::Active if j.started => 1,
+                JobPhase::Active => 0,
+                JobPhase::Done => 2,
+                JobPhase::Cancelled => 3,
+                JobPhase::Failed => 4,
+            };
+            by_state[i] += 1;
+        }
+        let alive = |w: &crate::scheduler::Worker| {
+            !w.gone && now.duration_since(w.last_seen) <= core.lease_time
+        };
+        Gauges {
+            jobs: ["queued", "running", "done", "cancelled", "failed"]
+                .into_iter()
+                .zip(by_state)
+                .collect(),
+            workers_active: core.workers.values().filter(|w| alive(w)).count() as u64,
+            workers_quarantined: core.workers.values().filter(|w| w.quarantined).count() as u64,
+            leases: core.leases.values().filter(|l| l.active).count() as u64,
+            counters: core.counters,
+            workers: core
+                .workers
+                .iter()
+                .filter(|(_, w)| alive(w))
+                .map(|(&n, w)| WorkerLine {
+                    id: core.worker_id(n).to_string(),
+                    name: w.name.clone(),
+                    rate: w.rate.per_second(),
+                    samples: w.samples_done,
+                })
+                .collect(),
+            store_file_bytes: None,
+        }
+    };
+    g.store_file_bytes = tokio::fs::metadata(shared.config.data_dir.join(FILE_NAME))
+        .await
+        .ok()
+        .map(|m| m.len());
+    (
+        [(
+            header::CONTENT_TYPE,
+            "text/plain; version=0.0.4; charset=utf-8",
+        )],
+        shared.metrics.render(&g),
+    )
+        .into_response()
+}
+
+/// The TLS configuration of the dashboard: the gRPC API's identity, and its client CA if it
+/// has one (a farm that asks its clients for certificates asks browsers too).
+fn tls_config(tls: &ServerTls) -> Result<Arc<rustls::ServerConfig>, CoordinatorError> {
+    use rustls_pki_types::pem::PemObject;
+    use rustls_pki_types::{CertificateDer, PrivateKeyDer};
+    let bad =
+        |what: &str, e: &dyn std::fmt::Display| CoordinatorError::Http(format!("TLS {what}: {e}"));
+    let certs = CertificateDer::pem_slice_iter(&tls.cert_pem)
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| bad("certificate", &e))?;
+    let key = PrivateKeyDer::from_pem_slice(tls.key_pem.expose().as_bytes())
+        .map_err(|e| bad("key", &e))?;
+    let provider = Arc::new(rustls::crypto::ring::default_provider());
+    let builder = rustls::ServerConfig::builder_with_provider(provider.clone())
+        .with_safe_default_protocol_versions()
+        .map_err(|e| bad("versions", &e))?;
+    let builder = match &tls.client_ca_pem {
+        Some(ca) => {
+            let mut roots = rustls::RootCertStore::empty();
+            for c in CertificateDer::pem_slice_iter(ca) {
+                roots
+                    .add(c.map_err(|e| bad("client CA", &e))?)
+                    .map_err(|e| bad("client CA", &e))?;
+            }
+            let verifier = rustls::server::WebPkiClientVerifier::builder_with_provider(
+                Arc::new(roots),
+                provider,
+            )
+            .build()
+            .map_err(|e| bad("client CA", &e))?;
+            builder.with_client_cert_verifier(verifier)
+        }
+        None => builder.with_no_client_auth(),
+    };
+    let mut cfg = builder
+        .with_single_cert(certs, key)
+        .map_err(|e| bad("identity", &e))?;
+    cfg.alpn_protocols = vec![b"h2".to_vec(), b"http/1.1".to_vec()];
+    Ok(Arc::new(cfg))
+}
+
+/// Serves the dashboard on `listener` until `stop` turns true, then lets requests in flight
+/// finish (for at most a few seconds).
+pub(crate) async fn serve(
+    svc: Service,
+    listener: TcpListener,
+    mut stop: watch::Receiver<bool>,
+) -> Result<(), CoordinatorError> {
+    let config = &svc.shared.config;
+    let tls = config.tls.as_ref().map(tls_config).transpose()?;
+    let app = App {
+        auth: Arc::new(Auth::new(config.token.as_ref(), tls.is_some())),
+        previews: Arc::default(),
+        svc: svc.clone(),
+    };
+    let routes = router(app);
+    let acceptor = tls.map(tokio_rustls::TlsAcceptor::from);
+    let permits = Arc::new(tokio::sync::Semaphore::new(MAX_CONNECTIONS));
+    let graceful = hyper_util::server::graceful::GracefulShutdown::new();
+    loop {
+        let permit = tokio::select! {
+            p = permits.clone().acquire_owned() => p,
+            _ = stopped(&mut stop) => break,
+        };
+        let Ok(permit) = permit else { break };
+        let (tcp, peer) = tokio::select! {
+            r = listener.accept() => match r {
+                Ok(x) => x,
+                Err(e) => {
+                    // Out of descriptors and the like: wait instead of spinning.
+                    warn!("dashboard: accept failed: {e}");
+                    tokio::time::sleep(Duration::from_millis(100)).await;
+                    continue;
+                }
+            },
+            _ = stopped(&mut stop) => break,
+        };
+        let routes = routes.clone();
+        let acceptor = acceptor.clone();
+        let watcher = graceful.watcher();
+        tokio::spawn(async move {
+            let _permit = permit;
+            let io: Box<dyn Io> = match acceptor {
+                Some(a) => match tokio::time::timeout(HANDSHAKE, a.accept(tcp)).await {
+                    Ok(Ok(s)) => Box::new(s),
+                    Ok(Err(e)) => return debug!("dashboard: TLS handshake from {peer}: {e}"),
+                    Err(_) => return debug!("dashboard: TLS handshake from {peer} timed out"),
+                },
+                None => Box::new(tcp),
+            };
+            if let Err(e) = watcher.watch(serve_connection(io, routes)).await {
+                debug!("dashboard: connection from {peer}: {e}");
+            }
+        });
+    }
+    let _ = tokio::time::timeout(Duration::from_secs(5), graceful.shutdown()).await;
+    Ok(())
+}
+
+/// Returns once `stop` is true (or its sender is gone).
+async fn stopped(stop: &mut watch::Receiver<bool>) {
+    let _ = stop.wait_for(|s| *s).await;
+}
+
+/// A connection's byte stream, plain or TLS.
+trait Io: tokio::io::AsyncRead + tokio::io::AsyncWrite + Send + Unpin {}
+impl<T: tokio::io::AsyncRead + tokio::io::AsyncWrite + Send + Unpin> Io for T {}
+
+/// An accepted connection served over HTTP/1.1 or HTTP/2.
+fn serve_connection(
+    io: Box<dyn Io>,
+    routes: Router,
+) -> impl hyper_util::server::graceful::GracefulConnection<
+    Error = Box<dyn std::error::Error + Send + Sync>,
+> {
+    let mut builder =
+        hyper_util::server::conn::auto::Builder::new(hyper_util::rt::TokioExecutor::new());
+    builder
+        .http1()
+        .timer(hyper_util::rt::TokioTimer::new())
+        .header_read_timeout(HANDSHAKE);
+    let svc = hyper_util::service::TowerToHyperService::new(routes);
+    builder
+        .serve_connection_with_upgrades(hyper_util::rt::TokioIo::new(io), svc)
+        .into_owned()
+}

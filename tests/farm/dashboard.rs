@@ -1,0 +1,441 @@
+//! The dashboard and metrics over HTTP (`--http`): the token on every page and endpoint, the
+//! login, the preview against the merged sums and the EXR, the preview's rate limit, cancel,
+//! and metrics that parse as Prometheus text and agree with the gRPC status.
+
+use crate::common::*;
+
+/// Every route the dashboard serves, with a method; `JOB` is replaced by a real job's id.
+const ROUTES: &[(&str, &str)] = &[
+    ("GET", "/"),
+    ("GET", "/jobs/JOB"),
+    ("GET", "/workers"),
+    ("GET", "/static/app.js"),
+    ("GET", "/static/style.css"),
+    ("GET", "/api/jobs"),
+    ("GET", "/api/jobs/JOB"),
+    ("POST", "/api/jobs/JOB/cancel"),
+    ("GET", "/api/jobs/JOB/preview.png"),
+    ("GET", "/api/jobs/JOB/preview.png?view=noise&exposure=2"),
+    ("GET", "/api/jobs/JOB/output.exr"),
+    ("GET", "/api/workers"),
+    ("GET", "/metrics"),
+    ("POST", "/logout"),
+    ("GET", "/no/such/page"),
+    ("GET", "/api/jobs/job-999999"),
+];
+
+const TOKEN: &str = "dashboard-token-0123456789abcdef";
+
+async fn farm_with_token(dir: &Path) -> Coordinator {
+    Coordinator::start_with_dashboard(&dir.join("data"), Duration::from_secs(30), |c| {
+        c.token = Some(Secret::new(TOKEN));
+    })
+    .await
+}
+
+fn token_options() -> ClientOptions {
+    ClientOptions {
+        token: Some(Secret::new(TOKEN)),
+        tls: None,
+    }
+}
+
+/// The value of the session cookie a `Set-Cookie` header sets.
+fn session_cookie(reply: &Reply) -> String {
+    let set = reply.header("set-cookie").expect("a Set-Cookie header");
+    assert!(
+        set.contains("HttpOnly") && set.contains("SameSite=Strict"),
+        "{set}"
+    );
+    set.split(';').next().expect("cookie").to_string()
+}
+
+/// Without the token (none, a wrong bearer, a forged cookie) every page and endpoint answers
+/// 401, browsers get the login page, and nothing is done (the cancel does not cancel); with
+/// the token, as a bearer or as the login's cookie, each answers something else.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn every_page_and_endpoint_needs_the_token() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = farm_with_token(dir.path()).await;
+    let addr = coord.http.expect("dashboard");
+    let mut client = client_with(&coord.url(), &token_options()).await;
+    let job = submit(&mut client, &scene_text(16), 4, 2, 0).await;
+    let wrong_bearer = format!("Bearer {TOKEN}x");
+    let refusals: [&[(&str, &str)]; 5] = [
+        &[],
+        &[("authorization", &wrong_bearer)],
+        &[("authorization", TOKEN)],
+        &[("cookie", "tessera_session=0000")],
+        &[("cookie", "tessera_session=")],
+    ];
+    for (method, route) in ROUTES {
+        let path = route.replace("JOB", &job);
+        for headers in refusals {
+            let r = http(addr, method, &path, headers, "").await;
+            assert_eq!(
+                r.status,
+                401,
+                "{method} {path} with {headers:?}: {}",
+                r.text()
+            );
+            assert_eq!(
+                r.header("www-authenticate"),
+                Some("Bearer realm=\"tessera\"")
+            );
+        }
+        let r = http(addr, method, &path, &[("accept", "text/html")], "").await;
+        assert_eq!(r.status, 401);
+        assert!(r.text().contains("name=\"token\""), "{path}: no login form");
+    }
+    assert_eq!(
+        job_status(&mut client, &job).await.state,
+        pb::JobState::Queued as i32,
+        "a refused cancel cancelled"
+    );
+
+    // A wrong token at the login is refused; the right one sets a cookie that works, and the
+    // login only ever sends the browser back to a page of this site.
+    let form = "application/x-www-form-urlencoded";
+    let r = http(
+        addr,
+        "POST",
+        "/login",
+        &[("content-type", form)],
+        "token=nope&next=/",
+    )
+    .await;
+    assert_eq!(r.status, 401);
+    assert!(r.header("set-cookie").is_none());
+    assert!(r.text().contains("wrong token"));
+    let body = format!("token={TOKEN}&next=%2F%2Fevil.example%2F");
+    let r = http(addr, "POST", "/login", &[("content-type", form)], &body).await;
+    assert_eq!(r.status, 303);
+    assert_eq!(r.header("location"), Some("/"));
+    let cookie = session_cookie(&r);
+    assert!(!cookie.contains(TOKEN), "the cookie is the token itself");
+    let body = format!("token={TOKEN}&next=%2Fjobs%2F{job}");
+    let r = http(addr, "POST", "/login", &[("content-type", form)], &body).await;
+    assert_eq!(r.header("location"), Some(format!("/jobs/{job}").as_str()));
+
+    let bearer = format!("Bearer {TOKEN}");
+    for auth in [
+        ("authorization", bearer.as_str()),
+        ("cookie", cookie.as_str()),
+    ] {
+        for (method, route) in ROUTES {
+            if route.contains("cancel") || route.contains("logout") {
+                continue;
+            }
+            let path = route.replace("JOB", &job);
+            let r = http(addr, method, &path, &[auth], "").await;
+            let want = match *route {
+                "/no/such/page" | "/api/jobs/job-999999" => 404,
+                // Queued, nothing merged: the EXR is not ready; the preview is black.
+                "/api/jobs/JOB/output.exr" => 409,
+                _ => 200,
+            };
+            assert_eq!(r.status, want, "{method} {path}: {}", r.text());
+        }
+    }
+    let r = http(
+        addr,
+        "POST",
+        &format!("/api/jobs/{job}/cancel"),
+        &[("cookie", &cookie)],
+        "",
+    )
+    .await;
+    assert_eq!(r.status, 200, "{}", r.text());
+    assert_eq!(
+        job_status(&mut client, &job).await.state,
+        pb::JobState::Cancelled as i32
+    );
+    let r = http(addr, "POST", "/logout", &[("cookie", &cookie)], "").await;
+    assert_eq!(r.status, 303);
+    assert!(r
+        .header("set-cookie")
+        .is_some_and(|c| c.contains("Max-Age=0")));
+    coord.stop().await;
+}
+
+/// Decodes an 8-bit RGB PNG.
+fn decode_png(bytes: &[u8]) -> (u32, u32, Vec<u8>) {
+    let mut reader = png::Decoder::new(std::io::Cursor::new(bytes))
+        .read_info()
+        .expect("a PNG");
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).expect("frame");
+    assert_eq!(info.color_type, png::ColorType::Rgb);
+    buf.truncate(info.buffer_size());
+    (info.width, info.height, buf)
+}
+
+/// The pixels `tessera render --preview` shows for these means at exposure 0.
+fn tone_mapped(rgb: &[[f32; 3]]) -> Vec<u8> {
+    tessera_render::output::tone_map(rgb, tessera_render::output::Preview { exposure: 0.0 })
+}
+
+/// While a job runs, its preview shows exactly the means merged so far (a tile merged, the
+/// others black) and a noise map; once it is done, the preview is the EXR tone-mapped, the
+/// download is the EXR, and that is `tessera render`'s bits.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn the_preview_shows_the_merged_sums_then_the_exr() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start_with_dashboard(
+        &dir.path().join("data"),
+        Duration::from_secs(30),
+        |_| {},
+    )
+    .await;
+    let addr = coord.http.expect("dashboard");
+    let mut client = coord.client().await;
+    let text = scene_text(32);
+    let (spp, batch) = (8, 4);
+    let job = submit(&mut client, &text, spp, batch, 0).await;
+
+    // One unit, merged by hand: tile 0's first batch.
+    let mut workers = workers_client(&coord.url());
+    let me = register_as(&mut workers, "hand", "test", IMAGE_REVISION)
+        .await
+        .expect("register");
+    let units = lease_now(&mut workers, &me, 1).await.expect("lease");
+    let u = &units[0];
+    let scene = Scene::from_str_at(&text, Format::Toml, "cornell.toml", &Limits::default(), 1)
+        .expect("scene");
+    let settings = job_settings(spp, batch);
+    let rect = PixelRect::from(u.rect.expect("rect"));
+    let sums = render_tile(&scene, &settings, rect, u.sample_start..u.sample_end);
+    workers
+        .submit_result(pb::SubmitResultRequest {
+            worker_id: me.clone(),
+            lease_id: u.lease_id.clone(),
+            job_id: job.clone(),
+            tile_index: u.tile_index,
+            batch_index: u.batch_index,
+            result: Some(pb::TileResult::from(&sums)),
+        })
+        .await
+        .expect("submit");
+
+    let r = http(
+        addr,
+        "GET",
+        &format!("/api/jobs/{job}/preview.png"),
+        &[],
+        "",
+    )
+    .await;
+    assert_eq!(r.status, 200, "{}", r.text());
+    assert_eq!(r.header("content-type"), Some("image/png"));
+    let (w, h, px) = decode_png(&r.body);
+    assert_eq!((w, h), (32, 32));
+    let tile = tone_mapped(&sums.finalize().rgb);
+    for y in 0..32u32 {
+        for x in 0..32u32 {
+            let i = 3 * (y * 32 + x) as usize;
+            let got = &px[i..i + 3];
+            let inside = x >= rect.x0
+                && x < rect.x0 + rect.width
+                && y >= rect.y0
+                && y < rect.y0 + rect.height;
+            if inside {
+                let j = 3 * ((y - rect.y0) * rect.width + (x - rect.x0)) as usize;
+                assert_eq!(got, &tile[j..j + 3], "pixel ({x}, {y}) of the merged tile");
+            } else {
+                assert_eq!(
+                    got,
+                    [0, 0, 0],
+                    "pixel ({x}, {y}) of a tile with no samples yet"
+                );
+            }
+        }
+    }
+    let r = http(
+        addr,
+        "GET",
+        &format!("/api/jobs/{job}/preview.png?view=noise"),
+        &[],
+        "",
+    )
+    .await;
+    assert_eq!(r.status, 200, "{}", r.text());
+    let (_, _, noise) = decode_png(&r.body);
+    assert_ne!(noise, px, "the noise view is the image");
+    let r = http(
+        addr,
+        "GET",
+        &format!("/api/jobs/{job}/preview.png?view=x"),
+        &[],
+        "",
+    )
+    .await;
+    assert_eq!(r.status, 400);
+    assert!(r.text().contains("expected color or noise"), "{}", r.text());
+
+    // The rest by real workers.
+    let w1 = worker(&coord.url(), "w1");
+    let done = wait(&mut client, &job).await;
+    assert_eq!(done.state, pb::JobState::Done as i32);
+    let exr = fetch(&mut client, &job).await;
+    assert!(
+        exr == local_exr(&text, spp, batch, dir.path()),
+        "farm EXR differs"
+    );
+    let r = http(addr, "GET", &format!("/api/jobs/{job}/output.exr"), &[], "").await;
+    assert_eq!(r.status, 200);
+    assert!(r.body == exr, "the download is not the EXR");
+    assert!(r
+        .header("content-disposition")
+        .is_some_and(|d| d.contains(&done.output_name)));
+    let path = dir.path().join("fetched.exr");
+    std::fs::write(&path, &exr).expect("write");
+    let image = tessera_render::output::read_exr_rgb(&path).expect("read EXR");
+    let r = http(
+        addr,
+        "GET",
+        &format!("/api/jobs/{job}/preview.png"),
+        &[],
+        "",
+    )
+    .await;
+    let (_, _, px) = decode_png(&r.body);
+    assert!(
+        px == tone_mapped(&image.rgb),
+        "the final preview is not the EXR tone-mapped"
+    );
+    let r = http(
+        addr,
+        "GET",
+        &format!("/api/jobs/{job}/preview.png?view=noise"),
+        &[],
+        "",
+    )
+    .await;
+    assert_eq!(r.status, 409, "{}", r.text());
+    w1.abort();
+    coord.stop().await;
+}
+
+/// However many requests come at once or in a row, a running job's preview is computed at
+/// most once per interval (and again as results come in), and every request gets an image.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn previews_are_computed_at_most_a_few_times_a_second() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start_with_dashboard(
+        &dir.path().join("data"),
+        Duration::from_secs(30),
+        |_| {},
+    )
+    .await;
+    let addr = coord.http.expect("dashboard");
+    let mut client = coord.client().await;
+    let job = submit(&mut client, &scene_text(128), 256, 2, 0).await;
+    let w = worker(&coord.url(), "busy");
+    wait_for("a first merged unit", async || {
+        (job_status(&mut client, &job).await.units_done > 0).then_some(())
+    })
+    .await;
+    let start = std::time::Instant::now();
+    let mut requests = 0;
+    while start.elapsed() < Duration::from_millis(1500) {
+        let round: Vec<_> = (0..40)
+            .map(|i| {
+                let path = format!("/api/jobs/{job}/preview.png?exposure={}", i % 3);
+                tokio::spawn(async move { http(addr, "GET", &path, &[], "").await.status })
+            })
+            .collect();
+        for r in round {
+            assert_eq!(r.await.expect("request"), 200);
+            requests += 1;
+        }
+    }
+    let elapsed = start.elapsed();
+    let merged_meanwhile = job_status(&mut client, &job).await.units_done;
+    let metrics = http(addr, "GET", "/metrics", &[], "").await.text();
+    let computed = sample(&metrics, "tessera_dashboard_previews_total", &[]);
+    let most = (elapsed.as_secs_f64() / 0.25).floor() + 1.0;
+    assert!(
+        (2.0..=most).contains(&computed),
+        "{requests} requests in {elapsed:?} ({merged_meanwhile} units merged by then) computed \
+         {computed} previews; between 2 and {most} expected"
+    );
+    w.abort();
+    coord.stop().await;
+}
+
+/// A sample's value in Prometheus text, parsed by a parser that is not ours; fails if absent.
+fn sample(text: &str, name: &str, labels: &[(&str, &str)]) -> f64 {
+    let lines = text.lines().map(|l| Ok(l.to_string()));
+    let scrape = prometheus_parse::Scrape::parse(lines).expect("Prometheus text");
+    scrape
+        .samples
+        .iter()
+        .find(|s| s.metric == name && labels.iter().all(|(k, v)| s.labels.get(k) == Some(*v)))
+        .map(|s| match s.value {
+            prometheus_parse::Value::Counter(v)
+            | prometheus_parse::Value::Gauge(v)
+            | prometheus_parse::Value::Untyped(v) => v,
+            _ => f64::NAN,
+        })
+        .unwrap_or_else(|| panic!("no sample {name} {labels:?} in\n{text}"))
+}
+
+/// `/metrics` parses as Prometheus text, and after a job its counters agree with what
+/// `tessera status` and `tessera workers` say.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn metrics_parse_and_agree_with_the_status() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start_with_dashboard(
+        &dir.path().join("data"),
+        Duration::from_secs(30),
+        |_| {},
+    )
+    .await;
+    let addr = coord.http.expect("dashboard");
+    let mut client = coord.client().await;
+    let workers = [worker(&coord.url(), "m1"), worker(&coord.url(), "m2")];
+    let job = submit(&mut client, &scene_text(32), 8, 2, 0).await;
+    let done = wait(&mut client, &job).await;
+    assert_eq!(done.state, pb::JobState::Done as i32);
+    let r = http(addr, "GET", "/metrics", &[], "").await;
+    assert_eq!(r.status, 200);
+    assert!(r
+        .header("content-type")
+        .is_some_and(|c| c.starts_with("text/plain; version=0.0.4")));
+    let text = r.text();
+    let merged = sample(&text, "tessera_units_merged_total", &[]);
+    assert_eq!(merged, done.units_done as f64);
+    assert_eq!(merged, done.units_total as f64);
+    assert_eq!(
+        sample(&text, "tessera_samples_merged_total", &[]),
+        done.samples_done as f64
+    );
+    assert!(sample(&text, "tessera_units_leased_total", &[]) >= merged);
+    assert_eq!(sample(&text, "tessera_jobs", &[("state", "done")]), 1.0);
+    assert_eq!(sample(&text, "tessera_jobs", &[("state", "running")]), 0.0);
+    assert_eq!(sample(&text, "tessera_results_refused_total", &[]), 0.0);
+    assert_eq!(sample(&text, "tessera_merge_seconds_count", &[]), merged);
+    assert!(sample(&text, "tessera_store_commit_seconds_count", &[]) >= 1.0);
+    assert!(sample(&text, "tessera_store_written_bytes_total", &[]) > 0.0);
+    let listed = list_workers(&mut client).await;
+    assert_eq!(listed.len(), 2);
+    assert_eq!(
+        sample(&text, "tessera_workers_active", &[]),
+        listed.iter().filter(|w| w.alive).count() as f64
+    );
+    let mut total = 0.0;
+    for w in &listed {
+        let v = sample(
+            &text,
+            "tessera_worker_samples_merged_total",
+            &[("worker", &w.worker_id), ("name", &w.name)],
+        );
+        assert_eq!(v, w.samples_done as f64, "{}", w.name);
+        total += v;
+    }
+    assert_eq!(total, done.samples_done as f64);
+    for w in workers {
+        w.abort();
+    }
+    coord.stop().await;
+}
