@@ -4,7 +4,9 @@
 #   then build the image (base images from deploy/airgap-base-images.sh when none can be pulled),
 #   bring up a coordinator and 3 workers with a token, submit the Cornell box from the host CLI,
 #   `docker kill` one worker and cut another off the network for longer than a lease mid-job,
-#   check the EXR is bit-identical to `tessera render`, and that `down -v` leaves nothing.
+#   check the EXR is bit-identical to `tessera render`, that the dashboard wants the token and
+#   Prometheus (the monitoring profile) scrapes the coordinator's metrics with it, and that
+#   `down -v` leaves nothing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PROJECT=tessera-e2e-$$
@@ -13,7 +15,7 @@ docker compose version >/dev/null 2>&1 && COMPOSE=(docker compose)
 dc() { "${COMPOSE[@]}" -p "$PROJECT" -f deploy/docker-compose.yml "$@"; }
 OUT=$(mktemp -d)
 cleanup() {
-  dc down -v --remove-orphans >/dev/null 2>&1 || true
+  dc --profile monitoring down -v --remove-orphans >/dev/null 2>&1 || true
   rm -rf "$OUT"
 }
 trap cleanup EXIT
@@ -57,7 +59,10 @@ rm -f cornell-box.exr
 trap cleanup EXIT
 echo "== README commands: bit-identical to tessera render"
 
-export TESSERA_PORT=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+free_port() { python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
+export TESSERA_PORT=$(free_port)
+export TESSERA_HTTP_PORT=$(free_port)
+export TESSERA_PROMETHEUS_PORT=$(free_port)
 export TESSERA_TOKEN=$(od -An -N32 -tx1 /dev/urandom | tr -d ' \n')
 export TESSERA_LEASE_TIMEOUT=4
 export TESSERA_WORKER_THREADS=1
@@ -107,8 +112,32 @@ done
 cat "$OUT/workers"
 [[ -n $back ]] || { echo "the disconnected worker did not come back within 30 s" >&2; exit 1; }
 
+echo "== the dashboard and Prometheus (monitoring profile, Debian's prometheus package)"
+DASH=http://127.0.0.1:$TESSERA_HTTP_PORT
+code=$(curl -s -o /dev/null -w '%{http_code}' "$DASH/metrics")
+[[ $code == 401 ]] || { echo "/metrics without the token answered $code" >&2; exit 1; }
+curl -fsS -H "Authorization: Bearer $TESSERA_TOKEN" "$DASH/api/jobs/$JOB" | grep -q '"state":"done"' \
+  || { echo "the dashboard does not show $JOB done" >&2; exit 1; }
+curl -fsS -H "Authorization: Bearer $TESSERA_TOKEN" "$DASH/metrics" >"$OUT/metrics"
+dc --profile monitoring build -q prometheus
+dc --profile monitoring up -d prometheus
+# Prometheus' own linter on what the coordinator exports.
+dc --profile monitoring exec -T prometheus promtool check metrics <"$OUT/metrics" \
+  || { echo "promtool check metrics failed" >&2; exit 1; }
+total=$("$T" status "$JOB" | awk '/progress/ {split($2, a, "/"); print a[2]}')
+scraped=
+for _ in $(seq 90); do
+  scraped=$(curl -fsS "http://127.0.0.1:$TESSERA_PROMETHEUS_PORT/api/v1/query?query=tessera_units_merged_total" 2>/dev/null \
+    | python3 -c 'import json, sys; r = json.load(sys.stdin)["data"]["result"]; print(r[0]["value"][1] if r else "")' 2>/dev/null || true)
+  [[ $scraped == "$total" ]] && break
+  sleep 1
+done
+[[ $scraped == "$total" ]] \
+  || { echo "Prometheus scraped tessera_units_merged_total=${scraped:-nothing}, the job has $total units" >&2; exit 1; }
+echo "Prometheus scraped tessera_units_merged_total = $scraped = the job's units"
+
 echo "== down -v"
-dc down -v --remove-orphans
+dc --profile monitoring down -v --remove-orphans
 left=$(docker ps -aq --filter "label=com.docker.compose.project=$PROJECT"; \
        docker volume ls -q --filter "label=com.docker.compose.project=$PROJECT"; \
        docker network ls -q --filter "label=com.docker.compose.project=$PROJECT")

@@ -439,3 +439,59 @@ async fn metrics_parse_and_agree_with_the_status() {
     }
     coord.stop().await;
 }
+
+/// Every query of the Grafana dashboard in deploy/ names only metrics the coordinator exports,
+/// so that renaming a metric cannot leave a panel silently empty.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn the_grafana_dashboard_queries_only_metrics_that_exist() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start_with_dashboard(
+        &dir.path().join("data"),
+        Duration::from_secs(30),
+        |_| {},
+    )
+    .await;
+    let addr = coord.http.expect("dashboard");
+    let w = worker(&coord.url(), "g1");
+    let mut client = coord.client().await;
+    let job = submit(&mut client, &scene_text(16), 2, 2, 0).await;
+    wait(&mut client, &job).await;
+    let metrics = http(addr, "GET", "/metrics", &[], "").await.text();
+    let exported: std::collections::BTreeSet<&str> = metrics
+        .lines()
+        .filter_map(|l| l.strip_prefix("# TYPE "))
+        .filter_map(|l| l.split_whitespace().next())
+        .collect();
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../deploy/monitoring/grafana/tessera-dashboard.json");
+    let dashboard: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).expect("read the dashboard"))
+            .expect("the dashboard is JSON");
+    let mut queried = 0;
+    for panel in dashboard["panels"].as_array().expect("panels") {
+        for target in panel["targets"].as_array().expect("targets") {
+            let expr = target["expr"].as_str().expect("expr");
+            let names = expr
+                .split(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+                .filter(|w| w.starts_with("tessera_"));
+            for name in names {
+                let base = ["_bucket", "_sum", "_count"]
+                    .iter()
+                    .find_map(|s| name.strip_suffix(s).filter(|b| exported.contains(b)))
+                    .unwrap_or(name);
+                assert!(
+                    exported.contains(base),
+                    "panel {:?} queries {name}, which /metrics does not export",
+                    panel["title"]
+                );
+                queried += 1;
+            }
+        }
+    }
+    assert!(
+        queried >= 10,
+        "only {queried} metric references in the dashboard"
+    );
+    w.abort();
+    coord.stop().await;
+}

@@ -253,9 +253,64 @@ pub fn write_png_preview(path: &Path, image: &Image, preview: Preview) -> Result
 /// dashboard maps its previews with this too, so they show what `--preview` would.
 pub fn tone_map(rgb: &[[f32; 3]], preview: Preview) -> Vec<u8> {
     let scale = preview.exposure.exp2();
-    rgb.iter()
-        .flat_map(|p| p.map(|c| to_srgb8(aces(c * scale))))
-        .collect()
+    let codes = Srgb8::get();
+    let mut out = Vec::with_capacity(rgb.len() * 3);
+    for p in rgb {
+        for c in p {
+            out.push(codes.code(aces(c * scale)));
+        }
+    }
+    out
+}
+
+/// Buckets of [0, 1] for [`Srgb8`]: fine enough that a bucket spans at most a few codes.
+const BUCKETS: usize = 4096;
+
+/// [`to_srgb8`] without its `powf`, which was most of a preview's cost (a dashboard encodes
+/// previews many times a second): `bounds[k]` is the least `x` in [0, 1] that [`to_srgb8`]
+/// maps to more than `k`, and `start[i]` the code at the start of bucket `i`. The code of `x`
+/// is the number of bounds at or below it, since [`to_srgb8`] never decreases; counting on
+/// from its bucket's start takes a step or two.
+struct Srgb8 {
+    bounds: [f32; 255],
+    start: [u8; BUCKETS],
+}
+
+impl Srgb8 {
+    fn get() -> &'static Self {
+        static TABLE: std::sync::OnceLock<Srgb8> = std::sync::OnceLock::new();
+        TABLE.get_or_init(|| {
+            let bounds: [f32; 255] = std::array::from_fn(|k| {
+                // The least f32 bit pattern in [0, 1] whose code exceeds k: non-negative
+                // floats order as their bits do.
+                let (mut lo, mut hi) = (0u32, 1.0f32.to_bits());
+                while lo < hi {
+                    let mid = lo + (hi - lo) / 2;
+                    if to_srgb8(f32::from_bits(mid)) as usize > k {
+                        hi = mid;
+                    } else {
+                        lo = mid + 1;
+                    }
+                }
+                f32::from_bits(lo)
+            });
+            let start = std::array::from_fn(|i| {
+                let x = i as f32 / BUCKETS as f32;
+                bounds.partition_point(|&b| b <= x) as u8
+            });
+            Srgb8 { bounds, start }
+        })
+    }
+
+    /// The code of `x` in [0, 1] (as [`aces`] gives).
+    fn code(&self, x: f32) -> u8 {
+        let i = ((x * BUCKETS as f32) as usize).min(BUCKETS - 1);
+        let mut k = self.start[i] as usize;
+        while k < 255 && self.bounds[k] <= x {
+            k += 1;
+        }
+        k as u8
+    }
 }
 
 fn aces(x: f32) -> f32 {
@@ -331,6 +386,37 @@ fn tessera_attribute(meta: &exr::meta::MetaData) -> Vec<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The table gives `to_srgb8`'s own code: at every bound and 2048 floats either side of
+    /// it, around the curve's junction, at every bucket's edge, and at every 61st float of
+    /// [0, 1].
+    #[test]
+    fn srgb8_by_bounds_is_to_srgb8() {
+        let table = Srgb8::get();
+        let check = |bits: u32| {
+            let x = f32::from_bits(bits);
+            assert_eq!(table.code(x), to_srgb8(x), "x = {x:e} ({bits:#x})");
+        };
+        let one = 1.0f32.to_bits();
+        for b in &table.bounds {
+            let c = b.to_bits();
+            for bits in c.saturating_sub(2048)..=(c + 2048).min(one) {
+                check(bits);
+            }
+        }
+        let junction = 0.003_130_8f32.to_bits();
+        for bits in junction - (1 << 16)..junction + (1 << 16) {
+            check(bits);
+        }
+        for bits in (0..=one).step_by(61) {
+            check(bits);
+        }
+        for i in 0..=BUCKETS {
+            check((i as f32 / BUCKETS as f32).to_bits());
+        }
+        assert_eq!(table.code(0.0), 0);
+        assert_eq!(table.code(1.0), 255);
+    }
 
     #[test]
     fn provenance_names_tessera_mitsuba_or_nothing() {

@@ -24,8 +24,13 @@ pub const MIN_INTERVAL: Duration = Duration::from_millis(250);
 /// of a huge frame costs what one of a large frame does.
 pub const MAX_EDGE: u32 = 1600;
 
-/// Jobs whose snapshots are kept: the ones being watched.
-const KEPT: usize = 8;
+/// Jobs whose snapshots are kept: the ones being watched. A snapshot of a frame at the
+/// largest preview size holds 1600² means (31 MB), so this bounds the cache to about 120 MB.
+const KEPT: usize = 4;
+
+/// Encodings kept per snapshot: a few people at a few exposures. A client asking for many
+/// exposures gets each encoded, but the cache does not grow with them.
+const PNGS_PER_SNAPSHOT: usize = 8;
 
 /// Tiles copied per hold of the scheduler's lock.
 const TILES_PER_LOCK: u32 = 4;
@@ -150,6 +155,9 @@ impl Previews {
             .await
             .map_err(|e| NoPreview::Failed(e.to_string()))??;
         let png = Arc::new(png);
+        if pngs.len() >= PNGS_PER_SNAPSHOT {
+            pngs.clear();
+        }
         pngs.insert(key, png.clone());
         Ok(png)
     }

@@ -1,0 +1,400 @@
+//! The dashboard in a real browser: Debian's headless Chromium, driven over the DevTools
+//! protocol, against the real `tessera` binaries (a coordinator with a token and `--http`, a
+//! worker, `submit`, `fetch`), as a user would run them.
+//!
+//! The browser logs in with the token, opens the job's page, waits until the preview shows
+//! something, takes the screenshot docs/images/dashboard.png is made from, watches the
+//! progress move, switches to the noise map and back, and at the end checks that the preview
+//! it shows is the fetched EXR tone-mapped and that its download link gives the EXR.
+//!
+//! Built only with the `browser` feature (it needs Chromium: `.ci/run` installs Debian's
+//! package): `cargo test --release -p tessera-cli --features browser --test browser`.
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use base64::Engine as _;
+use serde_json::{json, Value};
+use tungstenite::stream::MaybeTlsStream;
+use tungstenite::{Message, WebSocket};
+
+use common::{repo, Proc, BIN};
+
+/// How long any wait of this test lasts before it fails, naming what it waited for.
+const PATIENCE: Duration = Duration::from_secs(180);
+
+const TOKEN: &str = "browser-test-token-0123456789abcdef";
+
+/// Waits until `f` gives `Some`, polling, or fails naming `what`.
+fn wait_for<T>(what: &str, mut f: impl FnMut() -> Option<T>) -> T {
+    let start = Instant::now();
+    loop {
+        if let Some(v) = f() {
+            return v;
+        }
+        assert!(start.elapsed() < PATIENCE, "gave up waiting for {what}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// The Chromium binary: Debian's package installs it as `chromium`.
+fn chromium() -> PathBuf {
+    let found = std::env::var_os("PATH").and_then(|paths| {
+        std::env::split_paths(&paths)
+            .flat_map(|d| ["chromium", "chromium-browser"].map(|n| d.join(n)))
+            .find(|p| p.is_file())
+    });
+    found.unwrap_or_else(|| {
+        panic!(
+            "no chromium on PATH: this test drives a real browser; install Debian's package \
+             (.ci/install-chromium.sh, which .ci/run runs)"
+        )
+    })
+}
+
+/// A DevTools protocol session with one page, over the browser's WebSocket, with target
+/// sessions flattened onto it.
+struct Cdp {
+    ws: WebSocket<MaybeTlsStream<TcpStream>>,
+    session: String,
+    next: u64,
+    _browser: Proc,
+}
+
+impl Cdp {
+    /// Starts headless Chromium with a fresh profile in `profile` and attaches to its page.
+    fn launch(profile: &Path) -> Self {
+        let mut child = Command::new(chromium())
+            .args([
+                "--headless=new",
+                // Containers and CI runners run as root, where Chromium's sandbox cannot start.
+                "--no-sandbox",
+                "--disable-gpu",
+                "--disable-dev-shm-usage",
+                "--no-first-run",
+                "--hide-scrollbars",
+                "--remote-debugging-port=0",
+                "--window-size=1400,860",
+            ])
+            .arg(format!("--user-data-dir={}", profile.display()))
+            .arg("about:blank")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("start chromium");
+        let stderr = child.stderr.take().expect("stderr");
+        let browser = Proc(child);
+        let mut lines = BufReader::new(stderr).lines();
+        let url = loop {
+            let line = lines
+                .next()
+                .expect("chromium exited before its DevTools line")
+                .expect("read chromium's stderr");
+            if let Some(u) = line.strip_prefix("DevTools listening on ") {
+                break u.trim().to_string();
+            }
+        };
+        // Chromium blocks once its stderr pipe is full: keep reading it.
+        std::thread::spawn(move || for _ in lines {});
+        let (ws, _) = tungstenite::connect(url.as_str()).expect("connect to DevTools");
+        if let MaybeTlsStream::Plain(s) = ws.get_ref() {
+            s.set_read_timeout(Some(PATIENCE)).expect("timeout");
+        }
+        let mut cdp = Self {
+            ws,
+            session: String::new(),
+            next: 0,
+            _browser: browser,
+        };
+        let targets = cdp.call("Target.getTargets", json!({}));
+        let page = targets["targetInfos"]
+            .as_array()
+            .and_then(|t| t.iter().find(|t| t["type"] == "page"))
+            .expect("a page target")["targetId"]
+            .clone();
+        let attached = cdp.call(
+            "Target.attachToTarget",
+            json!({ "targetId": page, "flatten": true }),
+        );
+        cdp.session = attached["sessionId"]
+            .as_str()
+            .expect("session id")
+            .to_string();
+        cdp.call("Page.enable", json!({}));
+        // A fixed viewport, whatever the window's decorations take.
+        cdp.call(
+            "Emulation.setDeviceMetricsOverride",
+            json!({ "width": 1400, "height": 860, "deviceScaleFactor": 1, "mobile": false }),
+        );
+        cdp
+    }
+
+    /// Sends a command (to the page once attached) and returns its result; events that come
+    /// in between are dropped.
+    fn call(&mut self, method: &str, params: Value) -> Value {
+        self.next += 1;
+        let id = self.next;
+        let mut msg = json!({ "id": id, "method": method, "params": params });
+        if !self.session.is_empty() {
+            msg["sessionId"] = json!(self.session);
+        }
+        self.ws
+            .send(Message::Text(msg.to_string().into()))
+            .expect("send to DevTools");
+        loop {
+            let m = self.ws.read().expect("read from DevTools");
+            let Message::Text(t) = m else { continue };
+            let v: Value = serde_json::from_str(&t).expect("DevTools JSON");
+            if v["id"] == id {
+                assert!(v.get("error").is_none(), "{method}: {}", v["error"]);
+                return v["result"].clone();
+            }
+        }
+    }
+
+    /// Evaluates `js` in the page (awaiting it if it is a promise) and returns its value.
+    fn eval(&mut self, js: &str) -> Value {
+        let r = self.call(
+            "Runtime.evaluate",
+            json!({ "expression": js, "returnByValue": true, "awaitPromise": true }),
+        );
+        assert!(
+            r.get("exceptionDetails").is_none(),
+            "{js}: {}",
+            r["exceptionDetails"]
+        );
+        r["result"]["value"].clone()
+    }
+
+    fn navigate(&mut self, url: &str) {
+        self.call("Page.navigate", json!({ "url": url }));
+    }
+
+    fn screenshot(&mut self) -> Vec<u8> {
+        let r = self.call("Page.captureScreenshot", json!({ "format": "png" }));
+        base64::engine::general_purpose::STANDARD
+            .decode(r["data"].as_str().expect("screenshot data"))
+            .expect("base64")
+    }
+}
+
+/// The state of the job page, read in the page: the preview's status and whether it shows
+/// anything but black, and the progress the page prints.
+const PAGE_STATE: &str = r#"(() => {
+  const img = document.getElementById("preview");
+  const text = (id) => { const e = document.getElementById(id); return e ? e.textContent : null; };
+  let bright = 0;
+  if (img && img.complete && img.naturalWidth > 0) {
+    const c = document.createElement("canvas");
+    c.width = img.naturalWidth; c.height = img.naturalHeight;
+    const g = c.getContext("2d");
+    g.drawImage(img, 0, 0);
+    const d = g.getImageData(0, 0, c.width, c.height).data;
+    for (let i = 0; i < d.length; i += 4) if (d[i] + d[i + 1] + d[i + 2] > 30) bright++;
+  }
+  return {
+    login: document.getElementById("token") !== null,
+    units: img ? img.dataset.units || null : null,
+    view: img ? img.dataset.view || null : null,
+    shown_state: img ? img.dataset.state || null : null,
+    bright,
+    state: text("stat-state"),
+    progress: text("stat-progress"),
+    units_text: text("stat-units"),
+  };
+})()"#;
+
+/// Decodes an 8-bit RGB PNG.
+fn decode_png(bytes: &[u8]) -> (u32, u32, Vec<u8>) {
+    let mut reader = png::Decoder::new(std::io::Cursor::new(bytes))
+        .read_info()
+        .expect("a PNG");
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).expect("frame");
+    buf.truncate(info.buffer_size());
+    (info.width, info.height, buf)
+}
+
+/// Bytes a `fetch` in the page gets for `url`, as the browser (with its cookie) sees them.
+fn fetch_in_page(cdp: &mut Cdp, url_js: &str) -> Vec<u8> {
+    let v = cdp.eval(&format!(
+        "fetch({url_js}).then(r => r.arrayBuffer()).then(b => Array.from(new Uint8Array(b)))"
+    ));
+    v.as_array()
+        .expect("bytes")
+        .iter()
+        .map(|b| b.as_u64().expect("byte") as u8)
+        .collect()
+}
+
+#[test]
+fn the_dashboard_in_chromium_follows_a_job_to_its_exr() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let token_file = dir.path().join("token");
+    std::fs::write(&token_file, format!("{TOKEN}\n")).expect("token");
+    let token_file = token_file.display().to_string();
+
+    // The coordinator says where it listens, then where its dashboard is.
+    let mut child = Command::new(BIN)
+        .args([
+            "coordinator",
+            "--listen",
+            "127.0.0.1:0",
+            "--http",
+            "127.0.0.1:0",
+        ])
+        .args(["--token-file", &token_file, "--data-dir"])
+        .arg(dir.path().join("data"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start coordinator");
+    let mut out = BufReader::new(child.stdout.take().expect("stdout"));
+    let _coordinator = Proc(child);
+    let mut line = String::new();
+    out.read_line(&mut line).expect("listening line");
+    let grpc = format!(
+        "http://{}",
+        line.trim().strip_prefix("listening on ").expect(&line)
+    );
+    line.clear();
+    out.read_line(&mut line).expect("dashboard line");
+    let dash = line
+        .trim()
+        .strip_prefix("dashboard on ")
+        .unwrap_or_else(|| panic!("unexpected line {line:?}"))
+        .trim_end_matches('/')
+        .to_string();
+
+    let _worker = Proc(
+        Command::new(BIN)
+            .args([
+                "worker",
+                "--coordinator",
+                &grpc,
+                "--token-file",
+                &token_file,
+            ])
+            .args(["--threads", "1", "--name", "render-node-1"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start worker"),
+    );
+    let tessera = |args: &[&str]| {
+        let out = Command::new(BIN)
+            .current_dir(repo(""))
+            .args(args)
+            .args(["--coordinator", &grpc, "--token-file", &token_file])
+            .output()
+            .expect("run tessera");
+        assert!(
+            out.status.success(),
+            "tessera {args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).trim().to_string()
+    };
+    // Long enough on one thread (several seconds) for the page to see it run.
+    let job = tessera(&["submit", "scenes/cornell-box.toml", "--spp", "384"]);
+    assert!(job.starts_with("job-"), "{job}");
+
+    let profile = tempfile::tempdir().expect("profile");
+    let mut cdp = Cdp::launch(profile.path());
+    // Without the token the page is the login form; the token logs in and comes back here.
+    cdp.navigate(&format!("{dash}/jobs/{job}"));
+    wait_for("the login form", || {
+        (cdp.eval(PAGE_STATE)["login"] == true).then_some(())
+    });
+    cdp.eval(&format!(
+        "document.getElementById('token').value = {}; document.getElementById('login').click(); true",
+        json!(TOKEN)
+    ));
+    // A quarter in, so that the screenshot shows a picture taking shape.
+    let first = wait_for("a preview with something in it, a quarter in", || {
+        let s = cdp.eval(PAGE_STATE);
+        let units: u64 = s["units"]
+            .as_str()
+            .and_then(|u| u.parse().ok())
+            .unwrap_or(0);
+        (s["bright"].as_u64().unwrap_or(0) > 1000 && units >= 24).then_some(s)
+    });
+    let shot = cdp.screenshot();
+    let (w, h, _) = decode_png(&shot);
+    assert_eq!((w, h), (1400, 860));
+    let target = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("dashboard.png");
+    std::fs::write(&target, &shot).expect("write the screenshot");
+    eprintln!("screenshot: {}", target.display());
+
+    // The progress moves while the job runs (or the job ends, which moves it to 100%).
+    let before = first["progress"].as_str().unwrap_or_default().to_string();
+    wait_for("the progress to move", || {
+        let s = cdp.eval(PAGE_STATE);
+        (s["progress"].as_str() != Some(before.as_str())).then_some(())
+    });
+
+    // The noise map, then the image again.
+    cdp.eval("document.getElementById('view-toggle').click(); true");
+    let noise = wait_for("the noise view (or the job's end)", || {
+        let s = cdp.eval(PAGE_STATE);
+        let noted = cdp.eval("document.getElementById('preview-note').textContent");
+        let ended = noted.as_str().is_some_and(|n| n.contains("has ended"));
+        (s["view"] == "noise" || ended).then_some(s)
+    });
+    eprintln!("noise view: {noise}");
+    cdp.eval("document.getElementById('view-toggle').click(); true");
+
+    let done = wait_for("the page to show the job done", || {
+        let s = cdp.eval(PAGE_STATE);
+        (s["state"] == "done" && s["shown_state"] == "done" && s["view"] == "color").then_some(s)
+    });
+    assert_eq!(
+        done["progress"].as_str().map(str::trim),
+        Some("100.0%"),
+        "{done}"
+    );
+
+    // What the page shows at the end is the EXR, tone-mapped as `--preview` does it.
+    let exr = dir.path().join("fetched.exr");
+    tessera(&["fetch", &job, "--output", &exr.display().to_string()]);
+    let image = tessera_render::output::read_exr_rgb(&exr).expect("read EXR");
+    let shown = fetch_in_page(&mut cdp, "document.getElementById('preview').src");
+    let (w, h, px) = decode_png(&shown);
+    assert_eq!((w as usize, h as usize), (image.width, image.height));
+    let want = tessera_render::output::tone_map(
+        &image.rgb,
+        tessera_render::output::Preview { exposure: 0.0 },
+    );
+    assert!(px == want, "the final preview is not the EXR tone-mapped");
+    let downloaded = fetch_in_page(&mut cdp, "document.getElementById('download').href");
+    assert!(
+        downloaded == std::fs::read(&exr).expect("EXR"),
+        "the download link does not give the EXR"
+    );
+
+    // The job list and the workers page show the job and the worker.
+    cdp.navigate(&format!("{dash}/"));
+    let row = wait_for("the job list", || {
+        let v = cdp.eval(&format!(
+            "(() => {{ const r = document.querySelector('tr[data-job=\"{job}\"]'); return r ? r.textContent : null; }})()"
+        ));
+        v.as_str().map(str::to_string)
+    });
+    assert!(row.contains("done") && row.contains("100.0%"), "{row}");
+    cdp.navigate(&format!("{dash}/workers"));
+    let table = wait_for("the workers page", || {
+        let v = cdp.eval(
+            "(() => { const t = document.getElementById('workers'); return t ? t.textContent : null; })()",
+        );
+        v.as_str().map(str::to_string)
+    });
+    assert!(
+        table.contains("render-node-1") && table.contains("127.0.0.1"),
+        "{table}"
+    );
+}
