@@ -495,3 +495,77 @@ async fn the_grafana_dashboard_queries_only_metrics_that_exist() {
     w.abort();
     coord.stop().await;
 }
+
+/// With TLS configured the dashboard serves TLS only, with the gRPC API's certificate: plain
+/// HTTP gets no page, and a client that trusts the farm's CA gets the job list with the token.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn the_dashboard_serves_tls_when_the_farm_has_it() {
+    use tokio_rustls::rustls;
+    let ca_key = rcgen::KeyPair::generate().expect("key");
+    let mut ca_params = rcgen::CertificateParams::new(Vec::<String>::new()).expect("params");
+    ca_params.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);
+    let ca = ca_params.self_signed(&ca_key).expect("ca");
+    let issuer = rcgen::Issuer::new(ca_params, ca_key);
+    let key = rcgen::KeyPair::generate().expect("key");
+    let params = rcgen::CertificateParams::new(vec!["localhost".to_string()]).expect("params");
+    let cert = params.signed_by(&key, &issuer).expect("cert");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (cert_pem, key_pem) = (cert.pem(), key.serialize_pem());
+    let coord =
+        Coordinator::start_with_dashboard(&dir.path().join("data"), Duration::from_secs(30), |c| {
+            c.token = Some(Secret::new(TOKEN));
+            c.tls = Some(tessera_coordinator::ServerTls {
+                cert_pem: cert_pem.into_bytes(),
+                key_pem: Secret::new(key_pem),
+                client_ca_pem: None,
+            });
+        })
+        .await;
+    let addr = coord.http.expect("dashboard");
+
+    // Plain HTTP: the server expects a TLS handshake, and answers none of it with a page.
+    let plain = tokio::time::timeout(PATIENCE, async {
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        let mut tcp = tokio::net::TcpStream::connect(addr).await.expect("connect");
+        let _ = tcp
+            .write_all(b"GET /api/jobs HTTP/1.1\r\nhost: x\r\nconnection: close\r\n\r\n")
+            .await;
+        let mut got = Vec::new();
+        let _ = tcp.read_to_end(&mut got).await;
+        got
+    })
+    .await
+    .expect("plain HTTP to the TLS port hung");
+    assert!(
+        !String::from_utf8_lossy(&plain).contains("HTTP/1.1 200"),
+        "served in clear"
+    );
+
+    let mut roots = rustls::RootCertStore::empty();
+    roots
+        .add(rustls::pki_types::CertificateDer::from(ca.der().to_vec()))
+        .expect("root");
+    let config = rustls::ClientConfig::builder_with_provider(std::sync::Arc::new(
+        rustls::crypto::ring::default_provider(),
+    ))
+    .with_safe_default_protocol_versions()
+    .expect("versions")
+    .with_root_certificates(roots)
+    .with_no_client_auth();
+    let connector = tokio_rustls::TlsConnector::from(std::sync::Arc::new(config));
+    let tcp = tokio::net::TcpStream::connect(addr).await.expect("connect");
+    let name = rustls::pki_types::ServerName::try_from("localhost").expect("name");
+    let tls = connector.connect(name, tcp).await.expect("TLS handshake");
+    let (mut send, conn) = hyper::client::conn::http1::handshake(hyper_util::rt::TokioIo::new(tls))
+        .await
+        .expect("handshake");
+    tokio::spawn(conn);
+    let req = hyper::Request::get("/api/jobs")
+        .header("host", "localhost")
+        .header("authorization", format!("Bearer {TOKEN}"))
+        .body(http_body_util::Empty::<hyper::body::Bytes>::new())
+        .expect("request");
+    let r = send.send_request(req).await.expect("send");
+    assert_eq!(r.status(), 200);
+    coord.stop().await;
+}

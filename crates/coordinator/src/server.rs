@@ -74,6 +74,11 @@ pub async fn serve_when_ready(
         }
         builder = builder.tls_config(cfg)?;
     }
+    // Loaded before the store opens, so that a bad identity stops the coordinator before it
+    // says it is up, as the gRPC side's does.
+    let dashboard = http
+        .map(|l| crate::http::Dashboard::new(l, config.tls.as_ref()))
+        .transpose()?;
     let (max_connections, idle) = (config.max_connections, config.idle_connection);
     let (shared, rx, to_finish) = Shared::open(config)?;
     let writer = tokio::spawn(writer(shared.store.clone(), rx, shared.metrics.clone()));
@@ -111,13 +116,7 @@ pub async fn serve_when_ready(
             let _ = stop_tx.send(true);
         });
     }
-    let dashboard = match http {
-        Some(l) => {
-            let task = tokio::spawn(crate::http::serve(svc.clone(), l, stop.clone()));
-            Some(task)
-        }
-        None => None,
-    };
+    let dashboard = dashboard.map(|d| tokio::spawn(d.serve(svc.clone(), stop.clone())));
     let mut grpc_stop = stop.clone();
     let shutdown = async move {
         let _ = grpc_stop.wait_for(|s| *s).await;
@@ -142,8 +141,7 @@ pub async fn serve_when_ready(
     let dashboard = match dashboard {
         Some(task) => task
             .await
-            .map_err(|e| CoordinatorError::Task(e.to_string()))
-            .and_then(|r| r),
+            .map_err(|e| CoordinatorError::Task(e.to_string())),
         None => Ok(()),
     };
     ticker.abort();

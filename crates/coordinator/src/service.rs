@@ -609,13 +609,7 @@ impl Jobs for Service {
             _ => s,
         };
         if s.state != pb::JobState::Done as i32 {
-            let state = pb::JobState::try_from(s.state)
-                .map(|st| {
-                    st.as_str_name()
-                        .trim_start_matches("JOB_STATE_")
-                        .to_lowercase()
-                })
-                .unwrap_or_default();
+            let state = tessera_proto::convert::job_state_name(s.state);
             return Err(Status::failed_precondition(format!(
                 "{} is {state} ({}/{} units): its EXR is not ready",
                 s.job_id, s.units_done, s.units_total

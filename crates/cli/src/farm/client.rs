@@ -8,6 +8,7 @@ use std::time::Duration;
 use anyhow::{anyhow, bail, Context, Result};
 use indicatif::ProgressBar;
 use tessera_proto::client::{endpoint, Bearer};
+use tessera_proto::convert::job_state_name;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_client::JobsClient;
 use tonic::service::interceptor::InterceptedService;
@@ -133,16 +134,6 @@ async fn connect(args: &CoordinatorUrl) -> Result<Client> {
         .max_encoding_message_size(usize::MAX))
 }
 
-fn state_name(state: i32) -> String {
-    pb::JobState::try_from(state)
-        .map(|s| {
-            s.as_str_name()
-                .trim_start_matches("JOB_STATE_")
-                .to_lowercase()
-        })
-        .unwrap_or_else(|_| "unknown".into())
-}
-
 fn fmt_eta(secs: f64) -> String {
     if !(secs >= 0.0) {
         return "?".into();
@@ -230,7 +221,7 @@ fn done(job: &str, s: pb::JobStatus) -> Result<pb::JobStatus> {
     match pb::JobState::try_from(s.state) {
         Ok(pb::JobState::Done) => Ok(s),
         Ok(pb::JobState::Failed) => bail!("{job} failed: {}", s.error),
-        _ => bail!("{job} ended {}", state_name(s.state)),
+        _ => bail!("{job} ended {}", job_state_name(s.state)),
     }
 }
 
@@ -263,7 +254,7 @@ async fn follow_to_end(client: &mut Client, url: &str, job: &str) -> Result<pb::
                 bar.set_position(s.samples_done);
                 bar.set_message(format!(
                     "{} {}/{} units, {:.2} Msamples/s, noise {:.2}%, ETA {}",
-                    state_name(s.state),
+                    job_state_name(s.state),
                     s.units_done,
                     s.units_total,
                     s.samples_per_second / 1e6,
@@ -374,7 +365,7 @@ async fn download_frames(
     let mut missing = Vec::new();
     for f in &s.frames {
         if f.state != pb::JobState::Done as i32 {
-            missing.push(format!("{} ({})", f.frame, state_name(f.state)));
+            missing.push(format!("{} ({})", f.frame, job_state_name(f.state)));
             continue;
         }
         let out = dir.join(&f.output_name);
@@ -503,7 +494,7 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
 fn print_job(s: &pb::JobStatus) -> std::io::Result<()> {
     let settings = s.settings.unwrap_or_default();
     outln!("{}", s.job_id);
-    outln!("  state      {}", state_name(s.state));
+    outln!("  state      {}", job_state_name(s.state));
     if !s.error.is_empty() {
         outln!("  error      {}", printable(&s.error));
     }
@@ -582,7 +573,7 @@ fn print_job(s: &pb::JobStatus) -> std::io::Result<()> {
                 "  {:>8} {:<12} {:<10} {:>12}  {}",
                 f.frame,
                 f.job_id,
-                state_name(f.state),
+                job_state_name(f.state),
                 format!("{}/{}", f.units_done, f.units_total),
                 f.output_name
             );
@@ -629,7 +620,7 @@ pub fn status(args: StatusArgs) -> Result<()> {
             outln!(
                 "{:<12} {:<10} {:>8} {:>6.1}% {:>10} {:>8}  {}",
                 s.job_id,
-                state_name(s.state),
+                job_state_name(s.state),
                 s.priority,
                 100.0 * s.units_done as f64 / s.units_total.max(1) as f64,
                 s.units_total,
@@ -657,7 +648,11 @@ pub fn cancel(args: CancelArgs) -> Result<()> {
             outln!("{} cancelled", args.job);
             Ok(())
         } else {
-            bail!("{} had already ended ({})", args.job, state_name(r.state))
+            bail!(
+                "{} had already ended ({})",
+                args.job,
+                job_state_name(r.state)
+            )
         }
     })
 }
@@ -692,17 +687,7 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
                 w.worker_id,
                 printable(&w.name),
                 w.cores,
-                if !w.convicted.is_empty() {
-                    "convicted"
-                } else if w.quarantined {
-                    "quarantined"
-                } else if w.suspect {
-                    "suspect"
-                } else if w.alive {
-                    "alive"
-                } else {
-                    "gone"
-                },
+                w.state(),
                 w.leases,
                 w.units_done,
                 w.samples_done,

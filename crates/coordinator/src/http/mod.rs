@@ -21,6 +21,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Form, Json, Router};
 use serde_json::{json, Value};
+use tessera_proto::convert::job_state_name;
 use tessera_proto::ids::JobId;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_server::Jobs;
@@ -293,23 +294,12 @@ fn refused(s: tonic::Status) -> Response {
     (code, Json(json!({ "error": s.message() }))).into_response()
 }
 
-fn state_name(state: i32) -> &'static str {
-    match pb::JobState::try_from(state) {
-        Ok(pb::JobState::Queued) => "queued",
-        Ok(pb::JobState::Running) => "running",
-        Ok(pb::JobState::Done) => "done",
-        Ok(pb::JobState::Cancelled) => "cancelled",
-        Ok(pb::JobState::Failed) => "failed",
-        _ => "unknown",
-    }
-}
-
 /// A job's status as the dashboard reads it: `tessera status`'s fields, named for JSON.
 fn job_json(s: &pb::JobStatus) -> Value {
     let settings = s.settings.unwrap_or_default();
     json!({
         "id": s.job_id,
-        "state": state_name(s.state),
+        "state": job_state_name(s.state),
         "priority": s.priority,
         "scene": s.scene_name,
         "output": s.output_name,
@@ -337,7 +327,7 @@ fn job_json(s: &pb::JobStatus) -> Value {
         "frames": s.frames.iter().map(|f| json!({
             "frame": f.frame,
             "id": f.job_id,
-            "state": state_name(f.state),
+            "state": job_state_name(f.state),
             "units_done": f.units_done,
             "units_total": f.units_total,
             "output": f.output_name,
@@ -368,7 +358,7 @@ async fn job(State(app): State<App>, Path(id): Path<String>) -> Response {
 async fn cancel(State(app): State<App>, Path(id): Path<String>) -> Response {
     let req = RpcRequest::new(pb::CancelJobRequest { job_id: id });
     match app.svc.cancel_job(req).await {
-        Ok(r) => Json(json!({ "state": state_name(r.get_ref().state) })).into_response(),
+        Ok(r) => Json(json!({ "state": job_state_name(r.get_ref().state) })).into_response(),
         Err(s) => refused(s),
     }
 }
@@ -381,26 +371,13 @@ async fn list_workers(State(app): State<App>) -> Response {
                 .workers
                 .iter()
                 .map(|w| {
-                    let state = if w.convicted.is_empty() && !w.quarantined {
-                        if w.suspect {
-                            "suspect"
-                        } else if w.alive {
-                            "alive"
-                        } else {
-                            "gone"
-                        }
-                    } else if w.convicted.is_empty() {
-                        "quarantined"
-                    } else {
-                        "convicted"
-                    };
                     json!({
                         "id": w.worker_id,
                         "name": w.name,
                         "host": w.host,
                         "threads": w.cores,
                         "version": w.version,
-                        "state": state,
+                        "state": w.state(),
                         "leases": w.leases,
                         "units_done": w.units_done,
                         "samples_done": w.samples_done,
@@ -605,15 +582,37 @@ fn tls_config(tls: &ServerTls) -> Result<Arc<rustls::ServerConfig>, CoordinatorE
     Ok(Arc::new(cfg))
 }
 
-/// Serves the dashboard on `listener` until `stop` turns true, then lets requests in flight
-/// finish (for at most a few seconds).
-pub(crate) async fn serve(
+/// The dashboard, ready to serve: its TLS identity (if any) is loaded, so that a bad one stops
+/// the coordinator before it says it is up.
+pub(crate) struct Dashboard {
+    listener: TcpListener,
+    tls: Option<Arc<rustls::ServerConfig>>,
+}
+
+impl Dashboard {
+    /// Prepares a dashboard on `listener`, with the coordinator's TLS identity if it has one.
+    pub(crate) fn new(
+        listener: TcpListener,
+        tls: Option<&ServerTls>,
+    ) -> Result<Self, CoordinatorError> {
+        let tls = tls.map(tls_config).transpose()?;
+        Ok(Self { listener, tls })
+    }
+
+    /// Serves `svc` until `stop` turns true, then lets requests in flight finish (for at most a
+    /// few seconds).
+    pub(crate) async fn serve(self, svc: Service, stop: watch::Receiver<bool>) {
+        serve(svc, self.listener, self.tls, stop).await;
+    }
+}
+
+async fn serve(
     svc: Service,
     listener: TcpListener,
+    tls: Option<Arc<rustls::ServerConfig>>,
     mut stop: watch::Receiver<bool>,
-) -> Result<(), CoordinatorError> {
+) {
     let config = &svc.shared.config;
-    let tls = config.tls.as_ref().map(tls_config).transpose()?;
     let app = App {
         auth: Arc::new(Auth::new(config.token.as_ref(), tls.is_some())),
         previews: Arc::default(),
@@ -660,7 +659,6 @@ pub(crate) async fn serve(
         });
     }
     let _ = tokio::time::timeout(Duration::from_secs(5), graceful.shutdown()).await;
-    Ok(())
 }
 
 /// Returns once `stop` is true (or its sender is gone).
