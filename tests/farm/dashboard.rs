@@ -271,6 +271,27 @@ async fn the_preview_shows_the_merged_sums_then_the_exr() {
     .await;
     assert_eq!(r.status, 400);
     assert!(r.text().contains("expected color or noise"), "{}", r.text());
+    // Hostile or odd parameters: refused with the reason, or read as the default; no panic.
+    for (query, status) in [
+        ("exposure=1e39", 200),
+        ("exposure=NaN", 200),
+        ("exposure=-inf", 200),
+        ("exposure=abc", 400),
+        ("exposure=1&exposure=2", 400),
+    ] {
+        let path = format!("/api/jobs/{job}/preview.png?{query}");
+        let r = http(addr, "GET", &path, &[], "").await;
+        assert_eq!(r.status, status, "{query}: {}", r.text());
+    }
+    let long = "9".repeat(5000);
+    for path in [
+        format!("/api/jobs/job-{long}/preview.png"),
+        format!("/api/jobs/{job}/output.exr?frame=-1"),
+        "/api/jobs/job-000001%00/preview.png".to_string(),
+    ] {
+        let r = http(addr, "GET", &path, &[], "").await;
+        assert!((400..500).contains(&r.status), "{path}: {}", r.status);
+    }
 
     // The rest by real workers.
     let w1 = worker(&coord.url(), "w1");

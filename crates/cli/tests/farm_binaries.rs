@@ -459,10 +459,14 @@ fn an_auditing_coordinator_checks_every_unit_and_keeps_the_bits() {
         .skip(1)
         .map(|l| {
             let cols: Vec<&str> = l.split_whitespace().collect();
-            cols[cols.len() - 2].parse::<u64>().expect("AUDITS column")
+            assert_eq!(cols.last(), Some(&"127.0.0.1"), "HOST column: {l}");
+            cols[cols.len() - 3].parse::<u64>().expect("AUDITS column")
         })
         .sum::<u64>();
-    assert!(table.contains("AUDITS"), "{table}");
+    assert!(
+        table.contains("AUDITS") && table.contains("HOST"),
+        "{table}"
+    );
     // Every unit was merged once two copies agreed: each merge passed two workers' audits.
     assert!(audits >= 2, "{table}");
     assert!(!table.contains("convicted"), "{table}");

@@ -669,7 +669,7 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
             .into_inner()
             .workers;
         outln!(
-            "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>6} {:>9}",
+            "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>6} {:>9}  HOST",
             "WORKER",
             "NAME",
             "CORES",
@@ -683,7 +683,7 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
         );
         for w in &workers {
             outln!(
-                "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>6} {:>8.1}s",
+                "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>6} {:>8.1}s  {}",
                 w.worker_id,
                 printable(&w.name),
                 w.cores,
@@ -693,7 +693,12 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
                 w.samples_done,
                 w.bad_results,
                 w.audits_passed,
-                w.last_seen_ms_ago as f64 / 1000.0
+                w.last_seen_ms_ago as f64 / 1000.0,
+                if w.host.is_empty() {
+                    "-".to_string()
+                } else {
+                    printable(&w.host)
+                }
             );
         }
         for w in workers.iter().filter(|w| !w.convicted.is_empty()) {
