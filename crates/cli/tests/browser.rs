@@ -4,8 +4,9 @@
 //!
 //! The browser logs in with the token, opens the job's page, waits until the preview shows
 //! something, takes the screenshot docs/images/dashboard.png is made from, watches the
-//! progress move, switches to the noise map and back, and at the end checks that the preview
-//! it shows is the fetched EXR tone-mapped and that its download link gives the EXR.
+//! progress move, switches to the noise map and back, turns the exposure up and down, and at
+//! the end checks that the preview it shows is the fetched EXR tone-mapped and that its
+//! download link gives the EXR.
 //!
 //! Built only with the `browser` feature (it needs Chromium: `.ci/run` installs Debian's
 //! package): `cargo test --release -p tessera-cli --features browser --test browser`.
@@ -188,19 +189,25 @@ impl Cdp {
 const PAGE_STATE: &str = r#"(() => {
   const img = document.getElementById("preview");
   const text = (id) => { const e = document.getElementById(id); return e ? e.textContent : null; };
-  let bright = 0;
+  let bright = 0, sum = 0;
   if (img && img.complete && img.naturalWidth > 0) {
     const c = document.createElement("canvas");
     c.width = img.naturalWidth; c.height = img.naturalHeight;
     const g = c.getContext("2d");
     g.drawImage(img, 0, 0);
     const d = g.getImageData(0, 0, c.width, c.height).data;
-    for (let i = 0; i < d.length; i += 4) if (d[i] + d[i + 1] + d[i + 2] > 30) bright++;
+    for (let i = 0; i < d.length; i += 4) {
+      const v = d[i] + d[i + 1] + d[i + 2];
+      sum += v;
+      if (v > 30) bright++;
+    }
   }
   return {
     login: document.getElementById("token") !== null,
     units: img ? img.dataset.units || null : null,
     view: img ? img.dataset.view || null : null,
+    exposure: img ? img.dataset.exposure || null : null,
+    mean: img && img.naturalWidth > 0 ? sum / (3 * img.naturalWidth * img.naturalHeight) : 0,
     shown_state: img ? img.dataset.state || null : null,
     bright,
     state: text("stat-state"),
@@ -349,9 +356,36 @@ fn the_dashboard_in_chromium_follows_a_job_to_its_exr() {
     eprintln!("noise view: {noise}");
     cdp.eval("document.getElementById('view-toggle').click(); true");
 
+    // Two stops up brightens the picture; then back to 0.
+    let set_exposure = |cdp: &mut Cdp, ev: &str| {
+        cdp.eval(&format!(
+            "(() => {{ const e = document.getElementById('exposure'); e.value = '{ev}'; \
+             e.dispatchEvent(new Event('input')); return true; }})()"
+        ));
+        wait_for(&format!("the preview at {ev} EV"), || {
+            let s = cdp.eval(PAGE_STATE);
+            (s["view"] == "color" && s["exposure"] == ev).then_some(s)
+        })
+    };
+    let at0 = wait_for("the image view again", || {
+        let s = cdp.eval(PAGE_STATE);
+        (s["view"] == "color").then_some(s)
+    });
+    let at2 = set_exposure(&mut cdp, "2");
+    let (m0, m2) = (
+        at0["mean"].as_f64().unwrap_or(0.0),
+        at2["mean"].as_f64().unwrap_or(0.0),
+    );
+    assert!(
+        m2 > 1.2 * m0,
+        "+2 EV did not brighten the preview: {m0} then {m2}"
+    );
+    set_exposure(&mut cdp, "0");
+
     let done = wait_for("the page to show the job done", || {
         let s = cdp.eval(PAGE_STATE);
-        (s["state"] == "done" && s["shown_state"] == "done" && s["view"] == "color").then_some(s)
+        let shown = s["shown_state"] == "done" && s["view"] == "color" && s["exposure"] == "0";
+        (s["state"] == "done" && shown).then_some(s)
     });
     assert_eq!(
         done["progress"].as_str().map(str::trim),

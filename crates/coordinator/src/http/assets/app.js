@@ -102,6 +102,7 @@ function updatePreview(j) {
     img.dataset.units = j.units_done;
     img.dataset.state = j.state;
     img.dataset.view = preview.view;
+    img.dataset.exposure = String(preview.exposure);
     preview.shown = tag;
     preview.loading = false;
     document.getElementById("preview-note").textContent =
