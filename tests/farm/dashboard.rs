@@ -332,8 +332,41 @@ async fn the_preview_shows_the_merged_sums_then_the_exr() {
         "",
     )
     .await;
-    assert_eq!(r.status, 409, "{}", r.text());
+    // The finished job's per-tile noise is kept for its noise view.
+    assert_eq!(r.status, 200, "{}", r.text());
+    let (_, _, noise) = decode_png(&r.body);
+    assert!(noise != px, "the finished job's noise view is its image");
     w1.abort();
+    coord.stop().await;
+
+    // Not across a restart: the sums it came from are gone.
+    let coord = Coordinator::start_with_dashboard(
+        &dir.path().join("data"),
+        Duration::from_secs(30),
+        |_| {},
+    )
+    .await;
+    let addr = coord.http.expect("dashboard");
+    let r = http(
+        addr,
+        "GET",
+        &format!("/api/jobs/{job}/preview.png?view=noise"),
+        &[],
+        "",
+    )
+    .await;
+    assert_eq!(r.status, 409, "{}", r.text());
+    assert!(r.text().contains("not kept"), "{}", r.text());
+    let r = http(
+        addr,
+        "GET",
+        &format!("/api/jobs/{job}/preview.png"),
+        &[],
+        "",
+    )
+    .await;
+    let (_, _, again) = decode_png(&r.body);
+    assert!(again == px, "after a restart the preview is not the EXR's");
     coord.stop().await;
 }
 

@@ -22,6 +22,20 @@ pub struct Unit {
     pub batch: u32,
 }
 
+/// Most tiles a finished job keeps its per-tile noise for ([`Job::final_tile_noise`]): 256 KiB.
+pub const MAX_KEPT_TILE_NOISE: usize = 1 << 16;
+
+/// The relative noise of sums whose [`TileSums::noise_parts`] are `parts`: the RMS standard
+/// error of the pixel means over their mean; NaN where there are no samples (or no signal).
+pub fn relative_noise(parts: (f64, f64, u64)) -> f32 {
+    let (var, mean, n) = parts;
+    if n > 0 && mean > 0.0 {
+        ((var.max(0.0) / n as f64).sqrt() / (mean / n as f64)) as f32
+    } else {
+        f32::NAN
+    }
+}
+
 /// A running total's recent rate: (time, total) points over the last ten seconds.
 #[derive(Debug, Default)]
 pub struct Rate(VecDeque<(Instant, u64)>);
@@ -248,6 +262,10 @@ pub struct Job {
     /// Audited jobs: units rendered more than once and not yet settled (kept in memory only:
     /// after a restart such a unit is rendered again).
     pub audits: HashMap<Unit, AuditHold>,
+    /// A finished job's per-tile relative noise, kept (in memory only) for the dashboard's
+    /// noise view once the sums are gone; none for a job of more than [`MAX_KEPT_TILE_NOISE`]
+    /// tiles, or one that ended before this boot.
+    pub final_tile_noise: Option<Vec<f32>>,
 }
 
 /// Whether one pixel's sums could come from `k` finite samples. The renderer's samples are
@@ -313,6 +331,7 @@ impl Job {
             started: false,
             finishing: false,
             audits: HashMap::new(),
+            final_tile_noise: None,
         }
     }
 
@@ -859,6 +878,13 @@ impl Job {
                         .unwrap_or_else(|| TileSums::empty(rect, 0)),
                 )
             })
+            .collect()
+    }
+
+    /// Each tile's relative noise from its merged sums, row-major ([`relative_noise`]).
+    pub fn tile_noise(&self) -> Vec<f32> {
+        (0..self.tiles.len() as u32)
+            .map(|t| relative_noise(self.acc.get(&t).map(|a| a.noise).unwrap_or_default()))
             .collect()
     }
 

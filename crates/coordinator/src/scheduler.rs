@@ -1182,6 +1182,8 @@ impl Scheduler {
         if phase == JobPhase::Done {
             job.rec.final_noise = job.noise();
             job.rec.final_counts = (job.units_done, job.samples_done);
+            job.final_tile_noise =
+                (job.tiles.len() <= crate::job::MAX_KEPT_TILE_NOISE).then(|| job.tile_noise());
         }
         job.rec.phase = phase;
         job.rec.error = error;

@@ -14,6 +14,7 @@ use tessera_proto::ids::JobId;
 use tessera_render::output::{read_exr_rgb, tone_map, Preview};
 use tessera_render::PixelRect;
 
+use crate::job::{relative_noise, MAX_KEPT_TILE_NOISE};
 use crate::shared::Shared;
 use crate::store::JobPhase;
 
@@ -51,7 +52,7 @@ pub enum NoPreview {
     Unknown,
     /// It is a frame range: its frames have previews, not the range.
     Range,
-    /// It ended without an image, or (for the noise view) its per-tile noise is gone.
+    /// It ended without an image, or (for the noise view) its per-tile noise was not kept.
     Gone(String),
     /// Reading its EXR or encoding failed.
     Failed(String),
@@ -141,7 +142,8 @@ impl Previews {
         let cached = self.snapshot(shared, id).await?;
         if view == View::Noise && cached.frame.tiles.is_empty() {
             return Err(NoPreview::Gone(format!(
-                "{id} has ended: per-tile noise is kept only while a job runs"
+                "{id} has ended and its per-tile noise is not kept (it ended before the \
+                 coordinator's last start, or has more than {MAX_KEPT_TILE_NOISE} tiles)"
             )));
         }
         // Tenths of a stop: finer steps look the same and would only fill the cache.
@@ -201,27 +203,37 @@ impl Previews {
 
 /// Takes a snapshot of job `id`: its merged means while it runs, its EXR once it is done.
 async fn take(shared: &Arc<Shared>, id: JobId) -> Result<Frame, NoPreview> {
-    let (phase, width, height, n_tiles, output) = {
+    let (phase, width, height, n_tiles, output, kept_noise) = {
         let core = shared.scheduler();
         if core.ranges.contains_key(&id) {
             return Err(NoPreview::Range);
         }
         let job = core.jobs.get(&id).ok_or(NoPreview::Unknown)?;
+        let kept_noise: Vec<(PixelRect, f32)> = job
+            .final_tile_noise
+            .iter()
+            .flatten()
+            .enumerate()
+            .filter_map(|(t, &rel)| Some((job.tiles.get(t as u32)?, rel)))
+            .collect();
         (
             job.rec.phase,
             job.rec.width,
             job.rec.height,
             job.tiles.len() as u32,
             job.rec.output_name.clone(),
+            kept_noise,
         )
     };
     match phase {
         JobPhase::Active => {}
         JobPhase::Done => {
             let path = shared.config.output_path(&output);
-            return tokio::task::spawn_blocking(move || from_exr(&path))
+            let mut frame = tokio::task::spawn_blocking(move || from_exr(&path))
                 .await
-                .map_err(|e| NoPreview::Failed(e.to_string()))?;
+                .map_err(|e| NoPreview::Failed(e.to_string()))??;
+            frame.tiles = kept_noise;
+            return Ok(frame);
         }
         JobPhase::Cancelled | JobPhase::Failed => {
             return Err(NoPreview::Gone(format!(
@@ -258,12 +270,7 @@ fn copy_tiles(
             continue;
         };
         let acc = job.acc.get(&t);
-        let (var, mean, n) = acc.map(|a| a.noise).unwrap_or_default();
-        let rel = if n > 0 && mean > 0.0 {
-            ((var.max(0.0) / n as f64).sqrt() / (mean / n as f64)) as f32
-        } else {
-            f32::NAN
-        };
+        let rel = relative_noise(acc.map(|a| a.noise).unwrap_or_default());
         frame.tiles.push((rect, rel));
         let Some(sums) = acc.and_then(|a| a.sums.as_ref()) else {
             continue;
