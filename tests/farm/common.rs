@@ -400,6 +400,11 @@ impl Reply {
     }
 }
 
+/// A GET of `path` from `addr`, with no headers.
+pub async fn get(addr: SocketAddr, path: &str) -> Reply {
+    http(addr, "GET", path, &[], "").await
+}
+
 /// One HTTP/1.1 request to `addr` on a connection of its own.
 pub async fn http(
     addr: SocketAddr,

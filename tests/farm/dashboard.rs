@@ -217,14 +217,7 @@ async fn the_preview_shows_the_merged_sums_then_the_exr() {
         .await
         .expect("submit");
 
-    let r = http(
-        addr,
-        "GET",
-        &format!("/api/jobs/{job}/preview.png"),
-        &[],
-        "",
-    )
-    .await;
+    let r = get(addr, &format!("/api/jobs/{job}/preview.png")).await;
     assert_eq!(r.status, 200, "{}", r.text());
     assert_eq!(r.header("content-type"), Some("image/png"));
     let (w, h, px) = decode_png(&r.body);
@@ -250,25 +243,11 @@ async fn the_preview_shows_the_merged_sums_then_the_exr() {
             }
         }
     }
-    let r = http(
-        addr,
-        "GET",
-        &format!("/api/jobs/{job}/preview.png?view=noise"),
-        &[],
-        "",
-    )
-    .await;
+    let r = get(addr, &format!("/api/jobs/{job}/preview.png?view=noise")).await;
     assert_eq!(r.status, 200, "{}", r.text());
     let (_, _, noise) = decode_png(&r.body);
     assert_ne!(noise, px, "the noise view is the image");
-    let r = http(
-        addr,
-        "GET",
-        &format!("/api/jobs/{job}/preview.png?view=x"),
-        &[],
-        "",
-    )
-    .await;
+    let r = get(addr, &format!("/api/jobs/{job}/preview.png?view=x")).await;
     assert_eq!(r.status, 400);
     assert!(r.text().contains("expected color or noise"), "{}", r.text());
     // Hostile or odd parameters: refused with the reason, or read as the default; no panic.
@@ -280,7 +259,7 @@ async fn the_preview_shows_the_merged_sums_then_the_exr() {
         ("exposure=1&exposure=2", 400),
     ] {
         let path = format!("/api/jobs/{job}/preview.png?{query}");
-        let r = http(addr, "GET", &path, &[], "").await;
+        let r = get(addr, &path).await;
         assert_eq!(r.status, status, "{query}: {}", r.text());
     }
     let long = "9".repeat(5000);
@@ -289,7 +268,7 @@ async fn the_preview_shows_the_merged_sums_then_the_exr() {
         format!("/api/jobs/{job}/output.exr?frame=-1"),
         "/api/jobs/job-000001%00/preview.png".to_string(),
     ] {
-        let r = http(addr, "GET", &path, &[], "").await;
+        let r = get(addr, &path).await;
         assert!((400..500).contains(&r.status), "{path}: {}", r.status);
     }
 
@@ -302,7 +281,7 @@ async fn the_preview_shows_the_merged_sums_then_the_exr() {
         exr == local_exr(&text, spp, batch, dir.path()),
         "farm EXR differs"
     );
-    let r = http(addr, "GET", &format!("/api/jobs/{job}/output.exr"), &[], "").await;
+    let r = get(addr, &format!("/api/jobs/{job}/output.exr")).await;
     assert_eq!(r.status, 200);
     assert!(r.body == exr, "the download is not the EXR");
     assert!(r
@@ -311,27 +290,13 @@ async fn the_preview_shows_the_merged_sums_then_the_exr() {
     let path = dir.path().join("fetched.exr");
     std::fs::write(&path, &exr).expect("write");
     let image = tessera_render::output::read_exr_rgb(&path).expect("read EXR");
-    let r = http(
-        addr,
-        "GET",
-        &format!("/api/jobs/{job}/preview.png"),
-        &[],
-        "",
-    )
-    .await;
+    let r = get(addr, &format!("/api/jobs/{job}/preview.png")).await;
     let (_, _, px) = decode_png(&r.body);
     assert!(
         px == tone_mapped(&image.rgb),
         "the final preview is not the EXR tone-mapped"
     );
-    let r = http(
-        addr,
-        "GET",
-        &format!("/api/jobs/{job}/preview.png?view=noise"),
-        &[],
-        "",
-    )
-    .await;
+    let r = get(addr, &format!("/api/jobs/{job}/preview.png?view=noise")).await;
     // The finished job's per-tile noise is kept for its noise view.
     assert_eq!(r.status, 200, "{}", r.text());
     let (_, _, noise) = decode_png(&r.body);
@@ -347,24 +312,10 @@ async fn the_preview_shows_the_merged_sums_then_the_exr() {
     )
     .await;
     let addr = coord.http.expect("dashboard");
-    let r = http(
-        addr,
-        "GET",
-        &format!("/api/jobs/{job}/preview.png?view=noise"),
-        &[],
-        "",
-    )
-    .await;
+    let r = get(addr, &format!("/api/jobs/{job}/preview.png?view=noise")).await;
     assert_eq!(r.status, 409, "{}", r.text());
     assert!(r.text().contains("not kept"), "{}", r.text());
-    let r = http(
-        addr,
-        "GET",
-        &format!("/api/jobs/{job}/preview.png"),
-        &[],
-        "",
-    )
-    .await;
+    let r = get(addr, &format!("/api/jobs/{job}/preview.png")).await;
     let (_, _, again) = decode_png(&r.body);
     assert!(again == px, "after a restart the preview is not the EXR's");
     coord.stop().await;
@@ -395,7 +346,7 @@ async fn previews_are_computed_at_most_a_few_times_a_second() {
         let round: Vec<_> = (0..40)
             .map(|i| {
                 let path = format!("/api/jobs/{job}/preview.png?exposure={}", i % 3);
-                tokio::spawn(async move { http(addr, "GET", &path, &[], "").await.status })
+                tokio::spawn(async move { get(addr, &path).await.status })
             })
             .collect();
         for r in round {
@@ -405,7 +356,7 @@ async fn previews_are_computed_at_most_a_few_times_a_second() {
     }
     let elapsed = start.elapsed();
     let merged_meanwhile = job_status(&mut client, &job).await.units_done;
-    let metrics = http(addr, "GET", "/metrics", &[], "").await.text();
+    let metrics = get(addr, "/metrics").await.text();
     let computed = sample(&metrics, "tessera_dashboard_previews_total", &[]);
     let most = (elapsed.as_secs_f64() / 0.25).floor() + 1.0;
     assert!(
@@ -451,7 +402,7 @@ async fn metrics_parse_and_agree_with_the_status() {
     let job = submit(&mut client, &scene_text(32), 8, 2, 0).await;
     let done = wait(&mut client, &job).await;
     assert_eq!(done.state, pb::JobState::Done as i32);
-    let r = http(addr, "GET", "/metrics", &[], "").await;
+    let r = get(addr, "/metrics").await;
     assert_eq!(r.status, 200);
     assert!(r
         .header("content-type")
@@ -510,7 +461,7 @@ async fn the_grafana_dashboard_queries_only_metrics_that_exist() {
     let mut client = coord.client().await;
     let job = submit(&mut client, &scene_text(16), 2, 2, 0).await;
     wait(&mut client, &job).await;
-    let metrics = http(addr, "GET", "/metrics", &[], "").await.text();
+    let metrics = get(addr, "/metrics").await.text();
     let exported: std::collections::BTreeSet<&str> = metrics
         .lines()
         .filter_map(|l| l.strip_prefix("# TYPE "))
