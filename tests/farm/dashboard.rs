@@ -574,3 +574,39 @@ async fn the_dashboard_serves_tls_when_the_farm_has_it() {
     assert_eq!(r.status(), 200);
     coord.stop().await;
 }
+
+/// A connection to the dashboard that sends nothing, or stops halfway through choosing its
+/// protocol, is closed once it has been silent for the idle time, as on the gRPC port: silent
+/// connections cannot fill the dashboard's slots.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn silent_dashboard_connections_are_closed() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord =
+        Coordinator::start_with_dashboard(&dir.path().join("data"), Duration::from_secs(30), |c| {
+            c.idle_connection = Duration::from_millis(500);
+        })
+        .await;
+    let addr = coord.http.expect("dashboard");
+    for opening in [&b""[..], b"PRI * HTTP/2.0\r\n", b"GET / HTTP/1.1\r\nhost"] {
+        let mut tcp = tokio::net::TcpStream::connect(addr).await.expect("connect");
+        tcp.write_all(opening).await.expect("write");
+        let mut buf = [0u8; 256];
+        let closed = tokio::time::timeout(PATIENCE, async {
+            loop {
+                match tcp.read(&mut buf).await {
+                    Ok(0) | Err(_) => return,
+                    Ok(_) => {}
+                }
+            }
+        })
+        .await;
+        assert!(
+            closed.is_ok(),
+            "a silent connection after {opening:?} stayed open"
+        );
+    }
+    // A live one is served.
+    assert_eq!(get(addr, "/api/jobs").await.status, 200);
+    coord.stop().await;
+}

@@ -28,8 +28,9 @@ use tessera_proto::v1::jobs_server::Jobs;
 use tokio::net::TcpListener;
 use tokio::sync::watch;
 use tokio_rustls::rustls;
+use tokio_stream::StreamExt as _;
 use tonic::Request as RpcRequest;
-use tracing::{debug, warn};
+use tracing::debug;
 
 use crate::config::ServerTls;
 use crate::error::CoordinatorError;
@@ -456,7 +457,6 @@ async fn output_exr(
     Path(id): Path<String>,
     Query(q): Query<OutputQuery>,
 ) -> Response {
-    use tokio_stream::StreamExt as _;
     let req = RpcRequest::new(pb::FetchResultRequest {
         job_id: id,
         frame: q.frame,
@@ -620,38 +620,35 @@ async fn serve(
     };
     let routes = router(app);
     let acceptor = tls.map(tokio_rustls::TlsAcceptor::from);
-    let permits = Arc::new(tokio::sync::Semaphore::new(MAX_CONNECTIONS));
+    // The gRPC port's accept loop: at most MAX_CONNECTIONS open, and one whose peer sends
+    // nothing for `Config::idle_connection` (60 s) is closed, so silent connections (a client that
+    // never finishes choosing a protocol, an HTTP/2 peer that goes quiet) cannot fill it.
+    let mut incoming = crate::conn::Limited::new(listener, MAX_CONNECTIONS, config.idle_connection);
     let graceful = hyper_util::server::graceful::GracefulShutdown::new();
     loop {
-        let permit = tokio::select! {
-            p = permits.clone().acquire_owned() => p,
-            _ = stopped(&mut stop) => break,
-        };
-        let Ok(permit) = permit else { break };
-        let (tcp, peer) = tokio::select! {
-            r = listener.accept() => match r {
-                Ok(x) => x,
-                Err(e) => {
-                    // Out of descriptors and the like: wait instead of spinning.
-                    warn!("dashboard: accept failed: {e}");
-                    tokio::time::sleep(Duration::from_millis(100)).await;
-                    continue;
-                }
+        let conn = tokio::select! {
+            c = incoming.next() => match c {
+                Some(Ok(c)) => c,
+                Some(Err(_)) => continue,
+                None => break,
             },
             _ = stopped(&mut stop) => break,
         };
+        let peer = tonic::transport::server::Connected::connect_info(&conn)
+            .remote_addr()
+            .map(|a| a.to_string())
+            .unwrap_or_default();
         let routes = routes.clone();
         let acceptor = acceptor.clone();
         let watcher = graceful.watcher();
         tokio::spawn(async move {
-            let _permit = permit;
             let io: Box<dyn Io> = match acceptor {
-                Some(a) => match tokio::time::timeout(HANDSHAKE, a.accept(tcp)).await {
+                Some(a) => match tokio::time::timeout(HANDSHAKE, a.accept(conn)).await {
                     Ok(Ok(s)) => Box::new(s),
                     Ok(Err(e)) => return debug!("dashboard: TLS handshake from {peer}: {e}"),
                     Err(_) => return debug!("dashboard: TLS handshake from {peer} timed out"),
                 },
-                None => Box::new(tcp),
+                None => Box::new(conn),
             };
             if let Err(e) = watcher.watch(serve_connection(io, routes)).await {
                 debug!("dashboard: connection from {peer}: {e}");
