@@ -447,3 +447,25 @@ pub async fn http(
         body,
     }
 }
+
+/// A test CA and a certificate it signed for `localhost`: (CA, certificate PEM, key PEM).
+pub fn test_ca_and_cert() -> (rcgen::Certificate, String, String) {
+    let ca_key = rcgen::KeyPair::generate().expect("key");
+    let mut ca_params = rcgen::CertificateParams::new(Vec::<String>::new()).expect("params");
+    ca_params.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);
+    let ca = ca_params.self_signed(&ca_key).expect("ca");
+    let issuer = rcgen::Issuer::new(ca_params, ca_key);
+    let key = rcgen::KeyPair::generate().expect("key");
+    let params = rcgen::CertificateParams::new(vec!["localhost".to_string()]).expect("params");
+    let cert = params.signed_by(&key, &issuer).expect("cert");
+    (ca, cert.pem(), key.serialize_pem())
+}
+
+/// A coordinator with its dashboard and default settings (lease 30 s) under `dir/data`, and
+/// the dashboard's address.
+pub async fn dashboard_farm(dir: &Path) -> (Coordinator, SocketAddr) {
+    let coord =
+        Coordinator::start_with_dashboard(&dir.join("data"), Duration::from_secs(30), |_| {}).await;
+    let addr = coord.http.expect("dashboard");
+    (coord, addr)
+}

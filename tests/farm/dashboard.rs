@@ -181,13 +181,7 @@ fn tone_mapped(rgb: &[[f32; 3]]) -> Vec<u8> {
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn the_preview_shows_the_merged_sums_then_the_exr() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let coord = Coordinator::start_with_dashboard(
-        &dir.path().join("data"),
-        Duration::from_secs(30),
-        |_| {},
-    )
-    .await;
-    let addr = coord.http.expect("dashboard");
+    let (coord, addr) = dashboard_farm(dir.path()).await;
     let mut client = coord.client().await;
     let text = scene_text(32);
     let (spp, batch) = (8, 4);
@@ -305,13 +299,7 @@ async fn the_preview_shows_the_merged_sums_then_the_exr() {
     coord.stop().await;
 
     // Not across a restart: the sums it came from are gone.
-    let coord = Coordinator::start_with_dashboard(
-        &dir.path().join("data"),
-        Duration::from_secs(30),
-        |_| {},
-    )
-    .await;
-    let addr = coord.http.expect("dashboard");
+    let (coord, addr) = dashboard_farm(dir.path()).await;
     let r = get(addr, &format!("/api/jobs/{job}/preview.png?view=noise")).await;
     assert_eq!(r.status, 409, "{}", r.text());
     assert!(r.text().contains("not kept"), "{}", r.text());
@@ -326,13 +314,7 @@ async fn the_preview_shows_the_merged_sums_then_the_exr() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn previews_are_computed_at_most_a_few_times_a_second() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let coord = Coordinator::start_with_dashboard(
-        &dir.path().join("data"),
-        Duration::from_secs(30),
-        |_| {},
-    )
-    .await;
-    let addr = coord.http.expect("dashboard");
+    let (coord, addr) = dashboard_farm(dir.path()).await;
     let mut client = coord.client().await;
     let job = submit(&mut client, &scene_text(128), 256, 2, 0).await;
     let w = worker(&coord.url(), "busy");
@@ -390,13 +372,7 @@ fn sample(text: &str, name: &str, labels: &[(&str, &str)]) -> f64 {
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn metrics_parse_and_agree_with_the_status() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let coord = Coordinator::start_with_dashboard(
-        &dir.path().join("data"),
-        Duration::from_secs(30),
-        |_| {},
-    )
-    .await;
-    let addr = coord.http.expect("dashboard");
+    let (coord, addr) = dashboard_farm(dir.path()).await;
     let mut client = coord.client().await;
     let workers = [worker(&coord.url(), "m1"), worker(&coord.url(), "m2")];
     let job = submit(&mut client, &scene_text(32), 8, 2, 0).await;
@@ -450,13 +426,7 @@ async fn metrics_parse_and_agree_with_the_status() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn the_grafana_dashboard_queries_only_metrics_that_exist() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let coord = Coordinator::start_with_dashboard(
-        &dir.path().join("data"),
-        Duration::from_secs(30),
-        |_| {},
-    )
-    .await;
-    let addr = coord.http.expect("dashboard");
+    let (coord, addr) = dashboard_farm(dir.path()).await;
     let w = worker(&coord.url(), "g1");
     let mut client = coord.client().await;
     let job = submit(&mut client, &scene_text(16), 2, 2, 0).await;
@@ -506,16 +476,8 @@ async fn the_grafana_dashboard_queries_only_metrics_that_exist() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn the_dashboard_serves_tls_when_the_farm_has_it() {
     use tokio_rustls::rustls;
-    let ca_key = rcgen::KeyPair::generate().expect("key");
-    let mut ca_params = rcgen::CertificateParams::new(Vec::<String>::new()).expect("params");
-    ca_params.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);
-    let ca = ca_params.self_signed(&ca_key).expect("ca");
-    let issuer = rcgen::Issuer::new(ca_params, ca_key);
-    let key = rcgen::KeyPair::generate().expect("key");
-    let params = rcgen::CertificateParams::new(vec!["localhost".to_string()]).expect("params");
-    let cert = params.signed_by(&key, &issuer).expect("cert");
+    let (ca, cert_pem, key_pem) = test_ca_and_cert();
     let dir = tempfile::tempdir().expect("tempdir");
-    let (cert_pem, key_pem) = (cert.pem(), key.serialize_pem());
     let coord =
         Coordinator::start_with_dashboard(&dir.path().join("data"), Duration::from_secs(30), |c| {
             c.token = Some(Secret::new(TOKEN));

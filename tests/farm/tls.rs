@@ -5,18 +5,11 @@ use crate::common::*;
 /// A job runs end to end over TLS (server certificate from a test CA), with a token too.
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_job_completes_over_tls() {
-    let ca_key = rcgen::KeyPair::generate().expect("key");
-    let mut ca_params = rcgen::CertificateParams::new(Vec::<String>::new()).expect("params");
-    ca_params.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);
-    let ca = ca_params.self_signed(&ca_key).expect("ca");
-    let issuer = rcgen::Issuer::new(ca_params, ca_key);
-    let key = rcgen::KeyPair::generate().expect("key");
-    let params = rcgen::CertificateParams::new(vec!["localhost".to_string()]).expect("params");
-    let cert = params.signed_by(&key, &issuer).expect("cert");
+    let (ca, cert_pem, key_pem) = test_ca_and_cert();
 
     let dir = tempfile::tempdir().expect("tempdir");
     let token = Secret::new("tls-token-0123456789abcdef");
-    let (t, cert_pem, key_pem) = (token.clone(), cert.pem(), key.serialize_pem());
+    let t = token.clone();
     let coord = Coordinator::start_with(&dir.path().join("data"), Duration::from_secs(30), |c| {
         c.token = Some(t);
         c.tls = Some(tessera_coordinator::ServerTls {

@@ -78,6 +78,12 @@ pub struct Worker {
 }
 
 impl Worker {
+    /// Whether it counts as alive at `now`: it called within `lease_time` and has not said
+    /// goodbye.
+    pub fn alive(&self, now: Instant, lease_time: Duration) -> bool {
+        !self.gone && now.duration_since(self.last_seen) <= lease_time
+    }
+
     /// Why this worker, whose public id is `id`, gets nothing: quarantined after invalid
     /// results, or convicted by an audit; `None` if it may work.
     fn refusal(&self, id: WorkerId) -> Option<Refusal> {

@@ -563,7 +563,7 @@ impl Jobs for Service {
                     units_done: w.units_done,
                     samples_done: w.samples_done,
                     last_seen_ms_ago: idle.as_millis() as u64,
-                    alive: !w.gone && idle <= core.lease_time,
+                    alive: w.alive(now, core.lease_time),
                     bad_results: w.bad_results,
                     quarantined: w.quarantined,
                     convicted: w.convicted.clone().unwrap_or_default(),

@@ -501,9 +501,7 @@ async fn metrics(State(app): State<App>) -> Response {
             };
             by_state[i] += 1;
         }
-        let alive = |w: &crate::scheduler::Worker| {
-            !w.gone && now.duration_since(w.last_seen) <= core.lease_time
-        };
+        let alive = |w: &crate::scheduler::Worker| w.alive(now, core.lease_time);
         Gauges {
             jobs: ["queued", "running", "done", "cancelled", "failed"]
                 .into_iter()
