@@ -15,6 +15,7 @@ fuzz_target!(|data: &[u8]| {
         max_objects: 256,
         max_bytes: 1 << 16,
         max_spp: 1024,
+        ..Limits::default()
     };
     // A frame from the input too, so that `[animation]` keys are interpolated between, held
     // before the first and after the last.

@@ -195,7 +195,7 @@ fn trace(
         let wo = -ray.d;
 
         if prim.light != u32::MAX {
-            let li = (prim.light + hit.part) as usize;
+            let li = (prim.light + hit.part * prim.light_stride) as usize;
             let le = scene.lights.lights[li].emitted(sp.n, wo);
             if le != Vec3A::ZERO {
                 match strategy {
@@ -217,8 +217,13 @@ fn trace(
             // The back of a one-sided surface absorbs everything.
             break;
         }
-        // Normal on the side the path arrived from.
+        // Normals on the side the path arrived from: the geometric one for ray offsets and
+        // for which side a direction leaves by, the shading one for scattering.
         let n = if front { sp.n } else { -sp.n };
+        let ns = if front { sp.ns } else { -sp.ns };
+        // A smooth mesh's shading normal; elsewhere ns = n and the extra side tests below,
+        // which compare with the geometric normal, would repeat the shading ones.
+        let shaded = sp.ns != sp.n;
         let [u0, u1, next_lx, next_ly] = sampler.get4(1 + 2 * depth);
         let nee = strategy != Strategy::Bsdf && matches!(mat.bsdf, Bsdf::Diffuse(_));
         // u_rr decides Russian roulette after this bounce.
@@ -236,8 +241,11 @@ fn trace(
                 let p_out = offset_ray_origin(sp.p, sp.err, n);
                 if nee {
                     if let Some(ls) = scene.lights.sample(sp.p, u_select, Vec2::new(lx, ly)) {
-                        let cos = n.dot(ls.wi);
-                        if cos > 0.0 && ls.le != Vec3A::ZERO {
+                        let cos = ns.dot(ls.wi);
+                        // A light behind the geometric surface is unreachable, whatever the
+                        // shading normal says.
+                        let reachable = !shaded || n.dot(ls.wi) > 0.0;
+                        if cos > 0.0 && reachable && ls.le != Vec3A::ZERO {
                             let d = ls.p - p_out;
                             if !scene.occluded(&Ray::new(p_out, d), 1.0 - 1e-4) {
                                 let w = if strategy == Strategy::Mis {
@@ -253,12 +261,13 @@ fn trace(
                         }
                     }
                 }
-                let (wi, pdf) = sample_diffuse(n, Vec2::new(u0, u1));
-                // f·cos/pdf = (ρ/π)·cos / (cos/π) = ρ.
+                let (wi, pdf) = sample_diffuse(ns, Vec2::new(u0, u1));
+                // f·cos/pdf = (ρ/π)·cos / (cos/π) = ρ, with cos against the shading normal.
                 beta *= albedo;
                 specular = false;
                 prev_pdf = pdf;
-                if !(prev_pdf > 0.0) {
+                // A direction into the geometric surface scatters nothing: f is 0 there.
+                if !(prev_pdf > 0.0) || (shaded && n.dot(wi) <= 0.0) {
                     break;
                 }
                 Ray::new(p_out, wi)
@@ -266,23 +275,45 @@ fn trace(
             Bsdf::Mirror(r) => {
                 beta *= r;
                 specular = true;
-                Ray::new(offset_ray_origin(sp.p, sp.err, n), reflect(ray.d, n))
+                let wi = reflect(ray.d, ns);
+                if shaded && n.dot(wi) <= 0.0 {
+                    break;
+                }
+                Ray::new(offset_ray_origin(sp.p, sp.err, n), wi)
             }
             Bsdf::Dielectric(ior) => {
                 // The front side (sp.n) is outside.
                 let eta = if front { ior } else { 1.0 / ior };
-                let cos_i = n.dot(wo).min(1.0);
+                let cos_i = ns.dot(wo).min(1.0);
+                if shaded && !(cos_i > 0.0) {
+                    // Seen from behind its shading normal: no Fresnel term is defined.
+                    break;
+                }
                 let (f, cos_t) = fresnel_dielectric(cos_i, eta);
                 specular = true;
-                if u_choice < f {
-                    Ray::new(offset_ray_origin(sp.p, sp.err, n), reflect(ray.d, n))
+                let (wi, through) = if u_choice < f {
+                    (reflect(ray.d, ns), false)
                 } else {
                     // Radiance is compressed by 1/η² entering a denser medium.
-                    let wt = refract(wo, n, eta, cos_i, cos_t);
+                    let wt = refract(wo, ns, eta, cos_i, cos_t);
                     beta /= eta * eta;
                     eta_scale *= eta * eta;
-                    Ray::new(offset_ray_origin(sp.p, sp.err, -n), wt)
-                }
+                    (wt, true)
+                };
+                // Off the side the new direction leaves by: the geometric normal decides it
+                // where the shading normal could disagree.
+                let side = if shaded {
+                    if n.dot(wi) >= 0.0 {
+                        n
+                    } else {
+                        -n
+                    }
+                } else if through {
+                    -n
+                } else {
+                    n
+                };
+                Ray::new(offset_ray_origin(sp.p, sp.err, side), wi)
             }
         };
         prev_p = sp.p;

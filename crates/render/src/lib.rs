@@ -35,6 +35,7 @@ pub mod integrator;
 pub mod lanes;
 pub mod light;
 pub mod math;
+pub mod mesh;
 pub mod output;
 pub mod packet;
 pub mod sampling;

@@ -21,6 +21,61 @@ pub enum LightShape {
         /// Radius.
         radius: f32,
     },
+    /// An emissive mesh, sampled uniformly by area (a triangle by its share of the area,
+    /// then a point uniformly on it).
+    Mesh(MeshLight),
+}
+
+/// The world-space triangles of an emissive mesh instance.
+#[derive(Clone, Debug)]
+pub struct MeshLight {
+    tris: Vec<[Vec3A; 3]>,
+    normals: Vec<Vec3A>,
+    select: Distribution1D,
+    area: f32,
+}
+
+impl MeshLight {
+    /// From world-space triangles with their front normals and areas; `None` when the total
+    /// area is zero.
+    pub fn new(tris: Vec<([Vec3A; 3], Vec3A, f32)>) -> Option<Self> {
+        let areas: Vec<f32> = tris.iter().map(|t| t.2).collect();
+        let select = Distribution1D::new(&areas)?;
+        let area = areas.iter().map(|&a| f64::from(a)).sum::<f64>() as f32;
+        let (tris, normals) = tris.into_iter().map(|(t, n, _)| (t, n)).unzip();
+        Some(Self {
+            tris,
+            normals,
+            select,
+            area,
+        })
+    }
+
+    /// Total area.
+    pub fn area(&self) -> f32 {
+        self.area
+    }
+
+    /// The triangle `u.x` picks, with `u.x` stretched back over [0, 1) for the point.
+    #[inline]
+    fn pick(&self, u: Vec2) -> (usize, [f32; 3]) {
+        let (i, ux) = self.select.sample_remap(u.x);
+        (i, crate::mesh::triangle::sample_uniform(ux, u.y))
+    }
+
+    /// A point uniformly distributed by area: (point, its front normal).
+    #[inline]
+    pub fn sample(&self, u: Vec2) -> (Vec3A, Vec3A) {
+        let (i, b) = self.pick(u);
+        let [p0, p1, p2] = self.tris[i];
+        (p0 * b[0] + p1 * b[1] + p2 * b[2], self.normals[i])
+    }
+
+    fn point_error(&self, u: Vec2) -> Vec3A {
+        let (i, b) = self.pick(u);
+        let [p0, p1, p2] = self.tris[i];
+        crate::mesh::triangle::point_error(b, p0, p1, p2)
+    }
 }
 
 /// One emitter.
@@ -60,6 +115,7 @@ impl Light {
         let area = match &self.shape {
             LightShape::Quad(q) => q.area,
             LightShape::Sphere { radius, .. } => 4.0 * PI * radius * radius,
+            LightShape::Mesh(m) => m.area,
         };
         let sides = if self.two_sided { 2.0 } else { 1.0 };
         area * sides * (self.radiance.x + self.radiance.y + self.radiance.z)
@@ -81,6 +137,7 @@ impl Light {
         match &self.shape {
             LightShape::Quad(q) => q.point_error(u.x, u.y),
             LightShape::Sphere { center, .. } => sphere_point_error(*center, x - *center),
+            LightShape::Mesh(m) => m.point_error(u),
         }
     }
 
@@ -98,6 +155,11 @@ impl Light {
                 Some((x, q.normal, wi, pdf))
             }
             LightShape::Sphere { center, radius } => sample_sphere(*center, *radius, p, u),
+            LightShape::Mesh(m) => {
+                let (x, n) = m.sample(u);
+                let (wi, pdf) = area_to_solid_angle(p, x, n, m.area)?;
+                Some((x, n, wi, pdf))
+            }
         }
     }
 
@@ -113,6 +175,7 @@ impl Light {
                 }
                 4.0 * PI * r2
             }
+            LightShape::Mesh(m) => m.area,
         };
         area_to_solid_angle(p, x, n, area).map_or(0.0, |(_, pdf)| pdf)
     }
@@ -263,6 +326,16 @@ impl Lights {
                         let t = if t0 > 0.0 { t0 } else { t1 };
                         (t > 0.0).then(|| (ray.at(t), (ray.at(t) - *center).normalize()))
                     }),
+                LightShape::Mesh(m) => {
+                    // Every triangle the line crosses: each is a separate way to draw `w`.
+                    for (k, &[p0, p1, p2]) in m.tris.iter().enumerate() {
+                        let hit = crate::mesh::triangle::intersect(p, w, p0, p1, p2, f32::INFINITY);
+                        if let Some(h) = hit {
+                            total += d.pmf(i) * light.pdf(p, ray.at(h.t), m.normals[k]);
+                        }
+                    }
+                    None
+                }
             };
             if let Some((x, n)) = hit {
                 total += d.pmf(i) * light.pdf(p, x, n);

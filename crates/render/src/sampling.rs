@@ -399,6 +399,16 @@ impl Distribution1D {
         i
     }
 
+    /// [`Distribution1D::sample`], and `u` stretched back over [0, 1) within the chosen
+    /// entry's share, so that the one number also places a point inside it.
+    #[inline]
+    pub fn sample_remap(&self, u: f32) -> (usize, f32) {
+        let i = self.sample(u);
+        let lo = if i == 0 { 0.0 } else { self.cdf[i - 1] };
+        let rel = (u - lo) / self.pmf[i];
+        (i, rel.clamp(0.0, ONE_MINUS_EPSILON))
+    }
+
     /// Probability of index `i`.
     #[inline]
     pub fn pmf(&self, i: usize) -> f32 {

@@ -32,6 +32,8 @@ pub enum Shape {
         /// Unit normal (the front side).
         normal: Vec3A,
     },
+    /// A triangle mesh under a transform (the part of a hit is the triangle).
+    Mesh(crate::mesh::MeshInstance),
     /// A box `[min, max]` in object space, under a transform (which may be the identity).
     Cuboid {
         /// Object-space lower corner.
@@ -71,7 +73,7 @@ impl Transformed {
     }
 
     #[inline]
-    fn ray_to_object(&self, r: &Ray) -> Ray {
+    pub(crate) fn ray_to_object(&self, r: &Ray) -> Ray {
         if self.identity {
             *r
         } else {
@@ -83,7 +85,7 @@ impl Transformed {
     }
 
     #[inline]
-    fn normal_to_world(&self, n: Vec3A) -> Vec3A {
+    pub(crate) fn normal_to_world(&self, n: Vec3A) -> Vec3A {
         if self.identity {
             n
         } else {
@@ -107,8 +109,20 @@ impl Transformed {
         m * (gamma(4) + rel) + Vec3A::splat(f32::MIN_POSITIVE)
     }
 
+    /// Error bound of `point_to_world(p)` for an object-space point `p` whose own absolute
+    /// error is at most `err` per coordinate.
     #[inline]
-    fn point_to_world(&self, p: Vec3A) -> Vec3A {
+    pub(crate) fn carry_error(&self, p: Vec3A, err: Vec3A) -> Vec3A {
+        if self.identity {
+            return err;
+        }
+        let l = self.to_world.matrix3;
+        let a = Mat3A::from_cols(l.x_axis.abs(), l.y_axis.abs(), l.z_axis.abs());
+        self.point_error(p, 0.0) + a * err * (1.0 + gamma(3))
+    }
+
+    #[inline]
+    pub(crate) fn point_to_world(&self, p: Vec3A) -> Vec3A {
         if self.identity {
             p
         } else {
@@ -162,11 +176,7 @@ impl Parallelogram {
     pub fn surface(&self, r: &Ray, t: f32) -> SurfacePoint {
         let d = r.at(t) - self.p0;
         let (u, v) = (d.dot(self.a1), d.dot(self.a2));
-        SurfacePoint {
-            p: self.point(u, v),
-            n: self.normal,
-            err: self.point_error(u, v),
-        }
+        SurfacePoint::flat(self.point(u, v), self.normal, self.point_error(u, v))
     }
 
     /// Ray parameter of the hit in (0, t_max), if any; closed on all four edges.
@@ -221,9 +231,20 @@ pub struct SurfacePoint {
     pub p: Vec3A,
     /// Unit geometric normal of the shape's front side.
     pub n: Vec3A,
+    /// Unit shading normal: the interpolated vertex normal of a smooth mesh, `n` elsewhere.
+    /// On the same side as `n`.
+    pub ns: Vec3A,
     /// Conservative bound on the absolute rounding error of each coordinate of `p`, which
     /// [`crate::math::offset_ray_origin`] needs to spawn rays that cannot re-hit the surface.
     pub err: Vec3A,
+}
+
+impl SurfacePoint {
+    /// A point whose shading normal is its geometric normal (every shape but smooth meshes).
+    #[inline(always)]
+    pub fn flat(p: Vec3A, n: Vec3A, err: Vec3A) -> Self {
+        Self { p, n, ns: n, err }
+    }
 }
 
 /// Error bound of a sphere point computed as `c + v` (v = n·r, the re-projection every sphere
@@ -430,6 +451,7 @@ impl Shape {
                 pick(t0, t1)
             }
             Shape::Parallelogram(q) => q.intersect(r, t_max).map(|t| (t, 0)),
+            Shape::Mesh(m) => m.intersect(r, t_max),
             Shape::Plane { point, normal } => {
                 let denom = normal.dot(r.d);
                 if denom == 0.0 {
@@ -458,6 +480,7 @@ impl Shape {
                 let (_, near, far) = slab_distances(lr.o, lr.d, *min, *max);
                 slab_in_range(near.max_element(), far.min_element(), t_max).1
             }
+            Shape::Mesh(m) => m.blocks(r, t_max),
             _ => self.intersect(r, t_max).is_some(),
         }
     }
@@ -479,29 +502,26 @@ impl Shape {
                 };
                 // Re-project onto the surface: removes the error of o + t·d (pbrt-v4).
                 let p = *center + n * *radius;
-                SurfacePoint {
-                    p,
-                    n,
-                    err: sphere_point_error(*center, n * *radius),
-                }
+                SurfacePoint::flat(p, n, sphere_point_error(*center, n * *radius))
             }
             Shape::Ellipsoid(xf) => {
                 let lr = xf.ray_to_object(r);
                 let pl = lr.at(t).normalize();
-                SurfacePoint {
-                    p: xf.point_to_world(pl),
-                    n: xf.normal_to_world(pl),
-                    err: xf.point_error(pl, gamma(8)),
-                }
+                SurfacePoint::flat(
+                    xf.point_to_world(pl),
+                    xf.normal_to_world(pl),
+                    xf.point_error(pl, gamma(8)),
+                )
             }
             Shape::Parallelogram(q) => q.surface(r, t),
+            Shape::Mesh(m) => m.surface(r, part),
             Shape::Plane { point, normal } => {
                 let p = r.at(t);
-                SurfacePoint {
-                    p: p - *normal * normal.dot(p - *point),
-                    n: *normal,
-                    err: (p.abs() + point.abs()) * gamma(12),
-                }
+                SurfacePoint::flat(
+                    p - *normal * normal.dot(p - *point),
+                    *normal,
+                    (p.abs() + point.abs()) * gamma(12),
+                )
             }
             Shape::Cuboid { min, max, xf } => {
                 let lr = xf.ray_to_object(r);
@@ -512,11 +532,11 @@ impl Shape {
                 let on_axis = BVec3A::new(axis == 0, axis == 1, axis == 2);
                 let bound = if part % 2 == 1 { *max } else { *min };
                 let pl = Vec3A::select(on_axis, bound, lr.at(t)).clamp(*min, *max);
-                SurfacePoint {
-                    p: xf.point_to_world(pl),
-                    n: xf.normal_to_world(face_normal(part)),
-                    err: xf.point_error(pl, gamma(4)),
-                }
+                SurfacePoint::flat(
+                    xf.point_to_world(pl),
+                    xf.normal_to_world(face_normal(part)),
+                    xf.point_error(pl, gamma(4)),
+                )
             }
         }
     }
@@ -530,6 +550,7 @@ impl Shape {
             },
             Shape::Ellipsoid(xf) => transformed_box(&xf.to_world, Vec3A::splat(-1.0), Vec3A::ONE),
             Shape::Parallelogram(q) => q.bounds(),
+            Shape::Mesh(m) => m.bounds(),
             Shape::Plane { .. } => Aabb {
                 min: Vec3A::splat(f32::NEG_INFINITY),
                 max: Vec3A::splat(f32::INFINITY),
@@ -559,7 +580,7 @@ impl Shape {
     }
 }
 
-fn transformed_box(m: &Affine3A, min: Vec3A, max: Vec3A) -> Aabb {
+pub(crate) fn transformed_box(m: &Affine3A, min: Vec3A, max: Vec3A) -> Aabb {
     let mut b = Aabb::EMPTY;
     for i in 0..8 {
         let c = Vec3A::new(

@@ -153,6 +153,11 @@ impl<'a> Wide<'a> {
             || scene.environment.is_some()
             || scene.max_depth.is_some()
             || !scene.is_one_leaf()
+            // Its bounce shades with the geometric normal.
+            || scene
+                .prims
+                .iter()
+                .any(|p| matches!(&p.shape, Shape::Mesh(m) if m.smooth))
         {
             return None;
         }

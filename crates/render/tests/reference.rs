@@ -153,3 +153,14 @@ fn glass_mirror_matches_the_independent_reference() {
         &Reference::load("glass-mirror-reference-4x4.exr", 4),
     );
 }
+
+/// The Cornell box with its boxes as triangle meshes (two instances of one OBJ file) against
+/// the analytic box's independent reference: the mesh path (file, BVH, watertight triangles,
+/// ray offsets) changes nothing but the time.
+#[test]
+fn cornell_mesh_matches_the_analytic_boxs_reference() {
+    check_against(
+        "cornell-mesh.toml",
+        &Reference::load("cornell-box-reference.exr", 1),
+    );
+}

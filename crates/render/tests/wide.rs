@@ -111,6 +111,26 @@ fn lanes_give_the_scalar_bits_in_the_cornell_box() {
     compare(&scene, &early, 0..9);
 }
 
+/// The Cornell box with its boxes as (flat-shaded) triangle meshes: the lanes test the meshes
+/// one ray at a time, and must still give the scalar tracer's bits.
+#[test]
+fn lanes_give_the_scalar_bits_with_mesh_boxes() {
+    let scene = load("cornell-mesh.toml");
+    let settings = RenderSettings {
+        seed: 11,
+        ..RenderSettings::default()
+    };
+    assert!(
+        Wide::new(&scene, &settings).is_some(),
+        "flat meshes take the lanes"
+    );
+    let (count, lit) = compare(&scene, &settings, 0..9);
+    assert!(
+        count > 5_000 && lit > count / 2,
+        "{count} samples, {lit} lit"
+    );
+}
+
 /// A two-sided light seen from both sides, two-sided walls, and a light that is a box's face
 /// away from the camera (so paths reach its back and the light's far side).
 #[test]

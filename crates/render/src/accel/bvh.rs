@@ -52,70 +52,35 @@ impl Bvh {
     pub fn build(bounds: &[Aabb], indices: &[u32]) -> Self {
         let mut items: Vec<BuildItem> = indices
             .iter()
-            .map(|&i| {
-                let b = bounds[i as usize];
-                BuildItem {
-                    bounds: b,
-                    centroid: b.centroid(),
-                    index: i,
-                }
-            })
+            .map(|&i| BuildItem::new(bounds[i as usize], i))
             .collect();
-        let mut bvh = Bvh {
-            nodes: Vec::with_capacity(2 * items.len().max(1)),
-            order: Vec::new(),
+        let nodes = if items.is_empty() {
+            Vec::new()
+        } else {
+            build_subtree(&mut items, 0, 0, 0)
         };
-        if !items.is_empty() {
-            let n = items.len();
-            bvh.build_rec(&mut items, 0, n, 0);
-        }
-        bvh.order = items.iter().map(|it| it.index).collect();
-        bvh
+        let order = items.iter().map(|it| it.index).collect();
+        Bvh { nodes, order }
     }
 
-    fn build_rec(
-        &mut self,
-        items: &mut [BuildItem],
-        start: usize,
-        end: usize,
-        depth: usize,
-    ) -> usize {
-        let slice = &mut items[start..end];
-        let bounds = slice.iter().fold(Aabb::EMPTY, |b, it| b.union(it.bounds));
-        let cb = slice.iter().fold(Aabb::EMPTY, |b, it| b.grow(it.centroid));
-        let node_index = self.nodes.len();
-        self.nodes.push(Node {
-            min: bounds.min.into(),
-            offset: start as u32,
-            max: bounds.max.into(),
-            count_axis: (end - start) as u32,
-        });
-        if end - start <= MAX_LEAF || depth >= MAX_DEPTH {
-            return node_index;
-        }
-        let extent = cb.max - cb.min;
-        let axis = if extent.x >= extent.y && extent.x >= extent.z {
-            0
-        } else if extent.y >= extent.z {
-            1
+    /// [`Bvh::build`] over every entry of `bounds`, the large subtrees built in parallel with
+    /// rayon (meshes of millions of triangles). The tree is the same whatever the number of
+    /// threads: each split depends only on the items below it, so every worker traverses the
+    /// same nodes in the same order and picks the same hit among equal ones.
+    pub fn build_parallel(bounds: &[Aabb]) -> Self {
+        use rayon::prelude::*;
+        let mut items: Vec<BuildItem> = bounds
+            .par_iter()
+            .enumerate()
+            .map(|(i, &b)| BuildItem::new(b, i as u32))
+            .collect();
+        let nodes = if items.is_empty() {
+            Vec::new()
         } else {
-            2
+            build_subtree(&mut items, 0, 0, 0)
         };
-        if !(extent[axis] > 0.0) {
-            // All centroids coincide: no split separates them.
-            return node_index;
-        }
-        let split = match sah_split(slice, axis, cb, bounds) {
-            Some(s) => s,
-            None => return node_index,
-        };
-        // The chosen split has items on both sides by construction of `sah_split`.
-        let mid = start + partition(slice, |it| bin_of(it.centroid[axis], cb, axis) < split);
-        self.build_rec(items, start, mid, depth + 1);
-        let right = self.build_rec(items, mid, end, depth + 1);
-        self.nodes[node_index].offset = right as u32;
-        self.nodes[node_index].count_axis = (axis as u32) << AXIS_SHIFT;
-        node_index
+        let order = items.par_iter().map(|it| it.index).collect();
+        Bvh { nodes, order }
     }
 
     /// Visits the leaves a ray may hit, nearest subtree first. `f` gets the leaf's range of
@@ -193,6 +158,97 @@ impl Bvh {
     pub fn leaves(&self) -> impl Iterator<Item = std::ops::Range<usize>> + '_ {
         self.nodes.iter().filter_map(Node::leaf)
     }
+}
+
+impl BuildItem {
+    fn new(bounds: Aabb, index: u32) -> Self {
+        Self {
+            bounds,
+            centroid: bounds.centroid(),
+            index,
+        }
+    }
+}
+
+/// Subtrees of at least this many items have their two halves built in parallel.
+const PARALLEL_ITEMS: usize = 8192;
+
+/// The nodes of the subtree over `items` (positions `first..` in the final order), numbered as
+/// if the first of them were node `base`.
+fn build_subtree(items: &mut [BuildItem], first: usize, depth: usize, base: u32) -> Vec<Node> {
+    let Some((axis, mid)) = choose_split(items, depth) else {
+        return vec![leaf_node(items, first)];
+    };
+    let bounds = bounds_of(items);
+    let parallel = items.len() >= PARALLEL_ITEMS;
+    let (left_items, right_items) = items.split_at_mut(mid);
+    let (left, mut right) = if parallel {
+        rayon::join(
+            || build_subtree(left_items, first, depth + 1, base + 1),
+            || build_subtree(right_items, first + mid, depth + 1, 0),
+        )
+    } else {
+        let left = build_subtree(left_items, first, depth + 1, base + 1);
+        let right = build_subtree(right_items, first + mid, depth + 1, 0);
+        (left, right)
+    };
+    // The right subtree was numbered from 0; it goes after the parent and the left subtree.
+    let right_base = base + 1 + left.len() as u32;
+    for node in &mut right {
+        if node.count_axis & COUNT_MASK == 0 {
+            node.offset += right_base;
+        }
+    }
+    let mut nodes = Vec::with_capacity(1 + left.len() + right.len());
+    nodes.push(Node {
+        min: bounds.min.into(),
+        offset: right_base,
+        max: bounds.max.into(),
+        count_axis: (axis as u32) << AXIS_SHIFT,
+    });
+    nodes.extend(left);
+    nodes.extend(right);
+    nodes
+}
+
+fn bounds_of(items: &[BuildItem]) -> Aabb {
+    items.iter().fold(Aabb::EMPTY, |b, it| b.union(it.bounds))
+}
+
+fn leaf_node(items: &[BuildItem], first: usize) -> Node {
+    let bounds = bounds_of(items);
+    Node {
+        min: bounds.min.into(),
+        offset: first as u32,
+        max: bounds.max.into(),
+        count_axis: items.len() as u32,
+    }
+}
+
+/// The split of `items` by binned SAH (the axis, and how many items go left, after
+/// partitioning them so), or `None` where they make a leaf.
+fn choose_split(items: &mut [BuildItem], depth: usize) -> Option<(usize, usize)> {
+    if items.len() <= MAX_LEAF || depth >= MAX_DEPTH {
+        return None;
+    }
+    let bounds = bounds_of(items);
+    let cb = items.iter().fold(Aabb::EMPTY, |b, it| b.grow(it.centroid));
+    let extent = cb.max - cb.min;
+    let axis = if extent.x >= extent.y && extent.x >= extent.z {
+        0
+    } else if extent.y >= extent.z {
+        1
+    } else {
+        2
+    };
+    if !(extent[axis] > 0.0) {
+        // All centroids coincide: no split separates them.
+        return None;
+    }
+    let split = sah_split(items, axis, cb, bounds)?;
+    // The chosen split has items on both sides by construction of `sah_split`.
+    let mid = partition(items, |it| bin_of(it.centroid[axis], cb, axis) < split);
+    Some((axis, mid))
 }
 
 #[inline]

@@ -3,9 +3,11 @@
 //! path with a message, which [`Scene::from_str`] turns into file:line:column.
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 use glam::{Affine3A, Mat3, Vec3, Vec3A};
 
+use super::assets::{sha256_hex, Assets};
 use super::{
     CameraModel, Environment, EnvironmentKind, KeyPath, Limits, Material, MaterialKind, ObjectDesc,
     Primitive, Scene, SceneFile, Seg, ShapeKind, TransformDesc,
@@ -13,8 +15,10 @@ use super::{
 use crate::accel::Accel;
 use crate::bsdf::Bsdf;
 use crate::camera::Camera;
-use crate::light::{Light, LightShape, Lights};
+use crate::light::{Light, LightShape, Lights, MeshLight};
 use crate::math::v3;
+use crate::mesh::load::{self, MeshFormat};
+use crate::mesh::{MeshInstance, TriMesh};
 use crate::shape::{Shape, Transformed};
 
 /// What is wrong, and where in the file.
@@ -164,8 +168,64 @@ fn similarity_scale(m: &Affine3A) -> Option<f32> {
     ((lx - ly).abs() <= tol && (lx - lz).abs() <= tol && ortho).then_some(lx)
 }
 
-/// The runtime scene for a parsed file, or the first thing wrong with it.
-pub(super) fn build(desc: &SceneFile, limits: &Limits) -> Result<Scene, Invalid> {
+/// A mesh file's material groups: each one's name in the file, and its mesh.
+type MeshGroups = Vec<(Option<String>, Arc<TriMesh>)>;
+
+/// The meshes of the files a scene has read: each file once, however many objects name it.
+#[derive(Default)]
+struct MeshCache {
+    /// By file name: each material group's name and mesh.
+    files: BTreeMap<String, MeshGroups>,
+    /// Each file read, with its SHA-256, in the order first read.
+    read: Vec<(String, String)>,
+    triangles: usize,
+}
+
+impl MeshCache {
+    fn get(
+        &mut self,
+        name: &str,
+        path: &KeyPath,
+        limits: &Limits,
+        assets: &dyn Assets,
+    ) -> Result<&MeshGroups, Invalid> {
+        if !self.files.contains_key(name) {
+            let fail = |m: String| (path.clone(), m);
+            let format = MeshFormat::from_name(name).ok_or_else(|| {
+                fail(format!(
+                    "`{name}`: a mesh file must be .obj or .ply (by its extension)"
+                ))
+            })?;
+            if self.read.len() >= limits.max_assets {
+                return Err(fail(format!(
+                    "more than {} files, the limit for one scene",
+                    limits.max_assets
+                )));
+            }
+            let bytes = assets.read(name, limits.max_asset_bytes).map_err(fail)?;
+            let left = limits.max_triangles - self.triangles;
+            let groups = load::load(name, &bytes, format, left).map_err(|e| fail(e.to_string()))?;
+            self.read.push((name.to_string(), sha256_hex(&bytes)));
+            let meshes = groups
+                .into_iter()
+                .map(|g| {
+                    self.triangles += g.tris.len();
+                    (g.material, Arc::new(TriMesh::new(g.tris, g.normals)))
+                })
+                .collect();
+            self.files.insert(name.to_string(), meshes);
+        }
+        Ok(&self.files[name])
+    }
+}
+
+/// The runtime scene for a parsed file, or the first thing wrong with it; with it, the files
+/// the scene read (name and SHA-256).
+pub(super) fn build(
+    desc: &SceneFile,
+    limits: &Limits,
+    assets: &dyn Assets,
+) -> Result<(Scene, Vec<(String, String)>), Invalid> {
     if desc.version != 1 {
         return Err((
             root("version"),
@@ -191,45 +251,41 @@ pub(super) fn build(desc: &SceneFile, limits: &Limits) -> Result<Scene, Invalid>
     }
     let mut prims = Vec::with_capacity(desc.objects.len());
     let mut lights = Vec::new();
+    let mut meshes = MeshCache::default();
     for (i, o) in desc.objects.iter().enumerate() {
         let op = root("objects").index(i);
-        let material = *names.get(o.material.as_str()).ok_or_else(|| {
-            let known: Vec<&str> = names.keys().copied().collect();
-            (
-                op.key("material"),
-                format!(
-                    "material `{}` is not defined (defined: {})",
-                    o.material,
-                    if known.is_empty() {
-                        "none".to_string()
-                    } else {
-                        known.join(", ")
-                    }
-                ),
-            )
-        })?;
-        let emits = materials[material as usize].emission.max_element() > 0.0;
-        let shape = build_shape(o, &op, emits)?;
-        let bounds = shape.bounds();
-        if o.shape != ShapeKind::Plane && !bounds.is_finite() {
-            return Err((
-                op.clone(),
-                "object is too large: its bounds overflow f32".into(),
-            ));
-        }
-        let light = if emits {
-            add_lights(&shape, &materials[material as usize], &mut lights)
+        let material = material_index(&names, &o.material, &op.key("material"))?;
+        let parts = if o.shape == ShapeKind::Mesh {
+            build_mesh(o, &op, material, &names, &mut meshes, limits, assets)?
         } else {
-            u32::MAX
+            let emits = materials[material as usize].emission.max_element() > 0.0;
+            vec![(build_shape(o, &op, emits)?, material)]
         };
-        prims.push(Primitive {
-            shape,
-            material,
-            light,
-        });
+        for (shape, material) in parts {
+            let bounds = shape.bounds();
+            if o.shape != ShapeKind::Plane && !bounds.is_finite() {
+                return Err((
+                    op.clone(),
+                    "object is too large: its bounds overflow f32".into(),
+                ));
+            }
+            let mat = &materials[material as usize];
+            let light = if mat.emission.max_element() > 0.0 {
+                add_lights(&shape, mat, &mut lights)
+            } else {
+                u32::MAX
+            };
+            let light_stride = u32::from(matches!(shape, Shape::Cuboid { .. }));
+            prims.push(Primitive {
+                shape,
+                material,
+                light,
+                light_stride,
+            });
+        }
     }
     let accel = Accel::build(&prims);
-    Ok(Scene {
+    let scene = Scene {
         camera,
         width: w,
         height: h,
@@ -239,8 +295,95 @@ pub(super) fn build(desc: &SceneFile, limits: &Limits) -> Result<Scene, Invalid>
         environment,
         max_depth: desc.render.max_depth,
         hash: String::new(),
+        files: Vec::new(),
         accel,
+    };
+    Ok((scene, meshes.read))
+}
+
+/// The index of material `name`, or an error at `path` listing the defined ones.
+fn material_index(names: &BTreeMap<&str, u32>, name: &str, path: &KeyPath) -> Result<u32, Invalid> {
+    names.get(name).copied().ok_or_else(|| {
+        let known: Vec<&str> = names.keys().copied().collect();
+        (
+            path.clone(),
+            format!(
+                "material `{name}` is not defined (defined: {})",
+                if known.is_empty() {
+                    "none".to_string()
+                } else {
+                    known.join(", ")
+                }
+            ),
+        )
     })
+}
+
+/// A mesh object: one shape per material group of its file, each with its material.
+fn build_mesh(
+    o: &ObjectDesc,
+    op: &KeyPath,
+    material: u32,
+    names: &BTreeMap<&str, u32>,
+    meshes: &mut MeshCache,
+    limits: &Limits,
+    assets: &dyn Assets,
+) -> Result<Vec<(Shape, u32)>, Invalid> {
+    let present = [
+        ("center", o.center.is_some()),
+        ("radius", o.radius.is_some()),
+        ("min", o.min.is_some()),
+        ("max", o.max.is_some()),
+        ("size", o.size.is_some()),
+        ("point", o.point.is_some()),
+        ("normal", o.normal.is_some()),
+    ];
+    only(op, "a mesh", &present, &[])?;
+    let file = required(o.file.as_deref(), op, "a mesh", "file")?;
+    let xf = match &o.transform {
+        Some(t) => build_transform(t, &op.key("transform"))?,
+        None => Affine3A::IDENTITY,
+    };
+    let smooth = o.smooth.unwrap_or(false);
+    let map = o.materials_map.clone().unwrap_or_default();
+    let mut mapped = BTreeMap::new();
+    for (from, to) in &map {
+        let path = op.key("materials_map").key(from);
+        mapped.insert(from.as_str(), material_index(names, to, &path)?);
+    }
+    let groups = meshes.get(file, &op.key("file"), limits, assets)?;
+    for from in mapped.keys() {
+        if !groups.iter().any(|(g, _)| g.as_deref() == Some(*from)) {
+            let known: Vec<&str> = groups.iter().filter_map(|(g, _)| g.as_deref()).collect();
+            return Err((
+                op.key("materials_map").key(from),
+                format!(
+                    "`{file}` has no material group `{from}` (it has: {})",
+                    if known.is_empty() {
+                        "none".to_string()
+                    } else {
+                        known.join(", ")
+                    }
+                ),
+            ));
+        }
+    }
+    let xf = Transformed::new(xf);
+    Ok(groups
+        .iter()
+        .map(|(group, mesh)| {
+            let m = group
+                .as_deref()
+                .and_then(|g| mapped.get(g).copied())
+                .unwrap_or(material);
+            let instance = MeshInstance {
+                mesh: Arc::clone(mesh),
+                xf: xf.clone(),
+                smooth,
+            };
+            (Shape::Mesh(instance), m)
+        })
+        .collect())
 }
 
 /// The film's size, within the limits.
@@ -421,8 +564,12 @@ fn build_shape(o: &ObjectDesc, op: &KeyPath, emits: bool) -> Result<Shape, Inval
         ("size", o.size.is_some()),
         ("point", o.point.is_some()),
         ("normal", o.normal.is_some()),
+        ("file", o.file.is_some()),
+        ("smooth", o.smooth.is_some()),
+        ("materials_map", o.materials_map.is_some()),
     ];
     let shape = match o.shape {
+        ShapeKind::Mesh => unreachable!("meshes are built by build_mesh"),
         ShapeKind::Sphere => {
             only(op, "a sphere", &present, &["center", "radius"])?;
             let c = finite3(o.center.unwrap_or([0.0; 3]), &op.key("center"))?;
@@ -522,6 +669,14 @@ fn add_lights(shape: &Shape, mat: &Material, lights: &mut Vec<Light>) -> u32 {
         Shape::Cuboid { min, max, xf } => {
             for f in Shape::cuboid_faces(*min, *max, xf) {
                 add(LightShape::Quad(f));
+            }
+        }
+        Shape::Mesh(m) => {
+            // A mesh of zero area emits nothing and has no light to sample.
+            if let Some(light) = MeshLight::new(m.world_triangles()) {
+                add(LightShape::Mesh(light));
+            } else {
+                return u32::MAX;
             }
         }
         Shape::Ellipsoid(_) | Shape::Plane { .. } => unreachable!("rejected above"),

@@ -233,6 +233,8 @@ pub enum ShapeKind {
     Rect,
     /// Infinite plane (`point`, `normal`).
     Plane,
+    /// Triangle mesh read from an OBJ or PLY `file`.
+    Mesh,
 }
 
 /// One object: a shape, its material and an optional transform.
@@ -262,6 +264,13 @@ pub struct ObjectDesc {
     /// Plane front normal (default +y).
     #[serde(default, deserialize_with = "maybe_three")]
     pub normal: Option<[f32; 3]>,
+    /// Mesh file (OBJ or PLY), relative to the scene file.
+    pub file: Option<String>,
+    /// Whether a mesh shades with its file's vertex normals (default false: flat).
+    pub smooth: Option<bool>,
+    /// A mesh's material for each of its file's material names (an OBJ's `usemtl`), by
+    /// scene material name; groups not listed use `material`.
+    pub materials_map: Option<BTreeMap<String, String>>,
     /// Object-to-world transform.
     pub transform: Option<TransformDesc>,
 }

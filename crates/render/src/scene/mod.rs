@@ -6,6 +6,7 @@
 //! (a NaN radius, a missing material, a degenerate transform, a limit).
 
 mod animate;
+pub mod assets;
 mod build;
 mod format;
 mod frames;
@@ -19,7 +20,6 @@ use std::fmt;
 use std::path::Path;
 
 use glam::Vec3A;
-use sha2::{Digest, Sha256};
 
 pub use format::*;
 pub use frames::{BadFrameRange, FrameRange};
@@ -69,6 +69,13 @@ pub struct Limits {
     pub max_bytes: usize,
     /// Largest samples per pixel a render may ask for.
     pub max_spp: u32,
+    /// Largest mesh file in bytes.
+    pub max_asset_bytes: u64,
+    /// Largest number of distinct files a scene may name.
+    pub max_assets: usize,
+    /// Largest number of triangles over the scene's distinct meshes (instances of one mesh
+    /// count once: they share it).
+    pub max_triangles: usize,
 }
 
 impl Default for Limits {
@@ -79,6 +86,9 @@ impl Default for Limits {
             max_objects: 1_000_000,
             max_bytes: 64 * 1024 * 1024,
             max_spp: 1 << 20,
+            max_asset_bytes: 2 << 30,
+            max_assets: 1024,
+            max_triangles: 64 << 20,
         }
     }
 }
@@ -162,6 +172,10 @@ pub struct Primitive {
     /// Index of this primitive's first light in [`Scene::lights`] (a box has one per face),
     /// or `u32::MAX` if it does not emit.
     pub light: u32,
+    /// 1 where each part of the shape is a light of its own (a box's faces), 0 where the
+    /// whole shape is one (a mesh, whose parts are its triangles): a hit's light is
+    /// `light + part · light_stride`.
+    pub light_stride: u32,
 }
 
 /// The runtime scene: everything needed to render, in the form the integrator reads.
@@ -183,8 +197,11 @@ pub struct Scene {
     pub environment: Option<Environment>,
     /// Bounce limit, if any.
     pub max_depth: Option<u32>,
-    /// SHA-256 of the scene text, hex: the scene's content address.
+    /// The scene's content address, hex: the SHA-256 of its text, and of the files it read
+    /// where it read any ([`assets::scene_hash`]).
     pub hash: String,
+    /// The files the scene read (its meshes): name as the scene gives it, and SHA-256 hex.
+    pub files: Vec<(String, String)>,
     accel: Accel,
 }
 
@@ -220,7 +237,10 @@ impl Scene {
             ));
         }
         let text = std::fs::read_to_string(path).map_err(|e| io_error(&file, e))?;
-        Self::from_str_at(&text, Format::from_path(path), &file, limits, frame)
+        // The files a scene names are relative to the scene file.
+        let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
+        let files = assets::DirAssets(dir);
+        Self::from_str_with(&text, Format::from_path(path), &file, limits, frame, &files)
     }
 
     /// [`Scene::from_str`] at `frame` of the scene's `[animation]` (a scene without one is
@@ -231,6 +251,18 @@ impl Scene {
         file: &str,
         limits: &Limits,
         frame: u32,
+    ) -> Result<Self, SceneError> {
+        Self::from_str_with(text, format, file, limits, frame, &assets::NoAssets)
+    }
+
+    /// [`Scene::from_str_at`], reading the files the scene names (meshes) from `files`.
+    pub fn from_str_with(
+        text: &str,
+        format: Format,
+        file: &str,
+        limits: &Limits,
+        frame: u32,
+        files: &dyn assets::Assets,
     ) -> Result<Self, SceneError> {
         if text.len() > limits.max_bytes {
             return Err(at_start(
@@ -243,10 +275,11 @@ impl Scene {
             ));
         }
         let desc = parse(text, format, file)?;
-        let mut scene = animate::at_frame(&desc, f64::from(frame))
-            .and_then(|desc| build(&desc, limits))
+        let (mut scene, read) = animate::at_frame(&desc, f64::from(frame))
+            .and_then(|desc| build(&desc, limits, files))
             .map_err(|(path, message)| locate(text, format, file, &path, message))?;
-        scene.hash = hex(&Sha256::digest(text.as_bytes()));
+        scene.hash = assets::scene_hash(text, &read);
+        scene.files = read;
         Ok(scene)
     }
 

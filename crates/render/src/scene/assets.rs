@@ -1,0 +1,71 @@
+//! Where the files a scene names (its meshes) come from, and the record of which it read.
+//!
+//! A scene's identity must cover these files, not only its text: the same text with another
+//! mesh is another image. So every file read is recorded with its SHA-256, and
+//! [`crate::scene::Scene::hash`] covers the list.
+
+use std::path::PathBuf;
+
+use sha2::{Digest, Sha256};
+
+/// A source of the files a scene names, by the name the scene gives (`file = "..."`).
+pub trait Assets {
+    /// The bytes of `name`, at most `max_bytes` of them, or a one-line reason why not.
+    fn read(&self, name: &str, max_bytes: u64) -> Result<Vec<u8>, String>;
+}
+
+/// Files relative to a directory: the scene file's own, for a scene loaded from disk.
+#[derive(Clone, Debug)]
+pub struct DirAssets(pub PathBuf);
+
+impl Assets for DirAssets {
+    fn read(&self, name: &str, max_bytes: u64) -> Result<Vec<u8>, String> {
+        let path = self.0.join(name);
+        let meta = std::fs::metadata(&path).map_err(|e| format!("cannot read `{name}`: {e}"))?;
+        if !meta.is_file() {
+            return Err(format!("`{name}` is not a file"));
+        }
+        if meta.len() > max_bytes {
+            return Err(format!(
+                "`{name}` is {} bytes, above the limit of {max_bytes}",
+                meta.len()
+            ));
+        }
+        std::fs::read(&path).map_err(|e| format!("cannot read `{name}`: {e}"))
+    }
+}
+
+/// No files at all: a scene given as text alone, with nothing beside it.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NoAssets;
+
+impl Assets for NoAssets {
+    fn read(&self, name: &str, _: u64) -> Result<Vec<u8>, String> {
+        Err(format!(
+            "`{name}` cannot be read: this scene was given as text, with no files beside it"
+        ))
+    }
+}
+
+/// SHA-256, lower-case hex.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    super::hex(&Sha256::digest(bytes))
+}
+
+/// The hash of a scene's text and the files it read (name and content hash, in the order
+/// first read): the text's own hash when it reads none, so that scenes without files keep
+/// the identity they always had.
+pub fn scene_hash(text: &str, files: &[(String, String)]) -> String {
+    if files.is_empty() {
+        return sha256_hex(text.as_bytes());
+    }
+    let mut h = Sha256::new();
+    h.update(text.as_bytes());
+    for (name, hash) in files {
+        h.update(b"\0file\0");
+        h.update(name.as_bytes());
+        h.update(b"\0");
+        h.update(hash.as_bytes());
+    }
+    super::hex(&h.finalize())
+}
