@@ -243,7 +243,16 @@ fn uniform_cone() {
 /// another (`first_hit_too`), the density MIS uses — that of the light point a ray in that
 /// direction hits first — must agree with it at every sample.
 fn light_test(name: &str, scene_text: &str, p: Vec3A, first_hit_too: bool) {
-    let scene = common::scene(scene_text);
+    light_test_scene(name, &common::scene(scene_text), p, first_hit_too);
+}
+
+/// [`light_test`] for a built scene (one with mesh files).
+fn light_test_scene(
+    name: &str,
+    scene: &tessera_render::scene::Scene,
+    p: Vec3A,
+    first_hit_too: bool,
+) {
     let first_hit_pdf = |w: Vec3A| -> f64 {
         let ray = Ray::new(p, w);
         match scene.intersect(&ray, f32::INFINITY) {
@@ -253,9 +262,12 @@ fn light_test(name: &str, scene_text: &str, p: Vec3A, first_hit_too: bool) {
                     return 0.0;
                 }
                 let sp = prim.shape.surface(&ray, hit.t, hit.part);
-                scene
-                    .lights
-                    .pdf((prim.light + hit.part) as usize, p, sp.p, sp.n) as f64
+                scene.lights.pdf(
+                    (prim.light + hit.part * prim.light_stride) as usize,
+                    p,
+                    sp.p,
+                    sp.n,
+                ) as f64
             }
             None => 0.0,
         }
@@ -319,6 +331,32 @@ fn area_light_box_faces() {
         "[[objects]]\nshape = \"box\"\nmaterial = \"lamp\"\nmin = [-0.5, -0.4, 0.5]\nmax = [0.6, 0.5, 1.5]\ntransform = { rotate = { axis = [0, 1, 1], degrees = 20 } }\n",
     );
     light_test("area-light-box", &text, Vec3A::new(0.0, 0.0, -0.5), false);
+}
+
+/// An emissive mesh: a triangle is picked by its share of the area and a point uniformly on
+/// it (one number does both: `Distribution1D::sample_remap`). Triangles of very different
+/// sizes, a fold, and one apart, none hiding another from `p`.
+#[test]
+fn area_light_mesh_triangles() {
+    let obj = "v 0 0 0\nv 2 0 0\nv 0 1 0\nv 2 1 0.6\nv -1 -1 0.2\nv -0.8 -1 0.2\nv -1 -0.5 0.3\n\
+               f 1 2 3\nf 2 4 3\nf 5 6 7\n";
+    let text = light_scene(
+        "[[objects]]\nshape = \"mesh\"\nfile = \"lamp.obj\"\nmaterial = \"lamp\"\ntransform = { translate = [0, 0, 1.5], rotate = { axis = [1, 0, 0], degrees = 10 } }\n",
+    );
+    let scene = common::scene_with_files(&text, &[("lamp.obj", obj.as_bytes())]);
+    light_test_scene("area-light-mesh", &scene, Vec3A::new(0.2, 0.1, 0.0), true);
+}
+
+/// A closed emissive mesh (a cube of 12 triangles) seen from outside: directions through it
+/// cross two triangles, each a way of drawing them.
+#[test]
+fn area_light_mesh_cube() {
+    let obj = std::fs::read(common::repo_root().join("scenes/meshes/cube.obj")).expect("cube.obj");
+    let text = light_scene(
+        "[[objects]]\nshape = \"mesh\"\nfile = \"cube.obj\"\nmaterial = \"lamp\"\ntransform = { translate = [0, 0, 2], scale = [0.5, 0.7, 0.4] }\n",
+    );
+    let scene = common::scene_with_files(&text, &[("cube.obj", &obj)]);
+    light_test_scene("area-light-mesh-cube", &scene, Vec3A::ZERO, false);
 }
 
 #[test]

@@ -285,7 +285,8 @@ pub(crate) mod tests {
     /// gives the same tree as the sequential one.
     #[test]
     fn bvh_matches_brute_force() {
-        let tris = lumpy_sphere(40, 80);
+        // Above PARALLEL_ITEMS, so that the parallel build splits.
+        let tris = lumpy_sphere(80, 120);
         let mesh = TriMesh::new(tris.clone(), Vec::new());
         let bounds: Vec<Aabb> = tris
             .iter()

@@ -69,3 +69,24 @@ pub fn scene_hash(text: &str, files: &[(String, String)]) -> String {
     }
     super::hex(&h.finalize())
 }
+
+/// Files held in memory, by name: a scene's files as they arrive over the network, or a
+/// test's.
+#[derive(Clone, Debug, Default)]
+pub struct MemAssets(pub std::collections::BTreeMap<String, Vec<u8>>);
+
+impl Assets for MemAssets {
+    fn read(&self, name: &str, max_bytes: u64) -> Result<Vec<u8>, String> {
+        let bytes = self
+            .0
+            .get(name)
+            .ok_or_else(|| format!("`{name}` is not among the scene's files"))?;
+        if bytes.len() as u64 > max_bytes {
+            return Err(format!(
+                "`{name}` is {} bytes, above the limit of {max_bytes}",
+                bytes.len()
+            ));
+        }
+        Ok(bytes.clone())
+    }
+}

@@ -15,6 +15,25 @@ pub fn load(name: &str) -> Scene {
     Scene::load(&path, &Limits::default()).unwrap_or_else(|e| panic!("{e}"))
 }
 
+/// A scene from text with the files it names held in memory.
+pub fn scene_with_files(text: &str, files: &[(&str, &[u8])]) -> Scene {
+    let files = tessera_render::scene::assets::MemAssets(
+        files
+            .iter()
+            .map(|(n, b)| (n.to_string(), b.to_vec()))
+            .collect(),
+    );
+    Scene::from_str_with(
+        text,
+        Format::Toml,
+        "test.toml",
+        &Limits::default(),
+        1,
+        &files,
+    )
+    .unwrap_or_else(|e| panic!("{e}"))
+}
+
 pub fn scene(text: &str) -> Scene {
     Scene::from_str(text, Format::Toml, "test.toml", &Limits::default())
         .unwrap_or_else(|e| panic!("{e}"))
