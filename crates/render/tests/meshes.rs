@@ -237,7 +237,8 @@ fn mesh_errors_name_the_key_and_the_file() {
     let tri = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl red\nf 1 2 3\n".as_slice();
     let obj =
         |extra: &str| format!("{base}[[objects]]\nshape = \"mesh\"\nmaterial = \"m\"\n{extra}");
-    let cases: [(String, &[(&str, &[u8])], &str); 7] = [
+    type Files<'a> = &'a [(&'a str, &'a [u8])];
+    let cases: [(String, Files, &str); 7] = [
         (obj(""), &[], "s.toml:16:1: objects[0].file: a mesh needs `file`"),
         (
             obj("file = \"a.obj\"\n"),
