@@ -51,6 +51,24 @@ async fn a_token_is_required_on_every_service() {
             .await
             .expect_err("list without the token");
         assert_eq!(e.code(), tonic::Code::Unauthenticated);
+        let e = client
+            .get_asset_status(pb::GetAssetStatusRequest {
+                sha256: "a".repeat(64),
+            })
+            .await
+            .expect_err("asset status without the token");
+        assert_eq!(e.code(), tonic::Code::Unauthenticated);
+        let chunk = pb::AssetChunk {
+            sha256: "a".repeat(64),
+            offset: 0,
+            total_size: 1,
+            data: vec![1],
+        };
+        let e = client
+            .upload_asset(tokio_stream::iter(vec![chunk]))
+            .await
+            .expect_err("upload without the token");
+        assert_eq!(e.code(), tonic::Code::Unauthenticated);
         let channel = endpoint(&url, &options).expect("ep").connect_lazy();
         let mut workers = WorkersClient::with_interceptor(channel, Bearer::new(&options));
         let e = workers
@@ -66,6 +84,14 @@ async fn a_token_is_required_on_every_service() {
             .register(pb::RegisterRequest::default())
             .await
             .expect_err("register without the token");
+        assert_eq!(e.code(), tonic::Code::Unauthenticated);
+        let e = workers
+            .fetch_asset(pb::FetchAssetRequest {
+                sha256: "a".repeat(64),
+                offset: 0,
+            })
+            .await
+            .expect_err("fetch_asset without the token");
         assert_eq!(e.code(), tonic::Code::Unauthenticated);
     }
     // A worker with the wrong token stops with an error instead of retrying forever.

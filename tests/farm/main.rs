@@ -6,6 +6,7 @@
 mod common;
 
 mod adaptive;
+mod assets;
 mod audit;
 mod auth;
 mod bad_submissions;

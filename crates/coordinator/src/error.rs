@@ -21,6 +21,9 @@ pub enum CoordinatorError {
         /// Why.
         source: std::io::Error,
     },
+    /// The asset store cannot be opened.
+    #[error(transparent)]
+    Assets(#[from] crate::assets::AssetError),
     /// The task serving in-process ([`crate::server::Spawned`]) panicked or was cancelled.
     #[error("coordinator task: {0}")]
     Task(String),

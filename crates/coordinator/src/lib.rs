@@ -33,6 +33,7 @@ mod http;
 mod service;
 mod shared;
 
+pub mod assets;
 pub mod config;
 pub mod error;
 pub mod job;

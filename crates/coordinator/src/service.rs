@@ -3,6 +3,7 @@
 //! [`Scheduler`] under its lock, and wait for the store before replying where durability
 //! matters.
 
+use std::collections::BTreeMap;
 use std::pin::Pin;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -22,6 +23,7 @@ use tokio_stream::Stream;
 use tonic::{Request, Response, Status};
 use tracing::{info, warn};
 
+use crate::assets::{check_hash, AssetError, JobAssets, CHUNK_BYTES};
 use crate::config::{MAX_CONCURRENT_PARSES, MAX_LEASES_PER_CALL};
 use crate::error::truncate;
 use crate::job::{Job, Unit};
@@ -379,15 +381,32 @@ impl Jobs for Service {
             .await
             .map_err(|_| Status::unavailable("the coordinator is shutting down"))?;
         let text = req.scene_text;
+        let names = asset_names(&req.assets, limits.max_assets)?;
+        let missing: Vec<String> = names
+            .iter()
+            .filter(|(_, hash)| !self.shared.assets.status(hash).is_ok_and(|h| h.complete))
+            .map(|(name, hash)| format!("`{}` (sha256 {hash})", truncate(name)))
+            .collect();
+        if !missing.is_empty() {
+            return Err(Status::failed_precondition(format!(
+                "not uploaded: {} (tessera submit uploads a scene's files)",
+                missing.join(", ")
+            )));
+        }
         // A range's scene is checked at its first frame; a frame that cannot be built fails
         // alone, when a worker says so.
         let frame = frames.map_or(settings.frame.unwrap_or(FIRST_FRAME), |r| r.first);
         let gauge = self.parsing.clone();
+        let assets = self.shared.assets.clone();
         let (scene, text, name) = tokio::task::spawn_blocking(move || {
             let now = gauge.0.fetch_add(1, Ordering::SeqCst) + 1;
             gauge.1.fetch_max(now, Ordering::SeqCst);
             let format = if json { Format::Json } else { Format::Toml };
-            let r = Scene::from_str_at(&text, format, &name, &limits, frame);
+            let files = JobAssets {
+                store: &assets,
+                names,
+            };
+            let r = Scene::from_str_with(&text, format, &name, &limits, frame, &files);
             gauge.0.fetch_sub(1, Ordering::SeqCst);
             (r, text, name)
         })
@@ -396,7 +415,12 @@ impl Jobs for Service {
         let scene = scene.map_err(|e| Status::invalid_argument(e.to_string()))?;
         let admission = Admission {
             scene_hash: scene.hash.clone(),
-            scene: StoredScene { text, json, name },
+            scene: StoredScene {
+                text,
+                json,
+                name,
+                assets: scene.files.clone(),
+            },
             width: scene.width,
             height: scene.height,
             settings: settings.clone(),
@@ -632,6 +656,58 @@ impl Jobs for Service {
             })
             .collect();
         Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))
+    }
+
+    async fn upload_asset(
+        &self,
+        request: Request<tonic::Streaming<pb::AssetChunk>>,
+    ) -> Result<Response<pb::AssetStatus>, Status> {
+        let mut stream = request.into_inner();
+        let mut hash: Option<String> = None;
+        let mut held = None;
+        while let Some(chunk) = stream.message().await? {
+            match &hash {
+                Some(h) if *h != chunk.sha256 => {
+                    return Err(Status::invalid_argument(format!(
+                        "one upload stream carries one file: {h}, then {}",
+                        truncate(&chunk.sha256)
+                    )))
+                }
+                Some(_) => {}
+                None => hash = Some(chunk.sha256.clone()),
+            }
+            let assets = self.shared.assets.clone();
+            let h = tokio::task::spawn_blocking(move || {
+                assets.append(&chunk.sha256, chunk.offset, chunk.total_size, &chunk.data)
+            })
+            .await
+            .map_err(|e| Status::internal(e.to_string()))?
+            .map_err(asset_status)?;
+            held = Some(h);
+            if h.complete {
+                break;
+            }
+        }
+        let held = held.ok_or_else(|| Status::invalid_argument("an upload with no chunks"))?;
+        Ok(Response::new(pb::AssetStatus {
+            received: held.received,
+            complete: held.complete,
+        }))
+    }
+
+    async fn get_asset_status(
+        &self,
+        request: Request<pb::GetAssetStatusRequest>,
+    ) -> Result<Response<pb::AssetStatus>, Status> {
+        let held = self
+            .shared
+            .assets
+            .status(&request.into_inner().sha256)
+            .map_err(asset_status)?;
+        Ok(Response::new(pb::AssetStatus {
+            received: held.received,
+            complete: held.complete,
+        }))
     }
 }
 
@@ -897,6 +973,92 @@ impl Workers for Service {
                 pb::SceneFormat::Toml
             } as i32,
             scene_name: scene.name,
+            assets: scene
+                .assets
+                .into_iter()
+                .map(|(name, sha256)| pb::AssetRef { name, sha256 })
+                .collect(),
         }))
     }
+
+    type FetchAssetStream = Stream_<pb::AssetChunk>;
+
+    async fn fetch_asset(
+        &self,
+        request: Request<pb::FetchAssetRequest>,
+    ) -> Result<Response<Self::FetchAssetStream>, Status> {
+        let req = request.into_inner();
+        let held = self
+            .shared
+            .assets
+            .status(&req.sha256)
+            .map_err(asset_status)?;
+        if !held.complete {
+            return Err(Status::not_found(format!(
+                "asset {} is not uploaded",
+                req.sha256
+            )));
+        }
+        let (tx, rx) = mpsc::channel(2);
+        let assets = self.shared.assets.clone();
+        // Read a chunk at a time as the worker takes them: a file may be gigabytes.
+        tokio::task::spawn_blocking(move || {
+            let mut offset = req.offset;
+            while offset < held.received {
+                let chunk = assets
+                    .read_from(&req.sha256, offset, CHUNK_BYTES as u64)
+                    .map_err(asset_status)
+                    .map(|data| pb::AssetChunk {
+                        sha256: req.sha256.clone(),
+                        offset,
+                        total_size: held.received,
+                        data,
+                    });
+                let len = chunk.as_ref().map_or(0, |c| c.data.len() as u64);
+                let failed = chunk.is_err() || len == 0;
+                if tx.blocking_send(chunk).is_err() || failed {
+                    return;
+                }
+                offset += len;
+            }
+        });
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+}
+
+/// The gRPC status for an asset store error.
+fn asset_status(e: AssetError) -> Status {
+    match e {
+        AssetError::Invalid(m) => Status::invalid_argument(m),
+        AssetError::Limit(m) => Status::resource_exhausted(m),
+        AssetError::Missing(m) => Status::not_found(m),
+        e @ AssetError::Io { .. } => Status::internal(e.to_string()),
+    }
+}
+
+/// A job's files as name → hash: each hash well formed, each name once, at most `max`.
+fn asset_names(refs: &[pb::AssetRef], max: usize) -> Result<BTreeMap<String, String>, Status> {
+    if refs.len() > max {
+        return Err(Status::resource_exhausted(format!(
+            "the job lists {} files; at most {max}",
+            refs.len()
+        )));
+    }
+    let mut names = BTreeMap::new();
+    for r in refs {
+        check_hash(&r.sha256).map_err(asset_status)?;
+        if r.name.is_empty() || r.name.len() > 4096 {
+            return Err(Status::invalid_argument(format!(
+                "a file name of {} bytes; 1 to 4096",
+                r.name.len()
+            )));
+        }
+        if names.insert(r.name.clone(), r.sha256.clone()).is_some() {
+            return Err(Status::invalid_argument(format!(
+                "the job lists `{}` twice",
+                truncate(&r.name)
+            )));
+        }
+    }
+    Ok(names)
 }

@@ -8,6 +8,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 use tokio::sync::{mpsc, oneshot, watch};
 use tracing::{error, info};
 
+use crate::assets::AssetStore;
 use crate::config::Config;
 use crate::error::CoordinatorError;
 use crate::metrics::Metrics;
@@ -25,6 +26,8 @@ pub(crate) struct Write {
 pub(crate) struct Shared {
     scheduler: Mutex<Scheduler>,
     pub(crate) store: Arc<Store>,
+    /// The files scenes name, by hash.
+    pub(crate) assets: Arc<AssetStore>,
     writes: mpsc::UnboundedSender<Write>,
     /// Bumped whenever a job's status changes (watchers wake on it).
     pub(crate) changed: watch::Sender<u64>,
@@ -47,6 +50,10 @@ impl Shared {
             source,
         })?;
         let store = Arc::new(Store::open(&config.data_dir)?);
+        let assets = Arc::new(AssetStore::open(
+            &config.data_dir,
+            config.limits.max_asset_bytes,
+        )?);
         let epoch = store.next_epoch()?;
         let mut scheduler = Scheduler::new(epoch, config.lease_timeout);
         scheduler.quarantine_after = config.quarantine_after.max(1);
@@ -82,6 +89,7 @@ impl Shared {
         let shared = Arc::new(Shared {
             scheduler: Mutex::new(scheduler),
             store,
+            assets,
             writes,
             changed: watch::channel(0).0,
             work: watch::channel(0).0,

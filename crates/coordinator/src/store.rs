@@ -170,6 +170,10 @@ pub struct StoredScene {
     pub json: bool,
     /// Name for error messages.
     pub name: String,
+    /// The files the scene read (name, SHA-256), which its hash covers; none for scenes
+    /// stored before files existed.
+    #[serde(default)]
+    pub assets: Vec<(String, String)>,
 }
 
 /// Lifecycle state of a job, as stored.

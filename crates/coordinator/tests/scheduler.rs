@@ -496,6 +496,7 @@ fn admission(name: Option<&str>, frames: Option<&str>) -> Admission {
             text: String::new(),
             json: false,
             name: "s".into(),
+            assets: Vec::new(),
         },
         width: 8,
         height: 8,

@@ -21,6 +21,7 @@
 
 use std::collections::{HashMap, HashSet};
 use std::future::Future;
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, RwLock};
 use std::time::Duration;
@@ -29,6 +30,7 @@ use tessera_proto::client::{endpoint, Bearer, ClientOptions};
 use tessera_proto::convert::settings_from_wire;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::workers_client::WorkersClient;
+use tessera_render::scene::assets::{sha256_hex, MemAssets};
 use tessera_render::scene::{Format, Limits, Scene, FIRST_FRAME};
 use tessera_render::{render_tile, PixelRect, RenderSettings, TileSums};
 use tokio::sync::{mpsc, watch, OwnedSemaphorePermit, Semaphore};
@@ -36,6 +38,9 @@ use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
 use tonic::{Code, Status};
 use tracing::{debug, info, warn};
+
+/// Largest file a worker takes from a coordinator: the renderer's own limit.
+const MAX_ASSET_BYTES: u64 = 2 << 30;
 
 /// Worker settings.
 #[derive(Clone, Debug)]
@@ -54,6 +59,9 @@ pub struct Config {
     pub shutdown_grace: Duration,
     /// Token and TLS.
     pub client: ClientOptions,
+    /// Where the files scenes name (meshes) are kept by hash, so that each is fetched once;
+    /// shared safely by workers on one machine.
+    pub cache_dir: PathBuf,
 }
 
 impl Config {
@@ -67,6 +75,7 @@ impl Config {
             max_backoff: Duration::from_secs(10),
             shutdown_grace: Duration::from_secs(30),
             client: ClientOptions::default(),
+            cache_dir: std::env::temp_dir().join("tessera-assets"),
         }
     }
 }
@@ -266,13 +275,19 @@ impl Ctx {
         } else {
             Format::Toml
         };
+        let mut files = MemAssets::default();
+        for a in &resp.assets {
+            let bytes = self.asset(&a.sha256).await?;
+            files.0.insert(a.name.clone(), bytes);
+        }
         let scene = tokio::task::spawn_blocking(move || {
-            Scene::from_str_at(
+            Scene::from_str_with(
                 &resp.scene_text,
                 format,
                 &resp.scene_name,
                 &Limits::default(),
                 frame.unwrap_or(FIRST_FRAME),
+                &files,
             )
         })
         .await
@@ -286,6 +301,95 @@ impl Ctx {
             )));
         }
         Ok(Arc::new(scene))
+    }
+
+    /// A file a scene names, from this machine's cache or else from the coordinator (and then
+    /// cached). Its content is checked against its hash either way: a damaged cache file or a
+    /// wrong download is never rendered from.
+    async fn asset(&self, hash: &str) -> Result<Vec<u8>, SceneError> {
+        let valid = hash.len() == 64 && hash.bytes().all(|b| b.is_ascii_hexdigit());
+        if !valid {
+            return Err(SceneError::Unavailable(format!(
+                "the coordinator named a file by {:?}, which is not a SHA-256",
+                hash.chars().take(80).collect::<String>()
+            )));
+        }
+        let path = self.config.cache_dir.join(hash);
+        let (p, h) = (path.clone(), hash.to_string());
+        let cached = tokio::task::spawn_blocking(move || {
+            let bytes = std::fs::read(&p).ok()?;
+            if sha256_hex(&bytes) == h {
+                Some(bytes)
+            } else {
+                warn!("cached {} is damaged; fetching it again", p.display());
+                None
+            }
+        })
+        .await
+        .ok()
+        .flatten();
+        if let Some(bytes) = cached {
+            return Ok(bytes);
+        }
+        let mut attempt = 0;
+        let bytes = loop {
+            match self.fetch_asset(hash).await {
+                Ok(b) => break b,
+                Err(e) if transient(&e) && self.backoff(&mut attempt).await => continue,
+                Err(e) => return Err(SceneError::Unavailable(e.message().to_string())),
+            }
+        };
+        let got = sha256_hex(&bytes);
+        if got != hash {
+            return Err(SceneError::Unavailable(format!(
+                "file {hash} arrived with hash {got}"
+            )));
+        }
+        // Into a name of this worker's own, then renamed: another worker on this machine may
+        // be caching the same file, and a reader must never see half of one.
+        let tmp =
+            self.config
+                .cache_dir
+                .join(format!(".{hash}.{}.{}", std::process::id(), self.id()));
+        let dir = self.config.cache_dir.clone();
+        let bytes = Arc::new(bytes);
+        let data = bytes.clone();
+        let saved = tokio::task::spawn_blocking(move || {
+            let r = std::fs::create_dir_all(&dir)
+                .and_then(|()| std::fs::write(&tmp, &*data))
+                .and_then(|()| std::fs::rename(&tmp, &path));
+            if r.is_err() {
+                let _ = std::fs::remove_file(&tmp);
+            }
+            r
+        })
+        .await;
+        if let Ok(Err(e)) = saved {
+            // Rendering goes on; only the next fetch is not saved.
+            warn!("caching {hash} in {}: {e}", self.config.cache_dir.display());
+        }
+        Ok(Arc::try_unwrap(bytes).unwrap_or_else(|b| (*b).clone()))
+    }
+
+    async fn fetch_asset(&self, hash: &str) -> Result<Vec<u8>, Status> {
+        let req = pb::FetchAssetRequest {
+            sha256: hash.to_string(),
+            offset: 0,
+        };
+        let mut stream = self.client.clone().fetch_asset(req).await?.into_inner();
+        let mut bytes = Vec::new();
+        while let Some(chunk) = stream.message().await? {
+            if chunk.offset != bytes.len() as u64 || chunk.total_size > MAX_ASSET_BYTES {
+                return Err(Status::data_loss(format!(
+                    "file {hash}: a chunk at {} of {} bytes after {} bytes",
+                    chunk.offset,
+                    chunk.total_size,
+                    bytes.len()
+                )));
+            }
+            bytes.extend_from_slice(&chunk.data);
+        }
+        Ok(bytes)
     }
 
     async fn fetch_text(&self, hash: &str) -> Result<pb::GetSceneResponse, SceneError> {

@@ -18,7 +18,8 @@ use tonic::Code;
 use super::{runtime, tile_range, CoordinatorUrl};
 use crate::render::{check_extension, check_output_dir};
 use crate::{printable, progress_style};
-use tessera_render::scene::FrameRange;
+use tessera_render::scene::assets::sha256_hex;
+use tessera_render::scene::{FrameRange, Limits, Scene, FIRST_FRAME};
 use tessera_render::DEFAULT_TILE;
 
 /// Arguments of `tessera submit`.
@@ -409,6 +410,84 @@ fn check_frames_dir(dir: &Path) -> Result<()> {
     Ok(())
 }
 
+/// The files the scene names (meshes), as (name, SHA-256, path): found by loading the scene
+/// here, at the frame the job starts with. A scene that does not load here is sent as it is,
+/// without files, for the coordinator to refuse with its own positioned message (which is the
+/// same one).
+fn scene_files(args: &SubmitArgs) -> Result<Vec<(String, String, PathBuf)>> {
+    let frame = args
+        .frames
+        .map_or(args.settings.frame.unwrap_or(FIRST_FRAME), |r| r.first);
+    let Ok(scene) = Scene::load_at(&args.scene, &Limits::default(), frame) else {
+        return Ok(Vec::new());
+    };
+    let dir = args.scene.parent().unwrap_or(Path::new("")).to_path_buf();
+    Ok(scene
+        .files
+        .into_iter()
+        .map(|(name, hash)| {
+            let path = dir.join(&name);
+            (name, hash, path)
+        })
+        .collect())
+}
+
+/// Uploads one file unless the coordinator holds it already, resuming from the bytes it holds
+/// of an earlier, interrupted upload.
+async fn upload(client: &mut Client, url: &str, name: &str, hash: &str, path: &Path) -> Result<()> {
+    let status = client
+        .get_asset_status(pb::GetAssetStatusRequest {
+            sha256: hash.to_string(),
+        })
+        .await
+        .map_err(|e| rpc_error(url, "asset status refused", e))?
+        .into_inner();
+    if status.complete {
+        return Ok(());
+    }
+    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    if sha256_hex(&bytes) != hash {
+        bail!(
+            "{}: changed while it was being submitted; submit again",
+            path.display()
+        );
+    }
+    let total = bytes.len() as u64;
+    let from = usize::try_from(status.received)
+        .unwrap_or(usize::MAX)
+        .min(bytes.len());
+    if from > 0 {
+        errln!("{name}: resuming the upload at byte {from} of {total}");
+    }
+    // Chunks are cut as the stream is read, so a large file is in memory once, not twice.
+    const CHUNK: usize = 1 << 20;
+    let count = (bytes.len() - from).div_ceil(CHUNK).max(1);
+    let sha = hash.to_string();
+    let chunks = (0..count).map(move |i| {
+        let start = from + i * CHUNK;
+        let end = (start + CHUNK).min(bytes.len());
+        pb::AssetChunk {
+            sha256: sha.clone(),
+            offset: start as u64,
+            total_size: total,
+            data: bytes[start..end].to_vec(),
+        }
+    });
+    let done = client
+        .upload_asset(tokio_stream::iter(chunks))
+        .await
+        .map_err(|e| rpc_error(url, &format!("upload of {name} refused"), e))?
+        .into_inner();
+    if !done.complete {
+        bail!(
+            "upload of {name}: the coordinator holds {} of {total} bytes; submit again to resume",
+            done.received
+        );
+    }
+    errln!("{name}: uploaded ({total} bytes, sha256 {hash})");
+    Ok(())
+}
+
 /// Runs `tessera submit`.
 pub fn submit(args: SubmitArgs) -> Result<()> {
     if let Some(o) = &args.output {
@@ -428,10 +507,17 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
         .scene
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+    let files = scene_files(&args)?;
     let url = args.url.coordinator.clone();
     runtime()?.block_on(async {
         let mut client = connect(&args.url).await?;
+        let mut assets = Vec::with_capacity(files.len());
+        for (name, hash, path) in files {
+            upload(&mut client, &url, &name, &hash, &path).await?;
+            assets.push(pb::AssetRef { name, sha256: hash });
+        }
         let req = pb::SubmitJobRequest {
+            assets,
             scene_text: text,
             scene_format: if json {
                 pb::SceneFormat::Json

@@ -35,6 +35,9 @@ pub struct CoordinatorArgs {
     /// Largest scene accepted, in bytes.
     #[arg(long, default_value_t = config::DEFAULT_MAX_SCENE_BYTES)]
     max_scene_bytes: usize,
+    /// Largest file (a mesh) a scene may name, in bytes.
+    #[arg(long, default_value_t = Limits::default().max_asset_bytes)]
+    max_asset_bytes: u64,
     /// Largest spp accepted.
     #[arg(long, default_value_t = Limits::default().max_spp)]
     max_spp: u32,
@@ -86,6 +89,10 @@ pub struct WorkerArgs {
     /// Name shown by `tessera workers` (default: the host name).
     #[arg(long)]
     name: Option<String>,
+    /// Where the files scenes name (meshes) are cached by hash, fetched once per machine
+    /// (default: tessera-assets in the system's temporary directory).
+    #[arg(long, env = "TESSERA_CACHE_DIR")]
+    cache_dir: Option<std::path::PathBuf>,
 }
 
 /// Runs `tessera coordinator`.
@@ -110,6 +117,7 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
     config.default_tile_size = args.tile_size;
     config.limits.max_bytes = args.max_scene_bytes;
     config.limits.max_spp = args.max_spp;
+    config.limits.max_asset_bytes = args.max_asset_bytes;
     config.limits.max_resolution = args.max_resolution;
     config.max_message_bytes = config
         .max_message_bytes
@@ -181,6 +189,9 @@ pub fn worker(args: WorkerArgs) -> Result<()> {
     let mut config = tessera_worker::Config::new(args.url.coordinator);
     config.client = options;
     config.threads = args.threads.map(|t| t as usize);
+    if let Some(dir) = args.cache_dir {
+        config.cache_dir = dir;
+    }
     config.name = match args.name {
         Some(n) => n,
         None => hostname::get()

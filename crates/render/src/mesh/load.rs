@@ -376,6 +376,29 @@ impl PropertyAccess for Skip {
     }
 }
 
+/// ply-rs's header grammar parses its integers with `unwrap`, so a count or version too long
+/// for a u64 panics it (found by fuzzing). Header numbers are checked here first: 18 digits is
+/// more than any real count and less than any overflow.
+fn check_ply_header_numbers(file: &str, bytes: &[u8]) -> Result<(), MeshError> {
+    for (i, line) in bytes.split(|&b| b == b'\n').enumerate() {
+        let mut run = 0;
+        for &b in line {
+            run = if b.is_ascii_digit() { run + 1 } else { 0 };
+            if run > 18 {
+                return Err(error(
+                    file,
+                    format!(":{}", i + 1),
+                    "bad PLY header: a number of more than 18 digits",
+                ));
+            }
+        }
+        if line.starts_with(b"end_header") {
+            break;
+        }
+    }
+    Ok(())
+}
+
 /// Reads every element of `def` as `E`, one at a time so that an error names which.
 fn read_elements<E: PropertyAccess>(
     file: &str,
@@ -429,6 +452,7 @@ fn read_elements<E: PropertyAccess>(
 }
 
 fn load_ply(file: &str, bytes: &[u8], max_triangles: usize) -> Result<Vec<Group>, MeshError> {
+    check_ply_header_numbers(file, bytes)?;
     let mut reader = LineCounter {
         inner: Cursor::new(bytes),
         lines: 0,

@@ -1,0 +1,302 @@
+//! The files scenes name (meshes), stored once each by SHA-256 under `DATA_DIR/assets`.
+//!
+//! An upload appends chunks to `partial/HASH` in order; when the declared size is reached the
+//! content is hashed, and only a match is moved (atomically, after an fsync) to `HASH`. So a
+//! complete file's name is always its content's hash, an interrupted upload resumes from the
+//! bytes held, and a client that sends the wrong bytes wastes only its own upload.
+//!
+//! Writes are serialised by one lock: uploads are rare and large, and a lock per hash would
+//! buy nothing but code. Files are plain files rather than database values, as the EXRs are:
+//! they can be gigabytes, and redb would copy them through its pages.
+
+use std::collections::BTreeMap;
+use std::fs::{File, OpenOptions};
+use std::io::{Read, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use sha2::{Digest, Sha256};
+
+/// Most uploads that may be unfinished at once: each holds disk until it completes, so a
+/// client that starts many and finishes none is refused rather than left to fill the disk.
+pub const MAX_PENDING_UPLOADS: usize = 64;
+
+/// Largest chunk accepted (and sent), in bytes.
+pub const CHUNK_BYTES: usize = 1 << 20;
+
+/// Why an asset operation failed.
+#[derive(Debug, thiserror::Error)]
+pub enum AssetError {
+    /// The request is wrong (a malformed hash, an offset other than the bytes held, content
+    /// that does not match its hash).
+    #[error("{0}")]
+    Invalid(String),
+    /// A limit would be exceeded.
+    #[error("{0}")]
+    Limit(String),
+    /// The file is not held (or not all of it).
+    #[error("{0}")]
+    Missing(String),
+    /// The disk failed.
+    #[error("asset store {path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// What failed.
+        source: std::io::Error,
+    },
+}
+
+/// How much of a file is held.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Held {
+    /// Bytes held.
+    pub received: u64,
+    /// Whether all of it is, with its hash checked.
+    pub complete: bool,
+}
+
+/// The asset store.
+#[derive(Debug)]
+pub struct AssetStore {
+    dir: PathBuf,
+    max_bytes: u64,
+    /// Declared sizes of the uploads in progress, by hash.
+    pending: Mutex<BTreeMap<String, u64>>,
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> AssetError + '_ {
+    move |source| AssetError::Io {
+        path: path.display().to_string(),
+        source,
+    }
+}
+
+/// Checks that `hash` is a SHA-256 in lower-case hex (it becomes a file name).
+pub fn check_hash(hash: &str) -> Result<(), AssetError> {
+    if hash.len() == 64
+        && hash
+            .bytes()
+            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+    {
+        Ok(())
+    } else {
+        let shown: String = hash.chars().take(80).collect();
+        Err(AssetError::Invalid(format!(
+            "{shown:?} is not a SHA-256 (64 lower-case hex digits)"
+        )))
+    }
+}
+
+impl AssetStore {
+    /// Opens (creating) the store under `data_dir`, accepting files of up to `max_bytes`.
+    /// Unfinished uploads from before a restart stay resumable.
+    pub fn open(data_dir: &Path, max_bytes: u64) -> Result<Self, AssetError> {
+        let dir = data_dir.join("assets");
+        let partial = dir.join("partial");
+        std::fs::create_dir_all(&partial).map_err(io(&partial))?;
+        let mut pending = BTreeMap::new();
+        for e in std::fs::read_dir(&partial).map_err(io(&partial))?.flatten() {
+            let name = e.file_name().to_string_lossy().to_string();
+            // HASH.size holds the declared size next to the partial HASH.
+            if let Some(hash) = name.strip_suffix(".size") {
+                if let Ok(size) = std::fs::read_to_string(e.path()) {
+                    if let Ok(size) = size.trim().parse::<u64>() {
+                        pending.insert(hash.to_string(), size);
+                    }
+                }
+            }
+        }
+        Ok(Self {
+            dir,
+            max_bytes,
+            pending: Mutex::new(pending),
+        })
+    }
+
+    fn complete_path(&self, hash: &str) -> PathBuf {
+        self.dir.join(hash)
+    }
+
+    fn partial_path(&self, hash: &str) -> PathBuf {
+        self.dir.join("partial").join(hash)
+    }
+
+    fn pending(&self) -> std::sync::MutexGuard<'_, BTreeMap<String, u64>> {
+        self.pending.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// How much of `hash` is held.
+    pub fn status(&self, hash: &str) -> Result<Held, AssetError> {
+        check_hash(hash)?;
+        if let Ok(m) = std::fs::metadata(self.complete_path(hash)) {
+            return Ok(Held {
+                received: m.len(),
+                complete: true,
+            });
+        }
+        let received = std::fs::metadata(self.partial_path(hash)).map_or(0, |m| m.len());
+        Ok(Held {
+            received,
+            complete: false,
+        })
+    }
+
+    /// Appends `data` at `offset` to the upload of `hash` (of `total` bytes), and completes it
+    /// when the last byte arrives.
+    pub fn append(
+        &self,
+        hash: &str,
+        offset: u64,
+        total: u64,
+        data: &[u8],
+    ) -> Result<Held, AssetError> {
+        check_hash(hash)?;
+        let mut pending = self.pending();
+        let held = self.status(hash)?;
+        if held.complete {
+            // Stored already (another client's upload, or a retry): nothing to do.
+            return Ok(held);
+        }
+        if total > self.max_bytes {
+            return Err(AssetError::Limit(format!(
+                "asset {hash} is {total} bytes, above this coordinator's limit of {}",
+                self.max_bytes
+            )));
+        }
+        if data.len() > CHUNK_BYTES {
+            return Err(AssetError::Invalid(format!(
+                "a chunk of {} bytes; at most {CHUNK_BYTES}",
+                data.len()
+            )));
+        }
+        if offset != held.received {
+            return Err(AssetError::Invalid(format!(
+                "asset {hash}: a chunk at offset {offset}, but {} bytes are held: resume from there",
+                held.received
+            )));
+        }
+        let end = offset.checked_add(data.len() as u64);
+        if end.is_none_or(|e| e > total) {
+            return Err(AssetError::Invalid(format!(
+                "asset {hash}: a chunk past the declared size of {total} bytes"
+            )));
+        }
+        match pending.get(hash) {
+            // An upload with bytes held keeps the size it declared; one with none may start
+            // over with another.
+            Some(&declared) if declared != total && held.received > 0 => {
+                return Err(AssetError::Invalid(format!(
+                    "asset {hash}: the upload in progress declared {declared} bytes, this chunk {total}"
+                )))
+            }
+            Some(&declared) if declared == total => {}
+            _ => {
+                if !pending.contains_key(hash) && pending.len() >= MAX_PENDING_UPLOADS {
+                    return Err(AssetError::Limit(format!(
+                        "{MAX_PENDING_UPLOADS} uploads are unfinished; finish one first"
+                    )));
+                }
+                let size = self.dir.join("partial").join(format!("{hash}.size"));
+                std::fs::write(&size, total.to_string()).map_err(io(&size))?;
+                pending.insert(hash.to_string(), total);
+            }
+        }
+        let path = self.partial_path(hash);
+        let mut f = OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .map_err(io(&path))?;
+        f.write_all(data).map_err(io(&path))?;
+        let received = offset + data.len() as u64;
+        if received < total {
+            return Ok(Held {
+                received,
+                complete: false,
+            });
+        }
+        f.sync_all().map_err(io(&path))?;
+        drop(f);
+        let actual = hash_file(&path)?;
+        let size = self.dir.join("partial").join(format!("{hash}.size"));
+        pending.remove(hash);
+        if actual != hash {
+            let _ = std::fs::remove_file(&path);
+            let _ = std::fs::remove_file(&size);
+            return Err(AssetError::Invalid(format!(
+                "asset {hash}: the {total} bytes received hash to {actual}; the upload is discarded"
+            )));
+        }
+        let done = self.complete_path(hash);
+        std::fs::rename(&path, &done).map_err(io(&done))?;
+        let _ = std::fs::remove_file(&size);
+        if let Ok(d) = File::open(&self.dir) {
+            let _ = d.sync_all();
+        }
+        Ok(Held {
+            received: total,
+            complete: true,
+        })
+    }
+
+    /// The whole content of a complete file.
+    pub fn read(&self, hash: &str) -> Result<Vec<u8>, AssetError> {
+        self.read_from(hash, 0, u64::MAX)
+    }
+
+    /// Up to `len` bytes of a complete file from `offset`.
+    pub fn read_from(&self, hash: &str, offset: u64, len: u64) -> Result<Vec<u8>, AssetError> {
+        check_hash(hash)?;
+        let path = self.complete_path(hash);
+        let mut f = File::open(&path)
+            .map_err(|_| AssetError::Missing(format!("asset {hash} is not uploaded")))?;
+        f.seek(SeekFrom::Start(offset)).map_err(io(&path))?;
+        let mut out = Vec::new();
+        f.take(len).read_to_end(&mut out).map_err(io(&path))?;
+        Ok(out)
+    }
+}
+
+fn hash_file(path: &Path) -> Result<String, AssetError> {
+    let mut f = File::open(path).map_err(io(path))?;
+    let mut h = Sha256::new();
+    let mut buf = vec![0u8; 1 << 16];
+    loop {
+        let n = f.read(&mut buf).map_err(io(path))?;
+        if n == 0 {
+            break;
+        }
+        h.update(&buf[..n]);
+    }
+    Ok(h.finalize().iter().map(|b| format!("{b:02x}")).collect())
+}
+
+/// A scene's files as the store holds them: the names the job lists, each by hash.
+pub struct JobAssets<'a> {
+    /// The store.
+    pub store: &'a AssetStore,
+    /// Name → hash, as the job lists them.
+    pub names: BTreeMap<String, String>,
+}
+
+impl tessera_render::scene::assets::Assets for JobAssets<'_> {
+    fn read(&self, name: &str, max_bytes: u64) -> Result<Vec<u8>, String> {
+        let hash = self.names.get(name).ok_or_else(|| {
+            format!(
+                "`{name}` is not among the files sent with the job (tessera submit uploads them)"
+            )
+        })?;
+        let held = self.store.status(hash).map_err(|e| e.to_string())?;
+        if !held.complete {
+            return Err(format!("`{name}` (sha256 {hash}) has not been uploaded"));
+        }
+        if held.received > max_bytes {
+            return Err(format!(
+                "`{name}` is {} bytes, above the limit of {max_bytes}",
+                held.received
+            ));
+        }
+        self.store.read(hash).map_err(|e| e.to_string())
+    }
+}
