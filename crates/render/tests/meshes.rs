@@ -307,3 +307,22 @@ fn the_scene_hash_covers_the_mesh_files() {
     );
     assert!(plain.files.is_empty());
 }
+
+/// The mesh scenes that ship load (reading their files beside them), and docs/scene-format.md
+/// shows `scenes/mesh-glass.toml` as it is.
+#[test]
+fn the_shipped_mesh_scenes_load_and_the_docs_show_them_as_they_are() {
+    for name in ["cornell-mesh.toml", "mesh-glass.toml"] {
+        let s = common::load(name);
+        assert!(!s.files.is_empty(), "{name} reads its mesh files");
+    }
+    let glass = common::load("mesh-glass.toml");
+    // One read of icosphere.ply serves both of its instances.
+    let names: Vec<&str> = glass.files.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(names, ["meshes/lamp.obj", "meshes/icosphere.ply"]);
+    assert_eq!(glass.lights.lights.len(), 1, "the lamp's glow group is the one light");
+    let root = common::repo_root();
+    let docs = std::fs::read_to_string(root.join("docs/scene-format.md")).expect("docs");
+    let scene = std::fs::read_to_string(root.join("scenes/mesh-glass.toml")).expect("scene");
+    assert!(docs.contains(&scene), "docs/scene-format.md's example differs from scenes/mesh-glass.toml");
+}
