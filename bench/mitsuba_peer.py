@@ -45,7 +45,61 @@ import time
 import numpy as np
 
 
-SCENES = ("cornell-box", "glass-mirror")
+SCENES = ("cornell-box", "glass-mirror", "mesh-glass", "mesh-million")
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+MESHES = os.path.join(HERE, "..", "scenes", "meshes")
+
+
+def obj_groups(path, out_dir):
+    """Splits an OBJ by `usemtl` group into one file per group (Mitsuba's OBJ reader makes one
+    shape of a whole file), returning {group: path}. Vertices are shared, so each part keeps
+    them all."""
+    verts, groups, current = [], {}, None
+    for line in open(path):
+        w = line.split()
+        if not w:
+            continue
+        if w[0] == "v":
+            verts.append(line)
+        elif w[0] == "usemtl":
+            current = w[1]
+        elif w[0] == "f":
+            groups.setdefault(current, []).append(line)
+    out = {}
+    for g, faces in groups.items():
+        p = os.path.join(out_dir, f"{os.path.basename(path)}.{g}.obj")
+        with open(p, "w") as f:
+            f.writelines(verts + faces)
+        out[g] = p
+    return out
+
+
+def mesh_glass(mi, d):
+    """scenes/mesh-glass.toml: the box's walls with an OBJ lamp (emitting panel, white housing)
+    and two smooth-shaded icospheres from the same PLY, one diffuse blue, one glass."""
+    import tempfile
+
+    for k in ("small-box", "large-box", "light"):
+        d.pop(k, None)
+    white = d["white"] if "white" in d else {"type": "diffuse", "reflectance": {
+        "type": "rgb", "value": [0.885809, 0.698859, 0.666422]}}
+    parts = obj_groups(os.path.join(MESHES, "lamp.obj"), tempfile.mkdtemp())
+    up = mi.ScalarTransform4f().translate([0, 0.97, 0])
+    d["lamp-glow"] = {"type": "obj", "filename": parts["glow"], "to_world": up,
+                      "face_normals": True, "bsdf": white,
+                      "emitter": {"type": "area", "radiance": {
+                          "type": "rgb", "value": [18.387, 13.9873, 6.75357]}}}
+    d["lamp-housing"] = {"type": "obj", "filename": parts["housing"], "to_world": up,
+                         "face_normals": True, "bsdf": white}
+    ply = os.path.join(MESHES, "icosphere.ply")
+    d["blue-ball"] = {"type": "ply", "filename": ply,
+                      "to_world": mi.ScalarTransform4f().translate([0.3, -0.65, -0.35]).scale(0.35),
+                      "bsdf": {"type": "diffuse", "reflectance": {
+                          "type": "rgb", "value": [0.2, 0.3, 0.7]}}}
+    d["glass-ball"] = {"type": "ply", "filename": ply,
+                       "to_world": mi.ScalarTransform4f().translate([-0.05, -0.7, 0.35]).scale(0.3),
+                       "bsdf": {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0}}
 
 
 def scene_dict(mi, name, size):
@@ -65,6 +119,15 @@ def scene_dict(mi, name, size):
             # tessera's outside is vacuum; Mitsuba's default ext_ior is air (1.000277).
             "bsdf": {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0},
         }
+    elif name == "mesh-glass":
+        mesh_glass(mi, d)
+    elif name == "mesh-million":
+        # bench/make_million.py's scene: the walls and light around its bumpy sphere.
+        del d["small-box"], d["large-box"]
+        ply = os.path.join(HERE, "..", "target", "bench-cache", "mesh-million", "bumpy-sphere.ply")
+        d["bumpy-sphere"] = {"type": "ply", "filename": ply, "face_normals": True,
+                             "to_world": mi.ScalarTransform4f().translate([0, -0.5, 0]).scale(0.45),
+                             "bsdf": {"type": "ref", "id": "white"}}
     elif name != "cornell-box":
         raise SystemExit(f"no Mitsuba counterpart for scene {name!r}; known: {SCENES}")
     d["sensor"]["film"].update(width=size, height=size, rfilter={"type": "box"})

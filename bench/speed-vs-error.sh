@@ -18,29 +18,9 @@ cd "$(dirname "$0")/.."
 max_spp=4096
 seeds=2
 reference_spp=8192
-while [ $# -gt 0 ]; do
-    case "$1" in
-        --max-spp) max_spp="$2"; shift 2 ;;
-        --seeds) seeds="$2"; shift 2 ;;
-        --reference-spp) reference_spp="$2"; shift 2 ;;
-        *) echo "unknown argument: $1" >&2; exit 2 ;;
-    esac
-done
-
-cargo build --release -p tessera-cli --features bench
-mkdir -p target/bench
+. bench/peer-env.sh
 peers=()
-if command -v python3 >/dev/null; then
-    if [ ! -x target/bench-venv/bin/python ]; then
-        python3 -m venv target/bench-venv
-        target/bench-venv/bin/pip install --quiet mitsuba numpy
-    fi
-    llvm=$(ls /usr/lib/*/libLLVM.so.19.1 2>/dev/null | head -1 || true)
-    if [ -z "$llvm" ] && command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
-        DEBIAN_FRONTEND=noninteractive apt-get install -y -q libllvm19 >/dev/null || true
-        llvm=$(ls /usr/lib/*/libLLVM.so.19.1 2>/dev/null | head -1 || true)
-    fi
-    [ -n "$llvm" ] && export DRJIT_LIBLLVM_PATH="$llvm"
+if [ "$have_python" = 1 ]; then
     [ -z "$llvm" ] && echo "no libLLVM.so.19.1: mitsuba's llvm_ad_rgb variant will be skipped" >&2
     gm_ref=target/bench-cache/mitsuba-glass-mirror-16384.exr
     if [ ! -s "$gm_ref" ]; then

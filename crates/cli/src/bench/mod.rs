@@ -169,6 +169,34 @@ fn reference(
     ))
 }
 
+/// For each distinct mesh of `scene`, a report line with the time its BVH takes to build (built
+/// again from its triangles, as the loader builds it, on `pool`).
+fn mesh_builds(name: &str, scene: &Scene, load_seconds: f64, pool: &rayon::ThreadPool) -> Vec<String> {
+    let mut seen: Vec<*const tessera_render::mesh::TriMesh> = Vec::new();
+    let mut out = Vec::new();
+    for p in &scene.prims {
+        let tessera_render::shape::Shape::Mesh(m) = &p.shape else {
+            continue;
+        };
+        if seen.contains(&std::sync::Arc::as_ptr(&m.mesh)) {
+            continue;
+        }
+        seen.push(std::sync::Arc::as_ptr(&m.mesh));
+        let tris = m.mesh.triangles().to_vec();
+        let n = tris.len();
+        let start = Instant::now();
+        let built = pool.install(|| tessera_render::mesh::TriMesh::new(tris, Vec::new()));
+        let seconds = start.elapsed().as_secs_f64();
+        drop(built);
+        out.push(format!(
+            "- {name}: {n} triangles in {seconds:.3} s ({:.3} s per million; scene load {load_seconds:.2} s)",
+            seconds / (n as f64 / 1e6)
+        ));
+        errln!("{}", out.last().map_or("", String::as_str));
+    }
+    out
+}
+
 /// Runs `tessera bench`.
 pub fn run(args: BenchArgs) -> Result<()> {
     if !args.max_spp.is_power_of_two() || !args.max_spp.trailing_zeros().is_multiple_of(2) {
@@ -225,8 +253,12 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let mut rows = Vec::new();
     let mut adaptive_points = Vec::new();
     let mut references = Vec::new();
+    let mut builds = Vec::new();
     for (path, name) in scenes.iter().zip(&names) {
+        let start = Instant::now();
         let scene = Scene::load(path, &Limits::default())?;
+        let load_seconds = start.elapsed().as_secs_f64();
+        builds.extend(mesh_builds(name, &scene, load_seconds, &pool));
         let (reference, source) = reference(
             &args,
             given.get(name.as_str()).copied(),
@@ -312,6 +344,15 @@ pub fn run(args: BenchArgs) -> Result<()> {
         &svg_path,
         &csv_path,
     );
+    let md = if builds.is_empty() {
+        md
+    } else {
+        format!(
+            "{md}\n## Mesh BVH builds\n\nEach distinct mesh's BVH built again from its triangles, timed alone (the scene's \
+             load, which also reads the file, in brackets), on {threads} threads:\n\n{}\n",
+            builds.join("\n")
+        )
+    };
     std::fs::write(&md_path, md).with_context(|| format!("writing {}", md_path.display()))?;
     if args.adaptive {
         let base = args.out.join(format!("{}-adaptive", args.name));

@@ -119,20 +119,26 @@ impl<R: BufRead> BufRead for LineCounter<R> {
     }
 
     fn consume(&mut self, amt: usize) {
-        let consumed = match self.inner.fill_buf() {
-            Ok(buf) => buf[..amt.min(buf.len())].to_vec(),
-            Err(_) => Vec::new(),
+        // The bytes consumed are the front of the buffer `fill_buf` returned, which asking
+        // again returns without reading.
+        let seen = match self.inner.fill_buf() {
+            Ok(buf) => newlines(&buf[..amt.min(buf.len())]),
+            Err(_) => None,
         };
-        self.count(&consumed);
+        self.note(seen);
         self.inner.consume(amt);
     }
 }
 
 impl<R> LineCounter<R> {
     fn count(&mut self, bytes: &[u8]) {
-        if let Some(&last) = bytes.last() {
-            self.lines += bytes.iter().filter(|&&b| b == b'\n').count();
-            self.at_line_start = last == b'\n';
+        self.note(newlines(bytes));
+    }
+
+    fn note(&mut self, seen: Option<(usize, bool)>) {
+        if let Some((n, ends_line)) = seen {
+            self.lines += n;
+            self.at_line_start = ends_line;
         }
     }
 
@@ -144,6 +150,12 @@ impl<R> LineCounter<R> {
             self.lines + 1
         }
     }
+}
+
+/// How many newlines `bytes` holds and whether it ends with one; `None` when it is empty.
+fn newlines(bytes: &[u8]) -> Option<(usize, bool)> {
+    let last = *bytes.last()?;
+    Some((bytes.iter().filter(|&&b| b == b'\n').count(), last == b'\n'))
 }
 
 /// The name `tobj` gives the synthetic material library below.

@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# The mesh benchmark: tessera against Mitsuba 3 (llvm_ad_rgb, from PyPI) on a scene of
+# 1,048,576 triangles (bench/make_million.py: the Cornell box's walls and light around a bumpy
+# sphere), measured point by point in the same run as speed-vs-error.sh does, relMSE against
+# an independent Mitsuba reference; plus each mesh's BVH build time. Writes
+# docs/benchmarks/mesh-speed-vs-error.{md,csv,svg}.
+#
+#   bench/mesh-speed.sh [--max-spp N] [--seeds K] [--reference-spp N]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+max_spp=256
+seeds=2
+reference_spp=4096
+. bench/peer-env.sh
+[ "$have_python" = 1 ] || { echo "no python3: Mitsuba, the peer and the reference, cannot run" >&2; exit 1; }
+[ -n "$llvm" ] || { echo "no libLLVM.so.19.1: Mitsuba's llvm_ad_rgb cannot run" >&2; exit 1; }
+dir=target/bench-cache/mesh-million
+[ -s "$dir/bumpy-sphere.ply" ] || target/bench-venv/bin/python bench/make_million.py "$dir"
+ref=target/bench-cache/mitsuba-mesh-million-$reference_spp.exr
+if [ ! -s "$ref" ]; then
+    target/bench-venv/bin/python bench/mitsuba_peer.py --variants llvm_ad_rgb \
+        --make-reference "mesh-million=$ref.tmp.exr" --reference-spp "$reference_spp"
+    mv "$ref.tmp.exr" "$ref"
+fi
+target/release/tessera bench --scene "$dir/mesh-million.toml" --max-spp "$max_spp" --seeds "$seeds" \
+    --reference "mesh-million=$ref" --name mesh-speed-vs-error \
+    --peer-command "target/bench-venv/bin/python bench/mitsuba_peer.py --serve --variants llvm_ad_rgb \
+--reference mesh-million=$ref --max-spp $max_spp"

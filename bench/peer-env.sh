@@ -1,0 +1,31 @@
+# Sourced by the benchmark scripts: reads --max-spp, --seeds and --reference-spp (over the
+# defaults the script set in max_spp, seeds and reference_spp), builds tessera's bench
+# harness, and, where Python 3 is here, sets up Mitsuba 3 in target/bench-venv with Debian's
+# libllvm19 for its llvm_ad_rgb variant (installed with apt-get when it can be). Sets `llvm`
+# (empty without it) and `have_python` (1 or 0).
+while [ $# -gt 0 ]; do
+    case "$1" in
+        --max-spp) max_spp="$2"; shift 2 ;;
+        --seeds) seeds="$2"; shift 2 ;;
+        --reference-spp) reference_spp="$2"; shift 2 ;;
+        *) echo "unknown argument: $1" >&2; exit 2 ;;
+    esac
+done
+
+cargo build --release -p tessera-cli --features bench
+mkdir -p target/bench target/bench-cache
+have_python=0
+llvm=
+if command -v python3 >/dev/null; then
+    have_python=1
+    if [ ! -x target/bench-venv/bin/python ]; then
+        python3 -m venv target/bench-venv
+        target/bench-venv/bin/pip install --quiet mitsuba numpy
+    fi
+    llvm=$(ls /usr/lib/*/libLLVM.so.19.1 2>/dev/null | head -1 || true)
+    if [ -z "$llvm" ] && command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+        DEBIAN_FRONTEND=noninteractive apt-get install -y -q libllvm19 >/dev/null || true
+        llvm=$(ls /usr/lib/*/libLLVM.so.19.1 2>/dev/null | head -1 || true)
+    fi
+    [ -n "$llvm" ] && export DRJIT_LIBLLVM_PATH="$llvm"
+fi
