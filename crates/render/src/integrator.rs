@@ -169,6 +169,9 @@ fn trace(
     sampler: &PixelSampler,
     mut light_uv: [f32; 2],
 ) -> Vec3A {
+    // Only smooth meshes have shading normals; other scenes skip their side tests below
+    // (a branch that always goes one way) rather than pay for them at every bounce.
+    let shading_normals = scene.has_shading_normals();
     let strategy = if scene.lights.is_empty() {
         Strategy::Bsdf
     } else {
@@ -220,10 +223,14 @@ fn trace(
         // Normals on the side the path arrived from: the geometric one for ray offsets and
         // for which side a direction leaves by, the shading one for scattering.
         let n = if front { sp.n } else { -sp.n };
-        let ns = if front { sp.ns } else { -sp.ns };
         // A smooth mesh's shading normal; elsewhere ns = n and the extra side tests below,
         // which compare with the geometric normal, would repeat the shading ones.
-        let shaded = sp.ns != sp.n;
+        let shaded = shading_normals && sp.ns != sp.n;
+        let ns = match (shaded, front) {
+            (false, _) => n,
+            (true, true) => sp.ns,
+            (true, false) => -sp.ns,
+        };
         let [u0, u1, next_lx, next_ly] = sampler.get4(1 + 2 * depth);
         let nee = strategy != Strategy::Bsdf && matches!(mat.bsdf, Bsdf::Diffuse(_));
         // u_rr decides Russian roulette after this bounce.

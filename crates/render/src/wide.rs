@@ -154,10 +154,7 @@ impl<'a> Wide<'a> {
             || scene.max_depth.is_some()
             || !scene.is_one_leaf()
             // Its bounce shades with the geometric normal.
-            || scene
-                .prims
-                .iter()
-                .any(|p| matches!(&p.shape, Shape::Mesh(m) if m.smooth))
+            || scene.has_shading_normals()
         {
             return None;
         }

@@ -320,9 +320,16 @@ fn the_shipped_mesh_scenes_load_and_the_docs_show_them_as_they_are() {
     // One read of icosphere.ply serves both of its instances.
     let names: Vec<&str> = glass.files.iter().map(|(n, _)| n.as_str()).collect();
     assert_eq!(names, ["meshes/lamp.obj", "meshes/icosphere.ply"]);
-    assert_eq!(glass.lights.lights.len(), 1, "the lamp's glow group is the one light");
+    assert_eq!(
+        glass.lights.lights.len(),
+        1,
+        "the lamp's glow group is the one light"
+    );
     let root = common::repo_root();
     let docs = std::fs::read_to_string(root.join("docs/scene-format.md")).expect("docs");
     let scene = std::fs::read_to_string(root.join("scenes/mesh-glass.toml")).expect("scene");
-    assert!(docs.contains(&scene), "docs/scene-format.md's example differs from scenes/mesh-glass.toml");
+    assert!(
+        docs.contains(&scene),
+        "docs/scene-format.md's example differs from scenes/mesh-glass.toml"
+    );
 }

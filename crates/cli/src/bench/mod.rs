@@ -171,7 +171,12 @@ fn reference(
 
 /// For each distinct mesh of `scene`, a report line with the time its BVH takes to build (built
 /// again from its triangles, as the loader builds it, on `pool`).
-fn mesh_builds(name: &str, scene: &Scene, load_seconds: f64, pool: &rayon::ThreadPool) -> Vec<String> {
+fn mesh_builds(
+    name: &str,
+    scene: &Scene,
+    load_seconds: f64,
+    pool: &rayon::ThreadPool,
+) -> Vec<String> {
     let mut seen: Vec<*const tessera_render::mesh::TriMesh> = Vec::new();
     let mut out = Vec::new();
     for p in &scene.prims {

@@ -153,18 +153,23 @@ pub struct MeshInstance {
 impl MeshInstance {
     /// Closest hit with t in (0, t_max): (t, triangle). The ray moves into mesh space
     /// unnormalised, so t means the same in both spaces.
-    #[inline]
+    ///
+    /// Out of line, as are `blocks` and `surface`: inlined, a mesh's traversal would grow
+    /// `Shape`'s match past what LLVM inlines into the integrator, and every scene, mesh or
+    /// not, would pay a call per hit (measured: docs/renderer.md).
+    #[inline(never)]
     pub fn intersect(&self, r: &Ray, t_max: f32) -> Option<(f32, u32)> {
         self.mesh.intersect(&self.xf.ray_to_object(r), t_max)
     }
 
     /// Whether anything of the mesh blocks `r` in (0, t_max).
-    #[inline]
+    #[inline(never)]
     pub fn blocks(&self, r: &Ray, t_max: f32) -> bool {
         self.mesh.occluded(&self.xf.ray_to_object(r), t_max)
     }
 
     /// The surface at a hit found by [`MeshInstance::intersect`].
+    #[inline(never)]
     pub fn surface(&self, r: &Ray, part: u32) -> SurfacePoint {
         let lr = self.xf.ray_to_object(r);
         let i = part as usize;

@@ -285,6 +285,9 @@ pub(super) fn build(
         }
     }
     let accel = Accel::build(&prims);
+    let shading_normals = prims
+        .iter()
+        .any(|p| matches!(&p.shape, Shape::Mesh(m) if m.smooth && m.mesh.has_normals()));
     let scene = Scene {
         camera,
         width: w,
@@ -297,6 +300,7 @@ pub(super) fn build(
         hash: String::new(),
         files: Vec::new(),
         accel,
+        shading_normals,
     };
     Ok((scene, meshes.read))
 }

@@ -203,6 +203,7 @@ pub struct Scene {
     /// The files the scene read (its meshes): name as the scene gives it, and SHA-256 hex.
     pub files: Vec<(String, String)>,
     accel: Accel,
+    shading_normals: bool,
 }
 
 impl Scene {
@@ -299,6 +300,13 @@ impl Scene {
     /// queries the packet tests answer ([`Accel::is_one_leaf`]).
     pub fn is_one_leaf(&self) -> bool {
         self.accel.is_one_leaf()
+    }
+
+    /// Whether any surface shades with a normal other than its geometric one (a smooth mesh
+    /// whose file has vertex normals).
+    #[inline]
+    pub fn has_shading_normals(&self) -> bool {
+        self.shading_normals
     }
 
     /// The scene's ray queries.
