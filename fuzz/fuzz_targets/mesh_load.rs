@@ -13,7 +13,8 @@ fuzz_target!(|data: &[u8]| {
             Ok(groups) => {
                 for g in groups {
                     assert!(g.normals.is_empty() || g.normals.len() == g.tris.len());
-                    let mesh = TriMesh::new(g.tris, g.normals);
+                    assert!(g.uvs.is_empty() || g.uvs.len() == g.tris.len());
+                    let mesh = TriMesh::new(g.tris, g.normals, g.uvs);
                     let ray = Ray::new(glam::Vec3A::new(0.1, 0.2, 10.0), -glam::Vec3A::Z);
                     if let Some((t, _)) = mesh.intersect(&ray, f32::INFINITY) {
                         assert!(t > 0.0 && t.is_finite());

@@ -245,6 +245,10 @@ fn trace(
         let [lx, ly] = std::mem::replace(&mut light_uv, [next_lx, next_ly]);
         let next = match mat.bsdf {
             Bsdf::Diffuse(albedo) => {
+                let albedo = match mat.texture {
+                    None => albedo,
+                    Some(t) => scene.textures[t as usize].lookup(prim.shape.uv(&ray, hit.part)),
+                };
                 let p_out = offset_ray_origin(sp.p, sp.err, n);
                 if nee {
                     if let Some(ls) = scene.lights.sample(sp.p, u_select, Vec2::new(lx, ly)) {

@@ -41,6 +41,7 @@ pub mod packet;
 pub mod sampling;
 pub mod scene;
 pub mod shape;
+pub mod texture;
 pub mod tile;
 pub mod wide;
 

@@ -541,6 +541,16 @@ impl Shape {
         }
     }
 
+    /// Texture coordinates at a hit found by [`Shape::intersect`]: a mesh's, where its file
+    /// gives them; zero elsewhere (scenes give textures to such meshes only).
+    #[inline]
+    pub fn uv(&self, r: &Ray, part: u32) -> glam::Vec2 {
+        match self {
+            Shape::Mesh(m) => m.uv(r, part),
+            _ => glam::Vec2::ZERO,
+        }
+    }
+
     /// World-space bounds; infinite for planes (which the BVH keeps aside).
     pub fn bounds(&self) -> Aabb {
         match self {

@@ -141,7 +141,7 @@ impl<'a> Wide<'a> {
         let diffuse = scene
             .materials
             .iter()
-            .all(|m| matches!(m.bsdf, Bsdf::Diffuse(_)));
+            .all(|m| matches!(m.bsdf, Bsdf::Diffuse(_)) && m.texture.is_none());
         let [light] = scene.lights.lights.as_slice() else {
             return None;
         };

@@ -333,3 +333,106 @@ fn the_shipped_mesh_scenes_load_and_the_docs_show_them_as_they_are() {
         "docs/scene-format.md's example differs from scenes/mesh-glass.toml"
     );
 }
+
+/// An 8-bit PNG of `w` × `h` grey levels (row 0 at the top).
+fn grey_png(w: u32, h: u32, levels: &[u8]) -> Vec<u8> {
+    let mut png = Vec::new();
+    let mut e = png::Encoder::new(&mut png, w, h);
+    e.set_color(png::ColorType::Grayscale);
+    e.set_depth(png::BitDepth::Eight);
+    let mut writer = e.write_header().expect("header");
+    writer.write_image_data(levels).expect("data");
+    drop(writer);
+    png
+}
+
+/// A textured albedo: a flat quad with texture coordinates, facing the camera under a
+/// uniform sky L, shows ρ(u, v)·L (every bounce leaves to the sky), with ρ the texel decoded
+/// from sRGB. A 2×2 checker of two grey levels, each cell 32 texels square so that bilinear
+/// filtering blends only at its edges: the middle of each cell must be its level.
+#[test]
+fn a_textured_quad_under_a_sky_shows_the_decoded_texels() {
+    let obj = "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3 4/4\n";
+    // Top left and bottom right 200, the others 60.
+    let levels: Vec<u8> = (0..64 * 64)
+        .map(|i| {
+            if (i % 64 < 32) == (i / 64 < 32) {
+                200
+            } else {
+                60
+            }
+        })
+        .collect();
+    let png = grey_png(64, 64, &levels);
+    let text = format!(
+        "{}[environment]\ntype = \"constant\"\nradiance = [1, 1, 1]\n\
+         [materials.m]\ntype = \"diffuse\"\nalbedo = {{ texture = \"checker.png\" }}\n\
+         [[objects]]\nshape = \"mesh\"\nfile = \"quad.obj\"\nmaterial = \"m\"\n",
+        head(32, "[0, 0, 2.4]", "[0, 0, 0]", 46)
+    );
+    let s = scene_with_files(
+        &text,
+        &[("quad.obj", obj.as_bytes()), ("checker.png", &png)],
+    );
+    let names: Vec<&str> = s.files.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(
+        names,
+        ["checker.png", "quad.obj"],
+        "the texture is one of the scene's files"
+    );
+    let img = render(
+        &s,
+        &RenderSettings {
+            spp: 64,
+            seed: 2,
+            ..RenderSettings::default()
+        },
+    );
+    let lin = |c: u8| tessera_render::texture::srgb_to_linear(f64::from(c) / 255.0);
+    // Cell centres: the quad fills about the whole 32² film; each cell is a 16² quarter.
+    for (x0, y0, level) in [(5, 5, 200u8), (21, 5, 60), (5, 21, 60), (21, 21, 200)] {
+        let (mean, se) = common::region_stats(&img, x0, y0, 6, 6);
+        let want = lin(level);
+        assert!(
+            (mean[0] - want).abs() <= 3.0 * se[0] + 1e-3 * want,
+            "cell at ({x0},{y0}): {} vs the texel {level} decoded, {want}",
+            mean[0]
+        );
+    }
+    assert_eq!(img.nonfinite, 0);
+}
+
+/// What a texture can get wrong, named at its key.
+#[test]
+fn texture_errors_name_the_key() {
+    let png = grey_png(1, 1, &[128]);
+    let quad = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n".as_slice();
+    let flat = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n".as_slice();
+    let scene = |albedo: &str, object: &str| {
+        format!(
+            "{}[materials.m]\ntype = \"diffuse\"\nalbedo = {albedo}\n[[objects]]\nmaterial = \"m\"\n{object}\n",
+            head(4, "[0, 0, 5]", "[0, 0, 0]", 40)
+        )
+    };
+    let tex = "{ texture = \"t.png\" }";
+    let mesh = "shape = \"mesh\"\nfile = \"m.obj\"";
+    let files: &[(&str, &[u8])] = &[("t.png", &png), ("m.obj", quad), ("flat.obj", flat)];
+    let cases = [
+        (scene(tex, "shape = \"sphere\""), "objects[0].material: its material has a texture, which needs a mesh with texture coordinates"),
+        (scene(tex, "shape = \"mesh\"\nfile = \"flat.obj\""), "objects[0].material: its material has a texture, but `flat.obj` gives no texture coordinates"),
+        (scene("{ texture = \"nope.png\" }", mesh), "materials.m.albedo.texture: `nope.png` is not among the scene's files"),
+        (scene("{ texture = \"m.obj\" }", mesh), "materials.m.albedo.texture: `m.obj`: a texture must be .png, .jpg, .jpeg or .exr (by its extension)"),
+        (scene("{ texture = \"t.png\", scale = 2 }", mesh), "unknown field `scale`"),
+        (scene("[0.5, 0.5]", mesh), "invalid length 2"),
+    ];
+    for (text, want) in cases {
+        let got = load_err(&text, files);
+        assert!(got.contains(want), "{got}\n  should contain: {want}");
+    }
+    let bad_png: &[(&str, &[u8])] = &[("t.png", b"not a png"), ("m.obj", quad)];
+    let got = load_err(&scene(tex, mesh), bad_png);
+    assert!(
+        got.contains("materials.m.albedo.texture: t.png: not a readable image"),
+        "{got}"
+    );
+}

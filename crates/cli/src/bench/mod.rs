@@ -190,7 +190,8 @@ fn mesh_builds(
         let tris = m.mesh.triangles().to_vec();
         let n = tris.len();
         let start = Instant::now();
-        let built = pool.install(|| tessera_render::mesh::TriMesh::new(tris, Vec::new()));
+        let built =
+            pool.install(|| tessera_render::mesh::TriMesh::new(tris, Vec::new(), Vec::new()));
         let seconds = start.elapsed().as_secs_f64();
         drop(built);
         out.push(format!(

@@ -9,7 +9,7 @@
 use std::collections::BTreeSet;
 use std::io::{BufRead, Cursor, Read};
 
-use glam::Vec3A;
+use glam::{Vec2, Vec3A};
 use ply_rs::parser::Parser;
 use ply_rs::ply::{ElementDef, Encoding, Property, PropertyAccess};
 
@@ -22,6 +22,8 @@ pub struct Group {
     pub tris: Vec<[Vec3A; 3]>,
     /// Vertex normals of each triangle: empty, or one entry per triangle.
     pub normals: Vec<[Vec3A; 3]>,
+    /// Texture coordinates of each triangle's vertices: empty, or one entry per triangle.
+    pub uvs: Vec<[Vec2; 3]>,
 }
 
 /// A mesh file that could not be read.
@@ -242,6 +244,11 @@ fn load_obj(file: &str, bytes: &[u8], max_triangles: usize) -> Result<Vec<Group>
             Ok(v)
         };
         let has_normals = m.normals.len() == m.positions.len() && !m.normals.is_empty();
+        let has_uvs = m.texcoords.len() / 2 == m.positions.len() / 3 && !m.texcoords.is_empty();
+        let uv = |i: u32| {
+            let k = i as usize * 2;
+            Vec2::new(m.texcoords[k], m.texcoords[k + 1])
+        };
         let count = m.indices.len() / 3;
         total += count;
         if total > max_triangles {
@@ -274,12 +281,19 @@ fn load_obj(file: &str, bytes: &[u8], max_triangles: usize) -> Result<Vec<Group>
                     vertex(f[2], "normal")?,
                 ]);
             }
+            if has_uvs {
+                g.uvs.push([uv(f[0]), uv(f[1]), uv(f[2])]);
+            }
         }
     }
-    // A group whose models disagree on normals gets none: normals are all or nothing.
+    // A group whose models disagree on normals or texture coordinates gets none: they are
+    // all or nothing.
     for g in &mut groups {
         if g.normals.len() != g.tris.len() {
             g.normals.clear();
+        }
+        if g.uvs.len() != g.tris.len() {
+            g.uvs.clear();
         }
     }
     Ok(groups)
@@ -313,6 +327,7 @@ fn obj_error_text(e: &tobj::LoadError) -> String {
 struct PlyVertex {
     p: [f64; 3],
     n: [f64; 3],
+    uv: [f64; 2],
     has: u8,
 }
 
@@ -351,6 +366,8 @@ impl PropertyAccess for PlyVertex {
             "nx" => (&mut self.n[0], 8),
             "ny" => (&mut self.n[1], 16),
             "nz" => (&mut self.n[2], 32),
+            "u" | "s" | "texture_u" | "texture_s" => (&mut self.uv[0], 64),
+            "v" | "t" | "texture_v" | "texture_t" => (&mut self.uv[1], 128),
             _ => return,
         };
         *slot = x;
@@ -479,6 +496,7 @@ fn load_ply(file: &str, bytes: &[u8], max_triangles: usize) -> Result<Vec<Group>
     let vertex_def = header.elements.get("vertex");
     let mut positions: Vec<Vec3A> = Vec::new();
     let mut normals: Vec<Vec3A> = Vec::new();
+    let mut uvs: Vec<Vec2> = Vec::new();
     let mut faces: Vec<(usize, Vec<u32>)> = Vec::new();
     let mut triangles = 0usize;
     for (name, def) in &header.elements {
@@ -487,6 +505,14 @@ fn load_ply(file: &str, bytes: &[u8], max_triangles: usize) -> Result<Vec<Group>
                 let has_normals = ["nx", "ny", "nz"]
                     .iter()
                     .all(|k| def.properties.contains_key(*k));
+                let has_uvs = [
+                    ["u", "v"],
+                    ["s", "t"],
+                    ["texture_u", "texture_v"],
+                    ["texture_s", "texture_t"],
+                ]
+                .iter()
+                .any(|pair| pair.iter().all(|k| def.properties.contains_key(*k)));
                 if !["x", "y", "z"]
                     .iter()
                     .all(|k| def.properties.contains_key(*k))
@@ -515,6 +541,10 @@ fn load_ply(file: &str, bytes: &[u8], max_triangles: usize) -> Result<Vec<Group>
                         if has_normals {
                             let n = Vec3A::new(v.n[0] as f32, v.n[1] as f32, v.n[2] as f32);
                             normals.push(if n.is_finite() { n } else { Vec3A::ZERO });
+                        }
+                        if has_uvs {
+                            let uv = Vec2::new(v.uv[0] as f32, v.uv[1] as f32);
+                            uvs.push(if uv.is_finite() { uv } else { Vec2::ZERO });
                         }
                         Ok(())
                     },
@@ -554,6 +584,7 @@ fn load_ply(file: &str, bytes: &[u8], max_triangles: usize) -> Result<Vec<Group>
     }
     let mut group = Group::default();
     let with_normals = normals.len() == positions.len() && !normals.is_empty();
+    let with_uvs = uvs.len() == positions.len() && !uvs.is_empty();
     for (i, list) in faces {
         let get = |k: u32| {
             positions.get(k as usize).copied().ok_or_else(|| {
@@ -570,6 +601,9 @@ fn load_ply(file: &str, bytes: &[u8], max_triangles: usize) -> Result<Vec<Group>
             group.tris.push([get(idx[0])?, get(idx[1])?, get(idx[2])?]);
             if with_normals {
                 group.normals.push(idx.map(|j| normals[j as usize]));
+            }
+            if with_uvs {
+                group.uvs.push(idx.map(|j| uvs[j as usize]));
             }
         }
     }

@@ -11,7 +11,7 @@ pub mod triangle;
 
 use std::sync::Arc;
 
-use glam::Vec3A;
+use glam::{Vec2, Vec3A};
 
 use crate::accel::bvh::Bvh;
 use crate::math::{Aabb, Ray};
@@ -26,15 +26,19 @@ pub struct TriMesh {
     tris: Vec<[Vec3A; 3]>,
     /// Vertex normals of each triangle, in leaf order; empty when the file has none.
     normals: Vec<[Vec3A; 3]>,
+    /// Texture coordinates of each triangle's vertices, in leaf order; empty when the file
+    /// has none.
+    uvs: Vec<[Vec2; 3]>,
     bvh: Bvh,
     bounds: Aabb,
 }
 
 impl TriMesh {
     /// Builds the mesh and its BVH from triangles (as vertex positions) and, optionally, their
-    /// vertex normals (empty, or one entry per triangle).
-    pub fn new(tris: Vec<[Vec3A; 3]>, normals: Vec<[Vec3A; 3]>) -> Self {
+    /// vertex normals and texture coordinates (each empty, or one entry per triangle).
+    pub fn new(tris: Vec<[Vec3A; 3]>, normals: Vec<[Vec3A; 3]>, uvs: Vec<[Vec2; 3]>) -> Self {
         debug_assert!(normals.is_empty() || normals.len() == tris.len());
+        debug_assert!(uvs.is_empty() || uvs.len() == tris.len());
         let bounds: Vec<Aabb> = tris
             .iter()
             .map(|t| Aabb::EMPTY.grow(t[0]).grow(t[1]).grow(t[2]))
@@ -43,14 +47,17 @@ impl TriMesh {
         let bvh = Bvh::build_parallel(&bounds);
         let order = bvh.order();
         let tris_ordered = order.iter().map(|&i| tris[i as usize]).collect();
-        let normals = if normals.is_empty() {
-            normals
-        } else {
-            order.iter().map(|&i| normals[i as usize]).collect()
-        };
+        fn in_order<T: Copy>(order: &[u32], v: Vec<T>) -> Vec<T> {
+            if v.is_empty() {
+                v
+            } else {
+                order.iter().map(|&i| v[i as usize]).collect()
+            }
+        }
         Self {
             tris: tris_ordered,
-            normals,
+            normals: in_order(order, normals),
+            uvs: in_order(order, uvs),
             bvh,
             bounds: all,
         }
@@ -64,6 +71,11 @@ impl TriMesh {
     /// Whether the mesh has no triangles.
     pub fn is_empty(&self) -> bool {
         self.tris.is_empty()
+    }
+
+    /// Whether the file gave texture coordinates.
+    pub fn has_uvs(&self) -> bool {
+        !self.uvs.is_empty()
     }
 
     /// Whether the file gave vertex normals.
@@ -198,6 +210,21 @@ impl MeshInstance {
         }
     }
 
+    /// The texture coordinates at a hit found by [`MeshInstance::intersect`] (zero without
+    /// any in the file).
+    #[inline(never)]
+    pub fn uv(&self, r: &Ray, part: u32) -> Vec2 {
+        let i = part as usize;
+        let Some(uv) = self.mesh.uvs.get(i) else {
+            return Vec2::ZERO;
+        };
+        let lr = self.xf.ray_to_object(r);
+        let [p0, p1, p2] = self.mesh.tris[i];
+        let b = triangle::intersect(lr.o, lr.d, p0, p1, p2, f32::INFINITY)
+            .map_or([1.0 / 3.0; 3], |h| h.b);
+        uv[0] * b[0] + uv[1] * b[1] + uv[2] * b[2]
+    }
+
     /// World-space bounds.
     pub fn bounds(&self) -> Aabb {
         let b = self.mesh.bounds();
@@ -260,7 +287,7 @@ pub(crate) mod tests {
     #[test]
     fn rays_from_inside_a_closed_mesh_through_its_edges_and_vertices_all_hit() {
         let tris = lumpy_sphere(24, 48);
-        let mesh = TriMesh::new(tris.clone(), Vec::new());
+        let mesh = TriMesh::new(tris.clone(), Vec::new(), Vec::new());
         let mut rng = HashRng::new(17);
         let mut u = move || rng.next_f32();
         let mut rays = 0;
@@ -292,7 +319,7 @@ pub(crate) mod tests {
     fn bvh_matches_brute_force() {
         // Above PARALLEL_ITEMS, so that the parallel build splits.
         let tris = lumpy_sphere(80, 120);
-        let mesh = TriMesh::new(tris.clone(), Vec::new());
+        let mesh = TriMesh::new(tris.clone(), Vec::new(), Vec::new());
         let bounds: Vec<Aabb> = tris
             .iter()
             .map(|t| Aabb::EMPTY.grow(t[0]).grow(t[1]).grow(t[2]))

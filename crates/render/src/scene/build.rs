@@ -9,8 +9,8 @@ use glam::{Affine3A, Mat3, Vec3, Vec3A};
 
 use super::assets::{sha256_hex, Assets};
 use super::{
-    CameraModel, Environment, EnvironmentKind, KeyPath, Limits, Material, MaterialKind, ObjectDesc,
-    Primitive, Scene, SceneFile, Seg, ShapeKind, TransformDesc,
+    AlbedoDesc, CameraModel, Environment, EnvironmentKind, KeyPath, Limits, Material, MaterialKind,
+    ObjectDesc, Primitive, Scene, SceneFile, Seg, ShapeKind, TransformDesc,
 };
 use crate::accel::Accel;
 use crate::bsdf::Bsdf;
@@ -20,6 +20,7 @@ use crate::math::v3;
 use crate::mesh::load::{self, MeshFormat};
 use crate::mesh::{MeshInstance, TriMesh};
 use crate::shape::{Shape, Transformed};
+use crate::texture::{ImageFormat, Texture};
 
 /// What is wrong, and where in the file.
 pub(super) type Invalid = (KeyPath, String);
@@ -171,17 +172,78 @@ fn similarity_scale(m: &Affine3A) -> Option<f32> {
 /// A mesh file's material groups: each one's name in the file, and its mesh.
 type MeshGroups = Vec<(Option<String>, Arc<TriMesh>)>;
 
-/// The meshes of the files a scene has read: each file once, however many objects name it.
+/// The files a scene has read (meshes and textures): each once, however many objects or
+/// materials name it.
 #[derive(Default)]
 struct MeshCache {
     /// By file name: each material group's name and mesh.
     files: BTreeMap<String, MeshGroups>,
+    /// Textures by file name, as indices into `texture_list`.
+    textures: BTreeMap<String, u32>,
+    texture_list: Vec<Arc<Texture>>,
     /// Each file read, with its SHA-256, in the order first read.
     read: Vec<(String, String)>,
     triangles: usize,
+    texels: u64,
 }
 
+/// Most texels over a scene's textures.
+const MAX_TEXELS: u64 = 1 << 28;
+
 impl MeshCache {
+    /// Reads `name` (counting it against the file limit) and records its hash.
+    fn read_file(
+        &mut self,
+        name: &str,
+        path: &KeyPath,
+        limits: &Limits,
+        assets: &dyn Assets,
+    ) -> Result<Vec<u8>, Invalid> {
+        if self.read.len() >= limits.max_assets {
+            return Err((
+                path.clone(),
+                format!(
+                    "more than {} files, the limit for one scene",
+                    limits.max_assets
+                ),
+            ));
+        }
+        let bytes = assets
+            .read(name, limits.max_asset_bytes)
+            .map_err(|m| (path.clone(), m))?;
+        self.read.push((name.to_string(), sha256_hex(&bytes)));
+        Ok(bytes)
+    }
+
+    /// The texture of file `name`, read and decoded once.
+    fn texture(
+        &mut self,
+        name: &str,
+        path: &KeyPath,
+        limits: &Limits,
+        assets: &dyn Assets,
+    ) -> Result<u32, Invalid> {
+        if let Some(&i) = self.textures.get(name) {
+            return Ok(i);
+        }
+        let format = ImageFormat::from_name(name).ok_or_else(|| {
+            (
+                path.clone(),
+                format!("`{name}`: a texture must be .png, .jpg, .jpeg or .exr (by its extension)"),
+            )
+        })?;
+        let bytes = self.read_file(name, path, limits, assets)?;
+        let left = MAX_TEXELS - self.texels;
+        let t = Texture::decode(&bytes, format, left)
+            .map_err(|m| (path.clone(), format!("{name}: {m}")))?;
+        let (w, h) = t.size();
+        self.texels += (w * h) as u64;
+        let i = self.texture_list.len() as u32;
+        self.texture_list.push(Arc::new(t));
+        self.textures.insert(name.to_string(), i);
+        Ok(i)
+    }
+
     fn get(
         &mut self,
         name: &str,
@@ -196,21 +258,14 @@ impl MeshCache {
                     "`{name}`: a mesh file must be .obj or .ply (by its extension)"
                 ))
             })?;
-            if self.read.len() >= limits.max_assets {
-                return Err(fail(format!(
-                    "more than {} files, the limit for one scene",
-                    limits.max_assets
-                )));
-            }
-            let bytes = assets.read(name, limits.max_asset_bytes).map_err(fail)?;
+            let bytes = self.read_file(name, path, limits, assets)?;
             let left = limits.max_triangles - self.triangles;
             let groups = load::load(name, &bytes, format, left).map_err(|e| fail(e.to_string()))?;
-            self.read.push((name.to_string(), sha256_hex(&bytes)));
             let meshes = groups
                 .into_iter()
                 .map(|g| {
                     self.triangles += g.tris.len();
-                    (g.material, Arc::new(TriMesh::new(g.tris, g.normals)))
+                    (g.material, Arc::new(TriMesh::new(g.tris, g.normals, g.uvs)))
                 })
                 .collect();
             self.files.insert(name.to_string(), meshes);
@@ -238,7 +293,8 @@ pub(super) fn build(
     let (w, h) = film_size(desc, limits)?;
     let camera = build_camera(desc, w, h)?;
     let environment = build_environment(desc)?;
-    let (materials, names) = build_materials(desc)?;
+    let mut meshes = MeshCache::default();
+    let (materials, names) = build_materials(desc, &mut meshes, limits, assets)?;
     if desc.objects.len() > limits.max_objects {
         return Err((
             root("objects"),
@@ -251,7 +307,6 @@ pub(super) fn build(
     }
     let mut prims = Vec::with_capacity(desc.objects.len());
     let mut lights = Vec::new();
-    let mut meshes = MeshCache::default();
     for (i, o) in desc.objects.iter().enumerate() {
         let op = root("objects").index(i);
         let material = material_index(&names, &o.material, &op.key("material"))?;
@@ -261,6 +316,9 @@ pub(super) fn build(
             let emits = materials[material as usize].emission.max_element() > 0.0;
             vec![(build_shape(o, &op, emits)?, material)]
         };
+        for (shape, m) in &parts {
+            check_texture_coordinates(shape, &materials[*m as usize], o, &op)?;
+        }
         for (shape, material) in parts {
             let bounds = shape.bounds();
             if o.shape != ShapeKind::Plane && !bounds.is_finite() {
@@ -299,10 +357,33 @@ pub(super) fn build(
         max_depth: desc.render.max_depth,
         hash: String::new(),
         files: Vec::new(),
+        textures: std::mem::take(&mut meshes.texture_list),
         accel,
         shading_normals,
     };
     Ok((scene, meshes.read))
+}
+
+/// A textured material needs texture coordinates, which only meshes whose files give them
+/// have.
+fn check_texture_coordinates(
+    shape: &Shape,
+    mat: &Material,
+    o: &ObjectDesc,
+    op: &KeyPath,
+) -> Result<(), Invalid> {
+    if mat.texture.is_none() {
+        return Ok(());
+    }
+    let why = match shape {
+        Shape::Mesh(m) if m.mesh.has_uvs() => return Ok(()),
+        Shape::Mesh(_) => format!(
+            "its material has a texture, but `{}` gives no texture coordinates",
+            o.file.as_deref().unwrap_or_default()
+        ),
+        _ => "its material has a texture, which needs a mesh with texture coordinates".into(),
+    };
+    Err((op.key("material"), why))
 }
 
 /// The index of material `name`, or an error at `path` listing the defined ones.
@@ -503,8 +584,13 @@ fn build_environment(desc: &SceneFile) -> Result<Option<Environment>, Invalid> {
     Ok(environment)
 }
 
-/// The materials, and each one's index by name.
-fn build_materials(desc: &SceneFile) -> Result<(Vec<Material>, BTreeMap<&str, u32>), Invalid> {
+/// The materials, and each one's index by name; textures are read through `files`.
+fn build_materials<'a>(
+    desc: &'a SceneFile,
+    files: &mut MeshCache,
+    limits: &Limits,
+    assets: &dyn Assets,
+) -> Result<(Vec<Material>, BTreeMap<&'a str, u32>), Invalid> {
     let mut materials = Vec::with_capacity(desc.materials.len());
     let mut names = BTreeMap::new();
     for (name, m) in &desc.materials {
@@ -514,11 +600,21 @@ fn build_materials(desc: &SceneFile) -> Result<(Vec<Material>, BTreeMap<&str, u3
             ("reflectance", m.reflectance.is_some()),
             ("ior", m.ior.is_some()),
         ];
+        let mut texture = None;
         let bsdf = match m.kind {
             MaterialKind::Diffuse => {
                 only(&mp, "a diffuse material", &present, &["albedo"])?;
-                let a = required(m.albedo, &mp, "a diffuse material", "albedo")?;
-                Bsdf::Diffuse(color(a, &mp.key("albedo"), true)?)
+                let a = required(m.albedo.as_ref(), &mp, "a diffuse material", "albedo")?;
+                match a {
+                    AlbedoDesc::Color(c) => Bsdf::Diffuse(color(*c, &mp.key("albedo"), true)?),
+                    AlbedoDesc::Texture(file) => {
+                        let path = mp.key("albedo").key("texture");
+                        texture = Some(files.texture(file, &path, limits, assets)?);
+                        // The texel replaces it at each hit; this is what NEE-free code
+                        // paths and tests see.
+                        Bsdf::Diffuse(Vec3A::splat(0.5))
+                    }
+                }
             }
             MaterialKind::Mirror => {
                 only(&mp, "a mirror material", &present, &["reflectance"])?;
@@ -549,6 +645,7 @@ fn build_materials(desc: &SceneFile) -> Result<(Vec<Material>, BTreeMap<&str, u3
             bsdf,
             emission,
             two_sided: m.two_sided.unwrap_or(false),
+            texture,
         });
     }
     Ok((materials, names))

@@ -205,9 +205,9 @@ pub struct MaterialDesc {
     /// Kind.
     #[serde(rename = "type")]
     pub kind: MaterialKind,
-    /// Diffuse reflectance in [0, 1] (diffuse).
-    #[serde(default, deserialize_with = "maybe_three")]
-    pub albedo: Option<[f32; 3]>,
+    /// Diffuse reflectance in [0, 1] (diffuse): a colour, or `{ texture = "file" }`.
+    #[serde(default)]
+    pub albedo: Option<AlbedoDesc>,
     /// Mirror reflectance in [0, 1] (mirror; default 1).
     #[serde(default, deserialize_with = "maybe_three")]
     pub reflectance: Option<[f32; 3]>,
@@ -219,6 +219,58 @@ pub struct MaterialDesc {
     /// Whether the back side reflects and emits like the front (default false: the back of a
     /// diffuse or mirror surface is black and emits nothing).
     pub two_sided: Option<bool>,
+}
+
+/// A diffuse albedo: one colour, or an image file looked up at a mesh's texture coordinates.
+#[derive(Debug, Clone, PartialEq)]
+pub enum AlbedoDesc {
+    /// Linear RGB in [0, 1].
+    Color([f32; 3]),
+    /// A PNG, JPEG or EXR file, relative to the scene file.
+    Texture(String),
+}
+
+impl<'de> Deserialize<'de> for AlbedoDesc {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl<'de> serde::de::Visitor<'de> for Visitor {
+            type Value = AlbedoDesc;
+
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a colour [r, g, b] or a table { texture = \"file.png\" }")
+            }
+
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(
+                self,
+                mut seq: A,
+            ) -> Result<Self::Value, A::Error> {
+                let mut v = Vec::new();
+                while let Some(x) = seq.next_element::<f32>()? {
+                    v.push(x);
+                }
+                <[f32; 3]>::try_from(v)
+                    .map(AlbedoDesc::Color)
+                    .map_err(|v| A::Error::invalid_length(v.len(), &"a vector of 3 numbers"))
+            }
+
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> Result<Self::Value, A::Error> {
+                let mut texture = None;
+                while let Some(key) = map.next_key::<String>()? {
+                    if key != "texture" {
+                        return Err(A::Error::unknown_field(&key, &["texture"]));
+                    }
+                    texture = Some(map.next_value::<String>()?);
+                }
+                texture
+                    .map(AlbedoDesc::Texture)
+                    .ok_or_else(|| A::Error::missing_field("texture"))
+            }
+        }
+        d.deserialize_any(Visitor)
+    }
 }
 
 /// Shape kinds.

@@ -132,6 +132,9 @@ pub struct Material {
     /// Whether the back side reflects and emits like the front. One-sided surfaces (the
     /// default, as in Mitsuba) are black from behind.
     pub two_sided: bool,
+    /// A texture whose texel replaces a diffuse albedo, as an index into
+    /// [`Scene::textures`].
+    pub texture: Option<u32>,
 }
 
 /// Light from infinitely far away.
@@ -202,6 +205,8 @@ pub struct Scene {
     pub hash: String,
     /// The files the scene read (its meshes): name as the scene gives it, and SHA-256 hex.
     pub files: Vec<(String, String)>,
+    /// Textures, which materials name by index.
+    pub textures: Vec<std::sync::Arc<crate::texture::Texture>>,
     accel: Accel,
     shading_normals: bool,
 }
