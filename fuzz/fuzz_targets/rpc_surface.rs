@@ -86,6 +86,7 @@ fn submit_request(output_name: String, frames: Option<pb::FrameRange>) -> pb::Su
         priority: 0,
         channels: None,
         frames,
+        assets: Vec::new(),
     }
 }
 
