@@ -307,8 +307,7 @@ impl Ctx {
     /// cached). Its content is checked against its hash either way: a damaged cache file or a
     /// wrong download is never rendered from.
     async fn asset(&self, hash: &str) -> Result<Vec<u8>, SceneError> {
-        let valid = hash.len() == 64 && hash.bytes().all(|b| b.is_ascii_hexdigit());
-        if !valid {
+        if !tessera_proto::ids::is_sha256(hash) {
             return Err(SceneError::Unavailable(format!(
                 "the coordinator named a file by {:?}, which is not a SHA-256",
                 hash.chars().take(80).collect::<String>()

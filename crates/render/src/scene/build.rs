@@ -175,7 +175,7 @@ type MeshGroups = Vec<(Option<String>, Arc<TriMesh>)>;
 /// The files a scene has read (meshes and textures): each once, however many objects or
 /// materials name it.
 #[derive(Default)]
-struct MeshCache {
+struct SceneFiles {
     /// By file name: each material group's name and mesh.
     files: BTreeMap<String, MeshGroups>,
     /// Textures by file name, as indices into `texture_list`.
@@ -190,7 +190,7 @@ struct MeshCache {
 /// Most texels over a scene's textures.
 const MAX_TEXELS: u64 = 1 << 28;
 
-impl MeshCache {
+impl SceneFiles {
     /// Reads `name` (counting it against the file limit) and records its hash.
     fn read_file(
         &mut self,
@@ -293,8 +293,8 @@ pub(super) fn build(
     let (w, h) = film_size(desc, limits)?;
     let camera = build_camera(desc, w, h)?;
     let environment = build_environment(desc)?;
-    let mut meshes = MeshCache::default();
-    let (materials, names) = build_materials(desc, &mut meshes, limits, assets)?;
+    let mut files = SceneFiles::default();
+    let (materials, names) = build_materials(desc, &mut files, limits, assets)?;
     if desc.objects.len() > limits.max_objects {
         return Err((
             root("objects"),
@@ -311,7 +311,7 @@ pub(super) fn build(
         let op = root("objects").index(i);
         let material = material_index(&names, &o.material, &op.key("material"))?;
         let parts = if o.shape == ShapeKind::Mesh {
-            build_mesh(o, &op, material, &names, &mut meshes, limits, assets)?
+            build_mesh(o, &op, material, &names, &mut files, limits, assets)?
         } else {
             let emits = materials[material as usize].emission.max_element() > 0.0;
             vec![(build_shape(o, &op, emits)?, material)]
@@ -357,11 +357,11 @@ pub(super) fn build(
         max_depth: desc.render.max_depth,
         hash: String::new(),
         files: Vec::new(),
-        textures: std::mem::take(&mut meshes.texture_list),
+        textures: std::mem::take(&mut files.texture_list),
         accel,
         shading_normals,
     };
-    Ok((scene, meshes.read))
+    Ok((scene, files.read))
 }
 
 /// A textured material needs texture coordinates, which only meshes whose files give them
@@ -410,7 +410,7 @@ fn build_mesh(
     op: &KeyPath,
     material: u32,
     names: &BTreeMap<&str, u32>,
-    meshes: &mut MeshCache,
+    files: &mut SceneFiles,
     limits: &Limits,
     assets: &dyn Assets,
 ) -> Result<Vec<(Shape, u32)>, Invalid> {
@@ -436,7 +436,7 @@ fn build_mesh(
         let path = op.key("materials_map").key(from);
         mapped.insert(from.as_str(), material_index(names, to, &path)?);
     }
-    let groups = meshes.get(file, &op.key("file"), limits, assets)?;
+    let groups = files.get(file, &op.key("file"), limits, assets)?;
     for from in mapped.keys() {
         if !groups.iter().any(|(g, _)| g.as_deref() == Some(*from)) {
             let known: Vec<&str> = groups.iter().filter_map(|(g, _)| g.as_deref()).collect();
@@ -587,7 +587,7 @@ fn build_environment(desc: &SceneFile) -> Result<Option<Environment>, Invalid> {
 /// The materials, and each one's index by name; textures are read through `files`.
 fn build_materials<'a>(
     desc: &'a SceneFile,
-    files: &mut MeshCache,
+    files: &mut SceneFiles,
     limits: &Limits,
     assets: &dyn Assets,
 ) -> Result<(Vec<Material>, BTreeMap<&'a str, u32>), Invalid> {
