@@ -193,6 +193,15 @@ impl FromStr for WorkerCredential {
     }
 }
 
+/// Whether `s` is a SHA-256 as the protocol writes one, 64 lower-case hex digits: the
+/// address of a scene's file (`AssetRef`, `AssetChunk`). Checked wherever one arrives, since
+/// it becomes a file name on both the coordinator and the worker.
+pub fn is_sha256(s: &str) -> bool {
+    s.len() == 64
+        && s.bytes()
+            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -250,13 +259,4 @@ mod tests {
             .expect_err("bad");
         assert!(!e.to_string().contains("topsecret"), "{e}");
     }
-}
-
-/// Whether `s` is a SHA-256 as the protocol writes one, 64 lower-case hex digits: the
-/// address of a scene's file (`AssetRef`, `AssetChunk`). Checked wherever one arrives, since
-/// it becomes a file name on both the coordinator and the worker.
-pub fn is_sha256(s: &str) -> bool {
-    s.len() == 64
-        && s.bytes()
-            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
 }
