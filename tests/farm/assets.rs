@@ -70,26 +70,13 @@ fn local_mesh_exr(text: &str, dir: &Path) -> Vec<u8> {
         "meshes/cube.obj".to_string(),
         cube_obj(),
     )]));
-    let settings = job_settings(4, 2);
-    let scene = Scene::from_str_with(
+    local_exr_files(
         text,
-        Format::Toml,
-        "cornell.toml",
-        &Limits::default(),
-        1,
+        &job_settings(4, 2),
+        ExrChannels::default(),
+        dir,
         &files,
     )
-    .expect("scene");
-    let image = render_frame(&scene, &settings, &|_| {}).finalize();
-    let path = dir.join("local-mesh.exr");
-    write_exr(
-        &path,
-        &image,
-        ExrChannels::default(),
-        &render_metadata(&scene.hash, &settings),
-    )
-    .expect("write");
-    std::fs::read(path).expect("read")
 }
 
 /// An upload cut off half way resumes where it stopped, even after the coordinator restarts;

@@ -267,13 +267,31 @@ pub fn local_exr_with(
     channels: ExrChannels,
     dir: &Path,
 ) -> Vec<u8> {
+    local_exr_files(
+        text,
+        settings,
+        channels,
+        dir,
+        &tessera_render::scene::assets::NoAssets,
+    )
+}
+
+/// [`local_exr_with`] for a scene that reads `files` (meshes, textures).
+pub fn local_exr_files(
+    text: &str,
+    settings: &RenderSettings,
+    channels: ExrChannels,
+    dir: &Path,
+    files: &dyn tessera_render::scene::assets::Assets,
+) -> Vec<u8> {
     let frame = settings.frame.unwrap_or(tessera_render::scene::FIRST_FRAME);
-    let scene = Scene::from_str_at(
+    let scene = Scene::from_str_with(
         text,
         Format::Toml,
         "cornell.toml",
         &Limits::default(),
         frame,
+        files,
     )
     .expect("scene");
     let image = render_frame(&scene, settings, &|_| {}).finalize();

@@ -351,23 +351,22 @@ impl Ctx {
                 .cache_dir
                 .join(format!(".{hash}.{}.{}", std::process::id(), self.id()));
         let dir = self.config.cache_dir.clone();
-        let bytes = Arc::new(bytes);
-        let data = bytes.clone();
-        let saved = tokio::task::spawn_blocking(move || {
+        let (bytes, saved) = tokio::task::spawn_blocking(move || {
             let r = std::fs::create_dir_all(&dir)
-                .and_then(|()| std::fs::write(&tmp, &*data))
+                .and_then(|()| std::fs::write(&tmp, &bytes))
                 .and_then(|()| std::fs::rename(&tmp, &path));
             if r.is_err() {
                 let _ = std::fs::remove_file(&tmp);
             }
-            r
+            (bytes, r)
         })
-        .await;
-        if let Ok(Err(e)) = saved {
+        .await
+        .map_err(|e| SceneError::Unavailable(e.to_string()))?;
+        if let Err(e) = saved {
             // Rendering goes on; only the next fetch is not saved.
             warn!("caching {hash} in {}: {e}", self.config.cache_dir.display());
         }
-        Ok(Arc::try_unwrap(bytes).unwrap_or_else(|b| (*b).clone()))
+        Ok(bytes)
     }
 
     async fn fetch_asset(&self, hash: &str) -> Result<Vec<u8>, Status> {

@@ -176,10 +176,15 @@ const PARALLEL_ITEMS: usize = 8192;
 /// The nodes of the subtree over `items` (positions `first..` in the final order), numbered as
 /// if the first of them were node `base`.
 fn build_subtree(items: &mut [BuildItem], first: usize, depth: usize, base: u32) -> Vec<Node> {
-    let Some((axis, mid)) = choose_split(items, depth) else {
-        return vec![leaf_node(items, first)];
+    let bounds = items.iter().fold(Aabb::EMPTY, |b, it| b.union(it.bounds));
+    let Some((axis, mid)) = choose_split(items, depth, bounds) else {
+        return vec![Node {
+            min: bounds.min.into(),
+            offset: first as u32,
+            max: bounds.max.into(),
+            count_axis: items.len() as u32,
+        }];
     };
-    let bounds = bounds_of(items);
     let parallel = items.len() >= PARALLEL_ITEMS;
     let (left_items, right_items) = items.split_at_mut(mid);
     let (left, mut right) = if parallel {
@@ -211,27 +216,12 @@ fn build_subtree(items: &mut [BuildItem], first: usize, depth: usize, base: u32)
     nodes
 }
 
-fn bounds_of(items: &[BuildItem]) -> Aabb {
-    items.iter().fold(Aabb::EMPTY, |b, it| b.union(it.bounds))
-}
-
-fn leaf_node(items: &[BuildItem], first: usize) -> Node {
-    let bounds = bounds_of(items);
-    Node {
-        min: bounds.min.into(),
-        offset: first as u32,
-        max: bounds.max.into(),
-        count_axis: items.len() as u32,
-    }
-}
-
-/// The split of `items` by binned SAH (the axis, and how many items go left, after
-/// partitioning them so), or `None` where they make a leaf.
-fn choose_split(items: &mut [BuildItem], depth: usize) -> Option<(usize, usize)> {
+/// The split of `items` (whose bounds are `bounds`) by binned SAH (the axis, and how many
+/// items go left, after partitioning them so), or `None` where they make a leaf.
+fn choose_split(items: &mut [BuildItem], depth: usize, bounds: Aabb) -> Option<(usize, usize)> {
     if items.len() <= MAX_LEAF || depth >= MAX_DEPTH {
         return None;
     }
-    let bounds = bounds_of(items);
     let cb = items.iter().fold(Aabb::EMPTY, |b, it| b.grow(it.centroid));
     let extent = cb.max - cb.min;
     let axis = if extent.x >= extent.y && extent.x >= extent.z {

@@ -414,21 +414,14 @@ fn build_mesh(
     limits: &Limits,
     assets: &dyn Assets,
 ) -> Result<Vec<(Shape, u32)>, Invalid> {
-    let present = [
-        ("center", o.center.is_some()),
-        ("radius", o.radius.is_some()),
-        ("min", o.min.is_some()),
-        ("max", o.max.is_some()),
-        ("size", o.size.is_some()),
-        ("point", o.point.is_some()),
-        ("normal", o.normal.is_some()),
-    ];
-    only(op, "a mesh", &present, &[])?;
+    only(
+        op,
+        "a mesh",
+        &shape_keys(o),
+        &["file", "smooth", "materials_map"],
+    )?;
     let file = required(o.file.as_deref(), op, "a mesh", "file")?;
-    let xf = match &o.transform {
-        Some(t) => build_transform(t, &op.key("transform"))?,
-        None => Affine3A::IDENTITY,
-    };
+    let xf = object_transform(o, op)?;
     let smooth = o.smooth.unwrap_or(false);
     let map = o.materials_map.clone().unwrap_or_default();
     let mut mapped = BTreeMap::new();
@@ -651,13 +644,9 @@ fn build_materials<'a>(
     Ok((materials, names))
 }
 
-/// An object's shape, in world space. `emits` rules out shapes that cannot be lights.
-fn build_shape(o: &ObjectDesc, op: &KeyPath, emits: bool) -> Result<Shape, Invalid> {
-    let xf = match &o.transform {
-        Some(t) => build_transform(t, &op.key("transform"))?,
-        None => Affine3A::IDENTITY,
-    };
-    let present = [
+/// Which of the keys that belong to some shapes only an object gives, for [`only`].
+fn shape_keys(o: &ObjectDesc) -> [(&'static str, bool); 10] {
+    [
         ("center", o.center.is_some()),
         ("radius", o.radius.is_some()),
         ("min", o.min.is_some()),
@@ -668,7 +657,21 @@ fn build_shape(o: &ObjectDesc, op: &KeyPath, emits: bool) -> Result<Shape, Inval
         ("file", o.file.is_some()),
         ("smooth", o.smooth.is_some()),
         ("materials_map", o.materials_map.is_some()),
-    ];
+    ]
+}
+
+/// An object's own transform (the identity without one).
+fn object_transform(o: &ObjectDesc, op: &KeyPath) -> Result<Affine3A, Invalid> {
+    match &o.transform {
+        Some(t) => build_transform(t, &op.key("transform")),
+        None => Ok(Affine3A::IDENTITY),
+    }
+}
+
+/// An object's shape, in world space. `emits` rules out shapes that cannot be lights.
+fn build_shape(o: &ObjectDesc, op: &KeyPath, emits: bool) -> Result<Shape, Invalid> {
+    let xf = object_transform(o, op)?;
+    let present = shape_keys(o);
     let shape = match o.shape {
         ShapeKind::Mesh => unreachable!("meshes are built by build_mesh"),
         ShapeKind::Sphere => {
