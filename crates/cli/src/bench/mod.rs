@@ -187,7 +187,7 @@ fn mesh_builds(
             continue;
         }
         seen.push(std::sync::Arc::as_ptr(&m.mesh));
-        let tris = m.mesh.triangles().to_vec();
+        let tris: Vec<_> = m.mesh.triangles().collect();
         let n = tris.len();
         let start = Instant::now();
         let built =

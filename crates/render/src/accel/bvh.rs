@@ -27,6 +27,14 @@ impl Node {
     }
 }
 
+/// What a node is, for walking the tree ([`Bvh::node`]).
+pub(crate) enum NodeKind {
+    /// A leaf's positions in [`Bvh::order`].
+    Leaf(std::ops::Range<usize>),
+    /// An interior node's children (node indices).
+    Interior(usize, usize),
+}
+
 const AXIS_SHIFT: u32 = 30;
 const COUNT_MASK: u32 = (1 << AXIS_SHIFT) - 1;
 const MAX_LEAF: usize = 4;
@@ -152,6 +160,22 @@ impl Bvh {
     /// Primitive indices in leaf order: a leaf holds a contiguous range of positions.
     pub fn order(&self) -> &[u32] {
         &self.order
+    }
+
+    /// Node `i`'s bounds and what it is: a leaf's range of positions in [`Bvh::order`], or an
+    /// interior node's two children. Node 0 is the root; a child's index is above its
+    /// parent's, and a subtree's leaves cover one contiguous range of positions.
+    pub(crate) fn node(&self, i: usize) -> (Aabb, NodeKind) {
+        let n = &self.nodes[i];
+        let bounds = Aabb {
+            min: Vec3A::from(n.min),
+            max: Vec3A::from(n.max),
+        };
+        let kind = match n.leaf() {
+            Some(range) => NodeKind::Leaf(range),
+            None => NodeKind::Interior(i + 1, n.offset as usize),
+        };
+        (bounds, kind)
     }
 
     /// Each leaf's range of positions in [`Bvh::order`], in node order.

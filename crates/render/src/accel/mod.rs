@@ -4,6 +4,7 @@
 //! and the packet versions the many-path tracer asks for scenes of one leaf.
 
 pub mod bvh;
+pub mod bvh4;
 pub mod leaf;
 
 use bvh::Bvh;

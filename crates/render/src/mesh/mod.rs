@@ -14,22 +14,28 @@ use std::sync::Arc;
 use glam::{Vec2, Vec3A};
 
 use crate::accel::bvh::Bvh;
+use crate::accel::bvh4::Bvh4;
 use crate::math::{Aabb, Ray};
 use crate::shape::{SurfacePoint, Transformed};
+use triangle::{Tri4, WoopRay};
 
-/// A triangle mesh in its own (object) space, with its BVH. Triangles are stored in the BVH's
-/// leaf order, so that a leaf's triangles are adjacent in memory; a hit names a triangle by
-/// that position.
+/// A triangle mesh in its own (object) space, with its BVH. The triangles are stored once,
+/// four to a group in SIMD lanes ([`Tri4`]) in the BVH's leaf order, so that a leaf's
+/// triangles are adjacent in memory and a hit's vertices are those the traversal just read.
+/// A hit names a triangle by its slot: group · 4 + lane.
 #[derive(Debug)]
 pub struct TriMesh {
-    /// Vertex positions of each triangle, in leaf order.
-    tris: Vec<[Vec3A; 3]>,
-    /// Vertex normals of each triangle, in leaf order; empty when the file has none.
+    /// The triangles, four to a group; a leaf starts a group, and a short group repeats its
+    /// last triangle in the empty lanes (which can never be a closer hit than it).
+    groups: Vec<Tri4>,
+    /// How many lanes of each group are triangles of their own (1 to 4).
+    group_len: Vec<u8>,
+    /// Vertex normals by slot (padding lanes repeat theirs); empty when the file has none.
     normals: Vec<[Vec3A; 3]>,
-    /// Texture coordinates of each triangle's vertices, in leaf order; empty when the file
-    /// has none.
+    /// Texture coordinates by slot; empty when the file has none.
     uvs: Vec<[Vec2; 3]>,
-    bvh: Bvh,
+    len: usize,
+    bvh: Bvh4,
     bounds: Aabb,
 }
 
@@ -44,20 +50,42 @@ impl TriMesh {
             .map(|t| Aabb::EMPTY.grow(t[0]).grow(t[1]).grow(t[2]))
             .collect();
         let all = bounds.iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
-        let bvh = Bvh::build_parallel(&bounds);
-        let order = bvh.order();
-        let tris_ordered = order.iter().map(|&i| tris[i as usize]).collect();
-        fn in_order<T: Copy>(order: &[u32], v: Vec<T>) -> Vec<T> {
+        let binary = Bvh::build_parallel(&bounds);
+        drop(bounds);
+        let order = binary.order();
+        let capacity = tris.len().div_ceil(4) + tris.len() / 8;
+        let mut groups = Vec::with_capacity(capacity);
+        let mut group_len = Vec::with_capacity(capacity);
+        // Each slot's triangle (an index into the inputs), for the normals and coordinates.
+        let mut slots: Vec<u32> = Vec::with_capacity(capacity * 4);
+        let bvh = Bvh4::collapse(&binary, 4, |leaf| {
+            let start = groups.len() as u32;
+            for chunk in leaf.clone().step_by(4) {
+                let end = (chunk + 4).min(leaf.end);
+                let ids: [u32; 4] = std::array::from_fn(|l| order[(chunk + l).min(end - 1)]);
+                let lanes: Vec<[Vec3A; 3]> = ids[..end - chunk]
+                    .iter()
+                    .map(|&i| tris[i as usize])
+                    .collect();
+                groups.push(Tri4::new(&lanes));
+                group_len.push((end - chunk) as u8);
+                slots.extend(ids);
+            }
+            (start, groups.len() as u32 - start)
+        });
+        fn by_slot<T: Copy>(slots: &[u32], v: Vec<T>) -> Vec<T> {
             if v.is_empty() {
                 v
             } else {
-                order.iter().map(|&i| v[i as usize]).collect()
+                slots.iter().map(|&i| v[i as usize]).collect()
             }
         }
         Self {
-            tris: tris_ordered,
-            normals: in_order(order, normals),
-            uvs: in_order(order, uvs),
+            normals: by_slot(&slots, normals),
+            uvs: by_slot(&slots, uvs),
+            groups,
+            group_len,
+            len: tris.len(),
             bvh,
             bounds: all,
         }
@@ -65,12 +93,12 @@ impl TriMesh {
 
     /// Number of triangles.
     pub fn len(&self) -> usize {
-        self.tris.len()
+        self.len
     }
 
     /// Whether the mesh has no triangles.
     pub fn is_empty(&self) -> bool {
-        self.tris.is_empty()
+        self.len == 0
     }
 
     /// Whether the file gave texture coordinates.
@@ -88,25 +116,40 @@ impl TriMesh {
         self.bounds
     }
 
-    /// The triangles' vertex positions, in the order hits name them.
-    pub fn triangles(&self) -> &[[Vec3A; 3]] {
-        &self.tris
+    /// The slots of the triangles, each once (padding lanes left out), in leaf order.
+    pub fn slots(&self) -> impl Iterator<Item = u32> + '_ {
+        self.group_len
+            .iter()
+            .enumerate()
+            .flat_map(|(g, &n)| (0..u32::from(n)).map(move |l| g as u32 * 4 + l))
     }
 
-    /// Closest hit of an object-space ray with t in (0, t_max): (t, triangle).
+    /// The vertex positions of the triangle in `slot`.
+    #[inline]
+    pub fn triangle(&self, slot: u32) -> [Vec3A; 3] {
+        self.groups[slot as usize / 4].lane(slot as usize % 4)
+    }
+
+    /// Every triangle's vertex positions, each once, in leaf order.
+    pub fn triangles(&self) -> impl Iterator<Item = [Vec3A; 3]> + '_ {
+        self.slots().map(|s| self.triangle(s))
+    }
+
+    /// Closest hit of an object-space ray with t in (0, t_max): (t, slot).
     #[inline]
     pub fn intersect(&self, ray: &Ray, t_max: f32) -> Option<(f32, u32)> {
         let mut best = None;
-        self.bvh.traverse(ray, t_max, |leaf, mut t_max| {
-            for i in leaf {
-                let [p0, p1, p2] = self.tris[i];
-                if let Some(h) = triangle::intersect(ray.o, ray.d, p0, p1, p2, t_max) {
-                    t_max = h.t;
-                    best = Some((h.t, i as u32));
+        let r = WoopRay::new(ray.o, ray.d);
+        self.bvh
+            .traverse(ray.o, ray.d.recip(), t_max, |start, count, mut t_max| {
+                for g in start as usize..(start + count) as usize {
+                    if let Some((t, lane)) = triangle::intersect4(&r, &self.groups[g], t_max) {
+                        t_max = t;
+                        best = Some((t, (g * 4 + lane) as u32));
+                    }
                 }
-            }
-            t_max
-        });
+                t_max
+            });
         best
     }
 
@@ -114,24 +157,28 @@ impl TriMesh {
     #[inline]
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
         let mut hit = false;
-        self.bvh.traverse(ray, t_max, |leaf, t| {
-            for i in leaf {
-                let [p0, p1, p2] = self.tris[i];
-                if triangle::intersect(ray.o, ray.d, p0, p1, p2, t).is_some() {
+        let r = WoopRay::new(ray.o, ray.d);
+        self.bvh
+            .traverse(ray.o, ray.d.recip(), t_max, |start, count, t| {
+                let groups = &self.groups[start as usize..(start + count) as usize];
+                if groups
+                    .iter()
+                    .any(|g| triangle::intersect4(&r, g, t).is_some())
+                {
                     hit = true;
                     return -1.0;
                 }
-            }
-            t
-        });
+                t
+            });
         hit
     }
 
-    /// The unit geometric normal of triangle `i` on its front side: the side the vertex
-    /// normals point to where `smooth` uses them, else the counter-clockwise side.
+    /// The unit geometric normal of the triangle in `slot` on its front side: the side the
+    /// vertex normals point to where `smooth` uses them, else the counter-clockwise side.
     #[inline]
-    pub fn front_normal(&self, i: usize, smooth: bool) -> Vec3A {
-        let [p0, p1, p2] = self.tris[i];
+    pub fn front_normal(&self, slot: u32, smooth: bool) -> Vec3A {
+        let [p0, p1, p2] = self.triangle(slot);
+        let i = slot as usize;
         let n = (p1 - p0).cross(p2 - p0).normalize_or_zero();
         if smooth && self.has_normals() {
             let s = self.normals[i][0] + self.normals[i][1] + self.normals[i][2];
@@ -142,11 +189,11 @@ impl TriMesh {
         n
     }
 
-    /// The interpolated vertex normal of triangle `i` at barycentrics `b` (unnormalised),
-    /// or `None` without vertex normals.
+    /// The interpolated vertex normal of the triangle in `slot` at barycentrics `b`
+    /// (unnormalised), or `None` without vertex normals.
     #[inline]
-    fn shading_normal(&self, i: usize, b: [f32; 3]) -> Option<Vec3A> {
-        let n = self.normals.get(i)?;
+    fn shading_normal(&self, slot: u32, b: [f32; 3]) -> Option<Vec3A> {
+        let n = self.normals.get(slot as usize)?;
         Some(n[0] * b[0] + n[1] * b[1] + n[2] * b[2])
     }
 }
@@ -184,8 +231,8 @@ impl MeshInstance {
     #[inline(never)]
     pub fn surface(&self, r: &Ray, part: u32) -> SurfacePoint {
         let lr = self.xf.ray_to_object(r);
-        let i = part as usize;
-        let [p0, p1, p2] = self.mesh.tris[i];
+        let i = part;
+        let [p0, p1, p2] = self.mesh.triangle(i);
         // The same test on the same inputs, so the same hit; its barycentrics give the point
         // from the vertices (not o + t·d, whose error grows with the distance travelled).
         let b = triangle::intersect(lr.o, lr.d, p0, p1, p2, f32::INFINITY)
@@ -214,12 +261,11 @@ impl MeshInstance {
     /// any in the file).
     #[inline(never)]
     pub fn uv(&self, r: &Ray, part: u32) -> Vec2 {
-        let i = part as usize;
-        let Some(uv) = self.mesh.uvs.get(i) else {
+        let Some(uv) = self.mesh.uvs.get(part as usize) else {
             return Vec2::ZERO;
         };
         let lr = self.xf.ray_to_object(r);
-        let [p0, p1, p2] = self.mesh.tris[i];
+        let [p0, p1, p2] = self.mesh.triangle(part);
         let b = triangle::intersect(lr.o, lr.d, p0, p1, p2, f32::INFINITY)
             .map_or([1.0 / 3.0; 3], |h| h.b);
         uv[0] * b[0] + uv[1] * b[1] + uv[2] * b[2]
@@ -233,9 +279,10 @@ impl MeshInstance {
 
     /// The triangles in world space with their front normals and areas, for area lights.
     pub fn world_triangles(&self) -> Vec<([Vec3A; 3], Vec3A, f32)> {
-        (0..self.mesh.len())
+        self.mesh
+            .slots()
             .map(|i| {
-                let t = self.mesh.tris[i].map(|p| self.xf.point_to_world(p));
+                let t = self.mesh.triangle(i).map(|p| self.xf.point_to_world(p));
                 let n = self
                     .xf
                     .normal_to_world(self.mesh.front_normal(i, self.smooth));
@@ -325,7 +372,10 @@ pub(crate) mod tests {
             .map(|t| Aabb::EMPTY.grow(t[0]).grow(t[1]).grow(t[2]))
             .collect();
         let idx: Vec<u32> = (0..tris.len() as u32).collect();
-        assert_eq!(Bvh::build(&bounds, &idx).order(), mesh.bvh.order());
+        assert_eq!(
+            Bvh::build(&bounds, &idx).order(),
+            Bvh::build_parallel(&bounds).order()
+        );
         let mut rng = HashRng::new(5);
         let mut v =
             move |s: f32| Vec3A::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 * s - s;

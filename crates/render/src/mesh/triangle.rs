@@ -1,15 +1,22 @@
 //! The watertight ray/triangle test of Woop, Benthin and Wald (2013), as pbrt-v4 writes it,
-//! with the edge functions in f64.
+//! for one triangle ([`intersect`]) and for four at once in SIMD lanes ([`intersect4`]), which
+//! give the same bits.
 //!
-//! Why f64 for the edge functions: each is a difference of two products of f32 inputs. In f64
-//! those products are exact, so the difference is rounded once and its sign, which decides
-//! hit or miss, is exact. The edge (a, b) seen from the triangle on its other side is
-//! (b, a), whose function is then exactly the negation: two triangles that share an edge can
-//! never both reject a ray that crosses it, which is what "watertight" means. pbrt gets there
-//! with a fused multiply-add and an f64 fallback for zero; a fused multiply-add is a library
-//! call on a CPU without FMA, and this is one expression on any.
+//! Why the edge functions are exact in sign: each is a difference of two products of f32
+//! inputs, computed in f32 first. Where its magnitude exceeds the bound on that computation's
+//! error (γ₃ of the products' magnitudes, plus an underflow margin), its sign is the exact
+//! sign; where it does not (rays within a few ulps of an edge, rarely), it is computed again
+//! in f64, where the products are exact and the difference is rounded once, so that sign is
+//! exact too. The edge (a, b) seen from the triangle on its other side is (b, a), whose
+//! function is then exactly the negation in either precision: two triangles that share an
+//! edge can never both reject a ray that crosses it, which is what "watertight" means. pbrt
+//! gets there with a fused multiply-add and an f64 fallback for zero; a fused multiply-add is
+//! a library call on a CPU without FMA, and this is the same few operations on any.
+//!
+//! The per-ray work (the axis permutation and the shear) is done once per ray in [`WoopRay`],
+//! not once per triangle.
 
-use glam::Vec3A;
+use glam::{BVec4A, Vec3A, Vec4};
 
 use crate::math::gamma;
 
@@ -22,6 +29,102 @@ pub struct TriangleHit {
     pub b: [f32; 3],
 }
 
+/// A ray prepared for the test: z is the direction's largest axis (the shear divides by it),
+/// and the shear takes the direction to +z.
+#[derive(Clone, Copy, Debug)]
+pub struct WoopRay {
+    /// The axes that become x, y and z.
+    k: [usize; 3],
+    /// The origin, permuted.
+    o: [f32; 3],
+    /// Shear: x += s[0]·z, y += s[1]·z, z *= s[2].
+    s: [f32; 3],
+}
+
+impl WoopRay {
+    /// Prepares the ray `o + t·d`.
+    #[inline]
+    pub fn new(o: Vec3A, d: Vec3A) -> Self {
+        let a = d.abs();
+        let kz = if a.x > a.y {
+            if a.x > a.z {
+                0
+            } else {
+                2
+            }
+        } else if a.y > a.z {
+            1
+        } else {
+            2
+        };
+        let kx = if kz == 2 { 0 } else { kz + 1 };
+        let ky = if kx == 2 { 0 } else { kx + 1 };
+        let dz = d[kz];
+        Self {
+            k: [kx, ky, kz],
+            o: [o[kx], o[ky], o[kz]],
+            s: [-d[kx] / dz, -d[ky] / dz, 1.0 / dz],
+        }
+    }
+}
+
+/// Four triangles in SIMD lanes: `v[vertex][axis]` holds that coordinate of each lane's
+/// vertex. A group of fewer triangles repeats its last one, which can never be the closest
+/// hit in its place (the test wants t strictly below the best so far).
+#[derive(Clone, Copy, Debug)]
+pub struct Tri4 {
+    v: [[Vec4; 3]; 3],
+}
+
+impl Tri4 {
+    /// Packs one to four triangles (the last repeated into the empty lanes).
+    pub fn new(tris: &[[Vec3A; 3]]) -> Self {
+        debug_assert!((1..=4).contains(&tris.len()));
+        let lane = |l: usize| tris[l.min(tris.len() - 1)];
+        let v = std::array::from_fn(|vertex| {
+            std::array::from_fn(|axis| {
+                Vec4::from_array(std::array::from_fn(|l| lane(l)[vertex][axis]))
+            })
+        });
+        Self { v }
+    }
+
+    /// The triangle in `lane`.
+    #[inline]
+    pub fn lane(&self, lane: usize) -> [Vec3A; 3] {
+        self.v
+            .map(|p| Vec3A::new(p[0][lane], p[1][lane], p[2][lane]))
+    }
+}
+
+const G2: f32 = gamma(2);
+const G3: f32 = gamma(3);
+const G5: f32 = gamma(5);
+
+/// The edge function a.x·b.y − a.y·b.x in f32, and whether its sign is certain (see the
+/// module's notes): its error is below γ₃(|a.x·b.y| + |a.y·b.x|) plus what underflow can
+/// add. False for NaN and infinite values too, which f64 then decides.
+#[inline(always)]
+fn edge32(ax: f32, ay: f32, bx: f32, by: f32) -> (f32, bool) {
+    let (l, r) = (ax * by, ay * bx);
+    let e = l - r;
+    (e, e.abs() > G3 * (l.abs() + r.abs()) + f32::MIN_POSITIVE)
+}
+
+/// The edge function with its exact sign: the f32 value where [`edge32`] is certain of it,
+/// else the f64 value (exact products, one rounding), whose sign is exact and whose f32
+/// rounding is the value.
+#[inline(always)]
+fn edge_exact(ax: f32, ay: f32, bx: f32, by: f32) -> (f32, f64) {
+    let (e, certain) = edge32(ax, ay, bx, by);
+    if certain {
+        (e, f64::from(e))
+    } else {
+        let e64 = f64::from(ax) * f64::from(by) - f64::from(ay) * f64::from(bx);
+        (e64 as f32, e64)
+    }
+}
+
 /// The ray `o + t·d` against triangle (p0, p1, p2), for t in (0, t_max); both sides count.
 #[inline]
 pub fn intersect(
@@ -32,87 +135,210 @@ pub fn intersect(
     p2: Vec3A,
     t_max: f32,
 ) -> Option<TriangleHit> {
-    // Translate to the ray origin, then permute so that z is the direction's largest axis
-    // (the shear divides by d.z).
-    let (p0t, p1t, p2t) = (p0 - o, p1 - o, p2 - o);
-    let a = d.abs();
-    let kz = if a.x > a.y {
-        if a.x > a.z {
-            0
-        } else {
-            2
-        }
-    } else if a.y > a.z {
-        1
-    } else {
-        2
-    };
-    let kx = if kz == 2 { 0 } else { kz + 1 };
-    let ky = if kx == 2 { 0 } else { kx + 1 };
-    let perm = |v: Vec3A| Vec3A::new(v[kx], v[ky], v[kz]);
-    let d = perm(d);
-    let (mut p0t, mut p1t, mut p2t) = (perm(p0t), perm(p1t), perm(p2t));
-    // Shear so that the ray runs along +z; z is scaled later, only if the edges pass.
-    let sx = -d.x / d.z;
-    let sy = -d.y / d.z;
-    let sz = 1.0 / d.z;
-    p0t.x += sx * p0t.z;
-    p0t.y += sy * p0t.z;
-    p1t.x += sx * p1t.z;
-    p1t.y += sy * p1t.z;
-    p2t.x += sx * p2t.z;
-    p2t.y += sy * p2t.z;
-    let edge =
-        |a: Vec3A, b: Vec3A| f64::from(a.x) * f64::from(b.y) - f64::from(a.y) * f64::from(b.x);
-    let e0 = edge(p1t, p2t);
-    let e1 = edge(p2t, p0t);
-    let e2 = edge(p0t, p1t);
-    if (e0 < 0.0 || e1 < 0.0 || e2 < 0.0) && (e0 > 0.0 || e1 > 0.0 || e2 > 0.0) {
+    intersect_prepared(&WoopRay::new(o, d), [p0, p1, p2], t_max)
+}
+
+/// [`intersect`] for a prepared ray. Every operation is the one [`intersect4`] does in each
+/// lane, in the same order, so the two agree bit for bit.
+#[inline]
+pub fn intersect_prepared(r: &WoopRay, p: [Vec3A; 3], t_max: f32) -> Option<TriangleHit> {
+    let [kx, ky, kz] = r.k;
+    let (mut x, mut y, mut z) = ([0.0f32; 3], [0.0f32; 3], [0.0f32; 3]);
+    for i in 0..3 {
+        // Translate to the ray origin, permute, and shear so that the ray runs along +z; z is
+        // scaled later, only if the edges pass.
+        let az = p[i][kz] - r.o[2];
+        x[i] = (p[i][kx] - r.o[0]) + r.s[0] * az;
+        y[i] = (p[i][ky] - r.o[1]) + r.s[1] * az;
+        z[i] = az;
+    }
+    let (e0, s0) = edge_exact(x[1], y[1], x[2], y[2]);
+    let (e1, s1) = edge_exact(x[2], y[2], x[0], y[0]);
+    let (e2, s2) = edge_exact(x[0], y[0], x[1], y[1]);
+    if (s0 < 0.0 || s1 < 0.0 || s2 < 0.0) && (s0 > 0.0 || s1 > 0.0 || s2 > 0.0) {
         return None;
     }
-    let det64 = e0 + e1 + e2;
-    if det64 == 0.0 || !det64.is_finite() {
+    let det = e0 + e1 + e2;
+    if det == 0.0 || !det.is_finite() {
         // Seen edge-on (or a degenerate triangle): no area to hit.
         return None;
     }
-    let (e0, e1, e2) = (e0 as f32, e1 as f32, e2 as f32);
-    let det = det64 as f32;
-    if det == 0.0 {
-        return None;
+    for zi in &mut z {
+        *zi *= r.s[2];
     }
-    p0t.z *= sz;
-    p1t.z *= sz;
-    p2t.z *= sz;
-    let t_scaled = e0 * p0t.z + e1 * p1t.z + e2 * p2t.z;
+    let t_scaled = e0 * z[0] + e1 * z[1] + e2 * z[2];
     // t in (0, t_max), compared before the division.
-    if det < 0.0 && (t_scaled >= 0.0 || t_scaled <= t_max * det) {
+    if det < 0.0 && !(t_scaled < 0.0 && t_scaled > t_max * det) {
         return None;
     }
-    if det > 0.0 && (t_scaled <= 0.0 || t_scaled >= t_max * det) {
+    if det > 0.0 && !(t_scaled > 0.0 && t_scaled < t_max * det) {
         return None;
     }
     let inv_det = 1.0 / det;
-    let b = [e0 * inv_det, e1 * inv_det, e2 * inv_det];
     let t = t_scaled * inv_det;
-    if !t.is_finite() {
+    let max3 = |a: f32, b: f32, c: f32| a.abs().max(b.abs()).max(c.abs());
+    let max_zt = max3(z[0], z[1], z[2]);
+    let max_xt = max3(x[0], x[1], x[2]);
+    let max_yt = max3(y[0], y[1], y[2]);
+    let max_e = max3(e0, e1, e2);
+    if !(t.abs() < f32::INFINITY && t > delta_t(max_xt, max_yt, max_zt, max_e, inv_det)) {
         return None;
     }
-    // Reject t that rounding alone could have made positive (pbrt-v4 §6.8.7): a ray leaving
-    // the surface must not hit the triangle it starts on.
-    let max_zt = Vec3A::new(p0t.z, p1t.z, p2t.z).abs().max_element();
-    let delta_z = gamma(3) * max_zt;
-    let max_xt = Vec3A::new(p0t.x, p1t.x, p2t.x).abs().max_element();
-    let max_yt = Vec3A::new(p0t.y, p1t.y, p2t.y).abs().max_element();
-    let delta_x = gamma(5) * (max_xt + max_zt);
-    let delta_y = gamma(5) * (max_yt + max_zt);
-    let delta_e = 2.0 * (gamma(2) * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
-    let max_e = Vec3A::new(e0, e1, e2).abs().max_element();
-    let delta_t =
-        3.0 * (gamma(3) * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * inv_det.abs();
-    if t <= delta_t {
-        return None;
+    Some(TriangleHit {
+        t,
+        b: [e0 * inv_det, e1 * inv_det, e2 * inv_det],
+    })
+}
+
+/// The bound below which a hit's t could be rounding alone (pbrt-v4 §6.8.7): a ray leaving
+/// the surface must not hit the triangle it starts on. Generic so that one expression serves
+/// one lane and four.
+#[inline(always)]
+fn delta_t<T>(max_xt: T, max_yt: T, max_zt: T, max_e: T, inv_det: T) -> T
+where
+    T: Copy + std::ops::Mul<Output = T> + std::ops::Add<Output = T> + Abs + From3,
+{
+    let c = |v: f32| T::splat(v);
+    let delta_z = c(G3) * max_zt;
+    let delta_x = c(G5) * (max_xt + max_zt);
+    let delta_y = c(G5) * (max_yt + max_zt);
+    let delta_e = c(2.0) * (c(G2) * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
+    c(3.0) * (c(G3) * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * inv_det.abs_()
+}
+
+/// |x| for one lane and four.
+trait Abs {
+    fn abs_(self) -> Self;
+}
+
+/// A constant in every lane.
+trait From3 {
+    fn splat(v: f32) -> Self;
+}
+
+impl Abs for f32 {
+    #[inline(always)]
+    fn abs_(self) -> Self {
+        self.abs()
     }
-    Some(TriangleHit { t, b })
+}
+
+impl From3 for f32 {
+    #[inline(always)]
+    fn splat(v: f32) -> Self {
+        v
+    }
+}
+
+impl Abs for Vec4 {
+    #[inline(always)]
+    fn abs_(self) -> Self {
+        self.abs()
+    }
+}
+
+impl From3 for Vec4 {
+    #[inline(always)]
+    fn splat(v: f32) -> Self {
+        Vec4::splat(v)
+    }
+}
+
+/// The closest of four triangles along a prepared ray with t in (0, t_max): (t, lane). Each
+/// lane's answer is [`intersect_prepared`]'s, bit for bit, and ties go to a lane fixed by the
+/// triangles and the ray alone (the lowest of those f32 decided, else the lowest of the rest).
+#[inline]
+pub fn intersect4(r: &WoopRay, tri: &Tri4, t_max: f32) -> Option<(f32, usize)> {
+    let [kx, ky, kz] = r.k;
+    let (ox, oy, oz) = (
+        Vec4::splat(r.o[0]),
+        Vec4::splat(r.o[1]),
+        Vec4::splat(r.o[2]),
+    );
+    let (sx, sy) = (Vec4::splat(r.s[0]), Vec4::splat(r.s[1]));
+    let mut x = [Vec4::ZERO; 3];
+    let mut y = [Vec4::ZERO; 3];
+    let mut z = [Vec4::ZERO; 3];
+    for i in 0..3 {
+        let az = tri.v[i][kz] - oz;
+        x[i] = (tri.v[i][kx] - ox) + sx * az;
+        y[i] = (tri.v[i][ky] - oy) + sy * az;
+        z[i] = az;
+    }
+    let edge = |ax: Vec4, ay: Vec4, bx: Vec4, by: Vec4| {
+        let (l, r) = (ax * by, ay * bx);
+        let e = l - r;
+        let bound = Vec4::splat(G3) * (l.abs() + r.abs()) + Vec4::splat(f32::MIN_POSITIVE);
+        (e, e.abs().cmpgt(bound))
+    };
+    let (e0, c0) = edge(x[1], y[1], x[2], y[2]);
+    let (e1, c1) = edge(x[2], y[2], x[0], y[0]);
+    let (e2, c2) = edge(x[0], y[0], x[1], y[1]);
+    let certain = c0 & c1 & c2;
+    // Certain edge functions are nonzero, so "inside" is all three of one sign.
+    let zero = Vec4::ZERO;
+    let neg = e0.cmplt(zero) & e1.cmplt(zero) & e2.cmplt(zero);
+    let pos = e0.cmpgt(zero) & e1.cmpgt(zero) & e2.cmpgt(zero);
+    let inside = certain & (neg | pos);
+    let uncertain = (!certain).bitmask();
+    let mut best: Option<(f32, usize)> = None;
+    if inside.any() {
+        let det = e0 + e1 + e2;
+        let sz = Vec4::splat(r.s[2]);
+        let z = z.map(|zi| zi * sz);
+        let t_scaled = e0 * z[0] + e1 * z[1] + e2 * z[2];
+        let t_max_det = Vec4::splat(t_max) * det;
+        let inf = Vec4::splat(f32::INFINITY);
+        let in_range = (pos & t_scaled.cmpgt(zero) & t_scaled.cmplt(t_max_det))
+            | (neg & t_scaled.cmplt(zero) & t_scaled.cmpgt(t_max_det));
+        let inv_det = Vec4::ONE / det;
+        let t = t_scaled * inv_det;
+        let max3 = |a: Vec4, b: Vec4, c: Vec4| a.abs().max(b.abs()).max(c.abs());
+        let dt = delta_t(
+            max3(x[0], x[1], x[2]),
+            max3(y[0], y[1], y[2]),
+            max3(z[0], z[1], z[2]),
+            max3(e0, e1, e2),
+            inv_det,
+        );
+        let hit: BVec4A =
+            inside & det.abs().cmplt(inf) & in_range & t.abs().cmplt(inf) & t.cmpgt(dt);
+        let mask = hit.bitmask();
+        if mask != 0 {
+            let t = t.to_array();
+            for lane in (0..4).filter(|l| mask >> l & 1 == 1) {
+                if best.is_none_or(|(bt, _)| t[lane] < bt) {
+                    best = Some((t[lane], lane));
+                }
+            }
+        }
+    }
+    if uncertain != 0 {
+        best = uncertain_lanes(r, tri, t_max, uncertain, best);
+    }
+    best
+}
+
+/// The lanes whose edge functions f32 could not decide, by the one-lane test (which takes
+/// f64 for them), against the best of the others.
+#[cold]
+#[inline(never)]
+fn uncertain_lanes(
+    r: &WoopRay,
+    tri: &Tri4,
+    t_max: f32,
+    lanes: u32,
+    mut best: Option<(f32, usize)>,
+) -> Option<(f32, usize)> {
+    for lane in (0..4).filter(|l| lanes >> l & 1 == 1) {
+        let p = tri.lane(lane);
+        // Strictly nearer than the best so far, so an earlier answer wins a tie.
+        let limit = best.map_or(t_max, |(t, _)| t);
+        if let Some(h) = intersect_prepared(r, p, limit) {
+            best = Some((h.t, lane));
+        }
+    }
+    best
 }
 
 /// Error bound of the point b0·p0 + b1·p1 + b2·p2 (pbrt-v4's γ₇ bound).
@@ -198,5 +424,66 @@ mod tests {
                 .count();
             assert!(hits >= 1, "ray {o:?} → {target:?} slipped through the fan");
         }
+    }
+
+    /// The four-lane test gives each lane's one-lane answer bit for bit, and the nearest of
+    /// them, on rays at random and rays aimed at edges and vertices (where f32 cannot decide
+    /// the sign of an edge function and f64 does; the test checks that such rays occur).
+    #[test]
+    fn four_lanes_give_the_one_lane_bits() {
+        let mut rng = crate::sampling::HashRng::new(29);
+        let mut u = move || rng.next_f32();
+        let mut uncertain = 0;
+        let mut hits = 0;
+        for n in 0..40_000 {
+            let tris: Vec<[Vec3A; 3]> = (0..1 + n % 4)
+                .map(|_| std::array::from_fn(|_| Vec3A::new(u(), u(), u()) * 4.0 - 2.0))
+                .collect();
+            let o = Vec3A::new(u(), u(), u()) * 10.0 - 5.0;
+            let [p0, p1, p2] = tris[0];
+            let target = match n % 3 {
+                0 => Vec3A::new(u(), u(), u()) * 4.0 - 2.0,
+                1 => p0,
+                _ => p1 + (p2 - p1) * u(),
+            };
+            let d = target - o;
+            let r = WoopRay::new(o, d);
+            let t_max = if n % 5 == 0 {
+                u() * 10.0
+            } else {
+                f32::INFINITY
+            };
+            let lanes: Vec<Option<TriangleHit>> = (0..4)
+                .map(|l| intersect_prepared(&r, tris[l.min(tris.len() - 1)], t_max))
+                .collect();
+            let nearest = lanes
+                .iter()
+                .enumerate()
+                .filter_map(|(l, h)| h.map(|h| (h.t, l)))
+                .fold(None, |b: Option<(f32, usize)>, (t, l)| match b {
+                    Some((bt, _)) if bt <= t => b,
+                    _ => Some((t, l)),
+                });
+            let four = intersect4(&r, &Tri4::new(&tris), t_max);
+            assert_eq!(four.map(|h| h.0.to_bits()), nearest.map(|h| h.0.to_bits()));
+            if let Some((_, lane)) = four {
+                assert_eq!(lanes[lane].map(|h| h.t), four.map(|h| h.0));
+                hits += 1;
+            }
+            // The scalar entry point is the same test.
+            assert_eq!(intersect(o, d, p0, p1, p2, t_max), lanes[0]);
+            let [kx, ky, kz] = r.k;
+            let sheared = |p: Vec3A| {
+                let az = p[kz] - r.o[2];
+                (
+                    (p[kx] - r.o[0]) + r.s[0] * az,
+                    (p[ky] - r.o[1]) + r.s[1] * az,
+                )
+            };
+            let ((x1, y1), (x2, y2)) = (sheared(p1), sheared(p2));
+            uncertain += usize::from(!edge32(x1, y1, x2, y2).1);
+        }
+        assert!(hits > 10_000, "{hits}");
+        assert!(uncertain > 100, "{uncertain} rays needed f64");
     }
 }
