@@ -278,4 +278,45 @@ mod tests {
         );
         assert!(Texture::decode(&exr.get_ref()[..40], ImageFormat::Exr, 100).is_err());
     }
+
+    /// JPEG decodes through the same sRGB table as PNG. Flat 8×8 grey blocks survive JPEG's
+    /// transform almost exactly, so each block's texels must be its level decoded from sRGB
+    /// (to within a level), and the left and right halves must come out in that order.
+    #[test]
+    fn jpeg_decodes_with_srgb() {
+        let (w, h) = (16u32, 8u32);
+        let pixels: Vec<u8> = (0..w * h)
+            .flat_map(|i| {
+                let level = if i % w < 8 { 64 } else { 200 };
+                [level; 3]
+            })
+            .collect();
+        let mut jpeg = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 100)
+            .encode(&pixels, w, h, image::ExtendedColorType::Rgb8)
+            .expect("encodes");
+        let t = Texture::decode(&jpeg, ImageFormat::Jpeg, 1000).expect("decodes");
+        assert_eq!(t.size(), (16, 8));
+        for (x, level) in [(3usize, 64.0), (12, 200.0)] {
+            let got = t.texels[4 * 16 + x];
+            for near in [level - 1.0, level + 1.0] {
+                let bound = srgb_to_linear(near / 255.0) as f32;
+                assert!(
+                    if near < level {
+                        got.x >= bound
+                    } else {
+                        got.x <= bound
+                    },
+                    "texel {x}: {got:?} against sRGB level {level}"
+                );
+            }
+            assert_eq!(got.x, got.y);
+            assert_eq!(got.y, got.z);
+        }
+        assert!(
+            Texture::decode(&jpeg, ImageFormat::Jpeg, 100).is_err(),
+            "the texel limit"
+        );
+        assert!(Texture::decode(&jpeg[..60], ImageFormat::Jpeg, 1000).is_err());
+    }
 }

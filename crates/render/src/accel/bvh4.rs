@@ -128,11 +128,35 @@ impl Bvh4 {
     }
 
     /// Visits the leaves the ray `o + t·d` (with `inv_d` = 1/d) may hit, nearest box first.
-    /// `f` gets a leaf's (start, count) and the current t_max, and returns the new t_max; a
-    /// negative t_max ends the traversal at once (any-hit queries). Boxes entered beyond the
-    /// current t_max are skipped, also when they were pushed before it shrank.
+    /// `f` gets a leaf's (start, count) and the current t_max, and returns the new t_max.
+    /// Boxes entered beyond the current t_max are skipped, also when they were pushed before
+    /// it shrank.
     #[inline]
     pub fn traverse(
+        &self,
+        o: Vec3A,
+        inv_d: Vec3A,
+        t_max: f32,
+        f: impl FnMut(u32, u32, f32) -> f32,
+    ) {
+        self.walk::<true>(o, inv_d, t_max, f);
+    }
+
+    /// [`Bvh4::traverse`] for any-hit queries: the children are visited in node order, not
+    /// sorted (any blocker will do), and a negative t_max from `f` ends the traversal.
+    #[inline]
+    pub fn traverse_any(
+        &self,
+        o: Vec3A,
+        inv_d: Vec3A,
+        t_max: f32,
+        f: impl FnMut(u32, u32, f32) -> f32,
+    ) {
+        self.walk::<false>(o, inv_d, t_max, f);
+    }
+
+    #[inline(always)]
+    fn walk<const NEAREST_FIRST: bool>(
         &self,
         o: Vec3A,
         inv_d: Vec3A,
@@ -152,16 +176,20 @@ impl Bvh4 {
             Vec4::splat(inv_d.z),
         );
         let inflate = Vec4::splat(FAR_INFLATION);
-        let mut stack = arrayvec::ArrayVec::<(u32, u32, f32), STACK>::new();
-        let (mut child, mut count) = (0u32, 0u32);
+        let mut stack = arrayvec::ArrayVec::<Entry, STACK>::new();
+        let mut cur = Entry {
+            child: 0,
+            count: 0,
+            t_near: 0.0,
+        };
         loop {
-            if count > 0 {
-                t_max = f(child, count, t_max);
+            if cur.count > 0 {
+                t_max = f(cur.child, cur.count, t_max);
                 if t_max < 0.0 {
                     return;
                 }
             } else {
-                let n = &self.nodes[child as usize];
+                let n = &self.nodes[cur.child as usize];
                 // Slab distances; 0·∞ (a ray in a box's plane, parallel to it) is NaN, and
                 // `max`/`min` (SSE's) give their second operand for it: that axis does not
                 // constrain the box, as the scalar test's guarded path decides too.
@@ -177,25 +205,39 @@ impl Bvh4 {
                 let mask = t_near.cmple(t_far).bitmask();
                 if mask != 0 {
                     let tn = t_near.to_array();
-                    // The hit children, nearest first (at most four: an insertion sort).
-                    let mut hit = arrayvec::ArrayVec::<(u32, u32, f32), 4>::new();
+                    let mut hit = [cur; 4];
+                    let mut len = 0;
                     for slot in (0..4).filter(|s| mask >> s & 1 == 1) {
-                        let e = (n.child[slot], n.count[slot], tn[slot]);
-                        let at = hit.iter().position(|h| h.2 > e.2).unwrap_or(hit.len());
-                        hit.insert(at, e);
+                        hit[len] = Entry {
+                            child: n.child[slot],
+                            count: n.count[slot],
+                            t_near: tn[slot],
+                        };
+                        len += 1;
+                    }
+                    if NEAREST_FIRST {
+                        // Insertion sort of at most four, nearest first; equal distances keep
+                        // node order, so the order is the ray's and the tree's alone.
+                        for i in 1..len {
+                            let mut j = i;
+                            while j > 0 && hit[j - 1].t_near > hit[j].t_near {
+                                hit.swap(j - 1, j);
+                                j -= 1;
+                            }
+                        }
                     }
                     // The binary build's depth cap bounds the stack (STACK), so this fits.
-                    for &e in hit[1..].iter().rev() {
+                    for &e in hit[1..len].iter().rev() {
                         stack.push(e);
                     }
-                    (child, count) = (hit[0].0, hit[0].1);
+                    cur = hit[0];
                     continue;
                 }
             }
             loop {
                 match stack.pop() {
-                    Some((c, k, tn)) if tn <= t_max => {
-                        (child, count) = (c, k);
+                    Some(e) if e.t_near <= t_max => {
+                        cur = e;
                         break;
                     }
                     Some(_) => {}
@@ -204,6 +246,14 @@ impl Bvh4 {
             }
         }
     }
+}
+
+/// A child to visit: a node (`count` 0) or a leaf, and where the ray enters its box.
+#[derive(Clone, Copy, Debug)]
+struct Entry {
+    child: u32,
+    count: u32,
+    t_near: f32,
 }
 
 impl Node4 {
@@ -287,9 +337,16 @@ mod tests {
             }
             t
         });
+        let mut seen_any = vec![false; boxes.len()];
+        wide.traverse_any(ray.o, ray.d.recip(), f32::INFINITY, |start, n, t| {
+            for &p in &bvh.order()[start as usize..(start + n) as usize] {
+                seen_any[p as usize] = true;
+            }
+            t
+        });
         for (i, b) in boxes.iter().enumerate() {
             if b.hit(ray.o, ray.d.recip(), f32::INFINITY) {
-                assert!(seen[i], "box {i} missed by {ray:?}");
+                assert!(seen[i] && seen_any[i], "box {i} missed by {ray:?}");
             }
         }
     }
