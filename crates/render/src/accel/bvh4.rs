@@ -39,7 +39,7 @@ pub struct Bvh4 {
 impl Bvh4 {
     /// Collapses `bvh`: each wide node takes the children of up to three binary nodes below
     /// it, opening the largest (by surface area) first. A binary subtree of at most
-    /// `merge_items` items becomes one leaf (a mesh passes 4: one group of four triangles in
+    /// `merge_items` items becomes one leaf (a mesh passes 8: two groups of four triangles in
     /// lanes). `leaf` gets each leaf's range of positions in [`Bvh::order`] and returns what
     /// the traversal hands back for it: a start and a nonzero count.
     pub fn collapse(

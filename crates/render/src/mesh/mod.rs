@@ -56,9 +56,12 @@ impl TriMesh {
         let capacity = tris.len().div_ceil(4) + tris.len() / 8;
         let mut groups = Vec::with_capacity(capacity);
         let mut group_len = Vec::with_capacity(capacity);
+        // A binary subtree of up to 8 triangles becomes one leaf of two groups: fewer nodes to
+        // fetch for a few more lanes tested, which measured faster than one group per leaf on
+        // the million-triangle benchmark (docs/renderer.md).
         // Each slot's triangle (an index into the inputs), for the normals and coordinates.
         let mut slots: Vec<u32> = Vec::with_capacity(capacity * 4);
-        let bvh = Bvh4::collapse(&binary, 4, |leaf| {
+        let bvh = Bvh4::collapse(&binary, 8, |leaf| {
             let start = groups.len() as u32;
             for chunk in leaf.clone().step_by(4) {
                 let end = (chunk + 4).min(leaf.end);
