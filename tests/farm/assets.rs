@@ -1,4 +1,4 @@
-//! Scenes with files (meshes) on the farm: each file uploaded once by its SHA-256, in chunks,
+//! Scenes with files (meshes, textures) on the farm: each file uploaded once by its SHA-256, in chunks,
 //! resumable (across a coordinator restart too); workers fetch and cache it by hash; the job's
 //! identity covers it, so the farm's EXR is the local render's, bit for bit. And what a hostile
 //! or broken client can send instead: wrong bytes for a hash, out-of-order chunks, files over
@@ -167,6 +167,81 @@ async fn an_interrupted_upload_resumes_and_the_mesh_job_gives_the_local_bits() {
         got.extend(c.data);
     }
     assert_eq!(got, bytes);
+    w.abort();
+    coord.stop().await;
+}
+
+/// A scene's files of every kind travel: textured.toml's two OBJ files and its PNG texture
+/// are uploaded, named in the job, fetched by the worker, and the farm's EXR is the local
+/// render's bit for bit.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_textured_job_carries_its_texture_and_gives_the_local_bits() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start(&dir.path().join("data"), Duration::from_secs(30)).await;
+    let mut client = coord.client().await;
+    let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+    let text = std::fs::read_to_string(scenes.join("textured.toml"))
+        .expect("textured.toml")
+        .replace("width = 256", "width = 16")
+        .replace("height = 256", "height = 16");
+    let names = [
+        "meshes/quad.obj",
+        "meshes/textured-cube.obj",
+        "textures/checker.png",
+    ];
+    let mut files = BTreeMap::new();
+    let mut assets = Vec::new();
+    for name in names {
+        let bytes = std::fs::read(scenes.join(name)).expect("scene file");
+        let hash = sha256_hex(&bytes);
+        let done = upload(
+            &mut client,
+            vec![chunk(&hash, 0, bytes.len() as u64, &bytes)],
+        )
+        .await
+        .expect("upload");
+        assert!(done.complete, "{name}");
+        assets.push(pb::AssetRef {
+            name: name.into(),
+            sha256: hash,
+        });
+        files.insert(name.to_string(), bytes);
+    }
+    // Without the texture the job is refused at the material that names it.
+    let e = client
+        .submit_job(pb::SubmitJobRequest {
+            assets: assets[..2].to_vec(),
+            ..submit_request(&text, 4, 2)
+        })
+        .await
+        .expect_err("texture missing");
+    assert_eq!(e.code(), tonic::Code::InvalidArgument);
+    assert!(
+        e.message()
+            .contains("`textures/checker.png` is not among the files sent with the job"),
+        "{}",
+        e.message()
+    );
+    let job = client
+        .submit_job(pb::SubmitJobRequest {
+            assets,
+            ..submit_request(&text, 4, 2)
+        })
+        .await
+        .expect("submit")
+        .into_inner();
+    let w = worker(&coord.url(), "texture-worker");
+    let s = wait(&mut client, &job.job_id).await;
+    assert_eq!(s.state, pb::JobState::Done as i32, "{}", s.error);
+    let farm = fetch(&mut client, &job.job_id).await;
+    let local = local_exr_files(
+        &text,
+        &job_settings(4, 2),
+        ExrChannels::default(),
+        dir.path(),
+        &MemAssets(files),
+    );
+    assert!(farm == local, "the farm's EXR differs from the local one");
     w.abort();
     coord.stop().await;
 }

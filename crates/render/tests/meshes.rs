@@ -334,6 +334,61 @@ fn the_shipped_mesh_scenes_load_and_the_docs_show_them_as_they_are() {
     );
 }
 
+/// scenes/textured.toml loads its two OBJ files and its PNG, and renders the painting upright:
+/// the texture's red stripe (its top edge) shows at the top of the painting, and the checks
+/// below it.
+#[test]
+fn the_shipped_textured_scene_shows_its_texture_upright() {
+    let s = common::load("textured.toml");
+    let names: Vec<&str> = s.files.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "textures/checker.png",
+            "meshes/quad.obj",
+            "meshes/textured-cube.obj"
+        ]
+    );
+    let text = std::fs::read_to_string(common::repo_root().join("scenes/textured.toml"))
+        .expect("scene")
+        .replace("width = 256", "width = 64")
+        .replace("height = 256", "height = 64");
+    let root = common::repo_root().join("scenes");
+    let file = |n: &str| std::fs::read(root.join(n)).expect("scene file");
+    let (quad, cube, png) = (
+        file("meshes/quad.obj"),
+        file("meshes/textured-cube.obj"),
+        file("textures/checker.png"),
+    );
+    let s = scene_with_files(
+        &text,
+        &[
+            ("meshes/quad.obj", &quad),
+            ("meshes/textured-cube.obj", &cube),
+            ("textures/checker.png", &png),
+        ],
+    );
+    let img = render(
+        &s,
+        &RenderSettings {
+            spp: 64,
+            seed: 1,
+            ..RenderSettings::default()
+        },
+    );
+    // The painting spans columns 23.7 to 40.3 and rows 19.2 to 35.7 of 64 (world x ±0.45 and
+    // y -0.2 to 0.7, 4.89 in front of a camera whose film spans ±1.746 there); its top
+    // eighth, the stripe, is rows 19.2 to 21.3.
+    let (stripe, _) = common::region_stats(&img, 28, 20, 8, 1);
+    // The stripe reflects almost no green (sRGB 190, 40, 30); both checks reflect more than
+    // a third as much green as red, even under the box's orange light.
+    assert!(stripe[1] < 0.2 * stripe[0], "stripe {stripe:?}");
+    for (x0, y0) in [(26, 25), (30, 30), (36, 33)] {
+        let (check, _) = common::region_stats(&img, x0, y0, 2, 2);
+        assert!(check[1] > 0.3 * check[0], "check at ({x0},{y0}): {check:?}");
+    }
+}
+
 /// An 8-bit PNG of `w` × `h` grey levels (row 0 at the top).
 fn grey_png(w: u32, h: u32, levels: &[u8]) -> Vec<u8> {
     let mut png = Vec::new();
