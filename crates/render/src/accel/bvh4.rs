@@ -205,14 +205,22 @@ impl Bvh4 {
                 let mask = t_near.cmple(t_far).bitmask();
                 if mask != 0 {
                     let tn = t_near.to_array();
+                    let entry = |slot: usize| Entry {
+                        child: n.child[slot],
+                        count: n.count[slot],
+                        t_near: tn[slot],
+                    };
+                    if mask & (mask - 1) == 0 {
+                        // One child hit (the most common case deep in the tree).
+                        cur = entry(mask.trailing_zeros() as usize);
+                        continue;
+                    }
                     let mut hit = [cur; 4];
                     let mut len = 0;
-                    for slot in (0..4).filter(|s| mask >> s & 1 == 1) {
-                        hit[len] = Entry {
-                            child: n.child[slot],
-                            count: n.count[slot],
-                            t_near: tn[slot],
-                        };
+                    let mut bits = mask;
+                    while bits != 0 {
+                        hit[len] = entry(bits.trailing_zeros() as usize);
+                        bits &= bits - 1;
                         len += 1;
                     }
                     if NEAREST_FIRST {
