@@ -212,11 +212,33 @@ fn sweep_shapes(c: [f64; 3], s: f64) -> Vec<(&'static str, String, bool)> {
             ),
             true,
         ),
+        // Meshes: the wide BVH and the four-lane watertight test, with their error bounds
+        // carried through the instance's transform.
+        (
+            "mesh box",
+            format!(
+                "shape = \"mesh\"\nfile = \"cube.obj\"\ntransform = {{ scale = [{s}, {}, {}], {rot}, {t} }}\n",
+                0.6 * s,
+                0.8 * s
+            ),
+            true,
+        ),
+        (
+            "mesh sphere",
+            format!(
+                "shape = \"mesh\"\nfile = \"icosphere.ply\"\ntransform = {{ scale = [{s}, {s}, {s}], {rot}, {t} }}\n"
+            ),
+            true,
+        ),
     ]
 }
 
 fn one_object_scene(object: &str, c: [f64; 3], s: f64, material: &str) -> Scene {
-    scene(&format!(
+    let meshes = repo_root().join("scenes/meshes");
+    let cube = std::fs::read(meshes.join("cube.obj")).expect("cube.obj");
+    let sphere = std::fs::read(meshes.join("icosphere.ply")).expect("icosphere.ply");
+    let files: &[(&str, &[u8])] = &[("cube.obj", &cube), ("icosphere.ply", &sphere)];
+    common::scene_with_files(&format!(
         "version = 1\n[camera]\nmodel = \"look_at\"\neye = [{}, {}, {}]\ntarget = [{}, {}, {}]\nfov = 40\n\
          [film]\nwidth = 4\nheight = 4\n[materials.m]\n{material}\n[[objects]]\nmaterial = \"m\"\n{object}",
         c[0],
@@ -225,7 +247,7 @@ fn one_object_scene(object: &str, c: [f64; 3], s: f64, material: &str) -> Scene 
         c[0],
         c[1],
         c[2]
-    ))
+    ), files)
 }
 
 #[derive(Default, Debug)]
@@ -297,10 +319,13 @@ fn reintersection(sc: &Scene, c: Vec3A, s: f32, closed: bool, seed: u64) -> Swee
 }
 
 /// Whether `p` (with rounding-error bound `err`) lies within its error, or 1e-5 of the box's
-/// size, of two faces of a box.
+/// size, of two faces of a box (analytic, or the mesh of one).
 fn on_box_edge(shape: &Shape, p: Vec3A, err: Vec3A) -> bool {
-    let Shape::Cuboid { min, max, xf } = shape else {
-        return false;
+    let (min, max, xf) = match shape {
+        Shape::Cuboid { min, max, xf } => (min, max, xf),
+        // The mesh box's bounds are its faces (for the sphere mesh, no point is near two).
+        Shape::Mesh(m) => (&m.mesh.bounds().min, &m.mesh.bounds().max, &m.xf),
+        _ => return false,
     };
     let pl = xf.to_object.transform_point3a(p);
     let m = xf.to_object.matrix3;

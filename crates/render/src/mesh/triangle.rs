@@ -163,6 +163,8 @@ pub fn intersect_prepared(r: &WoopRay, p: [Vec3A; 3], t_max: f32) -> Option<Tria
         // Seen edge-on (or a degenerate triangle): no area to hit.
         return None;
     }
+    let max3 = |a: f32, b: f32, c: f32| a.abs().max(b.abs()).max(c.abs());
+    let max_z_shear = max3(z[0], z[1], z[2]);
     for zi in &mut z {
         *zi *= r.s[2];
     }
@@ -176,12 +178,12 @@ pub fn intersect_prepared(r: &WoopRay, p: [Vec3A; 3], t_max: f32) -> Option<Tria
     }
     let inv_det = 1.0 / det;
     let t = t_scaled * inv_det;
-    let max3 = |a: f32, b: f32, c: f32| a.abs().max(b.abs()).max(c.abs());
     let max_zt = max3(z[0], z[1], z[2]);
     let max_xt = max3(x[0], x[1], x[2]);
     let max_yt = max3(y[0], y[1], y[2]);
     let max_e = max3(e0, e1, e2);
-    if !(t.abs() < f32::INFINITY && t > delta_t(max_xt, max_yt, max_zt, max_e, inv_det)) {
+    let dt = delta_t(max_xt, max_yt, max_zt, max_z_shear, max_e, inv_det);
+    if !(t.abs() < f32::INFINITY && t > dt) {
         return None;
     }
     Some(TriangleHit {
@@ -191,17 +193,22 @@ pub fn intersect_prepared(r: &WoopRay, p: [Vec3A; 3], t_max: f32) -> Option<Tria
 }
 
 /// The bound below which a hit's t could be rounding alone (pbrt-v4 §6.8.7): a ray leaving
-/// the surface must not hit the triangle it starts on. Generic so that one expression serves
-/// one lane and four.
+/// the surface must not hit the triangle it starts on. `max_zt` is the largest |z| scaled by
+/// the shear (in units of t), `max_z_shear` the largest before that scaling (in units of
+/// space), which is what the shear added to x and y: pbrt takes the scaled one there too,
+/// harmless for its world-space rays of about unit length, but an instance's object-space
+/// direction is as long as its transform makes it, and a mesh scaled by 1000 then got a bound
+/// 1000 times too large, which refused real hits (the re-intersection sweep in
+/// `tests/hard_cases.rs` found it). Generic so that one expression serves one lane and four.
 #[inline(always)]
-fn delta_t<T>(max_xt: T, max_yt: T, max_zt: T, max_e: T, inv_det: T) -> T
+fn delta_t<T>(max_xt: T, max_yt: T, max_zt: T, max_z_shear: T, max_e: T, inv_det: T) -> T
 where
     T: Copy + std::ops::Mul<Output = T> + std::ops::Add<Output = T> + Abs + From3,
 {
     let c = |v: f32| T::splat(v);
     let delta_z = c(G3) * max_zt;
-    let delta_x = c(G5) * (max_xt + max_zt);
-    let delta_y = c(G5) * (max_yt + max_zt);
+    let delta_x = c(G5) * (max_xt + max_z_shear);
+    let delta_y = c(G5) * (max_yt + max_z_shear);
     let delta_e = c(2.0) * (c(G2) * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
     c(3.0) * (c(G3) * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * inv_det.abs_()
 }
@@ -284,6 +291,8 @@ pub fn intersect4(r: &WoopRay, tri: &Tri4, t_max: f32) -> Option<(f32, usize)> {
     let mut best: Option<(f32, usize)> = None;
     if inside.any() {
         let det = e0 + e1 + e2;
+        let max3 = |a: Vec4, b: Vec4, c: Vec4| a.abs().max(b.abs()).max(c.abs());
+        let max_z_shear = max3(z[0], z[1], z[2]);
         let sz = Vec4::splat(r.s[2]);
         let z = z.map(|zi| zi * sz);
         let t_scaled = e0 * z[0] + e1 * z[1] + e2 * z[2];
@@ -293,11 +302,11 @@ pub fn intersect4(r: &WoopRay, tri: &Tri4, t_max: f32) -> Option<(f32, usize)> {
             | (neg & t_scaled.cmplt(zero) & t_scaled.cmpgt(t_max_det));
         let inv_det = Vec4::ONE / det;
         let t = t_scaled * inv_det;
-        let max3 = |a: Vec4, b: Vec4, c: Vec4| a.abs().max(b.abs()).max(c.abs());
         let dt = delta_t(
             max3(x[0], x[1], x[2]),
             max3(y[0], y[1], y[2]),
             max3(z[0], z[1], z[2]),
+            max_z_shear,
             max3(e0, e1, e2),
             inv_det,
         );
