@@ -169,11 +169,14 @@ pub fn intersect_prepared(r: &WoopRay, p: [Vec3A; 3], t_max: f32) -> Option<Tria
         *zi *= r.s[2];
     }
     let t_scaled = e0 * z[0] + e1 * z[1] + e2 * z[2];
-    // t in (0, t_max), compared before the division.
-    if det < 0.0 && !(t_scaled < 0.0 && t_scaled > t_max * det) {
+    // In front of the origin. t < t_max is asked of t itself, after the division, not of the
+    // scaled values before it as pbrt does: there the two roundings can refuse a t below
+    // t_max, and a closest-hit search that shrinks t_max as it goes would then keep a farther
+    // hit than testing every triangle finds (two triangles meeting where the ray crosses).
+    if det < 0.0 && !(t_scaled < 0.0) {
         return None;
     }
-    if det > 0.0 && !(t_scaled > 0.0 && t_scaled < t_max * det) {
+    if det > 0.0 && !(t_scaled > 0.0) {
         return None;
     }
     let inv_det = 1.0 / det;
@@ -183,7 +186,7 @@ pub fn intersect_prepared(r: &WoopRay, p: [Vec3A; 3], t_max: f32) -> Option<Tria
     let max_yt = max3(y[0], y[1], y[2]);
     let max_e = max3(e0, e1, e2);
     let dt = delta_t(max_xt, max_yt, max_zt, max_z_shear, max_e, inv_det);
-    if !(t.abs() < f32::INFINITY && t > dt) {
+    if !(t < t_max && t.abs() < f32::INFINITY && t > dt) {
         return None;
     }
     Some(TriangleHit {
@@ -296,10 +299,8 @@ pub fn intersect4(r: &WoopRay, tri: &Tri4, t_max: f32) -> Option<(f32, usize)> {
         let sz = Vec4::splat(r.s[2]);
         let z = z.map(|zi| zi * sz);
         let t_scaled = e0 * z[0] + e1 * z[1] + e2 * z[2];
-        let t_max_det = Vec4::splat(t_max) * det;
         let inf = Vec4::splat(f32::INFINITY);
-        let in_range = (pos & t_scaled.cmpgt(zero) & t_scaled.cmplt(t_max_det))
-            | (neg & t_scaled.cmplt(zero) & t_scaled.cmpgt(t_max_det));
+        let in_front = (pos & t_scaled.cmpgt(zero)) | (neg & t_scaled.cmplt(zero));
         let inv_det = Vec4::ONE / det;
         let t = t_scaled * inv_det;
         let dt = delta_t(
@@ -310,8 +311,12 @@ pub fn intersect4(r: &WoopRay, tri: &Tri4, t_max: f32) -> Option<(f32, usize)> {
             max3(e0, e1, e2),
             inv_det,
         );
-        let hit: BVec4A =
-            inside & det.abs().cmplt(inf) & in_range & t.abs().cmplt(inf) & t.cmpgt(dt);
+        let hit: BVec4A = inside
+            & det.abs().cmplt(inf)
+            & in_front
+            & t.cmplt(Vec4::splat(t_max))
+            & t.abs().cmplt(inf)
+            & t.cmpgt(dt);
         let mask = hit.bitmask();
         if mask != 0 {
             let t = t.to_array();
@@ -494,5 +499,29 @@ mod tests {
         }
         assert!(hits > 10_000, "{hits}");
         assert!(uncertain > 100, "{uncertain} rays needed f64");
+    }
+
+    /// Found by fuzzing: two triangles of one group meeting on the edge the ray crosses both
+    /// report hits, a few ulps apart. The four-lane test (whose second lane needs f64 there,
+    /// and is tested against the first's t) must still return the nearer, as testing each
+    /// triangle alone finds: t < t_max is asked of t itself.
+    #[test]
+    fn a_hit_below_t_max_is_never_refused_by_rounding() {
+        let (a, b, c, d) = (
+            Vec3A::new(-2.3, 0.0, -0.3),
+            Vec3A::new(0.3, 0.0, -0.3),
+            Vec3A::new(0.3, 0.0, 0.3),
+            Vec3A::new(-0.3, 0.0, 0.3),
+        );
+        let (o, dir) = (Vec3A::new(-1.0, 1000.0, 0.0), Vec3A::new(-0.0, -1.0, -0.0));
+        let t0 = intersect(o, dir, a, b, c, f32::INFINITY).expect("first").t;
+        let t1 = intersect(o, dir, a, c, d, f32::INFINITY).expect("second").t;
+        assert!(t1 < t0, "the case needs the second nearer: {t0} {t1}");
+        assert!(intersect(o, dir, a, c, d, t0).is_some());
+        let r = WoopRay::new(o, dir);
+        assert_eq!(
+            intersect4(&r, &Tri4::new(&[[a, b, c], [a, c, d]]), f32::INFINITY),
+            Some((t1, 1))
+        );
     }
 }
