@@ -56,21 +56,18 @@ impl TriMesh {
         let capacity = tris.len().div_ceil(4) + tris.len() / 8;
         let mut groups = Vec::with_capacity(capacity);
         let mut group_len = Vec::with_capacity(capacity);
+        // Each slot's triangle (an index into the inputs), for the normals and coordinates.
+        let mut slots: Vec<u32> = Vec::with_capacity(capacity * 4);
         // A binary subtree of up to 8 triangles becomes one leaf of two groups: fewer nodes to
         // fetch for a few more lanes tested, which measured faster than one group per leaf on
         // the million-triangle benchmark (docs/renderer.md).
-        // Each slot's triangle (an index into the inputs), for the normals and coordinates.
-        let mut slots: Vec<u32> = Vec::with_capacity(capacity * 4);
         let bvh = Bvh4::collapse(&binary, 8, |leaf| {
             let start = groups.len() as u32;
             for chunk in leaf.clone().step_by(4) {
                 let end = (chunk + 4).min(leaf.end);
+                // Short groups repeat their last triangle, as `Tri4::new` would.
                 let ids: [u32; 4] = std::array::from_fn(|l| order[(chunk + l).min(end - 1)]);
-                let lanes: Vec<[Vec3A; 3]> = ids[..end - chunk]
-                    .iter()
-                    .map(|&i| tris[i as usize])
-                    .collect();
-                groups.push(Tri4::new(&lanes));
+                groups.push(Tri4::new(&ids.map(|i| tris[i as usize])));
                 group_len.push((end - chunk) as u8);
                 slots.extend(ids);
             }
@@ -234,18 +231,17 @@ impl MeshInstance {
     #[inline(never)]
     pub fn surface(&self, r: &Ray, part: u32) -> SurfacePoint {
         let lr = self.xf.ray_to_object(r);
-        let i = part;
-        let [p0, p1, p2] = self.mesh.triangle(i);
+        let [p0, p1, p2] = self.mesh.triangle(part);
         // The same test on the same inputs, so the same hit; its barycentrics give the point
         // from the vertices (not o + t·d, whose error grows with the distance travelled).
         let b = triangle::intersect(lr.o, lr.d, p0, p1, p2, f32::INFINITY)
             .map_or([1.0 / 3.0; 3], |h| h.b);
         let p = p0 * b[0] + p1 * b[1] + p2 * b[2];
-        let n_obj = self.mesh.front_normal(i, self.smooth);
+        let n_obj = self.mesh.front_normal(part, self.smooth);
         let n = self.xf.normal_to_world(n_obj);
         let ns = if self.smooth {
             self.mesh
-                .shading_normal(i, b)
+                .shading_normal(part, b)
                 .map(|s| self.xf.normal_to_world(s))
                 .filter(|s| s.is_finite() && s.length_squared() > 0.0)
                 .unwrap_or(n)
