@@ -1,8 +1,7 @@
 //! A four-wide BVH, collapsed from the binary one ([`super::bvh::Bvh`]), whose nodes test a
-//! ray against their four children's boxes at once in SIMD lanes. Meshes use it: a ray
-//! through a million triangles visits about half as many nodes as in the binary tree, and each
-//! visit is one vector slab test instead of one scalar test per child. (The scene's own BVH
-//! stays binary: a few dozen primitives, often one leaf, gain nothing from it.)
+//! ray against their four children's boxes at once in SIMD lanes. Meshes use it: fewer, wider
+//! nodes, each visit one vector slab test instead of one scalar test per child. (The scene's
+//! own BVH stays binary: its scenes hold a few dozen primitives, often one leaf.)
 //!
 //! The tree is a function of the binary tree alone, which is a function of the primitives, so
 //! every worker traverses it the same way.
@@ -26,8 +25,8 @@ struct Node4 {
     count: [u32; 4],
 }
 
-/// Subtrees of the binary tree no deeper than this become a wide node's children, at most
-/// four; the binary build caps its depth at 60, so a traversal holds at most 3 · 60 + 1 entries.
+/// The traversal stack's size. A wide node pushes at most three entries, and the wide tree is
+/// no deeper than the binary one, whose build caps its depth at 60: at most 3 · 60 + 1.
 const STACK: usize = 192;
 
 /// The four-wide hierarchy. Node 0 is the root.
