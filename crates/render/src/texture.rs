@@ -154,18 +154,20 @@ fn decode_8_16(bytes: &[u8], format: ImageFormat, max_texels: u64) -> Result<Dec
             | image::ColorType::Rgb16
             | image::ColorType::Rgba16
     );
+    // Every code's linear value, computed once per image rather than once per texel.
+    let table = |max: u32| -> Vec<f32> {
+        (0..=max)
+            .map(|c| srgb_to_linear(f64::from(c) / f64::from(max)) as f32)
+            .collect()
+    };
     let texels = if sixteen {
-        let table: Vec<f32> = (0..=65535u32)
-            .map(|c| srgb_to_linear(f64::from(c) / 65535.0) as f32)
-            .collect();
+        let table = table(65535);
         img.to_rgb16()
             .pixels()
             .map(|p| p.0.map(|c| table[usize::from(c)]))
             .collect()
     } else {
-        let table: Vec<f32> = (0..=255u32)
-            .map(|c| srgb_to_linear(f64::from(c) / 255.0) as f32)
-            .collect();
+        let table = table(255);
         img.to_rgb8()
             .pixels()
             .map(|p| p.0.map(|c| table[usize::from(c)]))

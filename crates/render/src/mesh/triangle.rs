@@ -204,10 +204,7 @@ pub fn intersect_prepared(r: &WoopRay, p: [Vec3A; 3], t_max: f32) -> Option<Tria
 /// 1000 times too large, which refused real hits (the re-intersection sweep in
 /// `tests/hard_cases.rs` found it). Generic so that one expression serves one lane and four.
 #[inline(always)]
-fn delta_t<T>(max_xt: T, max_yt: T, max_zt: T, max_z_shear: T, max_e: T, inv_det: T) -> T
-where
-    T: Copy + std::ops::Mul<Output = T> + std::ops::Add<Output = T> + Abs + From3,
-{
+fn delta_t<T: Lanes>(max_xt: T, max_yt: T, max_zt: T, max_z_shear: T, max_e: T, inv_det: T) -> T {
     let c = |v: f32| T::splat(v);
     let delta_z = c(G3) * max_zt;
     let delta_x = c(G5) * (max_xt + max_z_shear);
@@ -216,41 +213,33 @@ where
     c(3.0) * (c(G3) * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * inv_det.abs_()
 }
 
-/// |x| for one lane and four.
-trait Abs {
+/// One lane (f32) or four (Vec4), for [`delta_t`].
+trait Lanes: Copy + std::ops::Mul<Output = Self> + std::ops::Add<Output = Self> {
+    /// `v` in every lane.
+    fn splat(v: f32) -> Self;
+    /// |x| in every lane.
     fn abs_(self) -> Self;
 }
 
-/// A constant in every lane.
-trait From3 {
-    fn splat(v: f32) -> Self;
-}
-
-impl Abs for f32 {
-    #[inline(always)]
-    fn abs_(self) -> Self {
-        self.abs()
-    }
-}
-
-impl From3 for f32 {
+impl Lanes for f32 {
     #[inline(always)]
     fn splat(v: f32) -> Self {
         v
     }
-}
-
-impl Abs for Vec4 {
     #[inline(always)]
     fn abs_(self) -> Self {
         self.abs()
     }
 }
 
-impl From3 for Vec4 {
+impl Lanes for Vec4 {
     #[inline(always)]
     fn splat(v: f32) -> Self {
         Vec4::splat(v)
+    }
+    #[inline(always)]
+    fn abs_(self) -> Self {
+        self.abs()
     }
 }
 
