@@ -397,3 +397,62 @@ async fn bad_uploads_are_refused_and_leave_nothing() {
     assert_eq!(e.code(), tonic::Code::InvalidArgument);
     coord.stop().await;
 }
+
+/// The coordinator deletes the files no active job names once their retention has passed:
+/// a job's mesh stays while the job is active, an upload no job names goes, and the mesh
+/// goes once the job ends, after which a job naming it is refused until it is uploaded
+/// again. Run in-process with a retention of zero, collecting by hand, so that what is
+/// collected does not depend on timing.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn files_no_active_job_names_are_collected() {
+    use tessera_coordinator::{Config, InProcess};
+    use tessera_proto::v1::jobs_server::Jobs;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut config = Config::new(dir.path());
+    config.asset_retention = Duration::ZERO;
+    let farm = InProcess::open(config).expect("open");
+    let cube = cube_obj();
+    let hash = sha256_hex(&cube);
+    let held = |farm: &InProcess, h: &str| farm.assets().status(h).expect("status").complete;
+    farm.assets()
+        .append(&hash, 0, cube.len() as u64, &cube)
+        .expect("upload the mesh");
+    let stray = b"a file no job names".to_vec();
+    let stray_hash = sha256_hex(&stray);
+    farm.assets()
+        .append(&stray_hash, 0, stray.len() as u64, &stray)
+        .expect("upload the stray file");
+    let text = mesh_scene(8);
+    let job = farm
+        .service()
+        .submit_job(tonic::Request::new(mesh_request(&text, &hash)))
+        .await
+        .expect("submit")
+        .into_inner()
+        .job_id;
+    let c = farm
+        .collect_assets()
+        .expect("collect")
+        .expect("not held off");
+    assert_eq!((c.files, c.bytes), (1, stray.len() as u64), "{c:?}");
+    assert!(held(&farm, &hash), "the active job's mesh was collected");
+    assert!(!held(&farm, &stray_hash));
+    farm.service()
+        .cancel_job(tonic::Request::new(pb::CancelJobRequest { job_id: job }))
+        .await
+        .expect("cancel");
+    let c = farm
+        .collect_assets()
+        .expect("collect")
+        .expect("not held off");
+    assert_eq!(c.files, 1, "{c:?}");
+    assert!(!held(&farm, &hash), "the ended job's mesh was kept");
+    let e = farm
+        .service()
+        .submit_job(tonic::Request::new(mesh_request(&text, &hash)))
+        .await
+        .expect_err("its mesh is gone");
+    assert_eq!(e.code(), tonic::Code::FailedPrecondition);
+    assert!(e.message().contains("meshes/cube.obj"), "{}", e.message());
+    farm.close().await;
+}

@@ -6,14 +6,18 @@
 //! bytes held, and a client that sends the wrong bytes wastes only its own upload.
 //!
 //! Writes are serialised by one lock: uploads are rare and large, and a lock per hash would
-//! buy nothing but code. Files are plain files rather than database values, as the EXRs are:
+//! buy nothing but code. The store has a budget of bytes (complete files plus the declared
+//! sizes of unfinished uploads), and [`AssetStore::collect`] deletes what no active job has
+//! used for the retention time, so a long-running farm's disk does not fill with last month's
+//! meshes, and a client cannot fill it with files no job names. Files are plain files rather than database values, as the EXRs are:
 //! they can be gigabytes, and redb would copy them through its pages.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::fs::{File, OpenOptions};
 use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
+use std::time::{Duration, SystemTime};
 
 use sha2::{Digest, Sha256};
 
@@ -56,11 +60,23 @@ pub struct Held {
     pub complete: bool,
 }
 
+/// What [`AssetStore::collect`] deleted.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Collected {
+    /// Complete files deleted.
+    pub files: usize,
+    /// Unfinished uploads abandoned.
+    pub uploads: usize,
+    /// Bytes freed.
+    pub bytes: u64,
+}
+
 /// The asset store.
 #[derive(Debug)]
 pub struct AssetStore {
     dir: PathBuf,
     max_bytes: u64,
+    budget: u64,
     /// Declared sizes of the uploads in progress, by hash.
     pending: Mutex<BTreeMap<String, u64>>,
 }
@@ -89,9 +105,10 @@ pub fn check_hash(hash: &str) -> Result<(), AssetError> {
 }
 
 impl AssetStore {
-    /// Opens (creating) the store under `data_dir`, accepting files of up to `max_bytes`.
-    /// Unfinished uploads from before a restart stay resumable.
-    pub fn open(data_dir: &Path, max_bytes: u64) -> Result<Self, AssetError> {
+    /// Opens (creating) the store under `data_dir`, accepting files of up to `max_bytes` and
+    /// holding at most `budget` bytes in all. Unfinished uploads from before a restart stay
+    /// resumable.
+    pub fn open(data_dir: &Path, max_bytes: u64, budget: u64) -> Result<Self, AssetError> {
         let dir = data_dir.join("assets");
         let partial = dir.join("partial");
         std::fs::create_dir_all(&partial).map_err(io(&partial))?;
@@ -110,6 +127,7 @@ impl AssetStore {
         Ok(Self {
             dir,
             max_bytes,
+            budget,
             pending: Mutex::new(pending),
         })
     }
@@ -197,6 +215,22 @@ impl AssetStore {
                         "{MAX_PENDING_UPLOADS} uploads are unfinished; finish one first"
                     )));
                 }
+                // An upload reserves its whole declared size when it starts, so that uploads
+                // in parallel cannot together pass the budget.
+                let others: u64 = pending
+                    .iter()
+                    .filter(|(h, _)| h.as_str() != hash)
+                    .map(|(_, &size)| size)
+                    .sum();
+                let used = self.complete_bytes()?.saturating_add(others);
+                if used.saturating_add(total) > self.budget {
+                    return Err(AssetError::Limit(format!(
+                        "asset {hash} is {total} bytes, and the asset store holds {used} of its \
+                         budget of {} (tessera coordinator --asset-store-bytes); files no active \
+                         job uses are deleted after --asset-retention",
+                        self.budget
+                    )));
+                }
                 let size = self.dir.join("partial").join(format!("{hash}.size"));
                 std::fs::write(&size, total.to_string()).map_err(io(&size))?;
                 pending.insert(hash.to_string(), total);
@@ -238,6 +272,92 @@ impl AssetStore {
             received: total,
             complete: true,
         })
+    }
+
+    /// The complete files: (hash, path, metadata).
+    fn complete_files(&self) -> Result<Vec<(String, PathBuf, std::fs::Metadata)>, AssetError> {
+        let mut out = Vec::new();
+        for e in std::fs::read_dir(&self.dir)
+            .map_err(io(&self.dir))?
+            .flatten()
+        {
+            let name = e.file_name().to_string_lossy().to_string();
+            if check_hash(&name).is_ok() {
+                if let Ok(m) = e.metadata() {
+                    out.push((name, e.path(), m));
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Bytes of the complete files.
+    fn complete_bytes(&self) -> Result<u64, AssetError> {
+        Ok(self.complete_files()?.iter().map(|(_, _, m)| m.len()).sum())
+    }
+
+    /// Bytes held: the complete files, plus the declared sizes of unfinished uploads (which
+    /// they reserve).
+    pub fn used_bytes(&self) -> Result<u64, AssetError> {
+        let pending = self.pending();
+        Ok(self
+            .complete_bytes()?
+            .saturating_add(pending.values().sum::<u64>()))
+    }
+
+    /// Deletes the files, complete or not, that are not in `keep` and have not been used for
+    /// `retention` before `now`; marks those in `keep` as used at `now`. A file's last use is
+    /// its modification time: set when its upload last wrote to it, and at each collection
+    /// that finds an active job naming it. So a file lives while a job renders from it, and
+    /// for `retention` after, long enough for a client that checked it is held to submit the
+    /// job naming it. The caller must make sure that no submission is between that check and
+    /// its job's admission while this runs (the coordinator's submissions hold a lock it
+    /// takes).
+    pub fn collect(
+        &self,
+        keep: &BTreeSet<String>,
+        retention: Duration,
+        now: SystemTime,
+    ) -> Result<Collected, AssetError> {
+        let mut pending = self.pending();
+        let mut out = Collected::default();
+        let stale = |m: &std::fs::Metadata| {
+            m.modified()
+                .is_ok_and(|t| t.checked_add(retention).is_none_or(|end| end <= now))
+        };
+        for (hash, path, m) in self.complete_files()? {
+            if keep.contains(&hash) {
+                // Best effort: a file whose time cannot be set is kept now and judged by its
+                // older time later.
+                if let Ok(f) = OpenOptions::new().write(true).open(&path) {
+                    let _ = f.set_modified(now);
+                }
+            } else if stale(&m) {
+                std::fs::remove_file(&path).map_err(io(&path))?;
+                out.files += 1;
+                out.bytes += m.len();
+            }
+        }
+        let abandoned: Vec<String> = pending
+            .keys()
+            .filter(|h| !keep.contains(*h))
+            .filter(|h| {
+                // An upload that has written nothing yet is judged by its size file.
+                let data = std::fs::metadata(self.partial_path(h));
+                let size = std::fs::metadata(self.dir.join("partial").join(format!("{h}.size")));
+                data.or(size).is_ok_and(|m| stale(&m))
+            })
+            .cloned()
+            .collect();
+        for h in abandoned {
+            let received = std::fs::metadata(self.partial_path(&h)).map_or(0, |m| m.len());
+            let _ = std::fs::remove_file(self.partial_path(&h));
+            let _ = std::fs::remove_file(self.dir.join("partial").join(format!("{h}.size")));
+            pending.remove(&h);
+            out.uploads += 1;
+            out.bytes += received;
+        }
+        Ok(out)
     }
 
     /// The whole content of a complete file.
@@ -298,5 +418,99 @@ impl tessera_render::scene::assets::Assets for JobAssets<'_> {
             ));
         }
         self.store.read(hash).map_err(|e| e.to_string())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hash_of(data: &[u8]) -> String {
+        Sha256::digest(data)
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect()
+    }
+
+    fn upload(store: &AssetStore, data: &[u8]) -> String {
+        let hash = hash_of(data);
+        let held = store
+            .append(&hash, 0, data.len() as u64, data)
+            .expect("upload");
+        assert!(held.complete);
+        hash
+    }
+
+    const HOUR: Duration = Duration::from_secs(3600);
+
+    /// A file a stored scene names is kept however old, and its use restarts its retention;
+    /// a file none names is kept for the retention and deleted after it; so is an upload
+    /// left unfinished.
+    #[test]
+    fn collection_keeps_what_jobs_use_and_what_is_young() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let store = AssetStore::open(dir.path(), 1 << 20, 1 << 20).expect("open");
+        let used = upload(&store, b"used by a job");
+        let unused = upload(&store, b"named by nothing");
+        let partial = hash_of(b"half of a file");
+        store.append(&partial, 0, 14, b"half o").expect("part");
+        let keep = BTreeSet::from([used.clone()]);
+        let now = SystemTime::now();
+        // Within the retention: nothing goes.
+        let c = store.collect(&keep, HOUR, now).expect("collect");
+        assert_eq!(c, Collected::default());
+        // Two hours on: the unused file and the unfinished upload go.
+        let later = now + 2 * HOUR;
+        let c = store.collect(&keep, HOUR, later).expect("collect");
+        assert_eq!((c.files, c.uploads), (1, 1), "{c:?}");
+        assert_eq!(c.bytes, 16 + 6);
+        assert!(store.status(&used).expect("status").complete);
+        let gone = store.status(&unused).expect("status");
+        assert_eq!((gone.received, gone.complete), (0, false));
+        assert_eq!(store.status(&partial).expect("status").received, 0);
+        assert_eq!(store.used_bytes().expect("used"), 13);
+        // The job ends: the file was last used at `later`, so it stays an hour more.
+        let none = BTreeSet::new();
+        let c = store
+            .collect(&none, HOUR, later + HOUR / 2)
+            .expect("collect");
+        assert_eq!(c, Collected::default());
+        let c = store
+            .collect(&none, HOUR, later + 2 * HOUR)
+            .expect("collect");
+        assert_eq!(c.files, 1);
+        assert!(!store.status(&used).expect("status").complete);
+        // An upload started again after its partial was dropped resumes from nothing.
+        store.append(&partial, 0, 14, b"half o").expect("again");
+    }
+
+    /// An upload that would pass the store's budget is refused with a message naming the
+    /// budget and the flag; unfinished uploads count at their declared size.
+    #[test]
+    fn the_budget_refuses_uploads_and_counts_unfinished_ones() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let store = AssetStore::open(dir.path(), 100, 100).expect("open");
+        upload(&store, &[7u8; 60]);
+        let big = [8u8; 50];
+        let e = store
+            .append(&hash_of(&big), 0, 50, &big)
+            .expect_err("over budget");
+        let msg = e.to_string();
+        assert!(matches!(e, AssetError::Limit(_)), "{msg}");
+        assert!(
+            msg.contains("budget of 100") && msg.contains("--asset-store-bytes"),
+            "{msg}"
+        );
+        // 30 declared bytes reserve their space: another 20 fits, 11 more would not.
+        let a = [1u8; 30];
+        store.append(&hash_of(&a), 0, 30, &a[..5]).expect("start");
+        store
+            .append(&hash_of(&[2u8; 10]), 0, 10, &[2u8; 10])
+            .expect("fits");
+        let b = [3u8; 11];
+        assert!(store.append(&hash_of(&b), 0, 11, &b).is_err());
+        // Finishing the reserved upload takes no more room than it declared.
+        store.append(&hash_of(&a), 5, 30, &a[5..]).expect("finish");
+        assert_eq!(store.used_bytes().expect("used"), 100);
     }
 }

@@ -43,6 +43,12 @@ pub struct Config {
     /// A connection that sends nothing (not even an answer to a keepalive ping) for this long
     /// is closed.
     pub idle_connection: Duration,
+    /// Most bytes the asset store holds (complete files and unfinished uploads' declared
+    /// sizes); an upload that would pass it is refused.
+    pub asset_store_bytes: u64,
+    /// How long an asset file is kept after the last active job naming it ended (or after its
+    /// upload, if no job has named it).
+    pub asset_retention: Duration,
 }
 
 /// How long a lease lasts without a heartbeat, unless configured.
@@ -56,6 +62,13 @@ pub const DEFAULT_QUARANTINE_AFTER: u64 = 5;
 
 /// Most leases one worker registration may hold, unless configured.
 pub const DEFAULT_MAX_LEASES_PER_WORKER: usize = 8;
+
+/// Most bytes the asset store holds, unless configured.
+pub const DEFAULT_ASSET_STORE_BYTES: u64 = 64 << 30;
+
+/// How long an asset no active job uses is kept, unless configured: a day, so that the next
+/// day's jobs of a shot find yesterday's meshes without uploading them again.
+pub const DEFAULT_ASSET_RETENTION: Duration = Duration::from_secs(24 * 3600);
 
 /// Most client connections open at once, unless configured.
 pub const DEFAULT_MAX_CONNECTIONS: usize = 1024;
@@ -101,6 +114,8 @@ impl Config {
             audit: 0.0,
             max_connections: DEFAULT_MAX_CONNECTIONS,
             idle_connection: Duration::from_secs(60),
+            asset_store_bytes: DEFAULT_ASSET_STORE_BYTES,
+            asset_retention: DEFAULT_ASSET_RETENTION,
         }
     }
 

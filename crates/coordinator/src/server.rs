@@ -59,6 +59,7 @@ pub async fn serve_when_ready(
     } = listeners.into();
     let max_msg = config.max_message_bytes;
     let lease_timeout = config.lease_timeout;
+    let retention = config.asset_retention;
     let auth = AuthCheck::new(config.token.as_ref());
     let mut builder = tonic::transport::Server::builder()
         // A connection that sends nothing is closed rather than kept for ever, and one
@@ -104,6 +105,25 @@ pub async fn serve_when_ready(
             }
         })
     };
+    // Asset files no active job uses are deleted once their retention has passed, checked a
+    // few times per retention period and at least once a minute.
+    let collector = {
+        let shared = Arc::downgrade(&shared);
+        let period = (retention / 4).clamp(Duration::from_secs(1), Duration::from_secs(60));
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(period);
+            loop {
+                tick.tick().await;
+                let Some(shared) = shared.upgrade() else {
+                    return;
+                };
+                let r = tokio::task::spawn_blocking(move || shared.collect_assets()).await;
+                if let Ok(Err(e)) = r {
+                    tracing::warn!("asset collection: {e}");
+                }
+            }
+        })
+    };
     let svc = Service::new(shared.clone());
     let incoming = conn::Limited::new(listener, max_connections, idle);
     // One shutdown for both servers: the caller's, or the gRPC server's failure.
@@ -145,6 +165,7 @@ pub async fn serve_when_ready(
         None => Ok(()),
     };
     ticker.abort();
+    collector.abort();
     drop(shared);
     // The writer ends when the last sender (inside Shared) is gone; give stragglers (watch
     // streams finishing their last message) a moment, then stop waiting.
@@ -270,6 +291,17 @@ impl InProcess {
         {
             self.service.shared.bump_work();
         }
+    }
+
+    /// The asset store.
+    pub fn assets(&self) -> &crate::assets::AssetStore {
+        &self.service.shared.assets
+    }
+
+    /// Runs the asset collection the server runs periodically: `None` when a submission held
+    /// it off.
+    pub fn collect_assets(&self) -> Result<Option<crate::assets::Collected>, CoordinatorError> {
+        self.service.shared.collect_assets()
     }
 
     /// Stops, once every queued write is durable and the store is closed.

@@ -382,6 +382,8 @@ impl Jobs for Service {
             .map_err(|_| Status::unavailable("the coordinator is shutting down"))?;
         let text = req.scene_text;
         let names = asset_names(&req.assets, limits.max_assets)?;
+        // Until the job is durable (and its scene names its files), they are not collected.
+        let _assets_held = self.shared.asset_gate.read().await;
         let missing: Vec<String> = names
             .iter()
             .filter(|(_, hash)| !self.shared.assets.status(hash).is_ok_and(|h| h.complete))

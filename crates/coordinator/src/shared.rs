@@ -8,7 +8,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 use tokio::sync::{mpsc, oneshot, watch};
 use tracing::{error, info};
 
-use crate::assets::AssetStore;
+use crate::assets::{AssetStore, Collected};
 use crate::config::Config;
 use crate::error::CoordinatorError;
 use crate::metrics::Metrics;
@@ -36,6 +36,10 @@ pub(crate) struct Shared {
     pub(crate) config: Config,
     /// Timings recorded outside the scheduler's lock (the writer holds it too).
     pub(crate) metrics: Arc<Metrics>,
+    /// Held (shared) by each submission from its check that the scene's files are uploaded
+    /// until its job is durable, and (alone) by the asset collection, which could otherwise
+    /// delete a file between a submission's check and its job's admission.
+    pub(crate) asset_gate: tokio::sync::RwLock<()>,
 }
 
 /// The shared state, the writer's queue, and jobs whose units were all in at the last stop.
@@ -53,6 +57,7 @@ impl Shared {
         let assets = Arc::new(AssetStore::open(
             &config.data_dir,
             config.limits.max_asset_bytes,
+            config.asset_store_bytes,
         )?);
         let epoch = store.next_epoch()?;
         let mut scheduler = Scheduler::new(epoch, config.lease_timeout);
@@ -95,6 +100,7 @@ impl Shared {
             work: watch::channel(0).0,
             config,
             metrics: Arc::default(),
+            asset_gate: tokio::sync::RwLock::new(()),
         });
         Ok((shared, rx, to_finish))
     }
@@ -179,5 +185,32 @@ pub(crate) async fn writer(
         for w in waiters {
             let _ = w.send(result.clone());
         }
+    }
+}
+
+impl Shared {
+    /// Deletes the asset files that no stored scene names (the stored scenes are the active
+    /// jobs') and that have not been used for `config.asset_retention`. `None` when a
+    /// submission is in progress: the next collection gets them. Blocking (disk and store).
+    pub(crate) fn collect_assets(&self) -> Result<Option<Collected>, CoordinatorError> {
+        let Ok(_gate) = self.asset_gate.try_write() else {
+            return Ok(None);
+        };
+        let mut keep = std::collections::BTreeSet::new();
+        for hash in self.store.scene_hashes()? {
+            if let Some(scene) = self.store.scene(&hash)? {
+                keep.extend(scene.assets.into_iter().map(|(_, sha)| sha));
+            }
+        }
+        let done = self
+            .assets
+            .collect(&keep, self.config.asset_retention, SystemTime::now())?;
+        if done != Collected::default() {
+            info!(
+                "asset store: deleted {} file(s) and {} unfinished upload(s) no active job uses ({} bytes)",
+                done.files, done.uploads, done.bytes
+            );
+        }
+        Ok(Some(done))
     }
 }

@@ -62,6 +62,9 @@ pub struct Config {
     /// Where the files scenes name (meshes) are kept by hash, so that each is fetched once;
     /// shared safely by workers on one machine.
     pub cache_dir: PathBuf,
+    /// Most bytes the cache keeps: after each new file, the least recently used others are
+    /// deleted until it fits (a file a scene needs is fetched again if it was deleted).
+    pub cache_bytes: u64,
 }
 
 impl Config {
@@ -76,8 +79,50 @@ impl Config {
             shutdown_grace: Duration::from_secs(30),
             client: ClientOptions::default(),
             cache_dir: std::env::temp_dir().join("tessera-assets"),
+            cache_bytes: DEFAULT_CACHE_BYTES,
         }
     }
+}
+
+/// Most bytes the asset cache keeps, unless configured.
+pub const DEFAULT_CACHE_BYTES: u64 = 16 << 30;
+
+/// Deletes the least recently used (oldest modification time) cached files in `dir`, other
+/// than `keep`, until the files named by a hash hold at most `budget` bytes; returns how many
+/// files and bytes went. Other files (another worker's download in progress) are left alone.
+/// Ties in time go by name, so the order does not depend on the directory's.
+pub fn evict(dir: &std::path::Path, budget: u64, keep: &str) -> std::io::Result<(usize, u64)> {
+    let mut files = Vec::new();
+    for e in std::fs::read_dir(dir)?.flatten() {
+        let name = e.file_name().to_string_lossy().to_string();
+        if !tessera_proto::ids::is_sha256(&name) {
+            continue;
+        }
+        if let Ok(m) = e.metadata() {
+            let used = m.modified().unwrap_or(std::time::UNIX_EPOCH);
+            files.push((name != keep, used, name, m.len()));
+        }
+    }
+    let mut total: u64 = files.iter().map(|f| f.3).sum();
+    // `keep` sorts last (false < true, reversed): it is never deleted.
+    files.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+    let (mut n, mut freed) = (0, 0);
+    for (evictable, _, name, len) in files {
+        if total <= budget || !evictable {
+            break;
+        }
+        match std::fs::remove_file(dir.join(&name)) {
+            Ok(()) => {
+                n += 1;
+                freed += len;
+            }
+            // Another worker on this machine evicted it first.
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(e),
+        }
+        total -= len;
+    }
+    Ok((n, freed))
 }
 
 /// Why the worker stopped.
@@ -318,6 +363,10 @@ impl Ctx {
         let cached = tokio::task::spawn_blocking(move || {
             let bytes = std::fs::read(&p).ok()?;
             if sha256_hex(&bytes) == h {
+                // Used now: the eviction deletes the least recently used first.
+                if let Ok(f) = std::fs::OpenOptions::new().write(true).open(&p) {
+                    let _ = f.set_modified(std::time::SystemTime::now());
+                }
                 Some(bytes)
             } else {
                 warn!("cached {} is damaged; fetching it again", p.display());
@@ -351,12 +400,16 @@ impl Ctx {
                 .cache_dir
                 .join(format!(".{hash}.{}.{}", std::process::id(), self.id()));
         let dir = self.config.cache_dir.clone();
+        let budget = self.config.cache_bytes;
+        let keep = hash.to_string();
         let (bytes, saved) = tokio::task::spawn_blocking(move || {
             let r = std::fs::create_dir_all(&dir)
                 .and_then(|()| std::fs::write(&tmp, &bytes))
                 .and_then(|()| std::fs::rename(&tmp, &path));
             if r.is_err() {
                 let _ = std::fs::remove_file(&tmp);
+            } else if let Err(e) = evict(&dir, budget, &keep) {
+                warn!("evicting from the cache {}: {e}", dir.display());
             }
             (bytes, r)
         })
@@ -878,6 +931,43 @@ pub async fn run(
 mod tests {
     use super::*;
     use tessera_render::Strategy;
+
+    /// The cache deletes its least recently used files until it fits its budget, never the
+    /// file just cached, and leaves files not named by a hash (downloads in progress) alone.
+    #[test]
+    fn the_cache_evicts_the_least_recently_used_first() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let t0 = std::time::SystemTime::now();
+        let put = |byte: u8, len: usize, age_s: u64| {
+            let data = vec![byte; len];
+            let hash = sha256_hex(&data);
+            let path = dir.path().join(&hash);
+            std::fs::write(&path, &data).expect("write");
+            let f = std::fs::OpenOptions::new()
+                .write(true)
+                .open(&path)
+                .expect("open");
+            f.set_modified(t0 - Duration::from_secs(age_s))
+                .expect("time");
+            hash
+        };
+        let oldest = put(1, 40, 300);
+        let middle = put(2, 40, 200);
+        let newest = put(3, 40, 100);
+        // The file just cached, though the oldest of all, stays.
+        let just = put(4, 40, 400);
+        std::fs::write(dir.path().join(".partial.1.2"), [0u8; 500]).expect("tmp file");
+        let (n, bytes) = evict(dir.path(), 100, &just).expect("evict");
+        assert_eq!((n, bytes), (2, 80));
+        let here = |h: &str| dir.path().join(h).exists();
+        assert!(!here(&oldest) && !here(&middle));
+        assert!(here(&newest) && here(&just));
+        assert!(dir.path().join(".partial.1.2").exists());
+        // Within the budget: nothing goes; over it with only the new file: it stays.
+        assert_eq!(evict(dir.path(), 100, &just).expect("evict"), (0, 0));
+        assert_eq!(evict(dir.path(), 10, &just).expect("evict"), (1, 40));
+        assert!(here(&just) && !here(&newest));
+    }
 
     fn scene() -> Scene {
         let text = include_str!("../../../scenes/cornell-box.toml")

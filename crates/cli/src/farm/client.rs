@@ -512,9 +512,12 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
     runtime()?.block_on(async {
         let mut client = connect(&args.url).await?;
         let mut assets = Vec::with_capacity(files.len());
-        for (name, hash, path) in files {
-            upload(&mut client, &url, &name, &hash, &path).await?;
-            assets.push(pb::AssetRef { name, sha256: hash });
+        for (name, hash, path) in &files {
+            upload(&mut client, &url, name, hash, path).await?;
+            assets.push(pb::AssetRef {
+                name: name.clone(),
+                sha256: hash.clone(),
+            });
         }
         let req = pb::SubmitJobRequest {
             assets,
@@ -539,11 +542,26 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
                 step: r.step,
             }),
         };
-        let resp = client
-            .submit_job(req)
-            .await
-            .map_err(|e| rpc_error(&url, "submit refused", e))?
-            .into_inner();
+        // The coordinator deletes files no active job has used for a while; one it held when
+        // `upload` asked may be gone by the submission. Uploading again and resubmitting
+        // settles that (twice at most: a file deleted every time is a misconfigured farm).
+        let mut tries = 0;
+        let resp = loop {
+            match client.submit_job(req.clone()).await {
+                Err(e)
+                    if e.code() == tonic::Code::FailedPrecondition
+                        && e.message().starts_with("not uploaded")
+                        && tries < 2 =>
+                {
+                    tries += 1;
+                    errln!("the coordinator no longer holds a file ({}); uploading again", e.message());
+                    for (name, hash, path) in &files {
+                        upload(&mut client, &url, name, hash, path).await?;
+                    }
+                }
+                r => break r.map_err(|e| rpc_error(&url, "submit refused", e))?.into_inner(),
+            }
+        };
         if !args.wait {
             outln!("{}", resp.job_id);
             return Ok(());

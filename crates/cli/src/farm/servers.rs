@@ -38,6 +38,14 @@ pub struct CoordinatorArgs {
     /// Largest file (a mesh) a scene may name, in bytes.
     #[arg(long, default_value_t = Limits::default().max_asset_bytes)]
     max_asset_bytes: u64,
+    /// Most bytes the asset store (the files scenes name, under DATA_DIR/assets) may hold; an
+    /// upload that would pass it is refused.
+    #[arg(long, default_value_t = config::DEFAULT_ASSET_STORE_BYTES)]
+    asset_store_bytes: u64,
+    /// Seconds an uploaded file is kept after the last active job naming it ended (or after
+    /// its upload, if no job names it); then it is deleted.
+    #[arg(long, default_value_t = config::DEFAULT_ASSET_RETENTION.as_secs_f64())]
+    asset_retention: f64,
     /// Largest spp accepted.
     #[arg(long, default_value_t = Limits::default().max_spp)]
     max_spp: u32,
@@ -93,6 +101,9 @@ pub struct WorkerArgs {
     /// (default: tessera-assets in the system's temporary directory).
     #[arg(long, env = "TESSERA_CACHE_DIR")]
     cache_dir: Option<std::path::PathBuf>,
+    /// Most bytes the cache keeps; the least recently used files go first.
+    #[arg(long, env = "TESSERA_CACHE_BYTES", default_value_t = tessera_worker::DEFAULT_CACHE_BYTES)]
+    cache_bytes: u64,
 }
 
 /// Runs `tessera coordinator`.
@@ -101,6 +112,12 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
         bail!(
             "--lease-timeout must be between 0.1 and 86400 seconds, got {}",
             args.lease_timeout
+        );
+    }
+    if !(args.asset_retention.is_finite() && (0.0..=1e9).contains(&args.asset_retention)) {
+        bail!(
+            "--asset-retention must be between 0 and 1e9 seconds, got {}",
+            args.asset_retention
         );
     }
     if !(args.audit.is_finite() && (0.0..=1.0).contains(&args.audit)) {
@@ -118,6 +135,8 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
     config.limits.max_bytes = args.max_scene_bytes;
     config.limits.max_spp = args.max_spp;
     config.limits.max_asset_bytes = args.max_asset_bytes;
+    config.asset_store_bytes = args.asset_store_bytes;
+    config.asset_retention = Duration::from_secs_f64(args.asset_retention);
     config.limits.max_resolution = args.max_resolution;
     config.max_message_bytes = config
         .max_message_bytes
@@ -189,6 +208,7 @@ pub fn worker(args: WorkerArgs) -> Result<()> {
     let mut config = tessera_worker::Config::new(args.url.coordinator);
     config.client = options;
     config.threads = args.threads.map(|t| t as usize);
+    config.cache_bytes = args.cache_bytes;
     if let Some(dir) = args.cache_dir {
         config.cache_dir = dir;
     }
