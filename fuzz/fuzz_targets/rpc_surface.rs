@@ -2,10 +2,13 @@
 //! real service handlers and its redb store (`InProcess`: everything `serve` runs but the
 //! network): Register, Lease, Heartbeat, SubmitResult (honest, forged, under another worker's
 //! lease or id), ReleaseLeases (with and without `cannot_render`), GetScene, SubmitJob
-//! (one frame or frame ranges, good and bad), CancelJob, GetJob, ListWorkers, ListJobs.
+//! (one frame or frame ranges, good and bad), CancelJob, GetJob, ListWorkers, ListJobs;
+//! asset chunks (in order or not, with the declared size right or wrong), GetAssetStatus,
+//! FetchAsset, and the asset collection (with a retention of zero, so it deletes).
 //!
 //! Checks: no call panics; no result under another worker's lease or a forged id is merged;
-//! no worker holds more than its share; every status is finite. At the end the coordinator is
+//! no worker holds more than its share; every status is finite; a file said to be complete
+//! is fetched whole, its bytes hashing to its name. At the end the coordinator is
 //! closed and opened again on the same store, which must load; and if the main job finished
 //! from honest results only, its EXR must be the bytes `tessera render` writes.
 //! Inputs of odd length run the coordinator with `--audit 0.5`.
@@ -19,11 +22,16 @@ use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_server::Jobs;
 use tessera_proto::v1::workers_server::Workers;
 use tessera_render::output::{render_metadata, write_exr, ExrChannels};
+use tessera_render::scene::assets::sha256_hex;
 use tessera_render::scene::{Format, Limits, Scene};
+use tokio_stream::StreamExt;
 use tessera_render::{render_frame, render_tile, PixelRect, RenderSettings, IMAGE_REVISION};
 use tonic::Request;
 
 const SPP: u32 = 6;
+
+/// The files the asset operations upload.
+const FILES: [&[u8]; 2] = [b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", b"another file"];
 const BATCH: u32 = 2;
 
 fn scene_text() -> &'static str {
@@ -136,6 +144,7 @@ fuzz_target!(|data: &[u8]| {
         .expect("tmp");
     let mut config = Config::new(dir.path());
     config.max_leases_per_worker = 3;
+    config.asset_retention = std::time::Duration::ZERO;
     // Inputs of odd length run with audits: half the accepted results are held for a second
     // copy, and the audited job keeps every unit's result in the store, which must reopen.
     if data.len() % 2 == 1 {
@@ -156,7 +165,7 @@ fuzz_target!(|data: &[u8]| {
         let mut bytes = data.iter().copied();
         while let (Some(op), Some(arg)) = (bytes.next(), bytes.next()) {
             let pick = |n: usize| arg as usize % n.max(1);
-            match op % 12 {
+            match op % 14 {
                 0 if fakes.len() < 4 => {
                     let name: String = (0..(arg % 8)).map(|i| char::from(b'a' + i)).collect();
                     let r = svc
@@ -206,7 +215,7 @@ fuzz_target!(|data: &[u8]| {
                     // An honest result (3), a forged one (4), or one sent under another
                     // worker's lease or a forged id (5).
                     let f = pick(fakes.len());
-                    let owner = if op % 12 == 5 {
+                    let owner = if op % 14 == 5 {
                         (f + 1) % fakes.len()
                     } else {
                         f
@@ -214,7 +223,7 @@ fuzz_target!(|data: &[u8]| {
                     let Some(unit) = fakes[owner].units.first().cloned() else {
                         continue;
                     };
-                    let worker_id = match (op % 12, arg % 3) {
+                    let worker_id = match (op % 14, arg % 3) {
                         (5, 0) => fakes[owner]
                             .id
                             .split('.')
@@ -228,7 +237,7 @@ fuzz_target!(|data: &[u8]| {
                         ),
                         _ => fakes[f].id.clone(),
                     };
-                    let result = if op % 12 == 4 {
+                    let result = if op % 14 == 4 {
                         forged(&unit, arg)
                     } else {
                         honest(&unit)
@@ -243,11 +252,11 @@ fuzz_target!(|data: &[u8]| {
                             result: Some(result),
                         }))
                         .await;
-                    if op % 12 == 4 || (op % 12 == 5 && owner != f) || (op % 12 == 5 && arg % 3 < 2)
+                    if op % 14 == 4 || (op % 14 == 5 && owner != f) || (op % 14 == 5 && arg % 3 < 2)
                     {
                         assert!(!merged(&r), "op {op} arg {arg}: merged {r:?}");
                     }
-                    if op % 12 == 3 {
+                    if op % 14 == 3 {
                         fakes[f].units.remove(0);
                     }
                 }
@@ -341,6 +350,52 @@ fuzz_target!(|data: &[u8]| {
                         .list_jobs(Request::new(pb::ListJobsRequest {}))
                         .await
                         .expect("list jobs");
+                }
+                12 => {
+                    let file = FILES[usize::from(arg % 2)];
+                    let hash = sha256_hex(file);
+                    let held = farm.assets().status(&hash).map_or(0, |h| h.received);
+                    let len = file.len() as u64;
+                    let (offset, total) = match arg / 2 % 4 {
+                        0 | 1 => (held, len),
+                        2 => (held + 1, len),
+                        _ => (held, len + u64::from(arg)),
+                    };
+                    let start = (offset as usize).min(file.len());
+                    let end = (start + 1 + usize::from(arg / 8)).min(file.len());
+                    let _ = farm.assets().append(&hash, offset, total, &file[start..end]);
+                }
+                13 if arg % 2 == 0 => {
+                    farm.collect_assets().expect("the collection runs");
+                }
+                13 => {
+                    for file in FILES {
+                        let hash = sha256_hex(file);
+                        let s = svc
+                            .get_asset_status(Request::new(pb::GetAssetStatusRequest {
+                                sha256: hash.clone(),
+                            }))
+                            .await
+                            .expect("status")
+                            .into_inner();
+                        assert!(s.received <= file.len() as u64, "{s:?}");
+                        if !s.complete {
+                            continue;
+                        }
+                        let mut stream = svc
+                            .fetch_asset(Request::new(pb::FetchAssetRequest {
+                                sha256: hash.clone(),
+                                offset: 0,
+                            }))
+                            .await
+                            .expect("a complete file is fetched")
+                            .into_inner();
+                        let mut bytes = Vec::new();
+                        while let Some(chunk) = stream.next().await {
+                            bytes.extend(chunk.expect("a chunk").data);
+                        }
+                        assert_eq!(sha256_hex(&bytes), hash, "a complete file's bytes");
+                    }
                 }
                 _ => farm.expire(),
             }

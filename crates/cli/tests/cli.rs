@@ -204,6 +204,13 @@ fn bad_flags_and_paths_are_refused() {
             &["--audit must be a fraction between 0 and 1"],
         );
     }
+    for bad in ["-1", "NaN", "inf"] {
+        let bad = format!("--asset-retention={bad}");
+        assert_clean_failure(
+            &tessera(&["coordinator", "--data-dir", "/nonexistent-dir/d", &bad]),
+            &["--asset-retention must be between 0 and 1e9 seconds"],
+        );
+    }
 }
 
 #[test]
