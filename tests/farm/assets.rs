@@ -456,3 +456,45 @@ async fn files_no_active_job_names_are_collected() {
     assert!(e.message().contains("meshes/cube.obj"), "{}", e.message());
     farm.close().await;
 }
+
+/// Over gRPC, an upload that would pass the store's byte budget is refused
+/// (`RESOURCE_EXHAUSTED`), naming the budget and the flag, and leaves nothing behind; files
+/// within it are taken.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_asset_store_budget_refuses_what_would_pass_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cube = cube_obj();
+    let budget = cube.len() as u64 + 10;
+    let coord = Coordinator::start_with(&dir.path().join("data"), Duration::from_secs(30), |c| {
+        c.asset_store_bytes = budget
+    })
+    .await;
+    let mut client = coord.client().await;
+    let hash = sha256_hex(&cube);
+    let total = cube.len() as u64;
+    let s = upload(&mut client, vec![chunk(&hash, 0, total, &cube)])
+        .await
+        .expect("within the budget");
+    assert!(s.complete);
+    let other = vec![b'#'; 11];
+    let other_hash = sha256_hex(&other);
+    let e = upload(&mut client, vec![chunk(&other_hash, 0, 11, &other)])
+        .await
+        .expect_err("over the budget");
+    assert_eq!(e.code(), tonic::Code::ResourceExhausted, "{e:?}");
+    assert!(
+        e.message().contains(&format!("budget of {budget}"))
+            && e.message().contains("--asset-store-bytes"),
+        "{}",
+        e.message()
+    );
+    let s = status(&mut client, &other_hash).await;
+    assert_eq!((s.received, s.complete), (0, false));
+    // Ten bytes still fit.
+    let small = vec![b'#'; 10];
+    let s = upload(&mut client, vec![chunk(&sha256_hex(&small), 0, 10, &small)])
+        .await
+        .expect("the last ten bytes");
+    assert!(s.complete);
+    coord.stop().await;
+}
