@@ -131,6 +131,31 @@ impl Shared {
         }
         rx
     }
+
+    /// Deletes the asset files that no stored scene names (the stored scenes are the active
+    /// jobs') and that have not been used for `config.asset_retention`. `None` when a
+    /// submission is in progress: the next collection gets them. Blocking (disk and store).
+    pub(crate) fn collect_assets(&self) -> Result<Option<Collected>, CoordinatorError> {
+        let Ok(_gate) = self.asset_gate.try_write() else {
+            return Ok(None);
+        };
+        let mut keep = std::collections::BTreeSet::new();
+        for hash in self.store.scene_hashes()? {
+            if let Some(scene) = self.store.scene(&hash)? {
+                keep.extend(scene.assets.into_iter().map(|(_, sha)| sha));
+            }
+        }
+        let done = self
+            .assets
+            .collect(&keep, self.config.asset_retention, SystemTime::now())?;
+        if done != Collected::default() {
+            info!(
+                "asset store: deleted {} file(s) and {} unfinished upload(s) no active job uses ({} bytes)",
+                done.files, done.uploads, done.bytes
+            );
+        }
+        Ok(Some(done))
+    }
 }
 
 /// Waits for a queued write to be durable.
@@ -185,32 +210,5 @@ pub(crate) async fn writer(
         for w in waiters {
             let _ = w.send(result.clone());
         }
-    }
-}
-
-impl Shared {
-    /// Deletes the asset files that no stored scene names (the stored scenes are the active
-    /// jobs') and that have not been used for `config.asset_retention`. `None` when a
-    /// submission is in progress: the next collection gets them. Blocking (disk and store).
-    pub(crate) fn collect_assets(&self) -> Result<Option<Collected>, CoordinatorError> {
-        let Ok(_gate) = self.asset_gate.try_write() else {
-            return Ok(None);
-        };
-        let mut keep = std::collections::BTreeSet::new();
-        for hash in self.store.scene_hashes()? {
-            if let Some(scene) = self.store.scene(&hash)? {
-                keep.extend(scene.assets.into_iter().map(|(_, sha)| sha));
-            }
-        }
-        let done = self
-            .assets
-            .collect(&keep, self.config.asset_retention, SystemTime::now())?;
-        if done != Collected::default() {
-            info!(
-                "asset store: deleted {} file(s) and {} unfinished upload(s) no active job uses ({} bytes)",
-                done.files, done.uploads, done.bytes
-            );
-        }
-        Ok(Some(done))
     }
 }
