@@ -6,11 +6,13 @@
 //! bytes held, and a client that sends the wrong bytes wastes only its own upload.
 //!
 //! Writes are serialised by one lock: uploads are rare and large, and a lock per hash would
-//! buy nothing but code. The store has a budget of bytes (complete files plus the declared
-//! sizes of unfinished uploads), and [`AssetStore::collect`] deletes what no active job has
-//! used for the retention time, so a long-running farm's disk does not fill with last month's
-//! meshes, and a client cannot fill it with files no job names. Files are plain files rather than database values, as the EXRs are:
+//! buy nothing but code. Files are plain files rather than database values, as the EXRs are:
 //! they can be gigabytes, and redb would copy them through its pages.
+//!
+//! The store has a budget of bytes (complete files plus the declared sizes of unfinished
+//! uploads), and [`AssetStore::collect`] deletes what no active job has used for the retention
+//! time, so a long-running farm's disk does not fill with last month's meshes, and a client
+//! cannot fill it with files no job names.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::fs::{File, OpenOptions};
@@ -140,6 +142,11 @@ impl AssetStore {
         self.dir.join("partial").join(hash)
     }
 
+    /// Where an unfinished upload's declared size is kept (it survives a restart).
+    fn size_path(&self, hash: &str) -> PathBuf {
+        self.dir.join("partial").join(format!("{hash}.size"))
+    }
+
     fn pending(&self) -> std::sync::MutexGuard<'_, BTreeMap<String, u64>> {
         self.pending.lock().unwrap_or_else(|e| e.into_inner())
     }
@@ -217,12 +224,7 @@ impl AssetStore {
                 }
                 // An upload reserves its whole declared size when it starts, so that uploads
                 // in parallel cannot together pass the budget.
-                let others: u64 = pending
-                    .iter()
-                    .filter(|(h, _)| h.as_str() != hash)
-                    .map(|(_, &size)| size)
-                    .sum();
-                let used = self.complete_bytes()?.saturating_add(others);
+                let used = self.held_bytes(&pending, Some(hash))?;
                 if used.saturating_add(total) > self.budget {
                     return Err(AssetError::Limit(format!(
                         "asset {hash} is {total} bytes, and the asset store holds {used} of its \
@@ -231,7 +233,7 @@ impl AssetStore {
                         self.budget
                     )));
                 }
-                let size = self.dir.join("partial").join(format!("{hash}.size"));
+                let size = self.size_path(hash);
                 std::fs::write(&size, total.to_string()).map_err(io(&size))?;
                 pending.insert(hash.to_string(), total);
             }
@@ -253,7 +255,7 @@ impl AssetStore {
         f.sync_all().map_err(io(&path))?;
         drop(f);
         let actual = hash_file(&path)?;
-        let size = self.dir.join("partial").join(format!("{hash}.size"));
+        let size = self.size_path(hash);
         pending.remove(hash);
         if actual != hash {
             let _ = std::fs::remove_file(&path);
@@ -291,18 +293,26 @@ impl AssetStore {
         Ok(out)
     }
 
-    /// Bytes of the complete files.
-    fn complete_bytes(&self) -> Result<u64, AssetError> {
-        Ok(self.complete_files()?.iter().map(|(_, _, m)| m.len()).sum())
+    /// The bytes of the complete files plus the declared sizes of the unfinished uploads in
+    /// `pending`, but for `except`'s.
+    fn held_bytes(
+        &self,
+        pending: &BTreeMap<String, u64>,
+        except: Option<&str>,
+    ) -> Result<u64, AssetError> {
+        let complete: u64 = self.complete_files()?.iter().map(|(_, _, m)| m.len()).sum();
+        let reserved: u64 = pending
+            .iter()
+            .filter(|(h, _)| Some(h.as_str()) != except)
+            .map(|(_, &size)| size)
+            .sum();
+        Ok(complete.saturating_add(reserved))
     }
 
     /// Bytes held: the complete files, plus the declared sizes of unfinished uploads (which
     /// they reserve).
     pub fn used_bytes(&self) -> Result<u64, AssetError> {
-        let pending = self.pending();
-        Ok(self
-            .complete_bytes()?
-            .saturating_add(pending.values().sum::<u64>()))
+        self.held_bytes(&self.pending(), None)
     }
 
     /// Deletes the files, complete or not, that are not in `keep` and have not been used for
@@ -344,7 +354,7 @@ impl AssetStore {
             .filter(|h| {
                 // An upload that has written nothing yet is judged by its size file.
                 let data = std::fs::metadata(self.partial_path(h));
-                let size = std::fs::metadata(self.dir.join("partial").join(format!("{h}.size")));
+                let size = std::fs::metadata(self.size_path(h));
                 data.or(size).is_ok_and(|m| stale(&m))
             })
             .cloned()
@@ -352,7 +362,7 @@ impl AssetStore {
         for h in abandoned {
             let received = std::fs::metadata(self.partial_path(&h)).map_or(0, |m| m.len());
             let _ = std::fs::remove_file(self.partial_path(&h));
-            let _ = std::fs::remove_file(self.dir.join("partial").join(format!("{h}.size")));
+            let _ = std::fs::remove_file(self.size_path(&h));
             pending.remove(&h);
             out.uploads += 1;
             out.bytes += received;

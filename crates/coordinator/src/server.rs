@@ -88,42 +88,27 @@ pub async fn serve_when_ready(
     }
     // Lapsed leases are noticed here as well as on each lease call, so that a long-polling
     // worker wakes up for a unit whose holder died.
-    let ticker = {
-        let shared = Arc::downgrade(&shared);
-        let period = (lease_timeout / 8).clamp(Duration::from_millis(50), Duration::from_secs(1));
-        tokio::spawn(async move {
-            let mut tick = tokio::time::interval(period);
-            loop {
-                tick.tick().await;
-                let Some(shared) = shared.upgrade() else {
-                    return;
-                };
-                let any = shared.scheduler().expire(std::time::Instant::now());
-                if any {
-                    shared.bump_work();
-                }
+    let ticker = every(
+        &shared,
+        (lease_timeout / 8).clamp(Duration::from_millis(50), Duration::from_secs(1)),
+        |shared| async move {
+            if shared.scheduler().expire(std::time::Instant::now()) {
+                shared.bump_work();
             }
-        })
-    };
+        },
+    );
     // Asset files no active job uses are deleted once their retention has passed, checked a
     // few times per retention period and at least once a minute.
-    let collector = {
-        let shared = Arc::downgrade(&shared);
-        let period = (retention / 4).clamp(Duration::from_secs(1), Duration::from_secs(60));
-        tokio::spawn(async move {
-            let mut tick = tokio::time::interval(period);
-            loop {
-                tick.tick().await;
-                let Some(shared) = shared.upgrade() else {
-                    return;
-                };
-                let r = tokio::task::spawn_blocking(move || shared.collect_assets()).await;
-                if let Ok(Err(e)) = r {
-                    tracing::warn!("asset collection: {e}");
-                }
+    let collector = every(
+        &shared,
+        (retention / 4).clamp(Duration::from_secs(1), Duration::from_secs(60)),
+        |shared| async move {
+            let r = tokio::task::spawn_blocking(move || shared.collect_assets()).await;
+            if let Ok(Err(e)) = r {
+                tracing::warn!("asset collection: {e}");
             }
-        })
-    };
+        },
+    );
     let svc = Service::new(shared.clone());
     let incoming = conn::Limited::new(listener, max_connections, idle);
     // One shutdown for both servers: the caller's, or the gRPC server's failure.
@@ -248,6 +233,26 @@ impl Spawned {
             Err(e) => Err(CoordinatorError::Task(e.to_string())),
         }
     }
+}
+
+/// Runs `task` every `period` (the first time at once) until the shared state is gone; the
+/// task holds no reference to it between runs, so it never keeps the state alive.
+fn every<F, Fut>(shared: &Arc<Shared>, period: Duration, task: F) -> tokio::task::JoinHandle<()>
+where
+    F: Fn(Arc<Shared>) -> Fut + Send + 'static,
+    Fut: std::future::Future<Output = ()> + Send,
+{
+    let shared = Arc::downgrade(shared);
+    tokio::spawn(async move {
+        let mut tick = tokio::time::interval(period);
+        loop {
+            tick.tick().await;
+            let Some(shared) = shared.upgrade() else {
+                return;
+            };
+            task(shared).await;
+        }
+    })
 }
 
 /// Both services over a store, with no network, transport or auth in between: what

@@ -511,14 +511,13 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
     let url = args.url.coordinator.clone();
     runtime()?.block_on(async {
         let mut client = connect(&args.url).await?;
-        let mut assets = Vec::with_capacity(files.len());
-        for (name, hash, path) in &files {
-            upload(&mut client, &url, name, hash, path).await?;
-            assets.push(pb::AssetRef {
+        let assets = files
+            .iter()
+            .map(|(name, hash, _)| pb::AssetRef {
                 name: name.clone(),
                 sha256: hash.clone(),
-            });
-        }
+            })
+            .collect();
         let req = pb::SubmitJobRequest {
             assets,
             scene_text: text,
@@ -547,6 +546,9 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
         // settles that (twice at most: a file deleted every time is a misconfigured farm).
         let mut tries = 0;
         let resp = loop {
+            for (name, hash, path) in &files {
+                upload(&mut client, &url, name, hash, path).await?;
+            }
             match client.submit_job(req.clone()).await {
                 Err(e)
                     if e.code() == tonic::Code::FailedPrecondition
@@ -555,9 +557,6 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
                 {
                     tries += 1;
                     errln!("the coordinator no longer holds a file ({}); uploading again", e.message());
-                    for (name, hash, path) in &files {
-                        upload(&mut client, &url, name, hash, path).await?;
-                    }
                 }
                 r => break r.map_err(|e| rpc_error(&url, "submit refused", e))?.into_inner(),
             }
