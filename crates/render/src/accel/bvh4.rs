@@ -11,13 +11,14 @@ use glam::{Vec3A, Vec4};
 use crate::math::FAR_INFLATION;
 
 use super::bvh::{Bvh, NodeKind};
+use super::pages::PagedArray;
 
 /// Four children's boxes (structure of arrays: `b[2·axis]` the lows, `b[2·axis + 1]` the highs)
 /// and references: `count[i] == 0` makes `child[i]` a node index, else it is a leaf of
 /// `count[i]` items from `child[i]` on (what the items are is the caller's: see
 /// [`Bvh4::collapse`]). An empty slot has an empty box (+∞ low, −∞ high), which no ray hits.
 /// 128 bytes: two cache lines.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C, align(64))]
 struct Node4 {
     b: [Vec4; 6],
@@ -32,7 +33,7 @@ const STACK: usize = 192;
 /// The four-wide hierarchy. Node 0 is the root.
 #[derive(Clone, Debug, Default)]
 pub struct Bvh4 {
-    nodes: Vec<Node4>,
+    nodes: PagedArray<Node4>,
 }
 
 impl Bvh4 {
@@ -59,7 +60,7 @@ impl Bvh4 {
                 NodeKind::Interior(a, b) => range[a].start..range[b].end,
             };
         }
-        let mut out = Self { nodes: Vec::new() };
+        let mut nodes = Vec::new();
         let is_leaf =
             |i: usize| matches!(bvh.node(i).1, NodeKind::Leaf(_)) || range[i].len() <= merge_items;
         if is_leaf(0) {
@@ -67,16 +68,18 @@ impl Bvh4 {
             let (start, count) = leaf(range[0].clone());
             let mut root = Node4::EMPTY;
             root.set(0, bvh.node(0).0, start, count);
-            out.nodes.push(root);
+            nodes.push(root);
         } else {
-            out.build(bvh, 0, &range, &is_leaf, &mut leaf);
+            Self::build(&mut nodes, bvh, 0, &range, &is_leaf, &mut leaf);
         }
-        out
+        Self {
+            nodes: PagedArray::new(nodes),
+        }
     }
 
     /// Adds the wide node for binary interior node `i` (and its subtree); returns its index.
     fn build(
-        &mut self,
+        nodes: &mut Vec<Node4>,
         bvh: &Bvh,
         i: usize,
         range: &[std::ops::Range<usize>],
@@ -105,8 +108,8 @@ impl Bvh4 {
             children[k] = a;
             children.insert(k + 1, b);
         }
-        let index = self.nodes.len();
-        self.nodes.push(Node4::EMPTY);
+        let index = nodes.len();
+        nodes.push(Node4::EMPTY);
         for (slot, &c) in children.iter().enumerate() {
             let bounds = bvh.node(c).0;
             let (start, count) = if is_leaf(c) {
@@ -114,16 +117,16 @@ impl Bvh4 {
                 debug_assert!(count > 0);
                 (start, count)
             } else {
-                (self.build(bvh, c, range, is_leaf, leaf), 0)
+                (Self::build(nodes, bvh, c, range, is_leaf, leaf), 0)
             };
-            self.nodes[index].set(slot, bounds, start, count);
+            nodes[index].set(slot, bounds, start, count);
         }
         index as u32
     }
 
     /// Number of wide nodes (for tests and statistics).
     pub fn node_count(&self) -> usize {
-        self.nodes.len()
+        self.nodes.as_slice().len()
     }
 
     /// Visits the leaves the ray `o + t·d` (with `inv_d` = 1/d) may hit, nearest box first.
@@ -141,7 +144,8 @@ impl Bvh4 {
         mut t_max: f32,
         mut f: impl FnMut(u32, u32, f32) -> f32,
     ) {
-        if self.nodes.is_empty() {
+        let nodes = self.nodes.as_slice();
+        if nodes.is_empty() {
             return;
         }
         // The near plane of each axis is the low one where the direction is positive.
@@ -167,7 +171,7 @@ impl Bvh4 {
                     return;
                 }
             } else {
-                let n = &self.nodes[cur.child as usize];
+                let n = &nodes[cur.child as usize];
                 // Slab distances; 0·∞ (a ray in a box's plane, parallel to it) is NaN, and
                 // `max`/`min` (SSE's) give their second operand for it: that axis does not
                 // constrain the box, as the scalar test's guarded path decides too.

@@ -1,11 +1,14 @@
 //! The scene's ray queries, as pbrt's aggregates: a BVH over the bounded primitives
 //! ([`bvh`]), whose leaves hold quads four at a time in SIMD lanes ([`leaf`]), plus the
 //! unbounded primitives (planes) tested one by one. Closest-hit and any-hit queries for one ray,
-//! and the packet versions the many-path tracer asks for scenes of one leaf.
+//! and the packet versions the many-path tracer asks for scenes of one leaf. Meshes collapse
+//! their binary BVH into a four-wide one ([`bvh4`]), whose nodes, like a large mesh's
+//! triangles, live in huge pages where the system allows ([`pages`]).
 
 pub mod bvh;
 pub mod bvh4;
 pub mod leaf;
+pub mod pages;
 
 use bvh::Bvh;
 use leaf::Leaves;

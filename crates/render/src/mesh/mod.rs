@@ -15,6 +15,7 @@ use glam::{Vec2, Vec3A};
 
 use crate::accel::bvh::Bvh;
 use crate::accel::bvh4::Bvh4;
+use crate::accel::pages::PagedArray;
 use crate::math::{Aabb, Ray};
 use crate::shape::{SurfacePoint, Transformed};
 use triangle::{Tri4, WoopRay};
@@ -27,7 +28,7 @@ use triangle::{Tri4, WoopRay};
 pub struct TriMesh {
     /// The triangles, four to a group; a leaf starts a group, and a short group repeats its
     /// last triangle in the empty lanes (which can never be a closer hit than it).
-    groups: Vec<Tri4>,
+    groups: PagedArray<Tri4>,
     /// How many lanes of each group are triangles of their own (1 to 4).
     group_len: Vec<u8>,
     /// Vertex normals by slot (padding lanes repeat theirs); empty when the file has none.
@@ -83,7 +84,7 @@ impl TriMesh {
         Self {
             normals: by_slot(&slots, normals),
             uvs: by_slot(&slots, uvs),
-            groups,
+            groups: PagedArray::new(groups),
             group_len,
             len: tris.len(),
             bvh,
@@ -127,7 +128,7 @@ impl TriMesh {
     /// The vertex positions of the triangle in `slot`.
     #[inline]
     pub fn triangle(&self, slot: u32) -> [Vec3A; 3] {
-        self.groups[slot as usize / 4].lane(slot as usize % 4)
+        self.groups.as_slice()[slot as usize / 4].lane(slot as usize % 4)
     }
 
     /// Every triangle's vertex positions, each once, in leaf order.
@@ -140,12 +141,14 @@ impl TriMesh {
     pub fn intersect(&self, ray: &Ray, t_max: f32) -> Option<(f32, u32)> {
         let mut best = None;
         let r = WoopRay::new(ray.o, ray.d);
+        let groups = self.groups.as_slice();
         self.bvh
             .traverse(ray.o, ray.d.recip(), t_max, |start, count, mut t_max| {
-                for g in start as usize..(start + count) as usize {
-                    if let Some((t, lane)) = triangle::intersect4(&r, &self.groups[g], t_max) {
+                let start = start as usize;
+                for (i, group) in groups[start..start + count as usize].iter().enumerate() {
+                    if let Some((t, lane)) = triangle::intersect4(&r, group, t_max) {
                         t_max = t;
-                        best = Some((t, (g * 4 + lane) as u32));
+                        best = Some((t, ((start + i) * 4 + lane) as u32));
                     }
                 }
                 t_max
@@ -158,9 +161,10 @@ impl TriMesh {
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
         let mut hit = false;
         let r = WoopRay::new(ray.o, ray.d);
+        let all = self.groups.as_slice();
         self.bvh
             .traverse(ray.o, ray.d.recip(), t_max, |start, count, t| {
-                let groups = &self.groups[start as usize..(start + count) as usize];
+                let groups = &all[start as usize..(start + count) as usize];
                 if groups
                     .iter()
                     .any(|g| triangle::intersect4(&r, g, t).is_some())

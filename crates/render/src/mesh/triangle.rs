@@ -71,7 +71,8 @@ impl WoopRay {
 /// Four triangles in SIMD lanes: `v[vertex][axis]` holds that coordinate of each lane's
 /// vertex. A group of fewer triangles repeats its last one, which can never be the closest
 /// hit in its place (the test wants t strictly below the best so far).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub struct Tri4 {
     v: [[Vec4; 3]; 3],
 }
