@@ -2,11 +2,11 @@
 //! ([`bvh`]), whose leaves hold quads four at a time in SIMD lanes ([`leaf`]), plus the
 //! unbounded primitives (planes) tested one by one. Closest-hit and any-hit queries for one ray,
 //! and the packet versions the many-path tracer asks for scenes of one leaf. Meshes collapse
-//! their binary BVH into a four-wide one ([`bvh4`]), whose nodes, like a large mesh's
+//! their binary BVH into an eight-wide one ([`bvh8`]), whose nodes, like a large mesh's
 //! triangles, live in huge pages where the system allows ([`pages`]).
 
 pub mod bvh;
-pub mod bvh4;
+pub mod bvh8;
 pub mod leaf;
 pub mod pages;
 

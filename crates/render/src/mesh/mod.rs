@@ -14,7 +14,7 @@ use std::sync::Arc;
 use glam::{Vec2, Vec3A};
 
 use crate::accel::bvh::Bvh;
-use crate::accel::bvh4::Bvh4;
+use crate::accel::bvh8::Bvh8;
 use crate::accel::pages::PagedArray;
 use crate::math::{Aabb, Ray};
 use crate::shape::{SurfacePoint, Transformed};
@@ -36,7 +36,7 @@ pub struct TriMesh {
     /// Texture coordinates by slot; empty when the file has none.
     uvs: Vec<[Vec2; 3]>,
     len: usize,
-    bvh: Bvh4,
+    bvh: Bvh8,
     bounds: Aabb,
 }
 
@@ -62,7 +62,7 @@ impl TriMesh {
         // A binary subtree of up to 8 triangles becomes one leaf of two groups: fewer nodes to
         // fetch for a few more lanes tested, which measured faster than one group per leaf on
         // the million-triangle benchmark (docs/renderer.md).
-        let bvh = Bvh4::collapse(&binary, 8, |leaf| {
+        let bvh = Bvh8::collapse(&binary, 8, |leaf| {
             let start = groups.len() as u32;
             for chunk in leaf.clone().step_by(4) {
                 let end = (chunk + 4).min(leaf.end);
