@@ -153,9 +153,21 @@ fn reference(
             spp,
             ..RenderSettings::default()
         };
+        // Minutes on a large scene: a bar shows it is working (hidden where stderr is no
+        // terminal, as in CI's logs).
+        let bar =
+            indicatif::ProgressBar::new(scene.width as u64 * scene.height as u64 * spp as u64);
+        bar.set_style(crate::progress_style("{percent:>3}% ETA {eta} {wide_msg}"));
+        bar.set_message(format!("{name} reference"));
+        let done = std::sync::atomic::AtomicU64::new(0);
         let img = pool
-            .install(|| render_frame(scene, &settings, &|_| {}))
+            .install(|| {
+                render_frame(scene, &settings, &|n| {
+                    bar.set_position(done.fetch_add(n, std::sync::atomic::Ordering::Relaxed) + n);
+                })
+            })
             .finalize();
+        bar.finish_and_clear();
         write_exr(
             &cached,
             &img,
