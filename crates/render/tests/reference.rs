@@ -183,3 +183,45 @@ fn mesh_glass_matches_the_independent_reference() {
         &Reference::load("mesh-glass-reference-4x4.exr", 4),
     );
 }
+
+/// The bound as the mesh issue states it, on raw differences: at 16384 spp, every 32² region
+/// of `scenes/mesh-glass.toml` is within 0.5% of Mitsuba's 16384-spp render, in each channel.
+/// At [`SPP`] the glass sphere's caustic regions carry about 1.4% of noise of their own, which
+/// is why the test above bounds the bias instead; sixteen times the samples take it to a
+/// quarter. Ignored in `cargo test` (about ten minutes on two cores); `.ci/run` runs it.
+#[test]
+#[ignore = "about ten minutes on two cores: .ci/run runs it"]
+fn mesh_glass_regions_within_half_a_percent_at_16384_spp() {
+    let scene = load("mesh-glass.toml");
+    let reference = Reference::load("mesh-glass-reference-4x4.exr", 4);
+    let img = render(
+        &scene,
+        &RenderSettings {
+            spp: 16384,
+            seed: 1,
+            ..RenderSettings::default()
+        },
+    );
+    assert_eq!(img.nonfinite, 0);
+    let (mut worst, mut failures) = (0f64, Vec::new());
+    for y0 in (0..256).step_by(32) {
+        for x0 in (0..256).step_by(32) {
+            let (ours, _) = region_stats(&img, x0, y0, 32, 32);
+            let theirs = reference.mean(x0, y0, 32, 32);
+            for c in 0..3 {
+                let rel = (ours[c] - theirs[c]) / theirs[c].max(1e-4);
+                worst = worst.max(rel.abs());
+                if rel.abs() > 0.005 {
+                    failures.push(format!(
+                        "32² region at ({x0},{y0}) channel {c}: ours {:.5}, reference {:.5}, {:.3}%",
+                        ours[c],
+                        theirs[c],
+                        rel * 100.0
+                    ));
+                }
+            }
+        }
+    }
+    eprintln!("worst over 32² regions at 16384 spp: {:.3}%", worst * 100.0);
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
