@@ -16,9 +16,9 @@ use super::bvh::{Bvh, NodeKind};
 use super::pages::PagedArray;
 
 /// Eight children's boxes (structure of arrays: `b[2·axis][h]` the lows of children 4h to
-/// 4h + 3, `b[2·axis + 1][h]` their highs) and references: `count[i] == 0` makes `child[i]` a node index, else it is a leaf of
-/// `count[i]` items from `child[i]` on (what the items are is the caller's: see
-/// [`Bvh8::collapse`]). An empty slot has an empty box (+∞ low, −∞ high), which no ray hits.
+/// 4h + 3, `b[2·axis + 1][h]` their highs) and references: `count[i] == 0` makes `child[i]` a
+/// node index, else it is a leaf of `count[i]` items from `child[i]` on (what the items are is
+/// the caller's: see [`Bvh8::collapse`]). An empty slot has an empty box (+∞ low, −∞ high), which no ray hits.
 /// 256 bytes: four cache lines.
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C, align(64))]
