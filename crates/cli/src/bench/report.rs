@@ -58,6 +58,89 @@ pub(super) fn simd_extensions() -> String {
     }
 }
 
+/// A cache size as sysfs writes it ("48K", "2048K", "1M") in KiB or MiB.
+fn cache_size(sysfs: &str) -> Option<String> {
+    let s = sysfs.trim();
+    let (digits, unit) = s.split_at(s.find(|c: char| !c.is_ascii_digit()).unwrap_or(s.len()));
+    let n: u64 = digits.parse().ok()?;
+    let kib = match unit {
+        "K" => n,
+        "M" => n.checked_mul(1024)?,
+        "G" => n.checked_mul(1024 * 1024)?,
+        "" => n / 1024,
+        _ => return None,
+    };
+    Some(if kib >= 1024 && kib % 1024 == 0 {
+        format!("{} MiB", kib / 1024)
+    } else {
+        format!("{kib} KiB")
+    })
+}
+
+/// How many CPUs a sysfs CPU list ("0", "0-1", "0-3,8-11") names.
+fn cpu_count(list: &str) -> Option<u32> {
+    list.trim().split(',').try_fold(0u32, |n, part| {
+        let k = match part.split_once('-') {
+            Some((a, b)) => b.parse::<u32>().ok()?.checked_sub(a.parse().ok()?)? + 1,
+            None => {
+                part.parse::<u32>().ok()?;
+                1
+            }
+        };
+        n.checked_add(k)
+    })
+}
+
+/// The first CPU's data and unified caches, from sysfs (Linux): a large mesh's queries wait
+/// on memory, so how much of it the caches hold moves tessera's speed, and its ratio to a
+/// peer's, from one machine to the next (docs/renderer.md). None where sysfs has no caches.
+fn caches() -> Option<String> {
+    let dir = std::fs::read_dir("/sys/devices/system/cpu/cpu0/cache").ok()?;
+    let read = |p: &Path, f: &str| std::fs::read_to_string(p.join(f)).ok();
+    let mut found: Vec<(u32, String)> = dir
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| {
+            p.file_name()
+                .is_some_and(|n| n.to_string_lossy().starts_with("index"))
+        })
+        .filter_map(|p| {
+            let level: u32 = read(&p, "level")?.trim().parse().ok()?;
+            let kind = read(&p, "type")?;
+            let kind = match kind.trim() {
+                "Data" => "d",
+                "Unified" => "",
+                _ => return None,
+            };
+            let size = cache_size(&read(&p, "size")?)?;
+            let shared = read(&p, "shared_cpu_list")
+                .and_then(|l| cpu_count(&l))
+                .filter(|&n| n > 1)
+                .map(|n| format!(" (shared by {n})"))
+                .unwrap_or_default();
+            Some((level, format!("L{level}{kind} {size}{shared}")))
+        })
+        .collect();
+    found.sort();
+    (!found.is_empty()).then(|| {
+        found
+            .into_iter()
+            .map(|(_, s)| s)
+            .collect::<Vec<_>>()
+            .join(", ")
+    })
+}
+
+/// The kernel's transparent huge pages setting (the bracketed word of sysfs's list): tessera
+/// asks for huge pages for a large mesh's arrays, which the kernel grants under `always` and
+/// `madvise` but not `never`.
+fn huge_pages() -> Option<String> {
+    let s = std::fs::read_to_string("/sys/kernel/mm/transparent_hugepage/enabled").ok()?;
+    let start = s.find('[')? + 1;
+    let end = start + s[start..].find(']')?;
+    Some(s[start..end].to_string())
+}
+
 pub(super) fn machine(clock_ghz: f64) -> String {
     let cpu = std::fs::read_to_string("/proc/cpuinfo")
         .ok()
@@ -78,10 +161,16 @@ pub(super) fn machine(clock_ghz: f64) -> String {
         .map(|kb| format!(", {:.0} GiB", kb / 1024.0 / 1024.0))
         .unwrap_or_default();
     let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
+    let caches = caches()
+        .map(|c| format!("; caches of CPU 0: {c}"))
+        .unwrap_or_default();
+    let huge = huge_pages()
+        .map(|h| format!("; transparent huge pages: {h}"))
+        .unwrap_or_default();
     format!(
-        "{cpu}, {cores} cores available{mem}; vector extensions: {}; clock {clock_ghz:.2} GHz \
-         (timed on a chain of dependent rotate-and-xor operations, one cycle each, before \
-         rendering)",
+        "{cpu}, {cores} cores available{mem}; vector extensions: {}{caches}{huge}; clock \
+         {clock_ghz:.2} GHz (timed on a chain of dependent rotate-and-xor operations, one cycle \
+         each, before rendering)",
         simd_extensions()
     )
 }
@@ -234,6 +323,42 @@ pub(super) fn shell_quote(arg: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cache_sizes_and_cpu_lists_read_as_sysfs_writes_them() {
+        assert_eq!(cache_size("48K\n").as_deref(), Some("48 KiB"));
+        assert_eq!(cache_size("2048K").as_deref(), Some("2 MiB"));
+        assert_eq!(cache_size("307200K").as_deref(), Some("300 MiB"));
+        assert_eq!(cache_size("1536K").as_deref(), Some("1536 KiB"));
+        assert_eq!(cache_size("32M").as_deref(), Some("32 MiB"));
+        assert_eq!(cache_size("K"), None);
+        assert_eq!(cache_size("12Q"), None);
+        assert_eq!(cpu_count("0\n"), Some(1));
+        assert_eq!(cpu_count("0-1"), Some(2));
+        assert_eq!(cpu_count("0-3,8-11"), Some(8));
+        assert_eq!(cpu_count("3-1"), None);
+        assert_eq!(cpu_count("x"), None);
+    }
+
+    /// Where sysfs lists the caches (Linux), the machine line names each level's.
+    #[test]
+    fn the_machine_line_names_the_caches_where_sysfs_has_them() {
+        let line = machine(1.0);
+        let l2 = std::fs::read_dir("/sys/devices/system/cpu/cpu0/cache").is_ok_and(|d| {
+            d.filter_map(Result::ok).any(|e| {
+                std::fs::read_to_string(e.path().join("level")).is_ok_and(|l| l.trim() == "2")
+            })
+        });
+        assert_eq!(
+            line.contains(", L2 ") || line.contains(": L2 "),
+            l2,
+            "{line}"
+        );
+        assert!(
+            line.contains("vector extensions: ") && line.ends_with("rendering)"),
+            "{line}"
+        );
+    }
 
     #[test]
     fn shell_quote_keeps_plain_words_and_quotes_the_rest() {
