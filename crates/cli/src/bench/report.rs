@@ -81,7 +81,11 @@ fn cache_size(sysfs: &str) -> Option<String> {
 fn cpu_count(list: &str) -> Option<u32> {
     list.trim().split(',').try_fold(0u32, |n, part| {
         let k = match part.split_once('-') {
-            Some((a, b)) => b.parse::<u32>().ok()?.checked_sub(a.parse().ok()?)? + 1,
+            Some((a, b)) => b
+                .parse::<u32>()
+                .ok()?
+                .checked_sub(a.parse().ok()?)?
+                .checked_add(1)?,
             None => {
                 part.parse::<u32>().ok()?;
                 1
@@ -338,6 +342,7 @@ mod tests {
         assert_eq!(cpu_count("0-3,8-11"), Some(8));
         assert_eq!(cpu_count("3-1"), None);
         assert_eq!(cpu_count("x"), None);
+        assert_eq!(cpu_count("0-4294967295"), None);
     }
 
     /// Where sysfs lists the caches (Linux), the machine line names each level's.
