@@ -1,7 +1,8 @@
 """Writes the mesh benchmark's scene: the Cornell box's walls and light around a bumpy sphere
 of 1,048,576 triangles (a UV sphere of 512 rings by 1,024 segments, its radius modulated),
-as DIR/mesh-million.toml and DIR/bumpy-sphere.ply (binary PLY, about 20 MB). Not committed:
-bench/mesh-speed.sh makes them under target/bench-cache.
+as DIR/mesh-million.toml and DIR/bumpy-sphere.ply (binary PLY, about 20 MB), and the same
+scene with an analytic sphere in the mesh's place as DIR/mesh-million-analytic.toml. Not
+committed: bench/mesh-speed.sh makes them under target/bench-cache.
 
     python make_million.py DIR
 """
@@ -50,6 +51,15 @@ def main(out):
             'material = "white"\ntransform = { scale = [0.45, 0.45, 0.45], translate = [0, -0.5, 0] }\n')
     with open(os.path.join(out, "mesh-million.toml"), "w") as f:
         f.write(box)
+    # The same scene with an analytic sphere in the mesh's place (the bumps are 5% of its
+    # radius): what the mesh costs a sample is the difference of the two.
+    stand_in = box[:box.index("[[objects]] # the bumpy sphere")]
+    stand_in = stand_in.replace("around a bumpy sphere of",
+                                "with an analytic sphere in place of the bumpy sphere of")
+    stand_in += ('[[objects]] # an analytic sphere where mesh-million.toml has its bumpy one\n'
+                 'shape = "sphere"\nmaterial = "white"\ncenter = [0.0, -0.5, 0.0]\nradius = 0.45\n')
+    with open(os.path.join(out, "mesh-million-analytic.toml"), "w") as f:
+        f.write(stand_in)
     print(f"{len(tris)} triangles -> {out}")
 
 

@@ -2,7 +2,9 @@
 # The mesh benchmark: tessera against Mitsuba 3 (llvm_ad_rgb, from PyPI) on a scene of
 # 1,048,576 triangles (bench/make_million.py: the Cornell box's walls and light around a bumpy
 # sphere), measured point by point in the same run as speed-vs-error.sh does, relMSE against
-# an independent Mitsuba reference; plus each mesh's BVH build time. Writes
+# an independent Mitsuba reference; plus each mesh's BVH build time. The same scene with an
+# analytic sphere in the mesh's place is measured alongside, so that what the mesh costs each
+# renderer per sample is the difference of the two scenes' times. Writes
 # docs/benchmarks/mesh-speed-vs-error.{md,csv,svg}.
 #
 #   bench/mesh-speed.sh [--max-spp N] [--seeds K] [--reference-spp N]
@@ -15,14 +17,21 @@ reference_spp=4096
 [ "$have_python" = 1 ] || { echo "no python3: Mitsuba, the peer and the reference, cannot run" >&2; exit 1; }
 [ -n "$llvm" ] || { echo "no libLLVM.so.19.1: Mitsuba's llvm_ad_rgb cannot run" >&2; exit 1; }
 dir=target/bench-cache/mesh-million
-[ -s "$dir/bumpy-sphere.ply" ] || target/bench-venv/bin/python bench/make_million.py "$dir"
-ref=target/bench-cache/mitsuba-mesh-million-$reference_spp.exr
-if [ ! -s "$ref" ]; then
-    target/bench-venv/bin/python bench/mitsuba_peer.py --variants llvm_ad_rgb \
-        --make-reference "mesh-million=$ref.tmp.exr" --reference-spp "$reference_spp"
-    mv "$ref.tmp.exr" "$ref"
-fi
-target/release/tessera bench --scene "$dir/mesh-million.toml" --max-spp "$max_spp" --seeds "$seeds" \
-    --reference "mesh-million=$ref" --name mesh-speed-vs-error \
+[ -s "$dir/bumpy-sphere.ply" ] && [ -s "$dir/mesh-million-analytic.toml" ] ||
+    target/bench-venv/bin/python bench/make_million.py "$dir"
+scene_args=()
+refs=()
+for name in mesh-million mesh-million-analytic; do
+    ref=target/bench-cache/mitsuba-$name-$reference_spp.exr
+    if [ ! -s "$ref" ]; then
+        target/bench-venv/bin/python bench/mitsuba_peer.py --variants llvm_ad_rgb \
+            --make-reference "$name=$ref.tmp.exr" --reference-spp "$reference_spp"
+        mv "$ref.tmp.exr" "$ref"
+    fi
+    scene_args+=(--scene "$dir/$name.toml" --reference "$name=$ref")
+    refs+=("--reference $name=$ref")
+done
+target/release/tessera bench "${scene_args[@]}" --max-spp "$max_spp" --seeds "$seeds" \
+    --name mesh-speed-vs-error \
     --peer-command "target/bench-venv/bin/python bench/mitsuba_peer.py --serve --variants llvm_ad_rgb \
---reference mesh-million=$ref --max-spp $max_spp"
+${refs[*]} --max-spp $max_spp"

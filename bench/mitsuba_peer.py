@@ -6,7 +6,9 @@ Two scenes have exact Mitsuba counterparts, built here as dictionaries:
 - glass-mirror: the same box with the two cuboids replaced by the spheres of
   scenes/glass-mirror.toml (a perfect mirror of reflectance 0.95 and a smooth dielectric of
   index 1.5 in vacuum).
-Both use a box filter and the unbiased path tracer (max_depth = -1).
+So do mesh-glass, mesh-million (bench/make_million.py's million triangles) and
+mesh-million-analytic (the same with an analytic sphere in the mesh's place). All use a box
+filter and the unbiased path tracer (max_depth = -1).
 
 Peer mode renders each scene at 4, 16, ... spp with several seeds, times each render, and
 writes CSV rows in `tessera bench`'s format (renderer,scene,spp,seed,threads,seconds,
@@ -45,7 +47,7 @@ import time
 import numpy as np
 
 
-SCENES = ("cornell-box", "glass-mirror", "mesh-glass", "mesh-million")
+SCENES = ("cornell-box", "glass-mirror", "mesh-glass", "mesh-million", "mesh-million-analytic")
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 MESHES = os.path.join(HERE, "..", "scenes", "meshes")
@@ -128,6 +130,11 @@ def scene_dict(mi, name, size):
         d["bumpy-sphere"] = {"type": "ply", "filename": ply, "face_normals": True,
                              "to_world": mi.ScalarTransform4f().translate([0, -0.5, 0]).scale(0.45),
                              "bsdf": {"type": "ref", "id": "white"}}
+    elif name == "mesh-million-analytic":
+        # The same, with an analytic sphere in the mesh's place (make_million.py).
+        del d["small-box"], d["large-box"]
+        d["sphere"] = {"type": "sphere", "center": [0, -0.5, 0], "radius": 0.45,
+                       "bsdf": {"type": "ref", "id": "white"}}
     elif name != "cornell-box":
         raise SystemExit(f"no Mitsuba counterpart for scene {name!r}; known: {SCENES}")
     d["sensor"]["film"].update(width=size, height=size, rfilter={"type": "box"})
