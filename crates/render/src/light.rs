@@ -29,10 +29,18 @@ pub enum LightShape {
 /// The world-space triangles of an emissive mesh instance.
 #[derive(Clone, Debug)]
 pub struct MeshLight {
-    tris: Vec<[Vec3A; 3]>,
-    normals: Vec<Vec3A>,
+    tris: Vec<LightTriangle>,
     select: Distribution1D,
     area: f32,
+}
+
+/// One triangle of a mesh light: its vertices and front normal in one cache line, since a
+/// light sample reads both and a large light's triangles are picked at random.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
+struct LightTriangle {
+    p: [Vec3A; 3],
+    n: Vec3A,
 }
 
 impl MeshLight {
@@ -42,13 +50,11 @@ impl MeshLight {
         let areas: Vec<f32> = tris.iter().map(|t| t.2).collect();
         let select = Distribution1D::new(&areas)?;
         let area = areas.iter().map(|&a| f64::from(a)).sum::<f64>() as f32;
-        let (tris, normals) = tris.into_iter().map(|(t, n, _)| (t, n)).unzip();
-        Some(Self {
-            tris,
-            normals,
-            select,
-            area,
-        })
+        let tris = tris
+            .into_iter()
+            .map(|(p, n, _)| LightTriangle { p, n })
+            .collect();
+        Some(Self { tris, select, area })
     }
 
     /// Total area.
@@ -67,13 +73,13 @@ impl MeshLight {
     #[inline]
     pub fn sample(&self, u: Vec2) -> (Vec3A, Vec3A) {
         let (i, b) = self.pick(u);
-        let [p0, p1, p2] = self.tris[i];
-        (p0 * b[0] + p1 * b[1] + p2 * b[2], self.normals[i])
+        let LightTriangle { p: [p0, p1, p2], n } = self.tris[i];
+        (p0 * b[0] + p1 * b[1] + p2 * b[2], n)
     }
 
     fn point_error(&self, u: Vec2) -> Vec3A {
         let (i, b) = self.pick(u);
-        let [p0, p1, p2] = self.tris[i];
+        let [p0, p1, p2] = self.tris[i].p;
         crate::mesh::triangle::point_error(b, p0, p1, p2)
     }
 }
@@ -328,10 +334,10 @@ impl Lights {
                     }),
                 LightShape::Mesh(m) => {
                     // Every triangle the line crosses: each is a separate way to draw `w`.
-                    for (k, &[p0, p1, p2]) in m.tris.iter().enumerate() {
+                    for &LightTriangle { p: [p0, p1, p2], n } in &m.tris {
                         let hit = crate::mesh::triangle::intersect(p, w, p0, p1, p2, f32::INFINITY);
                         if let Some(h) = hit {
-                            total += d.pmf(i) * light.pdf(p, ray.at(h.t), m.normals[k]);
+                            total += d.pmf(i) * light.pdf(p, ray.at(h.t), n);
                         }
                     }
                     None
