@@ -1,8 +1,9 @@
 """Writes the mesh benchmark's scene: the Cornell box's walls and light around a bumpy sphere
 of 1,048,576 triangles (a UV sphere of 512 rings by 1,024 segments, its radius modulated),
 as DIR/mesh-million.toml and DIR/bumpy-sphere.ply (binary PLY, about 20 MB), and the same
-scene with an analytic sphere in the mesh's place as DIR/mesh-million-analytic.toml. Not
-committed: bench/mesh-speed.sh makes them under target/bench-cache.
+scene with an analytic sphere in the mesh's place as DIR/mesh-million-analytic.toml, and with
+the bumpy sphere emitting as DIR/mesh-million-emissive.toml. Not committed:
+bench/mesh-speed.sh makes them under target/bench-cache.
 
     python make_million.py DIR
 """
@@ -60,6 +61,16 @@ def main(out):
                  'shape = "sphere"\nmaterial = "white"\ncenter = [0.0, -0.5, 0.0]\nradius = 0.45\n')
     with open(os.path.join(out, "mesh-million-analytic.toml"), "w") as f:
         f.write(stand_in)
+    # And with the bumpy sphere emitting, a light of a million triangles, for timing light
+    # sampling (no Mitsuba counterpart).
+    glow = box.replace("around a bumpy sphere of", "around an emitting bumpy sphere of")
+    glow = glow.replace("[materials.light]", '[materials.glow]\ntype = "diffuse"\n'
+                        'albedo = [0.5, 0.5, 0.5]\nemission = [1.0, 0.8, 0.6]\n\n[materials.light]')
+    glow = glow.replace('file = "bumpy-sphere.ply"\nmaterial = "white"',
+                        'file = "bumpy-sphere.ply"\nmaterial = "glow"')
+    assert glow.count('"glow"') == 1, "the sphere's material was not replaced"
+    with open(os.path.join(out, "mesh-million-emissive.toml"), "w") as f:
+        f.write(glow)
     print(f"{len(tris)} triangles -> {out}")
 
 

@@ -17,7 +17,7 @@ reference_spp=4096
 [ "$have_python" = 1 ] || { echo "no python3: Mitsuba, the peer and the reference, cannot run" >&2; exit 1; }
 [ -n "$llvm" ] || { echo "no libLLVM.so.19.1: Mitsuba's llvm_ad_rgb cannot run" >&2; exit 1; }
 dir=target/bench-cache/mesh-million
-[ -s "$dir/bumpy-sphere.ply" ] && [ -s "$dir/mesh-million-analytic.toml" ] ||
+[ -s "$dir/bumpy-sphere.ply" ] && [ -s "$dir/mesh-million-emissive.toml" ] ||
     target/bench-venv/bin/python bench/make_million.py "$dir"
 scene_args=()
 refs=()
