@@ -1,14 +1,15 @@
 """Mitsuba 3 as a peer for `tessera bench`.
 
-Two scenes have exact Mitsuba counterparts, built here as dictionaries:
+These scenes have exact Mitsuba counterparts, built here as dictionaries:
 - cornell-box: Mitsuba's built-in Cornell box, the scene of tests/data/cornell-box-reference.exr
   and scenes/cornell-box.toml;
 - glass-mirror: the same box with the two cuboids replaced by the spheres of
   scenes/glass-mirror.toml (a perfect mirror of reflectance 0.95 and a smooth dielectric of
-  index 1.5 in vacuum).
-So do mesh-glass, mesh-million (bench/make_million.py's million triangles) and
-mesh-million-analytic (the same with an analytic sphere in the mesh's place). All use a box
-filter and the unbiased path tracer (max_depth = -1).
+  index 1.5 in vacuum);
+- mesh-glass: scenes/mesh-glass.toml, from the same OBJ and PLY files;
+- mesh-million: bench/make_million.py's million triangles in the box, and
+  mesh-million-analytic, the same with an analytic sphere in the mesh's place.
+All use a box filter and the unbiased path tracer (max_depth = -1).
 
 Peer mode renders each scene at 4, 16, ... spp with several seeds, times each render, and
 writes CSV rows in `tessera bench`'s format (renderer,scene,spp,seed,threads,seconds,
