@@ -572,3 +572,74 @@ async fn silent_dashboard_connections_are_closed() {
     assert_eq!(get(addr, "/api/jobs").await.status, 200);
     coord.stop().await;
 }
+
+/// The attack of #55 B: connections without the token that POST /login with a large declared
+/// body and send it a byte at a time. Before, each byte reset the idle timer and 260 of them
+/// held every slot, so authorised requests timed out for as long as the trickle went on. Now
+/// a login body is read whole within a deadline and capped at 4 KiB (a larger declared one is
+/// refused at once), and connections that have made no request with the token never hold
+/// more than half the slots: an authorised request is answered at once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn slow_logins_do_not_shut_the_dashboard_out() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = farm_with_token(dir.path()).await;
+    let addr = coord.http.expect("dashboard");
+    // A body larger than a login's is refused before it is read.
+    let r = http(
+        addr,
+        "POST",
+        "/login",
+        &[("content-type", "application/x-www-form-urlencoded")],
+        &format!("token={}", "x".repeat(5000)),
+    )
+    .await;
+    assert_eq!(r.status, 413, "{}", r.text());
+    let mut tricklers = Vec::new();
+    for _ in 0..300 {
+        let Ok(mut tcp) = tokio::net::TcpStream::connect(addr).await else {
+            continue;
+        };
+        tricklers.push(tokio::spawn(async move {
+            let head = "POST /login HTTP/1.1\r\nhost: x\r\ncontent-type: \
+                        application/x-www-form-urlencoded\r\ncontent-length: 4000\r\n\r\n";
+            if tcp.write_all(head.as_bytes()).await.is_err() {
+                return;
+            }
+            let mut buf = [0u8; 256];
+            loop {
+                if tcp.write_all(b"t").await.is_err() {
+                    return;
+                }
+                // A closed connection (the server's answer, or its close) ends the trickle.
+                if let Ok(Ok(0) | Err(_)) =
+                    tokio::time::timeout(Duration::from_millis(100), tcp.read(&mut buf)).await
+                {
+                    return;
+                }
+            }
+        }));
+    }
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    for round in 0..3 {
+        let answered = tokio::time::timeout(
+            Duration::from_secs(5),
+            http(
+                addr,
+                "GET",
+                "/api/jobs",
+                &[("authorization", &format!("Bearer {TOKEN}"))],
+                "",
+            ),
+        )
+        .await;
+        assert!(
+            matches!(&answered, Ok(r) if r.status == 200),
+            "round {round}: an authorised request was not answered within 5 s: {answered:?}"
+        );
+    }
+    for t in tricklers {
+        t.abort();
+    }
+    coord.stop().await;
+}

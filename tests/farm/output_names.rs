@@ -61,3 +61,52 @@ async fn output_names_are_never_taken_twice_nor_files_overwritten() {
     w.abort();
     coord.stop().await;
 }
+
+/// The attack of #55 A: a link planted in the output directory at the name the coordinator
+/// used to write its temporary EXR to (`.NAME.tmp-<pid>`, predictable) had its target
+/// overwritten with the EXR, and the output became a link to it. Now the temporary name is
+/// random and made with `O_EXCL`, and the output is a file of its own.
+#[cfg(unix)]
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_link_at_the_old_temporary_name_is_not_followed() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start(&dir.path().join("data"), Duration::from_secs(30)).await;
+    let victim = dir.path().join("victim.txt");
+    std::fs::write(&victim, b"the victim's bytes").expect("victim");
+    let mut client = coord.client().await;
+    // Once the coordinator answers, its output directory exists.
+    client
+        .list_jobs(pb::ListJobsRequest {})
+        .await
+        .expect("list");
+    let planted = coord
+        .out
+        .join(format!(".sq.exr.tmp-{}", std::process::id()));
+    std::os::unix::fs::symlink(&victim, &planted).expect("link");
+    let w = worker(&coord.url(), "w");
+    let job = submit_named(&mut client, &scene_text(16), "sq.exr")
+        .await
+        .expect("named");
+    assert_eq!(
+        wait(&mut client, &job).await.state,
+        pb::JobState::Done as i32
+    );
+    assert_eq!(
+        std::fs::read(&victim).expect("victim"),
+        b"the victim's bytes"
+    );
+    let out = coord.out.join("sq.exr");
+    assert!(!std::fs::symlink_metadata(&out).expect("stat").is_symlink());
+    assert_eq!(
+        std::fs::read(&out).expect("out"),
+        fetch(&mut client, &job).await
+    );
+    // The planted link is left as it was, and no temporary file is left beside it.
+    let names: Vec<String> = std::fs::read_dir(&coord.out)
+        .expect("ls")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(names.len(), 2, "{names:?}");
+    w.abort();
+    coord.stop().await;
+}

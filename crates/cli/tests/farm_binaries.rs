@@ -471,3 +471,69 @@ fn an_auditing_coordinator_checks_every_unit_and_keeps_the_bits() {
     assert!(audits >= 2, "{table}");
     assert!(!table.contains("convicted"), "{table}");
 }
+
+/// The README's coordinator command (`--data-dir farm-data`, relative, with `--http`), with and
+/// without `--output-dir`: the data directory is 0700 and the store and every uploaded file
+/// 0600, whatever the umask leaves ordinary files. Before, the output directory was created
+/// inside the data directory first, with the umask's 0755, and the store left a directory
+/// that existed as it was; the store and assets were 0644.
+#[cfg(unix)]
+#[test]
+fn the_data_directory_and_its_files_are_private_with_the_readmes_command() {
+    use std::os::unix::fs::PermissionsExt;
+    let mode = |p: &Path| std::fs::metadata(p).expect("stat").permissions().mode() & 0o777;
+    for output_dir in [None, Some("renders")] {
+        let dir = tempfile::tempdir().expect("tmp");
+        let mut cmd = Command::new(BIN);
+        cmd.current_dir(dir.path()).args([
+            "coordinator",
+            "--listen",
+            "127.0.0.1:0",
+            "--http",
+            "127.0.0.1:0",
+            "--data-dir",
+            "farm-data",
+        ]);
+        if let Some(o) = output_dir {
+            cmd.args(["--output-dir", o]);
+        }
+        let mut child = cmd
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start coordinator");
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().expect("stdout"))
+            .read_line(&mut line)
+            .expect("listening line");
+        let _coord = common::Proc(child);
+        let url = format!(
+            "http://{}",
+            line.trim()
+                .strip_prefix("listening on ")
+                .expect("listening")
+        );
+        // A scene with a mesh, so that submit uploads a file into the asset store.
+        let out = tessera(
+            &["submit", &repo("scenes/cornell-mesh.toml"), "--spp", "1"],
+            &url,
+        );
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let data = dir.path().join("farm-data");
+        assert_eq!(mode(&data), 0o700, "farm-data, --output-dir {output_dir:?}");
+        assert_eq!(mode(&data.join("coordinator.redb")), 0o600);
+        let assets: Vec<_> = std::fs::read_dir(data.join("assets"))
+            .expect("assets")
+            .map(|e| e.expect("entry").path())
+            .filter(|p| p.is_file())
+            .collect();
+        assert!(!assets.is_empty(), "no asset was uploaded");
+        for a in assets {
+            assert_eq!(mode(&a), 0o600, "{}", a.display());
+        }
+    }
+}

@@ -22,6 +22,7 @@ use std::sync::Mutex;
 use std::time::{Duration, SystemTime};
 
 use sha2::{Digest, Sha256};
+use tessera_render::files;
 
 /// Most uploads that may be unfinished at once: each holds disk until it completes, so a
 /// client that starts many and finishes none is refused rather than left to fill the disk.
@@ -106,6 +107,20 @@ pub fn check_hash(hash: &str) -> Result<(), AssetError> {
     }
 }
 
+/// Opens an upload's partial file to append to, creating it owner-only, and never through a
+/// link: the data directory is private, so a link there is damage or an intruder's, and
+/// appending through one would write a client's bytes into whatever it names.
+fn append_only_here(path: &Path) -> std::io::Result<File> {
+    let mut o = OpenOptions::new();
+    o.create(true).append(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        o.mode(0o600).custom_flags(libc::O_NOFOLLOW);
+    }
+    o.open(path)
+}
+
 impl AssetStore {
     /// Opens (creating) the store under `data_dir`, accepting files of up to `max_bytes` and
     /// holding at most `budget` bytes in all. Unfinished uploads from before a restart stay
@@ -113,7 +128,7 @@ impl AssetStore {
     pub fn open(data_dir: &Path, max_bytes: u64, budget: u64) -> Result<Self, AssetError> {
         let dir = data_dir.join("assets");
         let partial = dir.join("partial");
-        std::fs::create_dir_all(&partial).map_err(io(&partial))?;
+        files::private_dir(&partial).map_err(io(&partial))?;
         let mut pending = BTreeMap::new();
         for e in std::fs::read_dir(&partial).map_err(io(&partial))?.flatten() {
             let name = e.file_name().to_string_lossy().to_string();
@@ -234,16 +249,18 @@ impl AssetStore {
                     )));
                 }
                 let size = self.size_path(hash);
-                std::fs::write(&size, total.to_string()).map_err(io(&size))?;
+                files::place_bytes(
+                    &size,
+                    files::Place::Replace,
+                    files::Access::Private,
+                    total.to_string().as_bytes(),
+                )
+                .map_err(io(&size))?;
                 pending.insert(hash.to_string(), total);
             }
         }
         let path = self.partial_path(hash);
-        let mut f = OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&path)
-            .map_err(io(&path))?;
+        let mut f = append_only_here(&path).map_err(io(&path))?;
         f.write_all(data).map_err(io(&path))?;
         let received = offset + data.len() as u64;
         if received < total {

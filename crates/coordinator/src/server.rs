@@ -60,7 +60,6 @@ pub async fn serve_when_ready(
     let max_msg = config.max_message_bytes;
     let lease_timeout = config.lease_timeout;
     let retention = config.asset_retention;
-    let auth = AuthCheck::new(config.token.as_ref());
     let mut builder = tonic::transport::Server::builder()
         // A connection that sends nothing is closed rather than kept for ever, and one
         // connection cannot open unbounded streams.
@@ -110,7 +109,9 @@ pub async fn serve_when_ready(
         },
     );
     let svc = Service::new(shared.clone());
-    let incoming = conn::Limited::new(listener, max_connections, idle);
+    let open = shared.config.token.is_none();
+    let (incoming, gate) = conn::Limited::new(listener, max_connections, idle, open);
+    let auth = AuthCheck::new(shared.config.token.as_ref(), gate);
     // One shutdown for both servers: the caller's, or the gRPC server's failure.
     let (stop_tx, stop) = tokio::sync::watch::channel(false);
     let stop_tx = Arc::new(stop_tx);
@@ -317,13 +318,26 @@ impl InProcess {
 }
 
 /// Checks the bearer token of every call, in constant time: both sides are hashed first, so
-/// neither the comparison's time nor its length depends on how much of the token matched.
+/// neither the comparison's time nor its length depends on how much of the token matched. A
+/// call that passes proves its connection to the gate (`conn.rs`), which closes connections
+/// that never do.
 #[derive(Clone)]
-struct AuthCheck(Option<[u8; 32]>);
+struct AuthCheck {
+    token: Option<[u8; 32]>,
+    gate: Arc<conn::Gate>,
+}
 
 impl AuthCheck {
-    fn new(token: Option<&Secret>) -> Self {
-        Self(token.map(|t| sha256(t.expose().as_bytes())))
+    fn new(token: Option<&Secret>, gate: Arc<conn::Gate>) -> Self {
+        Self {
+            token: token.map(|t| sha256(t.expose().as_bytes())),
+            gate,
+        }
+    }
+
+    fn passed(&self, request: tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> {
+        self.gate.prove(request.remote_addr());
+        Ok(request)
     }
 }
 
@@ -335,8 +349,8 @@ pub(crate) fn sha256(b: &[u8]) -> [u8; 32] {
 impl tonic::service::Interceptor for AuthCheck {
     fn call(&mut self, request: tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> {
         use subtle::ConstantTimeEq;
-        let Some(want) = &self.0 else {
-            return Ok(request);
+        let Some(want) = &self.token else {
+            return self.passed(request);
         };
         let presented = request
             .metadata()
@@ -347,7 +361,7 @@ impl tonic::service::Interceptor for AuthCheck {
             None => Err(tonic::Status::unauthenticated(
                 "this coordinator requires a token (--token-file or TESSERA_TOKEN)",
             )),
-            Some(t) if bool::from(sha256(t.as_bytes()).ct_eq(want)) => Ok(request),
+            Some(t) if bool::from(sha256(t.as_bytes()).ct_eq(want)) => self.passed(request),
             Some(_) => Err(tonic::Status::unauthenticated("wrong token")),
         }
     }

@@ -48,12 +48,14 @@ pub(crate) type Opened = (Arc<Shared>, mpsc::UnboundedReceiver<Write>, Vec<JobId
 impl Shared {
     /// Opens the store under `config.data_dir`, restores its jobs, and builds the shared state.
     pub(crate) fn open(config: Config) -> Result<Opened, CoordinatorError> {
+        // The store first: it makes the data directory private, and the output directory
+        // (inside it by default) must not create it first with the umask's mode.
+        let store = Arc::new(Store::open(&config.data_dir)?);
         let out = config.output_dir();
         std::fs::create_dir_all(&out).map_err(|source| CoordinatorError::Output {
             path: out.display().to_string(),
             source,
         })?;
-        let store = Arc::new(Store::open(&config.data_dir)?);
         let assets = Arc::new(AssetStore::open(
             &config.data_dir,
             config.limits.max_asset_bytes,

@@ -382,8 +382,9 @@ impl Drop for Store {
 }
 
 impl Store {
-    /// Opens (or creates) `dir/coordinator.redb`. The directory is created readable by its
-    /// owner only: it holds every submitted scene.
+    /// Opens (or creates) `dir/coordinator.redb`. The directory and the file are made the
+    /// owner's alone (0700, 0600; an existing directory loses its group and other bits): they
+    /// hold every submitted scene.
     ///
     /// An existing file that is empty is refused rather than started afresh: a fresh store
     /// would give out job ids again, and with them the names of finished jobs' outputs.
@@ -392,13 +393,7 @@ impl Store {
             path: dir.display().to_string(),
             source,
         };
-        if !dir.exists() {
-            let mut b = std::fs::DirBuilder::new();
-            b.recursive(true);
-            #[cfg(unix)]
-            std::os::unix::fs::DirBuilderExt::mode(&mut b, 0o700);
-            b.create(dir).map_err(io)?;
-        }
+        tessera_render::files::private_dir(dir).map_err(io)?;
         let path = dir.join(FILE_NAME);
         if std::fs::metadata(&path).is_ok_and(|m| m.len() == 0) {
             return Err(StoreError::Damaged {
@@ -408,6 +403,17 @@ impl Store {
         }
         guarded(&path, || {
             let db = Database::create(&path).map_err(dberr)?;
+            // redb creates its file as an ordinary one; it holds every scene submitted.
+            #[cfg(unix)]
+            {
+                use std::os::unix::fs::PermissionsExt;
+                std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).map_err(
+                    |source| StoreError::Io {
+                        path: path.display().to_string(),
+                        source,
+                    },
+                )?;
+            }
             let store = Self { db: Some(db) };
             store.prepare()?;
             Ok(store)

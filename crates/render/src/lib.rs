@@ -16,7 +16,8 @@
 //! [`scene`] (file format, parsing, validation, runtime scene), [`integrator`], [`lanes`] (f32
 //! SIMD lanes of any width) and [`wide`] (the integrator four to sixteen paths at a time, for
 //! the scenes whose bounce it models, with the same bits), [`film`] (partial sums and images),
-//! [`tile`] (the render driver) and [`output`] (EXR, PNG).
+//! [`tile`] (the render driver) and [`output`] (EXR, PNG), which places its files with
+//! [`files`] (never through a link).
 //!
 //! ```no_run
 //! use tessera_render::{scene::{Limits, Scene}, RenderSettings, render_frame};
@@ -30,6 +31,7 @@ pub mod accel;
 pub mod adaptive;
 pub mod bsdf;
 pub mod camera;
+pub mod files;
 pub mod film;
 pub mod integrator;
 pub mod lanes;

@@ -1,7 +1,5 @@
 //! Image output: OpenEXR (the product) and an optional PNG preview.
 
-use std::fs;
-use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
 use exr::prelude::{
@@ -9,6 +7,7 @@ use exr::prelude::{
     FlatSamples, Layer, LayerAttributes, Text, WritableImage,
 };
 
+use crate::files::{self, Access, Place};
 use crate::film::Image;
 
 /// Errors writing or reading images.
@@ -155,36 +154,30 @@ fn write_exr_as(
     );
     let exr_image = exr::image::Image::from_layer(layer);
 
-    let tmp = temp_path(path);
-    let err = |e: exr::error::Error| OutputError::Exr {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    };
-    exr_image.write().to_file(&tmp).map_err(|e| {
-        let _ = fs::remove_file(&tmp);
-        err(e)
-    })?;
-    // A hard link, unlike a rename, fails if the name is taken, and is as atomic.
-    let placed = if no_clobber {
-        fs::hard_link(&tmp, path).and_then(|()| fs::remove_file(&tmp))
+    let how = if no_clobber {
+        Place::New
     } else {
-        fs::rename(&tmp, path)
+        Place::Replace
     };
-    placed.map_err(|source| {
-        let _ = fs::remove_file(&tmp);
-        OutputError::Io {
+    let mut encoded: Option<exr::error::Error> = None;
+    let placed = files::place(path, how, Access::Shared, |w| {
+        exr_image.write().to_buffered(w).map_err(|e| {
+            let io = std::io::Error::other(e.to_string());
+            encoded = Some(e);
+            io
+        })
+    });
+    match (placed, encoded) {
+        (Ok(()), _) => Ok(()),
+        (Err(_), Some(e)) => Err(OutputError::Exr {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        }),
+        (Err(source), None) => Err(OutputError::Io {
             path: path.to_path_buf(),
             source,
-        }
-    })
-}
-
-fn temp_path(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "out.exr".into());
-    path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
+        }),
+    }
 }
 
 /// An RGB float image read from an EXR file.
@@ -232,20 +225,33 @@ pub fn write_png_preview(path: &Path, image: &Image, preview: Preview) -> Result
         path: path.to_path_buf(),
         source,
     };
-    let file = fs::File::create(path).map_err(io)?;
-    let mut enc = png::Encoder::new(BufWriter::new(file), image.width, image.height);
-    enc.set_color(png::ColorType::Rgb);
-    enc.set_depth(png::BitDepth::Eight);
-    let png_err = |e: png::EncodingError| OutputError::Png {
-        path: path.to_path_buf(),
-        message: e.to_string(),
+    let mut encoded: Option<png::EncodingError> = None;
+    let mut png_step = |r: Result<(), png::EncodingError>| {
+        r.map_err(|e| {
+            let io = std::io::Error::other(e.to_string());
+            encoded = Some(e);
+            io
+        })
     };
-    let mut writer = enc.write_header().map_err(png_err)?;
-    writer
-        .write_image_data(&tone_map(&image.rgb, preview))
-        .map_err(png_err)?;
-    writer.finish().map_err(png_err)?;
-    Ok(())
+    let placed = files::place(path, Place::Replace, Access::Shared, |w| {
+        let mut enc = png::Encoder::new(w, image.width, image.height);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut writer = match enc.write_header() {
+            Ok(writer) => writer,
+            Err(e) => return png_step(Err(e)),
+        };
+        png_step(writer.write_image_data(&tone_map(&image.rgb, preview)))?;
+        png_step(writer.finish())
+    });
+    match (placed, encoded) {
+        (Ok(()), _) => Ok(()),
+        (Err(_), Some(e)) => Err(OutputError::Png {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        }),
+        (Err(source), None) => Err(io(source)),
+    }
 }
 
 /// 8-bit sRGB values (R, G, B per pixel) of linear radiance, as previews show it: exposure,
@@ -386,6 +392,7 @@ fn tessera_attribute(meta: &exr::meta::MetaData) -> Vec<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::fs;
 
     /// The table gives `to_srgb8`'s own code: at every bound and 2048 floats either side of
     /// it, around the curve's junction, at every bucket's edge, and at every 61st float of

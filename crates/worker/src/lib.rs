@@ -30,6 +30,7 @@ use tessera_proto::client::{endpoint, Bearer, ClientOptions};
 use tessera_proto::convert::settings_from_wire;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::workers_client::WorkersClient;
+use tessera_render::files;
 use tessera_render::scene::assets::{sha256_hex, MemAssets};
 use tessera_render::scene::{Format, Limits, Scene, FIRST_FRAME};
 use tessera_render::{render_tile, PixelRect, RenderSettings, TileSums};
@@ -393,23 +394,20 @@ impl Ctx {
                 "file {hash} arrived with hash {got}"
             )));
         }
-        // Into a name of this worker's own, then renamed: another worker on this machine may
-        // be caching the same file, and a reader must never see half of one.
-        let tmp =
-            self.config
-                .cache_dir
-                .join(format!(".{hash}.{}.{}", std::process::id(), self.id()));
+        // Written under a fresh random name, then renamed (`files::place`): another worker on
+        // this machine may be caching the same file, a reader must never see half of one, and
+        // nothing planted in the directory is followed.
         let dir = self.config.cache_dir.clone();
         let budget = self.config.cache_bytes;
         let keep = hash.to_string();
         let (bytes, saved) = tokio::task::spawn_blocking(move || {
-            let r = std::fs::create_dir_all(&dir)
-                .and_then(|()| std::fs::write(&tmp, &bytes))
-                .and_then(|()| std::fs::rename(&tmp, &path));
-            if r.is_err() {
-                let _ = std::fs::remove_file(&tmp);
-            } else if let Err(e) = evict(&dir, budget, &keep) {
-                warn!("evicting from the cache {}: {e}", dir.display());
+            let r = files::private_dir(&dir).and_then(|()| {
+                files::place_bytes(&path, files::Place::Replace, files::Access::Private, &bytes)
+            });
+            if r.is_ok() {
+                if let Err(e) = evict(&dir, budget, &keep) {
+                    warn!("evicting from the cache {}: {e}", dir.display());
+                }
             }
             (bytes, r)
         })

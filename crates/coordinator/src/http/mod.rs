@@ -140,8 +140,20 @@ fn router(app: App) -> Router {
 /// the login page to a browser, a line of text to anything else.
 async fn check(State(app): State<App>, req: Request, next: Next) -> Response {
     let open = req.method() == Method::POST && req.uri().path() == "/login";
-    if open || app.auth.allows(req.headers()) {
-        return next.run(req).await;
+    if app.auth.allows(req.headers()) {
+        if let Some(trust) = req.extensions().get::<Arc<crate::conn::Trust>>() {
+            trust.prove();
+        }
+        return match whole_body(req).await {
+            Ok(req) => next.run(req).await,
+            Err(r) => r,
+        };
+    }
+    if open {
+        return match whole_body(req).await {
+            Ok(req) => next.run(req).await,
+            Err(r) => r,
+        };
     }
     let browser = req
         .headers()
@@ -149,6 +161,43 @@ async fn check(State(app): State<App>, req: Request, next: Next) -> Response {
         .and_then(|v| v.to_str().ok())
         .is_some_and(|a| a.contains("text/html"));
     unauthorized(browser, req.uri().path(), None)
+}
+
+/// Most bytes of a request body: the login form's token and path are the largest anyone sends.
+const MAX_BODY: usize = 4096;
+
+/// Reads a request's whole body, at most [`MAX_BODY`] bytes within [`HANDSHAKE`], before any
+/// handler sees it: a body sent a byte at a time holds nothing for longer than that, and a
+/// large one is refused at once (413) without being read.
+async fn whole_body(req: Request) -> Result<Request, Response> {
+    let (parts, body) = req.into_parts();
+    let declared = parts
+        .headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    let too_large = || {
+        (
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!("a request body may be at most {MAX_BODY} bytes\n"),
+        )
+            .into_response()
+    };
+    if declared.is_some_and(|n| n > MAX_BODY as u64) {
+        return Err(too_large());
+    }
+    match tokio::time::timeout(HANDSHAKE, axum::body::to_bytes(body, MAX_BODY)).await {
+        Ok(Ok(bytes)) => Ok(Request::from_parts(parts, Body::from(bytes))),
+        Ok(Err(_)) => Err(too_large()),
+        Err(_) => Err((
+            StatusCode::REQUEST_TIMEOUT,
+            format!(
+                "the request's body did not arrive within {} s\n",
+                HANDSHAKE.as_secs()
+            ),
+        )
+            .into_response()),
+    }
 }
 
 fn unauthorized(browser: bool, next: &str, message: Option<&str>) -> Response {
@@ -618,10 +667,17 @@ async fn serve(
     };
     let routes = router(app);
     let acceptor = tls.map(tokio_rustls::TlsAcceptor::from);
-    // The gRPC port's accept loop: at most MAX_CONNECTIONS open, and one whose peer sends
-    // nothing for `Config::idle_connection` (60 s) is closed, so silent connections (a client that
-    // never finishes choosing a protocol, an HTTP/2 peer that goes quiet) cannot fill it.
-    let mut incoming = crate::conn::Limited::new(listener, MAX_CONNECTIONS, config.idle_connection);
+    // The gRPC port's accept loop and gate (`conn.rs`): at most MAX_CONNECTIONS open, one
+    // whose peer sends nothing for `Config::idle_connection` (60 s) is closed, and so is one
+    // that has made no request with the token within `conn::PROVE_WITHIN`; connections without
+    // it never hold more than half the slots, so a peer without the token (a slow login body,
+    // idle keep-alives) cannot shut the dashboard out.
+    let (mut incoming, _gate) = crate::conn::Limited::new(
+        listener,
+        MAX_CONNECTIONS,
+        config.idle_connection,
+        config.token.is_none(),
+    );
     let graceful = hyper_util::server::graceful::GracefulShutdown::new();
     loop {
         let conn = tokio::select! {
@@ -636,7 +692,8 @@ async fn serve(
             .remote_addr()
             .map(|a| a.to_string())
             .unwrap_or_default();
-        let routes = routes.clone();
+        // The check marks the connection proven when a request on it carries the token.
+        let routes = routes.clone().layer(axum::Extension(conn.trust()));
         let acceptor = acceptor.clone();
         let watcher = graceful.watcher();
         tokio::spawn(async move {
