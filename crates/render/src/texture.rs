@@ -52,22 +52,24 @@ pub fn srgb_to_linear(c: f64) -> f64 {
 
 impl Texture {
     /// Decodes `bytes` as `format`, at most `max_texels` texels. The error is one line.
+    ///
+    /// The image's header is read first ([`probe`]); the size it gives is checked against
+    /// `max_texels` and the process's decode budget ([`DecodeBudget`]) is reserved for it
+    /// before any pixel is decoded, so neither a small file that declares a huge image nor
+    /// many parses at once can take more memory than the budget.
     pub fn decode(bytes: &[u8], format: ImageFormat, max_texels: u64) -> Result<Self, String> {
+        let (w, h) = probe(bytes, format)?;
+        check_size(w, h, max_texels)?;
+        let _reserved = DecodeBudget::global().reserve(decode_bytes(w, h))?;
         let (width, height, texels) = match format {
             ImageFormat::Png | ImageFormat::Jpeg => decode_8_16(bytes, format, max_texels)?,
             ImageFormat::Exr => decode_exr(bytes, max_texels)?,
         };
-        if width == 0 || height == 0 {
-            return Err("the image is empty".into());
+        if (width as u64, height as u64) != (w, h) {
+            return Err(format!(
+                "the header says {w}×{h} texels, the image holds {width}×{height}"
+            ));
         }
-        let texels = texels
-            .into_iter()
-            .map(|t: [f32; 3]| {
-                let t = Vec3A::from(t);
-                // NaN becomes 0 (max ignores it), infinities and values above 1 become 1.
-                t.max(Vec3A::ZERO).min(Vec3A::ONE)
-            })
-            .collect();
         Ok(Self {
             width,
             height,
@@ -116,7 +118,145 @@ impl Texture {
     }
 }
 
-type Decoded = (usize, usize, Vec<[f32; 3]>);
+/// The size an image's header declares, read without decoding any pixel: what every check that
+/// needs no pixels (the texel limit, the decode budget) is decided from. An image of no texels
+/// is refused here.
+pub fn probe(bytes: &[u8], format: ImageFormat) -> Result<(u64, u64), String> {
+    let (w, h) = match format {
+        ImageFormat::Png | ImageFormat::Jpeg => {
+            let format = match format {
+                ImageFormat::Png => image::ImageFormat::Png,
+                _ => image::ImageFormat::Jpeg,
+            };
+            let (w, h) = image::ImageReader::with_format(Cursor::new(bytes), format)
+                .into_dimensions()
+                .map_err(|e| format!("not a readable image: {e}"))?;
+            (u64::from(w), u64::from(h))
+        }
+        ImageFormat::Exr => {
+            let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false)
+                .map_err(|e| format!("not a readable EXR image: {e}"))?;
+            // The decoder reads the first layer with RGB(A) channels, at full resolution.
+            let layer = meta
+                .headers
+                .iter()
+                .find(|h| {
+                    h.channels
+                        .list
+                        .iter()
+                        .any(|c| matches!(c.name.to_string().as_str(), "R" | "G" | "B"))
+                })
+                .ok_or("not a readable EXR image: no layer has R, G or B channels")?;
+            let size = layer.layer_size;
+            (size.width() as u64, size.height() as u64)
+        }
+    };
+    if w == 0 || h == 0 {
+        return Err("the image is empty".into());
+    }
+    Ok((w, h))
+}
+
+/// The most memory decoding a `w` × `h` image takes at once: the decoder's buffer (at most 4
+/// channels of 16 bits) and the texels it is converted into.
+pub fn decode_bytes(w: u64, h: u64) -> u64 {
+    const DECODER: u64 = 8;
+    let texel = std::mem::size_of::<Vec3A>() as u64;
+    w.saturating_mul(h).saturating_mul(DECODER + texel)
+}
+
+/// The memory all texture decodes in this process may use at once, in bytes: each decode
+/// reserves [`decode_bytes`] of it first and waits while others hold too much, and one that
+/// needs more than the whole budget is refused. A coordinator checking several submissions and
+/// a worker loading several scenes therefore never decode more than this together, however
+/// many parses run; the count of parses is not the bound, the bytes are.
+pub struct DecodeBudget {
+    total: std::sync::atomic::AtomicU64,
+    used: std::sync::Mutex<u64>,
+    freed: std::sync::Condvar,
+}
+
+/// The default [`DecodeBudget`]: 8 GiB, room for the largest texture a scene may hold
+/// (2²⁸ texels, 6 GiB to decode) one at a time.
+pub const DEFAULT_DECODE_BUDGET: u64 = 8 << 30;
+
+/// A share of the [`DecodeBudget`], given back when dropped.
+pub struct Reservation<'a> {
+    budget: &'a DecodeBudget,
+    bytes: u64,
+}
+
+impl Drop for Reservation<'_> {
+    fn drop(&mut self) {
+        let mut used = self.budget.lock();
+        *used -= self.bytes;
+        self.budget.freed.notify_all();
+    }
+}
+
+impl DecodeBudget {
+    /// A budget of `total` bytes.
+    pub fn new(total: u64) -> Self {
+        Self {
+            total: total.into(),
+            used: std::sync::Mutex::new(0),
+            freed: std::sync::Condvar::new(),
+        }
+    }
+
+    /// The process's budget, which [`Texture::decode`] reserves from.
+    pub fn global() -> &'static Self {
+        static GLOBAL: std::sync::OnceLock<DecodeBudget> = std::sync::OnceLock::new();
+        GLOBAL.get_or_init(|| Self::new(DEFAULT_DECODE_BUDGET))
+    }
+
+    /// Changes the budget (a server's flag, at start).
+    pub fn set_total(&self, total: u64) {
+        self.total
+            .store(total, std::sync::atomic::Ordering::Relaxed);
+        self.freed.notify_all();
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, u64> {
+        self.used.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Reserves `bytes`, waiting while other decodes hold too much; refused if `bytes` is more
+    /// than the whole budget.
+    pub fn reserve(&self, bytes: u64) -> Result<Reservation<'_>, String> {
+        let mut used = self.lock();
+        loop {
+            let total = self.total.load(std::sync::atomic::Ordering::Relaxed);
+            if bytes > total {
+                return Err(format!(
+                    "decoding it needs {bytes} bytes, more than this process's texture decode \
+                     budget of {total} bytes"
+                ));
+            }
+            if *used + bytes <= total {
+                *used += bytes;
+                return Ok(Reservation {
+                    budget: self,
+                    bytes,
+                });
+            }
+            used = self.freed.wait(used).unwrap_or_else(|e| e.into_inner());
+        }
+    }
+
+    /// Bytes reserved now.
+    pub fn used(&self) -> u64 {
+        *self.lock()
+    }
+}
+
+type Decoded = (usize, usize, Vec<Vec3A>);
+
+/// A decoded linear value as an albedo: NaN becomes 0 (max ignores it), infinities and values
+/// above 1 become 1.
+fn albedo(t: [f32; 3]) -> Vec3A {
+    Vec3A::from(t).max(Vec3A::ZERO).min(Vec3A::ONE)
+}
 
 fn check_size(width: u64, height: u64, max_texels: u64) -> Result<(), String> {
     if width.saturating_mul(height) > max_texels {
@@ -136,42 +276,43 @@ fn decode_8_16(bytes: &[u8], format: ImageFormat, max_texels: u64) -> Result<Dec
     let mut limits = image::Limits::default();
     limits.max_alloc = Some(max_texels.saturating_mul(16));
     reader.limits(limits);
-    let (w, h) = reader
-        .into_dimensions()
-        .map_err(|e| format!("not a readable image: {e}"))?;
-    check_size(u64::from(w), u64::from(h), max_texels)?;
-    let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format);
-    let mut limits = image::Limits::default();
-    limits.max_alloc = Some(max_texels.saturating_mul(16));
-    reader.limits(limits);
     let img = reader
         .decode()
         .map_err(|e| format!("not a readable image: {e}"))?;
-    let sixteen = matches!(
-        img.color(),
-        image::ColorType::L16
-            | image::ColorType::La16
-            | image::ColorType::Rgb16
-            | image::ColorType::Rgba16
-    );
+    let (w, h) = (img.width(), img.height());
+    check_size(u64::from(w), u64::from(h), max_texels)?;
     // Every code's linear value, computed once per image rather than once per texel.
     let table = |max: u32| -> Vec<f32> {
         (0..=max)
             .map(|c| srgb_to_linear(f64::from(c) / f64::from(max)) as f32)
             .collect()
     };
-    let texels = if sixteen {
-        let table = table(65535);
-        img.to_rgb16()
-            .pixels()
-            .map(|p| p.0.map(|c| table[usize::from(c)]))
+    // Straight from the decoder's buffer to the texels, with no RGB copy in between: grey is
+    // spread to all three channels and alpha is dropped, as `to_rgb8` would.
+    fn convert<T: Copy + Into<usize>>(samples: &[T], channels: usize, table: &[f32]) -> Vec<Vec3A> {
+        samples
+            .chunks_exact(channels)
+            .map(|p| {
+                let c = |i: usize| table[p[i].into()];
+                albedo(if channels < 3 {
+                    [c(0); 3]
+                } else {
+                    [c(0), c(1), c(2)]
+                })
+            })
             .collect()
-    } else {
-        let table = table(255);
-        img.to_rgb8()
-            .pixels()
-            .map(|p| p.0.map(|c| table[usize::from(c)]))
-            .collect()
+    }
+    use image::DynamicImage as D;
+    let texels = match &img {
+        D::ImageLuma8(i) => convert(i.as_raw(), 1, &table(255)),
+        D::ImageLumaA8(i) => convert(i.as_raw(), 2, &table(255)),
+        D::ImageRgb8(i) => convert(i.as_raw(), 3, &table(255)),
+        D::ImageRgba8(i) => convert(i.as_raw(), 4, &table(255)),
+        D::ImageLuma16(i) => convert(i.as_raw(), 1, &table(65535)),
+        D::ImageLumaA16(i) => convert(i.as_raw(), 2, &table(65535)),
+        D::ImageRgb16(i) => convert(i.as_raw(), 3, &table(65535)),
+        D::ImageRgba16(i) => convert(i.as_raw(), 4, &table(65535)),
+        other => convert(other.to_rgb8().as_raw(), 3, &table(255)),
     };
     Ok((w as usize, h as usize, texels))
 }
@@ -187,15 +328,15 @@ fn decode_exr(bytes: &[u8], max_texels: u64) -> Result<Decoded, String> {
                 let texels = if (w as u64).saturating_mul(h as u64) > max_texels {
                     Vec::new()
                 } else {
-                    vec![[0f32; 3]; w * h]
+                    vec![Vec3A::ZERO; w * h]
                 };
                 (w, h, texels)
             },
-            |(w, _, px): &mut (usize, usize, Vec<[f32; 3]>),
+            |(w, _, px): &mut (usize, usize, Vec<Vec3A>),
              pos,
              (r, g, b, _a): (f32, f32, f32, f32)| {
                 if let Some(t) = px.get_mut(pos.y() * *w + pos.x()) {
-                    *t = [r, g, b];
+                    *t = albedo([r, g, b]);
                 }
             },
         )
@@ -212,6 +353,54 @@ fn decode_exr(bytes: &[u8], max_texels: u64) -> Result<Decoded, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_budget_is_shared_in_bytes_and_refuses_what_can_never_fit() {
+        let budget = DecodeBudget::new(100);
+        let e = budget
+            .reserve(101)
+            .err()
+            .expect("more than the whole budget");
+        assert!(
+            e.contains("101 bytes") && e.contains("budget of 100 bytes"),
+            "{e}"
+        );
+        let first = budget.reserve(60).expect("fits");
+        let second_got_it = std::sync::atomic::AtomicBool::new(false);
+        std::thread::scope(|s| {
+            let waiter = s.spawn(|| {
+                let r = budget.reserve(60).expect("fits once the first is back");
+                second_got_it.store(true, std::sync::atomic::Ordering::SeqCst);
+                assert_eq!(budget.used(), 60);
+                drop(r);
+            });
+            std::thread::sleep(std::time::Duration::from_millis(100));
+            assert!(!second_got_it.load(std::sync::atomic::Ordering::SeqCst));
+            assert_eq!(budget.used(), 60);
+            drop(first);
+            waiter.join().expect("waiter");
+        });
+        assert!(second_got_it.into_inner());
+        assert_eq!(budget.used(), 0);
+    }
+
+    /// The size comes from the header alone: a PNG that declares 2¹⁶ × 2¹⁶ texels but holds
+    /// no pixel data is measured, not decoded.
+    #[test]
+    fn the_probe_reads_the_size_from_the_header_only() {
+        let mut png = Vec::new();
+        let enc = png::Encoder::new(&mut png, 1 << 16, 1 << 16);
+        let mut w = enc.write_header().expect("header");
+        // The start of a zlib stream, and nothing after it.
+        w.write_chunk(png::chunk::IDAT, &[0x78, 0x9c])
+            .expect("chunk");
+        drop(w);
+        assert_eq!(probe(&png, ImageFormat::Png), Ok((1 << 16, 1 << 16)));
+        let e = Texture::decode(&png, ImageFormat::Png, 1 << 28).expect_err("too large");
+        assert!(e.contains("65536×65536 texels, above the limit"), "{e}");
+        assert!(probe(b"not an image", ImageFormat::Png).is_err());
+        assert!(probe(b"not an image", ImageFormat::Exr).is_err());
+    }
 
     #[test]
     fn bilinear_lookup_hits_texel_centres_and_blends_between_them() {

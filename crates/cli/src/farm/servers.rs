@@ -84,6 +84,10 @@ pub struct CoordinatorArgs {
     /// 127.0.0.1:7880; off unless given. Same token and TLS as the gRPC API.
     #[arg(long, value_name = "ADDR")]
     http: Option<String>,
+    /// Most memory, in bytes, that checking submitted scenes may spend decoding their textures
+    /// at once (a texture larger than this is refused; more wait their turn).
+    #[arg(long, default_value_t = tessera_render::texture::DEFAULT_DECODE_BUDGET)]
+    texture_decode_bytes: u64,
 }
 
 /// Arguments of `tessera worker`.
@@ -104,6 +108,10 @@ pub struct WorkerArgs {
     /// Most bytes the cache keeps; the least recently used files go first.
     #[arg(long, env = "TESSERA_CACHE_BYTES", default_value_t = tessera_worker::DEFAULT_CACHE_BYTES)]
     cache_bytes: u64,
+    /// Most memory, in bytes, that loading scenes may spend decoding their textures at once (a
+    /// unit whose texture needs more is handed back as one this worker cannot render).
+    #[arg(long, env = "TESSERA_TEXTURE_DECODE_BYTES", default_value_t = tessera_render::texture::DEFAULT_DECODE_BUDGET)]
+    texture_decode_bytes: u64,
 }
 
 /// Runs `tessera coordinator`.
@@ -127,6 +135,7 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
         );
     }
     init_logging();
+    tessera_render::texture::DecodeBudget::global().set_total(args.texture_decode_bytes);
     let mut config = tessera_coordinator::Config::new(&args.data_dir);
     config.audit = args.audit;
     config.output_dir = args.output_dir;
@@ -204,6 +213,7 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
 /// Runs `tessera worker`.
 pub fn worker(args: WorkerArgs) -> Result<()> {
     init_logging();
+    tessera_render::texture::DecodeBudget::global().set_total(args.texture_decode_bytes);
     let options = args.url.options()?;
     let mut config = tessera_worker::Config::new(args.url.coordinator);
     config.client = options;

@@ -20,7 +20,7 @@ use crate::math::v3;
 use crate::mesh::load::{self, MeshFormat};
 use crate::mesh::{MeshInstance, TriMesh};
 use crate::shape::{Shape, Transformed};
-use crate::texture::{ImageFormat, Texture};
+use crate::texture::{self, ImageFormat, Texture};
 
 /// What is wrong, and where in the file.
 pub(super) type Invalid = (KeyPath, String);
@@ -178,13 +178,25 @@ type MeshGroups = Vec<(Option<String>, Arc<TriMesh>)>;
 struct SceneFiles {
     /// By file name: each material group's name and mesh.
     files: BTreeMap<String, MeshGroups>,
-    /// Textures by file name, as indices into `texture_list`.
+    /// Textures by file name, as indices into `pending_textures` (and, once decoded, the
+    /// scene's texture list).
     textures: BTreeMap<String, u32>,
-    texture_list: Vec<Arc<Texture>>,
+    /// Each texture's file read and its header checked, its pixels not yet decoded: decoding
+    /// waits until every check that needs no pixels has passed ([`SceneFiles::decode_textures`]).
+    pending_textures: Vec<PendingTexture>,
     /// Each file read, with its SHA-256, in the order first read.
     read: Vec<(String, String)>,
     triangles: usize,
     texels: u64,
+}
+
+/// A texture file read, whose header gave its size, waiting to be decoded.
+struct PendingTexture {
+    name: String,
+    /// Where the scene first names it, for errors.
+    path: KeyPath,
+    format: ImageFormat,
+    bytes: Vec<u8>,
 }
 
 /// Most texels over a scene's textures.
@@ -233,15 +245,39 @@ impl SceneFiles {
             )
         })?;
         let bytes = self.read_file(name, path, limits, assets)?;
+        let fail = |m: String| (path.clone(), format!("{name}: {m}"));
+        let (w, h) = texture::probe(&bytes, format).map_err(fail)?;
         let left = MAX_TEXELS - self.texels;
-        let t = Texture::decode(&bytes, format, left)
-            .map_err(|m| (path.clone(), format!("{name}: {m}")))?;
-        let (w, h) = t.size();
-        self.texels += (w * h) as u64;
-        let i = self.texture_list.len() as u32;
-        self.texture_list.push(Arc::new(t));
+        if w.saturating_mul(h) > left {
+            return Err(fail(format!(
+                "{w}×{h} texels, above what is left of the scene's limit of {MAX_TEXELS} \
+                 texels over all its textures ({left})"
+            )));
+        }
+        self.texels += w * h;
+        let i = self.pending_textures.len() as u32;
+        self.pending_textures.push(PendingTexture {
+            name: name.to_string(),
+            path: path.clone(),
+            format,
+            bytes,
+        });
         self.textures.insert(name.to_string(), i);
         Ok(i)
+    }
+
+    /// Decodes the textures, one at a time and each within the process's decode budget
+    /// ([`texture::DecodeBudget`]): the last step of a build, after every check that needs no
+    /// pixels, so a scene that is refused anyway never decodes an image.
+    fn decode_textures(&mut self) -> Result<Vec<Arc<Texture>>, Invalid> {
+        std::mem::take(&mut self.pending_textures)
+            .into_iter()
+            .map(|t| {
+                Texture::decode(&t.bytes, t.format, MAX_TEXELS)
+                    .map(Arc::new)
+                    .map_err(|m| (t.path, format!("{}: {m}", t.name)))
+            })
+            .collect()
     }
 
     fn get(
@@ -342,6 +378,7 @@ pub(super) fn build(
             });
         }
     }
+    let textures = files.decode_textures()?;
     let accel = Accel::build(&prims);
     let shading_normals = prims
         .iter()
@@ -357,7 +394,7 @@ pub(super) fn build(
         max_depth: desc.render.max_depth,
         hash: String::new(),
         files: Vec::new(),
-        textures: std::mem::take(&mut files.texture_list),
+        textures,
         accel,
         shading_normals,
     };
