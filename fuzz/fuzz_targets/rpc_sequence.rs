@@ -11,8 +11,9 @@
 //!
 //! An input of odd length runs with audits (`--audit 0.5`, audited jobs): then every liar whose
 //! undetectable lie was merged and who was convicted must have had it taken back, so if every
-//! such liar is convicted by the end the sums must still be the honest bits; three honest
-//! workers finish the job, so that disputes can be settled.
+//! such liar is convicted by the end the sums must still be the honest bits. Workers register
+//! from one of three hosts (chosen by the input); the coordinator's referee, played here by the
+//! honest sums, settles disputes when time passes and while the honest worker finishes.
 #![no_main]
 
 use std::time::{Duration, Instant};
@@ -124,6 +125,18 @@ fn check(core: &Scheduler) {
     }
 }
 
+/// Plays the coordinator's referee: renders (honestly) each unit the scheduler wants settled.
+fn referee(core: &mut Scheduler, now: Instant) {
+    for (job, unit) in core.take_referee_work() {
+        let Some(j) = core.jobs.get(&job) else {
+            continue;
+        };
+        let sums = honest(j, unit);
+        let r = core.referee(job, unit, sums, now, &(), 1);
+        assert!(r.is_ok(), "the referee's honest result was refused: {r:?}");
+    }
+}
+
 fuzz_target!(|data: &[u8]| {
     let audited = data.len() % 2 == 1;
     let mut core = Scheduler::new(1, LEASE);
@@ -164,6 +177,9 @@ fuzz_target!(|data: &[u8]| {
                     format!("s{arg}"),
                     now,
                 );
+                if let Some(w) = core.workers.get_mut(&id) {
+                    w.host = format!("10.0.0.{}", (arg >> 1) % 3);
+                }
                 fakes.push(Fake {
                     id,
                     hostile,
@@ -237,7 +253,11 @@ fuzz_target!(|data: &[u8]| {
                     fakes[f].leases.remove(0);
                 }
             }
-            6 => now += Duration::from_millis(arg as u64 * 40),
+            6 => {
+                now += Duration::from_millis(arg as u64 * 40);
+                core.expire(now);
+                referee(&mut core, now);
+            }
             7 if !fakes.is_empty() => {
                 // A worker that says it cannot render one of job 2's units fails job 2 only.
                 let i = pick(fakes.len());
@@ -258,8 +278,14 @@ fuzz_target!(|data: &[u8]| {
 
     // Liveness: the hostile workers keep their leases alive and never finish; a fresh honest
     // worker must still get job 1 done.
-    let honest_workers: Vec<u64> = (0..if audited { 3 } else { 1 })
-        .map(|i| core.register(format!("honest{i}"), 1, "v".into(), format!("h{i}"), now))
+    let honest_workers: Vec<u64> = (0..if audited { 2 } else { 1 })
+        .map(|i| {
+            let w = core.register(format!("honest{i}"), 1, "v".into(), format!("h{i}"), now);
+            if let Some(x) = core.workers.get_mut(&w) {
+                x.host = format!("10.0.1.{i}");
+            }
+            w
+        })
         .collect();
     let total = core.jobs[&JobId(1)].units_total();
     for round in 0.. {
@@ -285,6 +311,9 @@ fuzz_target!(|data: &[u8]| {
         }
         check(&core);
         now += LEASE / 2;
+        core.expire(now);
+        referee(&mut core, now);
+        note_caught(&core, &tainted_by);
     }
     for &h in &honest_workers {
         assert!(core.workers[&h].convicted.is_none(), "an honest worker was convicted");

@@ -1,6 +1,8 @@
 //! Audits on a running farm: a worker that returns plausible but wrong finite sums (every sum
 //! 1% high) on one unit in 50 is caught, convicted and its results rendered again by the
-//! honest workers, and the EXR is bit-identical to `tessera render`'s.
+//! honest workers, and the EXR is bit-identical to `tessera render`'s. Each worker connects
+//! from an address of its own on the loopback network (127.0.0.2, …), so the coordinator sees
+//! the hosts a real farm has.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
@@ -12,7 +14,11 @@ use crate::common::*;
 /// results it sent.
 async fn liar(url: String, text: String, settings: RenderSettings, stop: Arc<AtomicBool>) -> u64 {
     let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
-    let mut client = workers_client(&url);
+    let mut client = WorkersClient::new(
+        endpoint(&url, &from_host(9))
+            .expect("endpoint")
+            .connect_lazy(),
+    );
     let id = register_as(&mut client, "liar", "0", IMAGE_REVISION)
         .await
         .expect("register");
@@ -52,11 +58,32 @@ async fn liar(url: String, text: String, settings: RenderSettings, stop: Arc<Ato
     forged
 }
 
+/// Client options that connect from 127.0.0.`n`: another host, as the coordinator sees it.
+fn from_host(n: u8) -> ClientOptions {
+    ClientOptions {
+        source_address: Some(std::net::Ipv4Addr::new(127, 0, 0, n).into()),
+        ..ClientOptions::default()
+    }
+}
+
 /// With `--audit 0.6`, a job of 2048 units: the liar sends some 20 wrong results, each
 /// merged unchecked with probability 0.4, so the ones merged before it is caught must be taken
 /// back; the chance that none of them is checked is about 0.4^20 ≈ 1e-8.
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_lying_worker_is_convicted_and_the_image_is_still_bit_identical() {
+    lying_worker_among(2).await;
+}
+
+/// #55 D1 on a running farm: one honest worker and the liar. Before, their first dispute made
+/// both suspects with no work, and the job never finished; now the coordinator's own render
+/// settles each dispute.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn one_honest_worker_and_a_liar_still_finish_with_the_right_bits() {
+    lying_worker_among(1).await;
+}
+
+/// The liar and `n_honest` honest workers, each on a host of its own, render an audited job.
+async fn lying_worker_among(n_honest: u8) {
     let dir = tempfile::tempdir().expect("tempdir");
     let coord = Coordinator::start_with(&dir.path().join("data"), Duration::from_secs(30), |c| {
         c.audit = 0.6;
@@ -82,7 +109,9 @@ async fn a_lying_worker_is_convicted_and_the_image_is_still_bit_identical() {
         job_settings(spp, batch),
         stop.clone(),
     ));
-    let honest = [worker(&url, "honest-a"), worker(&url, "honest-b")];
+    let honest: Vec<_> = (0..n_honest)
+        .map(|i| worker_with(&url, &format!("honest-{i}"), from_host(2 + i)))
+        .collect();
     let status = wait(&mut client, &job).await;
     assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
     stop.store(true, Ordering::Relaxed);

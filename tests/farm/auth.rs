@@ -16,11 +16,11 @@ async fn a_token_is_required_on_every_service() {
     let url = coord.url();
     let good = ClientOptions {
         token: Some(token.clone()),
-        tls: None,
+        ..ClientOptions::default()
     };
     let wrong = ClientOptions {
         token: Some(Secret::new("farm-token-0123456789abcdeX")),
-        tls: None,
+        ..ClientOptions::default()
     };
     let text = scene_text(16);
     for options in [ClientOptions::default(), wrong.clone()] {

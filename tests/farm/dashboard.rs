@@ -36,7 +36,7 @@ async fn farm_with_token(dir: &Path) -> Coordinator {
 fn token_options() -> ClientOptions {
     ClientOptions {
         token: Some(Secret::new(TOKEN)),
-        tls: None,
+        ..ClientOptions::default()
     }
 }
 

@@ -27,6 +27,7 @@ async fn a_job_completes_over_tls() {
             identity: None,
             domain: None,
         }),
+        ..ClientOptions::default()
     };
     // Plain HTTP to a TLS port fails rather than leaking anything.
     let plain = format!("http://127.0.0.1:{}", coord.addr.port());

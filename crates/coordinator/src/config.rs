@@ -35,6 +35,8 @@ pub struct Config {
     pub quarantine_after: u64,
     /// Most leases one worker registration may hold at once.
     pub max_leases_per_worker: usize,
+    /// Most live worker registrations from one host (the address it registers from).
+    pub max_workers_per_host: usize,
     /// Fraction (0 to 1) of units rendered a second time by another worker and compared bit
     /// for bit; 0 audits nothing, and jobs pay nothing for it (docs/farm.md, "Audits").
     pub audit: f64,
@@ -50,6 +52,11 @@ pub struct Config {
     /// upload, if no job has named it).
     pub asset_retention: Duration,
 }
+
+/// Most live worker registrations from one host, unless configured: enough for a host running
+/// many worker containers behind one address, few enough that one token holder cannot fill
+/// the coordinator with registrations.
+pub const DEFAULT_MAX_WORKERS_PER_HOST: usize = 256;
 
 /// How long a lease lasts without a heartbeat, unless configured.
 pub const DEFAULT_LEASE_TIMEOUT: Duration = Duration::from_secs(30);
@@ -111,6 +118,7 @@ impl Config {
             tls: None,
             quarantine_after: DEFAULT_QUARANTINE_AFTER,
             max_leases_per_worker: DEFAULT_MAX_LEASES_PER_WORKER,
+            max_workers_per_host: DEFAULT_MAX_WORKERS_PER_HOST,
             audit: 0.0,
             max_connections: DEFAULT_MAX_CONNECTIONS,
             idle_connection: Duration::from_secs(60),

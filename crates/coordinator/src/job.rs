@@ -112,13 +112,19 @@ impl Source {
     }
 }
 
-/// A unit of an audited job rendered by more than one worker, waiting for two to agree.
+/// A unit of an audited job held for its audit: a copy from another host must match it, or
+/// the coordinator renders the unit itself and decides.
 #[derive(Debug, Default)]
 pub struct AuditHold {
     /// Each worker's result, in arrival order; one worker at most once.
     pub results: Vec<(u64, TileSums)>,
-    /// Two results disagreed: every worker here is a suspect until two agree.
+    /// The hosts those workers registered from (unknown ones left out): a copy from one of
+    /// them does not count, so no single host can agree with itself.
+    pub hosts: BTreeSet<String>,
+    /// Two results disagreed: the coordinator renders the unit and decides (its referee).
     pub disputed: bool,
+    /// When the first copy arrived (for the referee of a copy no other host takes).
+    pub since: Option<std::time::Instant>,
 }
 
 /// A source of the results an audited job kept ([`Op::PutUnit`]): the store, in the

@@ -30,6 +30,7 @@
 
 mod conn;
 mod http;
+mod referee;
 mod service;
 mod shared;
 

@@ -63,8 +63,8 @@ pub struct Worker {
     pub quarantined: bool,
     /// Why an audit convicted it, if one did.
     pub convicted: Option<String>,
-    /// Audited units whose copies disagree and that it rendered: while there are any it is a
-    /// suspect and gets no work, until two workers agree on each.
+    /// Audited units whose copies disagree and that it rendered, until the coordinator's own
+    /// render of each decides (shown as "suspect"; it keeps working meanwhile).
     pub disputes: BTreeSet<(JobId, Unit)>,
     /// Its results that another worker's copy matched bit for bit.
     pub audits_passed: u64,
@@ -209,6 +209,11 @@ pub struct Scheduler {
     pub serial: u64,
     /// Convictions in this boot.
     pub convictions: u64,
+    /// Most live registrations from one host (the address a worker registered from).
+    pub max_workers_per_host: usize,
+    /// Audited units for the coordinator to render itself ([`Scheduler::take_referee_work`]):
+    /// their copies disagree, or no worker on another host took the second copy in time.
+    referee_wanted: BTreeSet<(JobId, Unit)>,
     /// What happened to units and results since this boot, for metrics.
     pub counters: Counters,
 }
@@ -228,6 +233,8 @@ pub struct Counters {
     pub units_discarded: u64,
     /// Results held for an audit.
     pub units_held: u64,
+    /// Units the coordinator rendered itself to settle an audit.
+    pub units_refereed: u64,
     /// Results refused (malformed, forged, quoting another's lease, from a quarantined worker).
     pub results_refused: u64,
     /// Samples in the merged units.
@@ -253,6 +260,7 @@ fn has_active_lease(job: &Job, u: Unit, leases: &HashMap<u64, Lease>) -> bool {
 fn speculative_unit(
     job: &Job,
     w: u64,
+    host: &str,
     leases: &HashMap<u64, Lease>,
     now: Instant,
     slow: Duration,
@@ -273,7 +281,7 @@ fn speculative_unit(
             .iter()
             .all(|(_, x)| now.saturating_duration_since(x.issued) >= slow);
         let eligible = !live.iter().any(|(_, x)| x.worker == w)
-            && !audit_excludes(job, *u, w)
+            && !audit_excludes(job, *u, w, host)
             && (live.len() == 1 || all_slow);
         if eligible && best.is_none_or(|(b, _)| oldest < b) {
             best = Some((oldest, *u));
@@ -286,14 +294,14 @@ fn speculative_unit(
 /// batches in batch-major order (all tiles' batch 0, then batch 1, …), so the image converges
 /// evenly and few results wait out of order; then, with a noise target, the batches that
 /// tiles' noise decisions released, lowest first.
-fn next_unit(job: &mut Job, w: u64, leases: &HashMap<u64, Lease>) -> Option<Unit> {
-    // An audited unit goes to a worker that has not rendered it: those set aside for the
-    // workers that have wait at the front for the next one.
+fn next_unit(job: &mut Job, w: u64, host: &str, leases: &HashMap<u64, Lease>) -> Option<Unit> {
+    // An audited unit goes to a worker on a host that has not rendered it: those set aside
+    // wait at the front for the next worker.
     let mut aside = Vec::new();
     let mut found = None;
     while let Some(u) = job.requeue.pop_front() {
         if !job.is_done(u) && !has_active_lease(job, u, leases) {
-            if audit_excludes(job, u, w) {
+            if audit_excludes(job, u, w, host) {
                 aside.push(u);
                 continue;
             }
@@ -327,26 +335,15 @@ fn next_unit(job: &mut Job, w: u64, leases: &HashMap<u64, Lease>) -> Option<Unit
     None
 }
 
-/// The lowest disputed unit of `job` that worker `w` has not rendered and nobody holds: the
-/// only work a suspect gets.
-fn disputed_unit(job: &Job, w: u64, leases: &HashMap<u64, Lease>) -> Option<Unit> {
-    job.audits
-        .iter()
-        .filter(|(u, h)| {
-            h.disputed
-                && !audit_excludes(job, **u, w)
-                && !job.is_done(**u)
-                && !has_active_lease(job, **u, leases)
-        })
-        .map(|(u, _)| *u)
-        .min()
-}
-
-/// Whether worker `w` has a copy of unit `u` held for its audit already.
-fn audit_excludes(job: &Job, u: Unit, w: u64) -> bool {
-    job.audits
-        .get(&u)
-        .is_some_and(|h| h.results.iter().any(|(k, _)| *k == w))
+/// Whether worker `w`, registered from `host`, may not give unit `u` its audit copy: it, or a
+/// worker on its host, has a copy held already (or the unit waits for the referee). Copies from
+/// one host are one vote, however many registrations it makes.
+fn audit_excludes(job: &Job, u: Unit, w: u64, host: &str) -> bool {
+    job.audits.get(&u).is_some_and(|h| {
+        h.disputed
+            || h.results.iter().any(|(k, _)| *k == w)
+            || (!host.is_empty() && h.hosts.contains(host))
+    })
 }
 
 /// Puts the unit of `lease` back at the front of its job's queue, if the job still needs it:
@@ -382,6 +379,8 @@ impl Scheduler {
             audit_rng: epoch.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1,
             serial: epoch << 40,
             convictions: 0,
+            max_workers_per_host: 256,
+            referee_wanted: BTreeSet::new(),
             counters: Counters::default(),
         }
     }
@@ -724,6 +723,31 @@ impl Scheduler {
                 any |= requeue(&mut self.jobs, lease);
             }
         }
+        // A held unit that no worker on another host has taken within a lease time (a farm of
+        // one host, or the other hosts gone) goes to the referee rather than wait for ever.
+        for (id, job) in &mut self.jobs {
+            if !job.is_live() {
+                continue;
+            }
+            let stale: Vec<Unit> = job
+                .audits
+                .iter()
+                .filter(|(u, hold)| {
+                    !hold.disputed
+                        && hold
+                            .since
+                            .is_some_and(|t| now.saturating_duration_since(t) >= self.lease_time)
+                        && !has_active_lease(job, **u, &self.leases)
+                })
+                .map(|(u, _)| *u)
+                .collect();
+            for u in stale {
+                if let Some(hold) = job.audits.get_mut(&u) {
+                    hold.disputed = true;
+                }
+                self.referee_wanted.insert((*id, u));
+            }
+        }
         any
     }
 
@@ -735,10 +759,13 @@ impl Scheduler {
         if self.workers.get(&w).is_some_and(|x| x.quarantined) {
             return out;
         }
-        // A suspect gets no ordinary work until its dispute is settled, but it may render the
-        // deciding copy of another dispute: two copies must still agree, so it cannot settle
-        // one alone, and without it a farm whose every worker is a suspect would wait for ever.
-        let suspect = self.workers.get(&w).is_some_and(|x| !x.disputes.is_empty());
+        // A worker in a dispute keeps working: the coordinator's own render settles the dispute
+        // (the referee), and a conviction takes back whatever it gave live jobs meanwhile.
+        let host = self
+            .workers
+            .get(&w)
+            .map(|x| x.host.clone())
+            .unwrap_or_default();
         // A worker that already holds its share gets nothing more, however much it asks for:
         // one registration cannot take a job's units out of everyone else's reach.
         let max = max.min(self.max_leases_per_worker.saturating_sub(self.leases_of(w)));
@@ -752,14 +779,10 @@ impl Scheduler {
                     if !job.is_live() {
                         break;
                     }
-                    let next = if suspect {
-                        (!speculate)
-                            .then(|| disputed_unit(job, w, &self.leases))
-                            .flatten()
-                    } else if speculate {
-                        speculative_unit(job, w, &self.leases, now, slow)
+                    let next = if speculate {
+                        speculative_unit(job, w, &host, &self.leases, now, slow)
                     } else {
-                        next_unit(job, w, &self.leases)
+                        next_unit(job, w, &host, &self.leases)
                     };
                     let Some(unit) = next else {
                         break;
@@ -867,8 +890,8 @@ impl Scheduler {
         ops
     }
 
-    /// Merges a result from worker `w`, for a scheduler with no kept results to rebuild
-    /// from ([`Scheduler::submit_kept`] with `()`).
+    /// Merges a result from worker `w`; in an audited job, it may instead be held for its
+    /// audit (convictions happen in [`Scheduler::referee`]).
     pub fn submit(
         &mut self,
         w: u64,
@@ -878,26 +901,8 @@ impl Scheduler {
         sums: TileSums,
         now: Instant,
     ) -> Result<Merged, Refusal> {
-        self.submit_kept(w, lease, job_id, unit, sums, now, &(), 0)
-    }
-
-    /// Merges a result from worker `w`; in an audited job, it may instead be held for its
-    /// audit, and the audit may convict a worker, whose results are then taken back from every
-    /// live job and their tiles folded again from `kept`.
-    #[allow(clippy::too_many_arguments)]
-    pub fn submit_kept(
-        &mut self,
-        w: u64,
-        lease: LeaseId,
-        job_id: JobId,
-        unit: Unit,
-        sums: TileSums,
-        now: Instant,
-        kept: &dyn KeptUnits,
-        now_ms: i64,
-    ) -> Result<Merged, Refusal> {
         let samples = sums.rect.area() as u64 * sums.samples.len() as u64;
-        let outcome = self.take_result(w, lease, job_id, unit, sums, now, kept, now_ms);
+        let outcome = self.take_result(w, lease, job_id, unit, sums, now);
         let c = &mut self.counters;
         match &outcome {
             Ok(Merged::New { .. }) => {
@@ -912,8 +917,7 @@ impl Scheduler {
         outcome
     }
 
-    /// [`Scheduler::submit_kept`] without the counting.
-    #[allow(clippy::too_many_arguments)]
+    /// [`Scheduler::submit`] without the counting.
     fn take_result(
         &mut self,
         w: u64,
@@ -922,8 +926,6 @@ impl Scheduler {
         unit: Unit,
         sums: TileSums,
         now: Instant,
-        kept: &dyn KeptUnits,
-        now_ms: i64,
     ) -> Result<Merged, Refusal> {
         // The handlers refuse a quarantined worker's calls already (`touch_worker`); refused here
         // too, so that no path merges a result from a worker an audit convicted after its results
@@ -954,9 +956,10 @@ impl Scheduler {
         if job.is_done(unit) {
             return Ok(Merged::Duplicate);
         }
-        // A copy from a worker whose copy is held already must not count as a second one: a
-        // liar would settle its own lie.
-        if audit_excludes(job, unit, w) {
+        // A copy from a worker (or host) whose copy is held already must not count as a second
+        // one: a liar would settle its own lie.
+        let host = self.workers.get(&w).map_or("", |x| x.host.as_str());
+        if audit_excludes(job, unit, w, host) {
             return Ok(Merged::Duplicate);
         }
         let lease_n = lease_n?;
@@ -981,7 +984,7 @@ impl Scheduler {
             self.leases.remove(&l);
         }
         let (sums, from, mut ops) = if job.rec.audited {
-            match self.audit_step(w, job_id, unit, sums, kept, now_ms) {
+            match self.audit_step(w, job_id, unit, sums, now) {
                 Some(settled) => settled,
                 None => return Ok(Merged::Held),
             }
@@ -1011,23 +1014,28 @@ impl Scheduler {
 
     /// The audit of a checked result for `unit` of audited job `job_id` from worker `w`.
     /// Returns the result to merge now, the worker it counts as from, and the store changes of
-    /// any conviction; or `None` if it is held (for another worker's copy).
+    /// any conviction; or `None` if it is held.
     ///
-    /// A unit drawn for an audit is held and handed to another worker. When a copy matches a
-    /// held one bit for bit, the unit is settled: the matching result is merged (as from
-    /// [`NOBODY`], since two workers vouch for it) and every worker whose copy differs is
-    /// convicted. Copies that differ with no match make every worker involved a suspect (no
-    /// work) and send the unit to yet another worker: rendering is deterministic, so the
-    /// third copy decides.
+    /// A unit drawn for an audit is held and handed to a worker on another host (one host is
+    /// one vote, however many registrations it makes). When that copy matches bit for bit, the
+    /// unit is settled and merged (as from [`NOBODY`]: two hosts vouch for it). When it
+    /// differs, nobody's vote decides: the unit goes to the coordinator's referee, which
+    /// renders it itself ([`Scheduler::referee`]) and convicts whoever differs from that. The
+    /// same happens to a held unit no other host takes within a lease time ([`Self::expire`]),
+    /// so a farm of one or two hosts still finishes every job.
     fn audit_step(
         &mut self,
         w: u64,
         job_id: JobId,
         unit: Unit,
         sums: TileSums,
-        kept: &dyn KeptUnits,
-        now_ms: i64,
+        now: Instant,
     ) -> Option<(TileSums, u64, Vec<Op>)> {
+        let host = self
+            .workers
+            .get(&w)
+            .map(|x| x.host.clone())
+            .unwrap_or_default();
         let job = self.jobs.get_mut(&job_id)?;
         let Some(hold) = job.audits.get_mut(&unit) else {
             if !self.draw_audit() {
@@ -1038,7 +1046,9 @@ impl Scheduler {
                 unit,
                 AuditHold {
                     results: vec![(w, sums)],
+                    hosts: std::iter::once(host).filter(|h| !h.is_empty()).collect(),
                     disputed: false,
+                    since: Some(now),
                 },
             );
             job.requeue.push_front(unit);
@@ -1046,51 +1056,129 @@ impl Scheduler {
         };
         if !hold.results.iter().any(|(_, s)| same_bits(s, &sums)) {
             hold.results.push((w, sums));
+            if !host.is_empty() {
+                hold.hosts.insert(host);
+            }
             hold.disputed = true;
-            let suspects: Vec<u64> = hold.results.iter().map(|(k, _)| *k).collect();
+            let involved: Vec<u64> = hold.results.iter().map(|(k, _)| *k).collect();
             tracing::warn!(
-                "{job_id} tile {} batch {}: {} workers' copies differ; each is a suspect until \
-                 another worker's copy matches one",
+                "{job_id} tile {} batch {}: {} workers' copies differ; the coordinator renders \
+                 the unit to decide",
                 unit.tile,
                 unit.batch,
-                suspects.len()
+                involved.len()
             );
-            for k in suspects {
+            for k in involved {
                 if let Some(x) = self.workers.get_mut(&k) {
                     x.disputes.insert((job_id, unit));
                 }
-                self.take_leases(k);
             }
-            // Ahead of the suspects' units just put back: the deciding copy goes first.
-            if let Some(job) = self.jobs.get_mut(&job_id) {
-                job.requeue.push_front(unit);
-            }
+            self.referee_wanted.insert((job_id, unit));
             return None;
         }
         let hold = job.audits.remove(&unit).unwrap_or_default();
-        let (agree, wrong): (Vec<_>, Vec<_>) =
-            hold.results.iter().partition(|(_, s)| same_bits(s, &sums));
-        let wrong: Vec<u64> = wrong.iter().map(|(k, _)| *k).collect();
         for (k, _) in &hold.results {
             if let Some(x) = self.workers.get_mut(k) {
-                x.disputes.remove(&(job_id, unit));
-            }
-        }
-        for k in agree.iter().map(|(k, _)| *k).chain([w]) {
-            if let Some(x) = self.workers.get_mut(&k) {
                 x.audits_passed += 1;
             }
         }
+        if let Some(x) = self.workers.get_mut(&w) {
+            x.audits_passed += 1;
+        }
+        Some((sums, NOBODY, Vec::new()))
+    }
+
+    /// Audited units the coordinator must render itself, each once: their copies disagree,
+    /// or no worker on another host took the second copy within a lease time. The service
+    /// renders each and hands the result to [`Scheduler::referee`].
+    pub fn take_referee_work(&mut self) -> Vec<(JobId, Unit)> {
+        std::mem::take(&mut self.referee_wanted)
+            .into_iter()
+            .collect()
+    }
+
+    /// The coordinator's own render of held `unit` of `job_id`: the truth, since rendering is
+    /// deterministic and the coordinator trusts itself. Every held copy that differs from it
+    /// convicts its worker; those that match pass; the referee's sums are merged (as from
+    /// [`NOBODY`]).
+    pub fn referee(
+        &mut self,
+        job_id: JobId,
+        unit: Unit,
+        sums: TileSums,
+        now: Instant,
+        kept: &dyn KeptUnits,
+        now_ms: i64,
+    ) -> Result<Merged, Refusal> {
+        let Some(job) = self.jobs.get_mut(&job_id) else {
+            return Ok(Merged::Discarded);
+        };
+        if !job.is_live() {
+            return Ok(Merged::Discarded);
+        }
+        if job.is_done(unit) {
+            return Ok(Merged::Duplicate);
+        }
+        let hold = job.audits.remove(&unit).unwrap_or_default();
+        for l in job.issued.remove(&unit).unwrap_or_default() {
+            self.leases.remove(&l);
+        }
         let mut ops = Vec::new();
-        for k in wrong {
+        for (k, copy) in &hold.results {
+            if let Some(x) = self.workers.get_mut(k) {
+                x.disputes.remove(&(job_id, unit));
+            }
+            if same_bits(copy, &sums) {
+                if let Some(x) = self.workers.get_mut(k) {
+                    x.audits_passed += 1;
+                }
+                continue;
+            }
             let why = format!(
-                "an audit found its result for {job_id} tile {} batch {} differs from two other \
-                 workers'",
+                "an audit found its result for {job_id} tile {} batch {} differs from the \
+                 coordinator's own render of it",
                 unit.tile, unit.batch
             );
-            ops.extend(self.convict(k, why, (job_id, unit), kept, now_ms));
+            ops.extend(self.convict(*k, why, (job_id, unit), kept, now_ms));
         }
-        Some((sums, NOBODY, ops))
+        let Some(job) = self.jobs.get_mut(&job_id) else {
+            return Ok(Merged::Discarded);
+        };
+        // A conviction may have taken results back, this unit among them if it had been
+        // merged; it is not done until this merge either way.
+        if job.is_done(unit) {
+            return Ok(Merged::Duplicate);
+        }
+        self.serial += 1;
+        let source = Source {
+            worker: NOBODY,
+            serial: self.serial,
+        };
+        let (merge_ops, finished) = job.merge(unit, sums, source, now)?;
+        ops.extend(merge_ops);
+        self.counters.units_refereed += 1;
+        Ok(Merged::New { ops, finished })
+    }
+
+    /// Whether `host` may register one more worker: it has fewer than
+    /// [`Scheduler::max_workers_per_host`] live registrations. An unknown host (no address)
+    /// is not counted.
+    pub fn host_may_register(&self, host: &str, now: Instant) -> Result<(), Refusal> {
+        if host.is_empty() {
+            return Ok(());
+        }
+        let live = self
+            .workers
+            .values()
+            .filter(|x| x.host == host && x.alive(now, self.lease_time) && !x.quarantined)
+            .count();
+        if live >= self.max_workers_per_host {
+            return Err(Refusal::Exhausted(format!(
+                "{host} has {live} live worker registrations, the most one host may have \
+                 (tessera coordinator --max-workers-per-host)"
+            )));
+        }
+        Ok(())
     }
 
     /// Takes back worker `w`'s live leases: their units go to the front of their queues.

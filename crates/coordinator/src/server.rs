@@ -94,6 +94,7 @@ pub async fn serve_when_ready(
             if shared.scheduler().expire(std::time::Instant::now()) {
                 shared.bump_work();
             }
+            crate::referee::spawn_pending(&shared);
         },
     );
     // Asset files no active job uses are deleted once their retention has passed, checked a
@@ -297,6 +298,7 @@ impl InProcess {
         {
             self.service.shared.bump_work();
         }
+        crate::referee::spawn_pending(&self.service.shared);
     }
 
     /// The asset store.

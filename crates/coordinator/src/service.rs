@@ -745,6 +745,7 @@ impl Workers for Service {
         let lease = self.shared.config.lease_timeout;
         let secret = new_secret()?;
         let mut core = self.shared.scheduler();
+        core.host_may_register(&host, Instant::now())?;
         let n = core.register(
             truncate(&req.name),
             req.cores,
@@ -874,16 +875,7 @@ impl Workers for Service {
                     return Err(e);
                 }
             };
-            match core.submit_kept(
-                w,
-                lease,
-                job,
-                unit,
-                sums,
-                now,
-                &*self.shared.store,
-                now_ms(),
-            ) {
+            match core.submit(w, lease, job, unit, sums, now) {
                 Ok(Merged::New { ops, finished }) => {
                     let rx = self.shared.queue_write(ops);
                     (finished, Some(rx))
@@ -907,6 +899,7 @@ impl Workers for Service {
                 }
             }
         };
+        crate::referee::spawn_pending(&self.shared);
         if let Some(rx) = rx {
             durable(rx).await.map_err(internal)?;
             self.shared.metrics.merge.observe(arrived.elapsed());

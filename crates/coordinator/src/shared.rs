@@ -65,6 +65,7 @@ impl Shared {
         let mut scheduler = Scheduler::new(epoch, config.lease_timeout);
         scheduler.quarantine_after = config.quarantine_after.max(1);
         scheduler.max_leases_per_worker = config.max_leases_per_worker.max(1);
+        scheduler.max_workers_per_host = config.max_workers_per_host.max(1);
         scheduler.audit = if config.audit.is_finite() {
             config.audit.clamp(0.0, 1.0)
         } else {

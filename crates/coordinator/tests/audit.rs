@@ -1,7 +1,8 @@
 //! Audits, call by call: a worker whose wrong results were merged unchecked is caught by a
-//! checked one, convicted when a third copy settles the dispute, and every result it gave is
-//! taken back, its tiles folded again from the kept results in the real store, so the job
-//! ends with the honest bits.
+//! checked one, convicted when the coordinator's own render (the referee, played here by the
+//! honest sums) settles the dispute, and every result it gave is taken back, its tiles folded
+//! again from the kept results in the real store, so the job ends with the honest bits. Copies
+//! count only from different hosts, so registrations of one host cannot outvote another.
 
 use std::time::{Duration, Instant};
 
@@ -80,9 +81,37 @@ impl Farm {
         }
     }
 
+    /// A worker on a host of its own (named after it).
     fn worker(&mut self, name: &str) -> u64 {
-        self.core
-            .register(name.into(), 1, "v".into(), name.into(), self.now)
+        self.worker_on(name, &format!("host-{name}"))
+    }
+
+    fn worker_on(&mut self, name: &str, host: &str) -> u64 {
+        let w = self
+            .core
+            .register(name.into(), 1, "v".into(), name.into(), self.now);
+        self.core.workers.get_mut(&w).expect("registered").host = host.into();
+        w
+    }
+
+    /// Plays the coordinator's referee: renders (honestly) every unit the scheduler asks it
+    /// to, and commits what each settles. Returns the outcomes.
+    fn referee(&mut self) -> Vec<Merged> {
+        let wanted = self.core.take_referee_work();
+        wanted
+            .into_iter()
+            .map(|(job, unit)| {
+                let sums = honest(&self.core.jobs[&job], unit);
+                let m = self
+                    .core
+                    .referee(job, unit, sums, self.now, &self.store, 0)
+                    .expect("the referee's result");
+                if let Merged::New { ops, .. } = &m {
+                    self.store.apply(ops).expect("commit");
+                }
+                m
+            })
+            .collect()
     }
 
     fn lease(&mut self, w: u64) -> Option<Granted> {
@@ -93,7 +122,7 @@ impl Farm {
     fn send(&mut self, w: u64, g: &Granted, r: TileSums) -> Merged {
         let m = self
             .core
-            .submit_kept(w, g.lease, g.job, g.unit, r, self.now, &self.store, 0)
+            .submit(w, g.lease, g.job, g.unit, r, self.now)
             .expect("accepted");
         if let Merged::New { ops, .. } = &m {
             self.store.apply(ops).expect("commit");
@@ -105,18 +134,37 @@ impl Farm {
         &self.core.jobs[&JOB]
     }
 
-    /// Honest workers `ws` render what is left, in turn, until the job finishes.
+    /// Honest workers `ws` render what is left, in turn, until the job finishes; the
+    /// referee settles what it is asked to, and time passes a lease time a round when nobody
+    /// got work (so held units no other host takes go to the referee).
     fn finish(&mut self, ws: &[u64]) {
         for _ in 0..1000 {
+            let mut worked = false;
             for &w in ws {
                 let Some(g) = self.lease(w) else { continue };
+                worked = true;
                 let r = honest(self.job(), g.unit);
                 if let Merged::New { finished: true, .. } = self.send(w, &g, r) {
                     return;
                 }
             }
+            if self
+                .referee()
+                .iter()
+                .any(|m| matches!(m, Merged::New { finished: true, .. }))
+            {
+                return;
+            }
+            if !worked {
+                self.now += self.core.lease_time;
+                self.core.expire(self.now);
+            }
         }
-        panic!("the job does not finish");
+        panic!(
+            "the job does not finish: {} of {} units",
+            self.job().units_done,
+            self.job().units_total()
+        );
     }
 }
 
@@ -195,15 +243,33 @@ fn a_convicted_worker_has_every_result_taken_back_and_the_job_ends_with_the_hone
         farm.send(a, &ga, honest(farm.job(), caught)),
         Merged::Held
     ));
-    // The copies differ: both are suspects and get no work until a third copy settles it.
-    assert!(farm.lease(a).is_none(), "a suspect gets no work");
-    assert!(farm.lease(liar).is_none(), "a suspect gets no work");
-    let gb = farm.lease(b).expect("the third copy");
-    assert_eq!(gb.unit, caught);
-    let Merged::New { ops, finished } = farm.send(b, &gb, honest(farm.job(), caught)) else {
+    // The copies differ: no third worker's vote decides, the coordinator's own render does.
+    // Meanwhile both keep working, and the unit is not handed out again.
+    assert!(farm.core.workers[&a].disputes.contains(&(JOB, caught)));
+    let gb = farm.lease(b).expect("other work");
+    assert_ne!(gb.unit, caught, "the disputed unit went to a worker");
+    farm.send(b, &gb, honest(farm.job(), gb.unit));
+    let ga = farm.lease(a).expect("a worker in a dispute keeps working");
+    assert_ne!(ga.unit, caught);
+    farm.send(a, &ga, honest(farm.job(), ga.unit));
+    let wanted = farm.core.take_referee_work();
+    assert_eq!(wanted, vec![(JOB, caught)]);
+    let Merged::New { ops, finished } = farm
+        .core
+        .referee(
+            JOB,
+            caught,
+            honest(farm.job(), caught),
+            farm.now,
+            &farm.store,
+            0,
+        )
+        .expect("refereed")
+    else {
         panic!("the settled unit merges");
     };
     assert!(!finished);
+    farm.store.apply(&ops).expect("commit");
     let record = ops
         .iter()
         .find_map(|op| match op {
@@ -217,6 +283,11 @@ fn a_convicted_worker_has_every_result_taken_back_and_the_job_ends_with_the_hone
     // honest ones it had merged among them, and no one else's.
     assert_eq!(record.units_requeued, liar_units.len() as u64);
     assert_eq!(record.jobs_rebuilt, vec![1]);
+    let why = farm.core.workers[&liar]
+        .convicted
+        .clone()
+        .expect("convicted");
+    assert!(why.contains("coordinator's own render"), "{why}");
     assert_eq!(farm.store.audits().expect("audits"), vec![record]);
     // The liar is out; the honest worker is cleared.
     let liar_cred = farm.core.worker_credential(liar).expect("cred");
@@ -225,7 +296,8 @@ fn a_convicted_worker_has_every_result_taken_back_and_the_job_ends_with_the_hone
         other => panic!("a convicted worker is refused, got {other:?}"),
     }
     assert!(farm.core.workers[&a].disputes.is_empty());
-    assert_eq!(farm.core.workers[&a].audits_passed, 1);
+    // Its copy of the caught unit matched the referee (and its other unit may have matched b's).
+    assert!(farm.core.workers[&a].audits_passed >= 1);
 
     // The honest workers finish the job, checking each other.
     farm.finish(&[a, b]);
@@ -297,7 +369,7 @@ fn an_unaudited_job_keeps_no_copies() {
 }
 
 /// An audited unit never goes back to a worker that has rendered it: with one worker, it
-/// waits for another.
+/// waits for another (for a lease time; then the referee renders it, below).
 #[test]
 fn an_audit_copy_goes_to_another_worker() {
     let mut farm = Farm::new(true);
@@ -330,10 +402,10 @@ fn an_audit_copy_goes_to_another_worker() {
     assert_eq!(farm.core.workers[&b].audits_passed, 1);
 }
 
-/// Suspects of a dispute in a job that ends (cancelled here) before a third copy settles it
-/// are cleared of it, rather than kept from work for good.
+/// A dispute in a job that ends (cancelled here) before the referee settles it clears the
+/// workers of it, and the referee's late result is discarded.
 #[test]
-fn a_dispute_in_a_job_that_ends_clears_its_suspects() {
+fn a_dispute_in_a_job_that_ends_is_dropped() {
     let mut farm = Farm::new(true);
     let (a, liar) = (farm.worker("a"), farm.worker("liar"));
     farm.core.audit = 1.0;
@@ -342,68 +414,149 @@ fn a_dispute_in_a_job_that_ends_clears_its_suspects() {
     let copy = farm.lease(a).expect("the copy");
     assert_eq!(copy.unit, g.unit);
     farm.send(a, &copy, honest(farm.job(), g.unit));
-    assert!(farm.lease(a).is_none(), "a suspect gets no work");
+    assert!(!farm.core.workers[&a].disputes.is_empty());
     farm.core.end_job(
         JOB,
         tessera_coordinator::store::JobPhase::Cancelled,
         String::new(),
         0,
     );
-    farm.core.jobs.insert(
-        JobId(2),
-        Job::new(JobRecord {
-            id: 2,
-            ..record(true)
-        }),
-    );
-    assert!(farm.lease(a).is_some(), "cleared once the job ended");
+    assert!(farm.core.workers[&a].disputes.is_empty());
     assert!(farm.core.workers[&liar].disputes.is_empty());
+    assert!(matches!(farm.referee()[..], [Merged::Discarded]));
+    assert!(farm.core.workers[&liar].convicted.is_none());
 }
 
-/// Three honest workers, each a suspect in a dispute with a different liar, settle each
-/// other's disputes: a suspect gets no ordinary work but may render another dispute's deciding
-/// copy. Without that the farm waited for ever (found by the `rpc_sequence` fuzz target with
-/// audits: "job 1 stalled with 8 of 20 units").
+/// #55 D1: two workers, one of them a liar, on two hosts. Before, a mismatch made both
+/// suspects with no work until a third copy settled it, which nobody could give: the farm
+/// stalled for ever. Now the referee decides, and the job ends with the honest bits.
 #[test]
-fn suspects_settle_each_others_disputes() {
+fn two_workers_and_one_liar_still_finish_with_the_honest_bits() {
     let mut farm = Farm::new(true);
-    let honest_ws: Vec<u64> = ["x", "y", "z"].map(|n| farm.worker(n)).to_vec();
-    let liars: Vec<u64> = ["l1", "l2", "l3"].map(|n| farm.worker(n)).to_vec();
+    let (honest_w, liar) = (farm.worker("honest"), farm.worker("liar"));
     farm.core.audit = 1.0;
-    // Each liar takes a unit before any answers (two liars sending the same lie for one unit
-    // would agree: a limit of audits, docs/farm.md).
-    let grants: Vec<Granted> = liars
-        .iter()
-        .map(|&l| farm.lease(l).expect("a unit"))
-        .collect();
-    for (&l, g) in liars.iter().zip(&grants) {
-        assert!(matches!(
-            farm.send(l, g, forged(farm.job(), g.unit)),
-            Merged::Held
-        ));
+    for _ in 0..1000 {
+        if farm.job().units_done == farm.job().units_total() {
+            break;
+        }
+        let mut worked = false;
+        for w in [honest_w, liar] {
+            let Some(g) = farm.lease(w) else { continue };
+            worked = true;
+            let r = if w == liar {
+                forged(farm.job(), g.unit)
+            } else {
+                honest(farm.job(), g.unit)
+            };
+            farm.send(w, &g, r);
+        }
+        farm.referee();
+        if !worked {
+            farm.now += farm.core.lease_time;
+            farm.core.expire(farm.now);
+        }
     }
-    // Each honest worker takes one of the held units before any answers.
-    let copies: Vec<Granted> = honest_ws
-        .iter()
-        .map(|&w| farm.lease(w).expect("a copy"))
-        .collect();
-    for (&w, g) in honest_ws.iter().zip(&copies) {
-        assert!(matches!(
-            farm.send(w, g, honest(farm.job(), g.unit)),
-            Merged::Held
-        ));
-    }
-    assert!(honest_ws
-        .iter()
-        .all(|w| !farm.core.workers[w].disputes.is_empty()));
-    farm.finish(&honest_ws);
-    for l in &liars {
-        assert!(farm.core.workers[l].convicted.is_some(), "liar {l}");
-    }
+    assert_eq!(farm.job().units_done, farm.job().units_total(), "stalled");
+    assert!(farm.core.workers[&liar].convicted.is_some());
+    assert!(farm.core.workers[&honest_w].convicted.is_none());
     assert!(same_frame(
         &farm.job().frame_tiles(),
         &honest_frame(farm.job())
     ));
+}
+
+/// #55 D2: one token holder registers two workers on one host that lie alike. Before, they
+/// were the "two other workers" whose copies matched, the honest worker was convicted and its
+/// units rendered again by the liars. Now copies from one host are one vote: the second liar
+/// never gets its partner's audit copy, the honest worker's copy differs, and the referee
+/// convicts the liar.
+#[test]
+fn registrations_of_one_host_cannot_outvote_another_host() {
+    let mut farm = Farm::new(true);
+    let l1 = farm.worker_on("l1", "10.0.0.66");
+    let l2 = farm.worker_on("l2", "10.0.0.66");
+    let honest_w = farm.worker_on("honest", "10.0.0.7");
+    farm.core.audit = 1.0;
+    let g = farm.lease(l1).expect("a unit");
+    let caught = g.unit;
+    assert!(matches!(
+        farm.send(l1, &g, forged(farm.job(), caught)),
+        Merged::Held
+    ));
+    // The copy is at the front of the queue, but not for the same host.
+    let g2 = farm.lease(l2).expect("other work");
+    assert_ne!(
+        g2.unit, caught,
+        "the audit copy went to the liar's own host"
+    );
+    let copy = farm.lease(honest_w).expect("the copy");
+    assert_eq!(copy.unit, caught);
+    farm.send(honest_w, &copy, honest(farm.job(), caught));
+    // l2's forged result for another unit cannot settle anything either.
+    farm.send(l2, &g2, forged(farm.job(), g2.unit));
+    farm.referee();
+    assert!(farm.core.workers[&l1].convicted.is_some());
+    assert!(farm.core.workers[&honest_w].convicted.is_none());
+    farm.finish(&[honest_w]);
+    assert!(
+        farm.core.workers[&l2].convicted.is_some(),
+        "l2's lie is caught"
+    );
+    assert!(farm.core.workers[&honest_w].convicted.is_none());
+    assert!(same_frame(
+        &farm.job().frame_tiles(),
+        &honest_frame(farm.job())
+    ));
+}
+
+/// A farm of one host (every worker behind one address) still finishes an audited job: a held
+/// unit no other host takes within a lease time goes to the referee.
+#[test]
+fn on_one_host_held_units_go_to_the_referee_after_a_lease_time() {
+    let mut farm = Farm::new(true);
+    let a = farm.worker_on("a", "10.0.0.1");
+    let b = farm.worker_on("b", "10.0.0.1");
+    farm.core.audit = 1.0;
+    let g = farm.lease(a).expect("a unit");
+    farm.send(a, &g, honest(farm.job(), g.unit));
+    assert!(farm.referee().is_empty());
+    farm.now += farm.core.lease_time;
+    farm.core.expire(farm.now);
+    assert!(matches!(farm.referee()[..], [Merged::New { .. }]));
+    assert!(farm.job().is_done(g.unit));
+    farm.finish(&[a, b]);
+    assert!(same_frame(
+        &farm.job().frame_tiles(),
+        &honest_frame(farm.job())
+    ));
+    assert!(farm.core.workers[&a].audits_passed > 0);
+}
+
+/// Registrations per host are bounded; another host, and one that is gone, do not count.
+#[test]
+fn registrations_per_host_are_bounded() {
+    let mut farm = Farm::new(true);
+    farm.core.max_workers_per_host = 2;
+    farm.worker_on("a", "10.0.0.1");
+    farm.worker_on("b", "10.0.0.1");
+    let e = farm
+        .core
+        .host_may_register("10.0.0.1", farm.now)
+        .expect_err("full");
+    assert!(
+        matches!(&e, Refusal::Exhausted(m) if m.contains("--max-workers-per-host")),
+        "{e:?}"
+    );
+    farm.core
+        .host_may_register("10.0.0.2", farm.now)
+        .expect("another host");
+    farm.core
+        .host_may_register("", farm.now)
+        .expect("an unknown host");
+    farm.now += farm.core.lease_time * 2;
+    farm.core
+        .host_may_register("10.0.0.1", farm.now)
+        .expect("both have gone quiet");
 }
 
 /// A convicted worker's late result, under a lease it got before it was caught, is refused:
@@ -420,20 +573,17 @@ fn a_convicted_workers_late_result_is_refused() {
     let copy = farm.lease(a).expect("the copy");
     assert_eq!(copy.unit, first.unit);
     farm.send(a, &copy, honest(farm.job(), first.unit));
-    let third = farm.lease(b).expect("the third copy");
-    assert_eq!(third.unit, first.unit);
-    farm.send(b, &third, honest(farm.job(), first.unit));
+    farm.referee();
     assert!(farm.core.workers[&liar].convicted.is_some());
+    let _ = b;
     let done = farm.job().units_done;
-    let r = farm.core.submit_kept(
+    let r = farm.core.submit(
         liar,
         late.lease,
         late.job,
         late.unit,
         forged(farm.job(), late.unit),
         farm.now,
-        &farm.store,
-        0,
     );
     assert!(matches!(r, Err(Refusal::Denied(_))), "{r:?}");
     assert_eq!(farm.job().units_done, done);

@@ -27,6 +27,9 @@ pub struct ClientOptions {
     pub token: Option<Secret>,
     /// TLS, required for `https://` URLs.
     pub tls: Option<ClientTls>,
+    /// The local address to connect from, on a machine with several (the coordinator knows a
+    /// worker's host by it); the system's choice if `None`.
+    pub source_address: Option<std::net::IpAddr>,
 }
 
 /// Why a client cannot be set up.
@@ -61,7 +64,8 @@ pub fn endpoint(url: &str, options: &ClientOptions) -> Result<Endpoint, ClientEr
         .keep_alive_timeout(Duration::from_secs(5))
         .keep_alive_while_idle(true)
         // No unary call (long-polling leases wait 30 s at most) should take this long.
-        .timeout(Duration::from_secs(120));
+        .timeout(Duration::from_secs(120))
+        .local_address(options.source_address);
     if ep.uri().host().is_none() || ep.uri().port_u16().is_none() {
         return Err(bad(
             "must name a host and a port, e.g. http://10.0.0.5:7878",

@@ -121,6 +121,7 @@ impl CoordinatorUrl {
         Ok(ClientOptions {
             token: load_token(self.token_file.as_deref())?,
             tls,
+            source_address: None,
         })
     }
 }

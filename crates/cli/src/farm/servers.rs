@@ -71,12 +71,15 @@ pub struct CoordinatorArgs {
     /// Most units one worker may hold at once (a stock worker holds at most 3).
     #[arg(long, default_value_t = config::DEFAULT_MAX_LEASES_PER_WORKER as u32, value_parser = clap::value_parser!(u32).range(1..=4096))]
     max_leases_per_worker: u32,
-    /// Fraction of units (0 to 1) that a second worker renders too, compared bit for bit
-    /// with the first; a worker caught returning other bits is quarantined and its results
-    /// are rendered again (docs/farm.md, "Audits"). Needs at least two workers, and three to
-    /// settle a disagreement.
+    /// Fraction of units (0 to 1) that a worker on another host renders too, compared bit for
+    /// bit with the first; when the copies differ the coordinator renders the unit itself, and
+    /// a worker whose bits differ from its render is quarantined and its results rendered
+    /// again (docs/farm.md, "Audits").
     #[arg(long, default_value_t = 0.0)]
     audit: f64,
+    /// Most live worker registrations from one host (the address it registers from).
+    #[arg(long, default_value_t = config::DEFAULT_MAX_WORKERS_PER_HOST as u32, value_parser = clap::value_parser!(u32).range(1..))]
+    max_workers_per_host: u32,
     /// Most client connections open at once.
     #[arg(long, default_value_t = config::DEFAULT_MAX_CONNECTIONS as u32, value_parser = clap::value_parser!(u32).range(1..))]
     max_connections: u32,
@@ -153,6 +156,7 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
     config.quarantine_after = args.quarantine_after;
     config.max_leases_per_worker = args.max_leases_per_worker as usize;
     config.max_connections = args.max_connections as usize;
+    config.max_workers_per_host = args.max_workers_per_host as usize;
     config.token = load_token(args.token_file.as_deref())?;
     if let (Some(cert), Some(key)) = (&args.tls_cert, &args.tls_key) {
         config.tls = Some(ServerTls {
