@@ -77,6 +77,31 @@ enum Command {
         #[arg(trailing_var_arg = true, allow_hyphen_values = true, hide = true)]
         args: Vec<String>,
     },
+    /// Load-test a coordinator (in builds with the `bench` feature only).
+    #[cfg(not(feature = "bench"))]
+    #[command(disable_help_flag = true)]
+    Loadtest {
+        /// Ignored: this build has no benchmark harness.
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true, hide = true)]
+        args: Vec<String>,
+    },
+}
+
+/// What `bench` and `loadtest` say in a build without them: how to get a build with them. Asked
+/// for help, that is the help (exit 0); otherwise it is the error.
+#[cfg(not(feature = "bench"))]
+fn without_bench(command: &str, args: &[String]) -> anyhow::Result<()> {
+    let hint = format!(
+        "`tessera {command}` is in builds with the benchmark harness only; build one with \
+         `cargo build --release -p tessera-cli --features bench` (bench/speed-vs-error.sh does)"
+    );
+    if args.iter().any(|a| a == "--help" || a == "-h") {
+        outln!("{hint}");
+        return Ok(());
+    }
+    Err(anyhow::anyhow!(
+        "this tessera was built without the benchmark harness: {hint}"
+    ))
 }
 
 fn main() -> ExitCode {
@@ -96,10 +121,9 @@ fn main() -> ExitCode {
         #[cfg(feature = "bench")]
         Command::Loadtest(args) => bench::load::run(args),
         #[cfg(not(feature = "bench"))]
-        Command::Bench { .. } => Err(anyhow::anyhow!(
-            "this tessera was built without the benchmark harness; build one with \
-             `cargo build --release -p tessera-cli --features bench` (bench/speed-vs-error.sh does)"
-        )),
+        Command::Bench { args } => without_bench("bench", &args),
+        #[cfg(not(feature = "bench"))]
+        Command::Loadtest { args } => without_bench("loadtest", &args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -288,11 +288,14 @@ pub fn run(args: RenderArgs) -> Result<()> {
         ),
     };
     outln!(
-        "rendered {}×{} at {spp} in {:.2} s on {} threads: {:.2} Msamples/s, noise σ≈{:.4} ({:.2}% of mean), {} non-finite samples dropped → {}",
+        "rendered {}×{} at {spp} in {:.2} s on {}: {:.2} Msamples/s, noise σ≈{:.4} ({:.2}% of mean), {} non-finite samples dropped → {}",
         scene.width,
         scene.height,
         secs,
-        pool.current_num_threads(),
+        match pool.current_num_threads() {
+            1 => "1 thread".to_string(),
+            n => format!("{n} threads"),
+        },
         samples as f64 / secs / 1e6,
         noise,
         rel * 100.0,

@@ -4,7 +4,7 @@ mod common;
 
 use std::path::Path;
 
-use common::{assert_clean_failure, repo, tessera, write};
+use common::{assert_clean_failure, repo, tessera, tessera_at, write};
 use std::process::Command;
 
 use tessera_render::output::{read_exr_metadata, read_exr_rgb};
@@ -303,6 +303,43 @@ fn a_token_file_others_can_read_is_warned_about() {
 fn bench_says_how_to_build_it_where_it_is_left_out() {
     let r = tessera(&["bench", "--max-spp", "16"]);
     assert_clean_failure(&r, &["without the benchmark harness", "--features bench"]);
+    // `loadtest` too (it was "unrecognized subcommand"), and asking for help is no failure.
+    let r = tessera(&["loadtest", "--workers", "10"]);
+    assert_clean_failure(&r, &["without the benchmark harness", "--features bench"]);
+    for cmd in ["bench", "loadtest"] {
+        let r = tessera(&[cmd, "--help"]);
+        assert!(r.status.success(), "tessera {cmd} --help: {:?}", r.status);
+        assert!(String::from_utf8_lossy(&r.stdout).contains("--features bench"));
+    }
+}
+
+/// #55: a bad coordinator URL is named once (it was "coordinator URL "x": coordinator URL
+/// "x": …" from the worker), and one render thread is "1 thread".
+#[test]
+fn messages_say_things_once_and_in_the_right_number() {
+    for cmd in [&["status"][..], &["worker"]] {
+        let mut args = cmd.to_vec();
+        args.extend(["--coordinator", "x:1"]);
+        let r = tessera(&args);
+        assert_clean_failure(&r, &["must start with http://"]);
+        let stderr = String::from_utf8_lossy(&r.stderr);
+        assert_eq!(stderr.matches("coordinator URL").count(), 1, "{stderr}");
+    }
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("o.exr");
+    let r = tessera(&[
+        "render",
+        &repo("scenes/spheres.toml"),
+        "--spp",
+        "1",
+        "--threads",
+        "1",
+        "--output",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(r.status.success());
+    let stdout = String::from_utf8_lossy(&r.stdout);
+    assert!(stdout.contains(" on 1 thread:"), "{stdout}");
 }
 
 /// `--tracer` picks how the samples are traced, never what they are: every tracer writes the
@@ -404,5 +441,71 @@ fn noise_targets_and_frames_reach_the_exr_header() {
             ]),
             &["--noise-target", want],
         );
+    }
+}
+
+/// #55: for a scene whose files are bad, `submit` printed only "`X` is not among the files
+/// sent with the job"; now it prints the cause, as `render` does, before connecting anywhere.
+#[test]
+fn submit_names_a_bad_file_as_render_does() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let cube = std::fs::read_to_string(repo("scenes/meshes/cube.obj")).expect("cube");
+    let ply = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n\
+               property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
+               end_header\n0 0 0\n1 0 0\n";
+    std::fs::write(dir.path().join("truncated.ply"), ply).expect("ply");
+    std::fs::write(
+        dir.path().join("bad-index.obj"),
+        format!("{cube}\nf 1 2 99\n"),
+    )
+    .expect("obj");
+    std::fs::create_dir(dir.path().join("dir.png")).expect("dir");
+    let base = std::fs::read_to_string(repo("scenes/textured.toml")).expect("scene");
+    for d in ["meshes", "textures"] {
+        std::os::unix::fs::symlink(repo(&format!("scenes/{d}")), dir.path().join(d)).expect("link");
+    }
+    let cases = [
+        ("missing", base.replace("meshes/", "nowhere/"), "nowhere/"),
+        (
+            "truncated",
+            format!("{base}\n[[objects]]\nshape = \"mesh\"\nfile = \"truncated.ply\"\nmaterial = \"checker\"\n"),
+            "truncated.ply",
+        ),
+        (
+            "index",
+            format!("{base}\n[[objects]]\nshape = \"mesh\"\nfile = \"bad-index.obj\"\nmaterial = \"checker\"\n"),
+            "bad-index.obj",
+        ),
+        (
+            "directory",
+            base.replace("textures/checker.png", "dir.png"),
+            "`dir.png` is not a file",
+        ),
+    ];
+    for (what, text, names) in cases {
+        let scene = write(dir.path(), &format!("{what}.toml"), &text);
+        let out = dir.path().join("o.exr");
+        let render = tessera(&[
+            "render",
+            &scene,
+            "--spp",
+            "1",
+            "--output",
+            out.to_str().expect("utf8"),
+        ]);
+        assert_clean_failure(&render, &[]);
+        let said = String::from_utf8_lossy(&render.stderr).trim().to_string();
+        let submit = tessera_at(&["submit", &scene, "--spp", "1"], "http://127.0.0.1:9");
+        assert_clean_failure(&submit, &[]);
+        let stderr = String::from_utf8_lossy(&submit.stderr);
+        assert!(!stderr.contains("not among the files"), "{what}: {stderr}");
+        // The same cause, whatever each command puts before it.
+        assert!(said.contains(names), "{what}: render said {said:?}");
+        let cause = said.rsplit(": ").next().expect("a cause");
+        assert!(
+            stderr.contains(cause),
+            "{what}: render said {said:?}, submit {stderr:?}"
+        );
+        assert!(stderr.contains(names), "{what}: {stderr:?}");
     }
 }

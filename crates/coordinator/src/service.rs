@@ -95,7 +95,7 @@ fn status(job: &Job, core: &Scheduler) -> pb::JobStatus {
         JobPhase::Failed => pb::JobState::Failed,
     };
     let (units_total, units_done, samples_total, samples_done) = job.progress();
-    let rate = job.rate();
+    let rate = job.rate(Instant::now());
     let eta = if rec.phase == JobPhase::Done {
         0.0
     } else if rate > 0.0 && rec.phase == JobPhase::Active {
@@ -596,7 +596,7 @@ impl Jobs for Service {
                     audits_passed: w.audits_passed,
                     suspect: !w.disputes.is_empty(),
                     host: w.host.clone(),
-                    samples_per_second: w.rate.per_second(),
+                    samples_per_second: w.rate.per_second(now),
                 }
             })
             .collect();

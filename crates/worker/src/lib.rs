@@ -129,14 +129,9 @@ pub fn evict(dir: &std::path::Path, budget: u64, keep: &str) -> std::io::Result<
 /// Why the worker stopped.
 #[derive(Debug, thiserror::Error)]
 pub enum WorkerError {
-    /// The coordinator URL is not usable.
-    #[error("coordinator URL {url:?}: {message}")]
-    Url {
-        /// The URL.
-        url: String,
-        /// Why.
-        message: String,
-    },
+    /// The coordinator URL is not usable (the error names it).
+    #[error(transparent)]
+    Url(#[from] tessera_proto::client::ClientError),
     /// The render threads could not start.
     #[error("starting the render threads: {0}")]
     Threads(String),
@@ -848,10 +843,7 @@ pub async fn run(
     config: Config,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<(), WorkerError> {
-    let endpoint = endpoint(&config.coordinator, &config.client).map_err(|e| WorkerError::Url {
-        url: config.coordinator.clone(),
-        message: e.to_string(),
-    })?;
+    let endpoint = endpoint(&config.coordinator, &config.client)?;
     let client =
         WorkersClient::with_interceptor(endpoint.connect_lazy(), Bearer::new(&config.client))
             .max_decoding_message_size(config.max_message_bytes)

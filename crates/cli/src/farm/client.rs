@@ -410,17 +410,25 @@ fn check_frames_dir(dir: &Path) -> Result<()> {
     Ok(())
 }
 
-/// The files the scene names (meshes), as (name, SHA-256, path): found by loading the scene
-/// here, at the frame the job starts with. A scene that does not load here is sent as it is,
-/// without files, for the coordinator to refuse with its own positioned message (which is the
-/// same one).
+/// The files the scene names (meshes, textures), as (name, SHA-256, path): found by loading
+/// the scene here, at the frame the job starts with. A scene that does not load here is
+/// refused here with the error `tessera render` prints (a mesh that is missing or truncated, a
+/// texture that is a directory: the cause, not "not among the files sent"). Only the limits a
+/// coordinator may raise (resolution, spp, sizes) are lifted for this check, so a scene within
+/// its coordinator's limits but above the defaults is still sent, for it to decide.
 fn scene_files(args: &SubmitArgs) -> Result<Vec<(String, String, PathBuf)>> {
     let frame = args
         .frames
         .map_or(args.settings.frame.unwrap_or(FIRST_FRAME), |r| r.first);
-    let Ok(scene) = Scene::load_at(&args.scene, &Limits::default(), frame) else {
-        return Ok(Vec::new());
+    let lifted = Limits {
+        max_resolution: u32::MAX,
+        max_pixels: u64::MAX,
+        max_bytes: usize::MAX,
+        max_spp: u32::MAX,
+        max_asset_bytes: u64::MAX,
+        ..Limits::default()
     };
+    let scene = Scene::load_at(&args.scene, &lifted, frame)?;
     let dir = args.scene.parent().unwrap_or(Path::new("")).to_path_buf();
     Ok(scene
         .files

@@ -567,7 +567,7 @@ async fn metrics(State(app): State<App>) -> Response {
                 .map(|(&n, w)| WorkerLine {
                     id: core.worker_id(n).to_string(),
                     name: w.name.clone(),
-                    rate: w.rate.per_second(),
+                    rate: w.rate.per_second(now),
                     samples: w.samples_done,
                 })
                 .collect(),

@@ -200,6 +200,11 @@ fn load_obj(file: &str, bytes: &[u8], max_triangles: usize) -> Result<Vec<Group>
         }
     });
     let (models, materials) = loaded.map_err(|e| {
+        // tobj notices a reference out of range only when its group ends; the face itself,
+        // and the reference, are found again here (on this error path only).
+        if let Some((line, message)) = bad_obj_reference(&text) {
+            return error(file, format!(":{line}"), message);
+        }
         let line = reader.line().saturating_sub(1);
         error(file, format!(":{}", line.max(1)), obj_error_text(&e))
     })?;
@@ -297,6 +302,56 @@ fn load_obj(file: &str, bytes: &[u8], max_triangles: usize) -> Result<Vec<Group>
         }
     }
     Ok(groups)
+}
+
+/// The first face of an OBJ text that names a vertex, texture coordinate or normal that does
+/// not exist (yet: OBJ references only what came before): its line (1-based) and what is
+/// wrong, naming the reference as written and how many there were.
+fn bad_obj_reference(text: &str) -> Option<(usize, String)> {
+    let mut counts = [0i64; 3];
+    const KINDS: [(&str, &str); 3] = [
+        ("v", "vertex"),
+        ("vt", "texture coordinate"),
+        ("vn", "normal"),
+    ];
+    for (n, line) in text.lines().enumerate() {
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some(kw) if kw != "f" => {
+                if let Some(k) = KINDS.iter().position(|(w, _)| *w == kw) {
+                    counts[k] += 1;
+                }
+            }
+            Some(_) => {
+                for (c, word) in words.enumerate() {
+                    for (k, r) in word.split('/').enumerate().take(3) {
+                        if r.is_empty() {
+                            continue;
+                        }
+                        let Ok(i) = r.parse::<i64>() else {
+                            continue;
+                        };
+                        // Negative references count back from the last one defined.
+                        let resolved = if i < 0 { counts[k] + i + 1 } else { i };
+                        if resolved < 1 || resolved > counts[k] {
+                            let (_, what) = KINDS[k];
+                            return Some((
+                                n + 1,
+                                format!(
+                                    "face reference {} (`{word}`) names {what} {i}, which does \
+                                     not exist ({} defined before this line)",
+                                    c + 1,
+                                    counts[k]
+                                ),
+                            ));
+                        }
+                    }
+                }
+            }
+            None => {}
+        }
+    }
+    None
 }
 
 fn obj_error_text(e: &tobj::LoadError) -> String {
@@ -491,6 +546,13 @@ fn load_ply(file: &str, bytes: &[u8], max_triangles: usize) -> Result<Vec<Group>
         .read_header(&mut reader)
         .map_err(|e| {
             let at = format!(":{}", reader.line().max(1));
+            // ply-rs says "Line N: …" itself; the position is given once, in `at`.
+            let e = e.to_string();
+            let e = e
+                .strip_prefix("Line ")
+                .and_then(|r| r.split_once(": "))
+                .filter(|(n, _)| n.bytes().all(|b| b.is_ascii_digit()))
+                .map_or(e.as_str(), |(_, rest)| rest);
             error(file, at, format!("bad PLY header: {e}"))
         })?;
     let vertex_def = header.elements.get("vertex");
@@ -629,6 +691,18 @@ mod tests {
         assert!(g[0].normals.is_empty());
     }
 
+    /// ply-rs puts "Line N:" in its own message; the position is given once, not twice.
+    #[test]
+    fn a_ply_header_error_gives_its_line_once() {
+        let bytes =
+            b"ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nbogus line\nend_header\n";
+        let e = load("h.ply", bytes, MeshFormat::Ply, 10)
+            .expect_err("refused")
+            .to_string();
+        assert!(e.starts_with("h.ply:5: bad PLY header: "), "{e}");
+        assert!(!e.contains("Line"), "{e}");
+    }
+
     #[test]
     fn obj_errors_name_the_line() {
         let e = obj("v 0 0 0\nv 1 0 0\nv 1 1 x\nf 1 2 3\n").expect_err("refused");
@@ -636,8 +710,22 @@ mod tests {
             e.to_string(),
             "m.obj:3: bad vertex position: `v` needs three numbers"
         );
-        let e = obj("v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 9\n").expect_err("refused");
-        assert!(e.to_string().contains("does not exist"), "{e}");
+        let e = obj("v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 9\nv 0 1 0\n# end\n").expect_err("refused");
+        assert_eq!(
+            e.to_string(),
+            "m.obj:4: face reference 3 (`9`) names vertex 9, which does not exist (3 defined \
+             before this line)"
+        );
+        let e =
+            obj("v 0 0 0\nv 1 0 0\nv 1 1 0\nvn 0 0 1\nf 1//1 2//1 3//2\n").expect_err("refused");
+        assert!(
+            e.to_string()
+                .starts_with("m.obj:5: face reference 3 (`3//2`) names normal 2"),
+            "{e}"
+        );
+        let e = obj("v 0 0 0\nv 1 0 0\nv 1 1 0\nf -1 -2 -4\n").expect_err("refused");
+        assert!(e.to_string().contains("names vertex -4"), "{e}");
+        obj("v 0 0 0\nv 1 0 0\nv 1 1 0\nf -1 -2 -3\n").expect("relative references load");
         let e = obj("v 0 0 0\n").expect_err("refused");
         assert_eq!(e.to_string(), "m.obj: the file holds no triangles");
         let e = obj("v 0 0 nan\nv 1 0 0\nv 1 1 0\nf 1 2 3\n").expect_err("refused");
