@@ -37,7 +37,15 @@ mod render;
 
 /// tessera: a distributed path-tracing render farm.
 #[derive(Debug, Parser)]
-#[command(name = "tessera", version, about, propagate_version = true)]
+#[command(
+    name = "tessera",
+    version,
+    about,
+    propagate_version = true,
+    after_help = "Logging (coordinator, worker): RUST_LOG sets what is logged to stderr, e.g. \
+                  RUST_LOG=debug or RUST_LOG=tessera_coordinator=debug,info (default: info).\n\
+                  Shell completions: tessera completions bash|zsh|fish|elvish|powershell."
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -61,6 +69,12 @@ enum Command {
     Workers(farm::WorkersArgs),
     /// Download a finished job's EXR.
     Fetch(farm::FetchArgs),
+    /// Print a shell completion script, e.g. `tessera completions bash >
+    /// /etc/bash_completion.d/tessera`, or `source <(tessera completions zsh)`.
+    Completions {
+        /// The shell.
+        shell: clap_complete::Shell,
+    },
     /// Measure speed against error: timed renders at 4…4096 spp, relMSE against references,
     /// and a report with a log–log plot (and peers' figures, if given).
     #[cfg(feature = "bench")]
@@ -116,6 +130,15 @@ fn main() -> ExitCode {
         Command::Cancel(args) => farm::cancel(args),
         Command::Workers(args) => farm::workers(args),
         Command::Fetch(args) => farm::fetch(args),
+        Command::Completions { shell } => {
+            use clap::CommandFactory as _;
+            let mut out = Vec::new();
+            clap_complete::generate(shell, &mut Cli::command(), "tessera", &mut out);
+            use std::io::Write as _;
+            std::io::stdout()
+                .write_all(&out)
+                .map_err(anyhow::Error::from)
+        }
         #[cfg(feature = "bench")]
         Command::Bench(args) => bench::run(args),
         #[cfg(feature = "bench")]

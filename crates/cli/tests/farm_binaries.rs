@@ -537,3 +537,93 @@ fn the_data_directory_and_its_files_are_private_with_the_readmes_command() {
         }
     }
 }
+
+/// #55, what a user of Rust CLIs expects: `--json` on `status` and `workers`, `fetch` saving to
+/// the job's name by default, a cancelled job that says it has no EXR (not "not ready") and
+/// shows no made-up noise, and Ctrl-C on `submit --wait` saying the job goes on, with its id.
+#[test]
+fn json_default_names_cancelled_jobs_and_ctrl_c_say_what_they_mean() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, url) = coordinator(&dir.path().join("data"));
+    let scene = repo("scenes/spheres.toml");
+    // A job nobody renders (no worker yet), then cancelled.
+    let out = tessera(&["submit", &scene, "--spp", "4"], &url);
+    assert!(out.status.success());
+    let cancelled = String::from_utf8_lossy(&out.stdout).trim().to_string();
+    assert!(tessera(&["cancel", &cancelled], &url).status.success());
+    let out = tessera(&["status", &cancelled], &url);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("noise      – (no sample merged)"), "{text}");
+    one_line_failure(
+        &tessera(&["fetch", &cancelled, "-o", "x.exr"], &url),
+        "was cancelled, so it has no EXR",
+    );
+    let json: serde_json::Value =
+        serde_json::from_slice(&tessera(&["status", &cancelled, "--json"], &url).stdout)
+            .expect("status --json is JSON");
+    assert_eq!(json["state"], "cancelled");
+    assert_eq!(json["job_id"], cancelled.as_str());
+    assert!(json["noise_relative"].is_null(), "{json}");
+
+    let _w = worker(&url, "w");
+    let out = tessera(&["submit", &scene, "--spp", "4", "--wait", "-o"], &url);
+    assert!(!out.status.success(), "-o needs a value");
+    let out = tessera(&["submit", &scene, "--spp", "4"], &url);
+    let job = String::from_utf8_lossy(&out.stdout).trim().to_string();
+    // fetch with no --output saves under the job's name, in the current directory.
+    let here = tempfile::tempdir().expect("cwd");
+    let out = Command::new(BIN)
+        .current_dir(here.path())
+        .args(["fetch", &job, "--wait"])
+        .env("TESSERA_COORDINATOR", &url)
+        .output()
+        .expect("fetch");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(here.path().join(format!("{job}.exr")).is_file());
+    let list: serde_json::Value =
+        serde_json::from_slice(&tessera(&["status", "--json"], &url).stdout).expect("JSON");
+    assert_eq!(list.as_array().map(Vec::len), Some(2), "{list}");
+    let workers: serde_json::Value =
+        serde_json::from_slice(&tessera(&["workers", "--json"], &url).stdout).expect("JSON");
+    assert_eq!(workers[0]["name"], "w", "{workers}");
+    assert!(workers[0]["units_done"].as_u64().is_some_and(|n| n > 0));
+
+    // Ctrl-C while following: the job goes on, and the message names it.
+    let mut child = Command::new(BIN)
+        .args(["submit", &scene, "--spp", "65536", "--wait"])
+        .env("TESSERA_COORDINATOR", &url)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("submit --wait");
+    let stderr = child.stderr.take().expect("stderr");
+    let mut lines = BufReader::new(stderr).lines();
+    let first = lines.next().and_then(Result::ok).unwrap_or_default();
+    assert!(first.contains("submitted"), "{first}");
+    std::thread::sleep(Duration::from_millis(500));
+    let pid = child.id().to_string();
+    assert!(Command::new("kill")
+        .args(["-INT", &pid])
+        .status()
+        .expect("kill")
+        .success());
+    let status = child.wait().expect("wait");
+    let rest: Vec<String> = lines.map_while(Result::ok).collect();
+    let said = rest.join("\n");
+    assert!(!status.success());
+    let id = first.split_whitespace().next().expect("id");
+    assert!(
+        said.contains(&format!("interrupted: {id} goes on rendering")),
+        "{said:?}"
+    );
+    let s: serde_json::Value =
+        serde_json::from_slice(&tessera(&["status", id, "--json"], &url).stdout).expect("JSON");
+    assert!(
+        matches!(s["state"].as_str(), Some("running" | "queued")),
+        "{s}"
+    );
+}

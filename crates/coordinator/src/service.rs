@@ -636,8 +636,14 @@ impl Jobs for Service {
         };
         if s.state != pb::JobState::Done as i32 {
             let state = tessera_proto::convert::job_state_name(s.state);
+            // A job that ended without an image never will have one: say so, not "not ready".
+            let why = match pb::JobState::try_from(s.state) {
+                Ok(pb::JobState::Cancelled) => "it was cancelled, so it has no EXR".to_string(),
+                Ok(pb::JobState::Failed) => format!("it has no EXR: {}", s.error),
+                _ => "its EXR is not ready".to_string(),
+            };
             return Err(Status::failed_precondition(format!(
-                "{} is {state} ({}/{} units): its EXR is not ready",
+                "{} is {state} ({}/{} units): {why}",
                 s.job_id, s.units_done, s.units_total
             )));
         }

@@ -66,6 +66,9 @@ pub struct StatusArgs {
     job: Option<String>,
     #[command(flatten)]
     url: CoordinatorUrl,
+    /// Print JSON (one object for a job, an array for the list) for scripts, not the table.
+    #[arg(long)]
+    json: bool,
 }
 
 /// Arguments of `tessera cancel`.
@@ -82,6 +85,9 @@ pub struct CancelArgs {
 pub struct WorkersArgs {
     #[command(flatten)]
     url: CoordinatorUrl,
+    /// Print a JSON array for scripts, not the table.
+    #[arg(long)]
+    json: bool,
 }
 
 /// Arguments of `tessera fetch`.
@@ -91,10 +97,11 @@ pub struct FetchArgs {
     job: String,
     #[command(flatten)]
     url: CoordinatorUrl,
-    /// Where to save the EXR; for a frame-range job without `--frame`, the directory every
-    /// finished frame's EXR goes to (under its NAME.####.exr).
+    /// Where to save the EXR (default: the job's output name, here, as `submit --wait`); for
+    /// a frame-range job without `--frame`, the directory every finished frame's EXR goes to
+    /// (under its NAME.####.exr; default: here).
     #[arg(long, short)]
-    output: PathBuf,
+    output: Option<PathBuf>,
     /// One frame of a frame-range job.
     #[arg(long)]
     frame: Option<u32>,
@@ -145,6 +152,42 @@ fn fmt_eta(secs: f64) -> String {
     } else {
         format!("{}m{:02}s", s / 60, s % 60)
     }
+}
+
+/// Columns the progress line takes before its message: the spinner, the elapsed time, the
+/// 24-column bar and the percentage, with their spaces (`progress_style`).
+const PROGRESS_PREFIX: usize = 1 + 1 + 10 + 1 + 24 + 1 + 4 + 1;
+
+/// A job's progress in at most `width` columns: its fields by importance (the noise and the ETA,
+/// which the README promises, first; then units, rate, state), each left out whole, never cut,
+/// when it does not fit; in their usual order.
+fn progress_message(s: &pb::JobStatus, width: usize) -> String {
+    // (importance, text): lower is kept first.
+    let noise = if s.samples_done > 0 && s.noise_relative.is_finite() {
+        format!("noise {:.2}%", s.noise_relative * 100.0)
+    } else {
+        "noise –".to_string()
+    };
+    let fields = [
+        (4, job_state_name(s.state).to_string()),
+        (2, format!("{}/{} units", s.units_done, s.units_total)),
+        (3, format!("{:.2} Msamples/s", s.samples_per_second / 1e6)),
+        (0, noise),
+        (1, format!("ETA {}", fmt_eta(s.eta_seconds))),
+    ];
+    let joined = |keep: usize| {
+        fields
+            .iter()
+            .filter(|(rank, _)| *rank < keep)
+            .map(|(_, t)| t.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    (1..=fields.len())
+        .rev()
+        .map(joined)
+        .find(|m| m.chars().count() <= width)
+        .unwrap_or_default()
 }
 
 /// Notices a job that waits with no worker to render it, and says so once.
@@ -253,15 +296,8 @@ async fn follow_to_end(client: &mut Client, url: &str, job: &str) -> Result<pb::
                 idle.observe(&s, &mut workers, url, &bar).await;
                 bar.set_length(s.samples_total.max(1));
                 bar.set_position(s.samples_done);
-                bar.set_message(format!(
-                    "{} {}/{} units, {:.2} Msamples/s, noise {:.2}%, ETA {}",
-                    job_state_name(s.state),
-                    s.units_done,
-                    s.units_total,
-                    s.samples_per_second / 1e6,
-                    s.noise_relative * 100.0,
-                    fmt_eta(s.eta_seconds)
-                ));
+                let width = console::Term::stderr().size().1 as usize;
+                bar.set_message(progress_message(&s, width.saturating_sub(PROGRESS_PREFIX)));
                 last = Some(s);
             }
             Ok::<(), tonic::Status>(())
@@ -574,32 +610,121 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
             return Ok(());
         }
         errln!("{} submitted ({} units)", resp.job_id, resp.units);
-        if args.frames.is_some() {
-            errln!("{} frames", resp.frames);
-            let s = follow_to_end(&mut client, &url, &resp.job_id).await?;
-            let dir = args.output.clone().unwrap_or_else(|| PathBuf::from("."));
-            return download_frames(&mut client, &url, &s, &dir).await;
+        // Ctrl-C stops the following, not the job: say so, with the id to pick it up again.
+        let job = resp.job_id.clone();
+        let follow_and_fetch = async move {
+            if args.frames.is_some() {
+                errln!("{} frames", resp.frames);
+                let s = follow_to_end(&mut client, &url, &resp.job_id).await?;
+                let dir = args.output.clone().unwrap_or_else(|| PathBuf::from("."));
+                return download_frames(&mut client, &url, &s, &dir).await;
+            }
+            let s = follow(&mut client, &url, &resp.job_id).await?;
+            let out = args
+                .output
+                .clone()
+                .unwrap_or_else(|| PathBuf::from(&s.output_name));
+            let bytes = download(&mut client, &url, &resp.job_id, None, &out).await?;
+            let secs = (s.finished_unix_ms - s.submitted_unix_ms) as f64 / 1000.0;
+            outln!(
+                "{} done: {}×{} at {} in {:.2} s, noise σ≈{:.4} ({:.2}% of mean) → {} ({bytes} bytes)",
+                s.job_id,
+                s.width,
+                s.height,
+                spp_said(&s),
+                secs,
+                s.noise_rms,
+                s.noise_relative * 100.0,
+                out.display()
+            );
+            Ok(())
+        };
+        tokio::select! {
+            r = follow_and_fetch => r,
+            _ = tokio::signal::ctrl_c() => bail!(
+                "interrupted: {job} goes on rendering on the farm; follow it with `tessera \
+                 status {job}`, fetch it with `tessera fetch {job} --wait`, or stop it with \
+                 `tessera cancel {job}`"
+            ),
         }
-        let s = follow(&mut client, &url, &resp.job_id).await?;
-        let out = args
-            .output
-            .clone()
-            .unwrap_or_else(|| PathBuf::from(&s.output_name));
-        let bytes = download(&mut client, &url, &resp.job_id, None, &out).await?;
-        let secs = (s.finished_unix_ms - s.submitted_unix_ms) as f64 / 1000.0;
-        outln!(
-            "{} done: {}×{} at {} spp in {:.2} s, noise σ≈{:.4} ({:.2}% of mean) → {} ({bytes} bytes)",
-            s.job_id,
-            s.width,
-            s.height,
-            s.settings.map(|x| x.spp).unwrap_or(0),
-            secs,
-            s.noise_rms,
-            s.noise_relative * 100.0,
-            out.display()
-        );
-        Ok(())
     })
+}
+
+/// A job's status as JSON for scripts: the same fields the table shows, under stable names,
+/// with the state as a word and figures that do not exist yet (ETA, noise) as null.
+fn job_json(s: &pb::JobStatus) -> serde_json::Value {
+    let settings = s.settings.unwrap_or_default();
+    let finite = |x: f64, ok: bool| (ok && x.is_finite()).then_some(x);
+    serde_json::json!({
+        "job_id": s.job_id,
+        "state": job_state_name(s.state),
+        "error": s.error,
+        "scene": s.scene_name,
+        "scene_sha256": s.scene_hash,
+        "width": s.width,
+        "height": s.height,
+        "spp": settings.spp,
+        "seed": settings.seed,
+        "batch": settings.batch,
+        "frame": settings.frame,
+        "noise_target": (settings.noise_target > 0.0).then_some(settings.noise_target),
+        "tile_size": s.tile_size,
+        "priority": s.priority,
+        "units_done": s.units_done,
+        "units_total": s.units_total,
+        "units_leased": s.units_leased,
+        "samples_done": s.samples_done,
+        "samples_total": s.samples_total,
+        "samples_per_second": s.samples_per_second,
+        "eta_seconds": finite(s.eta_seconds, s.eta_seconds >= 0.0),
+        "noise_rms": finite(s.noise_rms, s.samples_done > 0),
+        "noise_relative": finite(s.noise_relative, s.samples_done > 0),
+        "nonfinite_samples": s.nonfinite_samples,
+        "output": s.output_name,
+        "range_job_id": (!s.range_job_id.is_empty()).then_some(&s.range_job_id),
+        "frames": s.frames.iter().map(|f| serde_json::json!({
+            "frame": f.frame,
+            "job_id": f.job_id,
+            "state": job_state_name(f.state),
+            "output": f.output_name,
+        })).collect::<Vec<_>>(),
+    })
+}
+
+/// A worker as JSON for scripts, as `tessera workers` lists it.
+fn worker_json(w: &pb::WorkerInfo) -> serde_json::Value {
+    serde_json::json!({
+        "worker_id": w.worker_id,
+        "name": w.name,
+        "cores": w.cores,
+        "state": w.state(),
+        "leases": w.leases,
+        "units_done": w.units_done,
+        "samples_done": w.samples_done,
+        "samples_per_second": w.samples_per_second,
+        "bad_results": w.bad_results,
+        "audits_passed": w.audits_passed,
+        "convicted": (!w.convicted.is_empty()).then_some(&w.convicted),
+        "last_seen_seconds_ago": w.last_seen_ms_ago as f64 / 1000.0,
+        "host": (!w.host.is_empty()).then_some(&w.host),
+    })
+}
+
+/// The samples a finished job took, as `tessera render` says them: "N spp", or for an
+/// adaptive job the average per pixel with its target and cap.
+fn spp_said(s: &pb::JobStatus) -> String {
+    let settings = s.settings.unwrap_or_default();
+    if settings.noise_target > 0.0 {
+        let pixels = (f64::from(s.width) * f64::from(s.height)).max(1.0);
+        format!(
+            "{:.1} spp on average (noise target {}, cap {})",
+            s.samples_done as f64 / pixels,
+            settings.noise_target,
+            settings.spp
+        )
+    } else {
+        format!("{} spp", settings.spp)
+    }
 }
 
 fn print_job(s: &pb::JobStatus) -> std::io::Result<()> {
@@ -650,12 +775,16 @@ fn print_job(s: &pb::JobStatus) -> std::io::Result<()> {
         s.samples_per_second / 1e6,
         fmt_eta(s.eta_seconds)
     );
-    outln!(
-        "  noise      σ≈{:.4} ({:.2}% of mean), {} non-finite samples",
-        s.noise_rms,
-        s.noise_relative * 100.0,
-        s.nonfinite_samples
-    );
+    if s.samples_done > 0 {
+        outln!(
+            "  noise      σ≈{:.4} ({:.2}% of mean), {} non-finite samples",
+            s.noise_rms,
+            s.noise_relative * 100.0,
+            s.nonfinite_samples
+        );
+    } else {
+        outln!("  noise      – (no sample merged)");
+    }
     outln!("  output     {}", s.output_name);
     if let Some(r) = s.frame_range {
         let count = |st: pb::JobState| s.frames.iter().filter(|f| f.state == st as i32).count();
@@ -709,7 +838,11 @@ pub fn status(args: StatusArgs) -> Result<()> {
                 .await
                 .map_err(|e| rpc_error(&url, job, e))?
                 .into_inner();
-            print_job(&s)?;
+            if args.json {
+                outln!("{}", job_json(&s));
+            } else {
+                print_job(&s)?;
+            }
             return Ok(());
         }
         let jobs = client
@@ -718,6 +851,11 @@ pub fn status(args: StatusArgs) -> Result<()> {
             .map_err(|e| rpc_error(&url, "listing jobs", e))?
             .into_inner()
             .jobs;
+        if args.json {
+            let list: Vec<serde_json::Value> = jobs.iter().map(job_json).collect();
+            outln!("{}", serde_json::Value::Array(list));
+            return Ok(());
+        }
         outln!(
             "{:<12} {:<10} {:>8} {:>7} {:>10} {:>8}  SCENE",
             "JOB",
@@ -779,6 +917,11 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
             .map_err(|e| rpc_error(&url, "listing workers", e))?
             .into_inner()
             .workers;
+        if args.json {
+            let list: Vec<serde_json::Value> = workers.iter().map(worker_json).collect();
+            outln!("{}", serde_json::Value::Array(list));
+            return Ok(());
+        }
         outln!(
             "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>6} {:>9}  HOST",
             "WORKER",
@@ -828,11 +971,13 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
 pub fn fetch(args: FetchArgs) -> Result<()> {
     // A name that can only be a file is checked before anything is asked of the coordinator;
     // one that may be a frame range's directory once the job says what it is.
-    let maybe_dir =
-        args.frame.is_none() && (args.output.is_dir() || args.output.extension().is_none());
-    if !maybe_dir {
-        check_extension("--output", &args.output, "exr")?;
-        check_output_dir(&args.output)?;
+    let maybe_dir = args
+        .output
+        .as_ref()
+        .is_none_or(|o| args.frame.is_none() && (o.is_dir() || o.extension().is_none()));
+    if let (false, Some(o)) = (maybe_dir, &args.output) {
+        check_extension("--output", o, "exr")?;
+        check_output_dir(o)?;
     }
     let url = args.url.coordinator.clone();
     runtime()?.block_on(async {
@@ -850,18 +995,70 @@ pub fn fetch(args: FetchArgs) -> Result<()> {
         };
         // A whole frame range goes into a directory; one frame, or a one-frame job, to a file.
         if !s.frames.is_empty() && args.frame.is_none() {
-            check_frames_dir(&args.output)?;
-            return download_frames(&mut client, &url, &s, &args.output).await;
+            let dir = args.output.clone().unwrap_or_else(|| PathBuf::from("."));
+            check_frames_dir(&dir)?;
+            return download_frames(&mut client, &url, &s, &dir).await;
         }
+        // One frame of a range is saved under that frame's own name.
+        let default_name = match args.frame {
+            Some(f) => s
+                .frames
+                .iter()
+                .find(|x| x.frame == f)
+                .map_or_else(|| s.output_name.clone(), |x| x.output_name.clone()),
+            None => s.output_name.clone(),
+        };
         if args.wait && s.frames.is_empty() {
             done(&args.job, s)?;
         }
+        let out = args
+            .output
+            .clone()
+            .unwrap_or_else(|| PathBuf::from(default_name));
         if maybe_dir {
-            check_extension("--output", &args.output, "exr")?;
-            check_output_dir(&args.output)?;
+            check_extension("--output", &out, "exr")?;
+            check_output_dir(&out)?;
         }
-        let bytes = download(&mut client, &url, &args.job, args.frame, &args.output).await?;
-        outln!("{} → {} ({bytes} bytes)", args.job, args.output.display());
+        let bytes = download(&mut client, &url, &args.job, args.frame, &out).await?;
+        outln!("{} → {} ({bytes} bytes)", args.job, out.display());
         Ok(())
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// #55: at 80 columns the line was cut mid-word (`75% running 383/512 units, 3.07
+    /// Msamples/`), losing the noise and the ETA. Now fields are dropped whole, least
+    /// important first, and the noise and ETA stay.
+    #[test]
+    fn the_progress_message_fits_by_dropping_whole_fields() {
+        let s = pb::JobStatus {
+            state: pb::JobState::Running as i32,
+            units_done: 383,
+            units_total: 512,
+            samples_done: 1 << 20,
+            samples_per_second: 3.07e6,
+            noise_relative: 0.0123,
+            eta_seconds: 62.0,
+            ..pb::JobStatus::default()
+        };
+        let at80 = progress_message(&s, 80 - PROGRESS_PREFIX);
+        assert_eq!(at80, "383/512 units, noise 1.23%, ETA 1m02s");
+        let wide = progress_message(&s, 200);
+        assert_eq!(
+            wide,
+            "running, 383/512 units, 3.07 Msamples/s, noise 1.23%, ETA 1m02s"
+        );
+        assert_eq!(progress_message(&s, 22), "noise 1.23%, ETA 1m02s");
+        assert_eq!(progress_message(&s, 12), "noise 1.23%");
+        // Before any sample there is no noise to show.
+        let fresh = pb::JobStatus {
+            samples_done: 0,
+            noise_relative: 0.0,
+            ..s
+        };
+        assert!(progress_message(&fresh, 200).contains("noise –"));
+    }
 }
