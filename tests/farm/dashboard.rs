@@ -643,3 +643,69 @@ async fn slow_logins_do_not_shut_the_dashboard_out() {
     }
     coord.stop().await;
 }
+
+/// #55: with no token configured, a page on another site could make a visitor's browser POST
+/// the dashboard's cancel. Now a POST that a browser marks as cross-site (`Sec-Fetch-Site`, or
+/// an `Origin` of another host) is refused; the dashboard's own, and non-browser clients, pass.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_cross_site_post_cannot_cancel_a_job() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (coord, addr) = dashboard_farm(dir.path()).await;
+    let mut client = coord.client().await;
+    let job = submit(&mut client, &scene_text(16), 4, 1, 0).await;
+    let path = format!("/api/jobs/{job}/cancel");
+    let host = addr.to_string();
+    for headers in [
+        vec![("origin", "http://evil.example")],
+        vec![("sec-fetch-site", "cross-site")],
+        vec![("sec-fetch-site", "same-site")],
+        vec![("origin", "null")],
+    ] {
+        let r = http(addr, "POST", &path, &headers, "").await;
+        assert_eq!(r.status, 403, "{headers:?}: {}", r.text());
+        assert_eq!(
+            job_status(&mut client, &job).await.state,
+            pb::JobState::Queued as i32,
+            "{headers:?}"
+        );
+    }
+    let own = format!("http://{host}");
+    let r = http(
+        addr,
+        "POST",
+        &path,
+        &[("origin", own.as_str()), ("sec-fetch-site", "same-origin")],
+        "",
+    )
+    .await;
+    assert!(r.status < 400, "{}: {}", r.status, r.text());
+    assert_eq!(
+        job_status(&mut client, &job).await.state,
+        pb::JobState::Cancelled as i32
+    );
+    coord.stop().await;
+}
+
+/// #55: "Log out" showed with no token configured, where there is nothing to log out of.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn log_out_shows_only_where_logging_in_does() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (open, addr) = dashboard_farm(&dir.path().join("open")).await;
+    let page = get(addr, "/").await.text();
+    assert!(page.contains("id=\"main\""), "{page}");
+    assert!(!page.contains("Log out"), "{page}");
+    open.stop().await;
+    let guarded = farm_with_token(&dir.path().join("guarded")).await;
+    let addr = guarded.http.expect("dashboard");
+    let page = http(
+        addr,
+        "GET",
+        "/",
+        &[("authorization", &format!("Bearer {TOKEN}"))],
+        "",
+    )
+    .await
+    .text();
+    assert!(page.contains("Log out"), "{page}");
+    guarded.stop().await;
+}

@@ -432,3 +432,114 @@ fn the_dashboard_in_chromium_follows_a_job_to_its_exr() {
         "{table}"
     );
 }
+
+/// #55, what a new user met: at 1280 px the job list needed a horizontal scroll (a long scene
+/// path, the priority and the Cancel button off the edge); with no token configured the page
+/// offered "Log out"; a cancelled job's page showed a broken-image icon and "Noise – (rms
+/// 0.00)".
+#[test]
+fn the_dashboard_fits_1280_px_and_a_cancelled_job_shows_no_broken_picture() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut child = Command::new(BIN)
+        .args([
+            "coordinator",
+            "--listen",
+            "127.0.0.1:0",
+            "--http",
+            "127.0.0.1:0",
+        ])
+        .arg("--data-dir")
+        .arg(dir.path().join("data"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start coordinator");
+    let mut out = BufReader::new(child.stdout.take().expect("stdout"));
+    let _coordinator = Proc(child);
+    let mut line = String::new();
+    out.read_line(&mut line).expect("listening line");
+    let grpc = format!(
+        "http://{}",
+        line.trim().strip_prefix("listening on ").expect(&line)
+    );
+    line.clear();
+    out.read_line(&mut line).expect("dashboard line");
+    let dash = line
+        .trim()
+        .strip_prefix("dashboard on ")
+        .expect(&line)
+        .trim_end_matches('/')
+        .to_string();
+    // A scene under a long path, as a studio's are, and no worker: the jobs stay queued.
+    let deep = dir
+        .path()
+        .join("projects/feature-film/sequences/sq0420/shots/sh0420_0130/lighting/v012");
+    std::fs::create_dir_all(&deep).expect("mkdir");
+    let scene = deep.join("sh0420_0130_lighting_v012_cornell.toml");
+    std::fs::copy(repo("scenes/spheres.toml"), &scene).expect("copy");
+    let tessera = |args: &[&str]| {
+        let out = Command::new(BIN)
+            .args(args)
+            .args(["--coordinator", &grpc])
+            .output()
+            .expect("run tessera");
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).trim().to_string()
+    };
+    let scene = scene.display().to_string();
+    let cancelled = tessera(&["submit", &scene, "--spp", "64", "--priority", "10"]);
+    tessera(&["cancel", &cancelled]);
+    tessera(&["submit", &scene, "--spp", "1048576", "--priority", "-3"]);
+
+    let profile = tempfile::tempdir().expect("profile");
+    let mut cdp = Cdp::launch(profile.path());
+    cdp.call(
+        "Emulation.setDeviceMetricsOverride",
+        json!({ "width": 1280, "height": 800, "deviceScaleFactor": 1, "mobile": false }),
+    );
+    cdp.navigate(&format!("{dash}/"));
+    let fit = wait_for("the job list", || {
+        let v = cdp.eval(
+            "(() => { const t = document.getElementById('jobs'); if (!t || t.rows.length < 3) return null; \
+             const d = document.documentElement; const box = t.getBoundingClientRect(); \
+             return { page: d.scrollWidth, view: d.clientWidth, right: box.right, \
+                      logout: document.body.textContent.includes('Log out') }; })()",
+        );
+        (!v.is_null()).then_some(v)
+    });
+    let (page, view, right) = (
+        fit["page"].as_f64().unwrap_or(f64::MAX),
+        fit["view"].as_f64().unwrap_or(0.0),
+        fit["right"].as_f64().unwrap_or(f64::MAX),
+    );
+    assert!(
+        page <= view && right <= view,
+        "the job list overflows 1280 px: {fit}"
+    );
+    assert_eq!(fit["logout"], false, "Log out with no token configured");
+
+    cdp.navigate(&format!("{dash}/jobs/{cancelled}"));
+    let page = wait_for("the cancelled job's page", || {
+        let v = cdp.eval(
+            "(() => { const n = document.getElementById('stat-noise'); const img = document.getElementById('preview'); \
+             const note = document.getElementById('preview-note'); \
+             if (!n || !img || !note || !note.textContent) return null; \
+             return { noise: n.textContent, hidden: img.hidden, shown: img.getBoundingClientRect().width, \
+                      note: note.textContent }; })()",
+        );
+        (!v.is_null()).then_some(v)
+    });
+    assert_eq!(page["noise"], "–", "{page}");
+    assert_eq!(page["hidden"], true, "{page}");
+    assert_eq!(page["shown"].as_f64(), Some(0.0), "{page}");
+    assert!(
+        page["note"]
+            .as_str()
+            .is_some_and(|n| n.contains("cancelled before any sample")),
+        "{page}"
+    );
+}

@@ -310,6 +310,23 @@ fn a_damaged_store_is_refused_at_start() {
     assert!(!out.status.success());
     assert!(!stderr.contains("panicked"), "{stderr}");
 
+    // A file that is not a redb database: redb's message once (it was printed twice,
+    // "X: X", as the error and again as its source).
+    std::fs::write(data.join("coordinator.redb"), [7u8; 8192]).expect("garbage");
+    let out = Command::new(BIN)
+        .args(["coordinator", "--listen", "127.0.0.1:0", "--data-dir"])
+        .arg(&data)
+        .output()
+        .expect("coordinator");
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let line = stderr
+        .lines()
+        .find(|l| l.starts_with("error:"))
+        .expect("an error");
+    assert!(line.contains("Not a redb database"), "{stderr}");
+    assert_eq!(line.matches("Not a redb database").count(), 1, "{line}");
+
     // Nor on a bad TLS key: the error comes before any "listening on".
     let key = dir.path().join("key.pem");
     std::fs::write(&key, "not a key").expect("write");

@@ -44,9 +44,10 @@ pub const FILE_NAME: &str = "coordinator.redb";
 /// Why the store failed.
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
-    /// redb reported an error.
+    /// redb reported an error. Its message is in this one's, so it is not also given as the
+    /// source: a report of the chain (`{:#}`) would say it twice.
     #[error("state store: {0}")]
-    Db(#[from] redb::Error),
+    Db(redb::Error),
     /// A stored record does not decode (a corrupt or foreign file).
     #[error("state store: corrupt record {what}: {why}; refusing to start on it (move {FILE_NAME} out of the data directory to start a new, empty farm)")]
     Corrupt {
@@ -71,6 +72,12 @@ pub enum StoreError {
         /// The error.
         source: std::io::Error,
     },
+}
+
+impl From<redb::Error> for StoreError {
+    fn from(e: redb::Error) -> Self {
+        Self::Db(e)
+    }
 }
 
 fn dberr<E: Into<redb::Error>>(e: E) -> StoreError {

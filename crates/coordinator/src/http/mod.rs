@@ -139,6 +139,13 @@ fn router(app: App) -> Router {
 /// Lets a request through if it carries the token (or is the login form's), else answers 401:
 /// the login page to a browser, a line of text to anything else.
 async fn check(State(app): State<App>, req: Request, next: Next) -> Response {
+    if req.method() == Method::POST && cross_site(req.headers()) {
+        return (
+            StatusCode::FORBIDDEN,
+            "a request from another site may not change anything here\n",
+        )
+            .into_response();
+    }
     let open = req.method() == Method::POST && req.uri().path() == "/login";
     if app.auth.allows(req.headers()) {
         if let Some(trust) = req.extensions().get::<Arc<crate::conn::Trust>>() {
@@ -161,6 +168,30 @@ async fn check(State(app): State<App>, req: Request, next: Next) -> Response {
         .and_then(|v| v.to_str().ok())
         .is_some_and(|a| a.contains("text/html"));
     unauthorized(browser, req.uri().path(), None)
+}
+
+/// Whether a browser says the request comes from another site: its `Sec-Fetch-Site`, or else
+/// an `Origin` whose host is not the one asked. A page elsewhere could otherwise make a
+/// visitor's browser cancel jobs (with no token configured, nothing else stops it; with one,
+/// the cookie's `SameSite=Strict` does too). Clients that are not browsers send neither, and
+/// pass.
+fn cross_site(headers: &HeaderMap) -> bool {
+    let get = |name: &str| headers.get(name).and_then(|v| v.to_str().ok());
+    if let Some(site) = get("sec-fetch-site") {
+        return !matches!(site, "same-origin" | "none");
+    }
+    match (get("origin"), get("host")) {
+        (Some(origin), Some(host)) => {
+            let origin_host = origin
+                .split_once("://")
+                .map_or(origin, |(_, rest)| rest)
+                .trim_end_matches('/');
+            !origin_host.eq_ignore_ascii_case(host)
+        }
+        // An opaque origin ("null", from a sandboxed frame or a file) is another site too.
+        (Some(_), None) => true,
+        (None, _) => false,
+    }
 }
 
 /// Most bytes of a request body: the login form's token and path are the largest anyone sends.
@@ -298,13 +329,19 @@ async fn not_found() -> Response {
     (StatusCode::NOT_FOUND, "no such page\n").into_response()
 }
 
-async fn page() -> Response {
+async fn page(State(app): State<App>) -> Response {
+    // Logging out means something only where logging in does.
+    let logout = if app.auth.session.is_some() {
+        "  <form method=\"post\" action=\"/logout\"><button class=\"link\">Log out</button></form>\n"
+    } else {
+        ""
+    };
     (
         [
             (header::CONTENT_TYPE, "text/html; charset=utf-8"),
             (header::CACHE_CONTROL, "no-cache"),
         ],
-        include_str!("assets/index.html"),
+        include_str!("assets/index.html").replace("{logout}", logout),
     )
         .into_response()
 }

@@ -58,12 +58,12 @@ async function cancel(id) {
 function jobsView(jobs) {
   const rows = jobs.map((j) => el("tr", { "data-job": j.id },
     el("td", {}, el("a", { href: `/jobs/${j.id}` }, j.id)),
-    el("td", {}, j.scene),
+    el("td", { class: "scene", title: j.scene }, j.scene),
     el("td", {}, stateTag(j.state)),
     el("td", {}, bar(j.samples_done, j.samples_total)),
     el("td", { class: "num" }, `${fmt.count(j.samples_done)} / ${fmt.count(j.samples_total)}`),
     el("td", { class: "num" }, fmt.msps(j.samples_per_second)),
-    el("td", { class: "num" }, fmt.noise(j.noise_relative)),
+    el("td", { class: "num" }, j.samples_done > 0 ? fmt.noise(j.noise_relative) : "–"),
     el("td", { class: "num" }, j.state === "done" ? "done" : fmt.eta(j.eta_seconds)),
     el("td", { class: "num" }, j.priority),
     el("td", {}, live(j.state) ? el("button", { class: "danger", onclick: () => cancel(j.id) }, "Cancel") : ""),
@@ -71,9 +71,9 @@ function jobsView(jobs) {
   return [
     el("h1", {}, "Jobs ", el("span", { class: "muted" }, `(${jobs.length})`)),
     jobs.length === 0 ? el("p", { class: "muted" }, "No jobs yet: tessera submit SCENE --spp N") :
-    el("table", { id: "jobs" },
+    el("div", { class: "scroll" }, el("table", { id: "jobs" },
       el("thead", {}, el("tr", {}, ...["Job", "Scene", "State", "Progress", "Samples", "Msamples/s", "Noise", "ETA", "Priority", ""].map((h, i) => el("th", { class: i >= 4 && i <= 8 ? "num" : "" }, h)))),
-      el("tbody", {}, ...rows)),
+      el("tbody", {}, ...rows))),
   ];
 }
 
@@ -93,12 +93,20 @@ function updatePreview(j) {
   const tag = `${j.units_done}-${j.state}-${preview.exposure}-${preview.view}`;
   if (tag === preview.shown) return;
   if (live(j.state) && Date.now() - preview.lastLoad < 1000) return;
-  if (j.units_done === 0 && live(j.state)) return;
+  if (j.units_done === 0) {
+    // Nothing merged: no picture yet, or (a job that ended so) never; no request, no icon.
+    img.hidden = true;
+    preview.shown = tag;
+    document.getElementById("preview-note").textContent =
+      live(j.state) ? "no samples merged yet" : `${j.state} before any sample was merged: no picture`;
+    return;
+  }
   preview.loading = true;
   preview.lastLoad = Date.now();
   const next = new Image();
   next.onload = () => {
     img.src = next.src;
+    img.hidden = false;
     img.dataset.units = j.units_done;
     img.dataset.state = j.state;
     img.dataset.view = preview.view;
@@ -110,6 +118,7 @@ function updatePreview(j) {
   };
   next.onerror = async () => {
     preview.loading = false;
+    if (!img.getAttribute("src")) img.hidden = true;
     preview.shown = tag;
     let msg = "no preview";
     try { const r = await fetch(next.src); msg = (await r.json()).error; } catch (_) { /* keep the default */ }
@@ -125,7 +134,7 @@ function jobView(j) {
     ["Units", `${fmt.count(j.units_done)} / ${fmt.count(j.units_total)} (${j.units_leased} leased)`],
     ["Samples", `${fmt.count(j.samples_done)} / ${fmt.count(j.samples_total)}`],
     ["Msamples/s", fmt.msps(j.samples_per_second)],
-    ["Noise", `${fmt.noise(j.noise_relative)} (rms ${j.noise_rms.toPrecision(3)})`],
+    ["Noise", j.samples_done > 0 ? `${fmt.noise(j.noise_relative)} (rms ${j.noise_rms.toPrecision(3)})` : "–"],
     ["ETA", j.state === "done" ? "done" : fmt.eta(j.eta_seconds)],
     ["Image", `${j.width}×${j.height}, ${j.spp} spp, seed ${j.seed}`],
     ["Priority", j.priority],
@@ -153,6 +162,8 @@ function jobView(j) {
     box = img.closest(".preview-col");
   } else {
     img = el("img", { id: "preview", alt: "preview", "data-job": j.id, width: j.width, height: j.height });
+    // Shown once a picture has loaded: an image with nothing to show would be a broken icon.
+    img.hidden = true;
     // Small frames are shown up to twice their size, pixels kept sharp.
     img.style.width = `min(100%, ${2 * j.width}px)`;
     img.style.height = "auto";
