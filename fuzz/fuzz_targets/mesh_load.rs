@@ -61,7 +61,10 @@ fn check_rays(mesh: &TriMesh) {
         // ulps below the one found.
         assert_eq!(hit.is_some(), brute.is_some(), "{ray:?}");
         if let (Some((t, _)), Some(b)) = (hit, brute) {
-            assert!(t >= b && t - b <= 1e-5 * b.max(1.0), "{ray:?}: {t} against {b}");
+            assert!(
+                t >= b && t - b <= 1e-5 * b.max(1.0),
+                "{ray:?}: {t} against {b}"
+            );
         }
         if let Some((t, slot)) = hit {
             assert!(t > 0.0 && t.is_finite());
@@ -71,6 +74,10 @@ fn check_rays(mesh: &TriMesh) {
                 Some(t)
             );
         }
-        assert_eq!(mesh.occluded(&ray, f32::INFINITY), brute.is_some(), "{ray:?}");
+        assert_eq!(
+            mesh.occluded(&ray, f32::INFINITY),
+            brute.is_some(),
+            "{ray:?}"
+        );
     }
 }

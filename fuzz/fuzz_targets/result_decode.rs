@@ -9,8 +9,8 @@ use libfuzzer_sys::fuzz_target;
 use prost::Message;
 use tessera_coordinator::job::{Job, Unit};
 use tessera_coordinator::scheduler::{Merged, Scheduler};
-use tessera_proto::ids::JobId;
 use tessera_coordinator::store::{decode_sums, JobRecord};
+use tessera_proto::ids::JobId;
 use tessera_proto::v1 as pb;
 
 fn job() -> Job {

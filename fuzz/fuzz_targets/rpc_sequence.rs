@@ -21,8 +21,8 @@ use std::time::{Duration, Instant};
 use libfuzzer_sys::fuzz_target;
 use tessera_coordinator::job::{Job, Unit};
 use tessera_coordinator::scheduler::{Merged, Scheduler};
-use tessera_proto::ids::{JobId, LeaseId};
 use tessera_coordinator::store::{JobPhase, JobRecord};
+use tessera_proto::ids::{JobId, LeaseId};
 use tessera_render::TileSums;
 
 const LEASE: Duration = Duration::from_secs(4);
@@ -106,7 +106,10 @@ fn check(core: &Scheduler) {
                 .values()
                 .map(|a| a.next as u64 + a.pending.len() as u64)
                 .sum();
-            assert_eq!(job.units_done, held, "units counted done and units held differ");
+            assert_eq!(
+                job.units_done, held,
+                "units counted done and units held differ"
+            );
         }
         let (rms, rel) = job.noise();
         assert!(rms.is_finite() && rel.is_finite());
@@ -198,7 +201,10 @@ fuzz_target!(|data: &[u8]| {
                 let mut ids: Vec<LeaseId> = f.leases.iter().map(|l| l.0).collect();
                 // A lease number of this boot that may be another worker's, and one of
                 // another boot.
-                ids.push(LeaseId { epoch: 1, n: arg.into() });
+                ids.push(LeaseId {
+                    epoch: 1,
+                    n: arg.into(),
+                });
                 ids.push(LeaseId { epoch: 0, n: 1 });
                 core.heartbeat(f.id, &ids, now);
             }
@@ -316,7 +322,10 @@ fuzz_target!(|data: &[u8]| {
         note_caught(&core, &tainted_by);
     }
     for &h in &honest_workers {
-        assert!(core.workers[&h].convicted.is_none(), "an honest worker was convicted");
+        assert!(
+            core.workers[&h].convicted.is_none(),
+            "an honest worker was convicted"
+        );
     }
     // A merged lie is taken back when its liar is convicted.
     let taken_back = audited && tainted_by.iter().all(|w| caught.contains(w));

@@ -24,8 +24,8 @@ use tessera_proto::v1::workers_server::Workers;
 use tessera_render::output::{render_metadata, write_exr, ExrChannels};
 use tessera_render::scene::assets::sha256_hex;
 use tessera_render::scene::{Format, Limits, Scene};
-use tokio_stream::StreamExt;
 use tessera_render::{render_frame, render_tile, PixelRect, RenderSettings, IMAGE_REVISION};
+use tokio_stream::StreamExt;
 use tonic::Request;
 
 const SPP: u32 = 6;
@@ -363,7 +363,9 @@ fuzz_target!(|data: &[u8]| {
                     };
                     let start = (offset as usize).min(file.len());
                     let end = (start + 1 + usize::from(arg / 8)).min(file.len());
-                    let _ = farm.assets().append(&hash, offset, total, &file[start..end]);
+                    let _ = farm
+                        .assets()
+                        .append(&hash, offset, total, &file[start..end]);
                 }
                 13 if arg % 2 == 0 => {
                     farm.collect_assets().expect("the collection runs");

@@ -264,6 +264,7 @@ where
 pub struct InProcess {
     service: Service,
     writer: tokio::task::JoinHandle<()>,
+    dashboard: axum::Router,
 }
 
 impl InProcess {
@@ -275,12 +276,29 @@ impl InProcess {
             tokio::spawn(finish_job(shared.clone(), id));
         }
         let service = Service::new(shared);
-        Ok(Self { service, writer })
+        let dashboard = crate::http::routes_for(&service);
+        Ok(Self {
+            service,
+            writer,
+            dashboard,
+        })
     }
 
     /// The `Jobs` and `Workers` services.
     pub fn service(&self) -> &Service {
         &self.service
+    }
+
+    /// One HTTP request to the dashboard and `/metrics` (the routes and checks `--http`
+    /// serves, without the network or the connection gate): (status, headers, body).
+    pub async fn http(
+        &self,
+        method: &str,
+        path: &str,
+        headers: &[(String, String)],
+        body: Vec<u8>,
+    ) -> (u16, Vec<(String, String)>, Vec<u8>) {
+        crate::http::one_request(&self.dashboard, method, path, headers, body).await
     }
 
     /// The most scene parses that have run at once.
@@ -314,6 +332,8 @@ impl InProcess {
 
     /// Stops, once every queued write is durable and the store is closed.
     pub async fn close(self) {
+        // The dashboard's routes hold the service too: the writer ends once both are gone.
+        drop(self.dashboard);
         drop(self.service);
         let _ = self.writer.await;
     }

@@ -114,6 +114,52 @@ impl Auth {
     }
 }
 
+/// The dashboard's routes over `svc`, as `serve` builds them for a plain-HTTP port.
+pub(crate) fn routes_for(svc: &Service) -> Router {
+    router(App {
+        auth: Arc::new(Auth::new(svc.shared.config.token.as_ref(), false)),
+        previews: Arc::default(),
+        svc: svc.clone(),
+    })
+}
+
+/// One request through `routes` (every check but the connection gate), with no network:
+/// (status, headers, body). What the `http_surface` fuzz target drives.
+pub(crate) async fn one_request(
+    routes: &Router,
+    method: &str,
+    path: &str,
+    headers: &[(String, String)],
+    body: Vec<u8>,
+) -> (u16, Vec<(String, String)>, Vec<u8>) {
+    use tower::ServiceExt as _;
+    let mut req = axum::http::Request::builder().method(method).uri(path);
+    for (k, v) in headers {
+        req = req.header(k.as_str(), v.as_str());
+    }
+    let Ok(req) = req.body(Body::from(body)) else {
+        // Not a request at all (a method or header no client could send).
+        return (400, Vec::new(), Vec::new());
+    };
+    let Ok(resp) = routes.clone().oneshot(req).await;
+    let status = resp.status().as_u16();
+    let headers = resp
+        .headers()
+        .iter()
+        .map(|(k, v)| {
+            (
+                k.to_string(),
+                String::from_utf8_lossy(v.as_bytes()).into_owned(),
+            )
+        })
+        .collect();
+    let body = axum::body::to_bytes(resp.into_body(), 64 << 20)
+        .await
+        .map(|b| b.to_vec())
+        .unwrap_or_default();
+    (status, headers, body)
+}
+
 /// The routes, behind the token check.
 fn router(app: App) -> Router {
     Router::new()
