@@ -644,3 +644,59 @@ fn json_default_names_cancelled_jobs_and_ctrl_c_say_what_they_mean() {
         "{s}"
     );
 }
+
+/// #55: `submit --wait` of an adaptive job said "at 64 spp" where `render` says the average
+/// and the cap, and their noise figures differed without saying why (the farm's came from
+/// its running per-tile totals, `render`'s from the image). Now both say the same words and
+/// the same figure, computed from the same pixels.
+#[test]
+fn submit_wait_and_render_report_an_adaptive_job_alike() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, url) = coordinator(&dir.path().join("data"));
+    let _w = worker(&url, "w");
+    let scene = repo("scenes/spheres.toml");
+    let flags = ["--spp", "64", "--noise-target", "0.05", "--tile-size", "16"];
+    let farm = dir.path().join("farm.exr");
+    let mut args = vec!["submit", scene.as_str()];
+    args.extend(flags);
+    args.extend(["--wait", "--output", farm.to_str().expect("utf8")]);
+    let out = tessera(&args, &url);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let submitted = String::from_utf8_lossy(&out.stdout).to_string();
+    let local = dir.path().join("local.exr");
+    let mut args = vec!["render", scene.as_str()];
+    args.extend(flags);
+    args.extend(["--output", local.to_str().expect("utf8")]);
+    let out = tessera(&args, &url);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let rendered = String::from_utf8_lossy(&out.stdout).to_string();
+    assert_eq!(
+        std::fs::read(&farm).expect("farm"),
+        std::fs::read(&local).expect("local")
+    );
+    let between = |s: &str, a: &str, b: &str| -> String {
+        let i = s.find(a).unwrap_or_else(|| panic!("{a:?} in {s:?}"));
+        let j = s[i..].find(b).unwrap_or_else(|| panic!("{b:?} in {s:?}"));
+        s[i..i + j + b.len()].to_string()
+    };
+    let spp = |s: &str| between(s, " at ", "cap 64)");
+    assert_eq!(spp(&submitted), spp(&rendered), "{submitted} / {rendered}");
+    assert!(
+        spp(&rendered).contains("spp on average (noise target 0.05"),
+        "{rendered}"
+    );
+    let noise = |s: &str| between(s, "noise σ≈", "of mean)");
+    assert_eq!(
+        noise(&submitted),
+        noise(&rendered),
+        "{submitted} / {rendered}"
+    );
+}

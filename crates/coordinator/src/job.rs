@@ -290,6 +290,10 @@ pub struct Job {
     /// noise view once the sums are gone; none for a job of more than [`MAX_KEPT_TILE_NOISE`]
     /// tiles, or one that ended before this boot.
     pub final_tile_noise: Option<Vec<f32>>,
+    /// The noise of the finished image, as `tessera render` computes it from the EXR's pixels
+    /// ([`tessera_render::Image::noise`]), set when the EXR is written: what a done job
+    /// reports, so the farm and `render` print the same figure for the same bits.
+    pub image_noise: Option<(f64, f64)>,
 }
 
 /// Whether one pixel's sums could come from `k` finite samples. The renderer's samples are
@@ -356,6 +360,7 @@ impl Job {
             finishing: false,
             audits: HashMap::new(),
             final_tile_noise: None,
+            image_noise: None,
         }
     }
 

@@ -162,6 +162,7 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
         let image = assemble_render(&settings, rec.width, rec.height, &tiles)
             .map_err(|e| e.to_string())?
             .finalize();
+        let noise = image.noise();
         let channels = ExrChannels {
             variance: rec.variance,
             samples: rec.sample_count,
@@ -174,6 +175,7 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
             channels,
             &render_metadata(&rec.scene_hash, &settings),
         )
+        .map(|()| noise)
         .map_err(|e| e.to_string())
     })
     .await
@@ -182,7 +184,12 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
     let rx = {
         let mut scheduler = shared.scheduler();
         let ops = match &written {
-            Ok(()) => scheduler.end_job(id, JobPhase::Done, String::new(), now_ms()),
+            Ok(noise) => {
+                if let Some(job) = scheduler.jobs.get_mut(&id) {
+                    job.image_noise = Some(*noise);
+                }
+                scheduler.end_job(id, JobPhase::Done, String::new(), now_ms())
+            }
             Err(e) => scheduler.end_job(
                 id,
                 JobPhase::Failed,
@@ -193,7 +200,7 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
         shared.queue_write(ops)
     };
     match (&written, durable(rx).await) {
-        (Ok(()), Ok(())) => info!("{id} done → {}", dir.display()),
+        (Ok(_), Ok(())) => info!("{id} done → {}", dir.display()),
         (Err(e), _) => warn!("{id} failed: {e}"),
         (_, Err(e)) => error!("{id}: recording completion: {e}"),
     }

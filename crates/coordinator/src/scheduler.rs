@@ -1274,7 +1274,7 @@ impl Scheduler {
             return Vec::new();
         };
         if phase == JobPhase::Done {
-            job.rec.final_noise = job.noise();
+            job.rec.final_noise = job.image_noise.unwrap_or_else(|| job.noise());
             job.rec.final_counts = (job.units_done, job.samples_done);
             job.final_tile_noise =
                 (job.tiles.len() <= crate::job::MAX_KEPT_TILE_NOISE).then(|| job.tile_noise());
