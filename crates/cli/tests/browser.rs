@@ -239,14 +239,10 @@ fn fetch_in_page(cdp: &mut Cdp, url_js: &str) -> Vec<u8> {
         .collect()
 }
 
-#[test]
-fn the_dashboard_in_chromium_follows_a_job_to_its_exr() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let token_file = dir.path().join("token");
-    std::fs::write(&token_file, format!("{TOKEN}\n")).expect("token");
-    let token_file = token_file.display().to_string();
-
-    // The coordinator says where it listens, then where its dashboard is.
+/// Starts `tessera coordinator` on port 0 with its dashboard on port 0 and `extra` arguments;
+/// returns it with its gRPC URL and its dashboard's URL, read from the lines it prints once
+/// it is up (where it listens, then where its dashboard is).
+fn coordinator_with_dashboard(data: &Path, extra: &[&str]) -> (Proc, String, String) {
     let mut child = Command::new(BIN)
         .args([
             "coordinator",
@@ -255,14 +251,15 @@ fn the_dashboard_in_chromium_follows_a_job_to_its_exr() {
             "--http",
             "127.0.0.1:0",
         ])
-        .args(["--token-file", &token_file, "--data-dir"])
-        .arg(dir.path().join("data"))
+        .args(extra)
+        .arg("--data-dir")
+        .arg(data)
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
         .expect("start coordinator");
     let mut out = BufReader::new(child.stdout.take().expect("stdout"));
-    let _coordinator = Proc(child);
+    let coordinator = Proc(child);
     let mut line = String::new();
     out.read_line(&mut line).expect("listening line");
     let grpc = format!(
@@ -277,6 +274,18 @@ fn the_dashboard_in_chromium_follows_a_job_to_its_exr() {
         .unwrap_or_else(|| panic!("unexpected line {line:?}"))
         .trim_end_matches('/')
         .to_string();
+    (coordinator, grpc, dash)
+}
+
+#[test]
+fn the_dashboard_in_chromium_follows_a_job_to_its_exr() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let token_file = dir.path().join("token");
+    std::fs::write(&token_file, format!("{TOKEN}\n")).expect("token");
+    let token_file = token_file.display().to_string();
+
+    let (_coordinator, grpc, dash) =
+        coordinator_with_dashboard(&dir.path().join("data"), &["--token-file", &token_file]);
 
     let _worker = Proc(
         Command::new(BIN)
@@ -440,36 +449,7 @@ fn the_dashboard_in_chromium_follows_a_job_to_its_exr() {
 #[test]
 fn the_dashboard_fits_1280_px_and_a_cancelled_job_shows_no_broken_picture() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let mut child = Command::new(BIN)
-        .args([
-            "coordinator",
-            "--listen",
-            "127.0.0.1:0",
-            "--http",
-            "127.0.0.1:0",
-        ])
-        .arg("--data-dir")
-        .arg(dir.path().join("data"))
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("start coordinator");
-    let mut out = BufReader::new(child.stdout.take().expect("stdout"));
-    let _coordinator = Proc(child);
-    let mut line = String::new();
-    out.read_line(&mut line).expect("listening line");
-    let grpc = format!(
-        "http://{}",
-        line.trim().strip_prefix("listening on ").expect(&line)
-    );
-    line.clear();
-    out.read_line(&mut line).expect("dashboard line");
-    let dash = line
-        .trim()
-        .strip_prefix("dashboard on ")
-        .expect(&line)
-        .trim_end_matches('/')
-        .to_string();
+    let (_coordinator, grpc, dash) = coordinator_with_dashboard(&dir.path().join("data"), &[]);
     // A scene under a long path, as a studio's are, and no worker: the jobs stay queued.
     let deep = dir
         .path()

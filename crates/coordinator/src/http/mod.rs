@@ -197,23 +197,18 @@ async fn check(State(app): State<App>, req: Request, next: Next) -> Response {
         if let Some(trust) = req.extensions().get::<Arc<crate::conn::Trust>>() {
             trust.prove();
         }
-        return match whole_body(req).await {
-            Ok(req) => next.run(req).await,
-            Err(r) => r,
-        };
+    } else if !open {
+        let browser = req
+            .headers()
+            .get(header::ACCEPT)
+            .and_then(|v| v.to_str().ok())
+            .is_some_and(|a| a.contains("text/html"));
+        return unauthorized(browser, req.uri().path(), None);
     }
-    if open {
-        return match whole_body(req).await {
-            Ok(req) => next.run(req).await,
-            Err(r) => r,
-        };
+    match whole_body(req).await {
+        Ok(req) => next.run(req).await,
+        Err(r) => r,
     }
-    let browser = req
-        .headers()
-        .get(header::ACCEPT)
-        .and_then(|v| v.to_str().ok())
-        .is_some_and(|a| a.contains("text/html"));
-    unauthorized(browser, req.uri().path(), None)
 }
 
 /// Whether a browser says the request comes from another site: its `Sec-Fetch-Site`, or else
