@@ -24,13 +24,9 @@
 //! and its mean keeps that luck). [`MIN_SAMPLES`] bounds the effect, and it is opt-in: without
 //! a noise target every pixel takes `spp` samples and the estimator is unbiased.
 
-use std::ops::RangeInclusive;
-
 use crate::film::TileSums;
-use crate::integrator::RenderSettings;
-
-/// The noise targets accepted: a relative error of 0.01% to 100%.
-pub const NOISE_TARGET_RANGE: RangeInclusive<f64> = 1e-4..=1.0;
+use crate::settings::RenderSettings;
+pub use crate::settings::{Adaptive, BadNoiseTarget, NOISE_TARGET_RANGE};
 
 /// Samples every pixel takes before its tile's noise may stop it (the pilot): a variance
 /// estimated from a handful of samples is often far too low (a dark tile whose rare bright
@@ -40,36 +36,6 @@ pub const MIN_SAMPLES: u32 = 64;
 /// The floor under a squared pixel value in relMSE (and in [`relative_variance`]): without it a
 /// black pixel's relative error is undefined and a nearly black one's dominates the image.
 pub const RELATIVE_FLOOR: f64 = 0.01;
-
-/// The adaptive part of a render's settings.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Adaptive {
-    /// The image's relative error to stop at: the expected square root of its relMSE against
-    /// the converged image, estimated from the samples (see the module's documentation).
-    pub noise_target: f64,
-    /// Edge of the square tiles the decision is made for, in pixels. It is part of the job's
-    /// identity: other tiles stop at other batches.
-    pub tile: u32,
-}
-
-/// A noise target outside [`NOISE_TARGET_RANGE`].
-#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
-#[error(
-    "noise target {0} must be a relative error between {min} and {max}",
-    min = NOISE_TARGET_RANGE.start(),
-    max = NOISE_TARGET_RANGE.end()
-)]
-pub struct BadNoiseTarget(pub f64);
-
-impl Adaptive {
-    /// Checks the target (`tile` is the caller's to check against its own tile range).
-    pub fn new(noise_target: f64, tile: u32) -> Result<Self, BadNoiseTarget> {
-        if !NOISE_TARGET_RANGE.contains(&noise_target) {
-            return Err(BadNoiseTarget(noise_target));
-        }
-        Ok(Self { noise_target, tile })
-    }
-}
 
 /// The relative error of a tile from its [`TileSums::noise_parts`]: RMS standard error of the
 /// pixel means over their mean (what `tessera status` and `tessera render` print as noise). A

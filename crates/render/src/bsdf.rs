@@ -5,8 +5,8 @@
 
 use glam::{Vec2, Vec3A};
 
-use crate::math::Frame;
-use crate::sampling::{cosine_hemisphere_pdf, square_to_cosine_hemisphere};
+use crate::util::math::Frame;
+use crate::util::sampling::{cosine_hemisphere_pdf, square_to_cosine_hemisphere};
 
 /// A material's scattering part.
 #[derive(Clone, Copy, Debug)]

@@ -10,7 +10,7 @@
 
 use glam::Vec3A;
 
-use crate::math::Ray;
+use crate::util::math::Ray;
 
 /// A pinhole camera.
 #[derive(Clone, Debug)]

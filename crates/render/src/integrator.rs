@@ -12,120 +12,13 @@
 use glam::{Vec2, Vec3A};
 
 use crate::bsdf::{fresnel_dielectric, reflect, refract, sample_diffuse, Bsdf};
-use crate::math::{offset_ray_origin, Ray};
-use crate::sampling::{cosine_hemisphere_pdf, power_heuristic, PixelSampler};
+use crate::interaction::SurfacePoint;
 use crate::scene::Scene;
-
-/// How direct light is estimated. All three converge to the same image; `Mis` has the lowest
-/// variance, the others exist to test that claim. Stored (in the coordinator's job records) by
-/// its lower-case [`Strategy::name`].
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Strategy {
-    /// Next-event estimation and BSDF sampling, combined by the power heuristic.
-    #[default]
-    Mis,
-    /// BSDF sampling only: emitters count only when a path happens to hit them.
-    Bsdf,
-    /// Light sampling only at diffuse vertices (emitters reached by a diffuse bounce count 0).
-    Nee,
-}
-
-impl Strategy {
-    /// Lower-case name, as on the command line and in EXR metadata.
-    pub fn name(self) -> &'static str {
-        match self {
-            Strategy::Mis => "mis",
-            Strategy::Bsdf => "bsdf",
-            Strategy::Nee => "nee",
-        }
-    }
-
-    /// Inverse of [`Strategy::name`].
-    pub fn from_name(name: &str) -> Option<Self> {
-        [Strategy::Mis, Strategy::Bsdf, Strategy::Nee]
-            .into_iter()
-            .find(|s| s.name() == name)
-    }
-}
-
-/// Samples per batch when a render or job does not choose. The batch decides the order in
-/// which sums are added, so it is part of a job's identity: every entry point (`tessera
-/// render`, `tessera submit`, the coordinator) must use this one value for their bits to match.
-pub const DEFAULT_BATCH: u32 = 16;
-
-/// The batch sizes accepted everywhere.
-pub const BATCH_RANGE: std::ops::RangeInclusive<u32> = 1..=65536;
-
-/// The tile edges (in pixels) the farm accepts.
-pub const TILE_RANGE: std::ops::RangeInclusive<u32> = 4..=512;
-
-/// The coordinator's tile edge for jobs that do not choose one.
-pub const DEFAULT_TILE: u32 = 128;
-
-/// Which path tracer renders. Every choice gives the same bits (`tests/wide.rs` compares the
-/// many-path tracer with the scalar one sample by sample), so this is no part of a job's
-/// identity and never travels to workers: it exists to time the tracers against each other.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Tracer {
-    /// The many-path tracer for scenes whose bounce it models, the scalar one for the rest.
-    #[default]
-    Auto,
-    /// One path at a time, always.
-    Scalar,
-    /// The many-path tracer with this many lanes (4, 8 or 16) where it applies; other counts,
-    /// and other scenes, trace one path at a time.
-    Lanes(usize),
-}
-
-/// Everything besides the scene that decides a render's pixels.
-#[derive(Clone, Debug)]
-pub struct RenderSettings {
-    /// Job seed.
-    pub seed: u64,
-    /// Samples per pixel.
-    pub spp: u32,
-    /// Samples per batch: sums are accumulated per batch and batches added in order, so this
-    /// is part of a job's identity (like the seed) for bit-exact reproduction.
-    pub batch: u32,
-    /// Direct-lighting strategy.
-    pub strategy: Strategy,
-    /// Bounce at which Russian roulette starts.
-    pub rr_depth: u32,
-    /// Throughput below which Russian roulette starts to end paths: a path survives with
-    /// probability min(0.95, max(β)/threshold). The cap keeps a path between perfect mirrors
-    /// finite. pbrt's rule is threshold 1; 0.25 keeps paths through the Cornell box's bright
-    /// walls alive, whose deep bounces carry much of its light, and measured less
-    /// relMSE·seconds there (docs/renderer.md).
-    pub rr_threshold: f32,
-    /// Which tracer runs (the same bits whichever).
-    pub tracer: Tracer,
-    /// Noise-targeted adaptive sampling: `None` gives every pixel `spp` samples (the unbiased
-    /// default); `Some` makes `spp` a cap and stops each tile once its noise meets the target
-    /// ([`crate::adaptive`]). Part of a job's identity when set.
-    pub adaptive: Option<crate::adaptive::Adaptive>,
-    /// The frame of an animated scene this render is of (`None`: a render that names no
-    /// frame, of a still scene or of an animated scene's first frame). It chooses the scene
-    /// built from the file ([`crate::scene::Scene::from_str_at`]) and goes into the EXR's
-    /// header, so it is part of the render's identity when set.
-    pub frame: Option<u32>,
-}
-
-impl Default for RenderSettings {
-    fn default() -> Self {
-        Self {
-            seed: 0,
-            spp: 64,
-            batch: DEFAULT_BATCH,
-            strategy: Strategy::Mis,
-            rr_depth: 3,
-            rr_threshold: 0.25,
-            tracer: Tracer::Auto,
-            adaptive: None,
-            frame: None,
-        }
-    }
-}
+pub use crate::settings::{
+    RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_BATCH, DEFAULT_TILE, TILE_RANGE,
+};
+use crate::util::math::{offset_ray_origin, Ray};
+use crate::util::sampling::{cosine_hemisphere_pdf, power_heuristic, PixelSampler};
 
 /// The radiance estimate of one camera sample of pixel (`x`, `y`): the sample `sampler` (made
 /// for that pixel and the job's seed) is at.
@@ -201,15 +94,13 @@ fn trace(
             let li = (prim.light + hit.part * prim.light_stride) as usize;
             let le = scene.lights.lights[li].emitted(sp.n, wo);
             if le != Vec3A::ZERO {
-                match strategy {
-                    _ if specular => l += beta * le,
-                    Strategy::Bsdf => l += beta * le,
-                    Strategy::Mis => {
-                        let light_pdf = scene.lights.pdf(li, prev_p, sp.p, sp.n);
-                        l += beta * le * power_heuristic(prev_pdf, light_pdf);
-                    }
-                    Strategy::Nee => {}
-                }
+                let came = Arrival {
+                    strategy,
+                    specular,
+                    prev_p,
+                    prev_pdf,
+                };
+                add_emitted(&mut l, scene, &came, li, beta, le, &sp);
             }
         }
         if scene.max_depth.is_some_and(|m| depth >= m) {
@@ -251,25 +142,10 @@ fn trace(
                 };
                 let p_out = offset_ray_origin(sp.p, sp.err, n);
                 if nee {
-                    if let Some(ls) = scene.lights.sample(sp.p, u_select, Vec2::new(lx, ly)) {
-                        let cos = ns.dot(ls.wi);
-                        // A light behind the geometric surface is unreachable, whatever the
-                        // shading normal says.
-                        let reachable = !shaded || n.dot(ls.wi) > 0.0;
-                        if cos > 0.0 && reachable && ls.le != Vec3A::ZERO {
-                            let d = ls.p - p_out;
-                            if !scene.occluded(&Ray::new(p_out, d), 1.0 - 1e-4) {
-                                let w = if strategy == Strategy::Mis {
-                                    power_heuristic(ls.pdf, cosine_hemisphere_pdf(cos))
-                                } else {
-                                    1.0
-                                };
-                                l += beta
-                                    * albedo
-                                    * ls.le
-                                    * (cos * std::f32::consts::FRAC_1_PI * w / ls.pdf);
-                            }
-                        }
+                    let at = Shading { n, ns, shaded };
+                    let u = (u_select, Vec2::new(lx, ly));
+                    if let Some((le, f)) = direct_light(scene, strategy, &sp, &at, p_out, u) {
+                        l += beta * albedo * le * f;
                     }
                 }
                 let (wi, pdf) = sample_diffuse(ns, Vec2::new(u0, u1));
@@ -293,38 +169,14 @@ fn trace(
                 Ray::new(offset_ray_origin(sp.p, sp.err, n), wi)
             }
             Bsdf::Dielectric(ior) => {
-                // The front side (sp.n) is outside.
-                let eta = if front { ior } else { 1.0 / ior };
-                let cos_i = ns.dot(wo).min(1.0);
-                if shaded && !(cos_i > 0.0) {
-                    // Seen from behind its shading normal: no Fresnel term is defined.
+                let at = Shading { n, ns, shaded };
+                let Some(next) = dielectric(&ray, &sp, &at, front, ior, u_choice) else {
                     break;
-                }
-                let (f, cos_t) = fresnel_dielectric(cos_i, eta);
+                };
                 specular = true;
-                let (wi, through) = if u_choice < f {
-                    (reflect(ray.d, ns), false)
-                } else {
-                    // Radiance is compressed by 1/η² entering a denser medium.
-                    let wt = refract(wo, ns, eta, cos_i, cos_t);
-                    beta /= eta * eta;
-                    eta_scale *= eta * eta;
-                    (wt, true)
-                };
-                // Off the side the new direction leaves by: the geometric normal decides it
-                // where the shading normal could disagree.
-                let side = if shaded {
-                    if n.dot(wi) >= 0.0 {
-                        n
-                    } else {
-                        -n
-                    }
-                } else if through {
-                    -n
-                } else {
-                    n
-                };
-                Ray::new(offset_ray_origin(sp.p, sp.err, side), wi)
+                beta /= next.attenuation;
+                eta_scale *= next.attenuation;
+                next.ray
             }
         };
         prev_p = sp.p;
@@ -339,4 +191,136 @@ fn trace(
         ray = Ray::new(next.o, next.d.normalize());
     }
     l
+}
+
+/// How a path arrived at a vertex: what weighs an emitter it finds there.
+struct Arrival {
+    strategy: Strategy,
+    /// The last bounce was specular (or the camera's): light sampling could not have found
+    /// the emitter, so it counts in full.
+    specular: bool,
+    prev_p: Vec3A,
+    prev_pdf: f32,
+}
+
+/// The normals at a vertex, on the side the path arrived from: the geometric one (offsets,
+/// and which side a direction leaves by) and the shading one (scattering), and whether they
+/// differ (a smooth mesh).
+struct Shading {
+    n: Vec3A,
+    ns: Vec3A,
+    shaded: bool,
+}
+
+/// Adds to `l` what emitter `li`, hit at `sp` with radiance `le` towards the path, gives it:
+/// weighted by the power heuristic against light sampling under MIS, in full after a specular
+/// bounce or with BSDF sampling alone, and nothing under light sampling alone (it was
+/// counted when sampled).
+#[inline(always)]
+fn add_emitted(
+    l: &mut Vec3A,
+    scene: &Scene,
+    came: &Arrival,
+    li: usize,
+    beta: Vec3A,
+    le: Vec3A,
+    sp: &SurfacePoint,
+) {
+    match came.strategy {
+        _ if came.specular => *l += beta * le,
+        Strategy::Bsdf => *l += beta * le,
+        Strategy::Mis => {
+            let light_pdf = scene.lights.pdf(li, came.prev_p, sp.p, sp.n);
+            *l += beta * le * power_heuristic(came.prev_pdf, light_pdf);
+        }
+        Strategy::Nee => {}
+    }
+}
+
+/// Next-event estimation at a diffuse vertex: a point on a light, its shadow ray from
+/// `p_out`, and (under MIS) the power heuristic against BSDF sampling. Returns the light's
+/// radiance and the factor cos·w/(π·pdf) the path's throughput and albedo scale it by, or
+/// `None` when the light adds nothing.
+#[inline(always)]
+fn direct_light(
+    scene: &Scene,
+    strategy: Strategy,
+    sp: &SurfacePoint,
+    at: &Shading,
+    p_out: Vec3A,
+    (u_select, u_point): (f32, Vec2),
+) -> Option<(Vec3A, f32)> {
+    let ls = scene.lights.sample(sp.p, u_select, u_point)?;
+    let cos = at.ns.dot(ls.wi);
+    // A light behind the geometric surface is unreachable, whatever the shading normal says.
+    let reachable = !at.shaded || at.n.dot(ls.wi) > 0.0;
+    if !(cos > 0.0 && reachable && ls.le != Vec3A::ZERO) {
+        return None;
+    }
+    let d = ls.p - p_out;
+    if scene.occluded(&Ray::new(p_out, d), 1.0 - 1e-4) {
+        return None;
+    }
+    let w = if strategy == Strategy::Mis {
+        power_heuristic(ls.pdf, cosine_hemisphere_pdf(cos))
+    } else {
+        1.0
+    };
+    Some((ls.le, cos * std::f32::consts::FRAC_1_PI * w / ls.pdf))
+}
+
+/// A path's next ray through (or off) a smooth dielectric, and what its throughput is divided
+/// by.
+struct Refracted {
+    ray: Ray,
+    /// η² through the surface (radiance is compressed by 1/η² entering a denser medium), 1
+    /// on reflection.
+    attenuation: f32,
+}
+
+/// Reflects or refracts the path at a smooth dielectric of index `ior` (outside on the front
+/// side), choosing by the Fresnel reflectance with `u_choice`; `None` when no Fresnel term is
+/// defined (seen from behind the shading normal).
+#[inline(always)]
+fn dielectric(
+    ray: &Ray,
+    sp: &SurfacePoint,
+    at: &Shading,
+    front: bool,
+    ior: f32,
+    u_choice: f32,
+) -> Option<Refracted> {
+    let (n, ns, shaded) = (at.n, at.ns, at.shaded);
+    let wo = -ray.d;
+    // The front side (sp.n) is outside.
+    let eta = if front { ior } else { 1.0 / ior };
+    let cos_i = ns.dot(wo).min(1.0);
+    if shaded && !(cos_i > 0.0) {
+        // Seen from behind its shading normal: no Fresnel term is defined.
+        return None;
+    }
+    let (f, cos_t) = fresnel_dielectric(cos_i, eta);
+    let (wi, through) = if u_choice < f {
+        (reflect(ray.d, ns), false)
+    } else {
+        (refract(wo, ns, eta, cos_i, cos_t), true)
+    };
+    // Off the side the new direction leaves by: the geometric normal decides it
+    // where the shading normal could disagree.
+    let side = if shaded {
+        if n.dot(wi) >= 0.0 {
+            n
+        } else {
+            -n
+        }
+    } else if through {
+        -n
+    } else {
+        n
+    };
+    // Radiance is compressed by 1/η² entering a denser medium.
+    Some(Refracted {
+        ray: Ray::new(offset_ray_origin(sp.p, sp.err, side), wi),
+        attenuation: if through { eta * eta } else { 1.0 },
+    })
 }

@@ -10,14 +10,22 @@
 //! merged in batch order, the same job gives the same bits however the frame is cut into
 //! tiles, threads, batches of work or machines.
 //!
-//! Modules follow pbrt-v4's split: [`math`] and [`shape`] (geometry and intersection),
-//! [`accel`] (the ray queries: a BVH whose leaves test quads four at a time), [`packet`] (rays
-//! in SIMD lanes), [`sampling`] (sample generation and warps), [`bsdf`], [`light`], [`camera`],
-//! [`scene`] (file format, parsing, validation, runtime scene), [`integrator`], [`lanes`] (f32
-//! SIMD lanes of any width) and [`wide`] (the integrator four to sixteen paths at a time, for
-//! the scenes whose bounce it models, with the same bits), [`film`] (partial sums and images),
-//! [`tile`] (the render driver) and [`output`] (EXR, PNG), which places its files with
-//! [`files`] (never through a link).
+//! Modules follow pbrt-v4's split, lowest first (no module imports one above it; the
+//! workspace's layout test checks that there is no import cycle):
+//! - [`util`]: [`math`] (vectors, rays, rounding-error bounds), [`lanes`] (f32 SIMD lanes of any
+//!   width), [`sampling`] (sample generation and warps), [`files`] (durable file writes, never
+//!   through a link).
+//! - [`settings`] (what decides a render's bits besides the scene), [`accel`] (BVHs, apart from
+//!   what they hold), [`interaction`] (hits and surface points), [`packet`] (rays in SIMD
+//!   lanes).
+//! - Geometry: [`mesh`] and [`shape`]; [`primitive`] (a shape with its material and lights);
+//!   [`aggregate`] (the scene's ray queries: a BVH whose leaves test quads four at a time).
+//! - Appearance and light: [`texture`], [`bsdf`], [`light`], [`camera`].
+//! - [`scene`] (file format, parsing, validation, the runtime scene).
+//! - Rendering: [`integrator`], [`wide`] (the integrator four to sixteen paths at a time, for
+//!   the scenes whose bounce it models, with the same bits), [`adaptive`] (noise-targeted
+//!   sampling), [`film`] (partial sums and images), [`tile`] (the render driver) and
+//!   [`output`] (EXR, PNG).
 //!
 //! ```no_run
 //! use tessera_render::{scene::{Limits, Scene}, RenderSettings, render_frame};
@@ -29,30 +37,32 @@
 
 pub mod accel;
 pub mod adaptive;
+pub mod aggregate;
 pub mod bsdf;
 pub mod camera;
-pub mod files;
 pub mod film;
 pub mod integrator;
-pub mod lanes;
+pub mod interaction;
 pub mod light;
-pub mod math;
 pub mod mesh;
 pub mod output;
 pub mod packet;
-pub mod sampling;
+pub mod primitive;
 pub mod scene;
+pub mod settings;
 pub mod shape;
 pub mod texture;
 pub mod tile;
+pub mod util;
 pub mod wide;
 
 pub use adaptive::Adaptive;
 pub use film::{assemble_frame, assemble_render, Image, MergeError, PixelRect, TileSums};
-pub use integrator::{
+pub use settings::{
     RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_BATCH, DEFAULT_TILE, TILE_RANGE,
 };
 pub use tile::{render_frame, render_tile};
+pub use util::{files, lanes, math, sampling};
 
 /// Revision of the renderer's output bits: bumped by every change that alters any bit that any
 /// render returns (a new sampler, a reordered sum, a different warp). One job's partial sums

@@ -5,9 +5,9 @@ use std::f32::consts::PI;
 
 use glam::{Vec2, Vec3A};
 
-use crate::math::{offset_ray_origin, Frame};
-use crate::sampling::{square_to_uniform_cone, square_to_uniform_sphere, Distribution1D};
 use crate::shape::{sphere_point_error, sphere_roots, sphere_roots_f64, Parallelogram};
+use crate::util::math::{offset_ray_origin, Frame};
+use crate::util::sampling::{square_to_uniform_cone, square_to_uniform_sphere, Distribution1D};
 
 /// The part of an emitter that can be sampled.
 #[derive(Clone, Debug)]
@@ -320,7 +320,7 @@ impl Lights {
     /// because a sample behind another surface is blocked by its shadow ray.
     pub fn pdf_direction(&self, p: Vec3A, w: Vec3A) -> f32 {
         let Some(d) = &self.select else { return 0.0 };
-        let ray = crate::math::Ray::new(p, w);
+        let ray = crate::util::math::Ray::new(p, w);
         let mut total = 0.0;
         for (i, light) in self.lights.iter().enumerate() {
             let hit = match &light.shape {

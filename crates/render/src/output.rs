@@ -7,8 +7,8 @@ use exr::prelude::{
     FlatSamples, Layer, LayerAttributes, Text, WritableImage,
 };
 
-use crate::files::{self, Access, Place};
 use crate::film::Image;
+use crate::util::files::{self, Access, Place};
 
 /// Errors writing or reading images.
 #[derive(Debug, thiserror::Error)]

@@ -5,8 +5,8 @@
 
 use glam::Vec3A;
 
-use crate::lanes::{splat3, v3, F, M, V3};
-use crate::math::{Aabb, Ray};
+use crate::util::lanes::{splat3, v3, F, M, V3};
+use crate::util::math::{Aabb, Ray};
 
 /// How many lanes a packet query takes at most (its answers' lanes are bits of a `u32`).
 pub const MAX_LANES: usize = 16;
@@ -94,7 +94,7 @@ impl<const N: usize> Rays<N> {
             far = far.min(F::select(
                 nan,
                 F::INFINITY,
-                t0.max(t1) * crate::math::FAR_INFLATION,
+                t0.max(t1) * crate::util::math::FAR_INFLATION,
             ));
         }
         near.max(F::ZERO).cmple(far.min(t_max))

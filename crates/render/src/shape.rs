@@ -5,11 +5,13 @@
 //! and only boxes under rotation/shear and spheres under non-uniform scale pay for a transform
 //! of the ray into object space.
 
-use glam::{Affine3A, BVec3A, Mat3A, Vec3A};
+use glam::{BVec3A, Vec3A};
 
-use crate::lanes::{v3, F, V3};
+use crate::util::lanes::{v3, F, V3};
 
-use crate::math::{gamma, Aabb, Ray};
+use crate::interaction::transformed_box;
+pub use crate::interaction::{Hit, SurfacePoint, Transformed};
+use crate::util::math::{gamma, Aabb, Ray};
 
 /// Geometry of one primitive, in world space unless it carries a transform.
 #[derive(Clone, Debug)]
@@ -43,92 +45,6 @@ pub enum Shape {
         /// Object-to-world map.
         xf: Transformed,
     },
-}
-
-/// An object-to-world affine map with the inverse and normal matrix it needs at hit time.
-#[derive(Clone, Debug)]
-pub struct Transformed {
-    /// Object to world.
-    pub to_world: Affine3A,
-    /// World to object.
-    pub to_object: Affine3A,
-    /// Inverse transpose of the linear part, which maps object normals to world normals.
-    pub normal_matrix: Mat3A,
-    /// Whether the map is the identity, so the ray needs no transform.
-    pub identity: bool,
-}
-
-impl Transformed {
-    /// Wraps an invertible map (the caller validated the determinant).
-    pub fn new(to_world: Affine3A) -> Self {
-        let to_object = to_world.inverse();
-        let normal_matrix = to_object.matrix3.transpose();
-        let identity = to_world == Affine3A::IDENTITY;
-        Self {
-            to_world,
-            to_object,
-            normal_matrix,
-            identity,
-        }
-    }
-
-    #[inline]
-    pub(crate) fn ray_to_object(&self, r: &Ray) -> Ray {
-        if self.identity {
-            *r
-        } else {
-            Ray::new(
-                self.to_object.transform_point3a(r.o),
-                self.to_object.transform_vector3a(r.d),
-            )
-        }
-    }
-
-    #[inline]
-    pub(crate) fn normal_to_world(&self, n: Vec3A) -> Vec3A {
-        if self.identity {
-            n
-        } else {
-            (self.normal_matrix * n).normalize()
-        }
-    }
-
-    /// Error bound of `point_to_world(p)` for an object-space point `p` that is itself within
-    /// `rel`·|p| of the exact point: the transform's own rounding (pbrt-v4's γ₃ bound) plus the
-    /// object-space error carried through the linear part. Never zero, so a spawned ray always
-    /// moves off a face that lies on a float grid line.
-    #[inline]
-    fn point_error(&self, p: Vec3A, rel: f32) -> Vec3A {
-        let m = if self.identity {
-            p.abs()
-        } else {
-            let l = self.to_world.matrix3;
-            let a = Mat3A::from_cols(l.x_axis.abs(), l.y_axis.abs(), l.z_axis.abs());
-            a * p.abs() + self.to_world.translation.abs()
-        };
-        m * (gamma(4) + rel) + Vec3A::splat(f32::MIN_POSITIVE)
-    }
-
-    /// Error bound of `point_to_world(p)` for an object-space point `p` whose own absolute
-    /// error is at most `err` per coordinate.
-    #[inline]
-    pub(crate) fn carry_error(&self, p: Vec3A, err: Vec3A) -> Vec3A {
-        if self.identity {
-            return err;
-        }
-        let l = self.to_world.matrix3;
-        let a = Mat3A::from_cols(l.x_axis.abs(), l.y_axis.abs(), l.z_axis.abs());
-        self.point_error(p, 0.0) + a * err * (1.0 + gamma(3))
-    }
-
-    #[inline]
-    pub(crate) fn point_to_world(&self, p: Vec3A) -> Vec3A {
-        if self.identity {
-            p
-        } else {
-            self.to_world.transform_point3a(p)
-        }
-    }
 }
 
 /// A parallelogram with the dual basis that turns a plane point into (u, v).
@@ -210,40 +126,6 @@ impl Parallelogram {
             .grow(self.p0 + self.e1)
             .grow(self.p0 + self.e2)
             .grow(self.p0 + self.e1 + self.e2)
-    }
-}
-
-/// Where a ray met a primitive; the surface details are computed only for the closest hit.
-#[derive(Clone, Copy, Debug)]
-pub struct Hit {
-    /// Ray parameter.
-    pub t: f32,
-    /// Primitive index.
-    pub prim: u32,
-    /// Shape-specific part (the face of a box, 0 otherwise).
-    pub part: u32,
-}
-
-/// The geometry at a hit point.
-#[derive(Clone, Copy, Debug)]
-pub struct SurfacePoint {
-    /// Position, recomputed from the shape's own parameterisation (not `o + t·d`).
-    pub p: Vec3A,
-    /// Unit geometric normal of the shape's front side.
-    pub n: Vec3A,
-    /// Unit shading normal: the interpolated vertex normal of a smooth mesh, `n` elsewhere.
-    /// On the same side as `n`.
-    pub ns: Vec3A,
-    /// Conservative bound on the absolute rounding error of each coordinate of `p`, which
-    /// [`crate::math::offset_ray_origin`] needs to spawn rays that cannot re-hit the surface.
-    pub err: Vec3A,
-}
-
-impl SurfacePoint {
-    /// A point whose shading normal is its geometric normal (every shape but smooth meshes).
-    #[inline(always)]
-    pub fn flat(p: Vec3A, n: Vec3A, err: Vec3A) -> Self {
-        Self { p, n, ns: n, err }
     }
 }
 
@@ -590,35 +472,18 @@ impl Shape {
     }
 }
 
-pub(crate) fn transformed_box(m: &Affine3A, min: Vec3A, max: Vec3A) -> Aabb {
-    let mut b = Aabb::EMPTY;
-    for i in 0..8 {
-        let c = Vec3A::new(
-            if i & 1 == 0 { min.x } else { max.x },
-            if i & 2 == 0 { min.y } else { max.y },
-            if i & 4 == 0 { min.z } else { max.z },
-        );
-        b = b.grow(m.transform_point3a(c));
-    }
-    // Rounding in the corner transform must not shrink the box below the shape.
-    let pad = (b.max.abs().max(b.min.abs())) * (4.0 * f32::EPSILON);
-    Aabb {
-        min: b.min - pad,
-        max: b.max + pad,
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use glam::Affine3A;
 
     /// The lanes' box test gives the one-ray test's hit, t and face, bit for bit: rotated and
     /// axis-aligned boxes, rays from inside and outside, directions with zero components,
     /// origins on faces, edges and corners, and a t_max per lane.
     #[test]
     fn cuboid_lanes_match_the_one_ray_test() {
-        use crate::lanes::F;
-        use crate::sampling::HashRng;
+        use crate::util::lanes::F;
+        use crate::util::sampling::HashRng;
         let mut rng = HashRng::new(7);
         let mut u = move || rng.next_f32();
         let boxes = [
@@ -766,9 +631,9 @@ mod tests {
                 radius: 1.0,
             },
         ];
-        let mut rng = crate::sampling::HashRng::new(3);
+        let mut rng = crate::util::sampling::HashRng::new(3);
         let mut coord = || [-2.0, -1.0, -0.0, 0.0, 0.5, 1.0, 2.0][(rng.next_f32() * 7.0) as usize];
-        let mut tally = crate::math::testing::Tally::default();
+        let mut tally = crate::util::math::testing::Tally::default();
         for _ in 0..20_000 {
             let o = Vec3A::new(coord(), coord(), coord());
             let d = Vec3A::new(coord(), coord(), coord());

@@ -15,8 +15,8 @@ use rayon::prelude::*;
 use crate::adaptive::{neyman_scale, pilot_samples, tile_wants_more};
 use crate::film::{assemble_render, PixelRect, TileSums};
 use crate::integrator::{sample_pixel, RenderSettings, Tracer};
-use crate::sampling::PixelSampler;
 use crate::scene::Scene;
+use crate::util::sampling::PixelSampler;
 
 /// One pixel's sums over one batch: the only place a sample enters the image. A non-finite
 /// sample (which no test scene has produced, but a future bug might) is counted and dropped,

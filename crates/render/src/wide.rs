@@ -1,7 +1,7 @@
 //! Many paths at a time, the whole bounce in SIMD lanes, for the scenes whose bounce is the
 //! same few operations everywhere: diffuse surfaces, one parallelogram light, one BVH leaf
 //! (the Cornell box). Every lane does exactly the scalar trace's arithmetic on its own numbers
-//! (no fused multiply-add, no sums across lanes; see [`crate::lanes`]), so a sample's value is
+//! (no fused multiply-add, no sums across lanes; see [`crate::util::lanes`]), so a sample's value is
 //! [`crate::integrator::sample_pixel`]'s, bit for bit, whichever lane it runs in and however
 //! many lanes there are; the pinned render hashes test that. A lane whose path ends takes the
 //! next sample of the run, which goes on from one pixel to the next, so the lanes stay busy.
@@ -16,13 +16,15 @@ use glam::Vec3A;
 
 use crate::bsdf::Bsdf;
 use crate::integrator::{RenderSettings, Strategy};
-use crate::lanes::{dot, splat3, transpose3, v3, F, M, V3};
 use crate::light::LightShape;
-use crate::math::{gamma, Ray};
 use crate::packet::Rays;
-use crate::sampling::{power_heuristic, sin_cos_polynomials, PixelSampler};
 use crate::scene::Scene;
 use crate::shape::{Parallelogram, Shape};
+use crate::util::lanes::{dot, splat3, transpose3, v3, F, M, V3};
+use crate::util::math::{frame_from_normal_lanes, gamma, offset_ray_origin_lanes, Ray};
+use crate::util::sampling::{
+    power_heuristic, power_heuristic_lanes, square_to_cosine_hemisphere_lanes, PixelSampler,
+};
 
 /// The many-path tracer for one scene and its settings.
 pub struct Wide<'a> {
@@ -61,43 +63,6 @@ struct LightLanes<const N: usize> {
     radiance: V3<N>,
 }
 
-/// [`crate::math::offset_ray_origin`], lane by lane.
-#[inline(always)]
-fn offset<const N: usize>(p: &V3<N>, err: &V3<N>, n: &V3<N>) -> V3<N> {
-    let d = (n[0].abs() * err[0] + n[1].abs() * err[1]) + n[2].abs() * err[2];
-    v3(|c| {
-        let po = p[c] + n[c] * d;
-        let step = po.abs() * f32::EPSILON + F::splat(f32::from_bits(1));
-        let side = F::select(n[c].cmpeq(F::ZERO), F::ZERO, F::ONE.copysign(n[c]));
-        po + side * step
-    })
-}
-
-/// [`crate::sampling::square_to_cosine_hemisphere`], lane by lane.
-#[inline(always)]
-fn cosine_hemisphere<const N: usize>(u0: F<N>, u1: F<N>) -> V3<N> {
-    let ax = 2.0 * u0 - F::ONE;
-    let ay = 2.0 * u1 - F::ONE;
-    let origin = ax.cmpeq(F::ZERO) & ay.cmpeq(F::ZERO);
-    let x_major = ax.abs().cmpgt(ay.abs());
-    let num = F::select(x_major, ay, ax);
-    let den = F::select(x_major, ax, ay);
-    let (s, c) = sin_cos_polynomials(std::f32::consts::FRAC_PI_4 * (num / den));
-    let dx = F::select(origin, F::ZERO, den * F::select(x_major, c, s));
-    let dy = F::select(origin, F::ZERO, den * F::select(x_major, s, c));
-    let z = (1.0 - (dx * dx + dy * dy)).max(F::ZERO).sqrt();
-    [dx, dy, z]
-}
-
-/// [`crate::sampling::power_heuristic`], lane by lane.
-#[inline(always)]
-fn power_heuristic_lanes<const N: usize>(f: F<N>, g: F<N>) -> F<N> {
-    let (f2, g2) = (f * f, g * g);
-    let sum = f2 + g2;
-    let w = F::select(sum.cmpeq(F::ZERO), F::ZERO, f2 / sum);
-    F::select(f2.abs().cmpeq(F::INFINITY), F::ONE, w)
-}
-
 /// Lane `lane` of three lanes as a vector.
 #[inline(always)]
 fn lane3<const N: usize>(v: &[[f32; N]; 3], lane: usize) -> Vec3A {
@@ -114,6 +79,27 @@ fn set3<const N: usize>(v: &mut [[f32; N]; 3], lane: usize, x: Vec3A) {
 #[inline(always)]
 fn load3<const N: usize>(v: &[[f32; N]; 3]) -> V3<N> {
     v3(|c| F(v[c]))
+}
+
+/// The vertices a bounce shades, in lanes: where the paths hit, and the numbers that decide
+/// what happens there.
+struct Vertices<const N: usize> {
+    /// The hit points.
+    p: V3<N>,
+    /// Their normals, on the side the ray came from.
+    n: V3<N>,
+    /// The points' rounding-error bounds.
+    err: V3<N>,
+    /// The diffuse albedo there.
+    albedo: V3<N>,
+    /// The BSDF sample's two numbers.
+    u: [F<N>; 2],
+    /// The light sample's two numbers.
+    light_u: [F<N>; 2],
+    /// Russian roulette's number.
+    u_rr: F<N>,
+    /// The lanes shaded.
+    shade: u32,
 }
 
 /// The paths in the lanes, between bounces.
@@ -289,6 +275,23 @@ impl<'a> Wide<'a> {
     /// One bounce of every active lane: its closest hit, emission, light sample and next ray.
     #[inline(always)]
     fn bounce<const N: usize>(&self, s: &mut Lanes<N>, light: &LightLanes<N>, out: &mut [Vec3A]) {
+        let Some(v) = self.shade_hits(s, out) else {
+            return;
+        };
+        let p_out = offset_ray_origin_lanes(&v.p, &v.err, &v.n);
+        self.direct_light(s, light, &v, &p_out);
+        self.continue_paths(s, &v, p_out, out);
+    }
+
+    /// Intersects the active lanes' rays, adds what emitters they hit give (weighted against
+    /// light sampling), ends the paths that leave the scene or hit a back face, and returns the
+    /// vertices of the others, in lanes; `None` if no lane has one.
+    #[inline(always)]
+    fn shade_hits<const N: usize>(
+        &self,
+        s: &mut Lanes<N>,
+        out: &mut [Vec3A],
+    ) -> Option<Vertices<N>> {
         let scene = self.scene;
         let settings = self.settings;
         let ray_of = |lane| Ray::new(lane3(&s.o, lane), lane3(&s.d, lane));
@@ -370,18 +373,35 @@ impl<'a> Wide<'a> {
             shade |= 1 << lane;
         }
         if shade == 0 {
-            return;
+            return None;
         }
-        let (p, n, err, albedo) = (
-            transpose3(&p),
-            transpose3(&n),
-            transpose3(&err),
-            transpose3(&albedo),
-        );
         let [u0, u1, lx, ly, u_rr] = [F(u[0]), F(u[1]), F(u[2]), F(u[3]), F(u[4])];
-        let p_out = offset(&p, &err, &n);
+        Some(Vertices {
+            p: transpose3(&p),
+            n: transpose3(&n),
+            err: transpose3(&err),
+            albedo: transpose3(&albedo),
+            u: [u0, u1],
+            light_u: [lx, ly],
+            u_rr,
+            shade,
+        })
+    }
 
-        // Next-event estimation: `Lights::sample` for the one parallelogram light.
+    /// Next-event estimation at the vertices: `Lights::sample` for the one parallelogram
+    /// light, a shadow ray, and the power heuristic against BSDF sampling.
+    #[inline(always)]
+    fn direct_light<const N: usize>(
+        &self,
+        s: &mut Lanes<N>,
+        light: &LightLanes<N>,
+        v: &Vertices<N>,
+        p_out: &V3<N>,
+    ) {
+        let scene = self.scene;
+        let (p, n, albedo, shade) = (&v.p, &v.n, &v.albedo, v.shade);
+        let [lx, ly] = v.light_u;
+        let p_out = *p_out;
         let x: V3<N> = v3(|c| (light.p0[c] + light.e1[c] * lx) + light.e2[c] * ly);
         let d: V3<N> = v3(|c| x[c] - p[c]);
         let dist2 = dot(&d, &d);
@@ -406,8 +426,8 @@ impl<'a> Wide<'a> {
             (light.p0[c].abs() + (light.e1[c] * lx).abs() + (light.e2[c] * ly).abs()) * gamma(12)
                 + F::splat(f32::MIN_POSITIVE)
         });
-        let lp = offset(&x, &x_err, &towards);
-        let cos = dot(&n, &wi);
+        let lp = offset_ray_origin_lanes(&x, &x_err, &towards);
+        let cos = dot(n, &wi);
         let nee = (valid & lit & cos.cmpgt(F::ZERO)).bits() & shade;
         if nee != 0 {
             let sd: V3<N> = v3(|c| lp[c] - p_out[c]);
@@ -435,15 +455,24 @@ impl<'a> Wide<'a> {
                 }
             }
         }
+    }
 
-        // The next direction, cosine-weighted: f·cos/pdf = ρ.
-        let local = cosine_hemisphere(u0, u1);
+    /// The next direction at each vertex, cosine-weighted (f·cos/pdf = ρ), then Russian
+    /// roulette; the lanes' paths move on, and those that end are written to `out`.
+    #[inline(always)]
+    fn continue_paths<const N: usize>(
+        &self,
+        s: &mut Lanes<N>,
+        v: &Vertices<N>,
+        p_out: V3<N>,
+        out: &mut [Vec3A],
+    ) {
+        let settings = self.settings;
+        let (p, n, albedo, shade, u_rr) = (&v.p, &v.n, &v.albedo, v.shade, v.u_rr);
+        let [u0, u1] = v.u;
+        let local = square_to_cosine_hemisphere_lanes(u0, u1);
         // `Frame::from_normal` and `Frame::to_world`.
-        let sign = F::ONE.copysign(n[2]);
-        let a = -1.0 / (sign + n[2]);
-        let b = n[0] * n[1] * a;
-        let fs = [1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]];
-        let ft = [b, sign + n[1] * n[1] * a, -n[1]];
+        let [fs, ft] = frame_from_normal_lanes(n);
         let wi: V3<N> = v3(|c| fs[c] * local[0] + ft[c] * local[1] + n[c] * local[2]);
         let mut beta: V3<N> = v3(|c| F(s.beta[c]) * albedo[c]);
         let prev_pdf = F::select(

@@ -4,7 +4,7 @@
 
 use glam::Vec3A;
 
-use crate::math::{Aabb, Ray};
+use crate::util::math::{Aabb, Ray};
 
 /// A flattened node: 32 bytes, two per cache line.
 #[derive(Clone, Copy, Debug)]
@@ -322,7 +322,7 @@ fn partition(items: &mut [BuildItem], pred: impl Fn(&BuildItem) -> bool) -> usiz
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sampling::HashRng;
+    use crate::util::sampling::HashRng;
 
     /// Every primitive a brute-force test hits must be visited by the traversal.
     #[test]

@@ -10,7 +10,7 @@
 
 use glam::{Vec3A, Vec4};
 
-use crate::math::FAR_INFLATION;
+use crate::util::math::FAR_INFLATION;
 
 use super::bvh::{Bvh, NodeKind};
 use super::pages::PagedArray;
@@ -269,7 +269,7 @@ impl Node8 {
         count: [0; W],
     };
 
-    fn set(&mut self, slot: usize, bounds: crate::math::Aabb, child: u32, count: u32) {
+    fn set(&mut self, slot: usize, bounds: crate::util::math::Aabb, child: u32, count: u32) {
         for axis in 0..3 {
             self.b[2 * axis][slot / 4][slot % 4] = bounds.min[axis];
             self.b[2 * axis + 1][slot / 4][slot % 4] = bounds.max[axis];
@@ -282,8 +282,8 @@ impl Node8 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::math::{Aabb, Ray};
-    use crate::sampling::HashRng;
+    use crate::util::math::{Aabb, Ray};
+    use crate::util::sampling::HashRng;
 
     /// Every box a brute-force test hits is in a leaf the traversal visits, for trees of one
     /// leaf, a few nodes and many, with rays along axes (0·∞ slabs) among them.

@@ -16,8 +16,8 @@ use glam::{Vec2, Vec3A};
 use crate::accel::bvh::Bvh;
 use crate::accel::bvh8::Bvh8;
 use crate::accel::pages::PagedArray;
-use crate::math::{Aabb, Ray};
-use crate::shape::{SurfacePoint, Transformed};
+use crate::interaction::{transformed_box, SurfacePoint, Transformed};
+use crate::util::math::{Aabb, Ray};
 use triangle::{Tri4, WoopRay};
 
 /// A triangle mesh in its own (object) space, with its BVH. The triangles are stored once,
@@ -277,7 +277,7 @@ impl MeshInstance {
     /// World-space bounds.
     pub fn bounds(&self) -> Aabb {
         let b = self.mesh.bounds();
-        crate::shape::transformed_box(&self.xf.to_world, b.min, b.max)
+        transformed_box(&self.xf.to_world, b.min, b.max)
     }
 
     /// The triangles in world space with their front normals and areas, for area lights.
@@ -299,7 +299,7 @@ impl MeshInstance {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::sampling::HashRng;
+    use crate::util::sampling::HashRng;
 
     /// A closed, convex-and-concave mesh: a sphere of `rings` × `segments` quads (each split
     /// into two triangles) whose radius wobbles, so that neighbouring faces meet at folds.

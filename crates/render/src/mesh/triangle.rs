@@ -18,7 +18,7 @@
 
 use glam::{BVec4A, Vec3A, Vec4};
 
-use crate::math::gamma;
+use crate::util::math::gamma;
 
 /// A hit of one triangle: the ray parameter and the barycentric weights of the three vertices.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -396,7 +396,7 @@ mod tests {
     /// whose folds this cannot test, are in `mesh::tests`.)
     #[test]
     fn shared_edges_and_vertices_of_a_fan_leave_no_gap() {
-        let mut rng = crate::sampling::HashRng::new(11);
+        let mut rng = crate::util::sampling::HashRng::new(11);
         let mut u = move || rng.next_f32();
         for _ in 0..20_000 {
             // A fan of 7 triangles round a centre point.
@@ -435,7 +435,7 @@ mod tests {
     /// the sign of an edge function and f64 does; the test checks that such rays occur).
     #[test]
     fn four_lanes_give_the_one_lane_bits() {
-        let mut rng = crate::sampling::HashRng::new(29);
+        let mut rng = crate::util::sampling::HashRng::new(29);
         let mut u = move || rng.next_f32();
         let mut uncertain = 0;
         let mut hits = 0;

@@ -12,15 +12,15 @@ use super::{
     AlbedoDesc, CameraModel, Environment, EnvironmentKind, KeyPath, Limits, Material, MaterialKind,
     ObjectDesc, Primitive, Scene, SceneFile, Seg, ShapeKind, TransformDesc,
 };
-use crate::accel::Accel;
+use crate::aggregate::Accel;
 use crate::bsdf::Bsdf;
 use crate::camera::Camera;
 use crate::light::{Light, LightShape, Lights, MeshLight};
-use crate::math::v3;
 use crate::mesh::load::{self, MeshFormat};
 use crate::mesh::{MeshInstance, TriMesh};
 use crate::shape::{Shape, Transformed};
 use crate::texture::{self, ImageFormat, Texture};
+use crate::util::math::v3;
 
 /// What is wrong, and where in the file.
 pub(super) type Invalid = (KeyPath, String);

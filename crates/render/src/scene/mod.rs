@@ -29,12 +29,13 @@ pub use locate::{line_col, KeyPath, Seg};
 /// users number them (`--frames 1-240`).
 pub const FIRST_FRAME: u32 = 1;
 
-use crate::accel::Accel;
+use crate::aggregate::Accel;
 use crate::bsdf::Bsdf;
 use crate::camera::Camera;
 use crate::light::Lights;
-use crate::math::Ray;
-use crate::shape::{Hit, Shape};
+pub use crate::primitive::Primitive;
+use crate::shape::Hit;
+use crate::util::math::Ray;
 
 /// Which syntax a scene is written in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -163,22 +164,6 @@ impl Environment {
             }
         }
     }
-}
-
-/// One object of the runtime scene.
-#[derive(Clone, Debug)]
-pub struct Primitive {
-    /// Geometry.
-    pub shape: Shape,
-    /// Index into [`Scene::materials`].
-    pub material: u32,
-    /// Index of this primitive's first light in [`Scene::lights`] (a box has one per face),
-    /// or `u32::MAX` if it does not emit.
-    pub light: u32,
-    /// 1 where each part of the shape is a light of its own (a box's faces), 0 where the
-    /// whole shape is one (a mesh, whose parts are its triangles): a hit's light is
-    /// `light + part · light_stride`.
-    pub light_stride: u32,
 }
 
 /// The runtime scene: everything needed to render, in the form the integrator reads.
@@ -323,7 +308,7 @@ impl Scene {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sampling::HashRng;
+    use crate::util::sampling::HashRng;
     use glam::Vec3A;
 
     /// The BVH with its SIMD leaves finds what a brute-force scalar loop over every primitive

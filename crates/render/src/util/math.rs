@@ -2,6 +2,8 @@
 
 use glam::{Vec3, Vec3A};
 
+use crate::util::lanes::{v3 as lanes3, F, V3};
+
 /// A ray `o + t·d`. `d` need not be unit length: transformed shapes rely on `t`
 /// being preserved by affine maps, which only holds when `d` is mapped unnormalised.
 #[derive(Clone, Copy, Debug)]
@@ -185,6 +187,32 @@ pub fn offset_ray_origin(p: Vec3A, err: Vec3A, n: Vec3A) -> Vec3A {
     po + side * step
 }
 
+/// [`offset_ray_origin`], lane by lane, for the many-path tracer (`wide.rs`): the same bits
+/// in every lane (`tests::the_lanes_twins_give_the_scalar_bits`).
+#[inline(always)]
+pub fn offset_ray_origin_lanes<const N: usize>(p: &V3<N>, err: &V3<N>, n: &V3<N>) -> V3<N> {
+    let d = (n[0].abs() * err[0] + n[1].abs() * err[1]) + n[2].abs() * err[2];
+    lanes3(|c| {
+        let po = p[c] + n[c] * d;
+        let step = po.abs() * f32::EPSILON + F::splat(f32::from_bits(1));
+        let side = F::select(n[c].cmpeq(F::ZERO), F::ZERO, F::ONE.copysign(n[c]));
+        po + side * step
+    })
+}
+
+/// [`Frame::from_normal`]'s first two axes, lane by lane, for the many-path tracer: the same
+/// bits in every lane.
+#[inline(always)]
+pub fn frame_from_normal_lanes<const N: usize>(n: &V3<N>) -> [V3<N>; 2] {
+    let sign = F::ONE.copysign(n[2]);
+    let a = -1.0 / (sign + n[2]);
+    let b = n[0] * n[1] * a;
+    [
+        [1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]],
+        [b, sign + n[1] * n[1] * a, -n[1]],
+    ]
+}
+
 /// Converts an RGB (or XYZ) array to `Vec3A`.
 #[inline]
 pub fn v3(a: [f32; 3]) -> Vec3A {
@@ -229,6 +257,45 @@ pub(crate) mod testing {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The lanes' twins give the scalar functions' bits in every lane, at random points and
+    /// at the edges (zero and signed-zero normals, zero errors, huge and subnormal points).
+    #[test]
+    fn the_lanes_twins_give_the_scalar_bits() {
+        let mut rng = crate::util::sampling::HashRng::new(11);
+        let mut u = move || 2.0 * rng.next_f32() - 1.0;
+        let edges = [0.0, -0.0, 1.0, -1.0, 1e30, f32::from_bits(1), 1e-30];
+        for round in 0..2000 {
+            let mut v = |i: usize| {
+                if round % 4 == 0 {
+                    edges[(round / 4 + i) % edges.len()]
+                } else {
+                    u() * 10f32.powi((i % 5) as i32 - 2)
+                }
+            };
+            let p = Vec3A::new(v(0), v(1), v(2));
+            let err = Vec3A::new(v(3), v(4), v(5)).abs();
+            let n = Vec3A::new(u(), u(), u()).normalize_or(Vec3A::Z);
+            let n = if round % 7 == 0 {
+                Vec3A::new(n.x, 0.0, -0.0)
+            } else {
+                n
+            };
+            let lanes = |x: Vec3A| -> V3<4> { lanes3(|c| F::splat(x[c])) };
+            let got = offset_ray_origin_lanes(&lanes(p), &lanes(err), &lanes(n));
+            let want = offset_ray_origin(p, err, n);
+            for c in 0..3 {
+                assert_eq!(got[c].0[2].to_bits(), want[c].to_bits(), "{p} {err} {n}");
+            }
+            let nn = n.normalize_or(Vec3A::Z);
+            let [s, t] = frame_from_normal_lanes(&lanes(nn));
+            let f = Frame::from_normal(nn);
+            for c in 0..3 {
+                assert_eq!(s[c].0[1].to_bits(), f.s[c].to_bits(), "{nn}");
+                assert_eq!(t[c].0[3].to_bits(), f.t[c].to_bits(), "{nn}");
+            }
+        }
+    }
 
     #[test]
     fn frame_is_orthonormal_everywhere() {
@@ -364,10 +431,11 @@ mod tests {
                 max: Vec3A::new(1.0, 0.5, 2.0),
             },
         ];
-        let mut rng = crate::sampling::HashRng::new(11);
+        let mut rng = crate::util::sampling::HashRng::new(11);
         let coords = [-3.0, -1.0, -0.25, 0.0, 0.5, 1.0, 2.0, 3.0];
-        let pick =
-            |rng: &mut crate::sampling::HashRng, n: usize| (rng.next_f32() * n as f32) as usize % n;
+        let pick = |rng: &mut crate::util::sampling::HashRng, n: usize| {
+            (rng.next_f32() * n as f32) as usize % n
+        };
         let mut tally = testing::Tally::default();
         for _ in 0..200_000 {
             let b = boxes[pick(&mut rng, 2)];

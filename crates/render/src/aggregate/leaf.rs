@@ -11,10 +11,10 @@ use std::ops::Range;
 
 use glam::{Vec3A, Vec4};
 
-use crate::lanes::{dot, splat3, F, M, V3};
-use crate::math::Aabb;
 use crate::packet::{LaneHits, RayX4, Rays, MAX_LANES};
 use crate::shape::{Parallelogram, Shape};
+use crate::util::lanes::{dot, splat3, F, M, V3};
+use crate::util::math::Aabb;
 
 /// Parallelograms in lanes: four different quads against one ray splatted across the lanes
 /// (the one-ray query), or one quad splatted across `N` lanes against `N` rays (the packet
@@ -389,8 +389,8 @@ impl Leaves {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::math::Ray;
-    use crate::sampling::HashRng;
+    use crate::util::math::Ray;
+    use crate::util::sampling::HashRng;
 
     /// Each lane gives the scalar test's answer and the same t, bit for bit, including rays
     /// parallel to a quad, through its edges and behind it; the shadow-ray test agrees.

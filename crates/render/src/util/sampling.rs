@@ -9,6 +9,8 @@ use std::f32::consts::{FRAC_1_PI, FRAC_PI_4};
 
 use glam::{Vec2, Vec3A};
 
+use crate::util::lanes::{F, V3};
+
 /// Largest f32 below 1. Warps clamp to it so that `u = 1 − 2⁻²⁴` style inputs stay inside
 /// their domain.
 pub const ONE_MINUS_EPSILON: f32 = 1.0 - f32::EPSILON * 0.5;
@@ -353,6 +355,32 @@ pub fn power_heuristic(f: f32, g: f32) -> f32 {
     f2 / (f2 + g2)
 }
 
+/// [`square_to_cosine_hemisphere`], lane by lane, for the many-path tracer: the same bits in
+/// every lane (`tests::the_lanes_twins_give_the_scalar_bits`).
+#[inline(always)]
+pub fn square_to_cosine_hemisphere_lanes<const N: usize>(u0: F<N>, u1: F<N>) -> V3<N> {
+    let ax = 2.0 * u0 - F::ONE;
+    let ay = 2.0 * u1 - F::ONE;
+    let origin = ax.cmpeq(F::ZERO) & ay.cmpeq(F::ZERO);
+    let x_major = ax.abs().cmpgt(ay.abs());
+    let num = F::select(x_major, ay, ax);
+    let den = F::select(x_major, ax, ay);
+    let (s, c) = sin_cos_polynomials(std::f32::consts::FRAC_PI_4 * (num / den));
+    let dx = F::select(origin, F::ZERO, den * F::select(x_major, c, s));
+    let dy = F::select(origin, F::ZERO, den * F::select(x_major, s, c));
+    let z = (1.0 - (dx * dx + dy * dy)).max(F::ZERO).sqrt();
+    [dx, dy, z]
+}
+
+/// [`power_heuristic`], lane by lane, for the many-path tracer: the same bits in every lane.
+#[inline(always)]
+pub fn power_heuristic_lanes<const N: usize>(f: F<N>, g: F<N>) -> F<N> {
+    let (f2, g2) = (f * f, g * g);
+    let sum = f2 + g2;
+    let w = F::select(sum.cmpeq(F::ZERO), F::ZERO, f2 / sum);
+    F::select(f2.abs().cmpeq(F::INFINITY), F::ONE, w)
+}
+
 /// A discrete distribution sampled by inversion of its CDF.
 ///
 /// Inversion, not an alias table, because it keeps the sampler's stratification: nearby `u`
@@ -472,6 +500,38 @@ impl Distribution1D {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The lanes' twins give the scalar functions' bits in every lane, over a grid that holds
+    /// the disk's centre and its diagonals, and for weights of 0 and ∞.
+    #[test]
+    fn the_lanes_twins_give_the_scalar_bits() {
+        let n = 257;
+        for i in 0..n {
+            for j in 0..n {
+                let u = Vec2::new(i as f32 / (n - 1) as f32, j as f32 / (n - 1) as f32);
+                let u = Vec2::new(
+                    u.x.min(1.0 - f32::EPSILON / 2.0),
+                    u.y.min(1.0 - f32::EPSILON / 2.0),
+                );
+                let got = square_to_cosine_hemisphere_lanes::<4>(F::splat(u.x), F::splat(u.y));
+                let want = square_to_cosine_hemisphere(u);
+                for c in 0..3 {
+                    assert_eq!(got[c].0[1].to_bits(), want[c].to_bits(), "{u}");
+                }
+            }
+        }
+        let weights = [0.0, 1e-30, 0.5, 1.0, 3.0, 1e30, f32::INFINITY];
+        for f in weights {
+            for g in weights {
+                let got = power_heuristic_lanes::<8>(F::splat(f), F::splat(g));
+                assert_eq!(
+                    got.0[5].to_bits(),
+                    power_heuristic(f, g).to_bits(),
+                    "{f} {g}"
+                );
+            }
+        }
+    }
 
     /// The polynomial sine and cosine against f64's, over every octant, at both ends of each.
     #[test]

@@ -1,0 +1,176 @@
+//! The scene's ray queries, as pbrt's aggregates: a BVH over the bounded primitives
+//! ([`crate::accel::bvh`]), whose leaves hold quads four at a time in SIMD lanes ([`leaf`]),
+//! plus the unbounded primitives (planes) tested one by one. Closest-hit and any-hit queries
+//! for one ray, and the packet versions the many-path tracer asks for scenes of one leaf.
+
+pub mod leaf;
+
+use leaf::Leaves;
+
+use crate::accel::bvh::Bvh;
+use crate::packet::{LaneHits, RayX4, Rays};
+use crate::primitive::Primitive;
+use crate::shape::{Hit, Shape};
+use crate::util::math::{Aabb, Ray};
+
+/// The acceleration structure of a scene's primitives.
+#[derive(Clone, Debug)]
+pub struct Accel {
+    bvh: Bvh,
+    leaves: Leaves,
+    unbounded: Vec<u32>,
+}
+
+impl Accel {
+    /// Builds the structure over `prims` (indices into it are what hits name).
+    pub fn build(prims: &[Primitive]) -> Self {
+        let bounds: Vec<Aabb> = prims.iter().map(|p| p.shape.bounds()).collect();
+        let (bounded, unbounded): (Vec<u32>, Vec<u32>) =
+            (0..prims.len() as u32).partition(|&i| bounds[i as usize].is_finite());
+        let bvh = Bvh::build(&bounds, &bounded);
+        let shapes: Vec<&Shape> = prims.iter().map(|p| &p.shape).collect();
+        let leaves = Leaves::build(&shapes, bvh.order(), bvh.leaves());
+        Self {
+            bvh,
+            leaves,
+            unbounded,
+        }
+    }
+
+    /// Closest hit along `ray` with t in (0, t_max).
+    #[inline]
+    pub fn intersect(&self, prims: &[Primitive], ray: &Ray, t_max: f32) -> Option<Hit> {
+        let test = |p: u32, t_max: f32| prims[p as usize].shape.intersect(ray, t_max);
+        let mut best: Option<Hit> = None;
+        let mut t = t_max;
+        for &p in &self.unbounded {
+            if let Some((tp, part)) = test(p, t) {
+                t = tp;
+                best = Some(Hit { t, prim: p, part });
+            }
+        }
+        let r4 = RayX4::new(ray);
+        self.bvh.traverse(ray, t, |leaf, t_max| {
+            match self.leaves.closest(leaf, &r4, t_max, test) {
+                Some((t, prim, part)) => {
+                    best = Some(Hit { t, prim, part });
+                    t
+                }
+                None => t_max,
+            }
+        });
+        best
+    }
+
+    /// [`Accel::intersect`] with t_max = ∞ for the lanes of `r` set in `active`, for a scene
+    /// of one BVH leaf and no unbounded primitives ([`Accel::is_one_leaf`], which the only
+    /// caller, [`crate::wide::Wide::new`], requires); `rays` holds the same rays one by one, for
+    /// the exact tests of primitives other than quads. Crate-private because on other scenes
+    /// it would answer "no hit": a ray-by-ray fallback here, even out of line, cost the Cornell
+    /// box measurably more instructions a sample (docs/renderer.md).
+    #[inline(always)]
+    pub(crate) fn intersect_lanes<const N: usize>(
+        &self,
+        prims: &[Primitive],
+        r: &Rays<N>,
+        ray: impl Fn(usize) -> Ray,
+        active: u32,
+    ) -> LaneHits<N> {
+        debug_assert!(self.is_one_leaf());
+        self.leaves
+            .closest_lanes(
+                r,
+                active,
+                #[inline(always)]
+                |p, lanes, t_max| match &prims[p as usize].shape {
+                    Shape::Cuboid { min, max, xf } => {
+                        let t_max = crate::util::lanes::F(*t_max);
+                        let (hit, t, face) = crate::shape::cuboid_lanes(
+                            *min,
+                            *max,
+                            xf,
+                            r.origins(),
+                            r.directions(),
+                            t_max,
+                        );
+                        (hit, t.0, face)
+                    }
+                    shape => {
+                        let (mut hit, mut t, mut part) = (0, [0.0; N], [0; N]);
+                        for lane in (0..N).filter(|lane| lanes >> lane & 1 == 1) {
+                            if let Some((tl, pl)) = shape.intersect(&ray(lane), t_max[lane]) {
+                                hit |= 1 << lane;
+                                (t[lane], part[lane]) = (tl, pl);
+                            }
+                        }
+                        (hit, t, part)
+                    }
+                },
+            )
+            .unwrap_or(LaneHits {
+                hit: 0,
+                t: [0.0; N],
+                prim: [0; N],
+                part: [0; N],
+            })
+    }
+
+    /// [`Accel::occluded`] for the lanes of `r` set in `active`, for a scene of one BVH leaf
+    /// and no unbounded primitives (as [`Accel::intersect_lanes`]): bit i is set when
+    /// something blocks lane i in (0, t_max).
+    #[inline(always)]
+    pub(crate) fn occluded_lanes<const N: usize>(
+        &self,
+        prims: &[Primitive],
+        r: &Rays<N>,
+        ray: impl Fn(usize) -> Ray,
+        active: u32,
+        t_max: f32,
+    ) -> u32 {
+        debug_assert!(self.is_one_leaf());
+        self.leaves
+            .any_lanes(
+                r,
+                active,
+                t_max,
+                #[inline(always)]
+                |p, lanes| match &prims[p as usize].shape {
+                    Shape::Cuboid { min, max, xf } => {
+                        let t = crate::util::lanes::F::splat(t_max);
+                        crate::shape::cuboid_lanes(*min, *max, xf, r.origins(), r.directions(), t).0
+                    }
+                    shape => (0..N)
+                        .filter(|lane| lanes >> lane & 1 == 1)
+                        .filter(|&lane| shape.blocks(&ray(lane), t_max))
+                        .fold(0, |bits, lane| bits | 1 << lane),
+                },
+            )
+            .unwrap_or(0)
+    }
+
+    /// Whether the whole scene is one BVH leaf with nothing unbounded: the scenes whose
+    /// queries the packet tests answer.
+    pub fn is_one_leaf(&self) -> bool {
+        self.unbounded.is_empty() && self.leaves.is_single()
+    }
+
+    /// Whether anything blocks `ray` for t in (0, t_max).
+    #[inline]
+    pub fn occluded(&self, prims: &[Primitive], ray: &Ray, t_max: f32) -> bool {
+        let blocks = |p: u32| prims[p as usize].shape.blocks(ray, t_max);
+        if self.unbounded.iter().any(|&p| blocks(p)) {
+            return true;
+        }
+        // Any hit will do: a negative t_max tells the traversal to stop at the first one.
+        let r4 = RayX4::new(ray);
+        let mut hit = false;
+        self.bvh.traverse(ray, t_max, |leaf, t| {
+            if self.leaves.any(leaf, &r4, t, blocks) {
+                hit = true;
+                return -1.0;
+            }
+            t
+        });
+        hit
+    }
+}
