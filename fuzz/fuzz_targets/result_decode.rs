@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use libfuzzer_sys::fuzz_target;
 use prost::Message;
 use tessera_coordinator::job::{Job, Unit};
-use tessera_coordinator::scheduler::{Merged, Scheduler};
+use tessera_coordinator::scheduler::{Policy, Merged, Scheduler};
 use tessera_coordinator::store::{decode_sums, JobRecord};
 use tessera_proto::ids::JobId;
 use tessera_proto::v1 as pb;
@@ -35,8 +35,8 @@ fuzz_target!(|data: &[u8]| {
     let Ok(req) = pb::SubmitResultRequest::decode(data) else {
         return;
     };
-    let mut core = Scheduler::new(1, Duration::from_secs(60));
-    core.jobs.insert(JobId(1), j);
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(60)));
+    core.insert_job(j);
     let now = Instant::now();
     let w = core.register("fuzz".into(), 1, "0".into(), "s".into(), now);
     let _ = core.lease(w, 64, now);
@@ -54,7 +54,7 @@ fuzz_target!(|data: &[u8]| {
         return;
     };
     if let Ok(Merged::New { .. }) = core.submit(w, lease, JobId(1), unit, sums.clone(), now) {
-        let job = &core.jobs[&JobId(1)];
+        let job = &core.job(JobId(1)).expect("job");
         assert!(job.check_result(unit, &sums).is_ok());
     }
 });

@@ -20,7 +20,7 @@ use std::time::{Duration, Instant};
 
 use libfuzzer_sys::fuzz_target;
 use tessera_coordinator::job::{Job, Unit};
-use tessera_coordinator::scheduler::{Merged, Scheduler};
+use tessera_coordinator::scheduler::{Policy, Merged, Scheduler};
 use tessera_coordinator::store::{JobPhase, JobRecord};
 use tessera_proto::ids::{JobId, LeaseId};
 use tessera_render::TileSums;
@@ -86,19 +86,19 @@ struct Fake {
 }
 
 fn check(core: &Scheduler) {
-    for (&w, _) in &core.workers {
+    for (w, _) in core.workers() {
         assert!(
-            core.leases_of(w) <= core.max_leases_per_worker,
+            core.leases_of(w) <= core.policy().max_leases_per_worker,
             "worker {w} holds {} leases",
             core.leases_of(w)
         );
     }
-    for (&w, x) in &core.workers {
+    for (w, x) in core.workers() {
         if x.convicted.is_some() {
             assert_eq!(core.leases_of(w), 0, "convicted worker {w} holds leases");
         }
     }
-    for job in core.jobs.values() {
+    for job in core.jobs() {
         assert!(job.units_done <= job.units_total());
         if job.is_live() {
             let held: u64 = job
@@ -131,7 +131,7 @@ fn check(core: &Scheduler) {
 /// Plays the coordinator's referee: renders (honestly) each unit the scheduler wants settled.
 fn referee(core: &mut Scheduler, now: Instant) {
     for (job, unit) in core.take_referee_work() {
-        let Some(j) = core.jobs.get(&job) else {
+        let Some(j) = core.job(job) else {
             continue;
         };
         let sums = honest(j, unit);
@@ -142,14 +142,13 @@ fn referee(core: &mut Scheduler, now: Instant) {
 
 fuzz_target!(|data: &[u8]| {
     let audited = data.len() % 2 == 1;
-    let mut core = Scheduler::new(1, LEASE);
-    core.max_leases_per_worker = 4;
+    let mut core = Scheduler::new(1, Policy::new(LEASE));
+    core.policy_mut().max_leases_per_worker = 4;
     if audited {
-        core.audit = 0.5;
+        core.policy_mut().audit = 0.5;
     }
-    core.jobs.insert(JobId(1), Job::new(record(1, audited)));
-    core.jobs.insert(JobId(2), Job::new(record(2, audited)));
-    core.next_job = 3;
+    core.insert_job(Job::new(record(1, audited)));
+    core.insert_job(Job::new(record(2, audited)));
     let mut now = Instant::now();
     let mut fakes: Vec<Fake> = Vec::new();
     let mut tainted = false;
@@ -158,9 +157,9 @@ fuzz_target!(|data: &[u8]| {
     // conviction after a job finished is recorded, not undone).
     let mut caught = std::collections::BTreeSet::new();
     let mut note_caught = |core: &Scheduler, tainted_by: &std::collections::BTreeSet<u64>| {
-        if core.jobs[&JobId(1)].is_live() {
+        if core.job(JobId(1)).expect("job").is_live() {
             for w in tainted_by {
-                if core.workers[w].convicted.is_some() {
+                if core.worker(*w).expect("worker").convicted.is_some() {
                     caught.insert(*w);
                 }
             }
@@ -180,9 +179,7 @@ fuzz_target!(|data: &[u8]| {
                     format!("s{arg}"),
                     now,
                 );
-                if let Some(w) = core.workers.get_mut(&id) {
-                    w.host = format!("10.0.0.{}", (arg >> 1) % 3);
-                }
+                core.set_host(id, format!("10.0.0.{}", (arg >> 1) % 3));
                 fakes.push(Fake {
                     id,
                     hostile,
@@ -227,7 +224,7 @@ fuzz_target!(|data: &[u8]| {
                     continue;
                 };
                 let w = fakes[f].id;
-                let Some(j) = core.jobs.get(&job) else {
+                let Some(j) = core.job(job) else {
                     continue;
                 };
                 let lie = op % 9 == 5 || fakes[f].hostile;
@@ -287,21 +284,19 @@ fuzz_target!(|data: &[u8]| {
     let honest_workers: Vec<u64> = (0..if audited { 2 } else { 1 })
         .map(|i| {
             let w = core.register(format!("honest{i}"), 1, "v".into(), format!("h{i}"), now);
-            if let Some(x) = core.workers.get_mut(&w) {
-                x.host = format!("10.0.1.{i}");
-            }
+            core.set_host(w, format!("10.0.1.{i}"));
             w
         })
         .collect();
-    let total = core.jobs[&JobId(1)].units_total();
+    let total = core.job(JobId(1)).expect("job").units_total();
     for round in 0.. {
-        if !core.jobs[&JobId(1)].is_live() {
+        if !core.job(JobId(1)).expect("job").is_live() {
             break;
         }
         assert!(
             round < 20 * total + 50,
             "job 1 stalled with {} of {total} units",
-            core.jobs[&JobId(1)].units_done
+            core.job(JobId(1)).expect("job").units_done
         );
         for f in fakes.iter().filter(|f| f.hostile) {
             let ids: Vec<LeaseId> = f.leases.iter().map(|l| l.0).collect();
@@ -309,7 +304,7 @@ fuzz_target!(|data: &[u8]| {
         }
         for &h in &honest_workers {
             for g in core.lease(h, 4, now) {
-                let j = &core.jobs[&g.job];
+                let j = &core.job(g.job).expect("job");
                 let sums = honest(j, g.unit);
                 let _ = core.submit(h, g.lease, g.job, g.unit, sums, now);
                 note_caught(&core, &tainted_by);
@@ -323,7 +318,7 @@ fuzz_target!(|data: &[u8]| {
     }
     for &h in &honest_workers {
         assert!(
-            core.workers[&h].convicted.is_none(),
+            core.worker(h).expect("worker").convicted.is_none(),
             "an honest worker was convicted"
         );
     }
@@ -333,7 +328,7 @@ fuzz_target!(|data: &[u8]| {
         return;
     }
     // Every merged result was honest: the sums are the in-order fold, bit for bit.
-    let job = &core.jobs[&JobId(1)];
+    let job = &core.job(JobId(1)).expect("job");
     if job.rec.phase != JobPhase::Active {
         return;
     }

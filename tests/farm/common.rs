@@ -196,26 +196,7 @@ pub async fn job_status(client: &mut Client, job: &str) -> pb::JobStatus {
         .into_inner()
 }
 
-/// How long any test waits for a farm to get somewhere before it fails, naming what it waited
-/// for. Far above what a healthy farm needs on the slowest machine the tests run on.
-pub const PATIENCE: Duration = Duration::from_secs(120);
-
-/// Asks `check` every few milliseconds until it answers `Some`, and returns that; fails the
-/// test, naming `what`, if [`PATIENCE`] passes first. Every poll loop of these tests is this
-/// one, so that none can hang a test run.
-pub async fn wait_for<T>(what: &str, mut check: impl AsyncFnMut() -> Option<T>) -> T {
-    let deadline = tokio::time::Instant::now() + PATIENCE;
-    loop {
-        if let Some(v) = check().await {
-            return v;
-        }
-        assert!(
-            tokio::time::Instant::now() < deadline,
-            "gave up after {PATIENCE:?} waiting for {what}"
-        );
-        tokio::time::sleep(Duration::from_millis(5)).await;
-    }
-}
+pub use tessera_testkit::{wait_for, PATIENCE};
 
 /// Follows WatchJob to the end and returns the final status.
 pub async fn wait(client: &mut Client, job: &str) -> pb::JobStatus {

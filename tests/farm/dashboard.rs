@@ -709,3 +709,49 @@ async fn log_out_shows_only_where_logging_in_does() {
     assert!(page.contains("Log out"), "{page}");
     guarded.stop().await;
 }
+
+/// The dashboard's JSON and `tessera status --json`'s are one document: the dashboard
+/// serialises the scheduler's views, and the CLI turns the gRPC status back into the same view
+/// (`JobView::try_from`) and serialises that. A done job's document is the same bit for bit;
+/// a worker's differs only in the figures that move with time.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn the_dashboard_and_the_cli_read_one_document() {
+    use tessera_proto::view::{JobView, WorkerView};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (coord, addr) = dashboard_farm(dir.path()).await;
+    let mut client = coord.client().await;
+    let w = worker(&coord.url(), "doc");
+    let job = submit(&mut client, &scene_text(16), 4, 2, 0).await;
+    wait(&mut client, &job).await;
+    let status = job_status(&mut client, &job).await;
+    let as_cli = serde_json::to_value(JobView::try_from(&status).expect("a view")).expect("JSON");
+    let r = get(addr, &format!("/api/jobs/{job}")).await;
+    assert_eq!(r.status, 200);
+    let served: serde_json::Value = serde_json::from_slice(&r.body).expect("JSON");
+    assert_eq!(served, as_cli);
+    assert_eq!(served["state"], "done");
+    assert_eq!(served["job_id"], job.as_str());
+    let list: serde_json::Value =
+        serde_json::from_slice(&get(addr, "/api/jobs").await.body).expect("JSON");
+    assert_eq!(list, serde_json::json!([as_cli]));
+    let moving = |mut v: serde_json::Value| {
+        for w in v.as_array_mut().expect("a list") {
+            w["last_seen_seconds_ago"] = serde_json::Value::Null;
+            w["samples_per_second"] = serde_json::Value::Null;
+        }
+        v
+    };
+    let workers: Vec<WorkerView> = list_workers(&mut client)
+        .await
+        .iter()
+        .map(|w| WorkerView::try_from(w).expect("a view"))
+        .collect();
+    let served: serde_json::Value =
+        serde_json::from_slice(&get(addr, "/api/workers").await.body).expect("JSON");
+    assert_eq!(
+        moving(served),
+        moving(serde_json::to_value(workers).expect("JSON"))
+    );
+    w.abort();
+    coord.stop().await;
+}

@@ -30,6 +30,7 @@ macro_rules! errln {
     }};
 }
 
+mod args;
 #[cfg(feature = "bench")]
 mod bench;
 mod farm;

@@ -17,7 +17,6 @@ use std::io::{BufRead, BufReader};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
 
 use base64::Engine as _;
 use serde_json::{json, Value};
@@ -25,23 +24,9 @@ use tungstenite::stream::MaybeTlsStream;
 use tungstenite::{Message, WebSocket};
 
 use common::{repo, Proc, BIN};
-
-/// How long any wait of this test lasts before it fails, naming what it waited for.
-const PATIENCE: Duration = Duration::from_secs(180);
+use tessera_testkit::{wait_for_blocking as wait_for, PATIENCE};
 
 const TOKEN: &str = "browser-test-token-0123456789abcdef";
-
-/// Waits until `f` gives `Some`, polling, or fails naming `what`.
-fn wait_for<T>(what: &str, mut f: impl FnMut() -> Option<T>) -> T {
-    let start = Instant::now();
-    loop {
-        if let Some(v) = f() {
-            return v;
-        }
-        assert!(start.elapsed() < PATIENCE, "gave up waiting for {what}");
-        std::thread::sleep(Duration::from_millis(100));
-    }
-}
 
 /// The Chromium binary: Debian's package installs it as `chromium`.
 fn chromium() -> PathBuf {

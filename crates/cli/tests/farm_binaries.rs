@@ -3,6 +3,7 @@
 //! as `tessera render` writes.
 
 use std::io::{BufRead, BufReader};
+use tessera_testkit::wait_for_blocking;
 mod common;
 
 use std::path::Path;
@@ -14,7 +15,7 @@ fn tessera(args: &[&str], url: &str) -> Output {
     tessera_at(args, url)
 }
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// Starts a coordinator on port 0 and returns it with its URL.
 fn coordinator(data: &Path) -> (Proc, String) {
@@ -35,15 +36,9 @@ fn one_line_failure(out: &Output, needle: &str) {
     assert!(stderr.contains(needle), "missing {needle:?} in: {stderr}");
 }
 
+/// Waits until `f` holds, polling ([`wait_for_blocking`]).
 fn wait_for(what: &str, mut f: impl FnMut() -> bool) {
-    let start = Instant::now();
-    while !f() {
-        assert!(
-            start.elapsed() < Duration::from_secs(60),
-            "timed out waiting for {what}"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_for_blocking(what, || f().then_some(()));
 }
 
 #[test]

@@ -35,12 +35,30 @@ pub enum CoordinatorError {
     Transport(#[from] tonic::transport::Error),
 }
 
+/// Why a state change could not be made durable. Cloned to every caller whose change was in
+/// the failed commit, hence the `Arc`s.
+#[derive(Clone, Debug, thiserror::Error)]
+pub enum CommitError {
+    /// The writer task has stopped (the coordinator is shutting down).
+    #[error("state writer stopped")]
+    WriterStopped,
+    /// The commit's task panicked or was cancelled.
+    #[error("state commit task: {0}")]
+    Task(std::sync::Arc<tokio::task::JoinError>),
+    /// The store refused the commit.
+    #[error(transparent)]
+    Store(std::sync::Arc<StoreError>),
+}
+
 /// Why the scheduler refused a call. Each kind maps to one gRPC status code, so a client can
 /// tell a mistake of its own from a state it must wait out.
 #[derive(Debug, PartialEq, Eq)]
 pub enum Refusal {
-    /// Unknown id (worker, job).
+    /// Unknown id (job, scene).
     NotFound(String),
+    /// A worker credential this boot did not issue: the worker must register again
+    /// ([`tessera_proto::reason::UNKNOWN_WORKER`]).
+    UnknownWorker(String),
     /// Malformed or inconsistent.
     Invalid(String),
     /// Not allowed in the current state (unknown lease).
@@ -57,6 +75,7 @@ impl From<Refusal> for Status {
     fn from(r: Refusal) -> Self {
         match r {
             Refusal::NotFound(m) => Status::not_found(m),
+            Refusal::UnknownWorker(m) => tessera_proto::reason::unknown_worker(m),
             Refusal::Invalid(m) => Status::invalid_argument(m),
             Refusal::Precondition(m) => Status::failed_precondition(m),
             Refusal::Denied(m) => Status::permission_denied(m),

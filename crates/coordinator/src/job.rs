@@ -7,6 +7,7 @@ use std::ops::Range;
 use std::time::{Duration, Instant};
 
 use tessera_proto::ids::JobId;
+use tessera_proto::view::JobState;
 use tessera_render::adaptive::{min_batches, neyman_scale, tile_wants_more, wants_more};
 use tessera_render::{Adaptive, PixelRect, RenderSettings, TileSums};
 
@@ -589,6 +590,17 @@ impl Job {
                 .acc
                 .get(&u.tile)
                 .is_some_and(|a| u.batch < a.next || a.pending.contains_key(&u.batch))
+    }
+
+    /// Where the job is in its life: the one rule for queued against running (a unit leased).
+    pub fn state(&self) -> JobState {
+        match self.rec.phase {
+            JobPhase::Active if self.started => JobState::Running,
+            JobPhase::Active => JobState::Queued,
+            JobPhase::Done => JobState::Done,
+            JobPhase::Cancelled => JobState::Cancelled,
+            JobPhase::Failed => JobState::Failed,
+        }
     }
 
     /// Whether the job still takes leases and results.

@@ -28,6 +28,7 @@
 //! - [`metrics`] (timings and the Prometheus text) and `http` (the dashboard and `/metrics`,
 //!   served when [`Listeners::http`] is given: `tessera coordinator --http ADDR`).
 
+mod auth;
 mod conn;
 mod http;
 mod referee;
@@ -39,6 +40,7 @@ pub mod config;
 pub mod error;
 pub mod job;
 pub mod metrics;
+pub mod names;
 pub mod output;
 pub mod scheduler;
 pub mod server;

@@ -1,6 +1,6 @@
 //! Timings the scheduler cannot see (how long a merge waits to be durable, how long a commit
 //! takes), kept in atomics so that recording one never takes a lock, and the Prometheus text
-//! exposition of them together with the scheduler's [`Counters`](crate::scheduler::Counters).
+//! exposition of them together with the scheduler's [`Counters`].
 
 use std::fmt::Write as _;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -83,6 +83,29 @@ pub struct WorkerLine {
     pub samples: u64,
 }
 
+/// Totals since the coordinator started, exported as Prometheus counters (docs/farm.md,
+/// "Metrics"). Kept by the scheduler, under its lock, because it is the one place that knows
+/// what became of each lease and result; defined here, with their exposition.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counters {
+    /// Units handed out (a unit raced by several workers counts once a lease).
+    pub units_leased: u64,
+    /// Units merged into their tiles.
+    pub units_merged: u64,
+    /// Results for units merged already (a raced or retried unit).
+    pub units_duplicate: u64,
+    /// Results for jobs that had ended.
+    pub units_discarded: u64,
+    /// Results held for an audit.
+    pub units_held: u64,
+    /// Units the coordinator rendered itself to settle an audit.
+    pub units_refereed: u64,
+    /// Results refused (malformed, forged, quoting another's lease, from a quarantined worker).
+    pub results_refused: u64,
+    /// Samples in the merged units.
+    pub samples_merged: u64,
+}
+
 /// What the scheduler holds, read under its lock in one go and formatted after it is let go.
 #[derive(Debug, Default)]
 pub struct Gauges {
@@ -95,7 +118,7 @@ pub struct Gauges {
     /// Live leases.
     pub leases: u64,
     /// The scheduler's totals.
-    pub counters: crate::scheduler::Counters,
+    pub counters: Counters,
     /// Workers alive, by id.
     pub workers: Vec<WorkerLine>,
     /// Size of the store's file, when it could be read.

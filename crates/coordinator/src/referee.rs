@@ -45,7 +45,7 @@ async fn settle(shared: Arc<Shared>, job: JobId, unit: Unit) {
     };
     let gathered = {
         let core = shared.scheduler();
-        core.jobs.get(&job).filter(|j| j.is_live()).and_then(|j| {
+        core.job(job).filter(|j| j.is_live()).and_then(|j| {
             Some((
                 j.rec.scene_hash.clone(),
                 j.settings(),

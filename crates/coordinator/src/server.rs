@@ -12,6 +12,7 @@ use tessera_proto::Secret;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Certificate, Identity, ServerTlsConfig};
 
+use crate::auth::{bearer, Token};
 use crate::config::{Config, MAX_STREAMS_PER_CONNECTION};
 use crate::conn;
 use crate::error::CoordinatorError;
@@ -339,20 +340,18 @@ impl InProcess {
     }
 }
 
-/// Checks the bearer token of every call, in constant time: both sides are hashed first, so
-/// neither the comparison's time nor its length depends on how much of the token matched. A
-/// call that passes proves its connection to the gate (`conn.rs`), which closes connections
-/// that never do.
+/// Checks the bearer token of every call ([`crate::auth`]). A call that passes proves its
+/// connection to the gate (`conn.rs`), which closes connections that never do.
 #[derive(Clone)]
 struct AuthCheck {
-    token: Option<[u8; 32]>,
+    token: Option<Arc<Token>>,
     gate: Arc<conn::Gate>,
 }
 
 impl AuthCheck {
     fn new(token: Option<&Secret>, gate: Arc<conn::Gate>) -> Self {
         Self {
-            token: token.map(|t| sha256(t.expose().as_bytes())),
+            token: token.map(|t| Arc::new(Token::new(t))),
             gate,
         }
     }
@@ -363,27 +362,21 @@ impl AuthCheck {
     }
 }
 
-pub(crate) fn sha256(b: &[u8]) -> [u8; 32] {
-    use sha2::Digest;
-    sha2::Sha256::digest(b).into()
-}
-
 impl tonic::service::Interceptor for AuthCheck {
     fn call(&mut self, request: tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> {
-        use subtle::ConstantTimeEq;
-        let Some(want) = &self.token else {
+        let Some(token) = &self.token else {
             return self.passed(request);
         };
         let presented = request
             .metadata()
             .get("authorization")
             .and_then(|v| v.to_str().ok())
-            .and_then(|v| v.strip_prefix("Bearer "));
+            .and_then(bearer);
         match presented {
             None => Err(tonic::Status::unauthenticated(
                 "this coordinator requires a token (--token-file or TESSERA_TOKEN)",
             )),
-            Some(t) if bool::from(sha256(t.as_bytes()).ct_eq(want)) => self.passed(request),
+            Some(t) if token.matches(t) => self.passed(request),
             Some(_) => Err(tonic::Status::unauthenticated("wrong token")),
         }
     }

@@ -10,16 +10,16 @@ use tracing::{error, info};
 
 use crate::assets::{AssetStore, Collected};
 use crate::config::Config;
-use crate::error::CoordinatorError;
+use crate::error::{CommitError, CoordinatorError};
 use crate::metrics::Metrics;
-use crate::scheduler::Scheduler;
+use crate::scheduler::{Policy, Scheduler};
 use crate::store::{JobPhase, Op, Store};
 use tessera_proto::ids::JobId;
 
 /// A batch of store changes and who waits for them to be durable.
 pub(crate) struct Write {
     ops: Vec<Op>,
-    done: oneshot::Sender<Result<(), String>>,
+    done: oneshot::Sender<Result<(), CommitError>>,
 }
 
 /// State shared by the RPC handlers and background tasks.
@@ -62,20 +62,25 @@ impl Shared {
             config.asset_store_bytes,
         )?);
         let epoch = store.next_epoch()?;
-        let mut scheduler = Scheduler::new(epoch, config.lease_timeout);
-        scheduler.quarantine_after = config.quarantine_after.max(1);
-        scheduler.max_leases_per_worker = config.max_leases_per_worker.max(1);
-        scheduler.max_workers_per_host = config.max_workers_per_host.max(1);
-        scheduler.audit = if config.audit.is_finite() {
-            config.audit.clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
+        let mut scheduler = Scheduler::new(
+            epoch,
+            Policy {
+                lease_time: config.lease_timeout,
+                quarantine_after: config.quarantine_after.max(1),
+                max_leases_per_worker: config.max_leases_per_worker.max(1),
+                max_workers_per_host: config.max_workers_per_host.max(1),
+                audit: if config.audit.is_finite() {
+                    config.audit.clamp(0.0, 1.0)
+                } else {
+                    0.0
+                },
+            },
+        );
         let mut seed = [0u8; 8];
         // Without a random source the audit still runs, on a sequence a worker could
         // reproduce only by knowing the boot number and this code.
         if getrandom::getrandom(&mut seed).is_ok() {
-            scheduler.audit_rng = u64::from_le_bytes(seed) | 1;
+            scheduler.seed_audits(u64::from_le_bytes(seed));
         }
         let (ops, to_finish) = scheduler
             .restore(store.load()?, store.scene_hashes()?, now_ms())
@@ -84,14 +89,13 @@ impl Shared {
             store.apply(&ops)?;
         }
         let active = scheduler
-            .jobs
-            .values()
+            .jobs()
             .filter(|j| j.rec.phase == JobPhase::Active)
             .count();
         info!(
             "state at {}: boot {epoch}, {} jobs ({active} active)",
             config.data_dir.display(),
-            scheduler.jobs.len()
+            scheduler.jobs().count()
         );
         let (writes, rx) = mpsc::unbounded_channel();
         let shared = Arc::new(Shared {
@@ -127,7 +131,7 @@ impl Shared {
 
     /// Queues store changes. Called with the scheduler's lock held, so commits follow merge
     /// order.
-    pub(crate) fn queue_write(&self, ops: Vec<Op>) -> oneshot::Receiver<Result<(), String>> {
+    pub(crate) fn queue_write(&self, ops: Vec<Op>) -> oneshot::Receiver<Result<(), CommitError>> {
         let (done, rx) = oneshot::channel();
         if self.writes.send(Write { ops, done }).is_err() {
             error!("state writer has stopped");
@@ -162,9 +166,11 @@ impl Shared {
 }
 
 /// Waits for a queued write to be durable.
-pub(crate) async fn durable(rx: oneshot::Receiver<Result<(), String>>) -> Result<(), String> {
+pub(crate) async fn durable(
+    rx: oneshot::Receiver<Result<(), CommitError>>,
+) -> Result<(), CommitError> {
     rx.await
-        .map_err(|_| "state writer stopped".to_string())
+        .map_err(|_| CommitError::WriterStopped)
         .and_then(|r| r)
 }
 
@@ -201,8 +207,8 @@ pub(crate) async fn writer(
         let start = std::time::Instant::now();
         let result = tokio::task::spawn_blocking(move || store.apply(&ops))
             .await
-            .map_err(|e| e.to_string())
-            .and_then(|r| r.map_err(|e| e.to_string()));
+            .map_err(|e| CommitError::Task(Arc::new(e)))
+            .and_then(|r| r.map_err(|e| CommitError::Store(Arc::new(e))));
         metrics.commit.observe(start.elapsed());
         metrics
             .written_bytes

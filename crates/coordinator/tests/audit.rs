@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use tessera_coordinator::error::Refusal;
 use tessera_coordinator::job::{same_bits, Job, KeptUnits, Unit};
-use tessera_coordinator::scheduler::{Granted, Merged, Scheduler};
+use tessera_coordinator::scheduler::{Granted, Merged, Policy, Scheduler};
 use tessera_coordinator::store::{JobRecord, Op, Store};
 use tessera_proto::ids::JobId;
 use tessera_render::{Strategy, TileSums};
@@ -71,8 +71,8 @@ impl Farm {
     fn new(audited: bool) -> Self {
         let dir = tempfile::tempdir().expect("tempdir");
         let store = Store::open(dir.path()).expect("store");
-        let mut core = Scheduler::new(1, Duration::from_secs(60));
-        core.jobs.insert(JOB, Job::new(record(audited)));
+        let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(60)));
+        core.insert_job(Job::new(record(audited)));
         Farm {
             core,
             store,
@@ -90,7 +90,7 @@ impl Farm {
         let w = self
             .core
             .register(name.into(), 1, "v".into(), name.into(), self.now);
-        self.core.workers.get_mut(&w).expect("registered").host = host.into();
+        self.core.set_host(w, host.into());
         w
     }
 
@@ -101,7 +101,7 @@ impl Farm {
         wanted
             .into_iter()
             .map(|(job, unit)| {
-                let sums = honest(&self.core.jobs[&job], unit);
+                let sums = honest(self.core.job(job).expect("job"), unit);
                 let m = self
                     .core
                     .referee(job, unit, sums, self.now, &self.store, 0)
@@ -131,7 +131,7 @@ impl Farm {
     }
 
     fn job(&self) -> &Job {
-        &self.core.jobs[&JOB]
+        self.core.job(JOB).expect("job")
     }
 
     /// Honest workers `ws` render what is left, in turn, until the job finishes; the
@@ -156,7 +156,7 @@ impl Farm {
                 return;
             }
             if !worked {
-                self.now += self.core.lease_time;
+                self.now += self.core.policy().lease_time;
                 self.core.expire(self.now);
             }
         }
@@ -194,7 +194,7 @@ fn a_convicted_worker_has_every_result_taken_back_and_the_job_ends_with_the_hone
     let (a, b, liar) = (farm.worker("a"), farm.worker("b"), farm.worker("liar"));
 
     // Unaudited phase: the liar's second result is wrong, and merged unchecked.
-    farm.core.audit = 0.0;
+    farm.core.policy_mut().audit = 0.0;
     let mut liar_units = Vec::new();
     let mut liar_results = 0;
     for round in 0..4 {
@@ -224,7 +224,7 @@ fn a_convicted_worker_has_every_result_taken_back_and_the_job_ends_with_the_hone
     let done_before = farm.job().units_done;
 
     // Every unit is checked from now on. The liar forges one: it is held, not merged.
-    farm.core.audit = 1.0;
+    farm.core.policy_mut().audit = 1.0;
     let g = farm.lease(liar).expect("a unit");
     let caught = g.unit;
     assert!(matches!(
@@ -245,7 +245,12 @@ fn a_convicted_worker_has_every_result_taken_back_and_the_job_ends_with_the_hone
     ));
     // The copies differ: no third worker's vote decides, the coordinator's own render does.
     // Meanwhile both keep working, and the unit is not handed out again.
-    assert!(farm.core.workers[&a].disputes.contains(&(JOB, caught)));
+    assert!(farm
+        .core
+        .worker(a)
+        .expect("worker")
+        .disputes
+        .contains(&(JOB, caught)));
     let gb = farm.lease(b).expect("other work");
     assert_ne!(gb.unit, caught, "the disputed unit went to a worker");
     farm.send(b, &gb, honest(farm.job(), gb.unit));
@@ -283,7 +288,10 @@ fn a_convicted_worker_has_every_result_taken_back_and_the_job_ends_with_the_hone
     // honest ones it had merged among them, and no one else's.
     assert_eq!(record.units_requeued, liar_units.len() as u64);
     assert_eq!(record.jobs_rebuilt, vec![1]);
-    let why = farm.core.workers[&liar]
+    let why = farm
+        .core
+        .worker(liar)
+        .expect("worker")
         .convicted
         .clone()
         .expect("convicted");
@@ -295,9 +303,9 @@ fn a_convicted_worker_has_every_result_taken_back_and_the_job_ends_with_the_hone
         Err(Refusal::Denied(m)) => assert!(m.contains("audit"), "{m}"),
         other => panic!("a convicted worker is refused, got {other:?}"),
     }
-    assert!(farm.core.workers[&a].disputes.is_empty());
+    assert!(farm.core.worker(a).expect("worker").disputes.is_empty());
     // Its copy of the caught unit matched the referee (and its other unit may have matched b's).
-    assert!(farm.core.workers[&a].audits_passed >= 1);
+    assert!(farm.core.worker(a).expect("worker").audits_passed >= 1);
 
     // The honest workers finish the job, checking each other.
     farm.finish(&[a, b]);
@@ -314,7 +322,7 @@ fn a_convicted_worker_has_every_result_taken_back_and_the_job_ends_with_the_hone
 fn without_kept_copies_the_touched_tiles_render_again_to_the_same_bits() {
     let mut farm = Farm::new(true);
     let (a, b, liar) = (farm.worker("a"), farm.worker("b"), farm.worker("liar"));
-    farm.core.audit = 0.0;
+    farm.core.policy_mut().audit = 0.0;
     let mut liar_units = 0;
     for _ in 0..3 {
         for w in [a, b, liar] {
@@ -343,7 +351,7 @@ fn without_kept_copies_the_touched_tiles_render_again_to_the_same_bits() {
         "{taken} units go back, more than the liar's {liar_units}: its tiles' other batches too"
     );
     farm.store.apply(&ops).expect("commit");
-    farm.core.audit = 0.0;
+    farm.core.policy_mut().audit = 0.0;
     farm.finish(&[a, b]);
     assert!(same_frame(
         &farm.job().frame_tiles(),
@@ -356,7 +364,7 @@ fn without_kept_copies_the_touched_tiles_render_again_to_the_same_bits() {
 fn an_unaudited_job_keeps_no_copies() {
     let mut farm = Farm::new(false);
     let w = farm.worker("w");
-    farm.core.audit = 1.0;
+    farm.core.policy_mut().audit = 1.0;
     let g = farm.lease(w).expect("a unit");
     let Merged::New { ops, .. } = farm.send(w, &g, honest(farm.job(), g.unit)) else {
         panic!("merged at once: the job is not audited");
@@ -374,14 +382,14 @@ fn an_unaudited_job_keeps_no_copies() {
 fn an_audit_copy_goes_to_another_worker() {
     let mut farm = Farm::new(true);
     let a = farm.worker("a");
-    farm.core.audit = 1.0;
+    farm.core.policy_mut().audit = 1.0;
     let g = farm.lease(a).expect("a unit");
     assert!(matches!(
         farm.send(a, &g, honest(farm.job(), g.unit)),
         Merged::Held
     ));
     // The rest merge unchecked: only the one copy waits.
-    farm.core.audit = 0.0;
+    farm.core.policy_mut().audit = 0.0;
     for _ in 0..40 {
         if let Some(next) = farm.lease(a) {
             assert_ne!(
@@ -398,8 +406,8 @@ fn an_audit_copy_goes_to_another_worker() {
         farm.send(b, &copy, honest(farm.job(), g.unit)),
         Merged::New { .. }
     ));
-    assert_eq!(farm.core.workers[&a].audits_passed, 1);
-    assert_eq!(farm.core.workers[&b].audits_passed, 1);
+    assert_eq!(farm.core.worker(a).expect("worker").audits_passed, 1);
+    assert_eq!(farm.core.worker(b).expect("worker").audits_passed, 1);
 }
 
 /// A dispute in a job that ends (cancelled here) before the referee settles it clears the
@@ -408,23 +416,23 @@ fn an_audit_copy_goes_to_another_worker() {
 fn a_dispute_in_a_job_that_ends_is_dropped() {
     let mut farm = Farm::new(true);
     let (a, liar) = (farm.worker("a"), farm.worker("liar"));
-    farm.core.audit = 1.0;
+    farm.core.policy_mut().audit = 1.0;
     let g = farm.lease(liar).expect("a unit");
     farm.send(liar, &g, forged(farm.job(), g.unit));
     let copy = farm.lease(a).expect("the copy");
     assert_eq!(copy.unit, g.unit);
     farm.send(a, &copy, honest(farm.job(), g.unit));
-    assert!(!farm.core.workers[&a].disputes.is_empty());
+    assert!(!farm.core.worker(a).expect("worker").disputes.is_empty());
     farm.core.end_job(
         JOB,
         tessera_coordinator::store::JobPhase::Cancelled,
         String::new(),
         0,
     );
-    assert!(farm.core.workers[&a].disputes.is_empty());
-    assert!(farm.core.workers[&liar].disputes.is_empty());
+    assert!(farm.core.worker(a).expect("worker").disputes.is_empty());
+    assert!(farm.core.worker(liar).expect("worker").disputes.is_empty());
     assert!(matches!(farm.referee()[..], [Merged::Discarded]));
-    assert!(farm.core.workers[&liar].convicted.is_none());
+    assert!(farm.core.worker(liar).expect("worker").convicted.is_none());
 }
 
 /// #55 D1: two workers, one of them a liar, on two hosts. Before, a mismatch made both
@@ -434,7 +442,7 @@ fn a_dispute_in_a_job_that_ends_is_dropped() {
 fn two_workers_and_one_liar_still_finish_with_the_honest_bits() {
     let mut farm = Farm::new(true);
     let (honest_w, liar) = (farm.worker("honest"), farm.worker("liar"));
-    farm.core.audit = 1.0;
+    farm.core.policy_mut().audit = 1.0;
     for _ in 0..1000 {
         if farm.job().units_done == farm.job().units_total() {
             break;
@@ -452,13 +460,18 @@ fn two_workers_and_one_liar_still_finish_with_the_honest_bits() {
         }
         farm.referee();
         if !worked {
-            farm.now += farm.core.lease_time;
+            farm.now += farm.core.policy().lease_time;
             farm.core.expire(farm.now);
         }
     }
     assert_eq!(farm.job().units_done, farm.job().units_total(), "stalled");
-    assert!(farm.core.workers[&liar].convicted.is_some());
-    assert!(farm.core.workers[&honest_w].convicted.is_none());
+    assert!(farm.core.worker(liar).expect("worker").convicted.is_some());
+    assert!(farm
+        .core
+        .worker(honest_w)
+        .expect("worker")
+        .convicted
+        .is_none());
     assert!(same_frame(
         &farm.job().frame_tiles(),
         &honest_frame(farm.job())
@@ -476,7 +489,7 @@ fn registrations_of_one_host_cannot_outvote_another_host() {
     let l1 = farm.worker_on("l1", "10.0.0.66");
     let l2 = farm.worker_on("l2", "10.0.0.66");
     let honest_w = farm.worker_on("honest", "10.0.0.7");
-    farm.core.audit = 1.0;
+    farm.core.policy_mut().audit = 1.0;
     let g = farm.lease(l1).expect("a unit");
     let caught = g.unit;
     assert!(matches!(
@@ -495,14 +508,24 @@ fn registrations_of_one_host_cannot_outvote_another_host() {
     // l2's forged result for another unit cannot settle anything either.
     farm.send(l2, &g2, forged(farm.job(), g2.unit));
     farm.referee();
-    assert!(farm.core.workers[&l1].convicted.is_some());
-    assert!(farm.core.workers[&honest_w].convicted.is_none());
+    assert!(farm.core.worker(l1).expect("worker").convicted.is_some());
+    assert!(farm
+        .core
+        .worker(honest_w)
+        .expect("worker")
+        .convicted
+        .is_none());
     farm.finish(&[honest_w]);
     assert!(
-        farm.core.workers[&l2].convicted.is_some(),
+        farm.core.worker(l2).expect("worker").convicted.is_some(),
         "l2's lie is caught"
     );
-    assert!(farm.core.workers[&honest_w].convicted.is_none());
+    assert!(farm
+        .core
+        .worker(honest_w)
+        .expect("worker")
+        .convicted
+        .is_none());
     assert!(same_frame(
         &farm.job().frame_tiles(),
         &honest_frame(farm.job())
@@ -516,11 +539,11 @@ fn on_one_host_held_units_go_to_the_referee_after_a_lease_time() {
     let mut farm = Farm::new(true);
     let a = farm.worker_on("a", "10.0.0.1");
     let b = farm.worker_on("b", "10.0.0.1");
-    farm.core.audit = 1.0;
+    farm.core.policy_mut().audit = 1.0;
     let g = farm.lease(a).expect("a unit");
     farm.send(a, &g, honest(farm.job(), g.unit));
     assert!(farm.referee().is_empty());
-    farm.now += farm.core.lease_time;
+    farm.now += farm.core.policy().lease_time;
     farm.core.expire(farm.now);
     assert!(matches!(farm.referee()[..], [Merged::New { .. }]));
     assert!(farm.job().is_done(g.unit));
@@ -529,14 +552,14 @@ fn on_one_host_held_units_go_to_the_referee_after_a_lease_time() {
         &farm.job().frame_tiles(),
         &honest_frame(farm.job())
     ));
-    assert!(farm.core.workers[&a].audits_passed > 0);
+    assert!(farm.core.worker(a).expect("worker").audits_passed > 0);
 }
 
 /// Registrations per host are bounded; another host, and one that is gone, do not count.
 #[test]
 fn registrations_per_host_are_bounded() {
     let mut farm = Farm::new(true);
-    farm.core.max_workers_per_host = 2;
+    farm.core.policy_mut().max_workers_per_host = 2;
     farm.worker_on("a", "10.0.0.1");
     farm.worker_on("b", "10.0.0.1");
     let e = farm
@@ -553,7 +576,7 @@ fn registrations_per_host_are_bounded() {
     farm.core
         .host_may_register("", farm.now)
         .expect("an unknown host");
-    farm.now += farm.core.lease_time * 2;
+    farm.now += farm.core.policy().lease_time * 2;
     farm.core
         .host_may_register("10.0.0.1", farm.now)
         .expect("both have gone quiet");
@@ -566,7 +589,7 @@ fn registrations_per_host_are_bounded() {
 fn a_convicted_workers_late_result_is_refused() {
     let mut farm = Farm::new(true);
     let (a, b, liar) = (farm.worker("a"), farm.worker("b"), farm.worker("liar"));
-    farm.core.audit = 1.0;
+    farm.core.policy_mut().audit = 1.0;
     let first = farm.lease(liar).expect("a unit");
     let late = farm.lease(liar).expect("another unit");
     farm.send(liar, &first, forged(farm.job(), first.unit));
@@ -574,7 +597,7 @@ fn a_convicted_workers_late_result_is_refused() {
     assert_eq!(copy.unit, first.unit);
     farm.send(a, &copy, honest(farm.job(), first.unit));
     farm.referee();
-    assert!(farm.core.workers[&liar].convicted.is_some());
+    assert!(farm.core.worker(liar).expect("worker").convicted.is_some());
     let _ = b;
     let done = farm.job().units_done;
     let r = farm.core.submit(

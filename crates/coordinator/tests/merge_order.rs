@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 
 use proptest::prelude::*;
 use tessera_coordinator::job::{Job, Unit};
-use tessera_coordinator::scheduler::{Merged, Scheduler};
+use tessera_coordinator::scheduler::{Merged, Policy, Scheduler};
 use tessera_coordinator::store::JobRecord;
 use tessera_proto::ids::JobId;
 use tessera_render::TileSums;
@@ -47,19 +47,18 @@ fn result(job: &Job, u: Unit) -> TileSums {
 /// Leases every unit, submits them in `order` (indices into the lease order, repeats allowed),
 /// and returns each tile's sums as bits.
 fn merge(width: u32, spp: u32, batch: u32, order: &[usize]) -> Vec<Vec<u64>> {
-    let mut core = Scheduler::new(1, Duration::from_secs(60));
-    core.jobs
-        .insert(JobId(1), Job::new(record(width, spp, batch)));
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(60)));
+    core.insert_job(Job::new(record(width, spp, batch)));
     let now = Instant::now();
     // One worker holds every unit here, to submit them in any order.
-    core.max_leases_per_worker = usize::MAX;
+    core.policy_mut().max_leases_per_worker = usize::MAX;
     let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
     let granted = core.lease(w, usize::MAX, now);
     let n = granted.len();
     let mut merged = 0;
     for &i in order {
         let g = &granted[i % n];
-        let r = result(&core.jobs[&JobId(1)], g.unit);
+        let r = result(core.job(JobId(1)).expect("job"), g.unit);
         match core
             .submit(w, g.lease, JobId(1), g.unit, r, now)
             .expect("accepted")
@@ -72,7 +71,8 @@ fn merge(width: u32, spp: u32, batch: u32, order: &[usize]) -> Vec<Vec<u64>> {
         }
     }
     assert_eq!(merged, n, "every unit merged exactly once");
-    core.jobs[&JobId(1)]
+    core.job(JobId(1))
+        .expect("job")
         .acc
         .values()
         .map(|a| {

@@ -6,8 +6,8 @@ use std::time::{Duration, Instant};
 
 use tessera_coordinator::error::Refusal;
 use tessera_coordinator::job::{Job, Unit};
-use tessera_coordinator::output::OutputNames;
-use tessera_coordinator::scheduler::{Admission, AdmissionLimits, Merged, Scheduler};
+use tessera_coordinator::names::OutputNames;
+use tessera_coordinator::scheduler::{Admission, AdmissionLimits, Merged, Policy, Scheduler};
 use tessera_coordinator::store::{JobPhase, JobRecord, Op, StoredScene};
 use tessera_proto::ids::{JobId, LeaseId, WorkerCredential, WorkerId};
 use tessera_render::scene::FrameRange;
@@ -46,8 +46,8 @@ fn result(job: &Job, u: Unit, value: f64) -> TileSums {
 
 #[test]
 fn units_are_batch_major_and_the_last_batch_is_short() {
-    let mut core = Scheduler::new(1, Duration::from_secs(5));
-    core.jobs.insert(JOB, Job::new(record(5, 2)));
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(5)));
+    core.insert_job(Job::new(record(5, 2)));
     let now = Instant::now();
     let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
     let got: Vec<Unit> = core.lease(w, 100, now).iter().map(|g| g.unit).collect();
@@ -56,13 +56,13 @@ fn units_are_batch_major_and_the_last_batch_is_short() {
         .map(|(tile, batch)| Unit { tile, batch })
         .to_vec();
     assert_eq!(got, want);
-    assert_eq!(core.jobs[&JOB].batch_range(2), 4..5);
+    assert_eq!(core.job(JOB).expect("job").batch_range(2), 4..5);
 }
 
 #[test]
 fn out_of_order_results_merge_in_batch_order_once() {
-    let mut core = Scheduler::new(3, Duration::from_secs(5));
-    core.jobs.insert(JOB, Job::new(record(6, 2)));
+    let mut core = Scheduler::new(3, Policy::new(Duration::from_secs(5)));
+    core.insert_job(Job::new(record(6, 2)));
     let now = Instant::now();
     let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
     let granted = core.lease(w, 100, now);
@@ -75,17 +75,17 @@ fn out_of_order_results_merge_in_batch_order_once() {
             .find(|(_, u)| u.tile == 0 && u.batch == b)
             .cloned()
             .expect("leased");
-        let r = result(&core.jobs[&JOB], u, b as f64 + 1.0);
+        let r = result(core.job(JOB).expect("job"), u, b as f64 + 1.0);
         let m = core.submit(w, name, JOB, u, r, now).expect("merged");
         assert!(matches!(m, Merged::New { .. }));
     }
     let (name, u) = names[0];
-    let r = result(&core.jobs[&JOB], u, 1.0);
+    let r = result(core.job(JOB).expect("job"), u, 1.0);
     assert!(matches!(
         core.submit(w, name, JOB, u, r, now),
         Ok(Merged::Duplicate)
     ));
-    let acc = &core.jobs[&JOB].acc[&0];
+    let acc = &core.job(JOB).expect("job").acc[&0];
     assert_eq!(acc.next, 3);
     let sums = acc.sums.as_ref().expect("sums");
     assert_eq!(sums.sum[0], [((0.0 + 1.0) + 2.0) + 3.0; 3]);
@@ -94,13 +94,13 @@ fn out_of_order_results_merge_in_batch_order_once() {
 
 #[test]
 fn bad_results_are_refused_and_counted() {
-    let mut core = Scheduler::new(1, Duration::from_secs(5));
-    core.jobs.insert(JOB, Job::new(record(4, 2)));
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(5)));
+    core.insert_job(Job::new(record(4, 2)));
     let now = Instant::now();
     let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
     let g = core.lease(w, 1, now).remove(0);
     let name = g.lease;
-    let job = &core.jobs[&JOB];
+    let job = &core.job(JOB).expect("job");
     let mut nan = result(job, g.unit, 1.0);
     nan.sum[1][2] = f64::NAN;
     let mut short = result(job, g.unit, 1.0);
@@ -115,25 +115,25 @@ fn bad_results_are_refused_and_counted() {
             Err(Refusal::Invalid(_))
         ));
     }
-    assert_eq!(core.workers[&w].bad_results, 4);
+    assert_eq!(core.worker(w).expect("worker").bad_results, 4);
     let other = Unit { tile: 1, batch: 0 };
-    let r = result(&core.jobs[&JOB], other, 1.0);
+    let r = result(core.job(JOB).expect("job"), other, 1.0);
     assert!(matches!(
         core.submit(w, name, JOB, other, r, now),
         Err(Refusal::Precondition(_))
     ));
-    let r = result(&core.jobs[&JOB], g.unit, 1.0);
+    let r = result(core.job(JOB).expect("job"), g.unit, 1.0);
     assert!(matches!(
         core.submit(w, LeaseId { epoch: 0, n: 1 }, JOB, g.unit, r, now),
         Err(Refusal::Precondition(_))
     ));
-    assert_eq!(core.jobs[&JOB].units_done, 0);
+    assert_eq!(core.job(JOB).expect("job").units_done, 0);
 }
 
 #[test]
 fn lapsed_leases_requeue_and_late_results_still_count_once() {
-    let mut core = Scheduler::new(1, Duration::from_secs(5));
-    core.jobs.insert(JOB, Job::new(record(2, 2)));
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(5)));
+    core.insert_job(Job::new(record(2, 2)));
     let t0 = Instant::now();
     let a = core.register("a".into(), 1, "v".into(), "s".into(), t0);
     let b = core.register("b".into(), 1, "v".into(), "s".into(), t0);
@@ -141,7 +141,7 @@ fn lapsed_leases_requeue_and_late_results_still_count_once() {
     let later = t0 + Duration::from_secs(6);
     let again = core.lease(b, 1, later).remove(0);
     assert_eq!(first.unit, again.unit, "the lapsed unit is served first");
-    let r = result(&core.jobs[&JOB], first.unit, 1.0);
+    let r = result(core.job(JOB).expect("job"), first.unit, 1.0);
     let name = first.lease;
     assert!(matches!(
         core.submit(a, name, JOB, first.unit, r.clone(), later),
@@ -157,8 +157,8 @@ fn lapsed_leases_requeue_and_late_results_still_count_once() {
 
 #[test]
 fn idle_workers_race_the_oldest_outstanding_unit_once_the_queue_is_empty() {
-    let mut core = Scheduler::new(1, Duration::from_secs(60));
-    core.jobs.insert(JOB, Job::new(record(2, 2)));
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(60)));
+    core.insert_job(Job::new(record(2, 2)));
     let now = Instant::now();
     let slow = core.register("slow".into(), 1, "v".into(), "s".into(), now);
     let fast = core.register("fast".into(), 1, "v".into(), "s".into(), now);
@@ -171,7 +171,7 @@ fn idle_workers_race_the_oldest_outstanding_unit_once_the_queue_is_empty() {
     assert_eq!(units, vec![held[0].unit, held[1].unit]);
     assert!(core.lease(fast, 5, now).is_empty());
     // The copy's result wins; the slow original is then a duplicate.
-    let r = result(&core.jobs[&JOB], copies[0].unit, 1.0);
+    let r = result(core.job(JOB).expect("job"), copies[0].unit, 1.0);
     let name = copies[0].lease;
     assert!(matches!(
         core.submit(fast, name, JOB, copies[0].unit, r.clone(), now),
@@ -186,23 +186,23 @@ fn idle_workers_race_the_oldest_outstanding_unit_once_the_queue_is_empty() {
 
 #[test]
 fn a_worker_that_keeps_sending_bad_results_is_quarantined() {
-    let mut core = Scheduler::new(1, Duration::from_secs(60));
-    core.quarantine_after = 3;
-    core.jobs.insert(JOB, Job::new(record(8, 2)));
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(60)));
+    core.policy_mut().quarantine_after = 3;
+    core.insert_job(Job::new(record(8, 2)));
     let now = Instant::now();
     let w = core.register("bad".into(), 1, "v".into(), "s".into(), now);
     let id = core.worker_credential(w).expect("registered");
     let g = core.lease(w, 2, now);
     let name = g[0].lease;
     for _ in 0..3 {
-        let mut r = result(&core.jobs[&JOB], g[0].unit, 1.0);
+        let mut r = result(core.job(JOB).expect("job"), g[0].unit, 1.0);
         r.sum[0][0] = f64::INFINITY;
         assert!(matches!(
             core.submit(w, name, JOB, g[0].unit, r, now),
             Err(Refusal::Invalid(_))
         ));
     }
-    assert!(core.workers[&w].quarantined);
+    assert!(core.worker(w).expect("worker").quarantined);
     assert!(matches!(
         core.touch_worker(&id, now),
         Err(Refusal::Denied(_))
@@ -228,38 +228,38 @@ fn admission_allocates_nothing_per_tile() {
     let job = Job::new(rec);
     assert_eq!(job.units_total(), 4 << 20);
     assert!(job.acc.is_empty());
-    let mut core = Scheduler::new(1, Duration::from_secs(5));
-    core.jobs.insert(JOB, job);
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(5)));
+    core.insert_job(job);
     let now = Instant::now();
     let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
     let g = core.lease(w, 1, now).remove(0);
-    let r = result(&core.jobs[&JOB], g.unit, 1.0);
+    let r = result(core.job(JOB).expect("job"), g.unit, 1.0);
     let name = g.lease;
     assert!(matches!(
         core.submit(w, name, JOB, g.unit, r, now),
         Ok(Merged::New { .. })
     ));
-    assert_eq!(core.jobs[&JOB].acc.len(), 1);
-    let (rms, _) = core.jobs[&JOB].noise();
+    assert_eq!(core.job(JOB).expect("job").acc.len(), 1);
+    let (rms, _) = core.job(JOB).expect("job").noise();
     assert!(rms.is_finite());
 }
 
 #[test]
 fn forged_finite_sums_that_would_overflow_when_merged_are_refused() {
-    let mut core = Scheduler::new(1, Duration::from_secs(5));
-    core.jobs.insert(JOB, Job::new(record(4, 2)));
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(5)));
+    core.insert_job(Job::new(record(4, 2)));
     let now = Instant::now();
     let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
     let g = core.lease(w, 8, now);
     // Two results of 1.7e308 each are finite, but their sum is not.
     for unit in [g[0].unit, g[2].unit] {
         let name = g.iter().find(|x| x.unit == unit).expect("leased").lease;
-        let mut r = result(&core.jobs[&JOB], unit, 1.0);
+        let mut r = result(core.job(JOB).expect("job"), unit, 1.0);
         r.sum_sq[0] = [1.7e308; 3];
         assert!(
             matches!(core.submit(w, name, JOB, unit, r, now), Err(Refusal::Invalid(m)) if m.contains("f32::MAX")),
         );
-        let mut r = result(&core.jobs[&JOB], unit, 1.0);
+        let mut r = result(core.job(JOB).expect("job"), unit, 1.0);
         r.sum[1] = [1e300, 0.0, 0.0];
         assert!(matches!(
             core.submit(w, name, JOB, unit, r, now),
@@ -269,7 +269,7 @@ fn forged_finite_sums_that_would_overflow_when_merged_are_refused() {
     // The largest honest values merge, and stay finite through every batch.
     for unit in [g[0].unit, g[2].unit] {
         let name = g.iter().find(|x| x.unit == unit).expect("leased").lease;
-        let mut r = result(&core.jobs[&JOB], unit, 1.0);
+        let mut r = result(core.job(JOB).expect("job"), unit, 1.0);
         let k = r.count[0] as f64;
         let m = f32::MAX as f64;
         r.sum[0] = [k * m; 3];
@@ -279,9 +279,12 @@ fn forged_finite_sums_that_would_overflow_when_merged_are_refused() {
             Ok(Merged::New { .. })
         ));
     }
-    let sums = core.jobs[&JOB].acc[&0].sums.as_ref().expect("sums");
+    let sums = core.job(JOB).expect("job").acc[&0]
+        .sums
+        .as_ref()
+        .expect("sums");
     assert!(sums.sum_sq[0].iter().all(|v| v.is_finite()));
-    let (rms, rel) = core.jobs[&JOB].noise();
+    let (rms, rel) = core.job(JOB).expect("job").noise();
     assert!(rms.is_finite() && rel.is_finite());
     // What is stored of a job with such noise loads again.
     let ops = core.end_job(JOB, JobPhase::Done, String::new(), 1);
@@ -305,8 +308,8 @@ fn forged_finite_sums_that_would_overflow_when_merged_are_refused() {
 
 #[test]
 fn ids_are_bound_to_the_registration_that_got_them() {
-    let mut core = Scheduler::new(1, Duration::from_secs(5));
-    core.jobs.insert(JOB, Job::new(record(4, 2)));
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(5)));
+    core.insert_job(Job::new(record(4, 2)));
     let now = Instant::now();
     let honest = core.register("honest".into(), 1, "v".into(), "secret-a".into(), now);
     let thief = core.register("thief".into(), 1, "v".into(), "secret-b".into(), now);
@@ -318,7 +321,10 @@ fn ids_are_bound_to_the_registration_that_got_them() {
             secret: secret.into(),
         };
         assert!(
-            matches!(core.touch_worker(&forged, now), Err(Refusal::NotFound(_))),
+            matches!(
+                core.touch_worker(&forged, now),
+                Err(Refusal::UnknownWorker(_))
+            ),
             "{secret}"
         );
     }
@@ -329,20 +335,20 @@ fn ids_are_bound_to_the_registration_that_got_them() {
     };
     assert!(matches!(
         core.touch_worker(&stale, now),
-        Err(Refusal::NotFound(_))
+        Err(Refusal::UnknownWorker(_))
     ));
     let cred = core.worker_credential(honest).expect("registered");
     assert_eq!(core.touch_worker(&cred, now), Ok(honest));
     // A result under another worker's lease is refused, and does not count against it.
     let g = core.lease(honest, 1, now).remove(0);
     let name = g.lease;
-    let r = result(&core.jobs[&JOB], g.unit, 1.0);
+    let r = result(core.job(JOB).expect("job"), g.unit, 1.0);
     assert!(matches!(
         core.submit(thief, name, JOB, g.unit, r.clone(), now),
         Err(Refusal::Precondition(_))
     ));
-    assert_eq!(core.workers[&honest].bad_results, 0);
-    assert_eq!(core.jobs[&JOB].units_done, 0);
+    assert_eq!(core.worker(honest).expect("worker").bad_results, 0);
+    assert_eq!(core.job(JOB).expect("job").units_done, 0);
     assert!(matches!(
         core.submit(honest, name, JOB, g.unit, r, now),
         Ok(Merged::New { .. })
@@ -353,15 +359,15 @@ fn ids_are_bound_to_the_registration_that_got_them() {
     assert_eq!(core.heartbeat(thief, &[name], now), vec![name]);
     assert_eq!(core.release(thief, &[name]), 0);
     assert!(core.cannot_render(thief, &[name], "no", 1).is_empty());
-    assert!(core.jobs[&JOB].is_live());
+    assert!(core.job(JOB).expect("job").is_live());
 }
 
 #[test]
 fn hoarding_registrations_cannot_stall_a_job() {
     let lease = Duration::from_secs(5);
-    let mut core = Scheduler::new(1, lease);
-    core.max_leases_per_worker = 8;
-    core.jobs.insert(JOB, Job::new(record(8, 2)));
+    let mut core = Scheduler::new(1, Policy::new(lease));
+    core.policy_mut().max_leases_per_worker = 8;
+    core.insert_job(Job::new(record(8, 2)));
     let t0 = Instant::now();
     let h1 = core.register("h1".into(), 1, "v".into(), "a".into(), t0);
     let h2 = core.register("h2".into(), 1, "v".into(), "b".into(), t0);
@@ -389,7 +395,7 @@ fn hoarding_registrations_cannot_stall_a_job() {
     // Past a lease time since they were issued, the hoarded units are slow: the honest
     // worker gets copies, up to its share, and finishes every unit.
     let mut done = 0;
-    let total = core.jobs[&JOB].units_total() as usize;
+    let total = core.job(JOB).expect("job").units_total() as usize;
     while done < total {
         let got = core.lease(honest, 4, t);
         assert!(
@@ -397,7 +403,7 @@ fn hoarding_registrations_cannot_stall_a_job() {
             "the honest worker starves after {done} units"
         );
         for g in got {
-            let r = result(&core.jobs[&JOB], g.unit, 1.0);
+            let r = result(core.job(JOB).expect("job"), g.unit, 1.0);
             let name = g.lease;
             if let Ok(Merged::New { .. }) = core.submit(honest, name, JOB, g.unit, r, t) {
                 done += 1;
@@ -406,7 +412,7 @@ fn hoarding_registrations_cannot_stall_a_job() {
         t += Duration::from_millis(10);
     }
     assert!(
-        core.jobs[&JOB].finishing,
+        core.job(JOB).expect("job").finishing,
         "the job finished without the hoarders"
     );
 }
@@ -419,9 +425,9 @@ fn hoarding_registrations_cannot_stall_a_job() {
 #[test]
 fn any_number_of_hoarders_cannot_keep_a_unit_from_an_honest_worker() {
     let lease = Duration::from_secs(5);
-    let mut core = Scheduler::new(1, lease);
-    core.jobs.insert(JOB, Job::new(record(2, 2)));
-    let total = core.jobs[&JOB].units_total() as usize;
+    let mut core = Scheduler::new(1, Policy::new(lease));
+    core.insert_job(Job::new(record(2, 2)));
+    let total = core.job(JOB).expect("job").units_total() as usize;
     let mut t = Instant::now();
     let hoarders: Vec<u64> = (0..5)
         .map(|i| core.register(format!("h{i}"), 1, "v".into(), format!("s{i}"), t))
@@ -435,7 +441,13 @@ fn any_number_of_hoarders_cannot_keep_a_unit_from_an_honest_worker() {
         }
         t += lease / 2;
     }
-    let copies = core.jobs[&JOB].issued.values().map(Vec::len).max();
+    let copies = core
+        .job(JOB)
+        .expect("job")
+        .issued
+        .values()
+        .map(Vec::len)
+        .max();
     assert!(
         copies >= Some(3),
         "the hoarders hold {copies:?} copies of a unit"
@@ -447,7 +459,7 @@ fn any_number_of_hoarders_cannot_keep_a_unit_from_an_honest_worker() {
             core.heartbeat(*h, mine, t);
         }
         for g in core.lease(honest, 4, t) {
-            let r = result(&core.jobs[&JOB], g.unit, 1.0);
+            let r = result(core.job(JOB).expect("job"), g.unit, 1.0);
             if let Ok(Merged::New { .. }) = core.submit(honest, g.lease, JOB, g.unit, r, t) {
                 done += 1;
             }
@@ -455,13 +467,13 @@ fn any_number_of_hoarders_cannot_keep_a_unit_from_an_honest_worker() {
         t += lease / 2;
     }
     assert_eq!(done, total, "the honest worker got {done} of {total} units");
-    assert!(core.jobs[&JOB].finishing);
+    assert!(core.job(JOB).expect("job").finishing);
 }
 
 #[test]
 fn a_unit_a_worker_cannot_render_fails_its_job_once_with_the_reason() {
-    let mut core = Scheduler::new(1, Duration::from_secs(5));
-    core.jobs.insert(JOB, Job::new(record(4, 2)));
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(5)));
+    core.insert_job(Job::new(record(4, 2)));
     let now = Instant::now();
     let w = core.register("small".into(), 1, "v".into(), "s".into(), now);
     let g = core.lease(w, 1, now).remove(0);
@@ -470,7 +482,7 @@ fn a_unit_a_worker_cannot_render_fails_its_job_once_with_the_reason() {
     assert!(ops
         .iter()
         .any(|o| matches!(o, Op::PutJob(r) if r.phase == JobPhase::Failed)));
-    let job = &core.jobs[&JOB];
+    let job = &core.job(JOB).expect("job");
     assert_eq!(job.rec.phase, JobPhase::Failed);
     assert!(
         job.rec.error.contains("cannot render tile"),
@@ -518,7 +530,7 @@ fn admission(name: Option<&str>, frames: Option<&str>) -> Admission {
 fn admission_checks_its_bounds_and_names_each_job_once() {
     let dir = tempfile::tempdir().expect("tempdir");
     let names = OutputNames::new(dir.path());
-    let mut core = Scheduler::new(1, Duration::from_secs(5));
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(5)));
     let job = |name: Option<&str>| admission(name, None);
     let limits = AdmissionLimits {
         max_active_jobs: 2,
@@ -528,8 +540,8 @@ fn admission_checks_its_bounds_and_names_each_job_once() {
     // 4 tiles × 2 batches: 8 units, at the limit.
     let (a, ops) = core.admit(job(None), limits, &names, 1).expect("admitted");
     assert_eq!(a, JobId(1));
-    assert_eq!(core.jobs[&a].rec.output_name, "job-000001.exr");
-    assert_eq!(core.jobs[&a].units_total(), 8);
+    assert_eq!(core.job(a).expect("job").rec.output_name, "job-000001.exr");
+    assert_eq!(core.job(a).expect("job").units_total(), 8);
     assert!(matches!(&ops[..], [Op::PutScene(..), Op::PutJob(r)] if r.id == 1));
     let fewer = AdmissionLimits {
         max_units_per_job: 7,
@@ -562,7 +574,7 @@ fn admission_checks_its_bounds_and_names_each_job_once() {
 fn a_frame_range_is_one_job_of_frame_jobs_in_frame_order() {
     let dir = tempfile::tempdir().expect("tempdir");
     let names = OutputNames::new(dir.path());
-    let mut core = Scheduler::new(1, Duration::from_secs(5));
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(5)));
     let job = admission;
     let limits = AdmissionLimits {
         max_active_jobs: 2,
@@ -573,16 +585,13 @@ fn a_frame_range_is_one_job_of_frame_jobs_in_frame_order() {
         .admit(job(None, Some("3-9:3")), limits, &names, 1)
         .expect("admitted");
     assert_eq!(range, JobId(1));
-    assert!(
-        !core.jobs.contains_key(&range),
-        "a range has no job of its own"
-    );
+    assert!(core.job(range).is_none(), "a range has no job of its own");
     let members = core.members(range);
     assert_eq!(members, [JobId(2), JobId(3), JobId(4)]);
     let got: Vec<_> = members
         .iter()
         .map(|m| {
-            let r = &core.jobs[m].rec;
+            let r = &core.job(*m).expect("job").rec;
             (r.frame, r.output_name.as_str(), r.range.map(|x| x.id))
         })
         .collect();
@@ -617,7 +626,10 @@ fn a_frame_range_is_one_job_of_frame_jobs_in_frame_order() {
         .admit(job(Some("shot.exr"), Some("1-2")), limits, &names, 1)
         .expect("named range");
     assert_eq!(named, JobId(5));
-    assert_eq!(core.jobs[&JobId(7)].rec.output_name, "shot.0002.exr");
+    assert_eq!(
+        core.job(JobId(7)).expect("job").rec.output_name,
+        "shot.0002.exr"
+    );
     // Two ranges of three and two frames are two jobs against the active limit.
     assert!(matches!(
         core.admit(job(None, None), limits, &names, 1),
@@ -640,7 +652,10 @@ fn a_frame_range_is_one_job_of_frame_jobs_in_frame_order() {
         JobId(11),
         "past job-000008 and the two ids its frames would take"
     );
-    assert_eq!(core.jobs[&JobId(12)].rec.output_name, "job-000011.0001.exr");
+    assert_eq!(
+        core.job(JobId(12)).expect("job").rec.output_name,
+        "job-000011.0001.exr"
+    );
 }
 
 #[test]
@@ -676,7 +691,7 @@ fn an_adaptive_job_past_its_pilots_without_a_kept_scale_fails_at_restore_and_oth
             pending: Vec::new(),
         }
     };
-    let mut core = Scheduler::new(1, Duration::from_secs(5));
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(5)));
     // Job 1 went past its pilots with no scale kept; job 2 has every pilot in and no scale
     // yet (the scale is computed at restore and kept); job 3 kept its scale.
     let (ops, _) = core
@@ -690,14 +705,14 @@ fn an_adaptive_job_past_its_pilots_without_a_kept_scale_fails_at_restore_and_oth
             5,
         )
         .expect("restore");
-    let j1 = &core.jobs[&JobId(1)];
+    let j1 = &core.job(JobId(1)).expect("job");
     assert_eq!(j1.rec.phase, JobPhase::Failed);
     assert!(
         j1.rec.error.contains("earlier adaptive rule"),
         "{}",
         j1.rec.error
     );
-    let j2 = &core.jobs[&JobId(2)];
+    let j2 = &core.job(JobId(2)).expect("job");
     assert_eq!(j2.rec.phase, JobPhase::Active);
     let scale = j2
         .rec
@@ -707,7 +722,7 @@ fn an_adaptive_job_past_its_pilots_without_a_kept_scale_fails_at_restore_and_oth
     assert!(ops
         .iter()
         .any(|op| matches!(op, Op::PutJob(r) if r.id == 2 && r.adaptive_scale == Some(scale))));
-    let j3 = &core.jobs[&JobId(3)];
+    let j3 = &core.job(JobId(3)).expect("job");
     assert_eq!(
         (j3.rec.phase, j3.rec.adaptive_scale),
         (JobPhase::Active, Some(40.0))

@@ -209,38 +209,6 @@ impl TryFrom<pb::TileResult> for TileSums {
     }
 }
 
-/// A job state as people read it (`tessera status`, the dashboard, error messages): `queued`,
-/// `running`, `done`, `cancelled`, `failed`, or `unknown` for a value this build does not know.
-pub fn job_state_name(state: i32) -> &'static str {
-    match pb::JobState::try_from(state) {
-        Ok(pb::JobState::Queued) => "queued",
-        Ok(pb::JobState::Running) => "running",
-        Ok(pb::JobState::Done) => "done",
-        Ok(pb::JobState::Cancelled) => "cancelled",
-        Ok(pb::JobState::Failed) => "failed",
-        Ok(pb::JobState::Unspecified) | Err(_) => "unknown",
-    }
-}
-
-impl pb::WorkerInfo {
-    /// The worker's state in one word, the most serious first: `convicted` (by an audit),
-    /// `quarantined` (after invalid results), `suspect` (an audit's copies disagree), `alive`,
-    /// or `gone`.
-    pub fn state(&self) -> &'static str {
-        if !self.convicted.is_empty() {
-            "convicted"
-        } else if self.quarantined {
-            "quarantined"
-        } else if self.suspect {
-            "suspect"
-        } else if self.alive {
-            "alive"
-        } else {
-            "gone"
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

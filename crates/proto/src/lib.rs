@@ -13,6 +13,7 @@ pub mod v1 {
 pub mod client;
 pub mod convert;
 pub mod ids;
+pub mod view;
 
 /// The largest gRPC message the coordinator and its workers accept by default (a scene of up
 /// to 32 MiB in a message, with room to spare); the coordinator raises it to fit a larger
@@ -83,5 +84,56 @@ mod tests {
             parse_token("0123456789 abcdef0123"),
             Err(TokenError::BadChars)
         ));
+    }
+}
+
+/// Typed reasons a coordinator attaches to a refusal, where a peer acts on the reason rather
+/// than the code alone: `NOT_FOUND` is also the answer for an unknown job, and a message's
+/// words are for people and may change.
+pub mod reason {
+    use tonic::Status;
+
+    /// The metadata key that carries the reason.
+    pub const KEY: &str = "tessera-reason";
+
+    /// The worker credential a call quoted is not one this coordinator boot issued (it
+    /// restarted, or the credential was never valid): the worker registers again.
+    pub const UNKNOWN_WORKER: &str = "unknown-worker";
+
+    /// A `NOT_FOUND` refusal that says the caller's worker credential is unknown.
+    pub fn unknown_worker(message: impl Into<String>) -> Status {
+        let mut s = Status::not_found(message);
+        s.metadata_mut().insert(
+            KEY,
+            tonic::metadata::MetadataValue::from_static(UNKNOWN_WORKER),
+        );
+        s
+    }
+
+    /// Whether `s` says the caller's worker credential is unknown.
+    pub fn is_unknown_worker(s: &Status) -> bool {
+        s.code() == tonic::Code::NotFound
+            && s.metadata().get(KEY).and_then(|v| v.to_str().ok()) == Some(UNKNOWN_WORKER)
+    }
+
+    #[cfg(test)]
+    mod tests {
+        use super::*;
+
+        /// The reason is in the metadata, not the words: an unknown job is `NOT_FOUND` too,
+        /// and says "unknown worker" nowhere that matters.
+        #[test]
+        fn only_the_typed_reason_says_the_worker_is_unknown() {
+            assert!(is_unknown_worker(&unknown_worker("anything at all")));
+            assert!(!is_unknown_worker(&Status::not_found(
+                "unknown worker w1-2"
+            )));
+            let mut other = Status::internal("x");
+            other.metadata_mut().insert(
+                KEY,
+                tonic::metadata::MetadataValue::from_static(UNKNOWN_WORKER),
+            );
+            assert!(!is_unknown_worker(&other));
+        }
     }
 }

@@ -2,6 +2,7 @@
 //! it holds, what it renders, and what it hands back when told to stop.
 
 use std::time::Duration;
+use tessera_testkit::wait_for;
 
 use tessera_coordinator::{Config, Spawned};
 use tessera_proto::v1 as pb;
@@ -68,21 +69,6 @@ async fn workers(client: &mut JobsClient<Channel>) -> Vec<pb::WorkerInfo> {
         .expect("workers")
         .into_inner()
         .workers
-}
-
-/// Polls `check` until it answers `Some`; fails naming `what` after two minutes.
-async fn wait_for<T>(what: &str, mut check: impl AsyncFnMut() -> Option<T>) -> T {
-    let deadline = tokio::time::Instant::now() + Duration::from_secs(120);
-    loop {
-        if let Some(v) = check().await {
-            return v;
-        }
-        assert!(
-            tokio::time::Instant::now() < deadline,
-            "gave up waiting for {what}"
-        );
-        tokio::time::sleep(Duration::from_millis(2)).await;
-    }
 }
 
 /// The job's EXR as the coordinator wrote it, and the same job rendered locally.

@@ -85,7 +85,7 @@ pub struct BenchArgs {
     #[arg(long)]
     adaptive: bool,
     /// Tile edge, in pixels, of the adaptive renders' noise decisions.
-    #[arg(long, default_value_t = 32, value_parser = crate::farm::tile_range())]
+    #[arg(long, default_value_t = 32, value_parser = crate::args::tile_range())]
     adaptive_tile: u32,
 }
 

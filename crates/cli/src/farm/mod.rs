@@ -11,18 +11,12 @@ use std::path::{Path, PathBuf};
 use anyhow::{anyhow, Context, Result};
 use tessera_proto::client::{ClientOptions, ClientTls};
 use tessera_proto::{parse_token, Secret};
-use tessera_render::TILE_RANGE;
 
 pub use client::{
     cancel, fetch, status, submit, workers, CancelArgs, FetchArgs, StatusArgs, SubmitArgs,
     WorkersArgs,
 };
 pub use servers::{coordinator, worker, CoordinatorArgs, WorkerArgs};
-
-/// clap's parser for a tile edge in [`TILE_RANGE`].
-pub(crate) fn tile_range() -> clap::builder::RangedI64ValueParser<u32> {
-    clap::value_parser!(u32).range(i64::from(*TILE_RANGE.start())..=i64::from(*TILE_RANGE.end()))
-}
 
 /// Where client commands find the coordinator, and how they prove who they are.
 #[derive(Debug, clap::Args)]

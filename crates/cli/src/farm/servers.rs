@@ -10,9 +10,8 @@ use tessera_proto::Secret;
 use tessera_render::scene::Limits;
 use tessera_render::DEFAULT_TILE;
 
-use super::{
-    init_logging, load_token, read_file, runtime, shutdown_signal, tile_range, CoordinatorUrl,
-};
+use super::{init_logging, load_token, read_file, runtime, shutdown_signal, CoordinatorUrl};
+use crate::args::tile_range;
 
 /// Arguments of `tessera coordinator`.
 #[derive(Debug, clap::Args)]

@@ -2,8 +2,10 @@
 //! no build step, the JSON they read, a progressive preview of each job, the finished EXR, and
 //! Prometheus metrics at `/metrics` (docs/farm.md, "Dashboard and metrics").
 //!
-//! It answers from the same state as the gRPC API, through the same handlers where one exists
-//! (a job's status, the lists, cancel), so the two never disagree. With a token configured,
+//! It answers from the same state as the gRPC API: the scheduler's views, serialised as JSON
+//! (the gRPC API sends the same views as protobuf, and `tessera status --json` turns them back
+//! into this JSON), and the same handlers where one acts (cancel, the EXR), so the two never
+//! disagree. With a token configured,
 //! every request but the login form's must carry it: as `Authorization: Bearer`, or as the
 //! session cookie the login sets. With TLS configured it serves TLS only, with the same
 //! identity and client CA as the gRPC API.
@@ -11,7 +13,7 @@
 mod preview;
 
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use axum::body::Body;
 use axum::extract::{Path, Query, Request, State};
@@ -20,11 +22,11 @@ use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Form, Json, Router};
-use serde_json::{json, Value};
-use tessera_proto::convert::job_state_name;
+use serde_json::json;
 use tessera_proto::ids::JobId;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_server::Jobs;
+use tessera_proto::view::job_state_name;
 use tokio::net::TcpListener;
 use tokio::sync::watch;
 use tokio_rustls::rustls;
@@ -32,11 +34,11 @@ use tokio_stream::StreamExt as _;
 use tonic::Request as RpcRequest;
 use tracing::debug;
 
+use crate::auth::{bearer, Token};
 use crate::config::ServerTls;
 use crate::error::CoordinatorError;
-use crate::metrics::{Gauges, WorkerLine};
-use crate::service::Service;
-use crate::store::{JobPhase, FILE_NAME};
+use crate::service::{job_id, Service};
+use crate::store::FILE_NAME;
 
 use preview::{NoPreview, Previews, View};
 
@@ -58,50 +60,34 @@ struct App {
     auth: Arc<Auth>,
 }
 
-/// What a request must present when a token is configured: the token's hash (for the bearer
-/// header) and the session value (for the cookie), both compared in constant time.
+/// What a request must present when a token is configured: the token (as a bearer header)
+/// or the session value derived from it (as the cookie), both compared in constant time.
 struct Auth {
-    token: Option<[u8; 32]>,
-    session: Option<String>,
+    token: Option<Token>,
     secure: bool,
 }
 
 impl Auth {
     fn new(token: Option<&tessera_proto::Secret>, secure: bool) -> Self {
         Self {
-            token: token.map(|t| crate::server::sha256(t.expose().as_bytes())),
-            // Derived from the token, not the token itself: a cookie that leaks does not
-            // give away the farm's token (which the workers and clients use too), and every
-            // session ends when the token is changed.
-            session: token.map(|t| {
-                crate::server::sha256(
-                    format!("tessera dashboard session\0{}", t.expose()).as_bytes(),
-                )
-                .iter()
-                .map(|b| format!("{b:02x}"))
-                .collect()
-            }),
+            token: token.map(Token::new),
             secure,
         }
     }
 
     fn token_ok(&self, presented: &str) -> bool {
-        use subtle::ConstantTimeEq;
-        self.token.is_some_and(|want| {
-            bool::from(crate::server::sha256(presented.as_bytes()).ct_eq(&want))
-        })
+        self.token.as_ref().is_some_and(|t| t.matches(presented))
     }
 
     fn allows(&self, headers: &HeaderMap) -> bool {
-        use subtle::ConstantTimeEq;
-        let Some(session) = &self.session else {
+        let Some(token) = &self.token else {
             return true;
         };
-        let bearer = headers
+        let presented = headers
             .get(header::AUTHORIZATION)
             .and_then(|v| v.to_str().ok())
-            .and_then(|v| v.strip_prefix("Bearer "));
-        if bearer.is_some_and(|t| self.token_ok(t)) {
+            .and_then(bearer);
+        if presented.is_some_and(|t| token.matches(t)) {
             return true;
         }
         headers
@@ -110,7 +96,7 @@ impl Auth {
             .filter_map(|v| v.to_str().ok())
             .flat_map(|v| v.split(';'))
             .filter_map(|kv| kv.trim().strip_prefix(COOKIE)?.strip_prefix('='))
-            .any(|v| v.len() == session.len() && bool::from(v.as_bytes().ct_eq(session.as_bytes())))
+            .any(|v| token.session_matches(v))
     }
 }
 
@@ -335,7 +321,7 @@ struct LoginForm {
 }
 
 async fn login(State(app): State<App>, Form(form): Form<LoginForm>) -> Response {
-    let Some(session) = &app.auth.session else {
+    let Some(session) = app.auth.token.as_ref().map(Token::session) else {
         return redirect(local_path(&form.next), None);
     };
     if !app.auth.token_ok(&form.token) {
@@ -372,7 +358,7 @@ async fn not_found() -> Response {
 
 async fn page(State(app): State<App>) -> Response {
     // Logging out means something only where logging in does.
-    let logout = if app.auth.session.is_some() {
+    let logout = if app.auth.token.is_some() {
         "  <form method=\"post\" action=\"/logout\"><button class=\"link\">Log out</button></form>\n"
     } else {
         ""
@@ -422,63 +408,14 @@ fn refused(s: tonic::Status) -> Response {
     (code, Json(json!({ "error": s.message() }))).into_response()
 }
 
-/// A job's status as the dashboard reads it: `tessera status`'s fields, named for JSON.
-fn job_json(s: &pb::JobStatus) -> Value {
-    let settings = s.settings.unwrap_or_default();
-    json!({
-        "id": s.job_id,
-        "state": job_state_name(s.state),
-        "priority": s.priority,
-        "scene": s.scene_name,
-        "output": s.output_name,
-        "width": s.width,
-        "height": s.height,
-        "spp": settings.spp,
-        "seed": settings.seed,
-        "frame": settings.frame,
-        "noise_target": settings.noise_target,
-        "tile_size": s.tile_size,
-        "units_done": s.units_done,
-        "units_total": s.units_total,
-        "units_leased": s.units_leased,
-        "samples_done": s.samples_done,
-        "samples_total": s.samples_total,
-        "samples_per_second": s.samples_per_second,
-        "eta_seconds": s.eta_seconds,
-        "noise_rms": s.noise_rms,
-        "noise_relative": s.noise_relative,
-        "nonfinite_samples": s.nonfinite_samples,
-        "error": s.error,
-        "submitted_unix_ms": s.submitted_unix_ms,
-        "finished_unix_ms": s.finished_unix_ms,
-        "range_id": s.range_job_id,
-        "frames": s.frames.iter().map(|f| json!({
-            "frame": f.frame,
-            "id": f.job_id,
-            "state": job_state_name(f.state),
-            "units_done": f.units_done,
-            "units_total": f.units_total,
-            "output": f.output_name,
-            "error": f.error,
-        })).collect::<Vec<_>>(),
-    })
-}
-
 async fn list_jobs(State(app): State<App>) -> Response {
-    match app
-        .svc
-        .list_jobs(RpcRequest::new(pb::ListJobsRequest {}))
-        .await
-    {
-        Ok(r) => Json(r.into_inner().jobs.iter().map(job_json).collect::<Vec<_>>()).into_response(),
-        Err(s) => refused(s),
-    }
+    let views = app.svc.shared.scheduler().job_views(Instant::now());
+    Json(views).into_response()
 }
 
 async fn job(State(app): State<App>, Path(id): Path<String>) -> Response {
-    let req = RpcRequest::new(pb::GetJobRequest { job_id: id });
-    match app.svc.get_job(req).await {
-        Ok(r) => Json(job_json(r.get_ref())).into_response(),
+    match job_id(&id).and_then(|id| app.svc.job_view(id)) {
+        Ok(v) => Json(v).into_response(),
         Err(s) => refused(s),
     }
 }
@@ -492,36 +429,8 @@ async fn cancel(State(app): State<App>, Path(id): Path<String>) -> Response {
 }
 
 async fn list_workers(State(app): State<App>) -> Response {
-    let req = RpcRequest::new(pb::ListWorkersRequest {});
-    match app.svc.list_workers(req).await {
-        Ok(r) => Json(
-            r.into_inner()
-                .workers
-                .iter()
-                .map(|w| {
-                    json!({
-                        "id": w.worker_id,
-                        "name": w.name,
-                        "host": w.host,
-                        "threads": w.cores,
-                        "version": w.version,
-                        "state": w.state(),
-                        "leases": w.leases,
-                        "units_done": w.units_done,
-                        "samples_done": w.samples_done,
-                        "samples_per_second": w.samples_per_second,
-                        "bad_results": w.bad_results,
-                        "quarantined": w.quarantined,
-                        "convicted": w.convicted,
-                        "audits_passed": w.audits_passed,
-                        "last_seen_ms_ago": w.last_seen_ms_ago,
-                    })
-                })
-                .collect::<Vec<_>>(),
-        )
-        .into_response(),
-        Err(s) => refused(s),
-    }
+    let views = app.svc.shared.scheduler().worker_views(Instant::now());
+    Json(views).into_response()
 }
 
 #[derive(serde::Deserialize)]
@@ -584,25 +493,14 @@ async fn output_exr(
     Path(id): Path<String>,
     Query(q): Query<OutputQuery>,
 ) -> Response {
-    let req = RpcRequest::new(pb::FetchResultRequest {
-        job_id: id,
-        frame: q.frame,
-    });
-    let mut stream = match app.svc.fetch_result(req).await {
-        Ok(r) => r.into_inner(),
+    let read = match job_id(&id) {
+        Ok(id) => app.svc.read_output(id, q.frame).await,
+        Err(s) => Err(s),
+    };
+    let (name, data) = match read {
+        Ok(r) => r,
         Err(s) => return refused(s),
     };
-    let mut data = Vec::new();
-    let mut name = String::new();
-    while let Some(chunk) = stream.next().await {
-        match chunk {
-            Ok(c) => {
-                data.extend_from_slice(&c.data);
-                name = c.output_name;
-            }
-            Err(s) => return refused(s),
-        }
-    }
     // Output names are checked at submission (no quotes, separators or control characters).
     let disposition = format!("attachment; filename=\"{}\"", name.replace('"', ""));
     let mut r = ([(header::CONTENT_TYPE, "image/x-exr")], Body::from(data)).into_response();
@@ -614,44 +512,7 @@ async fn output_exr(
 
 async fn metrics(State(app): State<App>) -> Response {
     let shared = &app.svc.shared;
-    let mut g = {
-        let core = shared.scheduler();
-        let now = std::time::Instant::now();
-        let mut by_state = [0u64; 5];
-        for j in core.jobs.values() {
-            let i = match j.rec.phase {
-                JobPhase::Active if j.started => 1,
-                JobPhase::Active => 0,
-                JobPhase::Done => 2,
-                JobPhase::Cancelled => 3,
-                JobPhase::Failed => 4,
-            };
-            by_state[i] += 1;
-        }
-        let alive = |w: &crate::scheduler::Worker| w.alive(now, core.lease_time);
-        Gauges {
-            jobs: ["queued", "running", "done", "cancelled", "failed"]
-                .into_iter()
-                .zip(by_state)
-                .collect(),
-            workers_active: core.workers.values().filter(|w| alive(w)).count() as u64,
-            workers_quarantined: core.workers.values().filter(|w| w.quarantined).count() as u64,
-            leases: core.leases.values().filter(|l| l.active).count() as u64,
-            counters: core.counters,
-            workers: core
-                .workers
-                .iter()
-                .filter(|(_, w)| alive(w))
-                .map(|(&n, w)| WorkerLine {
-                    id: core.worker_id(n).to_string(),
-                    name: w.name.clone(),
-                    rate: w.rate.per_second(now),
-                    samples: w.samples_done,
-                })
-                .collect(),
-            store_file_bytes: None,
-        }
-    };
+    let mut g = shared.scheduler().gauges(Instant::now());
     g.store_file_bytes = tokio::fs::metadata(shared.config.data_dir.join(FILE_NAME))
         .await
         .ok()

@@ -170,7 +170,7 @@ impl Previews {
         let mut jobs = self.jobs.lock().await;
         let version = {
             let core = shared.scheduler();
-            core.jobs.get(&id).map(|j| (j.rec.phase, j.units_done))
+            core.job(id).map(|j| (j.rec.phase, j.units_done))
         };
         if let Some(c) = jobs.get(&id) {
             // Nothing merged since, or a fresh snapshot of a job still in the same phase: a
@@ -205,10 +205,10 @@ impl Previews {
 async fn take(shared: &Arc<Shared>, id: JobId) -> Result<Frame, NoPreview> {
     let (phase, width, height, n_tiles, output, kept_noise) = {
         let core = shared.scheduler();
-        if core.ranges.contains_key(&id) {
+        if core.is_range(id) {
             return Err(NoPreview::Range);
         }
-        let job = core.jobs.get(&id).ok_or(NoPreview::Unknown)?;
+        let job = core.job(id).ok_or(NoPreview::Unknown)?;
         let kept_noise: Vec<(PixelRect, f32)> = job
             .final_tile_noise
             .iter()
@@ -264,7 +264,7 @@ fn copy_tiles(
     weights: &mut [u32],
 ) -> Result<(), NoPreview> {
     let core = shared.scheduler();
-    let job = core.jobs.get(&id).ok_or(NoPreview::Unknown)?;
+    let job = core.job(id).ok_or(NoPreview::Unknown)?;
     for t in tiles {
         let Some(rect) = job.tiles.get(t) else {
             continue;

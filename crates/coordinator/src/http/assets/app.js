@@ -29,7 +29,7 @@ const fmt = {
   msps: (s) => (s > 0 ? (s / 1e6).toFixed(2) : "–"),
   noise: (r) => (r > 0 ? (100 * r).toFixed(2) + "%" : "–"),
   eta: (s) => {
-    if (s < 0) return "–";
+    if (s == null || s < 0) return "–";
     if (s < 60) return Math.round(s) + " s";
     if (s < 3600) return Math.round(s / 60) + " min";
     return (s / 3600).toFixed(1) + " h";
@@ -56,8 +56,8 @@ async function cancel(id) {
 // ---- job list
 
 function jobsView(jobs) {
-  const rows = jobs.map((j) => el("tr", { "data-job": j.id },
-    el("td", {}, el("a", { href: `/jobs/${j.id}` }, j.id)),
+  const rows = jobs.map((j) => el("tr", { "data-job": j.job_id },
+    el("td", {}, el("a", { href: `/jobs/${j.job_id}` }, j.job_id)),
     el("td", { class: "scene", title: j.scene }, j.scene),
     el("td", {}, stateTag(j.state)),
     el("td", {}, bar(j.samples_done, j.samples_total)),
@@ -66,7 +66,7 @@ function jobsView(jobs) {
     el("td", { class: "num" }, j.samples_done > 0 ? fmt.noise(j.noise_relative) : "–"),
     el("td", { class: "num" }, j.state === "done" ? "done" : fmt.eta(j.eta_seconds)),
     el("td", { class: "num" }, j.priority),
-    el("td", {}, live(j.state) ? el("button", { class: "danger", onclick: () => cancel(j.id) }, "Cancel") : ""),
+    el("td", {}, live(j.state) ? el("button", { class: "danger", onclick: () => cancel(j.job_id) }, "Cancel") : ""),
   ));
   return [
     el("h1", {}, "Jobs ", el("span", { class: "muted" }, `(${jobs.length})`)),
@@ -124,7 +124,7 @@ function updatePreview(j) {
     try { const r = await fetch(next.src); msg = (await r.json()).error; } catch (_) { /* keep the default */ }
     document.getElementById("preview-note").textContent = msg;
   };
-  next.src = previewUrl(j.id, tag);
+  next.src = previewUrl(j.job_id, tag);
 }
 
 function jobView(j) {
@@ -143,25 +143,25 @@ function jobView(j) {
   if (j.error) stats.push(["Error", el("span", { class: "error" }, j.error)]);
   const side = [el("dl", { class: "stats", id: "stats" }, ...stats.flatMap(([k, v]) => [el("dt", {}, k), el("dd", { id: "stat-" + k.toLowerCase().replace(/\W/g, "") }, v)]))];
   const actions = el("p", { class: "controls" });
-  if (live(j.state)) actions.append(el("button", { class: "danger", onclick: () => cancel(j.id) }, "Cancel"));
-  if (j.state === "done" && j.frames.length === 0) actions.append(el("a", { id: "download", href: `/api/jobs/${j.id}/output.exr`, download: j.output }, "Download EXR"));
+  if (live(j.state)) actions.append(el("button", { class: "danger", onclick: () => cancel(j.job_id) }, "Cancel"));
+  if (j.state === "done" && j.frames.length === 0) actions.append(el("a", { id: "download", href: `/api/jobs/${j.job_id}/output.exr`, download: j.output }, "Download EXR"));
   side.push(actions);
   if (j.frames.length > 0) {
     side.push(el("table", { id: "frames" },
       el("thead", {}, el("tr", {}, el("th", {}, "Frame"), el("th", {}, "State"), el("th", {}, "Units"), el("th", {}, ""))),
       el("tbody", {}, ...j.frames.map((f) => el("tr", {},
-        el("td", {}, el("a", { href: `/jobs/${f.id}` }, f.frame)),
+        el("td", {}, el("a", { href: `/jobs/${f.job_id}` }, f.frame)),
         el("td", {}, stateTag(f.state)),
         el("td", { class: "num" }, `${f.units_done}/${f.units_total}`),
-        el("td", {}, f.state === "done" ? el("a", { href: `/api/jobs/${j.id}/output.exr?frame=${f.frame}`, download: f.output }, "EXR") : ""))))));
-    return [el("h1", {}, `${j.id} `, el("span", { class: "muted" }, `${j.scene}, ${j.frames.length} frames`)), el("div", { class: "job" }, el("div", {}, el("p", { class: "muted" }, "A frame range: open a frame for its preview.")), el("div", {}, ...side))];
+        el("td", {}, f.state === "done" ? el("a", { href: `/api/jobs/${j.job_id}/output.exr?frame=${f.frame}`, download: f.output }, "EXR") : ""))))));
+    return [el("h1", {}, `${j.job_id} `, el("span", { class: "muted" }, `${j.scene}, ${j.frames.length} frames`)), el("div", { class: "job" }, el("div", {}, el("p", { class: "muted" }, "A frame range: open a frame for its preview.")), el("div", {}, ...side))];
   }
   let img = document.getElementById("preview");
   let box;
-  if (img && img.dataset.job === j.id) {
+  if (img && img.dataset.job === j.job_id) {
     box = img.closest(".preview-col");
   } else {
-    img = el("img", { id: "preview", alt: "preview", "data-job": j.id, width: j.width, height: j.height });
+    img = el("img", { id: "preview", alt: "preview", "data-job": j.job_id, width: j.width, height: j.height });
     // Shown once a picture has loaded: an image with nothing to show would be a broken icon.
     img.hidden = true;
     // Small frames are shown up to twice their size, pixels kept sharp.
@@ -176,23 +176,23 @@ function jobView(j) {
       el("div", { class: "preview" }, img),
       el("div", { class: "controls" }, el("label", { for: "exposure" }, "Exposure"), expo, expoLabel, toggle, el("span", { id: "preview-note", class: "muted" }, "")));
   }
-  return [el("h1", {}, `${j.id} `, el("span", { class: "muted" }, j.scene)), el("div", { class: "job" }, box, el("div", {}, ...side))];
+  return [el("h1", {}, `${j.job_id} `, el("span", { class: "muted" }, j.scene)), el("div", { class: "job" }, box, el("div", {}, ...side))];
 }
 
 // ---- workers
 
 function workersView(ws) {
   const rows = ws.map((w) => el("tr", {},
-    el("td", {}, w.name, el("div", { class: "muted" }, w.id)),
+    el("td", {}, w.name, el("div", { class: "muted" }, w.worker_id)),
     el("td", {}, w.host || "–"),
-    el("td", { class: "num" }, w.threads),
+    el("td", { class: "num" }, w.cores),
     el("td", {}, stateTag(w.state), w.convicted ? el("div", { class: "error" }, w.convicted) : ""),
     el("td", { class: "num" }, w.leases),
     el("td", { class: "num" }, fmt.count(w.units_done)),
     el("td", { class: "num" }, fmt.msps(w.samples_per_second)),
     el("td", { class: "num" }, w.bad_results),
     el("td", { class: "num" }, w.audits_passed),
-    el("td", {}, fmt.ago(w.last_seen_ms_ago)),
+    el("td", {}, fmt.ago(1000 * w.last_seen_seconds_ago)),
   ));
   return [
     el("h1", {}, "Workers ", el("span", { class: "muted" }, `(${ws.filter((w) => w.state === "alive").length} alive)`)),

@@ -1,0 +1,137 @@
+//! The flags `tessera render` and the farm's commands share, and the checks of an output path
+//! made before any work starts: one definition each, so that `render` and `submit` with the
+//! same flags give the same image.
+
+use anyhow::{bail, Context, Result};
+use tessera_render::{
+    Adaptive, RenderSettings, Strategy, BATCH_RANGE, DEFAULT_BATCH, DEFAULT_TILE, TILE_RANGE,
+};
+
+/// clap's parser for a tile edge in [`TILE_RANGE`].
+pub fn tile_range() -> clap::builder::RangedI64ValueParser<u32> {
+    clap::value_parser!(u32).range(i64::from(*TILE_RANGE.start())..=i64::from(*TILE_RANGE.end()))
+}
+
+/// clap's parser for a batch size in [`BATCH_RANGE`].
+pub fn batch_range() -> clap::builder::RangedI64ValueParser<u32> {
+    clap::value_parser!(u32).range(i64::from(*BATCH_RANGE.start())..=i64::from(*BATCH_RANGE.end()))
+}
+
+/// The settings that decide a render's bits: the same flags, defaults and ranges for `tessera
+/// render` and `tessera submit`, so that the two give the same image for the same command.
+#[derive(Debug, clap::Args)]
+pub struct SettingsArgs {
+    /// Samples per pixel.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    pub spp: u32,
+    /// Job seed: the same seed gives the same bits.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Samples per batch (part of the job's identity, like the seed; `render` and `submit`
+    /// share the default, so a farm job with the same settings gives the same bits).
+    #[arg(long, default_value_t = DEFAULT_BATCH, value_parser = batch_range())]
+    pub batch: u32,
+    /// Direct-lighting strategy (mis is the best; the others exist for comparisons).
+    #[arg(long, value_enum, default_value_t = StrategyArg::Mis)]
+    pub strategy: StrategyArg,
+    /// Adaptive sampling: samples go to the tiles where they lower the image's relative error
+    /// most, until its expected value (√relMSE, e.g. 0.02) is this, and --spp becomes the cap.
+    /// Tiles are --tile-size pixels, which is then part of the render's identity.
+    #[arg(long, value_parser = noise_target)]
+    pub noise_target: Option<f64>,
+    /// Frame of the scene's `[animation]` to render (the EXR's header then names it, and it is
+    /// part of the render's identity).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(0..=9_999_999))]
+    pub frame: Option<u32>,
+}
+
+/// clap's parser for a noise target in [`tessera_render::adaptive::NOISE_TARGET_RANGE`].
+fn noise_target(s: &str) -> Result<f64, String> {
+    let t: f64 = s
+        .parse()
+        .map_err(|_| format!("{s:?} is not a number (a relative error such as 0.01)"))?;
+    Adaptive::new(t, DEFAULT_TILE)
+        .map(|a| a.noise_target)
+        .map_err(|e| e.to_string())
+}
+
+impl SettingsArgs {
+    /// The renderer's settings, with noise decisions (if any) for tiles of `tile` pixels.
+    pub fn to_settings(&self, tile: u32) -> RenderSettings {
+        RenderSettings {
+            seed: self.seed,
+            spp: self.spp,
+            batch: self.batch,
+            strategy: self.strategy.to_strategy(),
+            adaptive: self
+                .noise_target
+                .map(|noise_target| Adaptive { noise_target, tile }),
+            frame: self.frame,
+            ..RenderSettings::default()
+        }
+    }
+}
+
+/// `--strategy` values.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum StrategyArg {
+    /// Multiple importance sampling.
+    Mis,
+    /// BSDF sampling only.
+    Bsdf,
+    /// Light sampling only.
+    Nee,
+}
+
+impl StrategyArg {
+    fn to_strategy(self) -> Strategy {
+        match self {
+            StrategyArg::Mis => Strategy::Mis,
+            StrategyArg::Bsdf => Strategy::Bsdf,
+            StrategyArg::Nee => Strategy::Nee,
+        }
+    }
+}
+
+/// Fails early, before any rendering, if `out` cannot be written: its directory does not
+/// exist or is not writable, or `out` is a directory.
+pub fn check_output_dir(out: &std::path::Path) -> Result<()> {
+    let dir = out
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(std::path::Path::new("."));
+    if !dir.is_dir() {
+        bail!(
+            "{}: output directory {} does not exist",
+            out.display(),
+            dir.display()
+        );
+    }
+    if out.is_dir() {
+        bail!("{}: is a directory", out.display());
+    }
+    // The file is written as a new file in that directory, then renamed: try exactly that
+    // now rather than after a long render.
+    tempfile::Builder::new()
+        .prefix(".tessera-probe-")
+        .tempfile_in(dir)
+        .map(drop)
+        .with_context(|| format!("{}: cannot write in {}", out.display(), dir.display()))
+}
+
+/// Fails unless `out`'s name ends in `.ext` (any case): a file is read by its extension, and
+/// an EXR named `.png` (or a PNG named `.jpg`) is a file no program opens as what it says.
+pub fn check_extension(flag: &str, out: &std::path::Path, ext: &str) -> Result<()> {
+    let ok = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case(ext));
+    if !ok {
+        bail!(
+            "{flag} {}: the file is written as {}, so its name must end in .{ext}",
+            out.display(),
+            ext.to_uppercase()
+        );
+    }
+    Ok(())
+}

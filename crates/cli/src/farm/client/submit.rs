@@ -1,0 +1,274 @@
+//! `tessera submit`: a scene and its files to the coordinator, and with `--wait` the job
+//! followed to its EXR.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use tessera_proto::v1 as pb;
+use tessera_render::scene::assets::sha256_hex;
+use tessera_render::scene::{FrameRange, Limits, Scene, FIRST_FRAME};
+use tessera_render::DEFAULT_TILE;
+
+use super::{
+    check_frames_dir, connect, download, download_frames, follow, follow_to_end, rpc_error, Client,
+};
+use crate::args::{check_extension, check_output_dir, tile_range, SettingsArgs};
+use crate::farm::{runtime, CoordinatorUrl};
+
+/// Arguments of `tessera submit`.
+#[derive(Debug, clap::Args)]
+pub struct SubmitArgs {
+    /// Scene file (TOML, or JSON by its .json extension).
+    scene: PathBuf,
+    #[command(flatten)]
+    url: CoordinatorUrl,
+    #[command(flatten)]
+    settings: SettingsArgs,
+    /// Tile edge in pixels (default: the coordinator's).
+    #[arg(long, value_parser = tile_range())]
+    tile_size: Option<u32>,
+    /// Higher runs first.
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
+    priority: i32,
+    /// File name of the EXR in the coordinator's output directory (default: JOB.exr).
+    #[arg(long)]
+    name: Option<String>,
+    /// Add variance-of-the-mean channels to the EXR.
+    #[arg(long)]
+    variance: bool,
+    /// Add a per-pixel sample-count channel to the EXR.
+    #[arg(long)]
+    sample_count: bool,
+    /// Render frames FIRST-LAST or FIRST-LAST:STEP of the scene's `[animation]` as one job,
+    /// one EXR per frame (NAME.####.exr); the first frames finish first.
+    #[arg(long, value_name = "FIRST-LAST[:STEP]", conflicts_with = "frame")]
+    frames: Option<FrameRange>,
+    /// Follow the job with a progress bar, then fetch its EXR (a frame range's EXRs).
+    #[arg(long)]
+    wait: bool,
+    /// Where `--wait` saves the EXR (default: the job's output name, here); for `--frames`,
+    /// the directory the frames' EXRs go to.
+    #[arg(long, short)]
+    output: Option<PathBuf>,
+}
+
+/// The files the scene names (meshes, textures), as (name, SHA-256, path): found by loading
+/// the scene here, at the frame the job starts with. A scene that does not load here is
+/// refused here with the error `tessera render` prints (a mesh that is missing or truncated, a
+/// texture that is a directory: the cause, not "not among the files sent"). Only the limits a
+/// coordinator may raise (resolution, spp, sizes) are lifted for this check, so a scene within
+/// its coordinator's limits but above the defaults is still sent, for it to decide.
+fn scene_files(args: &SubmitArgs) -> Result<Vec<(String, String, PathBuf)>> {
+    let frame = args
+        .frames
+        .map_or(args.settings.frame.unwrap_or(FIRST_FRAME), |r| r.first);
+    let lifted = Limits {
+        max_resolution: u32::MAX,
+        max_pixels: u64::MAX,
+        max_bytes: usize::MAX,
+        max_spp: u32::MAX,
+        max_asset_bytes: u64::MAX,
+        ..Limits::default()
+    };
+    let scene = Scene::load_at(&args.scene, &lifted, frame)?;
+    let dir = args.scene.parent().unwrap_or(Path::new("")).to_path_buf();
+    Ok(scene
+        .files
+        .into_iter()
+        .map(|(name, hash)| {
+            let path = dir.join(&name);
+            (name, hash, path)
+        })
+        .collect())
+}
+
+/// Uploads one file unless the coordinator holds it already, resuming from the bytes it holds
+/// of an earlier, interrupted upload.
+async fn upload(client: &mut Client, url: &str, name: &str, hash: &str, path: &Path) -> Result<()> {
+    let status = client
+        .get_asset_status(pb::GetAssetStatusRequest {
+            sha256: hash.to_string(),
+        })
+        .await
+        .map_err(|e| rpc_error(url, "asset status refused", e))?
+        .into_inner();
+    if status.complete {
+        return Ok(());
+    }
+    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    if sha256_hex(&bytes) != hash {
+        bail!(
+            "{}: changed while it was being submitted; submit again",
+            path.display()
+        );
+    }
+    let total = bytes.len() as u64;
+    let from = usize::try_from(status.received)
+        .unwrap_or(usize::MAX)
+        .min(bytes.len());
+    if from > 0 {
+        errln!("{name}: resuming the upload at byte {from} of {total}");
+    }
+    // Chunks are cut as the stream is read, so a large file is in memory once, not twice.
+    const CHUNK: usize = 1 << 20;
+    let count = (bytes.len() - from).div_ceil(CHUNK).max(1);
+    let sha = hash.to_string();
+    let chunks = (0..count).map(move |i| {
+        let start = from + i * CHUNK;
+        let end = (start + CHUNK).min(bytes.len());
+        pb::AssetChunk {
+            sha256: sha.clone(),
+            offset: start as u64,
+            total_size: total,
+            data: bytes[start..end].to_vec(),
+        }
+    });
+    let done = client
+        .upload_asset(tokio_stream::iter(chunks))
+        .await
+        .map_err(|e| rpc_error(url, &format!("upload of {name} refused"), e))?
+        .into_inner();
+    if !done.complete {
+        bail!(
+            "upload of {name}: the coordinator holds {} of {total} bytes; submit again to resume",
+            done.received
+        );
+    }
+    errln!("{name}: uploaded ({total} bytes, sha256 {hash})");
+    Ok(())
+}
+
+/// Runs `tessera submit`.
+pub fn submit(args: SubmitArgs) -> Result<()> {
+    if let Some(o) = &args.output {
+        if !args.wait {
+            bail!("--output needs --wait (or use `tessera fetch JOB --output FILE` later)");
+        }
+        if args.frames.is_some() {
+            check_frames_dir(o)?;
+        } else {
+            check_extension("--output", o, "exr")?;
+            check_output_dir(o)?;
+        }
+    }
+    let text = std::fs::read_to_string(&args.scene)
+        .with_context(|| format!("{}: cannot read the scene", args.scene.display()))?;
+    let json = args
+        .scene
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+    let files = scene_files(&args)?;
+    let url = args.url.coordinator.clone();
+    runtime()?.block_on(async {
+        let mut client = connect(&args.url).await?;
+        let assets = files
+            .iter()
+            .map(|(name, hash, _)| pb::AssetRef {
+                name: name.clone(),
+                sha256: hash.clone(),
+            })
+            .collect();
+        let req = pb::SubmitJobRequest {
+            assets,
+            scene_text: text,
+            scene_format: if json {
+                pb::SceneFormat::Json
+            } else {
+                pb::SceneFormat::Toml
+            } as i32,
+            scene_name: args.scene.display().to_string(),
+            settings: Some(pb::RenderSettings::from(&args.settings.to_settings(args.tile_size.unwrap_or(DEFAULT_TILE)))),
+            tile_size: args.tile_size.unwrap_or(0),
+            output_name: args.name.clone().unwrap_or_default(),
+            priority: args.priority,
+            channels: Some(pb::OutputChannels {
+                variance: args.variance,
+                sample_count: args.sample_count,
+            }),
+            frames: args.frames.map(|r| pb::FrameRange {
+                first: r.first,
+                last: r.last,
+                step: r.step,
+            }),
+        };
+        // The coordinator deletes files no active job has used for a while; one it held when
+        // `upload` asked may be gone by the submission. Uploading again and resubmitting
+        // settles that (twice at most: a file deleted every time is a misconfigured farm).
+        let mut tries = 0;
+        let resp = loop {
+            for (name, hash, path) in &files {
+                upload(&mut client, &url, name, hash, path).await?;
+            }
+            match client.submit_job(req.clone()).await {
+                Err(e)
+                    if e.code() == tonic::Code::FailedPrecondition
+                        && e.message().starts_with("not uploaded")
+                        && tries < 2 =>
+                {
+                    tries += 1;
+                    errln!("the coordinator no longer holds a file ({}); uploading again", e.message());
+                }
+                r => break r.map_err(|e| rpc_error(&url, "submit refused", e))?.into_inner(),
+            }
+        };
+        if !args.wait {
+            outln!("{}", resp.job_id);
+            return Ok(());
+        }
+        errln!("{} submitted ({} units)", resp.job_id, resp.units);
+        // Ctrl-C stops the following, not the job: say so, with the id to pick it up again.
+        let job = resp.job_id.clone();
+        let follow_and_fetch = async move {
+            if args.frames.is_some() {
+                errln!("{} frames", resp.frames);
+                let s = follow_to_end(&mut client, &url, &resp.job_id).await?;
+                let dir = args.output.clone().unwrap_or_else(|| PathBuf::from("."));
+                return download_frames(&mut client, &url, &s, &dir).await;
+            }
+            let s = follow(&mut client, &url, &resp.job_id).await?;
+            let out = args
+                .output
+                .clone()
+                .unwrap_or_else(|| PathBuf::from(&s.output_name));
+            let bytes = download(&mut client, &url, &resp.job_id, None, &out).await?;
+            let secs = (s.finished_unix_ms - s.submitted_unix_ms) as f64 / 1000.0;
+            outln!(
+                "{} done: {}×{} at {} in {:.2} s, noise σ≈{:.4} ({:.2}% of mean) → {} ({bytes} bytes)",
+                s.job_id,
+                s.width,
+                s.height,
+                spp_said(&s),
+                secs,
+                s.noise_rms,
+                s.noise_relative * 100.0,
+                out.display()
+            );
+            Ok(())
+        };
+        tokio::select! {
+            r = follow_and_fetch => r,
+            _ = tokio::signal::ctrl_c() => bail!(
+                "interrupted: {job} goes on rendering on the farm; follow it with `tessera \
+                 status {job}`, fetch it with `tessera fetch {job} --wait`, or stop it with \
+                 `tessera cancel {job}`"
+            ),
+        }
+    })
+}
+
+/// The samples a finished job took, as `tessera render` says them: "N spp", or for an
+/// adaptive job the average per pixel with its target and cap.
+fn spp_said(s: &pb::JobStatus) -> String {
+    let settings = s.settings.unwrap_or_default();
+    if settings.noise_target > 0.0 {
+        let pixels = (f64::from(s.width) * f64::from(s.height)).max(1.0);
+        format!(
+            "{:.1} spp on average (noise target {}, cap {})",
+            s.samples_done as f64 / pixels,
+            settings.noise_target,
+            settings.spp
+        )
+    } else {
+        format!("{} spp", settings.spp)
+    }
+}

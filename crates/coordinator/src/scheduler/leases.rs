@@ -1,0 +1,174 @@
+//! Leases: a unit lent to a worker until a deadline that heartbeats renew. A lease that
+//! lapses, is handed back, or is taken from a quarantined worker puts its unit back at the
+//! front of its job's queue; a late result quoting it is still merged once if the unit is not
+//! done by then.
+//!
+//! Lease ids carry the boot's epoch, so a lease from before a restart is stale rather than
+//! confused with a new lease of the same number.
+
+use std::time::Instant;
+
+use tessera_proto::ids::{JobId, LeaseId};
+
+use super::pick::requeue;
+use super::Scheduler;
+use crate::error::Refusal;
+use crate::job::{Job, Unit};
+use crate::store::{JobPhase, Op};
+
+/// A lease: a unit lent to a worker until `deadline`.
+#[derive(Debug)]
+pub struct Lease {
+    /// Job id.
+    pub job: JobId,
+    /// The unit.
+    pub unit: Unit,
+    /// Worker id.
+    pub worker: u64,
+    /// When it was issued: a holder that keeps a unit far longer than a unit takes is slow
+    /// (or hoarding), and others may race it.
+    pub issued: Instant,
+    /// When it lapses unless renewed.
+    pub deadline: Instant,
+    /// False once lapsed or handed back: the unit is back in the queue, but a late result
+    /// quoting this lease is still merged (once) if the unit is not done by then.
+    pub active: bool,
+}
+
+impl Scheduler {
+    /// A lease's id as sent: this boot and its number.
+    pub fn lease_id(&self, n: u64) -> LeaseId {
+        LeaseId {
+            epoch: self.epoch,
+            n,
+        }
+    }
+
+    /// The number of a lease issued in this boot. One from before a restart is stale rather
+    /// than confused with a new lease of the same number.
+    pub fn lease_number(&self, id: LeaseId) -> Result<u64, Refusal> {
+        if id.epoch != self.epoch {
+            return Err(Refusal::Precondition(format!(
+                "lease {id} is from before the coordinator restarted; drop it"
+            )));
+        }
+        Ok(id.n)
+    }
+
+    /// The number of lease `id` if it was issued in this boot to worker `w`.
+    pub(super) fn held_by(&self, w: u64, id: LeaseId) -> Option<u64> {
+        let n = self.lease_number(id).ok()?;
+        self.leases
+            .get(&n)
+            .is_some_and(|l| l.worker == w)
+            .then_some(n)
+    }
+
+    /// Lapses overdue leases, putting their units back at the front of their job's queue.
+    /// Returns whether any unit became available.
+    pub fn expire(&mut self, now: Instant) -> bool {
+        let mut any = false;
+        for lease in self.leases.values_mut() {
+            if lease.active && lease.deadline <= now {
+                any |= requeue(&mut self.jobs, lease);
+            }
+        }
+        self.referee_stale_holds(now);
+        any
+    }
+
+    /// Renews worker `w`'s leases; returns those it should drop.
+    pub fn heartbeat(&mut self, w: u64, ids: &[LeaseId], now: Instant) -> Vec<LeaseId> {
+        let deadline = now + self.policy.lease_time;
+        let mut revoked = Vec::new();
+        for &id in ids {
+            let lease = self.held_by(w, id).and_then(|n| self.leases.get_mut(&n));
+            let keep = lease.is_some_and(|l| {
+                let live = self
+                    .jobs
+                    .get(&l.job)
+                    .is_some_and(|j| j.is_live() && !j.is_done(l.unit));
+                if live && l.active {
+                    l.deadline = deadline;
+                }
+                live
+            });
+            if !keep {
+                revoked.push(id);
+            }
+        }
+        revoked
+    }
+
+    /// Hands leases back: their units go to the front of the queue.
+    pub fn release(&mut self, w: u64, ids: &[LeaseId]) -> u32 {
+        let mut released = 0;
+        for &id in ids {
+            let lease = self.held_by(w, id).and_then(|n| self.leases.get_mut(&n));
+            if let Some(lease) = lease.filter(|l| l.active) {
+                released += u32::from(requeue(&mut self.jobs, lease));
+            }
+        }
+        released
+    }
+
+    /// Fails the jobs of the leases that worker `w` says it can never render, with its
+    /// reason; returns the store changes. Handing such a unit out again would only send it
+    /// back and forth (with its scene) for ever.
+    pub fn cannot_render(&mut self, w: u64, ids: &[LeaseId], reason: &str, now_ms: i64) -> Vec<Op> {
+        let who = format!(
+            "worker {} ({})",
+            self.worker_id(w),
+            self.workers
+                .get(&w)
+                .map(|x| x.name.escape_debug().to_string())
+                .unwrap_or_default()
+        );
+        let reason: String = reason.chars().take(500).collect();
+        let mut ops = Vec::new();
+        for &id in ids {
+            let lease = self.held_by(w, id).and_then(|n| self.leases.get(&n));
+            let Some((job, unit)) = lease.filter(|l| l.active).map(|l| (l.job, l.unit)) else {
+                continue;
+            };
+            if !self.jobs.get(&job).is_some_and(|j| j.is_live()) {
+                continue;
+            }
+            let why = format!(
+                "{who} cannot render tile {} batch {}: {reason}",
+                unit.tile, unit.batch
+            );
+            tracing::warn!("{job}: {why}");
+            ops.extend(self.end_job(job, JobPhase::Failed, why, now_ms));
+        }
+        ops
+    }
+
+    /// Takes back worker `w`'s live leases: their units go to the front of their queues.
+    pub(super) fn take_leases(&mut self, w: u64) {
+        for lease in self.leases.values_mut() {
+            if lease.worker == w && lease.active {
+                requeue(&mut self.jobs, lease);
+            }
+        }
+    }
+
+    /// Leases held now by worker `w`.
+    pub fn leases_of(&self, w: u64) -> usize {
+        self.leases
+            .values()
+            .filter(|l| l.worker == w && l.active)
+            .count()
+    }
+
+    /// Live leases of a job's units.
+    pub fn units_leased(&self, job: &Job) -> u64 {
+        job.issued
+            .values()
+            .filter(|ids| {
+                ids.iter()
+                    .any(|l| self.leases.get(l).is_some_and(|x| x.active))
+            })
+            .count() as u64
+    }
+}

@@ -1,0 +1,420 @@
+//! Who gets which unit, and what becomes of each result: the scheduling state of every job
+//! and worker of this boot. Every method is synchronous and short; the caller holds one mutex
+//! around [`Scheduler`] and turns the returned [`Op`]s into a durable commit before replying.
+//!
+//! By concept:
+//! - [`pick`]: the next unit for a worker, speculation past slow holders, requeueing.
+//! - [`leases`]: leases, their deadlines, heartbeats and hand-backs.
+//! - [`workers`]: registration, credentials, hosts and quarantine.
+//! - [`audit`]: units rendered twice, the referee, and convictions.
+//! - [`admit`]: admission of new jobs and restore at start-up.
+//! - [`view`]: the read model the API and the dashboard both answer from.
+//!
+//! This file keeps what ties them together: the state, the merge of a result
+//! ([`Scheduler::submit`]) and the end of a job ([`Scheduler::end_job`]). The state's fields
+//! are private: callers use verbs and read methods, so an invariant (a lease's unit is in its
+//! job's `issued`, a counter moves with what it counts) is kept in this module alone.
+//!
+//! Ids arrive typed ([`tessera_proto::ids`]): the handlers parse the wire's strings, and the
+//! scheduler only checks that an id is one it issued, in this boot, to this caller.
+
+mod admit;
+mod audit;
+mod leases;
+mod pick;
+mod view;
+mod workers;
+
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::time::{Duration, Instant};
+
+use tessera_proto::ids::{JobId, LeaseId};
+use tessera_render::TileSums;
+
+use crate::error::Refusal;
+use crate::job::{Job, Source, Unit};
+use crate::metrics::Counters;
+use crate::store::{JobPhase, Op};
+use audit::audit_excludes;
+
+pub use admit::{Admission, AdmissionLimits, Asked, Checked};
+pub use leases::Lease;
+pub use view::{JobView, WorkerView};
+pub use workers::Worker;
+
+/// What happened to a result.
+#[derive(Debug)]
+pub enum Merged {
+    /// Merged; commit these ops, then reply. `finished` if it was the job's last unit.
+    New {
+        /// Store changes.
+        ops: Vec<Op>,
+        /// The job is complete.
+        finished: bool,
+    },
+    /// Already merged.
+    Duplicate,
+    /// Job ended.
+    Discarded,
+    /// Accepted and held for an audit: another worker renders the unit too, and it is merged
+    /// once two copies agree. Held results live in memory only (a restart renders the unit
+    /// again), so there is nothing to commit; the worker is told it was merged, so that it
+    /// cannot tell an audited unit from another.
+    Held,
+}
+
+/// A unit handed to a worker.
+#[derive(Debug)]
+pub struct Granted {
+    /// The lease.
+    pub lease: LeaseId,
+    /// The job.
+    pub job: JobId,
+    /// The unit.
+    pub unit: Unit,
+}
+
+/// How the scheduler treats workers and audits: fixed when the coordinator starts, from
+/// `tessera coordinator`'s flags.
+#[derive(Clone, Copy, Debug)]
+pub struct Policy {
+    /// How long a lease lasts.
+    pub lease_time: Duration,
+    /// Invalid results after which a worker is quarantined.
+    pub quarantine_after: u64,
+    /// Most leases one registration may hold at once.
+    pub max_leases_per_worker: usize,
+    /// Most live registrations from one host (the address a worker registered from).
+    pub max_workers_per_host: usize,
+    /// Fraction of the units of audited jobs rendered a second time by another worker; jobs
+    /// admitted while it is above 0 are audited ([`crate::store::JobRecord::audited`]).
+    pub audit: f64,
+}
+
+impl Policy {
+    /// Leases of `lease_time`, and the coordinator's defaults for the rest (no audits).
+    pub fn new(lease_time: Duration) -> Self {
+        Self {
+            lease_time,
+            quarantine_after: 5,
+            max_leases_per_worker: 8,
+            max_workers_per_host: 256,
+            audit: 0.0,
+        }
+    }
+}
+
+/// All scheduling state.
+#[derive(Debug)]
+pub struct Scheduler {
+    /// Boot counter: part of every lease and worker id.
+    epoch: u64,
+    /// Fixed bounds and rates.
+    policy: Policy,
+    /// Jobs by id.
+    jobs: BTreeMap<JobId, Job>,
+    /// Frame-range jobs: each range's id and its frames' jobs, in frame order. A range has no
+    /// job of its own; its state is its frames'.
+    ranges: BTreeMap<JobId, Vec<JobId>>,
+    /// Next job id.
+    next_job: u64,
+    /// Leases by number.
+    leases: HashMap<u64, Lease>,
+    /// Next lease number.
+    next_lease: u64,
+    /// Workers by number.
+    workers: BTreeMap<u64, Worker>,
+    /// Next worker number.
+    next_worker: u64,
+    /// State of the generator that picks audited units. Workers cannot see it, so a worker
+    /// cannot tell which of its units will be checked.
+    audit_rng: u64,
+    /// Serial of the last merge into an audited job ([`Source`]); starts at `epoch << 40` so
+    /// that serials are not reused across boots.
+    serial: u64,
+    /// Convictions in this boot.
+    convictions: u64,
+    /// Audited units for the coordinator to render itself ([`Scheduler::take_referee_work`]):
+    /// their copies disagree, or no worker on another host took the second copy in time.
+    referee_wanted: BTreeSet<(JobId, Unit)>,
+    /// What happened to units and results since this boot, for metrics.
+    counters: Counters,
+}
+
+impl Scheduler {
+    /// Empty state for boot `epoch`.
+    pub fn new(epoch: u64, policy: Policy) -> Self {
+        Self {
+            epoch,
+            policy,
+            jobs: BTreeMap::new(),
+            ranges: BTreeMap::new(),
+            next_job: 1,
+            leases: HashMap::new(),
+            next_lease: 1,
+            workers: BTreeMap::new(),
+            next_worker: 1,
+            audit_rng: epoch.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1,
+            serial: epoch << 40,
+            convictions: 0,
+            referee_wanted: BTreeSet::new(),
+            counters: Counters::default(),
+        }
+    }
+
+    /// Seeds the generator that draws audited units; the service seeds it from the operating
+    /// system, so that no worker can predict the draws.
+    pub fn seed_audits(&mut self, seed: u64) {
+        self.audit_rng = seed | 1;
+    }
+
+    /// The boot counter.
+    pub fn epoch(&self) -> u64 {
+        self.epoch
+    }
+
+    /// The bounds and rates it schedules by.
+    pub fn policy(&self) -> &Policy {
+        &self.policy
+    }
+
+    /// The bounds and rates, to change (tests, and the fuzz targets' scenarios).
+    pub fn policy_mut(&mut self) -> &mut Policy {
+        &mut self.policy
+    }
+
+    /// Job `id` (one frame of a range, or a one-frame job).
+    pub fn job(&self, id: JobId) -> Option<&Job> {
+        self.jobs.get(&id)
+    }
+
+    /// Whether `id` is a frame-range job's (whose frames are jobs of their own).
+    pub fn is_range(&self, id: JobId) -> bool {
+        self.ranges.contains_key(&id)
+    }
+
+    /// Every job, by id.
+    pub fn jobs(&self) -> impl Iterator<Item = &Job> {
+        self.jobs.values()
+    }
+
+    /// Adds a job as it stands, under its own id. Admission ([`Scheduler::admit`]) is how a
+    /// submitted job gets here; this is for jobs made elsewhere (tests, the fuzz targets).
+    pub fn insert_job(&mut self, job: Job) {
+        let id = job.id();
+        self.next_job = self.next_job.max(id.0 + 1);
+        self.jobs.insert(id, job);
+    }
+
+    /// Worker number `n`.
+    pub fn worker(&self, n: u64) -> Option<&Worker> {
+        self.workers.get(&n)
+    }
+
+    /// Every worker registered in this boot, by number.
+    pub fn workers(&self) -> impl Iterator<Item = (u64, &Worker)> {
+        self.workers.iter().map(|(&n, w)| (n, w))
+    }
+
+    /// Leases live now.
+    pub fn leases_live(&self) -> u64 {
+        self.leases.values().filter(|l| l.active).count() as u64
+    }
+
+    /// What happened to units and results since this boot.
+    pub fn counters(&self) -> Counters {
+        self.counters
+    }
+
+    /// Merges a result from worker `w`; in an audited job, it may instead be held for its
+    /// audit (convictions happen in [`Scheduler::referee`]).
+    pub fn submit(
+        &mut self,
+        w: u64,
+        lease: LeaseId,
+        job_id: JobId,
+        unit: Unit,
+        sums: TileSums,
+        now: Instant,
+    ) -> Result<Merged, Refusal> {
+        let samples = sums.rect.area() as u64 * sums.samples.len() as u64;
+        let outcome = self.take_result(w, lease, job_id, unit, sums, now);
+        let c = &mut self.counters;
+        match &outcome {
+            Ok(Merged::New { .. }) => {
+                c.units_merged += 1;
+                c.samples_merged += samples;
+            }
+            Ok(Merged::Duplicate) => c.units_duplicate += 1,
+            Ok(Merged::Discarded) => c.units_discarded += 1,
+            Ok(Merged::Held) => c.units_held += 1,
+            Err(_) => c.results_refused += 1,
+        }
+        outcome
+    }
+
+    /// A result refused before it reached the scheduler (it did not decode): counted against
+    /// worker `w` like an invalid one.
+    pub fn refuse_result(&mut self, w: u64) {
+        self.count_bad_result(w);
+        self.counters.results_refused += 1;
+    }
+
+    /// [`Scheduler::submit`] without the counting.
+    fn take_result(
+        &mut self,
+        w: u64,
+        lease: LeaseId,
+        job_id: JobId,
+        unit: Unit,
+        sums: TileSums,
+        now: Instant,
+    ) -> Result<Merged, Refusal> {
+        // The handlers refuse a quarantined worker's calls already (`touch_worker`); refused here
+        // too, so that no path merges a result from a worker an audit convicted after its results
+        // were taken back.
+        if let Some(r) = self
+            .workers
+            .get(&w)
+            .and_then(|x| x.refusal(self.worker_id(w)))
+        {
+            return Err(r);
+        }
+        let lease_n = self.lease_number(lease);
+        let Some(job) = self.jobs.get_mut(&job_id) else {
+            return Err(Refusal::NotFound(format!("unknown job {job_id}")));
+        };
+        if !job.is_live() {
+            return Ok(Merged::Discarded);
+        }
+        if unit.tile as usize >= job.tiles.len() || unit.batch >= job.n_batches {
+            return Err(Refusal::Invalid(format!(
+                "{job_id} has no tile {} batch {} ({} tiles × {} batches)",
+                unit.tile,
+                unit.batch,
+                job.tiles.len(),
+                job.n_batches
+            )));
+        }
+        if job.is_done(unit) {
+            return Ok(Merged::Duplicate);
+        }
+        // A copy from a worker (or host) whose copy is held already must not count as a second
+        // one: a liar would settle its own lie.
+        let host = self.workers.get(&w).map_or("", |x| x.host.as_str());
+        if audit_excludes(job, unit, w, host) {
+            return Ok(Merged::Duplicate);
+        }
+        let lease_n = lease_n?;
+        match self.leases.get(&lease_n) {
+            Some(l) if l.job == job_id && l.unit == unit && l.worker == w => {}
+            _ => {
+                return Err(Refusal::Precondition(format!(
+                    "lease {lease} was not issued to this worker for {job_id} tile {} batch {}",
+                    unit.tile, unit.batch
+                )))
+            }
+        }
+        if let Err(e) = job.check_result(unit, &sums) {
+            self.count_bad_result(w);
+            return Err(Refusal::Invalid(format!(
+                "{job_id} tile {} batch {}: {e}",
+                unit.tile, unit.batch
+            )));
+        }
+        let samples = sums.rect.area() as u64 * sums.samples.len() as u64;
+        for l in job.issued.remove(&unit).unwrap_or_default() {
+            self.leases.remove(&l);
+        }
+        let (sums, from, mut ops) = if job.rec.audited {
+            match self.audit_step(w, job_id, unit, sums, now) {
+                Some(settled) => settled,
+                None => return Ok(Merged::Held),
+            }
+        } else {
+            (sums, w, Vec::new())
+        };
+        let Some(job) = self.jobs.get_mut(&job_id) else {
+            return Ok(Merged::Discarded);
+        };
+        self.serial += 1;
+        let source = Source {
+            worker: from,
+            serial: self.serial,
+        };
+        let (merge_ops, finished) = job.merge(unit, sums, source, now)?;
+        ops.extend(merge_ops);
+        if let Some(worker) = self.workers.get_mut(&w) {
+            worker.units_done += 1;
+            worker.samples_done += samples;
+            worker.rate.record(now, worker.samples_done);
+            if job.rec.audited {
+                worker.jobs.insert(job_id);
+            }
+        }
+        Ok(Merged::New { ops, finished })
+    }
+
+    /// Cancels job `id`, or every frame of a frame-range job that is still going. Returns the
+    /// store changes, or `None` if nothing was left to cancel (the job had ended already).
+    pub fn cancel(&mut self, id: JobId, now_ms: i64) -> Option<Vec<Op>> {
+        let live: Vec<JobId> = self
+            .members(id)
+            .into_iter()
+            .filter(|m| {
+                self.jobs
+                    .get(m)
+                    .is_some_and(|j| j.rec.phase == JobPhase::Active && !j.finishing)
+            })
+            .collect();
+        if live.is_empty() {
+            return None;
+        }
+        Some(
+            live.into_iter()
+                .flat_map(|m| self.end_job(m, JobPhase::Cancelled, String::new(), now_ms))
+                .collect(),
+        )
+    }
+
+    /// Records that job `id`'s EXR is written, with the noise of the finished image, and ends
+    /// it as done; returns the store changes.
+    pub fn written(&mut self, id: JobId, noise: (f64, f64), now_ms: i64) -> Vec<Op> {
+        if let Some(job) = self.jobs.get_mut(&id) {
+            job.image_noise = Some(noise);
+        }
+        self.end_job(id, JobPhase::Done, String::new(), now_ms)
+    }
+
+    /// Ends a job (done, cancelled or failed): frees its units, leases and sums.
+    pub fn end_job(&mut self, id: JobId, phase: JobPhase, error: String, now_ms: i64) -> Vec<Op> {
+        let Some(job) = self.jobs.get_mut(&id) else {
+            return Vec::new();
+        };
+        if phase == JobPhase::Done {
+            job.rec.final_noise = job.image_noise.unwrap_or_else(|| job.noise());
+            job.rec.final_counts = (job.units_done, job.samples_done);
+            job.final_tile_noise =
+                (job.tiles.len() <= crate::job::MAX_KEPT_TILE_NOISE).then(|| job.tile_noise());
+        }
+        job.rec.phase = phase;
+        job.rec.error = error;
+        job.rec.finished_ms = now_ms;
+        for l in job.clear() {
+            self.leases.remove(&l);
+        }
+        // A dispute over a unit of a job that has ended will never be settled: its suspects
+        // are cleared of it rather than kept from work for good.
+        for w in self.workers.values_mut() {
+            w.disputes.retain(|(j, _)| *j != id);
+        }
+        let mut ops = vec![Op::PutJob(job.rec.clone()), Op::DropSums(id.0)];
+        // A scene is kept while a live job needs it; without this every distinct scene ever
+        // submitted (cancelled ones too) would stay in the store for good.
+        let hash = job.rec.scene_hash.clone();
+        if !self.scene_is_live(&hash) {
+            ops.push(Op::DropScene(hash));
+        }
+        ops
+    }
+}

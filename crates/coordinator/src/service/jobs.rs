@@ -1,0 +1,352 @@
+//! `tessera.v1.Jobs`: what clients call (submit, status, watch, cancel, lists, fetch, and the
+//! scene files' uploads).
+
+use std::collections::BTreeMap;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use tessera_proto::convert::settings_from_wire;
+use tessera_proto::v1 as pb;
+use tessera_proto::v1::jobs_server::Jobs;
+use tessera_render::scene::{Format, Scene, FIRST_FRAME};
+use tokio::sync::mpsc;
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::{Request, Response, Status};
+use tracing::info;
+
+use super::{asset_status, internal, job_id, Service, Stream_};
+use crate::assets::{check_hash, JobAssets};
+use crate::error::truncate;
+use crate::names::OutputNames;
+use crate::scheduler::{Admission, AdmissionLimits, Asked, Checked};
+use crate::shared::{durable, now_ms};
+use crate::store::StoredScene;
+
+#[tonic::async_trait]
+impl Jobs for Service {
+    async fn submit_job(
+        &self,
+        request: Request<pb::SubmitJobRequest>,
+    ) -> Result<Response<pb::SubmitJobResponse>, Status> {
+        let req = request.into_inner();
+        let config = &self.shared.config;
+        let limits = config.limits.clone();
+        let settings = settings_from_wire(req.settings.as_ref())
+            .map_err(|e| Status::invalid_argument(e.to_string()))?;
+        let Checked {
+            settings,
+            tile_size,
+            frames,
+            output_name,
+        } = Admission::check(
+            Asked {
+                settings,
+                tile_size: req.tile_size,
+                frames: req.frames.map(|r| (r.first, r.last, r.step)),
+                output_name: Some(req.output_name).filter(|n| !n.is_empty()),
+            },
+            limits.max_spp,
+            config.default_tile_size,
+        )?;
+        let json = req.scene_format == pb::SceneFormat::Json as i32;
+        let name = if req.scene_name.is_empty() {
+            "scene".to_string()
+        } else {
+            truncate(&req.scene_name)
+        };
+        // Parsing builds the BVH: keep it off the async threads, and few at a time.
+        let _permit = self
+            .parses
+            .clone()
+            .acquire_owned()
+            .await
+            .map_err(|_| Status::unavailable("the coordinator is shutting down"))?;
+        let text = req.scene_text;
+        let names = asset_names(&req.assets, limits.max_assets)?;
+        // Until the job is durable (and its scene names its files), they are not collected.
+        let _assets_held = self.shared.asset_gate.read().await;
+        let missing: Vec<String> = names
+            .iter()
+            .filter(|(_, hash)| !self.shared.assets.status(hash).is_ok_and(|h| h.complete))
+            .map(|(name, hash)| format!("`{}` (sha256 {hash})", truncate(name)))
+            .collect();
+        if !missing.is_empty() {
+            return Err(Status::failed_precondition(format!(
+                "not uploaded: {} (tessera submit uploads a scene's files)",
+                missing.join(", ")
+            )));
+        }
+        // A range's scene is checked at its first frame; a frame that cannot be built fails
+        // alone, when a worker says so.
+        let frame = frames.map_or(settings.frame.unwrap_or(FIRST_FRAME), |r| r.first);
+        let gauge = self.parsing.clone();
+        let assets = self.shared.assets.clone();
+        let (scene, text, name) = tokio::task::spawn_blocking(move || {
+            let now = gauge.0.fetch_add(1, Ordering::SeqCst) + 1;
+            gauge.1.fetch_max(now, Ordering::SeqCst);
+            let format = if json { Format::Json } else { Format::Toml };
+            let files = JobAssets {
+                store: &assets,
+                names,
+            };
+            let r = Scene::from_str_with(&text, format, &name, &limits, frame, &files);
+            gauge.0.fetch_sub(1, Ordering::SeqCst);
+            (r, text, name)
+        })
+        .await
+        .map_err(|e| Status::internal(e.to_string()))?;
+        let scene = scene.map_err(|e| Status::invalid_argument(e.to_string()))?;
+        let admission = Admission {
+            scene_hash: scene.hash.clone(),
+            scene: StoredScene {
+                text,
+                json,
+                name,
+                assets: scene.files.clone(),
+            },
+            width: scene.width,
+            height: scene.height,
+            settings: settings.clone(),
+            tile_size,
+            output_name,
+            priority: req.priority,
+            variance: req.channels.as_ref().is_some_and(|c| c.variance),
+            sample_count: req.channels.as_ref().is_some_and(|c| c.sample_count),
+            frames,
+        };
+        let bounds = AdmissionLimits {
+            max_active_jobs: config.max_active_jobs,
+            max_units_per_job: config.max_units_per_job,
+            max_frames_per_job: config.max_frames_per_job,
+        };
+        let out_dir = config.output_dir();
+        let (id, units, rx) = {
+            let mut core = self.shared.scheduler();
+            let (id, ops) = core.admit(admission, bounds, &OutputNames::new(&out_dir), now_ms())?;
+            let units = core
+                .members(id)
+                .into_iter()
+                .filter_map(|m| core.job(m))
+                .map(|j| j.units_total())
+                .sum::<u64>();
+            (id, units, self.shared.queue_write(ops))
+        };
+        durable(rx).await.map_err(internal)?;
+        let n_frames = frames.map_or(1, |r| r.len()) as u32;
+        info!(
+            "{id} submitted: {}×{} at {} spp, {n_frames} frame(s), {units} units",
+            scene.width, scene.height, settings.spp
+        );
+        self.shared.bump_work();
+        self.shared.bump_changed();
+        Ok(Response::new(pb::SubmitJobResponse {
+            job_id: id.to_string(),
+            scene_hash: scene.hash,
+            units,
+            frames: n_frames,
+        }))
+    }
+
+    async fn get_job(
+        &self,
+        request: Request<pb::GetJobRequest>,
+    ) -> Result<Response<pb::JobStatus>, Status> {
+        let id = job_id(&request.into_inner().job_id)?;
+        Ok(Response::new(pb::JobStatus::from(&self.job_view(id)?)))
+    }
+
+    type WatchJobStream = Stream_<pb::JobStatus>;
+
+    async fn watch_job(
+        &self,
+        request: Request<pb::WatchJobRequest>,
+    ) -> Result<Response<Self::WatchJobStream>, Status> {
+        let req = request.into_inner();
+        let id = job_id(&req.job_id)?;
+        let interval = Duration::from_millis(match req.interval_ms {
+            0 => 1000,
+            ms => ms.clamp(50, 60_000) as u64,
+        });
+        let first = self.job_view(id)?;
+        let (tx, rx) = mpsc::channel(4);
+        let shared = Arc::downgrade(&self.shared);
+        let mut changed = self.shared.changed.subscribe();
+        tokio::spawn(async move {
+            let mut msg = first;
+            loop {
+                let last = msg.state.is_final();
+                if tx.send(Ok(pb::JobStatus::from(&msg))).await.is_err() || last {
+                    return;
+                }
+                // Wake on a change, but no more often than every tenth of the interval.
+                let _ = tokio::time::timeout(interval, changed.changed()).await;
+                tokio::time::sleep(interval / 10).await;
+                let Some(shared) = shared.upgrade() else {
+                    return;
+                };
+                let Some(v) = shared.scheduler().job_view(id, Instant::now()) else {
+                    return;
+                };
+                msg = v;
+            }
+        });
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+
+    async fn cancel_job(
+        &self,
+        request: Request<pb::CancelJobRequest>,
+    ) -> Result<Response<pb::CancelJobResponse>, Status> {
+        let id = job_id(&request.into_inner().job_id)?;
+        let rx = {
+            let mut core = self.shared.scheduler();
+            // A frame-range job is cancelled as a whole: every frame still active.
+            let Some(ops) = core.cancel(id, now_ms()) else {
+                let v = core
+                    .job_view(id, Instant::now())
+                    .ok_or_else(|| Status::not_found(format!("unknown job {id}")))?;
+                return Ok(Response::new(pb::CancelJobResponse {
+                    state: pb::JobState::from(v.state) as i32,
+                }));
+            };
+            self.shared.queue_write(ops)
+        };
+        durable(rx).await.map_err(internal)?;
+        info!("{id} cancelled");
+        self.shared.bump_changed();
+        Ok(Response::new(pb::CancelJobResponse {
+            state: pb::JobState::Cancelled as i32,
+        }))
+    }
+
+    async fn list_jobs(
+        &self,
+        _request: Request<pb::ListJobsRequest>,
+    ) -> Result<Response<pb::ListJobsResponse>, Status> {
+        let jobs = self
+            .shared
+            .scheduler()
+            .job_views(Instant::now())
+            .iter()
+            .map(pb::JobStatus::from)
+            .collect();
+        Ok(Response::new(pb::ListJobsResponse { jobs }))
+    }
+
+    async fn list_workers(
+        &self,
+        _request: Request<pb::ListWorkersRequest>,
+    ) -> Result<Response<pb::ListWorkersResponse>, Status> {
+        let workers = self
+            .shared
+            .scheduler()
+            .worker_views(Instant::now())
+            .iter()
+            .map(pb::WorkerInfo::from)
+            .collect();
+        Ok(Response::new(pb::ListWorkersResponse { workers }))
+    }
+
+    type FetchResultStream = Stream_<pb::ResultChunk>;
+
+    async fn fetch_result(
+        &self,
+        request: Request<pb::FetchResultRequest>,
+    ) -> Result<Response<Self::FetchResultStream>, Status> {
+        let req = request.into_inner();
+        let id = job_id(&req.job_id)?;
+        let (name, data) = self.read_output(id, req.frame).await?;
+        let total = data.len() as u64;
+        let chunks: Vec<Result<pb::ResultChunk, Status>> = data
+            .chunks(1 << 20)
+            .map(|c| {
+                Ok(pb::ResultChunk {
+                    data: c.to_vec(),
+                    total_bytes: total,
+                    output_name: name.clone(),
+                })
+            })
+            .collect();
+        Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))
+    }
+
+    async fn upload_asset(
+        &self,
+        request: Request<tonic::Streaming<pb::AssetChunk>>,
+    ) -> Result<Response<pb::AssetStatus>, Status> {
+        let mut stream = request.into_inner();
+        let mut hash: Option<String> = None;
+        let mut held = None;
+        while let Some(chunk) = stream.message().await? {
+            match &hash {
+                Some(h) if *h != chunk.sha256 => {
+                    return Err(Status::invalid_argument(format!(
+                        "one upload stream carries one file: {h}, then {}",
+                        truncate(&chunk.sha256)
+                    )))
+                }
+                Some(_) => {}
+                None => hash = Some(chunk.sha256.clone()),
+            }
+            let assets = self.shared.assets.clone();
+            let h = tokio::task::spawn_blocking(move || {
+                assets.append(&chunk.sha256, chunk.offset, chunk.total_size, &chunk.data)
+            })
+            .await
+            .map_err(|e| Status::internal(e.to_string()))?
+            .map_err(asset_status)?;
+            held = Some(h);
+            if h.complete {
+                break;
+            }
+        }
+        let held = held.ok_or_else(|| Status::invalid_argument("an upload with no chunks"))?;
+        Ok(Response::new(pb::AssetStatus {
+            received: held.received,
+            complete: held.complete,
+        }))
+    }
+
+    async fn get_asset_status(
+        &self,
+        request: Request<pb::GetAssetStatusRequest>,
+    ) -> Result<Response<pb::AssetStatus>, Status> {
+        let held = self
+            .shared
+            .assets
+            .status(&request.into_inner().sha256)
+            .map_err(asset_status)?;
+        Ok(Response::new(pb::AssetStatus {
+            received: held.received,
+            complete: held.complete,
+        }))
+    }
+}
+
+/// A job's files as name → hash: each hash well formed, each name once, at most `max`.
+fn asset_names(refs: &[pb::AssetRef], max: usize) -> Result<BTreeMap<String, String>, Status> {
+    if refs.len() > max {
+        return Err(Status::resource_exhausted(format!(
+            "the job lists {} files; at most {max}",
+            refs.len()
+        )));
+    }
+    let mut names = BTreeMap::new();
+    for r in refs {
+        check_hash(&r.sha256).map_err(asset_status)?;
+        if r.name.is_empty() || r.name.len() > 4096 {
+            return Err(Status::invalid_argument(format!(
+                "a file name of {} bytes; 1 to 4096",
+                r.name.len()
+            )));
+        }
+        if names.insert(r.name.clone(), r.sha256.clone()).is_some() {
+            return Err(Status::invalid_argument(format!(
+                "the job lists `{}` twice",
+                truncate(&r.name)
+            )));
+        }
+    }
+    Ok(names)
+}

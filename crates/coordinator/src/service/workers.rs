@@ -1,0 +1,326 @@
+//! `tessera.v1.Workers`: what workers call (register, lease, heartbeat, results, hand-backs,
+//! and the scenes and files they render from).
+
+use std::time::{Duration, Instant};
+
+use tessera_proto::ids::LeaseId;
+use tessera_proto::v1 as pb;
+use tessera_proto::v1::workers_server::Workers;
+use tessera_render::IMAGE_REVISION;
+use tokio::sync::mpsc;
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::{Request, Response, Status};
+use tracing::{info, warn};
+
+use super::{
+    asset_status, credential, decode_result, internal, job_id, lease_ids, Service, Stream_,
+};
+use crate::assets::CHUNK_BYTES;
+use crate::error::truncate;
+use crate::job::Unit;
+use crate::output::finish_job;
+use crate::scheduler::Merged;
+use crate::shared::{durable, now_ms};
+
+/// 128 bits from the operating system's random source, as hex: a worker's secret.
+fn new_secret() -> Result<String, Status> {
+    let mut b = [0u8; 16];
+    getrandom::getrandom(&mut b)
+        .map_err(|e| Status::internal(format!("no random source for a worker secret: {e}")))?;
+    Ok(b.iter().map(|x| format!("{x:02x}")).collect())
+}
+
+#[tonic::async_trait]
+impl Workers for Service {
+    async fn register(
+        &self,
+        request: Request<pb::RegisterRequest>,
+    ) -> Result<Response<pb::RegisterResponse>, Status> {
+        let host = request
+            .remote_addr()
+            .map(|a| a.ip().to_string())
+            .unwrap_or_default();
+        let req = request.into_inner();
+        if req.image_revision != IMAGE_REVISION {
+            return Err(Status::failed_precondition(format!(
+                "worker {:?} (tessera {}) renders image revision {}, this coordinator revision \
+                 {IMAGE_REVISION}: different revisions return different bits for the same \
+                 sample, so every worker of a farm must run the coordinator's revision",
+                truncate(&req.name),
+                truncate(&req.version),
+                req.image_revision
+            )));
+        }
+        let lease = self.shared.config.lease_timeout;
+        let secret = new_secret()?;
+        let mut core = self.shared.scheduler();
+        core.host_may_register(&host, Instant::now())?;
+        let n = core.register(
+            truncate(&req.name),
+            req.cores,
+            truncate(&req.version),
+            secret,
+            Instant::now(),
+        );
+        core.set_host(n, host);
+        let credential = core
+            .worker_credential(n)
+            .ok_or_else(|| Status::internal("a registered worker vanished"))?;
+        info!(
+            "worker {} ({}, {} cores) registered",
+            credential.id,
+            truncate(&req.name).escape_debug(),
+            req.cores
+        );
+        Ok(Response::new(pb::RegisterResponse {
+            worker_id: credential.to_string(),
+            lease_ms: lease.as_millis() as u32,
+            heartbeat_ms: (lease / 4).as_millis().max(1) as u32,
+        }))
+    }
+
+    async fn lease(
+        &self,
+        request: Request<pb::LeaseRequest>,
+    ) -> Result<Response<pb::LeaseResponse>, Status> {
+        let req = request.into_inner();
+        let cred = credential(&req.worker_id)?;
+        let max = req.max_units.clamp(1, 64) as usize;
+        let deadline = Instant::now() + Duration::from_millis(req.wait_ms.min(30_000) as u64);
+        let mut work = self.shared.work.subscribe();
+        loop {
+            work.borrow_and_update();
+            let units = {
+                let mut core = self.shared.scheduler();
+                let now = Instant::now();
+                let w = core.touch_worker(&cred, now)?;
+                let granted = core.lease(w, max, now);
+                let lease_ms = core.policy().lease_time.as_millis() as u32;
+                granted
+                    .into_iter()
+                    .filter_map(|g| {
+                        let job = core.job(g.job)?;
+                        let range = job.batch_range(g.unit.batch);
+                        let rect = job.tiles.get(g.unit.tile)?;
+                        Some(pb::WorkUnit {
+                            lease_id: g.lease.to_string(),
+                            job_id: g.job.to_string(),
+                            scene_hash: job.rec.scene_hash.clone(),
+                            settings: Some(pb::RenderSettings::from(&job.settings())),
+                            rect: Some(rect.into()),
+                            tile_index: g.unit.tile,
+                            batch_index: g.unit.batch,
+                            sample_start: range.start,
+                            sample_end: range.end,
+                            lease_ms,
+                        })
+                    })
+                    .collect::<Vec<_>>()
+            };
+            if !units.is_empty() {
+                self.shared.bump_changed();
+                return Ok(Response::new(pb::LeaseResponse { units }));
+            }
+            let now = Instant::now();
+            if now >= deadline
+                || tokio::time::timeout(deadline - now, work.changed())
+                    .await
+                    .is_err()
+            {
+                return Ok(Response::new(pb::LeaseResponse { units: Vec::new() }));
+            }
+        }
+    }
+
+    async fn heartbeat(
+        &self,
+        request: Request<pb::HeartbeatRequest>,
+    ) -> Result<Response<pb::HeartbeatResponse>, Status> {
+        let req = request.into_inner();
+        let cred = credential(&req.worker_id)?;
+        let (ids, mut revoked) = lease_ids(&req.lease_ids)?;
+        let mut core = self.shared.scheduler();
+        let now = Instant::now();
+        let w = core.touch_worker(&cred, now)?;
+        revoked.extend(core.heartbeat(w, &ids, now).iter().map(LeaseId::to_string));
+        Ok(Response::new(pb::HeartbeatResponse {
+            revoked,
+            lease_ms: core.policy().lease_time.as_millis() as u32,
+        }))
+    }
+
+    async fn submit_result(
+        &self,
+        request: Request<pb::SubmitResultRequest>,
+    ) -> Result<Response<pb::SubmitResultResponse>, Status> {
+        let arrived = Instant::now();
+        let req = request.into_inner();
+        let cred = credential(&req.worker_id)?;
+        let job = job_id(&req.job_id)?;
+        let lease: LeaseId = req
+            .lease_id
+            .parse()
+            .map_err(|e: tessera_proto::ids::BadId| Status::invalid_argument(e.to_string()))?;
+        let unit = Unit {
+            tile: req.tile_index,
+            batch: req.batch_index,
+        };
+        let (merged, rx) = {
+            let mut core = self.shared.scheduler();
+            let now = Instant::now();
+            let w = core.touch_worker(&cred, now)?;
+            let decoded = req
+                .result
+                .ok_or_else(|| Status::invalid_argument("request has no result"))
+                .and_then(decode_result);
+            let sums = match decoded {
+                Ok(s) => s,
+                Err(e) => {
+                    core.refuse_result(w);
+                    warn!("result from {} refused: {}", cred.id, e.message());
+                    return Err(e);
+                }
+            };
+            match core.submit(w, lease, job, unit, sums, now) {
+                Ok(Merged::New { ops, finished }) => {
+                    let rx = self.shared.queue_write(ops);
+                    (finished, Some(rx))
+                }
+                Ok(Merged::Duplicate) => {
+                    return Ok(Response::new(pb::SubmitResultResponse {
+                        outcome: pb::ResultOutcome::Duplicate as i32,
+                    }))
+                }
+                // Told merged, like any accepted result: a worker must not learn which of
+                // its units are audited.
+                Ok(Merged::Held) => (false, None),
+                Ok(Merged::Discarded) => {
+                    return Ok(Response::new(pb::SubmitResultResponse {
+                        outcome: pb::ResultOutcome::Discarded as i32,
+                    }))
+                }
+                Err(r) => {
+                    warn!("result from {} refused: {r:?}", cred.id);
+                    return Err(r.into());
+                }
+            }
+        };
+        crate::referee::spawn_pending(&self.shared);
+        if let Some(rx) = rx {
+            durable(rx).await.map_err(internal)?;
+            self.shared.metrics.merge.observe(arrived.elapsed());
+        }
+        if merged {
+            tokio::spawn(finish_job(self.shared.clone(), job));
+        }
+        self.shared.bump_changed();
+        Ok(Response::new(pb::SubmitResultResponse {
+            outcome: pb::ResultOutcome::Merged as i32,
+        }))
+    }
+
+    async fn release_leases(
+        &self,
+        request: Request<pb::ReleaseLeasesRequest>,
+    ) -> Result<Response<pb::ReleaseLeasesResponse>, Status> {
+        let req = request.into_inner();
+        let cred = credential(&req.worker_id)?;
+        let (ids, _) = lease_ids(&req.lease_ids)?;
+        let (released, failed) = {
+            let mut core = self.shared.scheduler();
+            let w = core.touch_worker(&cred, Instant::now())?;
+            let failed = if req.cannot_render.is_empty() {
+                None
+            } else {
+                let ops = core.cannot_render(w, &ids, &req.cannot_render, now_ms());
+                Some(self.shared.queue_write(ops))
+            };
+            let n = core.release(w, &ids);
+            if req.goodbye {
+                core.goodbye(w);
+            }
+            (n, failed)
+        };
+        if let Some(rx) = failed {
+            durable(rx).await.map_err(internal)?;
+            self.shared.bump_changed();
+        }
+        if released > 0 {
+            self.shared.bump_work();
+            self.shared.bump_changed();
+        }
+        Ok(Response::new(pb::ReleaseLeasesResponse { released }))
+    }
+
+    async fn get_scene(
+        &self,
+        request: Request<pb::GetSceneRequest>,
+    ) -> Result<Response<pb::GetSceneResponse>, Status> {
+        let hash = request.into_inner().scene_hash;
+        let store = self.shared.store.clone();
+        let h = hash.clone();
+        let scene = tokio::task::spawn_blocking(move || store.scene(&h))
+            .await
+            .map_err(|e| Status::internal(e.to_string()))?
+            .map_err(|e| Status::internal(format!("coordinator state store: {e}")))?
+            .ok_or_else(|| Status::not_found(format!("unknown scene {}", truncate(&hash))))?;
+        Ok(Response::new(pb::GetSceneResponse {
+            scene_text: scene.text,
+            scene_format: if scene.json {
+                pb::SceneFormat::Json
+            } else {
+                pb::SceneFormat::Toml
+            } as i32,
+            scene_name: scene.name,
+            assets: scene
+                .assets
+                .into_iter()
+                .map(|(name, sha256)| pb::AssetRef { name, sha256 })
+                .collect(),
+        }))
+    }
+
+    type FetchAssetStream = Stream_<pb::AssetChunk>;
+
+    async fn fetch_asset(
+        &self,
+        request: Request<pb::FetchAssetRequest>,
+    ) -> Result<Response<Self::FetchAssetStream>, Status> {
+        let req = request.into_inner();
+        let held = self
+            .shared
+            .assets
+            .status(&req.sha256)
+            .map_err(asset_status)?;
+        if !held.complete {
+            return Err(Status::not_found(format!(
+                "asset {} is not uploaded",
+                req.sha256
+            )));
+        }
+        let (tx, rx) = mpsc::channel(2);
+        let assets = self.shared.assets.clone();
+        // Read a chunk at a time as the worker takes them: a file may be gigabytes.
+        tokio::task::spawn_blocking(move || {
+            let mut offset = req.offset;
+            while offset < held.received {
+                let chunk = assets
+                    .read_from(&req.sha256, offset, CHUNK_BYTES as u64)
+                    .map_err(asset_status)
+                    .map(|data| pb::AssetChunk {
+                        sha256: req.sha256.clone(),
+                        offset,
+                        total_size: held.received,
+                        data,
+                    });
+                let len = chunk.as_ref().map_or(0, |c| c.data.len() as u64);
+                let failed = chunk.is_err() || len == 0;
+                if tx.blocking_send(chunk).is_err() || failed {
+                    return;
+                }
+                offset += len;
+            }
+        });
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+}

@@ -1,0 +1,70 @@
+//! # tessera-testkit
+//!
+//! What the workspace's tests share. Every poll loop of a test waits through [`wait_for`] (in
+//! async tests) or [`wait_for_blocking`] (in tests that drive the binaries), so that no test
+//! can hang a run, and each names what it waited for when it gives up.
+
+use std::time::{Duration, Instant};
+
+/// How long a test waits for a condition before it fails: far above what a healthy farm needs
+/// on the slowest machine the tests run on (CI's two cores, under a parallel test run), so
+/// that a failure means a bug and not a slow machine.
+pub const PATIENCE: Duration = Duration::from_secs(180);
+
+/// Asks `check` every few milliseconds until it answers `Some`, and returns that; fails the
+/// test, naming `what`, once [`PATIENCE`] has passed.
+pub async fn wait_for<T>(what: &str, mut check: impl AsyncFnMut() -> Option<T>) -> T {
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    loop {
+        if let Some(v) = check().await {
+            return v;
+        }
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "gave up after {PATIENCE:?} waiting for {what}"
+        );
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+}
+
+/// [`wait_for`] for a test without an async runtime: polls `check` every 50 ms (it usually
+/// asks another process something).
+pub fn wait_for_blocking<T>(what: &str, mut check: impl FnMut() -> Option<T>) -> T {
+    let start = Instant::now();
+    loop {
+        if let Some(v) = check() {
+            return v;
+        }
+        assert!(
+            start.elapsed() < PATIENCE,
+            "gave up after {PATIENCE:?} waiting for {what}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_wait_returns_what_the_check_found_once_it_finds_it() {
+        let mut n = 0;
+        let got = wait_for_blocking("the third call", || {
+            n += 1;
+            (n == 3).then_some(n)
+        });
+        assert_eq!(got, 3);
+    }
+
+    #[tokio::test]
+    async fn an_async_wait_returns_what_the_check_found() {
+        let mut n = 0;
+        let got = wait_for("the second call", async || {
+            n += 1;
+            (n == 2).then_some("found")
+        })
+        .await;
+        assert_eq!(got, "found");
+    }
+}

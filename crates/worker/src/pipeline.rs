@@ -1,0 +1,422 @@
+//! The pipeline that keeps the cores busy: the fetcher leases the next unit while the current
+//! one renders, the renderer runs units on the worker's rayon pool through `spawn_blocking`,
+//! the submitter sends results (retrying through network errors), and the heartbeat renews
+//! the leases held.
+
+use std::future::Future;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::Duration;
+
+use tessera_proto::convert::settings_from_wire;
+use tessera_proto::v1 as pb;
+use tessera_render::scene::Scene;
+use tessera_render::{render_tile, PixelRect, RenderSettings, TileSums};
+use tokio::sync::{mpsc, OwnedSemaphorePermit, Semaphore};
+use tracing::{debug, info, warn};
+
+use crate::cache::SceneError;
+use crate::{lock, transient, Ctx};
+
+/// A leased unit, ready to render.
+struct Ready {
+    unit: pb::WorkUnit,
+    scene: Arc<Scene>,
+    rect: PixelRect,
+    settings: RenderSettings,
+    _slot: OwnedSemaphorePermit,
+}
+
+/// Checks a unit against its scene and turns it into renderer arguments.
+fn prepare(unit: &pb::WorkUnit, scene: &Scene) -> Result<(PixelRect, RenderSettings), String> {
+    let rect = PixelRect::from(unit.rect.ok_or("unit has no rect")?);
+    if !rect.fits(scene.width, scene.height) {
+        return Err(format!(
+            "unit rect {rect:?} is outside the {}×{} image",
+            scene.width, scene.height
+        ));
+    }
+    // An unknown strategy is a coordinator newer than this worker.
+    let settings = settings_from_wire(unit.settings.as_ref())
+        .map_err(|e| format!("unit settings: {e} (is this worker older than the coordinator?)"))?;
+    if unit.sample_start >= unit.sample_end || unit.sample_end > settings.spp {
+        return Err(format!(
+            "unit samples {}..{} do not fit spp {} in batches of {}",
+            unit.sample_start, unit.sample_end, settings.spp, settings.batch
+        ));
+    }
+    Ok((rect, settings))
+}
+
+/// The longest a lease call waits at the coordinator for a unit to come free.
+const LEASE_WAIT: Duration = Duration::from_secs(2);
+
+/// Leases units while there is room, and queues them for the renderer.
+async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
+    // The units rendering and one queued ahead.
+    let slots = Arc::new(Semaphore::new(MAX_HELD_UNITS));
+    let mut attempt = 0;
+    let mut stop = ctx.stop.clone();
+    loop {
+        let slot = tokio::select! {
+            s = slots.clone().acquire_owned() => match s { Ok(s) => s, Err(_) => return },
+            _ = stop.wait_for(|s| *s) => return,
+        };
+        let req_id = ctx.id();
+        let req = pb::LeaseRequest {
+            worker_id: req_id.clone(),
+            max_units: 1,
+            wait_ms: LEASE_WAIT.as_millis() as u32,
+        };
+        let mut client = ctx.client.clone();
+        let call = client.lease(req);
+        tokio::pin!(call);
+        let answered = tokio::select! {
+            r = &mut call => Some(r),
+            _ = stop.wait_for(|s| *s) => None,
+        };
+        let Some(resp) = answered else {
+            // The coordinator may have granted units in the answer already on its way: dropping
+            // the call would leave them leased to nobody until their leases lapse. The call is
+            // a long poll of at most LEASE_WAIT, so take its answer and keep its units as held,
+            // for the shutdown to hand back at once.
+            let late = tokio::time::timeout(LEASE_WAIT + Duration::from_secs(1), call).await;
+            if let Ok(Ok(r)) = late {
+                let units = r.into_inner().units;
+                lock(&ctx.held).extend(units.into_iter().map(|u| u.lease_id));
+            }
+            return;
+        };
+        let units = match resp {
+            Ok(r) => {
+                attempt = 0;
+                r.into_inner().units
+            }
+            Err(e) if tessera_proto::reason::is_unknown_worker(&e) => {
+                warn!("{}", e.message());
+                if !ctx.reregister(&req_id).await {
+                    return;
+                }
+                continue;
+            }
+            Err(e) => {
+                if attempt == 0 || attempt % 10 == 0 {
+                    warn!("leasing from {}: {}", ctx.config.coordinator, e.message());
+                }
+                if !ctx.backoff(&mut attempt).await {
+                    return;
+                }
+                continue;
+            }
+        };
+        let mut slot = Some(slot);
+        for unit in units {
+            lock(&ctx.held).insert(unit.lease_id.clone());
+            let frame = unit.settings.as_ref().and_then(|s| s.frame);
+            let prepared = match ctx.scene(&unit.scene_hash, frame).await {
+                Ok(scene) => prepare(&unit, &scene)
+                    .map(|p| (scene, p))
+                    .map_err(SceneError::Unrenderable),
+                Err(e) => Err(e),
+            };
+            let (scene, (rect, settings)) = match prepared {
+                Ok(p) => p,
+                Err(SceneError::Unavailable(e)) => {
+                    warn!(
+                        "unit {} of {}: scene {}: {e}; handing it back",
+                        unit.lease_id, unit.job_id, unit.scene_hash
+                    );
+                    ctx.release(vec![unit.lease_id], false).await;
+                    continue;
+                }
+                Err(SceneError::Unrenderable(e)) => {
+                    warn!(
+                        "unit {} of {}: this worker cannot render it: {e}",
+                        unit.lease_id, unit.job_id
+                    );
+                    ctx.hand_back(vec![unit.lease_id], false, e).await;
+                    continue;
+                }
+            };
+            let Some(s) = slot.take() else { break };
+            let ready = Ready {
+                unit,
+                scene,
+                rect,
+                settings,
+                _slot: s,
+            };
+            if tx.send(ready).await.is_err() {
+                return;
+            }
+        }
+    }
+}
+
+/// A rendered unit on its way back. It keeps its fetcher slot until the coordinator has the
+/// result: a unit waiting to be sent counts against what the worker may hold, or a worker
+/// that renders faster than it can send would lease without bound.
+struct Done {
+    unit: pb::WorkUnit,
+    sums: TileSums,
+    _slot: OwnedSemaphorePermit,
+}
+
+/// Units rendering at once. Two, so that while one unit's last rows finish on a few threads,
+/// the other keeps the rest of the pool busy (rayon steals across both).
+const OVERLAP: usize = 2;
+
+/// The most units a worker holds leases for at once: those rendering or waiting for their
+/// result to be acknowledged, and one queued ahead. A unit keeps its slot until its result is
+/// acknowledged, so results waiting to be sent count too, and a worker whose units render
+/// faster than results are committed cannot lease without bound.
+pub const MAX_HELD_UNITS: usize = OVERLAP + 1;
+
+/// Renders queued units on the whole pool, [`OVERLAP`] at a time.
+async fn renderer(ctx: Arc<Ctx>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::UnboundedSender<Done>) {
+    let mut stop = ctx.stop.clone();
+    let mut running: tokio::task::JoinSet<Done> = tokio::task::JoinSet::new();
+    let mut open = true;
+    while open || !running.is_empty() {
+        tokio::select! {
+            biased;
+            // Shutdown: take no new unit, but finish the ones started.
+            _ = stop.wait_for(|s| *s), if open => open = false,
+            Some(done) = running.join_next(), if !running.is_empty() => match done {
+                Ok(done) => {
+                    let _ = tx.send(done);
+                }
+                Err(e) => warn!("render task failed: {e}"),
+            },
+            r = rx.recv(), if open && running.len() < OVERLAP => {
+                let Some(ready) = r else {
+                    open = false;
+                    continue;
+                };
+                if lock(&ctx.revoked).remove(&ready.unit.lease_id) {
+                    lock(&ctx.held).remove(&ready.unit.lease_id);
+                    continue;
+                }
+                let work = ctx.clone();
+                running.spawn_blocking(move || {
+                    let samples = ready.unit.sample_start..ready.unit.sample_end;
+                    let sums = work.pool.install(|| {
+                        render_tile(&ready.scene, &ready.settings, ready.rect, samples)
+                    });
+                    Done {
+                        unit: ready.unit,
+                        sums,
+                        _slot: ready._slot,
+                    }
+                });
+            }
+        }
+    }
+    // Shutting down: hand back what is queued and not started.
+    rx.close();
+    let mut back = Vec::new();
+    while let Ok(r) = rx.try_recv() {
+        back.push(r.unit.lease_id);
+    }
+    if !back.is_empty() {
+        info!("handing back {} queued unit(s)", back.len());
+        ctx.release(back, false).await;
+    }
+}
+
+/// The wait before retry number `attempt` (from 0) of a call the coordinator did not answer:
+/// 100 ms, doubling, never above `max`. Every retry loop of the worker waits this long, so a
+/// farm of workers whose coordinator restarts reconnects quickly without hammering it.
+pub fn backoff_delay(attempt: u32, max: Duration) -> Duration {
+    Duration::from_millis(100u64 << attempt.min(10)).min(max)
+}
+
+/// Sends results, retrying through network errors.
+async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
+    while let Some(done) = rx.recv().await {
+        let result = pb::TileResult::from(&done.sums);
+        let mut attempt = 0;
+        loop {
+            let sent_as = ctx.id();
+            let req = pb::SubmitResultRequest {
+                worker_id: sent_as.clone(),
+                lease_id: done.unit.lease_id.clone(),
+                job_id: done.unit.job_id.clone(),
+                tile_index: done.unit.tile_index,
+                batch_index: done.unit.batch_index,
+                result: Some(result.clone()),
+            };
+            match ctx.client.clone().submit_result(req).await {
+                Ok(_) => break,
+                Err(e) if tessera_proto::reason::is_unknown_worker(&e) => {
+                    if !ctx.reregister(&sent_as).await {
+                        break;
+                    }
+                }
+                Err(e) if transient(&e) => {
+                    if attempt == 0 || attempt % 10 == 0 {
+                        warn!("sending a result: {}; retrying", e.message());
+                    }
+                    // Keep retrying during shutdown too, but not past the grace period
+                    // (enforced by the caller's timeout).
+                    let delay = backoff_delay(attempt, ctx.config.max_backoff);
+                    attempt += 1;
+                    tokio::time::sleep(delay).await;
+                }
+                Err(e) => {
+                    warn!(
+                        "result for {} tile {} batch {} refused: {}",
+                        done.unit.job_id,
+                        done.unit.tile_index,
+                        done.unit.batch_index,
+                        e.message()
+                    );
+                    break;
+                }
+            }
+        }
+        lock(&ctx.held).remove(&done.unit.lease_id);
+    }
+}
+
+/// Renews leases and learns which were revoked.
+async fn heartbeat(ctx: Arc<Ctx>) {
+    loop {
+        let every = Duration::from_millis(ctx.heartbeat_ms.load(Ordering::Relaxed));
+        tokio::time::sleep(every).await;
+        let lease_ids: Vec<String> = lock(&ctx.held).iter().cloned().collect();
+        let req = pb::HeartbeatRequest {
+            worker_id: ctx.id(),
+            lease_ids,
+        };
+        match ctx.client.clone().heartbeat(req).await {
+            Ok(r) => {
+                let revoked = r.into_inner().revoked;
+                if !revoked.is_empty() {
+                    debug!("{} lease(s) revoked", revoked.len());
+                    let mut held = lock(&ctx.held);
+                    let mut gone = lock(&ctx.revoked);
+                    for l in revoked {
+                        held.remove(&l);
+                        gone.insert(l);
+                    }
+                }
+            }
+            Err(e) => debug!("heartbeat: {}", e.message()),
+        }
+    }
+}
+
+/// The pipeline's tasks, running: dropping them stops them.
+pub(crate) struct Pipeline {
+    /// Renews the leases held.
+    pub heartbeat: Task,
+    /// Leases units; ends by itself only when the coordinator refused this worker for good.
+    pub fetch: Task,
+    /// Renders queued units.
+    pub render: Task,
+    /// Sends results.
+    pub submit: Task,
+}
+
+impl Pipeline {
+    /// Starts the tasks over `ctx`.
+    pub(crate) fn start(ctx: &Arc<Ctx>) -> Self {
+        let (ready_tx, ready_rx) = mpsc::channel(1);
+        let (done_tx, done_rx) = mpsc::unbounded_channel();
+        Self {
+            heartbeat: Task::spawn(heartbeat(ctx.clone())),
+            fetch: Task::spawn(fetcher(ctx.clone(), ready_tx)),
+            render: Task::spawn(renderer(ctx.clone(), ready_rx, done_tx)),
+            submit: Task::spawn(submitter(ctx.clone(), done_rx)),
+        }
+    }
+}
+
+/// A spawned task that is aborted when dropped, so that dropping (aborting) [`run`] stops
+/// everything the worker started, as a crash would.
+pub(crate) struct Task(tokio::task::JoinHandle<()>);
+
+impl Task {
+    pub(crate) fn spawn(f: impl Future<Output = ()> + Send + 'static) -> Self {
+        Self(tokio::spawn(f))
+    }
+
+    pub(crate) async fn join(&mut self) {
+        let _ = (&mut self.0).await;
+    }
+}
+
+impl Drop for Task {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tessera_render::scene::{Format, Limits};
+    use tessera_render::Strategy;
+
+    fn scene() -> Scene {
+        let text = include_str!("../../../scenes/cornell-box.toml")
+            .replace("width = 256", "width = 8")
+            .replace("height = 256", "height = 8");
+        Scene::from_str(&text, Format::Toml, "c.toml", &Limits::default()).expect("scene")
+    }
+
+    fn unit(rect: pb::Rect, start: u32, end: u32, strategy: i32) -> pb::WorkUnit {
+        pb::WorkUnit {
+            rect: Some(rect),
+            sample_start: start,
+            sample_end: end,
+            settings: Some(pb::RenderSettings {
+                spp: 8,
+                seed: 1,
+                batch: 4,
+                strategy,
+                ..Default::default()
+            }),
+            ..pb::WorkUnit::default()
+        }
+    }
+
+    #[test]
+    fn backoff_doubles_from_a_tenth_of_a_second_up_to_the_cap() {
+        let cap = Duration::from_secs(10);
+        let waits: Vec<u128> = (0..9).map(|a| backoff_delay(a, cap).as_millis()).collect();
+        assert_eq!(
+            waits,
+            [100, 200, 400, 800, 1600, 3200, 6400, 10_000, 10_000]
+        );
+        // However long a coordinator stays away, the shift never overflows.
+        assert_eq!(backoff_delay(u32::MAX, cap), cap);
+        assert_eq!(
+            backoff_delay(3, Duration::from_millis(250)).as_millis(),
+            250
+        );
+    }
+
+    #[test]
+    fn units_a_worker_cannot_render_as_sent_are_refused_with_the_reason() {
+        let scene = scene();
+        let inside = pb::Rect {
+            x0: 4,
+            y0: 4,
+            width: 4,
+            height: 4,
+        };
+        let (rect, settings) =
+            prepare(&unit(inside, 4, 8, pb::Strategy::Nee as i32), &scene).expect("fits");
+        assert_eq!((rect.x0, rect.width), (4, 4));
+        assert_eq!(settings.strategy, Strategy::Nee);
+        let outside = pb::Rect { x0: 6, ..inside };
+        let e = prepare(&unit(outside, 0, 4, 1), &scene).expect_err("outside");
+        assert!(e.contains("outside the 8×8 image"), "{e}");
+        let e = prepare(&unit(inside, 4, 9, 1), &scene).expect_err("past spp");
+        assert!(e.contains("do not fit spp 8"), "{e}");
+        let e = prepare(&unit(inside, 0, 4, 99), &scene).expect_err("a strategy from the future");
+        assert!(e.contains("unknown strategy 99"), "{e}");
+    }
+}
