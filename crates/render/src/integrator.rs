@@ -70,18 +70,20 @@ fn trace(
     } else {
         settings.strategy
     };
-    let mut l = Vec3A::ZERO;
-    let mut beta = Vec3A::ONE;
-    let mut eta_scale = 1.0f32;
-    // The camera "bounce" is specular: emitters seen directly count in full.
-    let mut specular = true;
-    let mut prev_pdf = 0.0f32;
-    let mut prev_p = ray.o;
+    let mut path = Path {
+        l: Vec3A::ZERO,
+        beta: Vec3A::ONE,
+        eta_scale: 1.0,
+        // The camera "bounce" is specular: emitters seen directly count in full.
+        specular: true,
+        prev_pdf: 0.0,
+        prev_p: ray.o,
+    };
     let mut depth = 0u32;
     loop {
         let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
             if let Some(env) = &scene.environment {
-                l += beta * env.radiance(ray.d);
+                path.l += path.beta * env.radiance(ray.d);
             }
             break;
         };
@@ -94,34 +96,18 @@ fn trace(
             let li = (prim.light + hit.part * prim.light_stride) as usize;
             let le = scene.lights.lights[li].emitted(sp.n, wo);
             if le != Vec3A::ZERO {
-                let came = Arrival {
-                    strategy,
-                    specular,
-                    prev_p,
-                    prev_pdf,
-                };
-                add_emitted(&mut l, scene, &came, li, beta, le, &sp);
+                add_emitted(&mut path, scene, strategy, li, le, &sp);
             }
         }
         if scene.max_depth.is_some_and(|m| depth >= m) {
             break;
         }
-        let front = sp.n.dot(wo) >= 0.0;
+        let (front, at) = Shading::facing(&sp, wo, shading_normals);
         if !front && !mat.two_sided && !matches!(mat.bsdf, Bsdf::Dielectric(_)) {
             // The back of a one-sided surface absorbs everything.
             break;
         }
-        // Normals on the side the path arrived from: the geometric one for ray offsets and
-        // for which side a direction leaves by, the shading one for scattering.
-        let n = if front { sp.n } else { -sp.n };
-        // A smooth mesh's shading normal; elsewhere ns = n and the extra side tests below,
-        // which compare with the geometric normal, would repeat the shading ones.
-        let shaded = shading_normals && sp.ns != sp.n;
-        let ns = match (shaded, front) {
-            (false, _) => n,
-            (true, true) => sp.ns,
-            (true, false) => -sp.ns,
-        };
+        let Shading { n, ns, shaded } = at;
         let [u0, u1, next_lx, next_ly] = sampler.get4(1 + 2 * depth);
         let nee = strategy != Strategy::Bsdf && matches!(mat.bsdf, Bsdf::Diffuse(_));
         // u_rr decides Russian roulette after this bounce.
@@ -140,28 +126,18 @@ fn trace(
                     None => albedo,
                     Some(t) => scene.textures[t as usize].lookup(prim.shape.uv(&ray, hit.part)),
                 };
-                let p_out = offset_ray_origin(sp.p, sp.err, n);
-                if nee {
-                    let at = Shading { n, ns, shaded };
-                    let u = (u_select, Vec2::new(lx, ly));
-                    if let Some((le, f)) = direct_light(scene, strategy, &sp, &at, p_out, u) {
-                        l += beta * albedo * le * f;
-                    }
-                }
-                let (wi, pdf) = sample_diffuse(ns, Vec2::new(u0, u1));
-                // f·cos/pdf = (ρ/π)·cos / (cos/π) = ρ, with cos against the shading normal.
-                beta *= albedo;
-                specular = false;
-                prev_pdf = pdf;
-                // A direction into the geometric surface scatters nothing: f is 0 there.
-                if !(prev_pdf > 0.0) || (shaded && n.dot(wi) <= 0.0) {
+                let light_u = nee.then_some((u_select, Vec2::new(lx, ly)));
+                let bsdf_u = Vec2::new(u0, u1);
+                let Some(next) = diffuse(
+                    scene, strategy, &mut path, albedo, &sp, &at, bsdf_u, light_u,
+                ) else {
                     break;
-                }
-                Ray::new(p_out, wi)
+                };
+                next
             }
             Bsdf::Mirror(r) => {
-                beta *= r;
-                specular = true;
+                path.beta *= r;
+                path.specular = true;
                 let wi = reflect(ray.d, ns);
                 if shaded && n.dot(wi) <= 0.0 {
                     break;
@@ -169,38 +145,42 @@ fn trace(
                 Ray::new(offset_ray_origin(sp.p, sp.err, n), wi)
             }
             Bsdf::Dielectric(ior) => {
-                let at = Shading { n, ns, shaded };
                 let Some(next) = dielectric(&ray, &sp, &at, front, ior, u_choice) else {
                     break;
                 };
-                specular = true;
-                beta /= next.attenuation;
-                eta_scale *= next.attenuation;
+                path.specular = true;
+                path.beta /= next.attenuation;
+                path.eta_scale *= next.attenuation;
                 next.ray
             }
         };
-        prev_p = sp.p;
+        path.prev_p = sp.p;
         depth += 1;
         if depth >= settings.rr_depth {
-            let q = ((beta * eta_scale).max_element() / settings.rr_threshold).min(0.95);
+            let q = ((path.beta * path.eta_scale).max_element() / settings.rr_threshold).min(0.95);
             if !(u_rr < q) {
                 break;
             }
-            beta /= q;
+            path.beta /= q;
         }
         ray = Ray::new(next.o, next.d.normalize());
     }
-    l
+    path.l
 }
 
-/// How a path arrived at a vertex: what weighs an emitter it finds there.
-struct Arrival {
-    strategy: Strategy,
+/// A path between vertices: what it has gathered, its throughput, and how it arrived at
+/// its last vertex (what weighs an emitter it finds next).
+struct Path {
+    l: Vec3A,
+    beta: Vec3A,
+    /// The product of η² over the refractions so far, which Russian roulette undoes: radiance
+    /// compressed by entering glass is not a reason to end a path.
+    eta_scale: f32,
     /// The last bounce was specular (or the camera's): light sampling could not have found
     /// the emitter, so it counts in full.
     specular: bool,
-    prev_p: Vec3A,
     prev_pdf: f32,
+    prev_p: Vec3A,
 }
 
 /// The normals at a vertex, on the side the path arrived from: the geometric one (offsets,
@@ -212,29 +192,78 @@ struct Shading {
     shaded: bool,
 }
 
-/// Adds to `l` what emitter `li`, hit at `sp` with radiance `le` towards the path, gives it:
+impl Shading {
+    /// The normals at `sp` for a path leaving towards `wo`, and whether it arrived on the
+    /// front side. Without `shading_normals` (every scene but smooth meshes) ns = n, and the
+    /// side tests that compare the two are skipped: they would repeat the shading ones.
+    #[inline(always)]
+    fn facing(sp: &SurfacePoint, wo: Vec3A, shading_normals: bool) -> (bool, Self) {
+        let front = sp.n.dot(wo) >= 0.0;
+        let n = if front { sp.n } else { -sp.n };
+        let shaded = shading_normals && sp.ns != sp.n;
+        let ns = match (shaded, front) {
+            (false, _) => n,
+            (true, true) => sp.ns,
+            (true, false) => -sp.ns,
+        };
+        (front, Self { n, ns, shaded })
+    }
+}
+
+/// Adds to the path what emitter `li`, hit at `sp` with radiance `le` towards it, gives it:
 /// weighted by the power heuristic against light sampling under MIS, in full after a specular
 /// bounce or with BSDF sampling alone, and nothing under light sampling alone (it was
 /// counted when sampled).
 #[inline(always)]
 fn add_emitted(
-    l: &mut Vec3A,
+    path: &mut Path,
     scene: &Scene,
-    came: &Arrival,
+    strategy: Strategy,
     li: usize,
-    beta: Vec3A,
     le: Vec3A,
     sp: &SurfacePoint,
 ) {
-    match came.strategy {
-        _ if came.specular => *l += beta * le,
-        Strategy::Bsdf => *l += beta * le,
+    match strategy {
+        _ if path.specular => path.l += path.beta * le,
+        Strategy::Bsdf => path.l += path.beta * le,
         Strategy::Mis => {
-            let light_pdf = scene.lights.pdf(li, came.prev_p, sp.p, sp.n);
-            *l += beta * le * power_heuristic(came.prev_pdf, light_pdf);
+            let light_pdf = scene.lights.pdf(li, path.prev_p, sp.p, sp.n);
+            path.l += path.beta * le * power_heuristic(path.prev_pdf, light_pdf);
         }
         Strategy::Nee => {}
     }
+}
+
+/// A diffuse vertex of albedo `albedo`: direct light by next-event estimation (when
+/// `light_u`, its numbers, is given), then the next direction, cosine-weighted (f·cos/pdf =
+/// (ρ/π)·cos / (cos/π) = ρ, with cos against the shading normal). `None` ends the path: no
+/// direction was drawn, or it points into the geometric surface, where f is 0.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn diffuse(
+    scene: &Scene,
+    strategy: Strategy,
+    path: &mut Path,
+    albedo: Vec3A,
+    sp: &SurfacePoint,
+    at: &Shading,
+    bsdf_u: Vec2,
+    light_u: Option<(f32, Vec2)>,
+) -> Option<Ray> {
+    let p_out = offset_ray_origin(sp.p, sp.err, at.n);
+    if let Some(u) = light_u {
+        if let Some((le, f)) = direct_light(scene, strategy, sp, at, p_out, u) {
+            path.l += path.beta * albedo * le * f;
+        }
+    }
+    let (wi, pdf) = sample_diffuse(at.ns, bsdf_u);
+    path.beta *= albedo;
+    path.specular = false;
+    path.prev_pdf = pdf;
+    if !(pdf > 0.0) || (at.shaded && at.n.dot(wi) <= 0.0) {
+        return None;
+    }
+    Some(Ray::new(p_out, wi))
 }
 
 /// Next-event estimation at a diffuse vertex: a point on a light, its shadow ray from
