@@ -10,7 +10,7 @@ use crate::printable;
 use anyhow::{anyhow, bail, Result};
 use tessera_proto::v1 as pb;
 
-use tessera_proto::view::{JobView, WorkerView};
+use tessera_proto::view::{JobState, JobView, WorkerView};
 
 /// Arguments of `tessera status`.
 #[derive(Debug, clap::Args)]
@@ -43,92 +43,84 @@ pub struct WorkersArgs {
     json: bool,
 }
 
-/// A job's status as JSON for scripts: its view ([`JobView`]), the document the dashboard
-/// serves at `/api/jobs/JOB`, with the state as a word and figures that do not exist yet (ETA,
-/// noise) as null.
-fn job_json(s: &pb::JobStatus) -> Result<String> {
-    let view = JobView::try_from(s).map_err(|e| anyhow!("the coordinator sent a job {e}"))?;
-    Ok(serde_json::to_string(&view)?)
+/// A job's status as its view ([`JobView`]): what the table, the detail and `--json` print.
+/// `--json` serialises it as it is, the document the dashboard serves at `/api/jobs/JOB`, with
+/// the state as a word and figures that do not exist yet (ETA, noise) as null.
+fn job_view(s: &pb::JobStatus) -> Result<JobView> {
+    JobView::try_from(s).map_err(|e| anyhow!("the coordinator sent a job {e}"))
 }
 
-/// The workers as JSON for scripts: their views, as the dashboard serves them.
-fn workers_json(workers: &[WorkerView]) -> Result<String> {
-    Ok(serde_json::to_string(workers)?)
-}
-
-fn print_job(s: &pb::JobStatus) -> std::io::Result<()> {
-    let settings = s.settings.unwrap_or_default();
-    outln!("{}", s.job_id);
-    outln!("  state      {}", job_state_name(s.state));
-    if !s.error.is_empty() {
-        outln!("  error      {}", printable(&s.error));
+/// One job in detail, as `tessera status JOB` prints it.
+fn print_job(v: &JobView) -> std::io::Result<()> {
+    let settings = &v.settings;
+    outln!("{}", v.job_id);
+    outln!("  state      {}", v.state.name());
+    if !v.error.is_empty() {
+        outln!("  error      {}", printable(&v.error));
     }
     outln!(
         "  scene      {} (sha256 {})",
-        printable(&s.scene_name),
-        s.scene_hash
+        printable(&v.scene),
+        v.scene_sha256
     );
     outln!(
         "  image      {}×{}, {} spp, seed {}, batch {}, tiles {}",
-        s.width,
-        s.height,
+        v.width,
+        v.height,
         settings.spp,
         settings.seed,
         settings.batch,
-        s.tile_size
+        v.tile_size
     );
     if let Some(f) = settings.frame {
         outln!("  frame      {f}");
     }
-    if !s.range_job_id.is_empty() {
-        outln!("  range      a frame of {}", s.range_job_id);
+    if let Some(r) = v.range_job_id {
+        outln!("  range      a frame of {r}");
     }
-    if settings.noise_target > 0.0 {
+    if let Some(target) = settings.noise_target {
         outln!(
-            "  adaptive   noise target {} (expected √relMSE of the image; {} spp is the cap)",
-            settings.noise_target,
+            "  adaptive   noise target {target} (expected √relMSE of the image; {} spp is the cap)",
             settings.spp
         );
     }
-    outln!("  priority   {}", s.priority);
+    outln!("  priority   {}", v.priority);
     outln!(
         "  progress   {}/{} units ({} leased), {}/{} samples",
-        s.units_done,
-        s.units_total,
-        s.units_leased,
-        s.samples_done,
-        s.samples_total
+        v.units_done,
+        v.units_total,
+        v.units_leased,
+        v.samples_done,
+        v.samples_total
     );
     outln!(
         "  rate       {:.2} Msamples/s, ETA {}",
-        s.samples_per_second / 1e6,
-        fmt_eta(s.eta_seconds)
+        v.samples_per_second / 1e6,
+        fmt_eta(v.eta_seconds.unwrap_or(f64::NAN))
     );
-    if s.samples_done > 0 {
-        outln!(
-            "  noise      σ≈{:.4} ({:.2}% of mean), {} non-finite samples",
-            s.noise_rms,
-            s.noise_relative * 100.0,
-            s.nonfinite_samples
-        );
-    } else {
-        outln!("  noise      – (no sample merged)");
+    match (v.noise_rms, v.noise_relative) {
+        (Some(rms), Some(rel)) => outln!(
+            "  noise      σ≈{rms:.4} ({:.2}% of mean), {} non-finite samples",
+            rel * 100.0,
+            v.nonfinite_samples
+        ),
+        _ => outln!("  noise      – (no sample merged)"),
     }
-    outln!("  output     {}", s.output_name);
-    if let Some(r) = s.frame_range {
-        let count = |st: pb::JobState| s.frames.iter().filter(|f| f.state == st as i32).count();
+    outln!("  output     {}", v.output);
+    if let Some(r) = v.frame_range {
+        let count = |st: JobState| v.frames.iter().filter(|f| f.state == st).count();
         outln!(
             "  frames     {}-{}:{}, {} frames: {} done, {} running, {} queued, {} failed, {} \
              cancelled",
             r.first,
             r.last,
             r.step,
-            s.frames.len(),
-            count(pb::JobState::Done),
-            count(pb::JobState::Running),
-            count(pb::JobState::Queued),
-            count(pb::JobState::Failed),
-            count(pb::JobState::Cancelled)
+            v.frames.len(),
+            count(JobState::Done),
+            count(JobState::Running),
+            count(JobState::Queued),
+            count(JobState::Failed),
+            count(JobState::Cancelled)
         );
         outln!(
             "  {:>8} {:<12} {:<10} {:>12}  OUTPUT",
@@ -137,14 +129,14 @@ fn print_job(s: &pb::JobStatus) -> std::io::Result<()> {
             "STATE",
             "UNITS"
         );
-        for f in &s.frames {
+        for f in &v.frames {
             outln!(
                 "  {:>8} {:<12} {:<10} {:>12}  {}",
                 f.frame,
-                f.job_id,
-                job_state_name(f.state),
+                f.job_id.to_string(),
+                f.state.name(),
                 format!("{}/{}", f.units_done, f.units_total),
-                f.output_name
+                f.output
             );
             if !f.error.is_empty() {
                 outln!("  {:>8} error: {}", "", printable(&f.error));
@@ -167,10 +159,11 @@ pub fn status(args: StatusArgs) -> Result<()> {
                 .await
                 .map_err(|e| rpc_error(&url, job, e))?
                 .into_inner();
+            let v = job_view(&s)?;
             if args.json {
-                outln!("{}", job_json(&s)?);
+                outln!("{}", serde_json::to_string(&v)?);
             } else {
-                print_job(&s)?;
+                print_job(&v)?;
             }
             return Ok(());
         }
@@ -179,14 +172,12 @@ pub fn status(args: StatusArgs) -> Result<()> {
             .await
             .map_err(|e| rpc_error(&url, "listing jobs", e))?
             .into_inner()
-            .jobs;
+            .jobs
+            .iter()
+            .map(job_view)
+            .collect::<Result<Vec<_>>>()?;
         if args.json {
-            let list = jobs
-                .iter()
-                .map(JobView::try_from)
-                .collect::<Result<Vec<_>, _>>()
-                .map_err(|e| anyhow!("the coordinator sent a job {e}"))?;
-            outln!("{}", serde_json::to_string(&list)?);
+            outln!("{}", serde_json::to_string(&jobs)?);
             return Ok(());
         }
         outln!(
@@ -198,16 +189,16 @@ pub fn status(args: StatusArgs) -> Result<()> {
             "UNITS",
             "ETA"
         );
-        for s in jobs {
+        for v in jobs {
             outln!(
                 "{:<12} {:<10} {:>8} {:>6.1}% {:>10} {:>8}  {}",
-                s.job_id,
-                job_state_name(s.state),
-                s.priority,
-                100.0 * s.units_done as f64 / s.units_total.max(1) as f64,
-                s.units_total,
-                fmt_eta(s.eta_seconds),
-                printable(&s.scene_name)
+                v.job_id.to_string(),
+                v.state.name(),
+                v.priority,
+                100.0 * v.units_done as f64 / v.units_total.max(1) as f64,
+                v.units_total,
+                fmt_eta(v.eta_seconds.unwrap_or(f64::NAN)),
+                printable(&v.scene)
             );
         }
         Ok(())
@@ -255,7 +246,8 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
             .collect::<Result<Vec<_>, _>>()
             .map_err(|e| anyhow!("the coordinator sent a worker {e}"))?;
         if args.json {
-            outln!("{}", workers_json(&workers)?);
+            // The document the dashboard serves at `/api/workers`.
+            outln!("{}", serde_json::to_string(&workers)?);
             return Ok(());
         }
         outln!(
