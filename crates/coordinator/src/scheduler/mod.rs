@@ -31,6 +31,9 @@ use std::time::{Duration, Instant};
 use tessera_proto::ids::{JobId, LeaseId};
 use tessera_render::TileSums;
 
+use crate::config::{
+    DEFAULT_MAX_LEASES_PER_WORKER, DEFAULT_MAX_WORKERS_PER_HOST, DEFAULT_QUARANTINE_AFTER,
+};
 use crate::error::Refusal;
 use crate::job::{Job, Source, Unit};
 use crate::metrics::Counters;
@@ -96,9 +99,9 @@ impl Policy {
     pub fn new(lease_time: Duration) -> Self {
         Self {
             lease_time,
-            quarantine_after: 5,
-            max_leases_per_worker: 8,
-            max_workers_per_host: 256,
+            quarantine_after: DEFAULT_QUARANTINE_AFTER,
+            max_leases_per_worker: DEFAULT_MAX_LEASES_PER_WORKER,
+            max_workers_per_host: DEFAULT_MAX_WORKERS_PER_HOST,
             audit: 0.0,
         }
     }

@@ -8,7 +8,7 @@
 
 use glam::{DAffine3, DQuat, DVec3};
 
-use super::build::{build_transform, Invalid};
+use super::check::{build_transform, Invalid};
 use super::format::{
     AnimationDesc, CameraKeyDesc, ObjectKeyDesc, RotateDesc, SceneFile, TransformDesc,
 };

@@ -8,6 +8,7 @@
 mod animate;
 pub mod assets;
 mod build;
+mod check;
 mod format;
 mod frames;
 mod locate;

@@ -4,15 +4,23 @@
 
 use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
 use std::ops::Range;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use tessera_proto::ids::JobId;
 use tessera_proto::view::JobState;
 use tessera_render::adaptive::{min_batches, neyman_scale, tile_wants_more, wants_more};
-use tessera_render::{Adaptive, PixelRect, RenderSettings, TileSums};
+use tessera_render::{Adaptive, RenderSettings, TileSums};
 
 use crate::error::Refusal;
+
+mod audit;
+mod rate;
+mod tiles;
+
 use crate::store::{decode_sums, encode_sums, JobPhase, JobRecord, LoadedJob, Op};
+pub use audit::{same_bits, AuditHold, KeptUnits, Source, NOBODY};
+pub use rate::Rate;
+pub use tiles::{pixel_in_range, sums_in_range, TileGrid};
 
 /// One work unit: a tile and a batch of sample indices.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -37,53 +45,6 @@ pub fn relative_noise(parts: (f64, f64, u64)) -> f32 {
     }
 }
 
-/// A running total's recent rate: what it grew by over the last [`Rate::WINDOW`], per second.
-/// Points are (time, total); one at or before the window's start is kept as the baseline, so
-/// the rate falls to 0 once nothing has been added for a window, however long ago the last
-/// point was (a worker that stopped, a job that ended).
-#[derive(Debug, Default)]
-pub struct Rate(VecDeque<(Instant, u64)>);
-
-impl Rate {
-    /// The window the rate is measured over.
-    pub const WINDOW: Duration = Duration::from_secs(10);
-
-    /// Notes that the total was `total` at `now`.
-    pub fn record(&mut self, now: Instant, total: u64) {
-        self.0.push_back((now, total));
-        // The second point is at or before the window's start: the first is not needed.
-        while self.0.len() > 2 && self.0[1].0 + Self::WINDOW <= now {
-            self.0.pop_front();
-        }
-    }
-
-    /// Growth per second over the window that ends at `now` (0 when unknown). The total holds
-    /// its value between points, so its value at the window's start is the newest point's at
-    /// or before it; a total younger than the window is measured from its first point.
-    pub fn per_second(&self, now: Instant) -> f64 {
-        let Some(&(_, last)) = self.0.back() else {
-            return 0.0;
-        };
-        let start = now.checked_sub(Self::WINDOW);
-        let base = self
-            .0
-            .iter()
-            .rev()
-            .find(|(t, _)| start.is_some_and(|s| *t <= s))
-            .or(self.0.front());
-        let Some(&(t0, v0)) = base else {
-            return 0.0;
-        };
-        let from = start.map_or(t0, |s| s.max(t0));
-        let span = now.saturating_duration_since(from).as_secs_f64();
-        if span > 0.0 {
-            last.saturating_sub(v0) as f64 / span
-        } else {
-            0.0
-        }
-    }
-}
-
 /// Merged sums of one tile: batches `0..next` folded in order, plus results that arrived early.
 #[derive(Debug, Default)]
 pub struct TileAcc {
@@ -99,142 +60,6 @@ pub struct TileAcc {
     pub by: Vec<Source>,
     /// Audited jobs only: where each early result came from.
     pub pending_by: BTreeMap<u32, Source>,
-}
-
-/// The contributor of a batch no audit can take back: merged before this boot (whose workers
-/// are gone), or settled by two workers' agreeing bits.
-pub const NOBODY: u64 = 0;
-
-/// Where a merged result of an audited job came from: the worker, and the merge's serial,
-/// which its kept copy carries too. A rebuild folds a kept copy only if its serial is the
-/// merge's: a copy written by an earlier merge of the same unit (one an audit took back) may
-/// still be all the store has while the newer one waits to be committed.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Source {
-    /// Worker number in this boot, or [`NOBODY`].
-    pub worker: u64,
-    /// The merge's serial; 0 for one merged before this boot, whose stored copy is the one
-    /// the last commit before the stop left, and so the one merged.
-    pub serial: u64,
-}
-
-impl Source {
-    /// A result merged before this boot.
-    pub const RESTORED: Source = Source {
-        worker: NOBODY,
-        serial: 0,
-    };
-
-    /// Whether a kept copy of `serial` is this merge's.
-    fn matches(&self, serial: u64) -> bool {
-        self.serial == 0 || self.serial == serial
-    }
-}
-
-/// A unit of an audited job held for its audit: a copy from another host must match it, or
-/// the coordinator renders the unit itself and decides.
-#[derive(Debug, Default)]
-pub struct AuditHold {
-    /// Each worker's result, in arrival order; one worker at most once.
-    pub results: Vec<(u64, TileSums)>,
-    /// The hosts those workers registered from (unknown ones left out): a copy from one of
-    /// them does not count, so no single host can agree with itself.
-    pub hosts: BTreeSet<String>,
-    /// Two results disagreed: the coordinator renders the unit and decides (its referee).
-    pub disputed: bool,
-    /// When the first copy arrived (for the referee of a copy no other host takes).
-    pub since: Option<std::time::Instant>,
-}
-
-/// A source of the results an audited job kept ([`Op::PutUnit`]): the store, in the
-/// coordinator. `()` keeps none, and a tile folded again without them renders every batch
-/// again, which is slower and gives the same bits.
-pub trait KeptUnits {
-    /// Tile `tile`'s kept results of job `job`: batch → (serial, sums).
-    fn kept(&self, job: u64, tile: u32, rect: PixelRect) -> BTreeMap<u32, (u64, TileSums)>;
-}
-
-impl KeptUnits for () {
-    fn kept(&self, _: u64, _: u32, _: PixelRect) -> BTreeMap<u32, (u64, TileSums)> {
-        BTreeMap::new()
-    }
-}
-
-impl KeptUnits for crate::store::Store {
-    fn kept(&self, job: u64, tile: u32, rect: PixelRect) -> BTreeMap<u32, (u64, TileSums)> {
-        self.kept_units(job, tile, rect).unwrap_or_else(|e| {
-            tracing::warn!(
-                "job {job} tile {tile}: kept results unreadable ({e}); rendering it again"
-            );
-            BTreeMap::new()
-        })
-    }
-}
-
-/// Whether two results are the same bits: what an audit compares.
-pub fn same_bits(a: &TileSums, b: &TileSums) -> bool {
-    let px = |x: &[[f64; 3]], y: &[[f64; 3]]| {
-        x.len() == y.len()
-            && x.iter()
-                .zip(y)
-                .all(|(p, q)| p.iter().zip(q).all(|(u, v)| u.to_bits() == v.to_bits()))
-    };
-    a.rect == b.rect
-        && a.samples == b.samples
-        && a.nonfinite == b.nonfinite
-        && a.count == b.count
-        && px(&a.sum, &b.sum)
-        && px(&a.sum_sq, &b.sum_sq)
-}
-
-/// A job's tiles, row-major, as arithmetic: a rectangle is computed when asked for, so a job
-/// of millions of tiles costs nothing at admission (or at a restart) for tiles not yet
-/// rendered.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct TileGrid {
-    width: u32,
-    height: u32,
-    size: u32,
-    cols: u32,
-    rows: u32,
-}
-
-impl TileGrid {
-    /// The grid [`PixelRect::tiles`] cuts a `width` × `height` image into.
-    pub fn new(width: u32, height: u32, size: u32) -> Self {
-        let size = size.max(1);
-        Self {
-            width,
-            height,
-            size,
-            cols: width.div_ceil(size),
-            rows: height.div_ceil(size),
-        }
-    }
-
-    /// Number of tiles.
-    pub fn len(&self) -> usize {
-        self.cols as usize * self.rows as usize
-    }
-
-    /// Whether the image has no pixels.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
-    /// Tile `i`'s rectangle, if there is such a tile.
-    pub fn get(&self, i: u32) -> Option<PixelRect> {
-        if i as usize >= self.len() {
-            return None;
-        }
-        let (x0, y0) = ((i % self.cols) * self.size, (i / self.cols) * self.size);
-        Some(PixelRect {
-            x0,
-            y0,
-            width: self.size.min(self.width - x0),
-            height: self.size.min(self.height - y0),
-        })
-    }
 }
 
 /// A job in memory.
@@ -295,27 +120,6 @@ pub struct Job {
     /// ([`tessera_render::Image::noise`]), set when the EXR is written: what a done job
     /// reports, so the farm and `render` print the same figure for the same bits.
     pub image_noise: Option<(f64, f64)>,
-}
-
-/// Whether one pixel's sums could come from `k` finite samples. The renderer's samples are
-/// f32, so each adds at most `f32::MAX` to a sum and `f32::MAX²` to a squared sum: a result
-/// inside these bounds cannot overflow an f64 total however many batches are merged, since a
-/// pixel has at most `u32::MAX` samples. Forged finite values near `f64::MAX` are refused
-/// here, before they can add up to infinity.
-pub fn pixel_in_range(sum: &[f64; 3], sum_sq: &[f64; 3], k: u32) -> bool {
-    let max = f32::MAX as f64;
-    let k = k as f64;
-    sum.iter().all(|v| (0.0..=k * max).contains(v))
-        && sum_sq.iter().all(|v| (0.0..=k * max * max).contains(v))
-}
-
-/// [`pixel_in_range`] for every pixel of a tile's sums.
-pub fn sums_in_range(t: &TileSums) -> bool {
-    t.sum
-        .iter()
-        .zip(&t.sum_sq)
-        .zip(&t.count)
-        .all(|((s, q), k)| pixel_in_range(s, q, *k))
 }
 
 /// Adds `sign` × `parts` to a job's running noise total.
@@ -942,58 +746,5 @@ impl Job {
         self.requeue.clear();
         self.audits.clear();
         self.issued.drain().flat_map(|(_, ids)| ids).collect()
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// #55: a worker's or job's rate kept its last value for ever after the last merge. Now it
-    /// is what was merged over the last window, so it falls to 0 a window after the last one.
-    #[test]
-    fn a_rate_decays_to_zero_a_window_after_the_last_point() {
-        let t0 = Instant::now();
-        let s = |x: f64| Duration::from_secs_f64(x);
-        let mut r = Rate::default();
-        assert_eq!(r.per_second(t0), 0.0);
-        for i in 0..=20u64 {
-            r.record(t0 + s(i as f64 * 0.5), i * 1000);
-        }
-        // 2000 a second while merging, measured over the window.
-        let now = t0 + s(10.0);
-        assert!(
-            (r.per_second(now) - 2000.0).abs() < 1e-6,
-            "{}",
-            r.per_second(now)
-        );
-        // Five seconds without a merge: half the window had none.
-        assert!((r.per_second(now + s(5.0)) - 1000.0).abs() < 1e-6);
-        assert_eq!(r.per_second(now + s(10.0)), 0.0);
-        assert_eq!(r.per_second(now + s(3600.0)), 0.0);
-        // A young total is measured from its first point.
-        let mut young = Rate::default();
-        young.record(t0, 0);
-        young.record(t0 + s(2.0), 500);
-        assert!((young.per_second(t0 + s(2.0)) - 250.0).abs() < 1e-6);
-    }
-
-    #[test]
-    fn the_tile_grid_matches_pixel_rect_tiles() {
-        for (w, h, size) in [
-            (1, 1, 4),
-            (17, 5, 4),
-            (64, 64, 16),
-            (100, 3, 7),
-            (3, 100, 128),
-        ] {
-            let grid = TileGrid::new(w, h, size);
-            let all = PixelRect::tiles(w, h, size);
-            assert_eq!(grid.len(), all.len());
-            for (i, r) in all.iter().enumerate() {
-                assert_eq!(grid.get(i as u32), Some(*r), "{w}×{h}/{size} tile {i}");
-            }
-            assert_eq!(grid.get(all.len() as u32), None);
-        }
     }
 }

@@ -1,0 +1,160 @@
+//! The checks every builder applies to a parsed value (finite, positive, a colour, one of
+//! exclusive keys, a transform that can be inverted), each answering with the key path of what
+//! is wrong: what [`super::build`] and [`super::animate`] share.
+
+use glam::{Affine3A, Mat3, Vec3, Vec3A};
+
+use super::{KeyPath, Seg, TransformDesc};
+use crate::util::math::v3;
+
+/// What is wrong, and where in the file.
+pub(super) type Invalid = (KeyPath, String);
+
+pub(super) fn root(k: &str) -> KeyPath {
+    KeyPath(vec![Seg::Key(k.to_string())])
+}
+
+pub(super) fn finite3(v: [f32; 3], path: &KeyPath) -> Result<Vec3A, Invalid> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(v3(v))
+    } else {
+        Err((path.clone(), format!("must be finite numbers, got {v:?}")))
+    }
+}
+
+pub(super) fn color(v: [f32; 3], path: &KeyPath, max_one: bool) -> Result<Vec3A, Invalid> {
+    let c = finite3(v, path)?;
+    if c.min_element() < 0.0 {
+        return Err((path.clone(), format!("must not be negative, got {v:?}")));
+    }
+    if max_one && c.max_element() > 1.0 {
+        return Err((
+            path.clone(),
+            format!(
+                "must be at most 1 (a surface cannot reflect more than it receives), got {v:?}"
+            ),
+        ));
+    }
+    Ok(c)
+}
+
+pub(super) fn positive(x: f32, path: &KeyPath) -> Result<f32, Invalid> {
+    if x.is_finite() && x > 0.0 {
+        Ok(x)
+    } else {
+        Err((
+            path.clone(),
+            format!("must be a finite number greater than 0, got {x}"),
+        ))
+    }
+}
+
+pub(super) fn finite(x: f32, path: &KeyPath) -> Result<f32, Invalid> {
+    if x.is_finite() {
+        Ok(x)
+    } else {
+        Err((path.clone(), format!("must be a finite number, got {x}")))
+    }
+}
+
+/// Rejects fields that do not belong to the chosen kind, so a typo'd or misplaced key is an
+/// error rather than silently ignored.
+pub(super) fn only(
+    path: &KeyPath,
+    kind: &str,
+    present: &[(&str, bool)],
+    allowed: &[&str],
+) -> Result<(), Invalid> {
+    for (name, is) in present {
+        if *is && !allowed.contains(name) {
+            return Err((path.key(name), format!("`{name}` does not apply to {kind}")));
+        }
+    }
+    Ok(())
+}
+
+/// The value of a key that `kind` cannot do without, or an error at that key saying so.
+pub(super) fn required<T>(
+    value: Option<T>,
+    path: &KeyPath,
+    kind: &str,
+    name: &str,
+) -> Result<T, Invalid> {
+    value.ok_or_else(|| (path.key(name), format!("{kind} needs `{name}`")))
+}
+
+pub(super) fn build_transform(t: &TransformDesc, path: &KeyPath) -> Result<Affine3A, Invalid> {
+    let m = if let Some(rows) = t.matrix {
+        if t.translate.is_some() || t.rotate.is_some() || t.scale.is_some() {
+            return Err((
+                path.key("matrix"),
+                "give either `matrix` or translate/rotate/scale, not both".into(),
+            ));
+        }
+        for (r, row) in rows.iter().enumerate() {
+            for (c, x) in row.iter().enumerate() {
+                if !x.is_finite() {
+                    return Err((
+                        path.key("matrix").index(r),
+                        format!("element {c} must be finite, got {x}"),
+                    ));
+                }
+            }
+        }
+        if rows[3] != [0.0, 0.0, 0.0, 1.0] {
+            return Err((
+                path.key("matrix").index(3),
+                format!(
+                    "the last row of an affine matrix must be [0, 0, 0, 1], got {:?}",
+                    rows[3]
+                ),
+            ));
+        }
+        let col = |c: usize| Vec3::new(rows[0][c], rows[1][c], rows[2][c]);
+        Affine3A::from_mat3_translation(Mat3::from_cols(col(0), col(1), col(2)), col(3))
+    } else {
+        let mut m = Affine3A::IDENTITY;
+        if let Some(s) = t.scale {
+            let s = finite3(s, &path.key("scale"))?;
+            m = Affine3A::from_scale(s.into()) * m;
+        }
+        if let Some(r) = &t.rotate {
+            let rp = path.key("rotate");
+            let axis = finite3(r.axis, &rp.key("axis"))?;
+            let axis = axis
+                .try_normalize()
+                .ok_or_else(|| (rp.key("axis"), "rotation axis must not be zero".to_string()))?;
+            let deg = finite(r.degrees, &rp.key("degrees"))?;
+            // In f64, rounded once: f32 `sin_cos` is picked per CPU at load time and may round
+            // differently, and every worker must build the same geometry bits.
+            let r = glam::DMat3::from_axis_angle(axis.as_dvec3(), f64::from(deg).to_radians());
+            let r = Mat3::from_cols(r.x_axis.as_vec3(), r.y_axis.as_vec3(), r.z_axis.as_vec3());
+            m = Affine3A::from_mat3(r) * m;
+        }
+        if let Some(tr) = t.translate {
+            let tr = finite3(tr, &path.key("translate"))?;
+            m = Affine3A::from_translation(tr.into()) * m;
+        }
+        m
+    };
+    let lin = m.matrix3;
+    let det = lin.determinant();
+    let scale = lin.x_axis.length() * lin.y_axis.length() * lin.z_axis.length();
+    if !(det.abs() > 1e-6 * scale) || !det.is_finite() || scale == 0.0 {
+        return Err((
+            path.clone(),
+            format!("transform is degenerate (determinant {det:e}): it flattens the shape"),
+        ));
+    }
+    Ok(m)
+}
+
+/// Whether the linear part is a rotation times a uniform scale; returns the scale.
+pub(super) fn similarity_scale(m: &Affine3A) -> Option<f32> {
+    let (x, y, z) = (m.matrix3.x_axis, m.matrix3.y_axis, m.matrix3.z_axis);
+    let (lx, ly, lz) = (x.length(), y.length(), z.length());
+    let tol = 1e-5 * lx;
+    let ortho =
+        x.dot(y).abs() <= tol * ly && y.dot(z).abs() <= tol * lz && x.dot(z).abs() <= tol * lz;
+    ((lx - ly).abs() <= tol && (lx - lz).abs() <= tol && ortho).then_some(lx)
+}
