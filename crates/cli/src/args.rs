@@ -4,7 +4,8 @@
 
 use anyhow::{bail, Context, Result};
 use tessera_render::{
-    Adaptive, RenderSettings, Strategy, BATCH_RANGE, DEFAULT_BATCH, DEFAULT_TILE, TILE_RANGE,
+    unit_batch, Adaptive, RenderSettings, Strategy, BATCH_RANGE, DEFAULT_TILE,
+    DEFAULT_UNIT_SAMPLES, TILE_RANGE, UNIT_SAMPLES_RANGE,
 };
 
 /// clap's parser for a tile edge in [`TILE_RANGE`].
@@ -27,10 +28,16 @@ pub struct SettingsArgs {
     /// Job seed: the same seed gives the same bits.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Samples per batch (part of the job's identity, like the seed; `render` and `submit`
-    /// share the default, so a farm job with the same settings gives the same bits).
-    #[arg(long, default_value_t = DEFAULT_BATCH, value_parser = batch_range())]
-    pub batch: u32,
+    /// Samples per batch (part of the job's identity, like the seed). Unset, it follows from
+    /// the image's size, --spp and --unit-samples by one rule that `render`, `submit` and the
+    /// coordinator share (docs/farm.md), so a farm job with the same flags gives the same bits.
+    #[arg(long, value_parser = batch_range())]
+    pub batch: Option<u32>,
+    /// The samples (pixels × samples per pixel) a work unit aims at when --batch is unset:
+    /// larger units cost the coordinator less per sample, smaller ones spread a frame over
+    /// more workers. Part of the render's identity through the batch it chooses.
+    #[arg(long, default_value_t = DEFAULT_UNIT_SAMPLES, value_parser = unit_samples)]
+    pub unit_samples: u64,
     /// Direct-lighting strategy (mis is the best; the others exist for comparisons).
     #[arg(long, value_enum, default_value_t = StrategyArg::Mis)]
     pub strategy: StrategyArg,
@@ -55,13 +62,38 @@ fn noise_target(s: &str) -> Result<f64, String> {
         .map_err(|e| e.to_string())
 }
 
+/// clap's parser for `--unit-samples`, in [`UNIT_SAMPLES_RANGE`].
+fn unit_samples(s: &str) -> Result<u64, String> {
+    let n: u64 = s
+        .parse()
+        .map_err(|_| format!("{s:?} is not a whole number of samples"))?;
+    if UNIT_SAMPLES_RANGE.contains(&n) {
+        Ok(n)
+    } else {
+        Err(format!(
+            "{n} is outside {}..={}",
+            UNIT_SAMPLES_RANGE.start(),
+            UNIT_SAMPLES_RANGE.end()
+        ))
+    }
+}
+
 impl SettingsArgs {
-    /// The renderer's settings, with noise decisions (if any) for tiles of `tile` pixels.
-    pub fn to_settings(&self, tile: u32) -> RenderSettings {
+    /// The renderer's settings for a `width` × `height` image, with noise decisions (if any)
+    /// for tiles of `tile` pixels.
+    pub fn to_settings(&self, tile: u32, width: u32, height: u32) -> RenderSettings {
         RenderSettings {
             seed: self.seed,
             spp: self.spp,
-            batch: self.batch,
+            batch: self.batch.unwrap_or_else(|| {
+                unit_batch(
+                    width,
+                    height,
+                    self.spp,
+                    self.noise_target.is_some(),
+                    self.unit_samples,
+                )
+            }),
             strategy: self.strategy.to_strategy(),
             adaptive: self
                 .noise_target

@@ -109,7 +109,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let scene = Scene::load_at(&args.scene, &limits, frame)?;
     let settings = RenderSettings {
         tracer: args.tracer.to_tracer(),
-        ..args.settings.to_settings(args.tile_size)
+        ..args
+            .settings
+            .to_settings(args.tile_size, scene.width, scene.height)
     };
     let mut pool = rayon::ThreadPoolBuilder::new();
     if let Some(t) = args.threads {

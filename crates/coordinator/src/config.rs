@@ -51,7 +51,15 @@ pub struct Config {
     /// How long an asset file is kept after the last active job naming it ended (or after its
     /// upload, if no job has named it).
     pub asset_retention: Duration,
+    /// How often merged results are made durable (a checkpoint of the tiles merged since the
+    /// last one). A crash loses at most the units merged since the last checkpoint, which are
+    /// rendered again; zero makes every merge durable before it is acknowledged.
+    pub checkpoint_interval: Duration,
 }
+
+/// Checkpoint interval unless configured: a crash costs at most this much of the farm's time
+/// in re-rendering, and the store writes each merged tile at most once in this time.
+pub const DEFAULT_CHECKPOINT_INTERVAL: Duration = Duration::from_secs(5);
 
 /// Most live worker registrations from one host, unless configured: enough for a host running
 /// many worker containers behind one address, few enough that one token holder cannot fill
@@ -124,6 +132,7 @@ impl Config {
             idle_connection: Duration::from_secs(60),
             asset_store_bytes: DEFAULT_ASSET_STORE_BYTES,
             asset_retention: DEFAULT_ASSET_RETENTION,
+            checkpoint_interval: DEFAULT_CHECKPOINT_INTERVAL,
         }
     }
 

@@ -1,6 +1,6 @@
-//! Timings the scheduler cannot see (how long a merge waits to be durable, how long a commit
-//! takes), kept in atomics so that recording one never takes a lock, and the Prometheus text
-//! exposition of them together with the scheduler's [`Counters`].
+//! Timings the scheduler cannot see (how long a merge takes, how long a commit takes), kept
+//! in atomics so that recording one never takes a lock, and the Prometheus text exposition
+//! of them together with the scheduler's [`Counters`].
 
 use std::fmt::Write as _;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -60,7 +60,8 @@ impl Histogram {
 /// Timings and totals recorded outside the scheduler's lock.
 #[derive(Debug, Default)]
 pub struct Metrics {
-    /// From a result's arrival to its merge being durable (merged results only).
+    /// From a result's arrival to its merge in memory (merged results only; the store has it
+    /// at the next checkpoint).
     pub merge: Histogram,
     /// One group commit of the state store.
     pub commit: Histogram,
@@ -224,12 +225,12 @@ impl Metrics {
         self.merge.write(
             &mut t,
             "tessera_merge_seconds",
-            "From a result's arrival to its merge being durable.",
+            "From a result's arrival to its merge (durable at the next checkpoint).",
         );
         self.commit.write(
             &mut t,
             "tessera_store_commit_seconds",
-            "One group commit of the state store.",
+            "One commit of the state store (a checkpoint, or a change a reply waits on).",
         );
         t.single(
             "tessera_store_written_bytes_total",

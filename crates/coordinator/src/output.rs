@@ -27,10 +27,7 @@ enum FinishError {
 
 /// Writes a finished job's EXR, then records it as done (or failed).
 pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
-    let gathered = shared
-        .scheduler()
-        .job(id)
-        .map(|job| (job.rec.clone(), job.settings(), job.frame_tiles()));
+    let gathered = shared.scheduler().take_frame(id);
     let Some((rec, settings, tiles)) = gathered else {
         return;
     };

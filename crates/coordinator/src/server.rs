@@ -82,7 +82,12 @@ pub async fn serve_when_ready(
         .transpose()?;
     let (max_connections, idle) = (config.max_connections, config.idle_connection);
     let (shared, rx, to_finish) = Shared::open(config)?;
-    let writer = tokio::spawn(writer(shared.store.clone(), rx, shared.metrics.clone()));
+    let writer = tokio::spawn(writer(
+        shared.store.clone(),
+        rx,
+        shared.metrics.clone(),
+        shared.config.checkpoint_interval,
+    ));
     for id in to_finish {
         tokio::spawn(finish_job(shared.clone(), id));
     }
@@ -272,7 +277,12 @@ impl InProcess {
     /// Opens the store under `config.data_dir` and restores its jobs, as [`serve`] does.
     pub fn open(config: Config) -> Result<Self, CoordinatorError> {
         let (shared, rx, to_finish) = Shared::open(config)?;
-        let writer = tokio::spawn(writer(shared.store.clone(), rx, shared.metrics.clone()));
+        let writer = tokio::spawn(writer(
+            shared.store.clone(),
+            rx,
+            shared.metrics.clone(),
+            shared.config.checkpoint_interval,
+        ));
         for id in to_finish {
             tokio::spawn(finish_job(shared.clone(), id));
         }

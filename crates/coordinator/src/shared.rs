@@ -1,6 +1,9 @@
 //! The state every handler and background task shares: the scheduler behind one mutex, the
-//! store, and the commit writer that makes changes durable in groups, in the order they were
-//! made.
+//! store, and the commit writer that makes changes durable in the order they were made: at
+//! once for the changes a reply waits on (a job's admission, its end), and at the next
+//! checkpoint for merged results, so that the store's write rate is bounded by the checkpoint
+//! interval rather than by the farm's speed (docs/reliability.md states the bound on what a
+//! crash costs).
 
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{SystemTime, UNIX_EPOCH};
@@ -13,13 +16,14 @@ use crate::config::Config;
 use crate::error::{CommitError, CoordinatorError};
 use crate::metrics::Metrics;
 use crate::scheduler::{Policy, Scheduler};
-use crate::store::{JobPhase, Op, Store};
+use crate::store::{Coalesced, JobPhase, Op, Store};
 use tessera_proto::ids::JobId;
 
-/// A batch of store changes and who waits for them to be durable.
+/// A batch of store changes and who waits for them to be durable (no one: the next
+/// checkpoint makes them so).
 pub(crate) struct Write {
     ops: Vec<Op>,
-    done: oneshot::Sender<Result<(), CommitError>>,
+    done: Option<oneshot::Sender<Result<(), CommitError>>>,
 }
 
 /// State shared by the RPC handlers and background tasks.
@@ -129,14 +133,27 @@ impl Shared {
         self.work.send_modify(|v| *v = v.wrapping_add(1));
     }
 
-    /// Queues store changes. Called with the scheduler's lock held, so commits follow merge
-    /// order.
+    /// Queues store changes to be durable now: they and every change queued before them are
+    /// committed at once. Called with the scheduler's lock held, so commits follow merge order.
     pub(crate) fn queue_write(&self, ops: Vec<Op>) -> oneshot::Receiver<Result<(), CommitError>> {
         let (done, rx) = oneshot::channel();
-        if self.writes.send(Write { ops, done }).is_err() {
+        self.send_write(Write {
+            ops,
+            done: Some(done),
+        });
+        rx
+    }
+
+    /// Queues store changes for the next checkpoint: what a merged result costs the store.
+    /// Called with the scheduler's lock held, like [`queue_write`](Self::queue_write).
+    pub(crate) fn queue_checkpointed(&self, ops: Vec<Op>) {
+        self.send_write(Write { ops, done: None });
+    }
+
+    fn send_write(&self, w: Write) {
+        if self.writes.send(w).is_err() {
             error!("state writer has stopped");
         }
-        rx
     }
 
     /// Deletes the asset files that no stored scene names (the stored scenes are the active
@@ -182,42 +199,102 @@ pub(crate) fn now_ms() -> i64 {
         .unwrap_or(0)
 }
 
-/// Commits queued writes in groups: one fsync covers every result that arrived meanwhile.
+/// Queued changes are committed early, before the checkpoint is due, once they hold this
+/// many bytes: it bounds the memory they take between checkpoints.
+pub(crate) const MAX_QUEUED_BYTES: u64 = 256 << 20;
+
+/// Commits queued writes: at once (with everything queued before them) when someone waits on
+/// them, else at the next checkpoint, every `interval` (a zero interval commits every group at
+/// once, as a farm without checkpoints would), or sooner when [`MAX_QUEUED_BYTES`] are queued.
+/// What is still queued when the last sender goes (a clean stop) is committed before it ends.
+/// A commit that fails is told to those waiting on it, and its changes stay queued for the
+/// next: a later commit never lands without the changes before it.
 pub(crate) async fn writer(
     store: Arc<Store>,
     mut rx: mpsc::UnboundedReceiver<Write>,
     metrics: Arc<Metrics>,
+    interval: std::time::Duration,
 ) {
-    while let Some(first) = rx.recv().await {
-        let mut group = vec![first];
-        while group.len() < 256 {
-            match rx.try_recv() {
-                Ok(w) => group.push(w),
-                Err(_) => break,
+    let mut queued = Coalesced::default();
+    let mut waiters = Vec::new();
+    let mut checkpoint = tokio::time::Instant::now() + interval;
+    loop {
+        let open = tokio::select! {
+            w = rx.recv() => match w {
+                Some(w) => {
+                    take(&mut queued, &mut waiters, w);
+                    // Everything queued meanwhile joins the same commit.
+                    while let Ok(w) = rx.try_recv() {
+                        take(&mut queued, &mut waiters, w);
+                    }
+                    true
+                }
+                None => false,
+            },
+            _ = tokio::time::sleep_until(checkpoint) => true,
+        };
+        let now = tokio::time::Instant::now();
+        let due =
+            !open || !waiters.is_empty() || now >= checkpoint || queued.bytes() >= MAX_QUEUED_BYTES;
+        if due {
+            let waiting = std::mem::take(&mut waiters);
+            if queued.is_empty() {
+                for w in waiting {
+                    let _ = w.send(Ok(()));
+                }
+            } else {
+                commit(&store, &metrics, &mut queued, waiting).await;
+            }
+            checkpoint = tokio::time::Instant::now() + interval;
+        }
+        if !open {
+            return;
+        }
+    }
+}
+
+fn take(
+    queued: &mut Coalesced,
+    waiters: &mut Vec<oneshot::Sender<Result<(), CommitError>>>,
+    w: Write,
+) {
+    for op in w.ops {
+        queued.push(op);
+    }
+    waiters.extend(w.done);
+}
+
+/// Commits what is queued as one transaction and tells those waiting how it went; on failure
+/// the changes go back in the queue.
+async fn commit(
+    store: &Arc<Store>,
+    metrics: &Metrics,
+    queued: &mut Coalesced,
+    waiters: Vec<oneshot::Sender<Result<(), CommitError>>>,
+) {
+    let bytes = queued.bytes();
+    let ops = queued.take();
+    let store = store.clone();
+    let start = std::time::Instant::now();
+    let (result, ops) = match tokio::task::spawn_blocking(move || (store.apply(&ops), ops)).await {
+        Ok((r, ops)) => (r.map_err(|e| CommitError::Store(Arc::new(e))), ops),
+        Err(e) => (Err(CommitError::Task(Arc::new(e))), Vec::new()),
+    };
+    metrics.commit.observe(start.elapsed());
+    match &result {
+        Ok(()) => {
+            metrics
+                .written_bytes
+                .fetch_add(bytes, std::sync::atomic::Ordering::Relaxed);
+        }
+        Err(e) => {
+            error!("state commit failed (its changes stay queued for the next): {e}");
+            for op in ops {
+                queued.push(op);
             }
         }
-        let mut ops = Vec::new();
-        let mut waiters = Vec::new();
-        for w in group {
-            ops.extend(w.ops);
-            waiters.push(w.done);
-        }
-        let store = store.clone();
-        let bytes: u64 = ops.iter().map(Op::payload_len).sum();
-        let start = std::time::Instant::now();
-        let result = tokio::task::spawn_blocking(move || store.apply(&ops))
-            .await
-            .map_err(|e| CommitError::Task(Arc::new(e)))
-            .and_then(|r| r.map_err(|e| CommitError::Store(Arc::new(e))));
-        metrics.commit.observe(start.elapsed());
-        metrics
-            .written_bytes
-            .fetch_add(bytes, std::sync::atomic::Ordering::Relaxed);
-        if let Err(e) = &result {
-            error!("state commit failed: {e}");
-        }
-        for w in waiters {
-            let _ = w.send(result.clone());
-        }
+    }
+    for w in waiters {
+        let _ = w.send(result.clone());
     }
 }

@@ -4,8 +4,7 @@
 
 use tessera_render::adaptive::BadNoiseTarget;
 use tessera_render::{
-    Adaptive, PixelRect, RenderSettings, Strategy, TileSums, BATCH_RANGE, DEFAULT_BATCH,
-    DEFAULT_TILE,
+    Adaptive, PixelRect, RenderSettings, Strategy, TileSums, BATCH_RANGE, DEFAULT_TILE,
 };
 
 use crate::v1 as pb;
@@ -92,8 +91,9 @@ pub enum BadSettings {
     NoiseTarget(#[from] BadNoiseTarget),
 }
 
-/// The renderer's settings from a message's: an unset batch is [`DEFAULT_BATCH`] and an unset
-/// strategy MIS, as the protocol says. The rest of [`RenderSettings`] is not on the wire: every
+/// The renderer's settings from a message's: an unset strategy is MIS, as the protocol says,
+/// and an unset batch stays 0, for the coordinator to choose at admission by the rule that
+/// `tessera render` follows ([`tessera_render::unit_batch`]), which needs the scene's size. The rest of [`RenderSettings`] is not on the wire: every
 /// peer uses the renderer's defaults, which [`tessera_render::IMAGE_REVISION`] pins. Bounds
 /// that depend on a coordinator's configuration (the largest spp) are the coordinator's to
 /// check. A noise target's tiles are not in this message: they are the job's `tile_size`, which
@@ -105,8 +105,8 @@ impl TryFrom<&pb::RenderSettings> for RenderSettings {
         if s.spp == 0 {
             return Err(BadSettings::NoSamples);
         }
-        let batch = if s.batch == 0 { DEFAULT_BATCH } else { s.batch };
-        if !BATCH_RANGE.contains(&batch) {
+        let batch = s.batch;
+        if batch != 0 && !BATCH_RANGE.contains(&batch) {
             return Err(BadSettings::Batch(batch));
         }
         Ok(RenderSettings {
@@ -248,10 +248,7 @@ mod tests {
             ..Default::default()
         })
         .expect("defaults");
-        assert_eq!(
-            (unset.batch, unset.strategy),
-            (DEFAULT_BATCH, Strategy::Mis)
-        );
+        assert_eq!((unset.batch, unset.strategy), (0, Strategy::Mis));
         let bad = |m: pb::RenderSettings| RenderSettings::try_from(&m).map(|_| ());
         assert_eq!(
             bad(pb::RenderSettings::default()),

@@ -26,12 +26,7 @@
 
 use crate::film::TileSums;
 use crate::settings::RenderSettings;
-pub use crate::settings::{Adaptive, BadNoiseTarget, NOISE_TARGET_RANGE};
-
-/// Samples every pixel takes before its tile's noise may stop it (the pilot): a variance
-/// estimated from a handful of samples is often far too low (a dark tile whose rare bright
-/// paths have not been found yet looks noiseless).
-pub const MIN_SAMPLES: u32 = 64;
+pub use crate::settings::{Adaptive, BadNoiseTarget, MIN_SAMPLES, NOISE_TARGET_RANGE};
 
 /// The floor under a squared pixel value in relMSE (and in [`relative_variance`]): without it a
 /// black pixel's relative error is undefined and a nearly black one's dominates the image.

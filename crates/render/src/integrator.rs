@@ -15,7 +15,8 @@ use crate::bsdf::{fresnel_dielectric, reflect, refract, sample_diffuse, Bsdf};
 use crate::interaction::SurfacePoint;
 use crate::scene::Scene;
 pub use crate::settings::{
-    RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_BATCH, DEFAULT_TILE, TILE_RANGE,
+    unit_batch, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_TILE, DEFAULT_UNIT_SAMPLES,
+    MIN_UNITS_PER_FRAME, TILE_RANGE, UNIT_SAMPLES_RANGE,
 };
 use crate::util::math::{offset_ray_origin, Ray};
 use crate::util::sampling::{cosine_hemisphere_pdf, power_heuristic, PixelSampler};

@@ -59,7 +59,8 @@ pub mod wide;
 pub use adaptive::Adaptive;
 pub use film::{assemble_frame, assemble_render, Image, MergeError, PixelRect, TileSums};
 pub use settings::{
-    RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_BATCH, DEFAULT_TILE, TILE_RANGE,
+    unit_batch, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_TILE, DEFAULT_UNIT_SAMPLES,
+    MIN_UNITS_PER_FRAME, TILE_RANGE, UNIT_SAMPLES_RANGE,
 };
 pub use tile::{render_frame, render_tile};
 pub use util::{files, lanes, math, sampling};

@@ -37,10 +37,47 @@ impl Strategy {
     }
 }
 
-/// Samples per batch when a render or job does not choose. The batch decides the order in
-/// which sums are added, so it is part of a job's identity: every entry point (`tessera
-/// render`, `tessera submit`, the coordinator) must use this one value for their bits to match.
-pub const DEFAULT_BATCH: u32 = 16;
+/// The samples a unit (one tile × one batch) aims at when a render or job does not choose its
+/// batch ([`unit_batch`]): enough that a unit is seconds of a many-core worker's time on a
+/// production scene (and a fifth of a second on the Cornell box), and its partial sums (52
+/// bytes a pixel) a small fraction of the samples' worth of work the coordinator merges.
+pub const DEFAULT_UNIT_SAMPLES: u64 = 1 << 24;
+
+/// The unit sizes `--unit-samples` accepts.
+pub const UNIT_SAMPLES_RANGE: RangeInclusive<u64> = (1 << 12)..=(1 << 34);
+
+/// The units [`unit_batch`] cuts a frame into at least, where its lower bound on a unit's
+/// size allows: enough to spread one frame over tens of workers.
+pub const MIN_UNITS_PER_FRAME: u64 = 64;
+
+/// The batch a render or job takes when it does not choose one: the rule every entry point
+/// (`tessera render`, `tessera submit`, the coordinator's admission of a request with batch 0)
+/// applies, so that their bits match without flags. The batch decides the order in which sums
+/// are added, so it is part of a job's identity; the rule reads only the image's size, the
+/// samples per pixel, whether sampling is adaptive and the unit target, never the tile size a
+/// coordinator is configured with, which cannot change a bit.
+///
+/// With a nominal tile of [`DEFAULT_TILE`]² pixels (or the whole image, if smaller), the batch
+/// is the one that cuts the frame into [`MIN_UNITS_PER_FRAME`] units, held between a quarter
+/// of `unit_samples` and `unit_samples` per unit: small frames get a few units of useful size
+/// rather than many tiny ones, large frames units of at most `unit_samples`. It is rounded
+/// down to a power of two, and is never more than `spp`. Adaptive sampling decides after every
+/// batch past its pilot, so there the batch is also at most [`MIN_SAMPLES`]
+/// and an eighth of `spp`, which keeps its decision points.
+pub fn unit_batch(width: u32, height: u32, spp: u32, adaptive: bool, unit_samples: u64) -> u32 {
+    let pixels = (width as u64 * height as u64).max(1);
+    let tile = (DEFAULT_TILE as u64 * DEFAULT_TILE as u64).min(pixels);
+    let tiles = (width.div_ceil(DEFAULT_TILE) as u64 * height.div_ceil(DEFAULT_TILE) as u64).max(1);
+    let most = (unit_samples / tile).max(1);
+    let least = (unit_samples / 4 / tile).clamp(1, most);
+    let spread = (spp as u64 * tiles / MIN_UNITS_PER_FRAME).clamp(least, most);
+    let mut batch = 1u64 << spread.ilog2();
+    if adaptive {
+        batch = batch.min(MIN_SAMPLES as u64).min((spp as u64 / 8).max(1));
+        batch = 1 << batch.ilog2();
+    }
+    batch.min(spp.max(1) as u64).min(*BATCH_RANGE.end() as u64) as u32
+}
 
 /// The batch sizes accepted everywhere.
 pub const BATCH_RANGE: std::ops::RangeInclusive<u32> = 1..=65536;
@@ -104,7 +141,7 @@ impl Default for RenderSettings {
         Self {
             seed: 0,
             spp: 64,
-            batch: DEFAULT_BATCH,
+            batch: 16,
             strategy: Strategy::Mis,
             rr_depth: 3,
             rr_threshold: 0.25,
@@ -114,6 +151,12 @@ impl Default for RenderSettings {
         }
     }
 }
+
+/// Samples every pixel takes before its tile's noise may stop it (the pilot): a variance
+/// estimated from a handful of samples is often far too low (a dark tile whose rare bright
+/// paths have not been found yet looks noiseless). Here, below [`crate::adaptive`], because
+/// the batch rule ([`unit_batch`]) keeps adaptive batches within it.
+pub const MIN_SAMPLES: u32 = 64;
 
 /// The noise targets accepted: a relative error of 0.01% to 100%.
 pub const NOISE_TARGET_RANGE: RangeInclusive<f64> = 1e-4..=1.0;
@@ -145,5 +188,69 @@ impl Adaptive {
             return Err(BadNoiseTarget(noise_target));
         }
         Ok(Self { noise_target, tile })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn units(w: u32, h: u32, spp: u32, batch: u32) -> u64 {
+        (w.div_ceil(DEFAULT_TILE) as u64 * h.div_ceil(DEFAULT_TILE) as u64)
+            * spp.div_ceil(batch) as u64
+    }
+
+    #[test]
+    fn the_unit_rule_gives_these_batches() {
+        let u = DEFAULT_UNIT_SAMPLES;
+        // (width, height, spp, adaptive) → batch, as docs/farm.md tabulates them.
+        let cases = [
+            ((256, 256, 1024, false), 256),
+            ((1024, 1024, 1024, false), 1024),
+            ((1024, 1024, 256, false), 256),
+            ((1920, 1080, 64, false), 64),
+            ((4096, 4096, 8, false), 8),
+            ((256, 256, 64, false), 64),
+            ((16, 16, 65536, false), 16384),
+            ((1, 1, 1, false), 1),
+            ((256, 256, 1024, true), 64),
+            ((256, 256, 100, true), 8),
+            ((256, 256, 3, true), 1),
+        ];
+        for ((w, h, spp, adaptive), want) in cases {
+            assert_eq!(
+                unit_batch(w, h, spp, adaptive, u),
+                want,
+                "{w}×{h} at {spp} spp"
+            );
+        }
+    }
+
+    #[test]
+    fn the_unit_rule_keeps_its_bounds() {
+        for (w, h) in [(1, 1), (7, 300), (256, 256), (1920, 1080), (8192, 8192)] {
+            for spp in [1, 2, 3, 17, 64, 100, 1024, 4096, 65536, 1 << 20] {
+                for u in [1 << 12, 1 << 20, DEFAULT_UNIT_SAMPLES, 1 << 34] {
+                    for adaptive in [false, true] {
+                        let b = unit_batch(w, h, spp, adaptive, u);
+                        assert!(b.is_power_of_two() || b == spp, "{w}×{h} {spp} {u}: {b}");
+                        assert!(BATCH_RANGE.contains(&b) && b <= spp, "{b} for {spp} spp");
+                        let tile = (DEFAULT_TILE as u64).pow(2).min(w as u64 * h as u64);
+                        // A unit never exceeds the target (one sample a pixel aside).
+                        assert!(b == 1 || tile * b as u64 <= u, "{w}×{h} {spp} {u}: {b}");
+                        // Below a quarter of the target (an eighth, after rounding to a power
+                        // of two) only to give the frame its units, or because the samples
+                        // run out.
+                        if !adaptive && b < spp && b < *BATCH_RANGE.end() && tile * b as u64 * 8 < u
+                        {
+                            assert!(
+                                units(w, h, spp, b) >= MIN_UNITS_PER_FRAME / 2,
+                                "{w}×{h} {spp} {u}: {b}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
     }
 }

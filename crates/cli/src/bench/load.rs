@@ -1,12 +1,18 @@
-//! `tessera loadtest`: many simulated workers against one real coordinator on loopback.
+//! `tessera loadtest`: many simulated workers against one real coordinator on loopback, sending
+//! full-size results.
 //!
 //! The coordinator is a `tessera coordinator` process of its own (this binary), so that its
 //! CPU time, memory and bytes written can be read from `/proc` without counting the
 //! simulated workers'. The workers are tasks in this process, each with its own connection
 //! and registration, doing what a stock worker does with one unit at a time: lease, render,
-//! submit. They really render (a 4×4-pixel tile, one sample), so every result is the exact sum
-//! an honest worker sends and the coordinator's checks and merges run as in production, while a
-//! unit costs microseconds and the coordinator, not the renderer, is what is measured.
+//! submit. A unit is full size (a 128² tile of a 2048² Cornell box, with the batch the job's
+//! settings give it), so the coordinator decodes, checks, merges and stores as many bytes per
+//! sample as it does in production. Rendering every unit for real would make the load
+//! generator, not the coordinator, the bottleneck: the sums of one real render of a tile (16
+//! samples a pixel, made once) are replayed for each unit, scaled to the unit's sample count,
+//! so every result passes the coordinator's checks as an honest one does. `--rate` paces the
+//! workers to an aggregate rate of samples; without it they send as fast as the coordinator
+//! takes them, which measures the most it sustains.
 
 use std::fmt::Write as _;
 use std::io::{BufRead, BufReader};
@@ -21,7 +27,7 @@ use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_client::JobsClient;
 use tessera_proto::v1::workers_client::WorkersClient;
 use tessera_render::scene::{Format, Limits, Scene};
-use tessera_render::{render_tile, PixelRect, RenderSettings};
+use tessera_render::{render_tile, PixelRect, RenderSettings, TileSums};
 use tonic::transport::Channel;
 
 /// Arguments of `tessera loadtest`.
@@ -43,26 +49,85 @@ pub struct LoadArgs {
     /// that the workers' load does not take the coordinator's core.
     #[arg(long)]
     split_cores: bool,
+    /// Aggregate rate the workers send at, in million samples a second (0: as fast as the
+    /// coordinator takes them).
+    #[arg(long, default_value_t = 0.0)]
+    rate: f64,
+    /// The job's batch (default: the one `tessera submit` chooses for it, by the unit rule).
+    #[arg(long, value_parser = crate::args::batch_range())]
+    batch: Option<u32>,
+    /// The coordinator's --checkpoint-interval, in seconds (default: its default).
+    #[arg(long)]
+    checkpoint_interval: Option<f64>,
 }
 
-/// The job every run renders: a 16×16 Cornell box in 4-pixel tiles, one sample a unit, so a
-/// unit is 16 paths and the job has more units (16 tiles × 65,536 batches) than any run merges.
+/// The job every run renders: a 2048² Cornell box in 128-pixel tiles, with more samples than
+/// any run merges (256 tiles × 65,536 samples a pixel: 275 Gsamples).
+const SIZE: u32 = 2048;
 const SPP: u32 = 65_536;
-const TILE: u32 = 4;
+const TILE: u32 = 128;
+/// Samples a pixel of the one real render whose sums every result replays.
+const TEMPLATE_SPP: u32 = 16;
 
 fn scene_text() -> String {
     include_str!("../../../../scenes/cornell-box.toml")
-        .replace("width = 256", "width = 16")
-        .replace("height = 256", "height = 16")
+        .replace("width = 256", &format!("width = {SIZE}"))
+        .replace("height = 256", &format!("height = {SIZE}"))
 }
 
-fn settings() -> RenderSettings {
+fn settings(batch: Option<u32>) -> RenderSettings {
     RenderSettings {
         spp: SPP,
-        batch: 1,
+        batch: batch.unwrap_or_else(|| {
+            tessera_render::unit_batch(SIZE, SIZE, SPP, false, tessera_render::DEFAULT_UNIT_SAMPLES)
+        }),
         seed: 7,
         ..RenderSettings::default()
     }
+}
+
+/// The sums of one real render of tile 0 at [`TEMPLATE_SPP`], to be replayed for any unit.
+fn template(scene: &Scene, batch: u32) -> TileSums {
+    let rect = PixelRect {
+        x0: 0,
+        y0: 0,
+        width: TILE,
+        height: TILE,
+    };
+    let s = RenderSettings {
+        spp: TEMPLATE_SPP,
+        batch: TEMPLATE_SPP,
+        ..settings(Some(batch))
+    };
+    render_tile(scene, &s, rect, 0..TEMPLATE_SPP)
+}
+
+/// The template's sums as a `unit`'s: its rectangle and samples, every pixel's sums scaled to
+/// the unit's sample count, with the same count of samples left out as non-finite (none, from
+/// the Cornell box): sums an honest worker could have sent.
+fn replay(t: &TileSums, unit: &pb::WorkUnit) -> Result<pb::TileResult> {
+    let rect = unit.rect.ok_or_else(|| anyhow!("a unit without a rect"))?;
+    if (rect.width, rect.height) != (t.rect.width, t.rect.height) {
+        bail!(
+            "unit {}×{} is not the template's size",
+            rect.width,
+            rect.height
+        );
+    }
+    let n = unit.sample_end.saturating_sub(unit.sample_start);
+    let k = n as f64 / TEMPLATE_SPP as f64;
+    let scaled = |v: &[[f64; 3]]| v.iter().flatten().map(|x| x * k).collect::<Vec<f64>>();
+    let count: Vec<u32> = t.count.iter().map(|c| c * n / TEMPLATE_SPP).collect();
+    let nonfinite = count.iter().map(|c| u64::from(n - c)).sum();
+    Ok(pb::TileResult {
+        rect: Some(rect),
+        sample_start: unit.sample_start,
+        sample_end: unit.sample_end,
+        sum: scaled(&t.sum),
+        sum_sq: scaled(&t.sum_sq),
+        count,
+        nonfinite,
+    })
 }
 
 /// One run's figures.
@@ -71,6 +136,8 @@ struct Run {
     workers: usize,
     seconds: f64,
     merged: u64,
+    /// Samples in the merged units.
+    samples: u64,
     refused: u64,
     lease_p50_ms: f64,
     lease_p99_ms: f64,
@@ -81,6 +148,10 @@ struct Run {
     rss_mib: f64,
     peak_rss_mib: f64,
     bytes_per_unit: f64,
+    /// Coordinator CPU seconds per 10⁹ samples merged.
+    cpu_per_gsample: f64,
+    /// Bytes the coordinator wrote to storage per 10⁹ samples merged, in MB.
+    mb_per_gsample: f64,
 }
 
 /// The coordinator process, killed when dropped.
@@ -138,11 +209,13 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
 
 /// What the simulated workers share: when to stop, and what they saw.
 struct Shared {
-    scene: Scene,
-    settings: RenderSettings,
+    template: TileSums,
+    /// Each worker's time between results, for an aggregate `--rate` (none: no pacing).
+    pace: Option<Duration>,
     measuring: AtomicBool,
     stop: AtomicBool,
     merged: AtomicU64,
+    samples: AtomicU64,
     refused: AtomicU64,
     latencies: Mutex<Vec<f64>>,
     /// The probe worker's: one more worker on a thread of its own, whose round trips are the
@@ -150,8 +223,8 @@ struct Shared {
     probe_latencies: Mutex<Vec<f64>>,
 }
 
-/// One simulated worker: registers, then leases one unit at a time, renders and submits it,
-/// until told to stop.
+/// One simulated worker: registers, then leases one unit at a time, replays the template as
+/// its result and submits it (no sooner than its pace allows), until told to stop.
 async fn simulated_worker(url: String, n: usize, shared: Arc<Shared>, probe: bool) -> Result<()> {
     let channel = Channel::from_shared(url)?.connect().await?;
     let mut client = WorkersClient::new(channel);
@@ -166,6 +239,11 @@ async fn simulated_worker(url: String, n: usize, shared: Arc<Shared>, probe: boo
         .into_inner()
         .worker_id;
     let mut mine = Vec::new();
+    // Workers start spread over one pace period, as real ones drift apart.
+    let mut next = Instant::now()
+        + shared
+            .pace
+            .map_or(Duration::ZERO, |p| p.mul_f64((n % 97) as f64 / 97.0));
     while !shared.stop.load(Ordering::Relaxed) {
         let start = Instant::now();
         let units = client
@@ -182,13 +260,13 @@ async fn simulated_worker(url: String, n: usize, shared: Arc<Shared>, probe: boo
             mine.push(start.elapsed().as_secs_f64() * 1e3);
         }
         for u in units {
-            let rect = PixelRect::from(u.rect.ok_or_else(|| anyhow!("a unit without a rect"))?);
-            let sums = render_tile(
-                &shared.scene,
-                &shared.settings,
-                rect,
-                u.sample_start..u.sample_end,
-            );
+            let result = replay(&shared.template, &u)?;
+            let samples =
+                u64::from(u.sample_end - u.sample_start) * u64::from(result.count.len() as u32);
+            if let Some(pace) = shared.pace {
+                tokio::time::sleep_until(next.into()).await;
+                next = Instant::now().max(next) + pace;
+            }
             let outcome = client
                 .submit_result(pb::SubmitResultRequest {
                     worker_id: id.clone(),
@@ -196,7 +274,7 @@ async fn simulated_worker(url: String, n: usize, shared: Arc<Shared>, probe: boo
                     job_id: u.job_id,
                     tile_index: u.tile_index,
                     batch_index: u.batch_index,
-                    result: Some(pb::TileResult::from(&sums)),
+                    result: Some(result),
                 })
                 .await?
                 .into_inner()
@@ -204,6 +282,7 @@ async fn simulated_worker(url: String, n: usize, shared: Arc<Shared>, probe: boo
             if shared.measuring.load(Ordering::Relaxed) {
                 if outcome == pb::ResultOutcome::Merged as i32 {
                     shared.merged.fetch_add(1, Ordering::Relaxed);
+                    shared.samples.fetch_add(samples, Ordering::Relaxed);
                 } else {
                     shared.refused.fetch_add(1, Ordering::Relaxed);
                 }
@@ -222,7 +301,19 @@ async fn simulated_worker(url: String, n: usize, shared: Arc<Shared>, probe: boo
 }
 
 /// One run with `workers` simulated workers for `seconds`.
-async fn run_one(workers: usize, seconds: u64, split_cores: bool) -> Result<Run> {
+/// What every run shares: the options, the job's settings and the template result.
+struct Plan {
+    seconds: u64,
+    split_cores: bool,
+    rate: f64,
+    checkpoint_interval: Option<f64>,
+    settings: RenderSettings,
+    template: TileSums,
+}
+
+/// One run with `workers` simulated workers, measured for `plan.seconds`.
+async fn run_one(workers: usize, plan: &Plan) -> Result<Run> {
+    let (seconds, split_cores) = (plan.seconds, plan.split_cores);
     let dir = tempfile::tempdir()?;
     let exe = std::env::current_exe()?;
     let mut command = if split_cores {
@@ -237,6 +328,11 @@ async fn run_one(workers: usize, seconds: u64, split_cores: bool) -> Result<Run>
         .arg(dir.path().join("data"))
         .args(["--max-connections", &(workers + 64).to_string()])
         .args(["--tile-size", &TILE.to_string()])
+        .args(
+            plan.checkpoint_interval
+                .map(|c| vec!["--checkpoint-interval".to_string(), c.to_string()])
+                .unwrap_or_default(),
+        )
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
@@ -254,24 +350,22 @@ async fn run_one(workers: usize, seconds: u64, split_cores: bool) -> Result<Run>
     let mut jobs = JobsClient::connect(url.clone()).await?;
     jobs.submit_job(pb::SubmitJobRequest {
         scene_text: scene_text(),
-        scene_name: "cornell-16.toml".into(),
-        settings: Some(pb::RenderSettings::from(&settings())),
+        scene_name: format!("cornell-{SIZE}.toml"),
+        settings: Some(pb::RenderSettings::from(&plan.settings)),
         tile_size: TILE,
         ..Default::default()
     })
     .await
     .map_err(|e| anyhow!("submit: {}", e.message()))?;
+    let unit_samples = f64::from(TILE * TILE) * f64::from(plan.settings.batch);
     let shared = Arc::new(Shared {
-        scene: Scene::from_str(
-            &scene_text(),
-            Format::Toml,
-            "cornell-16",
-            &Limits::default(),
-        )?,
-        settings: settings(),
+        template: plan.template.clone(),
+        pace: (plan.rate > 0.0)
+            .then(|| Duration::from_secs_f64(workers as f64 * unit_samples / (plan.rate * 1e6))),
         measuring: AtomicBool::new(false),
         stop: AtomicBool::new(false),
         merged: AtomicU64::new(0),
+        samples: AtomicU64::new(0),
         refused: AtomicU64::new(0),
         latencies: Mutex::new(Vec::new()),
         probe_latencies: Mutex::new(Vec::new()),
@@ -323,6 +417,9 @@ async fn run_one(workers: usize, seconds: u64, split_cores: bool) -> Result<Run>
         .map_err(|_| anyhow!("the probe worker panicked"))??;
     drop(coordinator);
     let merged = shared.merged.load(Ordering::Relaxed);
+    let samples = shared.samples.load(Ordering::Relaxed);
+    let gsamples = (samples as f64 / 1e9).max(f64::MIN_POSITIVE);
+    let written = after.3.saturating_sub(before.3) as f64;
     let sorted = |m: &Mutex<Vec<f64>>| -> Result<Vec<f64>> {
         let mut v = std::mem::take(&mut *m.lock().map_err(|_| anyhow!("a worker panicked"))?);
         v.sort_by(f64::total_cmp);
@@ -333,6 +430,7 @@ async fn run_one(workers: usize, seconds: u64, split_cores: bool) -> Result<Run>
         workers,
         seconds: elapsed,
         merged,
+        samples,
         refused: shared.refused.load(Ordering::Relaxed),
         lease_p50_ms: percentile(&lat, 0.5),
         lease_p99_ms: percentile(&lat, 0.99),
@@ -342,7 +440,9 @@ async fn run_one(workers: usize, seconds: u64, split_cores: bool) -> Result<Run>
         cpu_share: (after.0 - before.0) / elapsed,
         rss_mib: after.1,
         peak_rss_mib: after.2,
-        bytes_per_unit: (after.3.saturating_sub(before.3)) as f64 / merged.max(1) as f64,
+        bytes_per_unit: written / merged.max(1) as f64,
+        cpu_per_gsample: (after.0 - before.0) / gsamples,
+        mb_per_gsample: written / 1e6 / gsamples,
     })
 }
 
@@ -373,13 +473,38 @@ pub fn run(args: LoadArgs) -> Result<()> {
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
+    if !(args.rate.is_finite() && args.rate >= 0.0) {
+        bail!(
+            "--rate must be a rate in Msamples/s (0: unpaced), got {}",
+            args.rate
+        );
+    }
+    let settings = settings(args.batch);
+    let scene = Scene::from_str(&scene_text(), Format::Toml, "cornell", &Limits::default())?;
+    let plan = Plan {
+        seconds: args.seconds,
+        split_cores: args.split_cores,
+        rate: args.rate,
+        checkpoint_interval: args.checkpoint_interval,
+        template: template(&scene, settings.batch),
+        settings,
+    };
+    errln!(
+        "units: {TILE}² pixels × {} samples ({:.1} Msamples, {:.0} KB of sums)",
+        plan.settings.batch,
+        f64::from(TILE * TILE * plan.settings.batch) / 1e6,
+        f64::from(TILE * TILE) * 52.0 / 1e3
+    );
     let mut runs = Vec::new();
     for &n in &args.workers {
         errln!("{n} simulated workers for {} s …", args.seconds);
-        let r = runtime.block_on(run_one(n, args.seconds, args.split_cores))?;
+        let r = runtime.block_on(run_one(n, &plan))?;
         errln!(
-            "  {:.0} units merged/s, lease p50 {:.2} ms p99 {:.2} ms (probe {:.2}/{:.2}), coordinator CPU {:.0}% RSS {:.1} MiB, {:.0} bytes written per unit",
+            "  {:.2} Gsamples/s ({:.0} units/s), {:.3} CPU-s and {:.1} MB written per Gsample, lease p50 {:.2} ms p99 {:.2} ms (probe {:.2}/{:.2}), coordinator CPU {:.0}% RSS {:.1} MiB, {:.0} bytes written per unit",
+            r.samples as f64 / 1e9 / r.seconds,
             r.merged as f64 / r.seconds,
+            r.cpu_per_gsample,
+            r.mb_per_gsample,
             r.lease_p50_ms,
             r.lease_p99_ms,
             r.probe_p50_ms,
@@ -400,12 +525,7 @@ pub fn run(args: LoadArgs) -> Result<()> {
     std::fs::write(&csv, to_csv(&runs))?;
     std::fs::write(
         &md,
-        report(
-            &runs,
-            &command,
-            &super::report::machine(clock),
-            args.split_cores,
-        ),
+        report(&runs, &command, &super::report::machine(clock), &plan),
     )?;
     outln!("wrote {} and {}", md.display(), csv.display());
     Ok(())
@@ -413,8 +533,11 @@ pub fn run(args: LoadArgs) -> Result<()> {
 
 impl Run {
     /// The measured columns, in the reports' order.
-    fn columns(&self) -> [f64; 10] {
+    fn columns(&self) -> [f64; 13] {
         [
+            self.samples as f64 / 1e9 / self.seconds,
+            self.cpu_per_gsample,
+            self.mb_per_gsample,
             self.merged as f64 / self.seconds,
             self.lease_p50_ms,
             self.lease_p99_ms,
@@ -430,7 +553,10 @@ impl Run {
 }
 
 /// [`Run::columns`]' names, and the decimals the markdown table gives each.
-const COLUMNS: [(&str, &str, usize); 10] = [
+const COLUMNS: [(&str, &str, usize); 13] = [
+    ("gsamples_per_s", "Gsamples merged/s", 3),
+    ("cpu_s_per_gsample", "coordinator CPU-s per Gsample", 3),
+    ("mb_written_per_gsample", "MB written per Gsample", 1),
     ("units_per_s", "units merged/s", 0),
     ("lease_p50_ms", "lease p50 ms", 2),
     ("lease_p99_ms", "lease p99 ms", 2),
@@ -444,7 +570,7 @@ const COLUMNS: [(&str, &str, usize); 10] = [
 ];
 
 fn to_csv(runs: &[Run]) -> String {
-    let mut s = String::from("workers,seconds,units_merged,units_refused");
+    let mut s = String::from("workers,seconds,units_merged,units_refused,samples_merged");
     for (name, _, _) in COLUMNS {
         let _ = write!(s, ",{name}");
     }
@@ -452,8 +578,8 @@ fn to_csv(runs: &[Run]) -> String {
     for r in runs {
         let _ = write!(
             s,
-            "{},{:.3},{},{}",
-            r.workers, r.seconds, r.merged, r.refused
+            "{},{:.3},{},{},{}",
+            r.workers, r.seconds, r.merged, r.refused, r.samples
         );
         for v in r.columns() {
             let _ = write!(s, ",{v:.3}");
@@ -463,27 +589,46 @@ fn to_csv(runs: &[Run]) -> String {
     s
 }
 
-fn report(runs: &[Run], command: &str, machine: &str, split: bool) -> String {
-    let mut md = String::from("# Many workers against one coordinator\n\n");
+fn report(runs: &[Run], command: &str, machine: &str, plan: &Plan) -> String {
+    let mut md = String::from("# Many workers against one coordinator, full-size units\n\n");
     let _ = writeln!(md, "Made by `{command}`.\n");
     let _ = writeln!(md, "Machine: {machine}.\n");
-    let cores = if split {
+    let cores = if plan.split_cores {
         "The coordinator ran on CPU 0 alone, the simulated workers on the others \
          (`--split-cores`)."
     } else {
         "Both processes shared the machine's cores."
     };
+    let pace = if plan.rate > 0.0 {
+        format!(
+            "The workers were paced to {} Msamples/s together.",
+            plan.rate
+        )
+    } else {
+        "The workers were not paced: each sent its next result as soon as the last was \
+         answered, so the rate is the most the coordinator took."
+            .to_string()
+    };
+    let checkpoint = plan
+        .checkpoint_interval
+        .map_or("its default".to_string(), |c| format!("{c} s"));
     let _ = writeln!(
         md,
-        "A `tessera coordinator` process on loopback, with its store on this machine's disk; N \
-         simulated workers in one other process, each with its own connection and \
-         registration, leasing one unit at a time, rendering it for real (a 4×4 tile of a \
-         16×16 Cornell box, one sample: 16 paths) and submitting it. The coordinator's CPU \
+        "A `tessera coordinator` process on loopback, with its store on this machine's disk and \
+         a checkpoint interval of {checkpoint}; N simulated workers in one other process, each \
+         with its own connection and registration, leasing one unit at a time and submitting \
+         a full-size result for it: a {TILE}² tile × {batch} samples ({msamples:.1} Msamples, \
+         {kb:.0} KB of sums) of a {SIZE}² Cornell box, the sums of one real render of a tile \
+         at {TEMPLATE_SPP} spp scaled to the unit's samples. {pace} The coordinator's CPU \
          time and bytes written come from `/proc/PID/stat` and `/proc/PID/io` over the \
-         measured window, its memory from `/proc/PID/status` at the window's end. Lease \
-         latency is a `Lease` call's round trip, for calls that returned a unit, as the N \
-         workers saw it (their own process's queueing included) and as one more worker, the \
-         probe, saw it from a thread of its own. {cores}\n"
+         measured window (a checkpoint that falls in it writes what was merged before it), \
+         its memory from `/proc/PID/status` at the window's end. Lease latency is a `Lease` \
+         call's round trip, for calls that returned a unit, as the N workers saw it (their own \
+         process's queueing included) and as one more worker, the probe, saw it from a thread \
+         of its own. {cores}\n",
+        batch = plan.settings.batch,
+        msamples = f64::from(TILE * TILE * plan.settings.batch) / 1e6,
+        kb = f64::from(TILE * TILE) * 52.0 / 1e3,
     );
     md.push_str("| workers |");
     for (_, title, _) in COLUMNS {

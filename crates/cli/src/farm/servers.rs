@@ -28,6 +28,12 @@ pub struct CoordinatorArgs {
     /// Seconds a lease lasts without a heartbeat before its unit is handed to another worker.
     #[arg(long, default_value_t = config::DEFAULT_LEASE_TIMEOUT.as_secs_f64())]
     lease_timeout: f64,
+    /// Seconds between checkpoints of merged results to the state store. A crash costs at
+    /// most the units merged since the last one, which are rendered again (their bits are
+    /// the same); 0 makes every merge durable before it is acknowledged, at a disk write per
+    /// result.
+    #[arg(long, default_value_t = config::DEFAULT_CHECKPOINT_INTERVAL.as_secs_f64())]
+    checkpoint_interval: f64,
     /// Default tile edge in pixels for jobs that do not choose one.
     #[arg(long, default_value_t = DEFAULT_TILE, value_parser = tile_range())]
     tile_size: u32,
@@ -124,6 +130,13 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
             args.lease_timeout
         );
     }
+    if !(args.checkpoint_interval.is_finite() && (0.0..=3600.0).contains(&args.checkpoint_interval))
+    {
+        bail!(
+            "--checkpoint-interval must be between 0 and 3600 seconds, got {}",
+            args.checkpoint_interval
+        );
+    }
     if !(args.asset_retention.is_finite() && (0.0..=1e9).contains(&args.asset_retention)) {
         bail!(
             "--asset-retention must be between 0 and 1e9 seconds, got {}",
@@ -142,6 +155,7 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
     config.audit = args.audit;
     config.output_dir = args.output_dir;
     config.lease_timeout = Duration::from_secs_f64(args.lease_timeout);
+    config.checkpoint_interval = Duration::from_secs_f64(args.checkpoint_interval);
     config.default_tile_size = args.tile_size;
     config.limits.max_bytes = args.max_scene_bytes;
     config.limits.max_spp = args.max_spp;

@@ -122,6 +122,17 @@ pub struct Job {
     pub image_noise: Option<(f64, f64)>,
 }
 
+/// A frame's tiles, row-major, from `sums` of each tile index. A tile without any (which would
+/// be a bug once every unit is in) is black rather than left out of the frame.
+fn frame_of(tiles: TileGrid, mut sums: impl FnMut(u32) -> Option<TileSums>) -> Vec<TileSums> {
+    (0..tiles.len() as u32)
+        .filter_map(|t| {
+            let rect = tiles.get(t)?;
+            Some(sums(t).unwrap_or_else(|| TileSums::empty(rect, 0)))
+        })
+        .collect()
+}
+
 /// Adds `sign` × `parts` to a job's running noise total.
 fn add_noise(total: &mut (f64, f64, u64), parts: (f64, f64, u64), sign: f64) {
     total.0 += sign * parts.0;
@@ -715,20 +726,20 @@ impl Job {
         (ops, taken)
     }
 
-    /// Every tile's sums, row-major, for writing the frame. A tile without any (which would be
-    /// a bug once every unit is in) is black rather than left out of the frame.
+    /// Every tile's sums, row-major, copied (what tests compare frames by; writing the frame
+    /// takes them instead, [`take_frame_tiles`](Self::take_frame_tiles)).
     pub fn frame_tiles(&self) -> Vec<TileSums> {
-        (0..self.tiles.len() as u32)
-            .filter_map(|t| {
-                let rect = self.tiles.get(t)?;
-                Some(
-                    self.acc
-                        .get(&t)
-                        .and_then(|a| a.sums.clone())
-                        .unwrap_or_else(|| TileSums::empty(rect, 0)),
-                )
-            })
-            .collect()
+        frame_of(self.tiles, |t| {
+            self.acc.get(&t).and_then(|a| a.sums.clone())
+        })
+    }
+
+    /// Every tile's sums, row-major, for writing the frame, moved out of the job: once every
+    /// unit is in, the frame is written and the job ends, so a copy would double the memory a
+    /// large frame takes at its peak. (A restart before the end reads them from the store.)
+    pub fn take_frame_tiles(&mut self) -> Vec<TileSums> {
+        let acc = &mut self.acc;
+        frame_of(self.tiles, |t| acc.get_mut(&t).and_then(|a| a.sums.take()))
     }
 
     /// Each tile's relative noise from its merged sums, row-major ([`relative_noise`]).

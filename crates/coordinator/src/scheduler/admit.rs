@@ -5,7 +5,9 @@
 
 use tessera_proto::ids::JobId;
 use tessera_render::scene::FrameRange;
-use tessera_render::{RenderSettings, IMAGE_REVISION, TILE_RANGE};
+use tessera_render::{
+    unit_batch, RenderSettings, DEFAULT_UNIT_SAMPLES, IMAGE_REVISION, TILE_RANGE,
+};
 
 use super::Scheduler;
 use crate::error::Refusal;
@@ -251,6 +253,19 @@ impl Scheduler {
             }
         }
         let s = &a.settings;
+        // A request that leaves the batch to the coordinator gets the rule `tessera render`
+        // follows, so that its bits are render's for the same flags.
+        let batch = if s.batch == 0 {
+            unit_batch(
+                a.width,
+                a.height,
+                s.spp,
+                s.adaptive.is_some(),
+                DEFAULT_UNIT_SAMPLES,
+            )
+        } else {
+            s.batch
+        };
         let record = |frame: Option<u32>| JobRecord {
             id: 0,
             scene_hash: a.scene_hash.clone(),
@@ -259,7 +274,7 @@ impl Scheduler {
             height: a.height,
             spp: s.spp,
             seed: s.seed,
-            batch: s.batch,
+            batch,
             strategy: s.strategy,
             tile_size: a.tile_size,
             output_name: String::new(),

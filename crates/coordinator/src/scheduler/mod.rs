@@ -29,7 +29,7 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::time::{Duration, Instant};
 
 use tessera_proto::ids::{JobId, LeaseId};
-use tessera_render::TileSums;
+use tessera_render::{RenderSettings, TileSums};
 
 use crate::config::{
     DEFAULT_MAX_LEASES_PER_WORKER, DEFAULT_MAX_WORKERS_PER_HOST, DEFAULT_QUARANTINE_AFTER,
@@ -37,7 +37,7 @@ use crate::config::{
 use crate::error::Refusal;
 use crate::job::{Job, Source, Unit};
 use crate::metrics::Counters;
-use crate::store::{JobPhase, Op};
+use crate::store::{JobPhase, JobRecord, Op};
 use audit::audit_excludes;
 
 pub use admit::{Admission, AdmissionLimits, Asked, Checked};
@@ -387,6 +387,16 @@ impl Scheduler {
             job.image_noise = Some(noise);
         }
         self.end_job(id, JobPhase::Done, String::new(), now_ms)
+    }
+
+    /// A job whose every unit is in, for writing its frame: its record, settings and tiles'
+    /// sums, moved out ([`Job::take_frame_tiles`]). `None` for a job that is not finishing.
+    pub fn take_frame(&mut self, id: JobId) -> Option<(JobRecord, RenderSettings, Vec<TileSums>)> {
+        let job = self
+            .jobs
+            .get_mut(&id)
+            .filter(|j| j.finishing && j.rec.phase == JobPhase::Active)?;
+        Some((job.rec.clone(), job.settings(), job.take_frame_tiles()))
     }
 
     /// Ends a job (done, cancelled or failed): frees its units, leases and sums.

@@ -165,7 +165,7 @@ impl Workers for Service {
             tile: req.tile_index,
             batch: req.batch_index,
         };
-        let (merged, rx) = {
+        let (merged, new) = {
             let mut core = self.shared.scheduler();
             let now = Instant::now();
             let w = core.touch_worker(&cred, now)?;
@@ -183,8 +183,10 @@ impl Workers for Service {
             };
             match core.submit(w, lease, job, unit, sums, now) {
                 Ok(Merged::New { ops, finished }) => {
-                    let rx = self.shared.queue_write(ops);
-                    (finished, Some(rx))
+                    // Acknowledged once merged in memory: the next checkpoint makes it durable,
+                    // and a crash before then costs its rendering again, not its bits.
+                    self.shared.queue_checkpointed(ops);
+                    (finished, true)
                 }
                 Ok(Merged::Duplicate) => {
                     return Ok(Response::new(pb::SubmitResultResponse {
@@ -193,7 +195,7 @@ impl Workers for Service {
                 }
                 // Told merged, like any accepted result: a worker must not learn which of
                 // its units are audited.
-                Ok(Merged::Held) => (false, None),
+                Ok(Merged::Held) => (false, false),
                 Ok(Merged::Discarded) => {
                     return Ok(Response::new(pb::SubmitResultResponse {
                         outcome: pb::ResultOutcome::Discarded as i32,
@@ -206,8 +208,7 @@ impl Workers for Service {
             }
         };
         crate::referee::spawn_pending(&self.shared);
-        if let Some(rx) = rx {
-            durable(rx).await.map_err(internal)?;
+        if new {
             self.shared.metrics.merge.observe(arrived.elapsed());
         }
         if merged {

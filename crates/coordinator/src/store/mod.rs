@@ -16,9 +16,11 @@ use std::path::Path;
 use redb::{Database, ReadableDatabase, ReadableTable, TableDefinition};
 use tessera_render::{PixelRect, TileSums};
 
+mod coalesce;
 mod records;
 mod sums;
 
+pub use coalesce::Coalesced;
 pub use records::{AuditRecord, JobPhase, JobRecord, LoadedJob, Op, RangeRef, StoredScene};
 pub use sums::{decode_sums, encode_sums};
 
@@ -41,6 +43,10 @@ const META: TableDefinition<&str, u64> = TableDefinition::new("meta");
 /// The layout of stored values: 2 = each value followed by the CRC-32 of its key and bytes.
 /// Stores of layout 1 (no checksums) are sealed in place when first opened.
 const FORMAT: u64 = 2;
+
+/// redb's page cache. A checkpoint writes each dirty tile once and nothing reads sums back
+/// but a restart, so a small cache costs nothing measurable.
+const CACHE_BYTES: usize = 64 << 20;
 
 /// The database file's name under the data directory.
 pub const FILE_NAME: &str = "coordinator.redb";
@@ -208,7 +214,12 @@ impl Store {
             });
         }
         guarded(&path, || {
-            let db = Database::create(&path).map_err(dberr)?;
+            // redb's default cache is 1 GiB, which a store of large frames' sums fills: it
+            // would be most of the coordinator's memory, for pages read once at a restart.
+            let db = Database::builder()
+                .set_cache_size(CACHE_BYTES)
+                .create(&path)
+                .map_err(dberr)?;
             // redb creates its file as an ordinary one; it holds every scene submitted.
             #[cfg(unix)]
             {

@@ -52,13 +52,14 @@ pub struct SubmitArgs {
     output: Option<PathBuf>,
 }
 
-/// The files the scene names (meshes, textures), as (name, SHA-256, path): found by loading
-/// the scene here, at the frame the job starts with. A scene that does not load here is
+/// The files the scene names (meshes, textures), as (name, SHA-256, path), and the image's
+/// size (which the batch rule reads): found by loading the scene here, at the frame the job
+/// starts with. A scene that does not load here is
 /// refused here with the error `tessera render` prints (a mesh that is missing or truncated, a
 /// texture that is a directory: the cause, not "not among the files sent"). Only the limits a
 /// coordinator may raise (resolution, spp, sizes) are lifted for this check, so a scene within
 /// its coordinator's limits but above the defaults is still sent, for it to decide.
-fn scene_files(args: &SubmitArgs) -> Result<Vec<(String, String, PathBuf)>> {
+fn scene_files(args: &SubmitArgs) -> Result<(Vec<(String, String, PathBuf)>, (u32, u32))> {
     let frame = args
         .frames
         .map_or(args.settings.frame.unwrap_or(FIRST_FRAME), |r| r.first);
@@ -72,14 +73,16 @@ fn scene_files(args: &SubmitArgs) -> Result<Vec<(String, String, PathBuf)>> {
     };
     let scene = Scene::load_at(&args.scene, &lifted, frame)?;
     let dir = args.scene.parent().unwrap_or(Path::new("")).to_path_buf();
-    Ok(scene
+    let size = (scene.width, scene.height);
+    let files = scene
         .files
         .into_iter()
         .map(|(name, hash)| {
             let path = dir.join(&name);
             (name, hash, path)
         })
-        .collect())
+        .collect();
+    Ok((files, size))
 }
 
 /// Uploads one file unless the coordinator holds it already, resuming from the bytes it holds
@@ -157,7 +160,7 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
         .scene
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("json"));
-    let files = scene_files(&args)?;
+    let (files, (width, height)) = scene_files(&args)?;
     let url = args.url.coordinator.clone();
     runtime()?.block_on(async {
         let mut client = connect(&args.url).await?;
@@ -177,7 +180,11 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
                 pb::SceneFormat::Toml
             } as i32,
             scene_name: args.scene.display().to_string(),
-            settings: Some(pb::RenderSettings::from(&args.settings.to_settings(args.tile_size.unwrap_or(DEFAULT_TILE)))),
+            settings: Some(pb::RenderSettings::from(&args.settings.to_settings(
+                args.tile_size.unwrap_or(DEFAULT_TILE),
+                width,
+                height,
+            ))),
             tile_size: args.tile_size.unwrap_or(0),
             output_name: args.name.clone().unwrap_or_default(),
             priority: args.priority,
