@@ -127,8 +127,11 @@ mod tests {
         }
     }
 
+    /// A job as stored: id, spp, tiles and early results.
+    type Stored = (u64, u32, Vec<(u32, Vec<u8>)>, Vec<((u32, u32), Vec<u8>)>);
+
     /// What the store holds after `ops`: every job with its tiles and early results.
-    fn state(ops: Vec<Op>) -> Vec<(u64, u32, Vec<(u32, Vec<u8>)>, Vec<((u32, u32), Vec<u8>)>)> {
+    fn state(ops: Vec<Op>) -> Vec<Stored> {
         let dir = tempfile::tempdir().expect("tempdir");
         let store = Store::open(dir.path()).expect("open");
         for op in ops {

@@ -52,6 +52,9 @@ pub struct SubmitArgs {
     output: Option<PathBuf>,
 }
 
+/// A file a scene names: (name in the scene, SHA-256, path here).
+type SceneFile = (String, String, PathBuf);
+
 /// The files the scene names (meshes, textures), as (name, SHA-256, path), and the image's
 /// size (which the batch rule reads): found by loading the scene here, at the frame the job
 /// starts with. A scene that does not load here is
@@ -59,7 +62,7 @@ pub struct SubmitArgs {
 /// texture that is a directory: the cause, not "not among the files sent"). Only the limits a
 /// coordinator may raise (resolution, spp, sizes) are lifted for this check, so a scene within
 /// its coordinator's limits but above the defaults is still sent, for it to decide.
-fn scene_files(args: &SubmitArgs) -> Result<(Vec<(String, String, PathBuf)>, (u32, u32))> {
+fn scene_files(args: &SubmitArgs) -> Result<(Vec<SceneFile>, (u32, u32))> {
     let frame = args
         .frames
         .map_or(args.settings.frame.unwrap_or(FIRST_FRAME), |r| r.first);
