@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use tessera_proto::ids::JobId;
-use tessera_render::assemble_render;
+use tessera_render::assemble_image;
 use tessera_render::output::{render_metadata, write_new_exr, ExrChannels};
 use tracing::{error, info, warn};
 
@@ -27,14 +27,20 @@ enum FinishError {
 
 /// Writes a finished job's EXR, then records it as done (or failed).
 pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
-    let gathered = shared.scheduler().take_frame(id);
+    let gathered = {
+        let mut scheduler = shared.scheduler();
+        scheduler.take_frame(id).map(|(frame, ops)| {
+            shared.queue_checkpointed(ops);
+            frame
+        })
+    };
     let Some((rec, settings, tiles)) = gathered else {
         return;
     };
     let dir = shared.config.output_dir();
     let path = dir.join(&rec.output_name);
     let written = tokio::task::spawn_blocking(move || -> Result<_, FinishError> {
-        let image = assemble_render(&settings, rec.width, rec.height, &tiles)?.finalize();
+        let image = assemble_image(&settings, rec.width, rec.height, tiles)?;
         let noise = image.noise();
         let channels = ExrChannels {
             variance: rec.variance,

@@ -83,9 +83,8 @@ pub async fn serve_when_ready(
     let (max_connections, idle) = (config.max_connections, config.idle_connection);
     let (shared, rx, to_finish) = Shared::open(config)?;
     let writer = tokio::spawn(writer(
-        shared.store.clone(),
+        Arc::downgrade(&shared),
         rx,
-        shared.metrics.clone(),
         shared.config.checkpoint_interval,
     ));
     for id in to_finish {
@@ -159,6 +158,9 @@ pub async fn serve_when_ready(
     };
     ticker.abort();
     collector.abort();
+    if let Err(e) = shared.flush().await {
+        tracing::error!("the last checkpoint before stopping failed: {e}");
+    }
     drop(shared);
     // The writer ends when the last sender (inside Shared) is gone; give stragglers (watch
     // streams finishing their last message) a moment, then stop waiting.
@@ -278,9 +280,8 @@ impl InProcess {
     pub fn open(config: Config) -> Result<Self, CoordinatorError> {
         let (shared, rx, to_finish) = Shared::open(config)?;
         let writer = tokio::spawn(writer(
-            shared.store.clone(),
+            Arc::downgrade(&shared),
             rx,
-            shared.metrics.clone(),
             shared.config.checkpoint_interval,
         ));
         for id in to_finish {
@@ -343,6 +344,7 @@ impl InProcess {
 
     /// Stops, once every queued write is durable and the store is closed.
     pub async fn close(self) {
+        let _ = self.service.shared.flush().await;
         // The dashboard's routes hold the service too: the writer ends once both are gone.
         drop(self.dashboard);
         drop(self.service);

@@ -144,6 +144,12 @@ impl Shared {
         rx
     }
 
+    /// Makes every change so far durable, the tiles merged since the last checkpoint with
+    /// them: what a clean stop does last.
+    pub(crate) async fn flush(&self) -> Result<(), CommitError> {
+        durable(self.queue_write(Vec::new())).await
+    }
+
     /// Queues store changes for the next checkpoint: what a merged result costs the store.
     /// Called with the scheduler's lock held, like [`queue_write`](Self::queue_write).
     pub(crate) fn queue_checkpointed(&self, ops: Vec<Op>) {
@@ -203,18 +209,25 @@ pub(crate) fn now_ms() -> i64 {
 /// many bytes: it bounds the memory they take between checkpoints.
 pub(crate) const MAX_QUEUED_BYTES: u64 = 256 << 20;
 
-/// Commits queued writes: at once (with everything queued before them) when someone waits on
-/// them, else at the next checkpoint, every `interval` (a zero interval commits every group at
-/// once, as a farm without checkpoints would), or sooner when [`MAX_QUEUED_BYTES`] are queued.
-/// What is still queued when the last sender goes (a clean stop) is committed before it ends.
+/// Commits queued writes, with the tiles merged since the last commit: at once (with
+/// everything queued before them) when someone waits on them, else at the next checkpoint,
+/// every `interval` (a zero interval commits every group at once, as a farm without
+/// checkpoints would), or sooner when [`MAX_QUEUED_BYTES`] are queued. A clean stop ends with
+/// a commit ([`Shared::flush`]); what is still queued when the last sender goes is committed
+/// before the writer ends.
 /// A commit that fails is told to those waiting on it, and its changes stay queued for the
 /// next: a later commit never lands without the changes before it.
 pub(crate) async fn writer(
-    store: Arc<Store>,
+    shared: std::sync::Weak<Shared>,
     mut rx: mpsc::UnboundedReceiver<Write>,
-    metrics: Arc<Metrics>,
     interval: std::time::Duration,
 ) {
+    let Some((store, metrics)) = shared
+        .upgrade()
+        .map(|s| (s.store.clone(), s.metrics.clone()))
+    else {
+        return;
+    };
     let mut queued = Coalesced::default();
     let mut waiters = Vec::new();
     let mut checkpoint = tokio::time::Instant::now() + interval;
@@ -237,6 +250,18 @@ pub(crate) async fn writer(
         let due =
             !open || !waiters.is_empty() || now >= checkpoint || queued.bytes() >= MAX_QUEUED_BYTES;
         if due {
+            // The tiles merged since the last checkpoint, encoded as they are now, with every
+            // change queued before now: under the scheduler's lock, so that the commit is the
+            // state after one moment's changes, never half of one.
+            if let Some(shared) = shared.upgrade() {
+                let mut core = shared.scheduler();
+                while let Ok(w) = rx.try_recv() {
+                    take(&mut queued, &mut waiters, w);
+                }
+                for op in core.checkpoint() {
+                    queued.push(op);
+                }
+            }
             let waiting = std::mem::take(&mut waiters);
             if queued.is_empty() {
                 for w in waiting {

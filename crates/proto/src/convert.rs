@@ -175,6 +175,18 @@ pub enum BadResult {
     Backwards(u32, u32),
 }
 
+/// A flat array of RGB values as per-pixel triples, moved rather than copied, so that a large
+/// result is in memory once beside its wire bytes, not twice. The allocation must hold whole
+/// triples: a decoded array's capacity is whatever prost grew it to, so it is first shrunk to
+/// its length (a realloc that shrinks in place).
+fn triples(mut v: Vec<f64>) -> Vec<[f64; 3]> {
+    if v.capacity() % 3 != 0 {
+        v.shrink_to_fit();
+    }
+    bytemuck::allocation::try_cast_vec(v)
+        .unwrap_or_else(|(_, v)| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+}
+
 impl TryFrom<pb::TileResult> for TileSums {
     type Error = BadResult;
 
@@ -197,12 +209,11 @@ impl TryFrom<pb::TileResult> for TileSums {
         if r.sample_start > r.sample_end {
             return Err(BadResult::Backwards(r.sample_start, r.sample_end));
         }
-        let triples = |v: &[f64]| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
         Ok(TileSums {
             rect,
             samples: r.sample_start..r.sample_end,
-            sum: triples(&r.sum),
-            sum_sq: triples(&r.sum_sq),
+            sum: triples(r.sum),
+            sum_sq: triples(r.sum_sq),
             count: r.count,
             nonfinite: r.nonfinite,
         })
@@ -314,5 +325,45 @@ mod tests {
         );
         let no_rect = pb::TileResult { rect: None, ..wire };
         assert_eq!(TileSums::try_from(no_rect), Err(BadResult::NoRect));
+    }
+
+    #[test]
+    fn triples_are_the_flat_values_in_order_whatever_the_capacity() {
+        let flat: Vec<f64> = (0..12).map(f64::from).collect();
+        let at = flat.as_ptr() as usize;
+        let moved = triples(flat);
+        assert_eq!(
+            moved.as_ptr() as usize,
+            at,
+            "a decoded array is moved, not copied"
+        );
+        assert_eq!(moved[3], [9.0, 10.0, 11.0]);
+        let mut odd = Vec::with_capacity(7);
+        odd.extend([1.0, 2.0, 3.0, 4.0, 5.0, 6.0]);
+        assert_eq!(triples(odd), vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
+    }
+
+    #[test]
+    fn a_decoded_result_becomes_sums_without_a_copy() {
+        use prost::Message;
+        let rect = PixelRect {
+            x0: 0,
+            y0: 0,
+            width: 37,
+            height: 5,
+        };
+        let mut t = TileSums::empty(rect, 0);
+        t.samples = 0..4;
+        t.count.fill(4);
+        let bytes = pb::TileResult::from(&t).encode_to_vec();
+        let wire = pb::TileResult::decode(bytes.as_slice()).expect("decode");
+        let (sum, sq) = (wire.sum.as_ptr() as usize, wire.sum_sq.as_ptr() as usize);
+        let back = TileSums::try_from(wire).expect("valid");
+        assert_eq!(back, t);
+        assert_eq!(
+            (back.sum.as_ptr() as usize, back.sum_sq.as_ptr() as usize),
+            (sum, sq),
+            "prost's packed arrays are moved into the sums"
+        );
     }
 }

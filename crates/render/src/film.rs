@@ -331,6 +331,71 @@ pub fn assemble_render(
     assemble(width, height, settings.spp, tiles, insert)
 }
 
+/// The finished image of a render with `settings` from its tiles, taken one at a time: the
+/// same pixels as [`assemble_render`]'s frame finalized (each pixel's mean and variance are
+/// arithmetic on its own sums alone, so finalizing tile by tile changes no bit), with the same
+/// checks of each tile, but without a frame of sums beside the tiles: a large frame's peak
+/// memory is its tiles and its image, each tile freed once it is in the image, rather than
+/// twice its sums.
+pub fn assemble_image(
+    settings: &crate::RenderSettings,
+    width: u32,
+    height: u32,
+    tiles: impl IntoIterator<Item = TileSums>,
+) -> Result<Image, MergeError> {
+    let full = PixelRect {
+        x0: 0,
+        y0: 0,
+        width,
+        height,
+    };
+    let samples = 0..settings.spp;
+    let n = full.area();
+    let mut image = Image {
+        width,
+        height,
+        rgb: vec![[0.0; 3]; n],
+        variance: vec![[0.0; 3]; n],
+        count: vec![0; n],
+        nonfinite: 0,
+    };
+    for tile in tiles {
+        let fits = if settings.adaptive.is_some() {
+            tile.samples.start == samples.start && tile.samples.end <= samples.end
+        } else {
+            tile.samples == samples
+        };
+        if !fits {
+            return Err(MergeError::Order {
+                have: samples,
+                got: tile.samples,
+            });
+        }
+        let t = tile.rect;
+        if t.x0 as u64 + t.width as u64 > width as u64
+            || t.y0 as u64 + t.height as u64 > height as u64
+        {
+            return Err(MergeError::Rect {
+                expected: full,
+                got: t,
+            });
+        }
+        tile.check_shape()?;
+        let part = tile.finalize();
+        drop(tile);
+        for row in 0..t.height {
+            let src = (row * t.width) as usize;
+            let dst = ((t.y0 + row) * width + t.x0) as usize;
+            let w = t.width as usize;
+            image.rgb[dst..dst + w].copy_from_slice(&part.rgb[src..src + w]);
+            image.variance[dst..dst + w].copy_from_slice(&part.variance[src..src + w]);
+            image.count[dst..dst + w].copy_from_slice(&part.count[src..src + w]);
+        }
+        image.nonfinite += part.nonfinite;
+    }
+    Ok(image)
+}
+
 fn assemble(
     width: u32,
     height: u32,

@@ -57,7 +57,9 @@ pub mod util;
 pub mod wide;
 
 pub use adaptive::Adaptive;
-pub use film::{assemble_frame, assemble_render, Image, MergeError, PixelRect, TileSums};
+pub use film::{
+    assemble_frame, assemble_image, assemble_render, Image, MergeError, PixelRect, TileSums,
+};
 pub use settings::{
     unit_batch, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_TILE, DEFAULT_UNIT_SAMPLES,
     MIN_UNITS_PER_FRAME, TILE_RANGE, UNIT_SAMPLES_RANGE,

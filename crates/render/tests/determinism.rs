@@ -5,7 +5,8 @@ mod common;
 use common::load;
 use tessera_render::output::{write_exr, ExrChannels};
 use tessera_render::{
-    assemble_frame, render_frame, render_tile, PixelRect, RenderSettings, Strategy, TileSums,
+    assemble_frame, assemble_image, assemble_render, render_frame, render_tile, PixelRect,
+    RenderSettings, Strategy, TileSums,
 };
 
 fn frame_by_tiles(
@@ -232,4 +233,57 @@ radius = 0.3
          IMAGE_REVISION in crates/render/src/lib.rs and set PINNED in this test to \
          (the new revision, {hash:#x})"
     );
+}
+
+/// The farm writes its frames tile by tile ([`assemble_image`]), `tessera render` from one
+/// frame of sums: the two images must be the same bits, for full and adaptive renders, and the
+/// tile-by-tile path must refuse what the frame path refuses.
+#[test]
+fn an_image_assembled_tile_by_tile_is_the_frame_finalized() {
+    let scene = load("spheres.toml");
+    let mut settings = RenderSettings {
+        spp: 8,
+        seed: 3,
+        ..RenderSettings::default()
+    };
+    let rects = PixelRect::tiles(scene.width, scene.height, 24);
+    let tiles = |settings: &RenderSettings, ends: &dyn Fn(usize) -> u32| -> Vec<TileSums> {
+        rects
+            .iter()
+            .enumerate()
+            .map(|(i, r)| render_tile(&scene, settings, *r, 0..ends(i)))
+            .collect()
+    };
+    let full = tiles(&settings, &|_| 8);
+    let want = assemble_render(&settings, scene.width, scene.height, &full)
+        .expect("fits")
+        .finalize();
+    let got = assemble_image(&settings, scene.width, scene.height, full.clone()).expect("fits");
+    assert_eq!(got, want);
+    // A tile left out is black in both.
+    let some: Vec<TileSums> = full.iter().skip(1).cloned().collect();
+    assert_eq!(
+        assemble_image(&settings, scene.width, scene.height, some.clone()).expect("fits"),
+        assemble_render(&settings, scene.width, scene.height, &some)
+            .expect("fits")
+            .finalize()
+    );
+    // Adaptive: tiles stop at different sample counts.
+    settings.adaptive = Some(tessera_render::Adaptive {
+        noise_target: 0.1,
+        tile: 24,
+    });
+    let ragged = tiles(&settings, &|i| 2 + (i as u32 % 4) * 2);
+    assert_eq!(
+        assemble_image(&settings, scene.width, scene.height, ragged.clone()).expect("fits"),
+        assemble_render(&settings, scene.width, scene.height, &ragged)
+            .expect("fits")
+            .finalize()
+    );
+    // Refused alike: a tile past the cap, a tile outside the frame.
+    settings.adaptive = None;
+    assert!(assemble_image(&settings, scene.width, scene.height, ragged).is_err());
+    let mut outside = full[0].clone();
+    outside.rect.x0 = scene.width - 1;
+    assert!(assemble_image(&settings, scene.width, scene.height, vec![outside]).is_err());
 }

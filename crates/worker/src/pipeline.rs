@@ -234,7 +234,6 @@ pub fn backoff_delay(attempt: u32, max: Duration) -> Duration {
 /// Sends results, retrying through network errors.
 async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
     while let Some(done) = rx.recv().await {
-        let result = pb::TileResult::from(&done.sums);
         let mut attempt = 0;
         loop {
             let sent_as = ctx.id();
@@ -244,7 +243,9 @@ async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
                 job_id: done.unit.job_id.clone(),
                 tile_index: done.unit.tile_index,
                 batch_index: done.unit.batch_index,
-                result: Some(result.clone()),
+                // Made from the sums for each attempt: one copy of a large result in memory
+                // beside its encoding, not a message kept for retries and a clone to send.
+                result: Some(pb::TileResult::from(&done.sums)),
             };
             match ctx.client.clone().submit_result(req).await {
                 Ok(_) => break,

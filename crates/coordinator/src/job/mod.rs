@@ -90,6 +90,8 @@ pub struct Job {
     /// The sum of every accumulator's `noise`, kept as results merge so that a status does
     /// not walk every tile under the lock.
     pub noise_total: (f64, f64, u64),
+    /// Tiles whose sums changed since the last checkpoint ([`Job::checkpoint`]).
+    pub dirty: BTreeSet<u32>,
     /// Next unit to hand out, in batch-major order (all tiles' batch 0, then batch 1, …), so
     /// the image converges evenly and few results wait out of order.
     pub cursor: u64,
@@ -165,6 +167,7 @@ impl Job {
             units_planned: tiles.len() as u64 * first_batches as u64,
             acc: BTreeMap::new(),
             noise_total: (0.0, 0.0, 0),
+            dirty: BTreeSet::new(),
             cursor: 0,
             requeue: VecDeque::new(),
             issued: HashMap::new(),
@@ -569,7 +572,8 @@ impl Job {
             add_noise(&mut self.noise_total, acc.noise, -1.0);
             add_noise(&mut self.noise_total, noise, 1.0);
             acc.noise = noise;
-            ops.push(Op::PutTile(id, unit.tile, encode_sums(total)));
+            // Written at the next checkpoint, once however many merges come before it.
+            self.dirty.insert(unit.tile);
         } else {
             ops.push(Op::PutPending(
                 id,
@@ -697,10 +701,7 @@ impl Job {
                 add_noise(&mut self.noise_total, acc.noise, -1.0);
                 add_noise(&mut self.noise_total, noise, 1.0);
                 acc.noise = noise;
-                ops.push(match &total {
-                    Some(s) => Op::PutTile(id, t, encode_sums(s)),
-                    None => Op::DelTile(id, t),
-                });
+                self.dirty.insert(t);
                 acc.sums = total;
                 acc.next = next;
                 if old_next >= first && next < first {
@@ -724,6 +725,21 @@ impl Job {
             self.requeue.push_front(u);
         }
         (ops, taken)
+    }
+
+    /// The store changes that bring the tiles merged since the last checkpoint up to date:
+    /// each dirty tile's sums as they are now (or its deletion, where an audit took every
+    /// batch back). Encoding here rather than at each merge writes and copies a tile once per
+    /// checkpoint, however many results it took.
+    pub fn checkpoint(&mut self) -> Vec<Op> {
+        let id = self.rec.id;
+        std::mem::take(&mut self.dirty)
+            .into_iter()
+            .map(|t| match self.acc.get(&t).and_then(|a| a.sums.as_ref()) {
+                Some(s) => Op::PutTile(id, t, encode_sums(s)),
+                None => Op::DelTile(id, t),
+            })
+            .collect()
     }
 
     /// Every tile's sums, row-major, copied (what tests compare frames by; writing the frame
@@ -753,6 +769,7 @@ impl Job {
     /// record. Returns the unit leases that were out, for the scheduler to drop.
     pub fn clear(&mut self) -> Vec<u64> {
         self.acc = BTreeMap::new();
+        self.dirty.clear();
         self.noise_total = (0.0, 0.0, 0);
         self.requeue.clear();
         self.audits.clear();

@@ -107,6 +107,9 @@ impl Policy {
     }
 }
 
+/// A finished job's frame to write: its record, settings and every tile's sums.
+pub type Frame = (JobRecord, RenderSettings, Vec<TileSums>);
+
 /// All scheduling state.
 #[derive(Debug)]
 pub struct Scheduler {
@@ -390,13 +393,25 @@ impl Scheduler {
     }
 
     /// A job whose every unit is in, for writing its frame: its record, settings and tiles'
-    /// sums, moved out ([`Job::take_frame_tiles`]). `None` for a job that is not finishing.
-    pub fn take_frame(&mut self, id: JobId) -> Option<(JobRecord, RenderSettings, Vec<TileSums>)> {
+    /// sums, moved out ([`Job::take_frame_tiles`]), with the store changes that checkpoint
+    /// them first (so that a crash while a large frame is written costs no rendering). `None`
+    /// for a job that is not finishing.
+    pub fn take_frame(&mut self, id: JobId) -> Option<(Frame, Vec<Op>)> {
         let job = self
             .jobs
             .get_mut(&id)
             .filter(|j| j.finishing && j.rec.phase == JobPhase::Active)?;
-        Some((job.rec.clone(), job.settings(), job.take_frame_tiles()))
+        let ops = job.checkpoint();
+        Some((
+            (job.rec.clone(), job.settings(), job.take_frame_tiles()),
+            ops,
+        ))
+    }
+
+    /// The store changes that checkpoint every job's tiles merged since the last checkpoint
+    /// ([`Job::checkpoint`]).
+    pub fn checkpoint(&mut self) -> Vec<Op> {
+        self.jobs.values_mut().flat_map(Job::checkpoint).collect()
     }
 
     /// Ends a job (done, cancelled or failed): frees its units, leases and sums.
