@@ -119,6 +119,12 @@ fn without_bench(command: &str, args: &[String]) -> anyhow::Result<()> {
     ))
 }
 
+/// mimalloc rather than glibc's malloc: a coordinator that merged a large frame's tiles (tens
+/// of thousands of mid-sized vectors) kept most of that memory after the job ended under glibc,
+/// which returns freed memory from its arenas only at their top (docs/farm.md, "Memory").
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 fn main() -> ExitCode {
     forget_empty_settings();
     let cli = Cli::parse();

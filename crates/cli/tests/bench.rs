@@ -299,4 +299,36 @@ fn loadtest_runs_simulated_workers_against_a_coordinator_and_reports_what_it_mea
     assert!(md.contains("Machine: "), "{md}");
     let bad = tessera(&["loadtest", "--workers", "0"]);
     assert_clean_failure(&bad, &["--workers"]);
+    // Every result is full size: a 128² tile's sums, and the job's unit rule's batch.
+    let header = csv.lines().next().expect("header");
+    assert!(
+        header.contains("gsamples_per_s,cpu_s_per_gsample,mb_written_per_gsample"),
+        "{csv}"
+    );
+    for row in &rows {
+        let (units, samples): (u64, u64) = (row[2].parse().expect("n"), row[4].parse().expect("n"));
+        assert_eq!(samples, units * 128 * 128 * 1024, "{csv}");
+    }
+}
+
+#[test]
+fn loadtest_memory_renders_large_frames_to_the_end_and_reports_the_coordinators_memory() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("out");
+    let o = tessera(&[
+        "loadtest",
+        "--memory",
+        "256",
+        "--jobs",
+        "2",
+        "--name",
+        "mem",
+        "--out-dir",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let md = std::fs::read_to_string(out.join("mem.md")).expect("md");
+    assert!(md.contains("| 256² | 2 | 8 |"), "{md}");
+    let bad = tessera(&["loadtest", "--memory", "100"]);
+    assert_clean_failure(&bad, &["--memory"]);
 }

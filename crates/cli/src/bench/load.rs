@@ -59,20 +59,33 @@ pub struct LoadArgs {
     /// The coordinator's --checkpoint-interval, in seconds (default: its default).
     #[arg(long)]
     checkpoint_interval: Option<f64>,
+    /// Instead of the rate runs: for each frame edge here (e.g. 4096,8192), render --jobs
+    /// jobs of that size² at 8 spp to the end with 16 simulated workers, and report the
+    /// coordinator's peak memory and its memory once they are done.
+    #[arg(long, value_delimiter = ',')]
+    memory: Vec<u32>,
+    /// Jobs at once for --memory.
+    #[arg(long, default_value_t = 2)]
+    jobs: usize,
 }
 
 /// The job every run renders: a 2048² Cornell box in 128-pixel tiles, with more samples than
 /// any run merges (256 tiles × 65,536 samples a pixel: 275 Gsamples).
 const SIZE: u32 = 2048;
 const SPP: u32 = 65_536;
-const TILE: u32 = 128;
+pub(super) const TILE: u32 = 128;
 /// Samples a pixel of the one real render whose sums every result replays.
 const TEMPLATE_SPP: u32 = 16;
 
 fn scene_text() -> String {
+    sized_scene(SIZE)
+}
+
+/// The Cornell box at `size`² pixels.
+pub(super) fn sized_scene(size: u32) -> String {
     include_str!("../../../../scenes/cornell-box.toml")
-        .replace("width = 256", &format!("width = {SIZE}"))
-        .replace("height = 256", &format!("height = {SIZE}"))
+        .replace("width = 256", &format!("width = {size}"))
+        .replace("height = 256", &format!("height = {size}"))
 }
 
 fn settings(batch: Option<u32>) -> RenderSettings {
@@ -87,7 +100,7 @@ fn settings(batch: Option<u32>) -> RenderSettings {
 }
 
 /// The sums of one real render of tile 0 at [`TEMPLATE_SPP`], to be replayed for any unit.
-fn template(scene: &Scene, batch: u32) -> TileSums {
+pub(super) fn template(scene: &Scene, batch: u32) -> TileSums {
     let rect = PixelRect {
         x0: 0,
         y0: 0,
@@ -155,7 +168,53 @@ struct Run {
 }
 
 /// The coordinator process, killed when dropped.
-struct Coordinator(Child);
+pub(super) struct Coordinator(pub(super) Child);
+
+impl Coordinator {
+    /// Starts `tessera coordinator` (this binary) on a free loopback port with its store
+    /// under `data`, on CPU 0 alone with `split_cores`: the process and its URL.
+    pub(super) fn start(
+        data: &std::path::Path,
+        max_connections: usize,
+        split_cores: bool,
+        checkpoint_interval: Option<f64>,
+    ) -> Result<(Self, String)> {
+        let exe = std::env::current_exe()?;
+        let mut command = if split_cores {
+            let mut c = Command::new("taskset");
+            c.args(["-c", "0"]).arg(exe);
+            c
+        } else {
+            Command::new(exe)
+        };
+        let mut child = command
+            .args(["coordinator", "--listen", "127.0.0.1:0", "--data-dir"])
+            .arg(data)
+            .args(["--max-connections", &max_connections.to_string()])
+            // Every simulated worker registers from loopback: one host, as far as the
+            // coordinator can tell.
+            .args(["--max-workers-per-host", &max_connections.to_string()])
+            .args(["--tile-size", &TILE.to_string()])
+            .args(
+                checkpoint_interval
+                    .map(|c| vec!["--checkpoint-interval".to_string(), c.to_string()])
+                    .unwrap_or_default(),
+            )
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .context("starting the coordinator")?;
+        let stdout = child.stdout.take().ok_or_else(|| anyhow!("no stdout"))?;
+        let coordinator = Coordinator(child);
+        let mut line = String::new();
+        BufReader::new(stdout).read_line(&mut line)?;
+        let addr = line
+            .trim()
+            .strip_prefix("listening on ")
+            .ok_or_else(|| anyhow!("the coordinator said {line:?}"))?;
+        Ok((coordinator, format!("http://{addr}")))
+    }
+}
 
 impl Drop for Coordinator {
     fn drop(&mut self) {
@@ -165,7 +224,7 @@ impl Drop for Coordinator {
 }
 
 /// (CPU seconds, RSS MiB, peak RSS MiB, bytes written to storage) of process `pid`.
-fn proc_figures(pid: u32) -> Result<(f64, f64, f64, u64)> {
+pub(super) fn proc_figures(pid: u32) -> Result<(f64, f64, f64, u64)> {
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat"))?;
     // Fields after the command name, which is in parentheses and may hold spaces.
     let after = stat
@@ -208,12 +267,12 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
 }
 
 /// What the simulated workers share: when to stop, and what they saw.
-struct Shared {
+pub(super) struct Shared {
     template: TileSums,
     /// Each worker's time between results, for an aggregate `--rate` (none: no pacing).
     pace: Option<Duration>,
     measuring: AtomicBool,
-    stop: AtomicBool,
+    pub(super) stop: AtomicBool,
     merged: AtomicU64,
     samples: AtomicU64,
     refused: AtomicU64,
@@ -223,9 +282,31 @@ struct Shared {
     probe_latencies: Mutex<Vec<f64>>,
 }
 
+impl Shared {
+    /// Workers replaying `template`, `pace` apart each (none: unpaced).
+    pub(super) fn new(template: TileSums, pace: Option<Duration>) -> Self {
+        Self {
+            template,
+            pace,
+            measuring: AtomicBool::new(false),
+            stop: AtomicBool::new(false),
+            merged: AtomicU64::new(0),
+            samples: AtomicU64::new(0),
+            refused: AtomicU64::new(0),
+            latencies: Mutex::new(Vec::new()),
+            probe_latencies: Mutex::new(Vec::new()),
+        }
+    }
+}
+
 /// One simulated worker: registers, then leases one unit at a time, replays the template as
 /// its result and submits it (no sooner than its pace allows), until told to stop.
-async fn simulated_worker(url: String, n: usize, shared: Arc<Shared>, probe: bool) -> Result<()> {
+pub(super) async fn simulated_worker(
+    url: String,
+    n: usize,
+    shared: Arc<Shared>,
+    probe: bool,
+) -> Result<()> {
     let channel = Channel::from_shared(url)?.connect().await?;
     let mut client = WorkersClient::new(channel);
     let id = client
@@ -315,38 +396,13 @@ struct Plan {
 async fn run_one(workers: usize, plan: &Plan) -> Result<Run> {
     let (seconds, split_cores) = (plan.seconds, plan.split_cores);
     let dir = tempfile::tempdir()?;
-    let exe = std::env::current_exe()?;
-    let mut command = if split_cores {
-        let mut c = Command::new("taskset");
-        c.args(["-c", "0"]).arg(exe);
-        c
-    } else {
-        Command::new(exe)
-    };
-    let mut child = command
-        .args(["coordinator", "--listen", "127.0.0.1:0", "--data-dir"])
-        .arg(dir.path().join("data"))
-        .args(["--max-connections", &(workers + 64).to_string()])
-        .args(["--tile-size", &TILE.to_string()])
-        .args(
-            plan.checkpoint_interval
-                .map(|c| vec!["--checkpoint-interval".to_string(), c.to_string()])
-                .unwrap_or_default(),
-        )
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .context("starting the coordinator")?;
-    let stdout = child.stdout.take().ok_or_else(|| anyhow!("no stdout"))?;
-    let coordinator = Coordinator(child);
+    let (coordinator, url) = Coordinator::start(
+        &dir.path().join("data"),
+        workers + 64,
+        split_cores,
+        plan.checkpoint_interval,
+    )?;
     let pid = coordinator.0.id();
-    let mut line = String::new();
-    BufReader::new(stdout).read_line(&mut line)?;
-    let addr = line
-        .trim()
-        .strip_prefix("listening on ")
-        .ok_or_else(|| anyhow!("the coordinator said {line:?}"))?;
-    let url = format!("http://{addr}");
     let mut jobs = JobsClient::connect(url.clone()).await?;
     jobs.submit_job(pb::SubmitJobRequest {
         scene_text: scene_text(),
@@ -358,18 +414,11 @@ async fn run_one(workers: usize, plan: &Plan) -> Result<Run> {
     .await
     .map_err(|e| anyhow!("submit: {}", e.message()))?;
     let unit_samples = f64::from(TILE * TILE) * f64::from(plan.settings.batch);
-    let shared = Arc::new(Shared {
-        template: plan.template.clone(),
-        pace: (plan.rate > 0.0)
+    let shared = Arc::new(Shared::new(
+        plan.template.clone(),
+        (plan.rate > 0.0)
             .then(|| Duration::from_secs_f64(workers as f64 * unit_samples / (plan.rate * 1e6))),
-        measuring: AtomicBool::new(false),
-        stop: AtomicBool::new(false),
-        merged: AtomicU64::new(0),
-        samples: AtomicU64::new(0),
-        refused: AtomicU64::new(0),
-        latencies: Mutex::new(Vec::new()),
-        probe_latencies: Mutex::new(Vec::new()),
-    });
+    ));
     let tasks: Vec<_> = (0..workers)
         .map(|n| tokio::spawn(simulated_worker(url.clone(), n, shared.clone(), false)))
         .collect();
@@ -481,6 +530,17 @@ pub fn run(args: LoadArgs) -> Result<()> {
     }
     let settings = settings(args.batch);
     let scene = Scene::from_str(&scene_text(), Format::Toml, "cornell", &Limits::default())?;
+    if !args.memory.is_empty() {
+        return super::memory::run(
+            &args.memory,
+            args.jobs,
+            args.split_cores,
+            &scene,
+            &args.out_dir,
+            &args.name,
+            &runtime,
+        );
+    }
     let plan = Plan {
         seconds: args.seconds,
         split_cores: args.split_cores,

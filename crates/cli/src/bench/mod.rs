@@ -16,6 +16,7 @@
 
 mod adaptive;
 pub mod load;
+pub(crate) mod memory;
 mod peer;
 mod plot;
 mod report;
