@@ -11,6 +11,7 @@ mod audit;
 mod auth;
 mod bad_submissions;
 mod bound_ids;
+mod checkpoints;
 mod connections;
 mod dashboard;
 mod forged_results;

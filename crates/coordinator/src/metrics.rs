@@ -67,6 +67,8 @@ pub struct Metrics {
     pub commit: Histogram,
     /// Bytes of partial sums, scenes and records handed to the store.
     pub written_bytes: AtomicU64,
+    /// Bytes of closed tiles' sums dropped from memory once stored (read back for the frame).
+    pub evicted_bytes: AtomicU64,
     /// Dashboard previews computed (not served from the cache).
     pub previews: AtomicU64,
 }
@@ -237,6 +239,12 @@ impl Metrics {
             "Bytes of sums, scenes and records handed to the state store.",
             "counter",
             self.written_bytes.load(Ordering::Relaxed) as f64,
+        );
+        t.single(
+            "tessera_sums_evicted_bytes_total",
+            "Bytes of closed tiles' sums dropped from memory once the store held them.",
+            "counter",
+            self.evicted_bytes.load(Ordering::Relaxed) as f64,
         );
         if let Some(b) = g.store_file_bytes {
             t.single(

@@ -8,6 +8,7 @@ use tessera_render::assemble_image;
 use tessera_render::output::{render_metadata, write_new_exr, ExrChannels};
 use tracing::{error, info, warn};
 
+use crate::job::FrameTile;
 use crate::shared::{durable, now_ms, Shared};
 use crate::store::JobPhase;
 
@@ -20,6 +21,9 @@ enum FinishError {
     /// The file could not be written.
     #[error(transparent)]
     Write(#[from] tessera_render::output::OutputError),
+    /// A tile's sums could not be read back from the store.
+    #[error(transparent)]
+    Store(#[from] crate::store::StoreError),
     /// The task writing it panicked.
     #[error("{0}")]
     Task(#[from] tokio::task::JoinError),
@@ -27,6 +31,10 @@ enum FinishError {
 
 /// Writes a finished job's EXR, then records it as done (or failed).
 pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
+    // Closed only if the coordinator is stopping, when the job finishes after its restart.
+    let Ok(_one_at_a_time) = shared.finishing.acquire().await else {
+        return;
+    };
     let gathered = {
         let mut scheduler = shared.scheduler();
         scheduler.take_frame(id).map(|(frame, ops)| {
@@ -39,8 +47,22 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
     };
     let dir = shared.config.output_dir();
     let path = dir.join(&rec.output_name);
+    let store = shared.store.clone();
     let written = tokio::task::spawn_blocking(move || -> Result<_, FinishError> {
-        let image = assemble_image(&settings, rec.width, rec.height, tiles)?;
+        // Tiles the store holds are read back one at a time, as the image takes them.
+        let mut unread = None;
+        let sums = tiles.into_iter().map_while(|t| match t {
+            FrameTile::Here(s) => Some(s),
+            FrameTile::Stored(i, rect) => store
+                .tile(rec.id, i, rect)
+                .map_err(|e| unread = Some(e))
+                .ok(),
+        });
+        let image = assemble_image(&settings, rec.width, rec.height, sums);
+        if let Some(e) = unread {
+            return Err(e.into());
+        }
+        let image = image?;
         let noise = image.noise();
         let channels = ExrChannels {
             variance: rec.variance,

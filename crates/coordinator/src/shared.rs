@@ -24,6 +24,9 @@ use tessera_proto::ids::JobId;
 pub(crate) struct Write {
     ops: Vec<Op>,
     done: Option<oneshot::Sender<Result<(), CommitError>>>,
+    /// Commit now rather than at the interval: the tiles merged since the last checkpoint
+    /// have reached their memory budget.
+    now: bool,
 }
 
 /// State shared by the RPC handlers and background tasks.
@@ -44,6 +47,10 @@ pub(crate) struct Shared {
     /// until its job is durable, and (alone) by the asset collection, which could otherwise
     /// delete a file between a submission's check and its job's admission.
     pub(crate) asset_gate: tokio::sync::RwLock<()>,
+    /// Held while a finished job's frame is assembled and written: one at a time, since a
+    /// frame's image and its EXR encoding take memory in proportion to its pixels, and jobs
+    /// that finish together must not add theirs up.
+    pub(crate) finishing: tokio::sync::Semaphore,
 }
 
 /// The shared state, the writer's queue, and jobs whose units were all in at the last stop.
@@ -92,6 +99,7 @@ impl Shared {
         if !ops.is_empty() {
             store.apply(&ops)?;
         }
+        let evicted = scheduler.evict_restored();
         let active = scheduler
             .jobs()
             .filter(|j| j.rec.phase == JobPhase::Active)
@@ -110,8 +118,12 @@ impl Shared {
             changed: watch::channel(0).0,
             work: watch::channel(0).0,
             config,
-            metrics: Arc::default(),
+            metrics: Arc::new(Metrics {
+                evicted_bytes: evicted.into(),
+                ..Metrics::default()
+            }),
             asset_gate: tokio::sync::RwLock::new(()),
+            finishing: tokio::sync::Semaphore::new(1),
         });
         Ok((shared, rx, to_finish))
     }
@@ -140,6 +152,7 @@ impl Shared {
         self.send_write(Write {
             ops,
             done: Some(done),
+            now: false,
         });
         rx
     }
@@ -153,7 +166,21 @@ impl Shared {
     /// Queues store changes for the next checkpoint: what a merged result costs the store.
     /// Called with the scheduler's lock held, like [`queue_write`](Self::queue_write).
     pub(crate) fn queue_checkpointed(&self, ops: Vec<Op>) {
-        self.send_write(Write { ops, done: None });
+        self.send_write(Write {
+            ops,
+            done: None,
+            now: false,
+        });
+    }
+
+    /// Asks for a checkpoint before the interval is up
+    /// ([`Scheduler::wants_checkpoint`](crate::scheduler::Scheduler::wants_checkpoint)).
+    pub(crate) fn request_checkpoint(&self) {
+        self.send_write(Write {
+            ops: Vec::new(),
+            done: None,
+            now: true,
+        });
     }
 
     fn send_write(&self, w: Write) {
@@ -230,15 +257,16 @@ pub(crate) async fn writer(
     };
     let mut queued = Coalesced::default();
     let mut waiters = Vec::new();
+    let mut asked = false;
     let mut checkpoint = tokio::time::Instant::now() + interval;
     loop {
         let open = tokio::select! {
             w = rx.recv() => match w {
                 Some(w) => {
-                    take(&mut queued, &mut waiters, w);
+                    asked |= take(&mut queued, &mut waiters, w);
                     // Everything queued meanwhile joins the same commit.
                     while let Ok(w) = rx.try_recv() {
-                        take(&mut queued, &mut waiters, w);
+                        asked |= take(&mut queued, &mut waiters, w);
                     }
                     true
                 }
@@ -247,8 +275,11 @@ pub(crate) async fn writer(
             _ = tokio::time::sleep_until(checkpoint) => true,
         };
         let now = tokio::time::Instant::now();
-        let due =
-            !open || !waiters.is_empty() || now >= checkpoint || queued.bytes() >= MAX_QUEUED_BYTES;
+        let due = !open
+            || !waiters.is_empty()
+            || asked
+            || now >= checkpoint
+            || queued.bytes() >= MAX_QUEUED_BYTES;
         if due {
             // The tiles merged since the last checkpoint, encoded as they are now, with every
             // change queued before now: under the scheduler's lock, so that the commit is the
@@ -267,9 +298,16 @@ pub(crate) async fn writer(
                 for w in waiting {
                     let _ = w.send(Ok(()));
                 }
-            } else {
-                commit(&store, &metrics, &mut queued, waiting).await;
+            } else if let Some(written) = commit(&store, &metrics, &mut queued, waiting).await {
+                // What the store now holds and no result will change leaves memory.
+                if let Some(shared) = shared.upgrade() {
+                    let freed = shared.scheduler().evict(&written);
+                    metrics
+                        .evicted_bytes
+                        .fetch_add(freed, std::sync::atomic::Ordering::Relaxed);
+                }
             }
+            asked = false;
             checkpoint = tokio::time::Instant::now() + interval;
         }
         if !open {
@@ -278,25 +316,27 @@ pub(crate) async fn writer(
     }
 }
 
+/// Queues a write's changes and its waiter; whether it asks for a commit now.
 fn take(
     queued: &mut Coalesced,
     waiters: &mut Vec<oneshot::Sender<Result<(), CommitError>>>,
     w: Write,
-) {
+) -> bool {
     for op in w.ops {
         queued.push(op);
     }
     waiters.extend(w.done);
+    w.now
 }
 
 /// Commits what is queued as one transaction and tells those waiting how it went; on failure
-/// the changes go back in the queue.
+/// the changes go back in the queue. Returns the tiles written, (job, tile), if it succeeded.
 async fn commit(
     store: &Arc<Store>,
     metrics: &Metrics,
     queued: &mut Coalesced,
     waiters: Vec<oneshot::Sender<Result<(), CommitError>>>,
-) {
+) -> Option<Vec<(u64, u32)>> {
     let bytes = queued.bytes();
     let ops = queued.take();
     let store = store.clone();
@@ -306,20 +346,30 @@ async fn commit(
         Err(e) => (Err(CommitError::Task(Arc::new(e))), Vec::new()),
     };
     metrics.commit.observe(start.elapsed());
-    match &result {
+    let written = match &result {
         Ok(()) => {
             metrics
                 .written_bytes
                 .fetch_add(bytes, std::sync::atomic::Ordering::Relaxed);
+            Some(
+                ops.iter()
+                    .filter_map(|op| match op {
+                        Op::PutTile(j, t, _) => Some((*j, *t)),
+                        _ => None,
+                    })
+                    .collect(),
+            )
         }
         Err(e) => {
             error!("state commit failed (its changes stay queued for the next): {e}");
             for op in ops {
                 queued.push(op);
             }
+            None
         }
-    }
+    };
     for w in waiters {
         let _ = w.send(result.clone());
     }
+    written
 }

@@ -180,7 +180,7 @@ pub enum BadResult {
 /// triples: a decoded array's capacity is whatever prost grew it to, so it is first shrunk to
 /// its length (a realloc that shrinks in place).
 fn triples(mut v: Vec<f64>) -> Vec<[f64; 3]> {
-    if v.capacity() % 3 != 0 {
+    if !v.capacity().is_multiple_of(3) {
         v.shrink_to_fit();
     }
     bytemuck::allocation::try_cast_vec(v)

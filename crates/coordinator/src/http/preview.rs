@@ -14,16 +14,12 @@ use tessera_proto::ids::JobId;
 use tessera_render::output::{read_exr_rgb, tone_map, Preview};
 use tessera_render::PixelRect;
 
-use crate::job::{relative_noise, MAX_KEPT_TILE_NOISE};
+use crate::job::{preview_step, relative_noise, Thumb, MAX_KEPT_TILE_NOISE};
 use crate::shared::Shared;
 use crate::store::JobPhase;
 
 /// The least time between two snapshots of one job.
 pub const MIN_INTERVAL: Duration = Duration::from_millis(250);
-
-/// Longest edge of a preview, in pixels: larger frames are averaged down to it, so a preview
-/// of a huge frame costs what one of a large frame does.
-pub const MAX_EDGE: u32 = 1600;
 
 /// Jobs whose snapshots are kept: the ones being watched. A snapshot of a frame at the
 /// largest preview size holds 1600² means (31 MB), so this bounds the cache to about 120 MB.
@@ -70,7 +66,7 @@ struct Frame {
 
 impl Frame {
     fn new(width: u32, height: u32) -> (Self, Vec<u32>) {
-        let step = width.max(height).div_ceil(MAX_EDGE).max(1);
+        let step = preview_step(width, height);
         let (w, h) = (width.div_ceil(step), height.div_ceil(step));
         let n = w as usize * h as usize;
         (
@@ -93,6 +89,24 @@ impl Frame {
                 p[c] += m[c];
             }
             *k += 1;
+        }
+    }
+
+    /// Adds a tile's kept means ([`Thumb`], made at this preview's step) to their preview
+    /// pixels.
+    fn add_thumb(&mut self, weights: &mut [u32], t: &Thumb) {
+        for (j, (s, &k)) in t.sum.iter().zip(&t.count).enumerate() {
+            let (x, y) = (
+                t.origin.0 + j as u32 % t.width,
+                t.origin.1 + j as u32 / t.width,
+            );
+            let i = y as usize * self.width as usize + x as usize;
+            if let (Some(p), Some(w)) = (self.rgb.get_mut(i), weights.get_mut(i)) {
+                for c in 0..3 {
+                    p[c] += s[c];
+                }
+                *w += k;
+            }
         }
     }
 
@@ -272,6 +286,10 @@ fn copy_tiles(
         let acc = job.acc.get(&t);
         let rel = relative_noise(acc.map(|a| a.noise).unwrap_or_default());
         frame.tiles.push((rect, rel));
+        if let Some(thumb) = acc.and_then(|a| a.thumb.as_ref().filter(|_| a.sums.is_none())) {
+            frame.add_thumb(weights, thumb);
+            continue;
+        }
         let Some(sums) = acc.and_then(|a| a.sums.as_ref()) else {
             continue;
         };

@@ -15,11 +15,13 @@ use crate::error::Refusal;
 
 mod audit;
 mod rate;
+mod resident;
 mod tiles;
 
 use crate::store::{decode_sums, encode_sums, JobPhase, JobRecord, LoadedJob, Op};
 pub use audit::{same_bits, AuditHold, KeptUnits, Source, NOBODY};
 pub use rate::Rate;
+pub use resident::{preview_step, FrameTile, Thumb, MAX_DIRTY_BYTES, PREVIEW_EDGE};
 pub use tiles::{pixel_in_range, sums_in_range, TileGrid};
 
 /// One work unit: a tile and a batch of sample indices.
@@ -60,6 +62,9 @@ pub struct TileAcc {
     pub by: Vec<Source>,
     /// Audited jobs only: where each early result came from.
     pub pending_by: BTreeMap<u32, Source>,
+    /// Set when `sums` were dropped from memory because the store holds them and no result
+    /// will change them ([`Job::evict`]): the preview's means of the tile, at its resolution.
+    pub thumb: Option<Thumb>,
 }
 
 /// A job in memory.
@@ -92,6 +97,8 @@ pub struct Job {
     pub noise_total: (f64, f64, u64),
     /// Tiles whose sums changed since the last checkpoint ([`Job::checkpoint`]).
     pub dirty: BTreeSet<u32>,
+    /// Bytes of those tiles' accumulators.
+    pub dirty_bytes: u64,
     /// Next unit to hand out, in batch-major order (all tiles' batch 0, then batch 1, …), so
     /// the image converges evenly and few results wait out of order.
     pub cursor: u64,
@@ -122,17 +129,6 @@ pub struct Job {
     /// ([`tessera_render::Image::noise`]), set when the EXR is written: what a done job
     /// reports, so the farm and `render` print the same figure for the same bits.
     pub image_noise: Option<(f64, f64)>,
-}
-
-/// A frame's tiles, row-major, from `sums` of each tile index. A tile without any (which would
-/// be a bug once every unit is in) is black rather than left out of the frame.
-fn frame_of(tiles: TileGrid, mut sums: impl FnMut(u32) -> Option<TileSums>) -> Vec<TileSums> {
-    (0..tiles.len() as u32)
-        .filter_map(|t| {
-            let rect = tiles.get(t)?;
-            Some(sums(t).unwrap_or_else(|| TileSums::empty(rect, 0)))
-        })
-        .collect()
 }
 
 /// Adds `sign` × `parts` to a job's running noise total.
@@ -168,6 +164,7 @@ impl Job {
             acc: BTreeMap::new(),
             noise_total: (0.0, 0.0, 0),
             dirty: BTreeSet::new(),
+            dirty_bytes: 0,
             cursor: 0,
             requeue: VecDeque::new(),
             issued: HashMap::new(),
@@ -573,7 +570,9 @@ impl Job {
             add_noise(&mut self.noise_total, noise, 1.0);
             acc.noise = noise;
             // Written at the next checkpoint, once however many merges come before it.
-            self.dirty.insert(unit.tile);
+            if self.dirty.insert(unit.tile) {
+                self.dirty_bytes += rect.area() as u64 * 52;
+            }
         } else {
             ops.push(Op::PutPending(
                 id,
@@ -701,7 +700,9 @@ impl Job {
                 add_noise(&mut self.noise_total, acc.noise, -1.0);
                 add_noise(&mut self.noise_total, noise, 1.0);
                 acc.noise = noise;
-                self.dirty.insert(t);
+                if self.dirty.insert(t) {
+                    self.dirty_bytes += rect.area() as u64 * 52;
+                }
                 acc.sums = total;
                 acc.next = next;
                 if old_next >= first && next < first {
@@ -727,37 +728,6 @@ impl Job {
         (ops, taken)
     }
 
-    /// The store changes that bring the tiles merged since the last checkpoint up to date:
-    /// each dirty tile's sums as they are now (or its deletion, where an audit took every
-    /// batch back). Encoding here rather than at each merge writes and copies a tile once per
-    /// checkpoint, however many results it took.
-    pub fn checkpoint(&mut self) -> Vec<Op> {
-        let id = self.rec.id;
-        std::mem::take(&mut self.dirty)
-            .into_iter()
-            .map(|t| match self.acc.get(&t).and_then(|a| a.sums.as_ref()) {
-                Some(s) => Op::PutTile(id, t, encode_sums(s)),
-                None => Op::DelTile(id, t),
-            })
-            .collect()
-    }
-
-    /// Every tile's sums, row-major, copied (what tests compare frames by; writing the frame
-    /// takes them instead, [`take_frame_tiles`](Self::take_frame_tiles)).
-    pub fn frame_tiles(&self) -> Vec<TileSums> {
-        frame_of(self.tiles, |t| {
-            self.acc.get(&t).and_then(|a| a.sums.clone())
-        })
-    }
-
-    /// Every tile's sums, row-major, for writing the frame, moved out of the job: once every
-    /// unit is in, the frame is written and the job ends, so a copy would double the memory a
-    /// large frame takes at its peak. (A restart before the end reads them from the store.)
-    pub fn take_frame_tiles(&mut self) -> Vec<TileSums> {
-        let acc = &mut self.acc;
-        frame_of(self.tiles, |t| acc.get_mut(&t).and_then(|a| a.sums.take()))
-    }
-
     /// Each tile's relative noise from its merged sums, row-major ([`relative_noise`]).
     pub fn tile_noise(&self) -> Vec<f32> {
         (0..self.tiles.len() as u32)
@@ -770,6 +740,7 @@ impl Job {
     pub fn clear(&mut self) -> Vec<u64> {
         self.acc = BTreeMap::new();
         self.dirty.clear();
+        self.dirty_bytes = 0;
         self.noise_total = (0.0, 0.0, 0);
         self.requeue.clear();
         self.audits.clear();

@@ -35,7 +35,7 @@ use crate::config::{
     DEFAULT_MAX_LEASES_PER_WORKER, DEFAULT_MAX_WORKERS_PER_HOST, DEFAULT_QUARANTINE_AFTER,
 };
 use crate::error::Refusal;
-use crate::job::{Job, Source, Unit};
+use crate::job::{FrameTile, Job, Source, Unit, MAX_DIRTY_BYTES};
 use crate::metrics::Counters;
 use crate::store::{JobPhase, JobRecord, Op};
 use audit::audit_excludes;
@@ -107,8 +107,9 @@ impl Policy {
     }
 }
 
-/// A finished job's frame to write: its record, settings and every tile's sums.
-pub type Frame = (JobRecord, RenderSettings, Vec<TileSums>);
+/// A finished job's frame to write: its record, settings and every tile (its sums, or where
+/// the store holds them).
+pub type Frame = (JobRecord, RenderSettings, Vec<FrameTile>);
 
 /// All scheduling state.
 #[derive(Debug)]
@@ -145,6 +146,8 @@ pub struct Scheduler {
     referee_wanted: BTreeSet<(JobId, Unit)>,
     /// What happened to units and results since this boot, for metrics.
     counters: Counters,
+    /// An early checkpoint has been asked for since the last one ([`Scheduler::wants_checkpoint`]).
+    checkpoint_asked: bool,
 }
 
 impl Scheduler {
@@ -165,6 +168,7 @@ impl Scheduler {
             convictions: 0,
             referee_wanted: BTreeSet::new(),
             counters: Counters::default(),
+            checkpoint_asked: false,
         }
     }
 
@@ -411,7 +415,43 @@ impl Scheduler {
     /// The store changes that checkpoint every job's tiles merged since the last checkpoint
     /// ([`Job::checkpoint`]).
     pub fn checkpoint(&mut self) -> Vec<Op> {
+        self.checkpoint_asked = false;
         self.jobs.values_mut().flat_map(Job::checkpoint).collect()
+    }
+
+    /// Whether the tiles merged since the last checkpoint have reached [`MAX_DIRTY_BYTES`]
+    /// (their accumulators cannot leave memory before a checkpoint) and no early checkpoint
+    /// has been asked for yet: true once per checkpoint at most.
+    pub fn wants_checkpoint(&mut self) -> bool {
+        if self.checkpoint_asked {
+            return false;
+        }
+        let dirty: u64 = self.jobs.values().map(|j| j.dirty_bytes).sum();
+        self.checkpoint_asked = dirty >= MAX_DIRTY_BYTES;
+        self.checkpoint_asked
+    }
+
+    /// After a restart, whose tiles all came from the store: drops from memory those that no
+    /// result will change ([`Job::evict`]). Returns the bytes freed.
+    pub fn evict_restored(&mut self) -> u64 {
+        self.jobs
+            .values_mut()
+            .map(|job| {
+                let tiles: Vec<u32> = job.acc.keys().copied().collect();
+                job.evict(tiles)
+            })
+            .sum()
+    }
+
+    /// After a checkpoint that wrote `tiles` ((job, tile) pairs): drops from memory those
+    /// that no result will change ([`Job::evict`]). Returns the bytes freed.
+    pub fn evict(&mut self, tiles: &[(u64, u32)]) -> u64 {
+        let mut freed = 0;
+        for (id, job) in self.jobs.iter_mut() {
+            let mine = tiles.iter().filter(|(j, _)| *j == id.0).map(|(_, t)| *t);
+            freed += job.evict(mine);
+        }
+        freed
     }
 
     /// Ends a job (done, cancelled or failed): frees its units, leases and sums.

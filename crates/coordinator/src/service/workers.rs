@@ -186,6 +186,9 @@ impl Workers for Service {
                     // Acknowledged once merged in memory: the next checkpoint makes it durable,
                     // and a crash before then costs its rendering again, not its bits.
                     self.shared.queue_checkpointed(ops);
+                    if core.wants_checkpoint() {
+                        self.shared.request_checkpoint();
+                    }
                     (finished, true)
                 }
                 Ok(Merged::Duplicate) => {

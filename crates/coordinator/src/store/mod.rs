@@ -420,6 +420,25 @@ impl Store {
             })
     }
 
+    /// One tile's merged sums, checked against its checksum: what a frame is written from for
+    /// a tile whose sums left memory once stored. A tile that is not there is an error too.
+    pub fn tile(&self, job: u64, tile: u32, rect: PixelRect) -> Result<TileSums, StoreError> {
+        guarded(Path::new(FILE_NAME), || {
+            let what = || format!("job {job} tile {tile}");
+            let tx = self.db()?.begin_read().map_err(dberr)?;
+            let tiles = tx.open_table(TILES).map_err(dberr)?;
+            let v = tiles
+                .get((job, tile))
+                .map_err(dberr)?
+                .ok_or_else(|| StoreError::Corrupt {
+                    what: what(),
+                    why: "missing (its sums left memory once stored)".into(),
+                })?;
+            let bytes = unseal(what, &tile_key(job, tile), v.value())?;
+            decode_sums(bytes, rect).map_err(|why| StoreError::Corrupt { what: what(), why })
+        })
+    }
+
     /// The kept results of one tile of an audited job: batch → (merge serial, sums). A damaged
     /// one is left out (the caller renders it again), so a rebuild never folds in bits the
     /// store cannot vouch for.

@@ -1,0 +1,215 @@
+//! Which tiles' sums are in memory. A tile's accumulator is needed in memory while results
+//! still merge into it; once it is closed (every batch merged) and a checkpoint has written it,
+//! the store holds the same bits and nothing will change them, so it is dropped from memory
+//! ([`Job::evict`]) and read back once, tile by tile, when the frame is written
+//! ([`FrameTile::Stored`]). What stays is the tile's means at the dashboard preview's
+//! resolution ([`Thumb`]), so a preview of a large frame still shows every tile. A job's
+//! resident sums are then its open tiles and the tiles merged since the last checkpoint, and
+//! the coordinator asks for a checkpoint early once those reach [`MAX_DIRTY_BYTES`].
+//!
+//! Audited jobs keep every tile (an audit folds a tile again from its sums) and so do adaptive
+//! ones (their decisions read the sums); so does a job in the last moments before its frame is
+//! written.
+
+use tessera_render::{PixelRect, TileSums};
+
+use super::{Job, TileGrid};
+use crate::store::{encode_sums, JobPhase, Op};
+
+/// Longest edge of a dashboard preview, in pixels: larger frames are averaged down to it, so a
+/// preview of a huge frame costs what one of a large frame does. Here rather than with the
+/// preview because the tiles' kept means are made at its resolution.
+pub const PREVIEW_EDGE: u32 = 1600;
+
+/// Bytes of tiles merged since the last checkpoint (their accumulators, which cannot leave
+/// memory before it) at which the coordinator asks for a checkpoint before the interval is up.
+pub const MAX_DIRTY_BYTES: u64 = 256 << 20;
+
+/// The full-resolution pixels a preview pixel of a `width` × `height` frame averages, along
+/// each axis.
+pub fn preview_step(width: u32, height: u32) -> u32 {
+    width.max(height).div_ceil(PREVIEW_EDGE).max(1)
+}
+
+/// A tile's means at a preview's resolution: for each preview pixel the tile overlaps, the sum
+/// of the means of its full-resolution pixels inside the tile, and how many there are. Adding
+/// them to a preview gives what adding the pixels one by one would (up to f32 rounding).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Thumb {
+    /// The first preview pixel's column and row.
+    pub origin: (u32, u32),
+    /// Preview pixels across.
+    pub width: u32,
+    /// Sums of means, row-major.
+    pub sum: Vec<[f32; 3]>,
+    /// Full-resolution pixels in each sum.
+    pub count: Vec<u32>,
+}
+
+impl Thumb {
+    /// `sums`' means, `step` pixels to a preview pixel along each axis. A mean is the EXR's
+    /// (f64 division, then f32); a pixel without samples is black.
+    pub fn of(sums: &TileSums, step: u32) -> Self {
+        let r = sums.rect;
+        let step = step.max(1);
+        let origin = (r.x0 / step, r.y0 / step);
+        let width = (r.x0 + r.width.max(1) - 1) / step - origin.0 + 1;
+        let height = (r.y0 + r.height.max(1) - 1) / step - origin.1 + 1;
+        let n = width as usize * height as usize;
+        let mut thumb = Self {
+            origin,
+            width,
+            sum: vec![[0.0; 3]; n],
+            count: vec![0; n],
+        };
+        for (i, (s, &k)) in sums.sum.iter().zip(&sums.count).enumerate() {
+            let x = r.x0 + i as u32 % r.width;
+            let y = r.y0 + i as u32 / r.width;
+            let j =
+                (y / step - origin.1) as usize * width as usize + (x / step - origin.0) as usize;
+            if k > 0 {
+                for (t, v) in thumb.sum[j].iter_mut().zip(s) {
+                    *t += (v / k as f64) as f32;
+                }
+            }
+            thumb.count[j] += 1;
+        }
+        thumb
+    }
+}
+
+/// A tile of a frame to be written: its sums, or where the store keeps them.
+#[derive(Debug)]
+pub enum FrameTile {
+    /// In memory.
+    Here(TileSums),
+    /// In the store, under the job's id and this tile index.
+    Stored(u32, PixelRect),
+}
+
+/// A frame's tiles, row-major, from `sums` of each tile index. A tile without any (which would
+/// be a bug once every unit is in) is black rather than left out of the frame.
+fn frame_of(tiles: TileGrid, mut sums: impl FnMut(u32) -> Option<TileSums>) -> Vec<TileSums> {
+    (0..tiles.len() as u32)
+        .filter_map(|t| {
+            let rect = tiles.get(t)?;
+            Some(sums(t).unwrap_or_else(|| TileSums::empty(rect, 0)))
+        })
+        .collect()
+}
+
+impl Job {
+    /// The store changes that bring the tiles merged since the last checkpoint up to date:
+    /// each dirty tile's sums as they are now (or its deletion, where an audit took every
+    /// batch back). Encoding here rather than at each merge writes and copies a tile once per
+    /// checkpoint, however many results it took.
+    pub fn checkpoint(&mut self) -> Vec<Op> {
+        let id = self.rec.id;
+        self.dirty_bytes = 0;
+        std::mem::take(&mut self.dirty)
+            .into_iter()
+            .map(|t| match self.acc.get(&t).and_then(|a| a.sums.as_ref()) {
+                Some(s) => Op::PutTile(id, t, encode_sums(s)),
+                None => Op::DelTile(id, t),
+            })
+            .collect()
+    }
+
+    /// Whether tiles of this job may leave memory once stored (see the module's doc).
+    fn evicts(&self) -> bool {
+        !self.rec.audited
+            && self.rec.noise_target == 0.0
+            && self.rec.phase == JobPhase::Active
+            && !self.finishing
+    }
+
+    /// Drops from memory the sums of those of `tiles` (just written by a checkpoint) that are
+    /// closed and not merged into since, keeping their preview means. Returns the bytes freed.
+    pub fn evict(&mut self, tiles: impl IntoIterator<Item = u32>) -> u64 {
+        if !self.evicts() {
+            return 0;
+        }
+        let step = preview_step(self.rec.width, self.rec.height);
+        let mut freed = 0;
+        for t in tiles {
+            if self.dirty.contains(&t) {
+                continue;
+            }
+            let n_batches = self.n_batches;
+            let Some(acc) = self.acc.get_mut(&t) else {
+                continue;
+            };
+            if acc.next < n_batches || !acc.pending.is_empty() {
+                continue;
+            }
+            if let Some(sums) = acc.sums.take() {
+                acc.thumb = Some(Thumb::of(&sums, step));
+                freed += sums.rect.area() as u64 * 52;
+            }
+        }
+        freed
+    }
+
+    /// Every tile's sums, row-major, copied (what tests compare frames by; writing the frame
+    /// takes them instead, [`take_frame_tiles`](Self::take_frame_tiles)). A tile whose sums
+    /// are only in the store is black here.
+    pub fn frame_tiles(&self) -> Vec<TileSums> {
+        frame_of(self.tiles, |t| {
+            self.acc.get(&t).and_then(|a| a.sums.clone())
+        })
+    }
+
+    /// Every tile, row-major, for writing the frame: the sums in memory moved out of the job
+    /// (once every unit is in, the frame is written and the job ends, so a copy would double
+    /// the memory a large frame takes at its peak; a restart before the end reads them from the
+    /// store), and where the store holds the rest.
+    pub fn take_frame_tiles(&mut self) -> Vec<FrameTile> {
+        let tiles = self.tiles;
+        (0..tiles.len() as u32)
+            .filter_map(|t| {
+                let rect = tiles.get(t)?;
+                let acc = self.acc.get_mut(&t);
+                Some(match acc {
+                    Some(a) if a.sums.is_none() && a.thumb.is_some() => FrameTile::Stored(t, rect),
+                    Some(a) => {
+                        FrameTile::Here(a.sums.take().unwrap_or_else(|| TileSums::empty(rect, 0)))
+                    }
+                    None => FrameTile::Here(TileSums::empty(rect, 0)),
+                })
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_thumb_sums_the_means_of_the_pixels_of_each_preview_pixel() {
+        let rect = PixelRect {
+            x0: 5,
+            y0: 2,
+            width: 4,
+            height: 3,
+        };
+        let mut t = TileSums::empty(rect, 0);
+        for (i, (s, k)) in t.sum.iter_mut().zip(&mut t.count).enumerate() {
+            *k = 2;
+            *s = [2.0 * i as f64, 0.0, 1.0];
+        }
+        t.count[0] = 0;
+        // Step 1: the means themselves.
+        let one = Thumb::of(&t, 1);
+        assert_eq!((one.origin, one.width, one.count.len()), ((5, 2), 4, 12));
+        assert_eq!(one.sum[5], [5.0, 0.0, 0.5]);
+        assert_eq!(one.sum[0], [0.0; 3], "no samples: black");
+        // Step 3: columns 5 | 6 7 8 → preview columns 1, 2; rows 2 | 3 4 → rows 0, 1.
+        let three = Thumb::of(&t, 3);
+        assert_eq!((three.origin, three.width), ((1, 0), 2));
+        assert_eq!(three.count, vec![1, 3, 2, 6]);
+        let total: f32 = three.sum.iter().map(|s| s[0]).sum();
+        let want: f32 = (1..12).map(|i| i as f32).sum();
+        assert_eq!(total, want);
+    }
+}

@@ -1,0 +1,139 @@
+//! Which sums stay in memory: a tile leaves it only once it is closed and a checkpoint wrote
+//! it, and the frame is written from both kinds of tile.
+
+use std::time::{Duration, Instant};
+
+use tessera_coordinator::job::{FrameTile, Job, Unit};
+use tessera_coordinator::scheduler::{Merged, Policy, Scheduler};
+use tessera_coordinator::store::{JobRecord, Op};
+use tessera_proto::ids::JobId;
+use tessera_render::TileSums;
+
+/// A 16×16 job in 4-pixel tiles (16 tiles), 4 spp in batches of 2.
+fn record(audited: bool) -> JobRecord {
+    JobRecord {
+        id: 1,
+        width: 16,
+        height: 16,
+        spp: 4,
+        batch: 2,
+        tile_size: 4,
+        output_name: "o.exr".into(),
+        audited,
+        ..JobRecord::default()
+    }
+}
+
+fn result(job: &Job, u: Unit) -> TileSums {
+    let rect = job.tiles.get(u.tile).expect("tile");
+    let mut t = TileSums::empty(rect, 0);
+    t.samples = job.batch_range(u.batch);
+    t.count.fill(t.samples.len() as u32);
+    for (i, s) in t.sum.iter_mut().enumerate() {
+        *s = [i as f64, 1.0, 2.0];
+    }
+    t
+}
+
+/// Tiles whose sums are in memory.
+fn resident(core: &Scheduler) -> Vec<u32> {
+    let job = core.job(JobId(1)).expect("job");
+    job.acc
+        .iter()
+        .filter(|(_, a)| a.sums.is_some())
+        .map(|(t, _)| *t)
+        .collect()
+}
+
+/// A checkpoint as the writer makes one: the changes, then (as if committed) the eviction of
+/// the tiles it wrote.
+fn checkpoint(core: &mut Scheduler) -> u64 {
+    let written: Vec<(u64, u32)> = core
+        .checkpoint()
+        .iter()
+        .filter_map(|op| match op {
+            Op::PutTile(j, t, _) => Some((*j, *t)),
+            _ => None,
+        })
+        .collect();
+    core.evict(&written)
+}
+
+#[test]
+fn only_closed_and_stored_tiles_leave_memory() {
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(60)));
+    core.insert_job(Job::new(record(false)));
+    core.policy_mut().max_leases_per_worker = usize::MAX;
+    let now = Instant::now();
+    let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+    let granted = core.lease(w, usize::MAX, now);
+    assert_eq!(granted.len(), 32);
+    let submit = |core: &mut Scheduler, i: usize| {
+        let g = &granted[i];
+        let r = result(core.job(JobId(1)).expect("job"), g.unit);
+        let merged = core
+            .submit(w, g.lease, JobId(1), g.unit, r, now)
+            .expect("ok");
+        assert!(matches!(merged, Merged::New { .. }));
+    };
+    // Batch-major: the first 16 leases are every tile's batch 0. Open tiles stay.
+    for i in 0..16 {
+        submit(&mut core, i);
+    }
+    assert_eq!(checkpoint(&mut core), 0);
+    assert_eq!(resident(&core).len(), 16);
+    // Eight tiles close; a checkpoint writes them and they leave, keeping preview means.
+    for i in 16..24 {
+        submit(&mut core, i);
+    }
+    assert_eq!(checkpoint(&mut core), 8 * 16 * 52);
+    assert_eq!(resident(&core), (8..16).collect::<Vec<_>>());
+    let job = core.job(JobId(1)).expect("job");
+    assert!(job.acc[&0].thumb.is_some() && job.acc[&8].thumb.is_none());
+    // A tile merged after the checkpoint's snapshot is not evicted by it.
+    let written: Vec<(u64, u32)> = core
+        .checkpoint()
+        .iter()
+        .filter_map(|op| match op {
+            Op::PutTile(j, t, _) => Some((*j, *t)),
+            _ => None,
+        })
+        .collect();
+    assert!(written.is_empty(), "nothing merged since: nothing to write");
+    submit(&mut core, 24);
+    assert_eq!(core.evict(&[(1, 8)]), 0, "dirty since the snapshot");
+    assert_eq!(checkpoint(&mut core), 16 * 52);
+    // The rest; the frame takes the stored tiles from the store, the others from memory.
+    for i in 25..32 {
+        submit(&mut core, i);
+    }
+    let (frame, ops) = core.take_frame(JobId(1)).expect("finishing");
+    assert_eq!(
+        ops.len(),
+        7,
+        "the tiles merged since the last checkpoint are checkpointed"
+    );
+    let (_, _, tiles) = frame;
+    let stored = tiles
+        .iter()
+        .filter(|t| matches!(t, FrameTile::Stored(..)))
+        .count();
+    assert_eq!(stored, 9);
+    assert_eq!(tiles.len(), 16);
+}
+
+#[test]
+fn an_audited_job_keeps_its_sums() {
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(60)));
+    core.insert_job(Job::new(record(true)));
+    core.policy_mut().max_leases_per_worker = usize::MAX;
+    let now = Instant::now();
+    let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+    for g in core.lease(w, usize::MAX, now) {
+        let r = result(core.job(JobId(1)).expect("job"), g.unit);
+        let _ = core.submit(w, g.lease, JobId(1), g.unit, r, now);
+    }
+    assert_eq!(resident(&core).len(), 16, "every tile merged and closed");
+    assert_eq!(checkpoint(&mut core), 0);
+    assert_eq!(resident(&core).len(), 16);
+}

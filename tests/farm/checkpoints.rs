@@ -1,0 +1,97 @@
+//! Checkpoints: a closed tile's sums leave memory once the store holds them, are read back for
+//! the frame, and change no bit, across a restart too.
+
+use crate::common::*;
+
+/// `tessera_sums_evicted_bytes_total` from the coordinator's `/metrics`.
+async fn evicted_bytes(coord: &Coordinator) -> f64 {
+    let reply = get(coord.http.expect("dashboard"), "/metrics").await;
+    reply
+        .text()
+        .lines()
+        .find_map(|l| l.strip_prefix("tessera_sums_evicted_bytes_total "))
+        .and_then(|v| v.trim().parse().ok())
+        .expect("the metric is exported")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn closed_tiles_leave_memory_once_stored_and_the_frame_keeps_its_bits() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord =
+        Coordinator::start_with_dashboard(&dir.path().join("data"), Duration::from_secs(30), |c| {
+            c.checkpoint_interval = Duration::from_millis(20)
+        })
+        .await;
+    let w = worker(&coord.url(), "w0");
+    // 16 tiles of 16², one batch each: every tile closes at its first merge.
+    let text = scene_text(64);
+    let mut client = coord.client().await;
+    let job = submit(&mut client, &text, 16, 16, 0).await;
+    let status = wait(&mut client, &job).await;
+    assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
+    let farm = fetch(&mut client, &job).await;
+    assert!(
+        farm == local_exr(&text, 16, 16, dir.path()),
+        "the frame written from stored tiles differs from the local render"
+    );
+    let evicted = evicted_bytes(&coord).await;
+    assert!(
+        evicted >= 52.0 * 16.0 * 16.0,
+        "no tile left memory: {evicted} bytes"
+    );
+    w.abort();
+    coord.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_restart_reads_stored_tiles_back_for_the_frame() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().join("data");
+    let checkpoints = |c: &mut Config| c.checkpoint_interval = Duration::from_millis(20);
+    let coord = Coordinator::start_with(&data, Duration::from_secs(30), checkpoints).await;
+    let text = scene_text(64);
+    let mut client = coord.client().await;
+    let job = submit(&mut client, &text, 16, 16, 0).await;
+    // Half the tiles rendered by hand, then a clean stop: they are stored, and after the
+    // restart they are closed tiles that leave memory at once.
+    let scene = Scene::from_str(&text, Format::Toml, "cornell", &Limits::default()).expect("scene");
+    let mut workers = workers_client(&coord.url());
+    let id = register_as(
+        &mut workers,
+        "by-hand",
+        env!("CARGO_PKG_VERSION"),
+        IMAGE_REVISION,
+    )
+    .await
+    .expect("register");
+    let units = lease_now(&mut workers, &id, 8).await.expect("lease");
+    assert_eq!(units.len(), 8);
+    for u in units {
+        let result = honest_result(&scene, &job_settings(16, 16), &u);
+        workers
+            .submit_result(pb::SubmitResultRequest {
+                worker_id: id.clone(),
+                lease_id: u.lease_id.clone(),
+                job_id: u.job_id.clone(),
+                tile_index: u.tile_index,
+                batch_index: u.batch_index,
+                result: Some(result),
+            })
+            .await
+            .expect("merged");
+    }
+    let addr = coord.addr;
+    coord.stop().await;
+    let coord = Coordinator::restart_at(addr, &data, Duration::from_secs(30)).await;
+    let mut client = coord.client().await;
+    assert_eq!(job_status(&mut client, &job).await.units_done, 8);
+    let w = worker(&coord.url(), "w0");
+    let status = wait(&mut client, &job).await;
+    assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
+    assert!(
+        fetch(&mut client, &job).await == local_exr(&text, 16, 16, dir.path()),
+        "the frame after the restart differs from the local render"
+    );
+    w.abort();
+    coord.stop().await;
+}
