@@ -70,6 +70,7 @@ L=$(median "${local_s[@]}"); F=$(median "${farm_s[@]}")
 B=$(median "${bytes[@]}"); S=$(median "${share[@]}")
 CG=$(median "${cpu_g[@]}"); DG=$(median "${disk_g[@]}"); U=$(median "${util[@]}")
 RATIO=$(echo "$L / $F" | bc -l)
+if [ -n "$BATCH" ]; then BATCH_NOTE=$BATCH; else BATCH_NOTE="${batch:-?}, the unit rule's"; fi
 CPU=$(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //')
 {
   echo "# Farm overhead"
@@ -78,7 +79,7 @@ CPU=$(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //')
   echo
   echo "Machine: $CPU, $(nproc) cores, $(awk '/MemTotal/ {printf "%.0f GiB", $2 / 1048576}' /proc/meminfo); $THREADS render threads in both runs."
   echo
-  echo "Job: \`$SCENE\` at $SPP spp, tile ${TILE:-128 (the default)}, batch ${BATCH:-${batch:-?} (the unit rule's)}, checkpoint interval ${CHECKPOINT:-5 (the default)} s; medians of $RUNS alternating runs."
+  echo "Job: \`$SCENE\` at $SPP spp, tile ${TILE:-128 (the default)}, batch $BATCH_NOTE, checkpoint interval ${CHECKPOINT:-5 (the default)} s; medians of $RUNS alternating runs."
   echo "The farm's EXR was checked byte-identical to the local one in every run."
   echo
   echo "| measure | value |"

@@ -9,9 +9,12 @@
 //! each tile's batches are folded in index order starting from zero, the EXR is bit-identical
 //! to `tessera render` with the same seed, spp and batch size, however many workers took part.
 //!
-//! State lives in a redb database under the data directory; every merged result is committed
-//! before it is acknowledged, so a restarted coordinator resumes its jobs. Leases are not
-//! stored: after a restart, units that were in flight are simply handed out again.
+//! State lives in a redb database under the data directory. Merged results are committed at
+//! checkpoints (every few seconds, each tile merged since the last written once), changes a
+//! reply waits on at once, so a restarted coordinator resumes its jobs from the last commit and
+//! renders again at most the units merged after it. Leases are not stored: after a restart,
+//! units that were in flight are simply handed out again. A tile's sums stay in memory only
+//! while results still merge into it.
 //!
 //! [`serve`] runs the server on a listener the caller binds (port 0 in tests) until the
 //! `shutdown` future completes.

@@ -285,11 +285,17 @@ pub(crate) async fn writer(
             // change queued before now: under the scheduler's lock, so that the commit is the
             // state after one moment's changes, never half of one.
             if let Some(shared) = shared.upgrade() {
-                let mut core = shared.scheduler();
-                while let Ok(w) = rx.try_recv() {
-                    take(&mut queued, &mut waiters, w);
-                }
-                for op in core.checkpoint() {
+                let snapshot = {
+                    let mut core = shared.scheduler();
+                    while let Ok(w) = rx.try_recv() {
+                        take(&mut queued, &mut waiters, w);
+                    }
+                    core.checkpoint()
+                };
+                // Encoded with the lock released: leases and merges go on meanwhile (a tile
+                // merged into now is copied first, and the snapshot keeps the moment's sums).
+                let ops = tokio::task::block_in_place(|| snapshot.ops());
+                for op in ops {
                     queued.push(op);
                 }
             }

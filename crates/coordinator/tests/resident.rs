@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 
 use tessera_coordinator::job::{FrameTile, Job, Unit};
 use tessera_coordinator::scheduler::{Merged, Policy, Scheduler};
-use tessera_coordinator::store::{JobRecord, Op};
+use tessera_coordinator::store::{encode_sums, JobRecord, Op};
 use tessera_proto::ids::JobId;
 use tessera_render::TileSums;
 
@@ -50,6 +50,7 @@ fn resident(core: &Scheduler) -> Vec<u32> {
 fn checkpoint(core: &mut Scheduler) -> u64 {
     let written: Vec<(u64, u32)> = core
         .checkpoint()
+        .ops()
         .iter()
         .filter_map(|op| match op {
             Op::PutTile(j, t, _) => Some((*j, *t)),
@@ -80,19 +81,43 @@ fn only_closed_and_stored_tiles_leave_memory() {
     for i in 0..16 {
         submit(&mut core, i);
     }
-    assert_eq!(checkpoint(&mut core), 0);
-    assert_eq!(resident(&core).len(), 16);
-    // Eight tiles close; a checkpoint writes them and they leave, keeping preview means.
-    for i in 16..24 {
+    // A snapshot keeps the moment's sums: a merge into its tile after it copies the tile.
+    let before = encode_sums(
+        core.job(JobId(1)).expect("job").acc[&0]
+            .sums
+            .as_deref()
+            .expect("sums"),
+    );
+    let snapshot = core.checkpoint();
+    submit(&mut core, 16);
+    let ops = snapshot.ops();
+    let tile0 = ops
+        .iter()
+        .find_map(|op| match op {
+            Op::PutTile(1, 0, bytes) => Some(bytes.clone()),
+            _ => None,
+        })
+        .expect("tile 0 was dirty");
+    assert_eq!(tile0, before, "the snapshot changed after it was taken");
+    assert_eq!(ops.len(), 16);
+    assert_eq!(
+        checkpoint(&mut core),
+        16 * 52,
+        "tile 0, closed since, leaves"
+    );
+    assert_eq!(resident(&core).len(), 15);
+    // Seven more tiles close; a checkpoint writes them and they leave, keeping preview means.
+    for i in 17..24 {
         submit(&mut core, i);
     }
-    assert_eq!(checkpoint(&mut core), 8 * 16 * 52);
+    assert_eq!(checkpoint(&mut core), 7 * 16 * 52);
     assert_eq!(resident(&core), (8..16).collect::<Vec<_>>());
     let job = core.job(JobId(1)).expect("job");
     assert!(job.acc[&0].thumb.is_some() && job.acc[&8].thumb.is_none());
     // A tile merged after the checkpoint's snapshot is not evicted by it.
     let written: Vec<(u64, u32)> = core
         .checkpoint()
+        .ops()
         .iter()
         .filter_map(|op| match op {
             Op::PutTile(j, t, _) => Some((*j, *t)),

@@ -4,6 +4,7 @@
 
 use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
 use std::ops::Range;
+use std::sync::Arc;
 use std::time::Instant;
 
 use tessera_proto::ids::JobId;
@@ -21,7 +22,7 @@ mod tiles;
 use crate::store::{decode_sums, encode_sums, JobPhase, JobRecord, LoadedJob, Op};
 pub use audit::{same_bits, AuditHold, KeptUnits, Source, NOBODY};
 pub use rate::Rate;
-pub use resident::{preview_step, FrameTile, Thumb, MAX_DIRTY_BYTES, PREVIEW_EDGE};
+pub use resident::{preview_step, FrameTile, Snapshot, Thumb, MAX_DIRTY_BYTES, PREVIEW_EDGE};
 pub use tiles::{pixel_in_range, sums_in_range, TileGrid};
 
 /// One work unit: a tile and a batch of sample indices.
@@ -50,8 +51,10 @@ pub fn relative_noise(parts: (f64, f64, u64)) -> f32 {
 /// Merged sums of one tile: batches `0..next` folded in order, plus results that arrived early.
 #[derive(Debug, Default)]
 pub struct TileAcc {
-    /// Sums of batches `0..next` (allocated at the first merge).
-    pub sums: Option<TileSums>,
+    /// Sums of batches `0..next` (allocated at the first merge). Shared with a checkpoint
+    /// being encoded, which takes a snapshot under the lock and encodes it outside; a merge
+    /// meanwhile copies the tile first (copy on write), so the snapshot stays the moment's.
+    pub sums: Option<Arc<TileSums>>,
     /// First batch not yet folded in.
     pub next: u32,
     /// Results for batches after `next`, waiting for their turn.
@@ -218,7 +221,7 @@ impl Job {
             }
             acc.noise = sums.noise_parts();
             add_noise(&mut job.noise_total, acc.noise, 1.0);
-            acc.sums = Some(sums);
+            acc.sums = Some(Arc::new(sums));
         }
         for ((tile, batch), bytes) in loaded.pending {
             let rect = job
@@ -343,7 +346,7 @@ impl Job {
     /// Computes the adaptive scale from every tile's pilot sums, in tile order, and makes
     /// every tile's first decision under it.
     fn fix_scale(&mut self) {
-        let pilots = self.acc.values().filter_map(|a| a.sums.as_ref());
+        let pilots = self.acc.values().filter_map(|a| a.sums.as_deref());
         self.rec.adaptive_scale = Some(neyman_scale(self.rec.noise_target, pilots));
         let tiles: Vec<u32> = self.acc.keys().copied().collect();
         for tile in tiles {
@@ -546,7 +549,10 @@ impl Job {
         let mut advanced = false;
         if unit.batch == acc.next {
             advanced = true;
-            let total = acc.sums.get_or_insert_with(|| TileSums::empty(rect, 0));
+            let total = Arc::make_mut(
+                acc.sums
+                    .get_or_insert_with(|| Arc::new(TileSums::empty(rect, 0))),
+            );
             total
                 .merge(&sums)
                 .map_err(|e| Refusal::Invalid(e.to_string()))?;
@@ -703,7 +709,7 @@ impl Job {
                 if self.dirty.insert(t) {
                     self.dirty_bytes += rect.area() as u64 * 52;
                 }
-                acc.sums = total;
+                acc.sums = total.map(Arc::new);
                 acc.next = next;
                 if old_next >= first && next < first {
                     self.pilots_in = self.pilots_in.saturating_sub(1);

@@ -11,6 +11,8 @@
 //! ones (their decisions read the sums); so does a job in the last moments before its frame is
 //! written.
 
+use std::sync::Arc;
+
 use tessera_render::{PixelRect, TileSums};
 
 use super::{Job, TileGrid};
@@ -78,6 +80,30 @@ impl Thumb {
     }
 }
 
+/// Dirty tiles' sums as they were at a checkpoint: (job, tile, sums), none for a tile whose
+/// sums an audit took back. Shared with the live accumulators until encoded.
+#[derive(Debug, Default)]
+pub struct Snapshot(pub Vec<(u64, u32, Option<Arc<TileSums>>)>);
+
+impl Snapshot {
+    /// Adds another job's snapshot.
+    pub fn extend(&mut self, other: Snapshot) {
+        self.0.extend(other.0);
+    }
+
+    /// The store changes: each tile's sums encoded, or its deletion. Made outside the
+    /// scheduler's lock.
+    pub fn ops(self) -> Vec<Op> {
+        self.0
+            .into_iter()
+            .map(|(id, t, sums)| match sums {
+                Some(s) => Op::PutTile(id, t, encode_sums(&s)),
+                None => Op::DelTile(id, t),
+            })
+            .collect()
+    }
+}
+
 /// A tile of a frame to be written: its sums, or where the store keeps them.
 #[derive(Debug)]
 pub enum FrameTile {
@@ -99,20 +125,20 @@ fn frame_of(tiles: TileGrid, mut sums: impl FnMut(u32) -> Option<TileSums>) -> V
 }
 
 impl Job {
-    /// The store changes that bring the tiles merged since the last checkpoint up to date:
-    /// each dirty tile's sums as they are now (or its deletion, where an audit took every
-    /// batch back). Encoding here rather than at each merge writes and copies a tile once per
+    /// What brings the store's copy of the tiles merged since the last checkpoint up to date:
+    /// each dirty tile's sums as they are now (a shared snapshot, encoded by [`Snapshot::ops`]
+    /// outside the scheduler's lock), or its deletion where an audit took every batch back.
+    /// Encoding at checkpoints rather than at each merge writes and copies a tile once per
     /// checkpoint, however many results it took.
-    pub fn checkpoint(&mut self) -> Vec<Op> {
+    pub fn checkpoint(&mut self) -> Snapshot {
         let id = self.rec.id;
         self.dirty_bytes = 0;
-        std::mem::take(&mut self.dirty)
-            .into_iter()
-            .map(|t| match self.acc.get(&t).and_then(|a| a.sums.as_ref()) {
-                Some(s) => Op::PutTile(id, t, encode_sums(s)),
-                None => Op::DelTile(id, t),
-            })
-            .collect()
+        Snapshot(
+            std::mem::take(&mut self.dirty)
+                .into_iter()
+                .map(|t| (id, t, self.acc.get(&t).and_then(|a| a.sums.clone())))
+                .collect(),
+        )
     }
 
     /// Whether tiles of this job may leave memory once stored (see the module's doc).
@@ -143,6 +169,7 @@ impl Job {
                 continue;
             }
             if let Some(sums) = acc.sums.take() {
+                // The checkpoint's snapshot has been encoded: this is the last reference.
                 acc.thumb = Some(Thumb::of(&sums, step));
                 freed += sums.rect.area() as u64 * 52;
             }
@@ -155,7 +182,7 @@ impl Job {
     /// are only in the store is black here.
     pub fn frame_tiles(&self) -> Vec<TileSums> {
         frame_of(self.tiles, |t| {
-            self.acc.get(&t).and_then(|a| a.sums.clone())
+            self.acc.get(&t).and_then(|a| a.sums.as_deref().cloned())
         })
     }
 
@@ -171,9 +198,11 @@ impl Job {
                 let acc = self.acc.get_mut(&t);
                 Some(match acc {
                     Some(a) if a.sums.is_none() && a.thumb.is_some() => FrameTile::Stored(t, rect),
-                    Some(a) => {
-                        FrameTile::Here(a.sums.take().unwrap_or_else(|| TileSums::empty(rect, 0)))
-                    }
+                    Some(a) => FrameTile::Here(
+                        a.sums
+                            .take()
+                            .map_or_else(|| TileSums::empty(rect, 0), Arc::unwrap_or_clone),
+                    ),
                     None => FrameTile::Here(TileSums::empty(rect, 0)),
                 })
             })

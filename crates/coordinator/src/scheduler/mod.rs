@@ -35,7 +35,7 @@ use crate::config::{
     DEFAULT_MAX_LEASES_PER_WORKER, DEFAULT_MAX_WORKERS_PER_HOST, DEFAULT_QUARANTINE_AFTER,
 };
 use crate::error::Refusal;
-use crate::job::{FrameTile, Job, Source, Unit, MAX_DIRTY_BYTES};
+use crate::job::{FrameTile, Job, Snapshot, Source, Unit, MAX_DIRTY_BYTES};
 use crate::metrics::Counters;
 use crate::store::{JobPhase, JobRecord, Op};
 use audit::audit_excludes;
@@ -405,18 +405,24 @@ impl Scheduler {
             .jobs
             .get_mut(&id)
             .filter(|j| j.finishing && j.rec.phase == JobPhase::Active)?;
-        let ops = job.checkpoint();
+        // Encoded here, once per job, so that the tiles can be moved out of the job rather
+        // than copied away from a snapshot still holding them.
+        let ops = job.checkpoint().ops();
         Some((
             (job.rec.clone(), job.settings(), job.take_frame_tiles()),
             ops,
         ))
     }
 
-    /// The store changes that checkpoint every job's tiles merged since the last checkpoint
-    /// ([`Job::checkpoint`]).
-    pub fn checkpoint(&mut self) -> Vec<Op> {
+    /// Every job's tiles merged since the last checkpoint, as they are now ([`Job::checkpoint`]):
+    /// taken under the lock, encoded outside it ([`Snapshot::ops`]).
+    pub fn checkpoint(&mut self) -> Snapshot {
         self.checkpoint_asked = false;
-        self.jobs.values_mut().flat_map(Job::checkpoint).collect()
+        let mut all = Snapshot::default();
+        for job in self.jobs.values_mut() {
+            all.extend(job.checkpoint());
+        }
+        all
     }
 
     /// Whether the tiles merged since the last checkpoint have reached [`MAX_DIRTY_BYTES`]

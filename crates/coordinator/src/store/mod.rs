@@ -1,7 +1,8 @@
 //! Durable coordinator state in redb: scenes by hash, job records, each tile's merged sums and
-//! the results that arrived ahead of their turn. Every change a reply depends on is committed
-//! (fsync) before the reply is sent, so a restart resumes exactly where the last
-//! acknowledged result left it.
+//! the results that arrived ahead of their turn. Each commit (fsync) is one transaction of
+//! changes queued in order ([`Coalesced`]), so the store always holds the state after some
+//! prefix of the coordinator's changes, which a restart resumes from; when commits happen
+//! (checkpoints, and changes a reply waits on) is the writer's business (`shared.rs`).
 //!
 //! Every stored value carries a CRC-32 of its key and bytes, checked whenever it is read: a
 //! damaged file (a bad disk, a stray write) makes the coordinator refuse to start with the
