@@ -273,6 +273,9 @@ pub(super) struct Shared {
     pace: Option<Duration>,
     measuring: AtomicBool,
     pub(super) stop: AtomicBool,
+    /// Cleared while workers register: they lease only once it is set, so that a coordinator
+    /// saturated by the first ones' results does not keep the last from registering.
+    go: AtomicBool,
     merged: AtomicU64,
     samples: AtomicU64,
     refused: AtomicU64,
@@ -290,6 +293,7 @@ impl Shared {
             pace,
             measuring: AtomicBool::new(false),
             stop: AtomicBool::new(false),
+            go: AtomicBool::new(true),
             merged: AtomicU64::new(0),
             samples: AtomicU64::new(0),
             refused: AtomicU64::new(0),
@@ -319,6 +323,9 @@ pub(super) async fn simulated_worker(
         .await?
         .into_inner()
         .worker_id;
+    while !shared.go.load(Ordering::Relaxed) && !shared.stop.load(Ordering::Relaxed) {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
     let mut mine = Vec::new();
     // Workers start spread over one pace period, as real ones drift apart.
     let mut next = Instant::now()
@@ -419,9 +426,8 @@ async fn run_one(workers: usize, plan: &Plan) -> Result<Run> {
         (plan.rate > 0.0)
             .then(|| Duration::from_secs_f64(workers as f64 * unit_samples / (plan.rate * 1e6))),
     ));
-    let tasks: Vec<_> = (0..workers)
-        .map(|n| tokio::spawn(simulated_worker(url.clone(), n, shared.clone(), false)))
-        .collect();
+    shared.go.store(false, Ordering::Relaxed);
+    // The probe first: a coordinator saturated by the others could keep it from registering.
     let probe = {
         let (url, shared) = (url.clone(), shared.clone());
         std::thread::spawn(move || -> Result<()> {
@@ -431,6 +437,23 @@ async fn run_one(workers: usize, plan: &Plan) -> Result<Run> {
                 .block_on(simulated_worker(url, workers, shared, true))
         })
     };
+    let start = Instant::now();
+    while jobs
+        .list_workers(pb::ListWorkersRequest {})
+        .await
+        .map_err(|e| anyhow!("list workers: {}", e.message()))?
+        .into_inner()
+        .workers
+        .is_empty()
+    {
+        if start.elapsed() > Duration::from_secs(60) {
+            bail!("the probe worker did not register in 60 s");
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let tasks: Vec<_> = (0..workers)
+        .map(|n| tokio::spawn(simulated_worker(url.clone(), n, shared.clone(), false)))
+        .collect();
     // Registered and leasing: wait until the coordinator lists them all.
     let start = Instant::now();
     loop {
@@ -449,6 +472,7 @@ async fn run_one(workers: usize, plan: &Plan) -> Result<Run> {
         }
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
+    shared.go.store(true, Ordering::Relaxed);
     tokio::time::sleep(Duration::from_secs(1)).await;
     let before = proc_figures(pid)?;
     let t0 = Instant::now();
