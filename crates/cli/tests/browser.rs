@@ -301,8 +301,17 @@ fn the_dashboard_in_chromium_follows_a_job_to_its_exr() {
         );
         String::from_utf8_lossy(&out.stdout).trim().to_string()
     };
-    // Long enough on one thread (several seconds) for the page to see it run.
-    let job = tessera(&["submit", "scenes/cornell-box.toml", "--spp", "384"]);
+    // Long enough on one thread (several seconds) for the page to see it run, in batches
+    // small enough that the preview refines in many steps (the unit rule would cut this job
+    // into 8 units).
+    let job = tessera(&[
+        "submit",
+        "scenes/cornell-box.toml",
+        "--spp",
+        "384",
+        "--batch",
+        "16",
+    ]);
     assert!(job.starts_with("job-"), "{job}");
 
     let profile = tempfile::tempdir().expect("profile");
