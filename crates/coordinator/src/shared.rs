@@ -294,9 +294,15 @@ pub(crate) async fn writer(
                 };
                 // Encoded with the lock released: leases and merges go on meanwhile (a tile
                 // merged into now is copied first, and the snapshot keeps the moment's sums).
-                let ops = tokio::task::block_in_place(|| snapshot.ops());
-                for op in ops {
-                    queued.push(op);
+                // On the blocking pool (not `block_in_place`, which a current-thread runtime,
+                // as the fuzz targets run, does not allow).
+                match tokio::task::spawn_blocking(move || snapshot.ops()).await {
+                    Ok(ops) => {
+                        for op in ops {
+                            queued.push(op);
+                        }
+                    }
+                    Err(e) => error!("encoding a checkpoint failed: {e}"),
                 }
             }
             let waiting = std::mem::take(&mut waiters);
