@@ -363,14 +363,7 @@ async fn commit(
             metrics
                 .written_bytes
                 .fetch_add(bytes, std::sync::atomic::Ordering::Relaxed);
-            Some(
-                ops.iter()
-                    .filter_map(|op| match op {
-                        Op::PutTile(j, t, _) => Some((*j, *t)),
-                        _ => None,
-                    })
-                    .collect(),
-            )
+            Some(ops.iter().filter_map(Op::written_tile).collect())
         }
         Err(e) => {
             error!("state commit failed (its changes stay queued for the next): {e}");

@@ -52,10 +52,7 @@ fn checkpoint(core: &mut Scheduler) -> u64 {
         .checkpoint()
         .ops()
         .iter()
-        .filter_map(|op| match op {
-            Op::PutTile(j, t, _) => Some((*j, *t)),
-            _ => None,
-        })
+        .filter_map(Op::written_tile)
         .collect();
     core.evict(&written)
 }
@@ -119,10 +116,7 @@ fn only_closed_and_stored_tiles_leave_memory() {
         .checkpoint()
         .ops()
         .iter()
-        .filter_map(|op| match op {
-            Op::PutTile(j, t, _) => Some((*j, *t)),
-            _ => None,
-        })
+        .filter_map(Op::written_tile)
         .collect();
     assert!(written.is_empty(), "nothing merged since: nothing to write");
     submit(&mut core, 24);

@@ -452,12 +452,14 @@ impl Scheduler {
     /// After a checkpoint that wrote `tiles` ((job, tile) pairs): drops from memory those
     /// that no result will change ([`Job::evict`]). Returns the bytes freed.
     pub fn evict(&mut self, tiles: &[(u64, u32)]) -> u64 {
-        let mut freed = 0;
-        for (id, job) in self.jobs.iter_mut() {
-            let mine = tiles.iter().filter(|(j, _)| *j == id.0).map(|(_, t)| *t);
-            freed += job.evict(mine);
+        let mut by_job: BTreeMap<u64, Vec<u32>> = BTreeMap::new();
+        for &(j, t) in tiles {
+            by_job.entry(j).or_default().push(t);
         }
-        freed
+        by_job
+            .into_iter()
+            .filter_map(|(j, ts)| Some(self.jobs.get_mut(&JobId(j))?.evict(ts)))
+            .sum()
     }
 
     /// Ends a job (done, cancelled or failed): frees its units, leases and sums.

@@ -160,6 +160,15 @@ pub enum Op {
 }
 
 impl Op {
+    /// The (job, tile) whose merged sums this op writes, if it writes a tile's: what a
+    /// committed checkpoint lets leave memory.
+    pub fn written_tile(&self) -> Option<(u64, u32)> {
+        match self {
+            Op::PutTile(j, t, _) => Some((*j, *t)),
+            _ => None,
+        }
+    }
+
     /// Bytes of the value this op writes, before sealing (0 for a deletion): what metrics
     /// count as written.
     pub fn payload_len(&self) -> u64 {
