@@ -131,6 +131,34 @@ fn a_closed_stderr_does_not_turn_an_error_into_a_panic() {
 #[test]
 fn bad_flags_and_paths_are_refused() {
     let scene = repo("scenes/cornell-box.toml");
+    for bad in ["0", "4095", "many", "17179869185"] {
+        assert_clean_failure(
+            &tessera(&[
+                "render",
+                &scene,
+                "--spp",
+                "4",
+                "--unit-samples",
+                bad,
+                "--output",
+                "x.exr",
+            ]),
+            &["--unit-samples"],
+        );
+    }
+    for bad in ["-1", "NaN", "3601"] {
+        assert_clean_failure(
+            &tessera(&[
+                "coordinator",
+                "--listen",
+                "127.0.0.1:0",
+                "--data-dir",
+                "/nonexistent/tessera-data",
+                &format!("--checkpoint-interval={bad}"),
+            ]),
+            &["--checkpoint-interval"],
+        );
+    }
     assert_clean_failure(
         &tessera(&["render", &scene, "--spp", "0", "--output", "x.exr"]),
         &["--spp"],
