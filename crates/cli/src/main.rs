@@ -122,6 +122,8 @@ fn without_bench(command: &str, args: &[String]) -> anyhow::Result<()> {
 /// mimalloc rather than glibc's malloc: a coordinator that merged a large frame's tiles (tens
 /// of thousands of mid-sized vectors) kept most of that memory after the job ended under glibc,
 /// which returns freed memory from its arenas only at their top (docs/farm.md, "Memory").
+/// Built without transparent huge pages (the workspace's `no_thp` feature): each fresh huge
+/// page is zeroed whole, which was most of a coordinator's CPU time on small jobs.
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 

@@ -35,6 +35,7 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
     let Ok(_one_at_a_time) = shared.finishing.acquire().await else {
         return;
     };
+    let started = std::time::Instant::now();
     let gathered = {
         let mut scheduler = shared.scheduler();
         scheduler.take_frame(id).map(|(frame, ops)| {
@@ -95,7 +96,11 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
         shared.queue_write(ops)
     };
     match (&written, durable(rx).await) {
-        (Ok(_), Ok(())) => info!("{id} done → {}", dir.display()),
+        (Ok(_), Ok(())) => info!(
+            "{id} done → {} (EXR written in {:.3} s)",
+            dir.display(),
+            started.elapsed().as_secs_f64()
+        ),
         (Err(e), _) => warn!("{id} failed: {e}"),
         (_, Err(e)) => error!("{id}: recording completion: {e}"),
     }

@@ -111,6 +111,10 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
         };
         let mut slot = Some(slot);
         for unit in units {
+            debug!(
+                "{} tile {} batch {}: leased",
+                unit.job_id, unit.tile_index, unit.batch_index
+            );
             lock(&ctx.held).insert(unit.lease_id.clone());
             let frame = unit.settings.as_ref().and_then(|s| s.frame);
             let prepared = match ctx.scene(&unit.scene_hash, frame).await {
@@ -200,9 +204,17 @@ async fn renderer(ctx: Arc<Ctx>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::Unboun
                 let work = ctx.clone();
                 running.spawn_blocking(move || {
                     let samples = ready.unit.sample_start..ready.unit.sample_end;
+                    let started = std::time::Instant::now();
                     let sums = work.pool.install(|| {
                         render_tile(&ready.scene, &ready.settings, ready.rect, samples)
                     });
+                    debug!(
+                        "{} tile {} batch {}: rendered in {:.3} s",
+                        ready.unit.job_id,
+                        ready.unit.tile_index,
+                        ready.unit.batch_index,
+                        started.elapsed().as_secs_f64()
+                    );
                     Done {
                         unit: ready.unit,
                         sums,
@@ -235,6 +247,7 @@ pub fn backoff_delay(attempt: u32, max: Duration) -> Duration {
 async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
     while let Some(done) = rx.recv().await {
         let mut attempt = 0;
+        let started = std::time::Instant::now();
         loop {
             let sent_as = ctx.id();
             let req = pb::SubmitResultRequest {
@@ -248,7 +261,16 @@ async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
                 result: Some(pb::TileResult::from(&done.sums)),
             };
             match ctx.client.clone().submit_result(req).await {
-                Ok(_) => break,
+                Ok(_) => {
+                    debug!(
+                        "{} tile {} batch {}: sent in {:.3} s",
+                        done.unit.job_id,
+                        done.unit.tile_index,
+                        done.unit.batch_index,
+                        started.elapsed().as_secs_f64()
+                    );
+                    break;
+                }
                 Err(e) if tessera_proto::reason::is_unknown_worker(&e) => {
                     if !ctx.reregister(&sent_as).await {
                         break;
