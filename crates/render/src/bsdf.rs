@@ -1,9 +1,15 @@
-//! The BSDFs a material can have: Lambertian diffuse, a perfect mirror, and a smooth
-//! dielectric with Fresnel reflection and refraction. The integrators (scalar and lanes) ask
+//! The BSDFs a material can have: Lambertian diffuse, a perfect mirror, a smooth
+//! dielectric with Fresnel reflection and refraction, and rough or smooth metals
+//! ([`conductor`], on the GGX distribution of [`microfacet`]). The integrators (scalar and lanes) ask
 //! these for directions and weights; every function does its arithmetic in one fixed order,
 //! since the renderer's bits depend on it.
 
+pub mod conductor;
+pub mod microfacet;
+
 use glam::{Vec2, Vec3A};
+
+pub use conductor::{Conductor, Fresnel, Sampled};
 
 use crate::util::math::Frame;
 use crate::util::sampling::{cosine_hemisphere_pdf, square_to_cosine_hemisphere};
@@ -17,6 +23,8 @@ pub enum Bsdf {
     Mirror(Vec3A),
     /// Smooth dielectric with this relative index of refraction (inside / outside).
     Dielectric(f32),
+    /// A metal, rough or smooth.
+    Conductor(Conductor),
 }
 
 /// A direction from the Lambertian lobe about the unit normal `n`, drawn with pdf cos θ/π from

@@ -11,14 +11,15 @@
 
 use glam::{Vec2, Vec3A};
 
-use crate::bsdf::{fresnel_dielectric, reflect, refract, sample_diffuse, Bsdf};
+use crate::bsdf::{fresnel_dielectric, reflect, refract, sample_diffuse, Bsdf, Conductor};
 use crate::interaction::SurfacePoint;
+use crate::light::LightSample;
 use crate::scene::Scene;
 pub use crate::settings::{
     unit_batch, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_TILE, DEFAULT_UNIT_SAMPLES,
     MIN_UNITS_PER_FRAME, TILE_RANGE, UNIT_SAMPLES_RANGE,
 };
-use crate::util::math::{offset_ray_origin, Ray};
+use crate::util::math::{offset_ray_origin, Frame, Ray};
 use crate::util::sampling::{cosine_hemisphere_pdf, power_heuristic, PixelSampler};
 
 /// The radiance estimate of one camera sample of pixel (`x`, `y`): the sample `sampler` (made
@@ -110,7 +111,13 @@ fn trace(
         }
         let Shading { n, ns, shaded } = at;
         let [u0, u1, next_lx, next_ly] = sampler.get4(1 + 2 * depth);
-        let nee = strategy != Strategy::Bsdf && matches!(mat.bsdf, Bsdf::Diffuse(_));
+        // Light sampling at every vertex whose BSDF is not a delta: diffuse and rough metal.
+        let nee = strategy != Strategy::Bsdf
+            && match mat.bsdf {
+                Bsdf::Diffuse(_) => true,
+                Bsdf::Conductor(c) => !c.distribution.is_smooth(),
+                Bsdf::Mirror(_) | Bsdf::Dielectric(_) => false,
+            };
         // u_rr decides Russian roulette after this bounce.
         let [u_select, u_choice, u_rr, _] = if (nee && scene.lights.lights.len() > 1)
             || matches!(mat.bsdf, Bsdf::Dielectric(_))
@@ -144,6 +151,23 @@ fn trace(
                     break;
                 }
                 Ray::new(offset_ray_origin(sp.p, sp.err, n), wi)
+            }
+            Bsdf::Conductor(c) => {
+                let light_u = nee.then_some((u_select, Vec2::new(lx, ly)));
+                let Some(next) = conductor(
+                    scene,
+                    strategy,
+                    &mut path,
+                    &c,
+                    wo,
+                    &sp,
+                    &at,
+                    Vec2::new(u0, u1),
+                    light_u,
+                ) else {
+                    break;
+                };
+                next
             }
             Bsdf::Dielectric(ior) => {
                 let Some(next) = dielectric(&ray, &sp, &at, front, ior, u_choice) else {
@@ -278,8 +302,28 @@ fn direct_light(
     sp: &SurfacePoint,
     at: &Shading,
     p_out: Vec3A,
-    (u_select, u_point): (f32, Vec2),
+    u: (f32, Vec2),
 ) -> Option<(Vec3A, f32)> {
+    let (ls, cos) = visible_light(scene, sp, at, p_out, u)?;
+    let w = if strategy == Strategy::Mis {
+        power_heuristic(ls.pdf, cosine_hemisphere_pdf(cos))
+    } else {
+        1.0
+    };
+    Some((ls.le, cos * std::f32::consts::FRAC_1_PI * w / ls.pdf))
+}
+
+/// A point on a light that `p_out` sees, above the surface at `sp`, with the cosine of its
+/// direction against the shading normal; `None` when it is behind the surface, occluded or
+/// dark.
+#[inline(always)]
+fn visible_light(
+    scene: &Scene,
+    sp: &SurfacePoint,
+    at: &Shading,
+    p_out: Vec3A,
+    (u_select, u_point): (f32, Vec2),
+) -> Option<(LightSample, f32)> {
     let ls = scene.lights.sample(sp.p, u_select, u_point)?;
     let cos = at.ns.dot(ls.wi);
     // A light behind the geometric surface is unreachable, whatever the shading normal says.
@@ -291,12 +335,59 @@ fn direct_light(
     if scene.occluded(&Ray::new(p_out, d), 1.0 - 1e-4) {
         return None;
     }
-    let w = if strategy == Strategy::Mis {
-        power_heuristic(ls.pdf, cosine_hemisphere_pdf(cos))
-    } else {
-        1.0
-    };
-    Some((ls.le, cos * std::f32::consts::FRAC_1_PI * w / ls.pdf))
+    Some((ls, cos))
+}
+
+/// A metal vertex. Smooth: the mirror direction, weighted by the Fresnel reflectance at this
+/// angle. Rough: direct light by next-event estimation (when `light_u` is given), weighted
+/// against the BSDF's own density under MIS, then a direction by visible normals with weight
+/// f·cos/pdf (= F·G/G1, see [`crate::bsdf::microfacet`]). `None` ends the path.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn conductor(
+    scene: &Scene,
+    strategy: Strategy,
+    path: &mut Path,
+    c: &Conductor,
+    wo: Vec3A,
+    sp: &SurfacePoint,
+    at: &Shading,
+    bsdf_u: Vec2,
+    light_u: Option<(f32, Vec2)>,
+) -> Option<Ray> {
+    let p_out = offset_ray_origin(sp.p, sp.err, at.n);
+    if c.distribution.is_smooth() {
+        path.beta *= c.fresnel.eval(at.ns.dot(wo));
+        path.specular = true;
+        let wi = reflect(-wo, at.ns);
+        if at.shaded && at.n.dot(wi) <= 0.0 {
+            return None;
+        }
+        return Some(Ray::new(p_out, wi));
+    }
+    let frame = Frame::from_normal(at.ns);
+    let o = frame.to_local(wo);
+    if let Some(u) = light_u {
+        if let Some((ls, _)) = visible_light(scene, sp, at, p_out, u) {
+            let i = frame.to_local(ls.wi);
+            let f = c.eval(o, i);
+            let w = if strategy == Strategy::Mis {
+                power_heuristic(ls.pdf, c.pdf(o, i))
+            } else {
+                1.0
+            };
+            path.l += path.beta * ls.le * f * (w / ls.pdf);
+        }
+    }
+    let s = c.sample(o, bsdf_u)?;
+    let wi = frame.to_world(s.wi);
+    path.beta *= s.weight;
+    path.specular = false;
+    path.prev_pdf = s.pdf;
+    if at.shaded && at.n.dot(wi) <= 0.0 {
+        return None;
+    }
+    Some(Ray::new(p_out, wi))
 }
 
 /// A path's next ray through (or off) a smooth dielectric, and what its throughput is divided

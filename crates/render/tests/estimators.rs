@@ -79,6 +79,27 @@ fn strategies_agree_with_glass_mirror_and_a_sphere_light() {
 }
 
 #[test]
+fn strategies_agree_on_rough_metals() {
+    // Gold at roughness 0.1, copper at 0.35, aluminium at 0.7 (by eta and k), a small lamp.
+    agree(&shrink("metals.toml", 40, 25), [256, 256, 1024], 8);
+    // A large lamp whose reflection in the rough metals is as wide as their lobes, where light
+    // and BSDF sampling both matter and the MIS weights must add to one.
+    let text = "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 1, 5]\ntarget = [0, 0.5, 0]\n\
+                fov = 45\n[film]\nwidth = 32\nheight = 24\n\
+                [materials.floor]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n\
+                [materials.a]\ntype = \"conductor\"\nmetal = \"copper\"\nroughness = 0.4\n\
+                [materials.b]\ntype = \"conductor\"\nf0 = [0.9, 0.9, 0.9]\nroughness = 0.7\n\
+                [materials.lamp]\ntype = \"diffuse\"\nalbedo = [0, 0, 0]\nemission = [3, 3, 3]\n\
+                [[objects]]\nshape = \"plane\"\nmaterial = \"floor\"\npoint = [0, 0, 0]\nnormal = [0, 1, 0]\n\
+                [[objects]]\nshape = \"sphere\"\nmaterial = \"a\"\ncenter = [-0.9, 0.8, 0]\nradius = 0.8\n\
+                [[objects]]\nshape = \"sphere\"\nmaterial = \"b\"\ncenter = [0.9, 0.8, 0]\nradius = 0.8\n\
+                [[objects]]\nshape = \"sphere\"\nmaterial = \"lamp\"\ncenter = [0, 3.5, 2.5]\nradius = 1.2\n";
+    let scene =
+        Scene::from_str(text, Format::Toml, "big-lamp.toml", &Limits::default()).expect("valid");
+    agree(&scene, [256, 256, 1024], 8);
+}
+
+#[test]
 fn nee_reduces_variance_against_bsdf_sampling() {
     // Not a time assertion: the same sample count, and MIS must be the less noisy estimator.
     let scene = shrink("cornell-box.toml", 32, 32);

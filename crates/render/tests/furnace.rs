@@ -145,3 +145,79 @@ fn max_depth_truncates_the_neumann_series() {
         }
     }
 }
+
+fn metal_sky_scene(roughness: f32) -> String {
+    format!(
+        "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 0, 6]\ntarget = [0, 0, 0]\nfov = 30\n[film]\nwidth = 32\nheight = 32\n\
+         [environment]\ntype = \"constant\"\nradiance = [1.0, 0.5, 0.25]\n\
+         [materials.m]\ntype = \"conductor\"\nf0 = [1, 1, 1]\nroughness = {roughness}\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"m\"\nradius = 1.0\n"
+    )
+}
+
+/// A smooth metal with F = 1 under a uniform sky reflects the sky exactly: every sample of
+/// every pixel is the sky's radiance.
+#[test]
+fn smooth_white_metal_is_invisible_under_uniform_sky() {
+    let img = render(
+        &scene(&metal_sky_scene(0.0)),
+        &RenderSettings {
+            spp: 16,
+            seed: 5,
+            ..RenderSettings::default()
+        },
+    );
+    for p in &img.rgb {
+        assert_eq!(*p, [1.0, 0.5, 0.25]);
+    }
+}
+
+/// A rough metal with F = 1 under a uniform sky L shows L·E(θo), E the model's directional
+/// albedo: no pixel above the sky, and at normal incidence E(0), whose value for r = 0.5 the
+/// estimate below recomputes from the BSDF alone.
+#[test]
+fn rough_white_metal_reflects_its_albedo_and_never_more() {
+    let sky = [1.0f64, 0.5, 0.25];
+    let img = render(
+        &scene(&metal_sky_scene(0.5)),
+        &RenderSettings {
+            spp: 256,
+            seed: 5,
+            ..RenderSettings::default()
+        },
+    );
+    for (i, p) in img.rgb.iter().enumerate() {
+        for c in 0..3 {
+            let se = (img.variance[i][c] as f64).sqrt();
+            assert!(
+                p[c] as f64 <= sky[c] + 3.0 * se + 1e-6,
+                "pixel {i} channel {c}: {} above the sky {}",
+                p[c],
+                sky[c]
+            );
+        }
+    }
+    let c = tessera_render::bsdf::Conductor {
+        distribution: tessera_render::bsdf::microfacet::TrowbridgeReitz::from_roughness(0.5),
+        fresnel: tessera_render::bsdf::Fresnel::Schlick(glam::Vec3A::ONE),
+    };
+    let mut rng = tessera_render::sampling::HashRng::new(1);
+    let n = 400_000;
+    let e0: f64 = (0..n)
+        .map(|_| {
+            let u = glam::Vec2::new(rng.next_f32(), rng.next_f32());
+            c.sample(glam::Vec3A::Z, u)
+                .map_or(0.0, |s| s.weight.x as f64)
+        })
+        .sum::<f64>()
+        / n as f64;
+    let (mean, se) = common::region_stats(&img, 15, 15, 2, 2);
+    for ch in 0..3 {
+        let expected = e0 * sky[ch];
+        assert!(
+            (mean[ch] - expected).abs() <= 3.0 * se[ch] + 0.004 * sky[ch],
+            "channel {ch}: {} vs E(0)·L = {expected}",
+            mean[ch]
+        );
+    }
+}

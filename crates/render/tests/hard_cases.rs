@@ -716,6 +716,38 @@ fn ten_million_hard_paths_are_all_finite() {
     assert!(img.rgb.iter().flatten().all(|v| v.is_finite()));
 }
 
+/// Metals at the edges of their parameters: roughness 0 (the mirror), just under and over the
+/// width where the microfacet lobe becomes a mirror (α = 10⁻³), 1, a smooth-shaded mesh sphere
+/// (whose shading normals tilt away from the geometric ones), an 89.9° rough metal floor, and
+/// a 10⁻³ light of radiance 10⁷: two million paths, none non-finite.
+#[test]
+fn rough_metals_at_their_limits_stay_finite() {
+    let ply = std::fs::read(common::repo_root().join("scenes/meshes/icosphere.ply")).expect("ply");
+    let text = "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 1.2, 4.5]\ntarget = [0, 0.5, 0]\nfov = 50\n\
+         [film]\nwidth = 100\nheight = 80\n\
+         [environment]\ntype = \"gradient\"\ntop = [0.5, 0.6, 1.0]\nbottom = [0.1, 0.1, 0.1]\n\
+         [materials.mirror]\ntype = \"conductor\"\nmetal = \"silver\"\n\
+         [materials.under]\ntype = \"conductor\"\nmetal = \"gold\"\nroughness = 0.0316\n\
+         [materials.over]\ntype = \"conductor\"\nmetal = \"copper\"\nroughness = 0.0317\n\
+         [materials.rough]\ntype = \"conductor\"\nf0 = [1, 1, 1]\nroughness = 1\n\
+         [materials.white]\ntype = \"diffuse\"\nalbedo = [0.8, 0.8, 0.8]\n\
+         [materials.tiny]\ntype = \"diffuse\"\nalbedo = [0, 0, 0]\nemission = [1e7, 1e7, 1e7]\n\
+         [[objects]]\nshape = \"plane\"\nmaterial = \"white\"\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"mirror\"\ncenter = [-1.6, 0.5, 0]\nradius = 0.5\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"under\"\ncenter = [-0.5, 0.5, 0]\nradius = 0.5\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"over\"\ncenter = [0.6, 0.5, 0]\nradius = 0.5\n\
+         [[objects]]\nshape = \"mesh\"\nfile = \"ico.ply\"\nmaterial = \"rough\"\nsmooth = true\n\
+         transform = { scale = [0.5, 0.5, 0.5], translate = [1.7, 0.5, 0] }\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"tiny\"\ncenter = [0.5, 2.5, 1]\nradius = 0.001\n\
+         [[objects]]\nshape = \"rect\"\nmaterial = \"rough\"\nsize = [8, 8]\ntransform = { rotate = { axis = [1, 0, 0], degrees = -89.9 }, translate = [0, 0.001, -3] }\n";
+    let sc = common::scene_with_files(text, &[("ico.ply", &ply)]);
+    let img = render(&sc, &seeded(256, 3));
+    let paths = img.count.iter().map(|&c| c as u64).sum::<u64>() + img.nonfinite;
+    assert!(paths >= 2_000_000, "{paths}");
+    assert_eq!(img.nonfinite, 0, "non-finite samples over {paths} paths");
+    assert!(img.rgb.iter().flatten().all(|v| v.is_finite()));
+}
+
 // ---------------------------------------------------------------------------------------------
 // 6, 7. A tiny bright light, and grazing incidence
 // ---------------------------------------------------------------------------------------------

@@ -287,3 +287,80 @@ fn garbage_never_panics() {
         }
     }
 }
+
+#[test]
+fn conductor_errors_name_the_key() {
+    let metal = |body: &str| format!("{HEAD}[materials.c]\ntype = \"conductor\"\n{body}");
+    check(
+        &metal("metal = \"gold\"\nroughness = 1.5\n"),
+        16,
+        "materials.c.roughness",
+        "must be between 0 and 1, got 1.5",
+    );
+    check(
+        &metal("metal = \"gold\"\nroughness = -0.1\n"),
+        16,
+        "materials.c.roughness",
+        "must be between 0 and 1",
+    );
+    check(
+        &metal("metal = \"unobtainium\"\n"),
+        15,
+        "materials.c.metal",
+        "unknown metal \"unobtainium\"; known: aluminium, chromium, copper, gold",
+    );
+    check(
+        &metal("eta = [0.2, -0.4, 1.3]\nk = [3, 2, 1]\n"),
+        15,
+        "materials.c.eta",
+        "must be greater than 0",
+    );
+    check(
+        &metal("eta = [0.2, 0.4, 1.3]\nk = [3, -2, 1]\n"),
+        16,
+        "materials.c.k",
+        "must not be negative",
+    );
+    check(
+        &metal("eta = [0.2, 0.4, 1.3]\n"),
+        13,
+        "materials.c.k",
+        "a conductor given `eta` needs `k`",
+    );
+    check(
+        &metal("f0 = [0.9, 1.2, 0.5]\n"),
+        15,
+        "materials.c.f0",
+        "must be at most 1",
+    );
+    check(
+        &metal("f0 = [0.9, 0.9, 0.5]\nmetal = \"gold\"\n"),
+        13,
+        "materials.c",
+        "exactly one of `metal`",
+    );
+    check(
+        &metal("roughness = 0.3\n"),
+        13,
+        "materials.c",
+        "exactly one of `metal`",
+    );
+    check(
+        &metal("metal = \"gold\"\nalbedo = [1, 1, 1]\n"),
+        16,
+        "materials.c.albedo",
+        "`albedo` does not apply to a conductor material",
+    );
+    check(
+        &format!("{HEAD}[materials.g]\ntype = \"dielectric\"\nior = 1.5\nroughness = 0.2\n"),
+        16,
+        "materials.g.roughness",
+        "`roughness` does not apply to a dielectric material",
+    );
+    check(
+        &metal("metal = \"gold\"\nroughness = nan\n"),
+        16,
+        "materials.c.roughness",
+        "must be between 0 and 1, got NaN",
+    );
+}

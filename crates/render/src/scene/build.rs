@@ -13,11 +13,13 @@ use super::check::{
     Invalid,
 };
 use super::{
-    AlbedoDesc, CameraModel, Environment, EnvironmentKind, KeyPath, Limits, Material, MaterialKind,
-    ObjectDesc, Primitive, Scene, SceneFile, ShapeKind,
+    AlbedoDesc, CameraModel, Environment, EnvironmentKind, KeyPath, Limits, Material, MaterialDesc,
+    MaterialKind, ObjectDesc, Primitive, Scene, SceneFile, ShapeKind,
 };
 use crate::aggregate::Accel;
-use crate::bsdf::Bsdf;
+use crate::bsdf::conductor::{metal, METALS};
+use crate::bsdf::microfacet::TrowbridgeReitz;
+use crate::bsdf::{Bsdf, Conductor, Fresnel};
 use crate::camera::Camera;
 use crate::light::{Light, LightShape, Lights, MeshLight};
 use crate::mesh::load::{self, MeshFormat};
@@ -485,6 +487,11 @@ fn build_materials<'a>(
             ("albedo", m.albedo.is_some()),
             ("reflectance", m.reflectance.is_some()),
             ("ior", m.ior.is_some()),
+            ("roughness", m.roughness.is_some()),
+            ("metal", m.metal.is_some()),
+            ("eta", m.eta.is_some()),
+            ("k", m.k.is_some()),
+            ("f0", m.f0.is_some()),
         ];
         let mut texture = None;
         let bsdf = match m.kind {
@@ -515,6 +522,16 @@ fn build_materials<'a>(
                 let ior = required(m.ior, &mp, "a dielectric material", "ior")?;
                 Bsdf::Dielectric(positive(ior, &mp.key("ior"))?)
             }
+            MaterialKind::Conductor => {
+                let kind = "a conductor material";
+                only(
+                    &mp,
+                    kind,
+                    &present,
+                    &["roughness", "metal", "eta", "k", "f0"],
+                )?;
+                Bsdf::Conductor(conductor(m, &mp)?)
+            }
         };
         let emission = match m.emission {
             Some(e) => color(e, &mp.key("emission"), false)?,
@@ -535,6 +552,65 @@ fn build_materials<'a>(
         });
     }
     Ok((materials, names))
+}
+
+/// A conductor's distribution and Fresnel term: exactly one of `metal`, `eta` with `k`, or
+/// `f0`.
+fn conductor(m: &MaterialDesc, mp: &KeyPath) -> Result<Conductor, Invalid> {
+    let roughness = match m.roughness {
+        None => 0.0,
+        Some(r) => unit(r, &mp.key("roughness"))?,
+    };
+    let given = [
+        m.metal.is_some(),
+        m.eta.is_some() || m.k.is_some(),
+        m.f0.is_some(),
+    ];
+    if given.iter().filter(|g| **g).count() != 1 {
+        return Err((
+            mp.clone(),
+            "a conductor needs exactly one of `metal` (a name), `eta` with `k` (a complex \
+             index of refraction), or `f0` (its colour at normal incidence)"
+                .into(),
+        ));
+    }
+    let fresnel = if let Some(name) = &m.metal {
+        let (eta, k) = metal(name).ok_or_else(|| {
+            let known: Vec<&str> = METALS.iter().map(|(n, _, _)| *n).collect();
+            (
+                mp.key("metal"),
+                format!("unknown metal {name:?}; known: {}", known.join(", ")),
+            )
+        })?;
+        Fresnel::Complex { eta, k }
+    } else if let Some(f0) = m.f0 {
+        Fresnel::Schlick(color(f0, &mp.key("f0"), true)?)
+    } else {
+        let eta = required(m.eta, mp, "a conductor given `k`", "eta")?;
+        let k = required(m.k, mp, "a conductor given `eta`", "k")?;
+        let eta_p = mp.key("eta");
+        let eta = finite3(eta, &eta_p)?;
+        if !(eta.min_element() > 0.0) {
+            return Err((eta_p, format!("must be greater than 0, got {:?}", m.eta)));
+        }
+        Fresnel::Complex {
+            eta,
+            k: color(k, &mp.key("k"), false)?,
+        }
+    };
+    Ok(Conductor {
+        distribution: TrowbridgeReitz::from_roughness(roughness),
+        fresnel,
+    })
+}
+
+/// A number in [0, 1].
+fn unit(x: f32, path: &KeyPath) -> Result<f32, Invalid> {
+    if (0.0..=1.0).contains(&x) {
+        Ok(x)
+    } else {
+        Err((path.clone(), format!("must be between 0 and 1, got {x}")))
+    }
 }
 
 /// Which of the keys that belong to some shapes only an object gives, for [`only`].

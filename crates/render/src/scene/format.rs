@@ -196,6 +196,8 @@ pub enum MaterialKind {
     Mirror,
     /// Smooth dielectric (glass): Fresnel reflection and refraction.
     Dielectric,
+    /// A metal: GGX microfacets over a conductor's Fresnel reflectance.
+    Conductor,
 }
 
 /// Material description.
@@ -213,6 +215,19 @@ pub struct MaterialDesc {
     pub reflectance: Option<[f32; 3]>,
     /// Index of refraction, inside over outside (dielectric).
     pub ior: Option<f32>,
+    /// Microfacet roughness in [0, 1] (conductor; default 0, a mirror); α = roughness².
+    pub roughness: Option<f32>,
+    /// A measured metal by name (conductor): `gold`, `silver`, `copper`, `aluminium`, ….
+    pub metal: Option<String>,
+    /// Real part of the complex index of refraction per channel (conductor, with `k`).
+    #[serde(default, deserialize_with = "maybe_three")]
+    pub eta: Option<[f32; 3]>,
+    /// Extinction coefficient per channel (conductor, with `eta`).
+    #[serde(default, deserialize_with = "maybe_three")]
+    pub k: Option<[f32; 3]>,
+    /// Reflectance at normal incidence in [0, 1] (conductor; Schlick's Fresnel).
+    #[serde(default, deserialize_with = "maybe_three")]
+    pub f0: Option<[f32; 3]>,
     /// Emitted radiance; makes every object with this material an area light.
     #[serde(default, deserialize_with = "maybe_three")]
     pub emission: Option<[f32; 3]>,

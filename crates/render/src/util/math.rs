@@ -157,6 +157,12 @@ impl Frame {
     pub fn to_world(&self, v: Vec3A) -> Vec3A {
         self.s * v.x + self.t * v.y + self.n * v.z
     }
+
+    /// World coordinates to local (the frame is orthonormal, so its transpose inverts it).
+    #[inline]
+    pub fn to_local(&self, v: Vec3A) -> Vec3A {
+        Vec3A::new(self.s.dot(v), self.t.dot(v), self.n.dot(v))
+    }
 }
 
 /// Moves a surface point off its surface to the side `n` points to (the side the new ray leaves

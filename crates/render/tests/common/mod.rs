@@ -1,6 +1,8 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code, missing_docs)]
 
+pub mod chi2;
+
 use std::path::PathBuf;
 
 use tessera_render::scene::{Format, Limits, Scene};
