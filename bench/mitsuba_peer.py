@@ -7,6 +7,9 @@ These scenes have exact Mitsuba counterparts, built here as dictionaries:
   scenes/glass-mirror.toml (a perfect mirror of reflectance 0.95 and a smooth dielectric of
   index 1.5 in vacuum);
 - mesh-glass: scenes/mesh-glass.toml, from the same OBJ and PLY files;
+- metals-box: scenes/metals-box.toml, the box with a gold and an aluminium ball of GGX
+  roughness alpha 0.09 (`roughconductor`, RGB eta and k; its masking term is the separable
+  G1(o)G1(i), tessera's the height-correlated one: docs/renderer.md, "Metals");
 - mesh-million: bench/make_million.py's million triangles in the box, and
   mesh-million-analytic, the same with an analytic sphere in the mesh's place.
 All use a box filter and the unbiased path tracer (max_depth = -1).
@@ -48,7 +51,7 @@ import time
 import numpy as np
 
 
-SCENES = ("cornell-box", "glass-mirror", "mesh-glass", "mesh-million", "mesh-million-analytic")
+SCENES = ("cornell-box", "glass-mirror", "mesh-glass", "metals-box", "mesh-million", "mesh-million-analytic")
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 MESHES = os.path.join(HERE, "..", "scenes", "meshes")
@@ -122,6 +125,19 @@ def scene_dict(mi, name, size):
             # tessera's outside is vacuum; Mitsuba's default ext_ior is air (1.000277).
             "bsdf": {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0},
         }
+    elif name == "metals-box":
+        del d["small-box"], d["large-box"]
+
+        def metal(eta, k):
+            return {"type": "roughconductor", "distribution": "ggx", "alpha": 0.09,
+                    "eta": {"type": "rgb", "value": eta}, "k": {"type": "rgb", "value": k}}
+
+        # crates/render/src/bsdf/conductor.rs's "gold", and aluminium's values given as eta, k.
+        d["gold-ball"] = {"type": "sphere", "center": [-0.42, -0.68, -0.3], "radius": 0.32,
+                          "bsdf": metal([0.18299, 0.42108, 1.3734], [3.4242, 2.3459, 1.7704])}
+        d["aluminium-ball"] = {"type": "sphere", "center": [0.42, -0.68, 0.3], "radius": 0.32,
+                               "bsdf": metal([1.3456, 0.96521, 0.61722],
+                                             [7.4746, 6.3995, 5.3031])}
     elif name == "mesh-glass":
         mesh_glass(mi, d)
     elif name == "mesh-million":

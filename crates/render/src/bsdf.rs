@@ -5,11 +5,13 @@
 //! since the renderer's bits depend on it.
 
 pub mod conductor;
+pub mod dielectric;
 pub mod microfacet;
 
 use glam::{Vec2, Vec3A};
 
 pub use conductor::{Conductor, Fresnel, Sampled};
+pub use dielectric::{DielectricSample, RoughDielectric};
 
 use crate::util::math::Frame;
 use crate::util::sampling::{cosine_hemisphere_pdf, square_to_cosine_hemisphere};
@@ -25,6 +27,11 @@ pub enum Bsdf {
     Dielectric(f32),
     /// A metal, rough or smooth.
     Conductor(Conductor),
+    /// Rough glass (its roughness above the mirror threshold, its index not 1: otherwise it
+    /// is a [`Bsdf::Dielectric`]).
+    RoughDielectric(RoughDielectric),
+    /// A thin sheet of smooth glass of this index: reflects, or passes straight through.
+    ThinDielectric(f32),
 }
 
 /// A direction from the Lambertian lobe about the unit normal `n`, drawn with pdf cos θ/π from

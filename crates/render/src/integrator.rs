@@ -11,7 +11,10 @@
 
 use glam::{Vec2, Vec3A};
 
-use crate::bsdf::{fresnel_dielectric, reflect, refract, sample_diffuse, Bsdf, Conductor};
+use crate::bsdf::dielectric::thin_reflectance;
+use crate::bsdf::{
+    fresnel_dielectric, reflect, refract, sample_diffuse, Bsdf, Conductor, RoughDielectric,
+};
 use crate::interaction::SurfacePoint;
 use crate::light::LightSample;
 use crate::scene::Scene;
@@ -19,7 +22,7 @@ pub use crate::settings::{
     unit_batch, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_TILE, DEFAULT_UNIT_SAMPLES,
     MIN_UNITS_PER_FRAME, TILE_RANGE, UNIT_SAMPLES_RANGE,
 };
-use crate::util::math::{offset_ray_origin, Frame, Ray};
+use crate::util::math::{exp_nonpositive, offset_ray_origin, Frame, Ray};
 use crate::util::sampling::{cosine_hemisphere_pdf, power_heuristic, PixelSampler};
 
 /// The radiance estimate of one camera sample of pixel (`x`, `y`): the sample `sampler` (made
@@ -67,6 +70,8 @@ fn trace(
     // Only smooth meshes have shading normals; other scenes skip their side tests below
     // (a branch that always goes one way) rather than pay for them at every bounce.
     let shading_normals = scene.has_shading_normals();
+    // Likewise only scenes with coloured glass track the medium a path is in.
+    let absorbing = scene.has_absorption();
     let strategy = if scene.lights.is_empty() {
         Strategy::Bsdf
     } else {
@@ -80,10 +85,22 @@ fn trace(
         specular: true,
         prev_pdf: 0.0,
         prev_p: ray.o,
+        medium: Vec3A::ZERO,
     };
     let mut depth = 0u32;
     loop {
-        let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
+        let found = scene.intersect(&ray, f32::INFINITY);
+        if absorbing && path.medium != Vec3A::ZERO {
+            // Beer–Lambert over the segment; one that never ends inside absorbs all of the
+            // channels that absorb at all.
+            let t = found.map_or(f32::INFINITY, |h| h.t);
+            path.beta *= Vec3A::new(
+                transmittance(path.medium.x, t),
+                transmittance(path.medium.y, t),
+                transmittance(path.medium.z, t),
+            );
+        }
+        let Some(hit) = found else {
             if let Some(env) = &scene.environment {
                 path.l += path.beta * env.radiance(ray.d);
             }
@@ -105,28 +122,31 @@ fn trace(
             break;
         }
         let (front, at) = Shading::facing(&sp, wo, shading_normals);
-        if !front && !mat.two_sided && !matches!(mat.bsdf, Bsdf::Dielectric(_)) {
+        let glass = matches!(
+            mat.bsdf,
+            Bsdf::Dielectric(_) | Bsdf::RoughDielectric(_) | Bsdf::ThinDielectric(_)
+        );
+        if !front && !mat.two_sided && !glass {
             // The back of a one-sided surface absorbs everything.
             break;
         }
         let Shading { n, ns, shaded } = at;
         let [u0, u1, next_lx, next_ly] = sampler.get4(1 + 2 * depth);
-        // Light sampling at every vertex whose BSDF is not a delta: diffuse and rough metal.
+        // Light sampling at every vertex whose BSDF is not a delta: diffuse, rough metal and
+        // rough glass.
         let nee = strategy != Strategy::Bsdf
             && match mat.bsdf {
-                Bsdf::Diffuse(_) => true,
+                Bsdf::Diffuse(_) | Bsdf::RoughDielectric(_) => true,
                 Bsdf::Conductor(c) => !c.distribution.is_smooth(),
-                Bsdf::Mirror(_) | Bsdf::Dielectric(_) => false,
+                Bsdf::Mirror(_) | Bsdf::Dielectric(_) | Bsdf::ThinDielectric(_) => false,
             };
         // u_rr decides Russian roulette after this bounce.
-        let [u_select, u_choice, u_rr, _] = if (nee && scene.lights.lights.len() > 1)
-            || matches!(mat.bsdf, Bsdf::Dielectric(_))
-            || depth + 1 >= settings.rr_depth
-        {
-            sampler.get4(2 + 2 * depth)
-        } else {
-            [0.0; 4]
-        };
+        let [u_select, u_choice, u_rr, _] =
+            if (nee && scene.lights.lights.len() > 1) || glass || depth + 1 >= settings.rr_depth {
+                sampler.get4(2 + 2 * depth)
+            } else {
+                [0.0; 4]
+            };
         let [lx, ly] = std::mem::replace(&mut light_uv, [next_lx, next_ly]);
         let next = match mat.bsdf {
             Bsdf::Diffuse(albedo) => {
@@ -176,7 +196,49 @@ fn trace(
                 path.specular = true;
                 path.beta /= next.attenuation;
                 path.eta_scale *= next.attenuation;
+                if absorbing && next.through {
+                    path.medium = if front { mat.absorption } else { Vec3A::ZERO };
+                }
                 next.ray
+            }
+            Bsdf::RoughDielectric(rd) => {
+                let light_u = nee.then_some((u_select, Vec2::new(lx, ly)));
+                let eta = if front { rd.ior } else { 1.0 / rd.ior };
+                let Some((next, through)) = rough_dielectric(
+                    scene,
+                    strategy,
+                    &mut path,
+                    &rd,
+                    eta,
+                    wo,
+                    &sp,
+                    &at,
+                    (Vec2::new(u0, u1), u_choice),
+                    light_u,
+                ) else {
+                    break;
+                };
+                if absorbing && through {
+                    path.medium = if front { mat.absorption } else { Vec3A::ZERO };
+                }
+                next
+            }
+            Bsdf::ThinDielectric(ior) => {
+                let cos_i = ns.dot(wo).min(1.0);
+                if shaded && !(cos_i > 0.0) {
+                    break;
+                }
+                path.specular = true;
+                // Both faces at once: reflected with R', or straight on, unbent.
+                let (wi, side) = if u_choice < thin_reflectance(cos_i, ior) {
+                    (reflect(ray.d, ns), n)
+                } else {
+                    (ray.d, -n)
+                };
+                if shaded && n.dot(wi) * side.dot(n) <= 0.0 {
+                    break;
+                }
+                Ray::new(offset_ray_origin(sp.p, sp.err, side), wi)
             }
         };
         path.prev_p = sp.p;
@@ -206,6 +268,21 @@ struct Path {
     specular: bool,
     prev_pdf: f32,
     prev_p: Vec3A,
+    /// Absorption per unit length of the medium the path is in (zero: clear); tracked only
+    /// in scenes with coloured glass. Media do not nest: leaving any glass is leaving to clear
+    /// air.
+    medium: Vec3A,
+}
+
+/// e^(−σt), with a segment that never ends (t = ∞) absorbing wholly where σ > 0 and not at
+/// all where σ = 0 (where σt would be NaN).
+#[inline]
+fn transmittance(sigma: f32, t: f32) -> f32 {
+    if sigma == 0.0 {
+        1.0
+    } else {
+        exp_nonpositive(-sigma * t)
+    }
 }
 
 /// The normals at a vertex, on the side the path arrived from: the geometric one (offsets,
@@ -390,6 +467,71 @@ fn conductor(
     Some(Ray::new(p_out, wi))
 }
 
+/// A rough glass vertex, the path arriving on the side where the index ratio across the
+/// interface is `eta`: direct light from either side by next-event estimation (when `light_u`
+/// is given) weighed against the BSDF's density under MIS, then a reflection or refraction
+/// about a visible normal, weighted G/G1 and, through the interface, by 1/η² (see
+/// [`crate::bsdf::dielectric`]). Returns the next ray and whether it went through; `None` ends
+/// the path.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn rough_dielectric(
+    scene: &Scene,
+    strategy: Strategy,
+    path: &mut Path,
+    rd: &RoughDielectric,
+    eta: f32,
+    wo: Vec3A,
+    sp: &SurfacePoint,
+    at: &Shading,
+    (bsdf_u, u_choice): (Vec2, f32),
+    light_u: Option<(f32, Vec2)>,
+) -> Option<(Ray, bool)> {
+    let frame = Frame::from_normal(at.ns);
+    let o = frame.to_local(wo);
+    if let Some((u_select, u_point)) = light_u {
+        if let Some(ls) = scene.lights.sample(sp.p, u_select, u_point) {
+            let cos = at.ns.dot(ls.wi);
+            let side = if cos > 0.0 { at.n } else { -at.n };
+            // The geometric normal must put the light on the side the shading one does.
+            let reachable = !at.shaded || at.n.dot(ls.wi) * side.dot(at.n) > 0.0;
+            if cos != 0.0 && reachable && ls.le != Vec3A::ZERO {
+                let p_out = offset_ray_origin(sp.p, sp.err, side);
+                if !scene.occluded(&Ray::new(p_out, ls.p - p_out), 1.0 - 1e-4) {
+                    let i = frame.to_local(ls.wi);
+                    let f = rd.eval(o, i, eta);
+                    let w = if strategy == Strategy::Mis {
+                        power_heuristic(ls.pdf, rd.pdf(o, i, eta))
+                    } else {
+                        1.0
+                    };
+                    path.l += path.beta * ls.le * (f * w / ls.pdf);
+                }
+            }
+        }
+    }
+    let s = rd.sample(o, eta, bsdf_u, u_choice)?;
+    let wi = frame.to_world(s.wi);
+    path.beta *= s.weight;
+    if s.refracted {
+        // Radiance is compressed by 1/η² entering a denser medium.
+        path.beta /= eta * eta;
+        path.eta_scale *= eta * eta;
+    }
+    path.specular = false;
+    path.prev_pdf = s.pdf;
+    let above = at.n.dot(wi) >= 0.0;
+    if at.shaded && above == s.refracted {
+        // The shading normal and the geometric one disagree about the side it leaves by.
+        return None;
+    }
+    let side = if above { at.n } else { -at.n };
+    Some((
+        Ray::new(offset_ray_origin(sp.p, sp.err, side), wi),
+        s.refracted,
+    ))
+}
+
 /// A path's next ray through (or off) a smooth dielectric, and what its throughput is divided
 /// by.
 struct Refracted {
@@ -397,6 +539,8 @@ struct Refracted {
     /// η² through the surface (radiance is compressed by 1/η² entering a denser medium), 1
     /// on reflection.
     attenuation: f32,
+    /// Whether the path went through.
+    through: bool,
 }
 
 /// Reflects or refracts the path at a smooth dielectric of index `ior` (outside on the front
@@ -443,5 +587,6 @@ fn dielectric(
     Some(Refracted {
         ray: Ray::new(offset_ray_origin(sp.p, sp.err, side), wi),
         attenuation: if through { eta * eta } else { 1.0 },
+        through,
     })
 }

@@ -146,6 +146,25 @@ fn max_depth_truncates_the_neumann_series() {
     }
 }
 
+/// No 4×4 block of `img` is brighter than `sky` beyond 4 standard errors (Russian roulette
+/// lets single samples exceed it; their mean may not).
+fn never_above(img: &tessera_render::Image, sky: [f64; 3], what: &str) {
+    for y in (0..32).step_by(4) {
+        for x in (0..32).step_by(4) {
+            let (mean, se) = common::region_stats(img, x, y, 4, 4);
+            for c in 0..3 {
+                assert!(
+                    mean[c] <= sky[c] + 4.0 * se[c] + 1e-6,
+                    "{what}: block ({x},{y}) channel {c}: {} above the sky {} (±{})",
+                    mean[c],
+                    sky[c],
+                    se[c]
+                );
+            }
+        }
+    }
+}
+
 fn metal_sky_scene(roughness: f32) -> String {
     format!(
         "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 0, 6]\ntarget = [0, 0, 0]\nfov = 30\n[film]\nwidth = 32\nheight = 32\n\
@@ -186,17 +205,7 @@ fn rough_white_metal_reflects_its_albedo_and_never_more() {
             ..RenderSettings::default()
         },
     );
-    for (i, p) in img.rgb.iter().enumerate() {
-        for c in 0..3 {
-            let se = (img.variance[i][c] as f64).sqrt();
-            assert!(
-                p[c] as f64 <= sky[c] + 3.0 * se + 1e-6,
-                "pixel {i} channel {c}: {} above the sky {}",
-                p[c],
-                sky[c]
-            );
-        }
-    }
+    never_above(&img, sky, "rough white metal");
     let c = tessera_render::bsdf::Conductor {
         distribution: tessera_render::bsdf::microfacet::TrowbridgeReitz::from_roughness(0.5),
         fresnel: tessera_render::bsdf::Fresnel::Schlick(glam::Vec3A::ONE),
@@ -218,6 +227,126 @@ fn rough_white_metal_reflects_its_albedo_and_never_more() {
             (mean[ch] - expected).abs() <= 3.0 * se[ch] + 0.004 * sky[ch],
             "channel {ch}: {} vs E(0)·L = {expected}",
             mean[ch]
+        );
+    }
+}
+
+fn glass_sky_scene(material: &str, object: &str) -> String {
+    format!(
+        "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 0, 6]\ntarget = [0, 0, 0]\nfov = 30\n[film]\nwidth = 32\nheight = 32\n\
+         [environment]\ntype = \"constant\"\nradiance = [1.0, 0.5, 0.25]\n\
+         [materials.g]\ntype = \"dielectric\"\n{material}\n\
+         [[objects]]\nmaterial = \"g\"\n{object}\n"
+    )
+}
+
+const SPHERE: &str = "shape = \"sphere\"\nradius = 1.0";
+
+/// Rough glass under a uniform sky reflects and transmits at most what arrives (the light it
+/// loses went into the multiple scattering the model leaves out), and a near-smooth one is
+/// nearly invisible.
+#[test]
+fn rough_glass_under_uniform_sky_never_gains() {
+    let sky = [1.0f64, 0.5, 0.25];
+    for (roughness, least) in [(0.05f32, 0.985f64), (0.6, 0.6)] {
+        let img = render(
+            &scene(&glass_sky_scene(
+                &format!("ior = 1.5\nroughness = {roughness}"),
+                SPHERE,
+            )),
+            &RenderSettings {
+                spp: 256,
+                seed: 9,
+                ..RenderSettings::default()
+            },
+        );
+        assert_eq!(img.nonfinite, 0);
+        never_above(&img, sky, &format!("roughness {roughness}"));
+        let (mean, _) = common::region_stats(&img, 12, 12, 8, 8);
+        assert!(
+            mean[0] >= least * sky[0],
+            "roughness {roughness}: the sphere's middle keeps {} of the sky",
+            mean[0] / sky[0]
+        );
+    }
+}
+
+/// An interface of index 1 is no interface, rough or not: the sphere vanishes, every sample of
+/// every pixel the sky's radiance. And a thin sheet of glass under a uniform sky is invisible
+/// too: what it does not reflect it lets straight through.
+#[test]
+fn index_matched_glass_and_thin_sheets_vanish_under_uniform_sky() {
+    for (material, object) in [
+        ("ior = 1.0\nroughness = 0.7", SPHERE),
+        (
+            "ior = 1.5\nthin = true",
+            "shape = \"rect\"\nsize = [3, 3]\ntransform = { rotate = { axis = [1, 1, 0], degrees = 50 } }",
+        ),
+    ] {
+        let img = render(
+            &scene(&glass_sky_scene(material, object)),
+            &RenderSettings {
+                spp: 16,
+                seed: 3,
+                ..RenderSettings::default()
+            },
+        );
+        for p in &img.rgb {
+            assert_eq!(*p, [1.0, 0.5, 0.25], "{material}");
+        }
+    }
+}
+
+/// Beer–Lambert: a slab of thickness d and absorption σ seen head-on through index-matched
+/// glass transmits e^(−σd) of the sky behind it; with index 1.5 the two faces' reflections,
+/// summed over every internal bounce, give (1 − R)² e^(−σd) / (1 − R² e^(−2σd)).
+#[test]
+fn coloured_glass_absorbs_as_beer_lambert_says() {
+    let sigma = [0.5f64, 1.0, 2.0];
+    let slab = "shape = \"box\"\nmin = [-2, -2, -0.5]\nmax = [2, 2, 0.5]";
+    let absorbing = format!("absorption = [{}, {}, {}]", sigma[0], sigma[1], sigma[2]);
+    let sky = [1.0f64, 0.5, 0.25];
+    let matched = render(
+        &scene(&glass_sky_scene(&format!("ior = 1.0\n{absorbing}"), slab)),
+        &RenderSettings {
+            spp: 4,
+            seed: 3,
+            ..RenderSettings::default()
+        },
+    );
+    // Rays through these pixels cross the slab at up to 2° from its normal: paths up to
+    // 1/cos 2° = 1.0006 long.
+    let (mean, _) = common::region_stats(&matched, 14, 14, 4, 4);
+    for c in 0..3 {
+        let want = sky[c] * (-sigma[c]).exp();
+        let longest = sky[c] * (-sigma[c] * 1.001).exp();
+        assert!(
+            mean[c] <= want * (1.0 + 1e-6) && mean[c] >= longest,
+            "index 1, channel {c}: {} vs {want}",
+            mean[c]
+        );
+    }
+    let img = render(
+        &scene(&glass_sky_scene(&format!("ior = 1.5\n{absorbing}"), slab)),
+        &RenderSettings {
+            spp: 4096,
+            seed: 3,
+            ..RenderSettings::default()
+        },
+    );
+    let (mean, se) = common::region_stats(&img, 14, 14, 4, 4);
+    let r = 0.04f64; // ((1.5 − 1)/(1.5 + 1))²
+    for c in 0..3 {
+        let t = (-sigma[c]).exp();
+        // The sky behind, through the slab, and the sky in front, reflected by it.
+        let through = (1.0 - r).powi(2) * t / (1.0 - r * r * t * t);
+        let back = r + (1.0 - r).powi(2) * r * t * t / (1.0 - r * r * t * t);
+        let want = sky[c] * (through + back);
+        assert!(
+            (mean[c] - want).abs() <= 4.0 * se[c] + 1e-4 * want,
+            "index 1.5, channel {c}: {} vs {want} (±{})",
+            mean[c],
+            se[c]
         );
     }
 }

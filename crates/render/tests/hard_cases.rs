@@ -748,6 +748,38 @@ fn rough_metals_at_their_limits_stay_finite() {
     assert!(img.rgb.iter().flatten().all(|v| v.is_finite()));
 }
 
+/// Rough glass at its limits: a dense rough sphere (index 2.4, total internal reflection past
+/// 24.6°) inside a rough one, roughness 1, an index-1 rough sphere (no interface), coloured
+/// glass that absorbs strongly, a thin sheet at 89.9°, and a 10⁻³ light of radiance 10⁷: two
+/// million paths, none non-finite.
+#[test]
+fn rough_glass_at_its_limits_stays_finite() {
+    let text = "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 1.2, 4.5]\ntarget = [0, 0.5, 0]\nfov = 50\n\
+         [film]\nwidth = 100\nheight = 80\n\
+         [environment]\ntype = \"gradient\"\ntop = [0.5, 0.6, 1.0]\nbottom = [0.1, 0.1, 0.1]\n\
+         [materials.outer]\ntype = \"dielectric\"\nior = 1.5\nroughness = 0.3\n\
+         [materials.dense]\ntype = \"dielectric\"\nior = 2.4\nroughness = 0.1\n\
+         [materials.roughest]\ntype = \"dielectric\"\nior = 1.5\nroughness = 1\n\
+         [materials.matched]\ntype = \"dielectric\"\nior = 1.0\nroughness = 0.5\n\
+         [materials.ink]\ntype = \"dielectric\"\nior = 1.33\nroughness = 0.2\nabsorption = [50, 200, 1000]\n\
+         [materials.sheet]\ntype = \"dielectric\"\nior = 1.5\nthin = true\n\
+         [materials.white]\ntype = \"diffuse\"\nalbedo = [0.8, 0.8, 0.8]\n\
+         [materials.tiny]\ntype = \"diffuse\"\nalbedo = [0, 0, 0]\nemission = [1e7, 1e7, 1e7]\n\
+         [[objects]]\nshape = \"plane\"\nmaterial = \"white\"\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"outer\"\ncenter = [-1.5, 0.6, 0]\nradius = 0.6\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"dense\"\ncenter = [-1.5, 0.6, 0]\nradius = 0.4\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"roughest\"\ncenter = [-0.2, 0.5, 0]\nradius = 0.5\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"matched\"\ncenter = [0.9, 0.5, 0]\nradius = 0.5\n\
+         [[objects]]\nshape = \"box\"\nmaterial = \"ink\"\nmin = [1.5, 0, -0.5]\nmax = [2.3, 0.8, 0.5]\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"tiny\"\ncenter = [0.5, 2.5, 1]\nradius = 0.001\n\
+         [[objects]]\nshape = \"rect\"\nmaterial = \"sheet\"\nsize = [8, 8]\ntransform = { rotate = { axis = [1, 0, 0], degrees = -89.9 }, translate = [0, 0.001, -3] }\n";
+    let img = render(&scene(text), &seeded(256, 4));
+    let paths = img.count.iter().map(|&c| c as u64).sum::<u64>() + img.nonfinite;
+    assert!(paths >= 2_000_000, "{paths}");
+    assert_eq!(img.nonfinite, 0, "non-finite samples over {paths} paths");
+    assert!(img.rgb.iter().flatten().all(|v| v.is_finite()));
+}
+
 // ---------------------------------------------------------------------------------------------
 // 6, 7. A tiny bright light, and grazing incidence
 // ---------------------------------------------------------------------------------------------

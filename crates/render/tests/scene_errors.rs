@@ -352,15 +352,74 @@ fn conductor_errors_name_the_key() {
         "`albedo` does not apply to a conductor material",
     );
     check(
-        &format!("{HEAD}[materials.g]\ntype = \"dielectric\"\nior = 1.5\nroughness = 0.2\n"),
+        &format!("{HEAD}[materials.g]\ntype = \"dielectric\"\nior = 1.5\nmetal = \"gold\"\n"),
         16,
-        "materials.g.roughness",
-        "`roughness` does not apply to a dielectric material",
+        "materials.g.metal",
+        "`metal` does not apply to a dielectric material",
+    );
+    check(
+        &format!("{HEAD}[materials.d]\ntype = \"diffuse\"\nalbedo = [1, 1, 1]\nroughness = 0.2\n"),
+        16,
+        "materials.d.roughness",
+        "`roughness` does not apply to a diffuse material",
     );
     check(
         &metal("metal = \"gold\"\nroughness = nan\n"),
         16,
         "materials.c.roughness",
         "must be between 0 and 1, got NaN",
+    );
+}
+
+#[test]
+fn dielectric_errors_name_the_key() {
+    let glass = |body: &str| format!("{HEAD}[materials.g]\ntype = \"dielectric\"\n{body}");
+    check(
+        &glass("ior = 1.5\nroughness = 2\n"),
+        16,
+        "materials.g.roughness",
+        "must be between 0 and 1, got 2",
+    );
+    check(
+        &glass("ior = 0\nroughness = 0.5\n"),
+        15,
+        "materials.g.ior",
+        "must be a finite number greater than 0, got 0",
+    );
+    check(
+        &glass("ior = -1.5\n"),
+        15,
+        "materials.g.ior",
+        "greater than 0, got -1.5",
+    );
+    check(
+        &glass("ior = 1.5\nthin = true\nroughness = 0.3\n"),
+        17,
+        "materials.g.roughness",
+        "rough thin sheets are not modelled",
+    );
+    check(
+        &glass("ior = 1.5\nthin = true\nabsorption = [1, 1, 1]\n"),
+        17,
+        "materials.g.absorption",
+        "a thin dielectric has no inside to absorb in",
+    );
+    check(
+        &glass("ior = 1.5\nabsorption = [1, -1, 1]\n"),
+        16,
+        "materials.g.absorption",
+        "must not be negative",
+    );
+    check(
+        &glass("ior = 1.5\nabsorption = [1, inf, 1]\n"),
+        16,
+        "materials.g.absorption",
+        "must be finite",
+    );
+    check(
+        &glass("roughness = 0.3\n"),
+        13,
+        "materials.g.ior",
+        "a dielectric material needs `ior`",
     );
 }

@@ -4,7 +4,8 @@
 //!
 //! Everything is in the shading frame, z the macro normal. With α the width:
 //!
-//! - D(m) = 1 / (π α² cos⁴θm (1 + tan²θm/α²)²), normalised so that ∫ D(m) cos θm dm = 1;
+//! - D(m) = 1 / (π α² cos⁴θm (1 + tan²θm/α²)²) = α² / (π (α² cos²θm + sin²θm)²), normalised
+//!   so that ∫ D(m) cos θm dm = 1;
 //! - Λ(w) = (√(1 + α² tan²θ) − 1) / 2, G1(w) = 1 / (1 + Λ(w)), G(o, i) = 1 / (1 + Λ(o) + Λ(i));
 //! - the visible normals from o have density D_o(m) = G1(o) max(0, o·m) D(m) / cos θo, which
 //!   integrates to one over m; [`TrowbridgeReitz::sample_visible`] draws from it exactly.
@@ -62,10 +63,10 @@ impl TrowbridgeReitz {
         if !(m.z > 0.0) {
             return 0.0;
         }
-        let cos2 = m.z * m.z;
+        // With sin²θ from x and y rather than 1 − cos²θ, which cancels near the pole, where a
+        // narrow lobe is: D = α² / (π (α² cos²θ + sin²θ)²), the formula above multiplied out.
         let a2 = self.alpha * self.alpha;
-        // 1 + tan²θ/α² = (cos² α² + sin²)/(cos² α²); D = α² / (π (cos² (α² − 1) + 1)²).
-        let t = cos2 * (a2 - 1.0) + 1.0;
+        let t = a2 * (m.z * m.z) + (m.x * m.x + m.y * m.y);
         a2 / (std::f32::consts::PI * t * t)
     }
 
@@ -75,7 +76,7 @@ impl TrowbridgeReitz {
         if !(cos2 > 0.0) {
             return f32::INFINITY;
         }
-        let tan2 = (1.0 - cos2).max(0.0) / cos2;
+        let tan2 = (w.x * w.x + w.y * w.y) / cos2;
         ((1.0 + self.alpha * self.alpha * tan2).sqrt() - 1.0) * 0.5
     }
 

@@ -19,7 +19,7 @@ use super::{
 use crate::aggregate::Accel;
 use crate::bsdf::conductor::{metal, METALS};
 use crate::bsdf::microfacet::TrowbridgeReitz;
-use crate::bsdf::{Bsdf, Conductor, Fresnel};
+use crate::bsdf::{Bsdf, Conductor, Fresnel, RoughDielectric};
 use crate::camera::Camera;
 use crate::light::{Light, LightShape, Lights, MeshLight};
 use crate::mesh::load::{self, MeshFormat};
@@ -241,6 +241,7 @@ pub(super) fn build(
     let shading_normals = prims
         .iter()
         .any(|p| matches!(&p.shape, Shape::Mesh(m) if m.smooth && m.mesh.has_normals()));
+    let absorbing = materials.iter().any(|m| m.absorption != Vec3A::ZERO);
     let scene = Scene {
         camera,
         width: w,
@@ -255,6 +256,7 @@ pub(super) fn build(
         textures,
         accel,
         shading_normals,
+        absorbing,
     };
     Ok((scene, files.read))
 }
@@ -492,6 +494,8 @@ fn build_materials<'a>(
             ("eta", m.eta.is_some()),
             ("k", m.k.is_some()),
             ("f0", m.f0.is_some()),
+            ("thin", m.thin.is_some()),
+            ("absorption", m.absorption.is_some()),
         ];
         let mut texture = None;
         let bsdf = match m.kind {
@@ -518,9 +522,14 @@ fn build_materials<'a>(
                 )?)
             }
             MaterialKind::Dielectric => {
-                only(&mp, "a dielectric material", &present, &["ior"])?;
-                let ior = required(m.ior, &mp, "a dielectric material", "ior")?;
-                Bsdf::Dielectric(positive(ior, &mp.key("ior"))?)
+                let kind = "a dielectric material";
+                only(
+                    &mp,
+                    kind,
+                    &present,
+                    &["ior", "roughness", "thin", "absorption"],
+                )?;
+                dielectric(m, &mp)?
             }
             MaterialKind::Conductor => {
                 let kind = "a conductor material";
@@ -543,15 +552,52 @@ fn build_materials<'a>(
                 "a dielectric has two sides by nature; `two_sided` does not apply".into(),
             ));
         }
+        let absorption = match m.absorption {
+            Some(a) => color(a, &mp.key("absorption"), false)?,
+            None => Vec3A::ZERO,
+        };
         names.insert(name.as_str(), materials.len() as u32);
         materials.push(Material {
             bsdf,
             emission,
             two_sided: m.two_sided.unwrap_or(false),
             texture,
+            absorption,
         });
     }
     Ok((materials, names))
+}
+
+/// Glass: smooth, rough, or a thin sheet (smooth only, and with no inside to absorb in).
+/// Roughness under the mirror threshold, or an index of 1 (no interface to scatter at), is
+/// the smooth dielectric, bit for bit.
+fn dielectric(m: &MaterialDesc, mp: &KeyPath) -> Result<Bsdf, Invalid> {
+    let ior = required(m.ior, mp, "a dielectric material", "ior")?;
+    let ior = positive(ior, &mp.key("ior"))?;
+    let roughness = match m.roughness {
+        None => 0.0,
+        Some(r) => unit(r, &mp.key("roughness"))?,
+    };
+    let distribution = TrowbridgeReitz::from_roughness(roughness);
+    if m.thin == Some(true) {
+        if roughness > 0.0 {
+            return Err((
+                mp.key("roughness"),
+                "a thin dielectric is smooth: rough thin sheets are not modelled".into(),
+            ));
+        }
+        if m.absorption.is_some() {
+            return Err((
+                mp.key("absorption"),
+                "a thin dielectric has no inside to absorb in".into(),
+            ));
+        }
+        return Ok(Bsdf::ThinDielectric(ior));
+    }
+    if distribution.is_smooth() || ior == 1.0 {
+        return Ok(Bsdf::Dielectric(ior));
+    }
+    Ok(Bsdf::RoughDielectric(RoughDielectric { distribution, ior }))
 }
 
 /// A conductor's distribution and Fresnel term: exactly one of `metal`, `eta` with `k`, or

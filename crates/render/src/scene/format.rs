@@ -215,8 +215,15 @@ pub struct MaterialDesc {
     pub reflectance: Option<[f32; 3]>,
     /// Index of refraction, inside over outside (dielectric).
     pub ior: Option<f32>,
-    /// Microfacet roughness in [0, 1] (conductor; default 0, a mirror); α = roughness².
+    /// Microfacet roughness in [0, 1] (conductor, dielectric; default 0, smooth); α =
+    /// roughness².
     pub roughness: Option<f32>,
+    /// A thin sheet rather than a solid (dielectric, smooth only): light reflects or passes
+    /// straight through.
+    pub thin: Option<bool>,
+    /// Absorption per unit length inside (dielectric): Beer–Lambert's σ per channel, ≥ 0.
+    #[serde(default, deserialize_with = "maybe_three")]
+    pub absorption: Option<[f32; 3]>,
     /// A measured metal by name (conductor): `gold`, `silver`, `copper`, `aluminium`, ….
     pub metal: Option<String>,
     /// Real part of the complex index of refraction per channel (conductor, with `k`).

@@ -137,6 +137,8 @@ pub struct Material {
     /// A texture whose texel replaces a diffuse albedo, as an index into
     /// [`Scene::textures`].
     pub texture: Option<u32>,
+    /// Absorption per unit length inside a dielectric (zero: clear).
+    pub absorption: Vec3A,
 }
 
 /// Light from infinitely far away.
@@ -195,6 +197,7 @@ pub struct Scene {
     pub textures: Vec<std::sync::Arc<crate::texture::Texture>>,
     accel: Accel,
     shading_normals: bool,
+    absorbing: bool,
 }
 
 impl Scene {
@@ -298,6 +301,13 @@ impl Scene {
     #[inline]
     pub fn has_shading_normals(&self) -> bool {
         self.shading_normals
+    }
+
+    /// Whether any material absorbs inside (coloured glass): only then do paths track the
+    /// medium they travel in.
+    #[inline]
+    pub fn has_absorption(&self) -> bool {
+        self.absorbing
     }
 
     /// The scene's ray queries.

@@ -232,6 +232,30 @@ pub fn luminance(c: Vec3A) -> f32 {
 }
 
 /// Helpers shared by the crate's unit tests.
+/// e^x for x ≤ 0 (Beer–Lambert's transmittance), in basic f32 arithmetic: 2^(x·log₂e) as a
+/// power of two times a degree-8 Taylor polynomial of 2^f on [0, 1), within 2·10⁻⁷ relative.
+/// Not `f32::exp`, whose implementation glibc picks per CPU at load time (see
+/// [`crate::util::sampling::sin_cos_octant`]): every worker must compute the same bits.
+#[inline]
+pub fn exp_nonpositive(x: f32) -> f32 {
+    let y = x * std::f32::consts::LOG2_E;
+    if !(y > -126.0) {
+        // Below the smallest normal, or NaN: the path carries nothing.
+        return 0.0;
+    }
+    let y = y.min(0.0);
+    let k = y.floor();
+    let t = (y - k) * std::f32::consts::LN_2;
+    let p = 1.0
+        + t * (1.0
+            + t * (1.0 / 2.0
+                + t * (1.0 / 6.0
+                    + t * (1.0 / 24.0
+                        + t * (1.0 / 120.0
+                            + t * (1.0 / 720.0 + t * (1.0 / 5040.0 + t * (1.0 / 40320.0))))))));
+    p * f32::from_bits(((k as i32 + 127) as u32) << 23)
+}
+
 #[cfg(test)]
 pub(crate) mod testing {
     /// Counts a randomised test's hits and misses, so that it can check that both answers were
@@ -497,5 +521,20 @@ mod tests {
         assert!(b.hit(Vec3A::new(-1.0, 0.5, 0.5), dn.recip(), f32::INFINITY));
         assert!(!b.hit(Vec3A::new(-1.0, 1.5, 0.5), dn.recip(), f32::INFINITY));
         assert!(!b.hit(Vec3A::new(-1.0, 0.5, 0.5), inv, 0.5));
+    }
+
+    #[test]
+    fn exp_nonpositive_is_accurate_and_ends_at_zero() {
+        let mut x = 0.0f32;
+        while x > -87.0 {
+            let got = super::exp_nonpositive(x) as f64;
+            let want = (x as f64).exp();
+            assert!((got - want).abs() <= 3e-7 * want, "e^{x}: {got} vs {want}");
+            x -= 0.0137;
+        }
+        assert_eq!(super::exp_nonpositive(0.0), 1.0);
+        assert_eq!(super::exp_nonpositive(-1000.0), 0.0);
+        assert_eq!(super::exp_nonpositive(f32::NEG_INFINITY), 0.0);
+        assert_eq!(super::exp_nonpositive(f32::NAN), 0.0);
     }
 }

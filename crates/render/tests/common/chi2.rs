@@ -24,19 +24,27 @@ fn bin_of(w: Vec3A) -> usize {
     t * PHI_BINS + p
 }
 
-/// ∫ pdf over each bin, by a midpoint rule on (cos θ, φ), where dω = d(cos θ) dφ.
+/// ∫ pdf over each bin, by a midpoint rule in (θ, φ) within it, dω = sin θ dθ dφ: steps even
+/// in θ resolve lobes a degree or two wide at the poles, where bins even in cos θ are widest.
 fn expected(pdf: &dyn Fn(Vec3A) -> f64, n: usize) -> Vec<f64> {
-    const SUB: usize = 32;
+    const SUB_THETA: usize = 256;
+    const SUB_PHI: usize = 32;
     let mut e = vec![0f64; THETA_BINS * PHI_BINS];
-    let dz = 2.0 / (THETA_BINS * SUB) as f64;
-    let dphi = 2.0 * PI / (PHI_BINS * SUB) as f64;
-    for i in 0..THETA_BINS * SUB {
-        let z = 1.0 - (i as f64 + 0.5) * dz;
-        let r = (1.0 - z * z).max(0.0).sqrt();
-        for j in 0..PHI_BINS * SUB {
-            let phi = (j as f64 + 0.5) * dphi;
-            let w = Vec3A::new((r * phi.cos()) as f32, (r * phi.sin()) as f32, z as f32);
-            e[(i / SUB) * PHI_BINS + j / SUB] += pdf(w) * dz * dphi * n as f64;
+    let dphi = 2.0 * PI / (PHI_BINS * SUB_PHI) as f64;
+    for t in 0..THETA_BINS {
+        // The bin spans z from 1 − 2t/T down to 1 − 2(t + 1)/T.
+        let z_hi = 1.0 - 2.0 * t as f64 / THETA_BINS as f64;
+        let z_lo = 1.0 - 2.0 * (t + 1) as f64 / THETA_BINS as f64;
+        let (th0, th1) = (z_hi.clamp(-1.0, 1.0).acos(), z_lo.clamp(-1.0, 1.0).acos());
+        let dth = (th1 - th0) / SUB_THETA as f64;
+        for k in 0..SUB_THETA {
+            let th = th0 + (k as f64 + 0.5) * dth;
+            let (r, z) = th.sin_cos();
+            for j in 0..PHI_BINS * SUB_PHI {
+                let phi = (j as f64 + 0.5) * dphi;
+                let w = Vec3A::new((r * phi.cos()) as f32, (r * phi.sin()) as f32, z as f32);
+                e[t * PHI_BINS + j / SUB_PHI] += pdf(w) * r * dth * dphi * n as f64;
+            }
         }
     }
     e
@@ -107,11 +115,36 @@ fn ln_gamma(x: f64) -> f64 {
 }
 
 /// Samples `SAMPLES` directions and runs the chi-square test against `pdf`, as one of `tests`.
+/// A sample of `None` is left out, and `pdf` must integrate to one over the rest.
 pub fn chi_square(
+    name: &str,
+    tests: f64,
+    sample: impl FnMut(&mut HashRng) -> Option<Vec3A>,
+    pdf: &dyn Fn(Vec3A) -> f64,
+) {
+    run(name, tests, sample, pdf, false)
+}
+
+/// [`chi_square`] for a sampler that may fail (a BSDF whose sampled direction lands on the
+/// wrong side ends the path): `pdf` is the density of the successful samples per attempt, so
+/// it integrates to the probability of success. The successes are tested against `pdf`
+/// renormalised to them, and their share of the attempts must be its integral within 4.5
+/// standard errors of the share plus 0.05% for the quadrature.
+pub fn chi_square_with_failures(
+    name: &str,
+    tests: f64,
+    sample: impl FnMut(&mut HashRng) -> Option<Vec3A>,
+    pdf: &dyn Fn(Vec3A) -> f64,
+) {
+    run(name, tests, sample, pdf, true)
+}
+
+fn run(
     name: &str,
     tests: f64,
     mut sample: impl FnMut(&mut HashRng) -> Option<Vec3A>,
     pdf: &dyn Fn(Vec3A) -> f64,
+    failures: bool,
 ) {
     let mut rng = HashRng::new(0x5eed ^ name.len() as u64);
     let mut observed = vec![0f64; THETA_BINS * PHI_BINS];
@@ -126,13 +159,26 @@ pub fn chi_square(
         observed[bin_of(w)] += 1.0;
         taken += 1;
     }
-    let exp = expected(pdf, taken);
+    let mut exp = expected(pdf, taken);
     let total_exp: f64 = exp.iter().sum();
-    assert!(
-        (total_exp / taken as f64 - 1.0).abs() < 0.01,
-        "{name}: pdf integrates to {}",
-        total_exp / taken as f64
-    );
+    if failures {
+        let share = taken as f64 / SAMPLES as f64;
+        let integral = total_exp / taken as f64;
+        let tolerance = 4.5 * (share * (1.0 - share) / SAMPLES as f64).sqrt() + 5e-4;
+        assert!(
+            (integral - share).abs() < tolerance,
+            "{name}: pdf integrates to {integral}, but {share} of the samples succeeded"
+        );
+        for e in &mut exp {
+            *e /= integral;
+        }
+    } else {
+        assert!(
+            (total_exp / taken as f64 - 1.0).abs() < 0.01,
+            "{name}: pdf integrates to {}",
+            total_exp / taken as f64
+        );
+    }
     // Pool bins with fewer than 5 expected samples.
     let mut order: Vec<usize> = (0..exp.len()).collect();
     order.sort_by(|&a, &b| exp[a].total_cmp(&exp[b]));
