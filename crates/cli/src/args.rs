@@ -109,7 +109,7 @@ impl SettingsArgs {
 pub enum StrategyArg {
     /// Multiple importance sampling.
     Mis,
-    /// BSDF sampling only.
+    /// BSDF sampling only (punctual lights, which no ray can hit, are still sampled).
     Bsdf,
     /// Light sampling only.
     Nee,

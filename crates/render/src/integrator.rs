@@ -77,6 +77,8 @@ fn trace(
     } else {
         settings.strategy
     };
+    // Punctual lights are reached by light sampling alone, whatever the strategy.
+    let light_sampling = strategy != Strategy::Bsdf || scene.lights.has_delta();
     let mut path = Path {
         l: Vec3A::ZERO,
         beta: Vec3A::ONE,
@@ -134,7 +136,7 @@ fn trace(
         let [u0, u1, next_lx, next_ly] = sampler.get4(1 + 2 * depth);
         // Light sampling at every vertex whose BSDF is not a delta: diffuse, rough metal and
         // rough glass.
-        let nee = strategy != Strategy::Bsdf
+        let nee = light_sampling
             && match mat.bsdf {
                 Bsdf::Diffuse(_) | Bsdf::RoughDielectric(_) => true,
                 Bsdf::Conductor(c) => !c.distribution.is_smooth(),
@@ -381,13 +383,30 @@ fn direct_light(
     p_out: Vec3A,
     u: (f32, Vec2),
 ) -> Option<(Vec3A, f32)> {
-    let (ls, cos) = visible_light(scene, sp, at, p_out, u)?;
-    let w = if strategy == Strategy::Mis {
+    let (ls, cos) = visible_light(scene, strategy, sp, at, p_out, u)?;
+    let w = if strategy == Strategy::Mis && !ls.delta {
         power_heuristic(ls.pdf, cosine_hemisphere_pdf(cos))
     } else {
         1.0
     };
     Some((ls.le, cos * std::f32::consts::FRAC_1_PI * w / ls.pdf))
+}
+
+/// A light sample for next-event estimation from `p`: any light, or under BSDF sampling alone
+/// the punctual ones only (the rest are found by the BSDF's rays, and counted in full then).
+#[inline(always)]
+fn sample_light(
+    scene: &Scene,
+    strategy: Strategy,
+    p: Vec3A,
+    u_select: f32,
+    u_point: Vec2,
+) -> Option<LightSample> {
+    if strategy == Strategy::Bsdf {
+        scene.lights.sample_delta(p, u_select)
+    } else {
+        scene.lights.sample(p, u_select, u_point)
+    }
 }
 
 /// A point on a light that `p_out` sees, above the surface at `sp`, with the cosine of its
@@ -396,12 +415,13 @@ fn direct_light(
 #[inline(always)]
 fn visible_light(
     scene: &Scene,
+    strategy: Strategy,
     sp: &SurfacePoint,
     at: &Shading,
     p_out: Vec3A,
     (u_select, u_point): (f32, Vec2),
 ) -> Option<(LightSample, f32)> {
-    let ls = scene.lights.sample(sp.p, u_select, u_point)?;
+    let ls = sample_light(scene, strategy, sp.p, u_select, u_point)?;
     let cos = at.ns.dot(ls.wi);
     // A light behind the geometric surface is unreachable, whatever the shading normal says.
     let reachable = !at.shaded || at.n.dot(ls.wi) > 0.0;
@@ -445,10 +465,10 @@ fn conductor(
     let frame = Frame::from_normal(at.ns);
     let o = frame.to_local(wo);
     if let Some(u) = light_u {
-        if let Some((ls, _)) = visible_light(scene, sp, at, p_out, u) {
+        if let Some((ls, _)) = visible_light(scene, strategy, sp, at, p_out, u) {
             let i = frame.to_local(ls.wi);
             let f = c.eval(o, i);
-            let w = if strategy == Strategy::Mis {
+            let w = if strategy == Strategy::Mis && !ls.delta {
                 power_heuristic(ls.pdf, c.pdf(o, i))
             } else {
                 1.0
@@ -490,7 +510,7 @@ fn rough_dielectric(
     let frame = Frame::from_normal(at.ns);
     let o = frame.to_local(wo);
     if let Some((u_select, u_point)) = light_u {
-        if let Some(ls) = scene.lights.sample(sp.p, u_select, u_point) {
+        if let Some(ls) = sample_light(scene, strategy, sp.p, u_select, u_point) {
             let cos = at.ns.dot(ls.wi);
             let side = if cos > 0.0 { at.n } else { -at.n };
             // The geometric normal must put the light on the side the shading one does.
@@ -500,7 +520,7 @@ fn rough_dielectric(
                 if !scene.occluded(&Ray::new(p_out, ls.p - p_out), 1.0 - 1e-4) {
                     let i = frame.to_local(ls.wi);
                     let f = rd.eval(o, i, eta);
-                    let w = if strategy == Strategy::Mis {
+                    let w = if strategy == Strategy::Mis && !ls.delta {
                         power_heuristic(ls.pdf, rd.pdf(o, i, eta))
                     } else {
                         1.0

@@ -1,5 +1,9 @@
-//! Area lights: sampling a point on an emitter as seen from a shading point, and the density
-//! of that choice in solid angle (which MIS needs for directions found by BSDF sampling).
+//! Lights: sampling a point on an emitter as seen from a shading point, and the density of that
+//! choice in solid angle (which MIS needs for directions found by BSDF sampling). Area lights
+//! are surfaces; punctual lights (point, spot, directional: glTF's) have no surface, so no ray
+//! can hit them and only light sampling reaches them: their samples are marked `delta`, take
+//! no MIS weight, and are drawn even where BSDF sampling alone is asked for
+//! ([`Lights::sample_delta`]).
 
 use std::f32::consts::PI;
 
@@ -24,6 +28,33 @@ pub enum LightShape {
     /// An emissive mesh, sampled uniformly by area (a triangle by its share of the area,
     /// then a point uniformly on it).
     Mesh(MeshLight),
+    /// A point light of intensity [`Light::radiance`] (per steradian) in every direction.
+    Point {
+        /// Where it is.
+        position: Vec3A,
+    },
+    /// A spot light: a point light whose intensity falls from full inside the inner cone to
+    /// zero at the outer one, as glTF's KHR_lights_punctual defines (the square of a linear
+    /// ramp in the cosine).
+    Spot {
+        /// Where it is.
+        position: Vec3A,
+        /// Unit direction it shines along.
+        axis: Vec3A,
+        /// cos of the inner cone's half-angle.
+        cos_inner: f32,
+        /// cos of the outer cone's half-angle.
+        cos_outer: f32,
+    },
+    /// Parallel light of irradiance [`Light::radiance`] (on a surface facing it) from
+    /// infinitely far away.
+    Directional {
+        /// Unit direction towards the light.
+        towards: Vec3A,
+        /// The radius of a sphere around the scene's finite objects, which a shadow ray must
+        /// leave to reach the light, and whose disk the light's power falls on.
+        reach: f32,
+    },
 }
 
 /// The world-space triangles of an emissive mesh instance.
@@ -104,8 +135,11 @@ pub struct LightSample {
     pub wi: Vec3A,
     /// Emitted radiance towards the shading point (0 from a one-sided light's back).
     pub le: Vec3A,
-    /// Density in solid angle at the shading point, light selection included.
+    /// Density in solid angle at the shading point, light selection included; for a punctual
+    /// light, its selection probability alone (the direction is a delta).
     pub pdf: f32,
+    /// A punctual light: no BSDF sample can find it, so it takes no MIS weight.
+    pub delta: bool,
 }
 
 /// All emitters with a power-proportional selection distribution.
@@ -114,14 +148,27 @@ pub struct Lights {
     /// The emitters.
     pub lights: Vec<Light>,
     select: Option<Distribution1D>,
+    /// The punctual lights alone, by power, with their indices: what BSDF-only rendering
+    /// samples.
+    delta: Option<(Distribution1D, Vec<u32>)>,
 }
 
 impl Light {
     fn power_weight(&self) -> f32 {
+        let sum = self.radiance.x + self.radiance.y + self.radiance.z;
         let area = match &self.shape {
             LightShape::Quad(q) => q.area,
             LightShape::Sphere { radius, .. } => 4.0 * PI * radius * radius,
             LightShape::Mesh(m) => m.area,
+            // Intensity times the solid angle it fills (the spot's cone taken halfway through
+            // its falloff), or irradiance times the scene's cross-section.
+            LightShape::Point { .. } => return 4.0 * PI * sum,
+            LightShape::Spot {
+                cos_inner,
+                cos_outer,
+                ..
+            } => return 2.0 * PI * (1.0 - 0.5 * (cos_inner + cos_outer)) * sum,
+            LightShape::Directional { reach, .. } => return PI * reach * reach * sum,
         };
         let sides = if self.two_sided { 2.0 } else { 1.0 };
         area * sides * (self.radiance.x + self.radiance.y + self.radiance.z)
@@ -137,6 +184,47 @@ impl Light {
         }
     }
 
+    /// Whether it is punctual (no surface).
+    #[inline]
+    pub fn is_delta(&self) -> bool {
+        matches!(
+            self.shape,
+            LightShape::Point { .. } | LightShape::Spot { .. } | LightShape::Directional { .. }
+        )
+    }
+
+    /// A punctual light as seen from `p`: the shadow ray's end, the unit direction to it, and
+    /// the radiance it delivers along that direction per unit solid-angle density (I/d² for
+    /// a point light, times the spot's falloff; E for a directional one). `None` where it
+    /// gives nothing.
+    fn sample_delta(&self, p: Vec3A) -> Option<(Vec3A, Vec3A, Vec3A)> {
+        match self.shape {
+            LightShape::Point { position } => {
+                let (wi, d2) = dir_and_dist2(p, position)?;
+                Some((position, wi, self.radiance / d2))
+            }
+            LightShape::Spot {
+                position,
+                axis,
+                cos_inner,
+                cos_outer,
+            } => {
+                let (wi, d2) = dir_and_dist2(p, position)?;
+                let ramp = ((axis.dot(-wi) - cos_outer) / (cos_inner - cos_outer)).clamp(0.0, 1.0);
+                if ramp == 0.0 {
+                    return None;
+                }
+                Some((position, wi, self.radiance * (ramp * ramp / d2)))
+            }
+            LightShape::Directional { towards, reach } => {
+                // Past the sphere of the scene's finite objects, wherever `p` is in it.
+                let x = p + towards * (2.0 * reach + p.length());
+                Some((x, towards, self.radiance))
+            }
+            _ => None,
+        }
+    }
+
     /// Rounding-error bound of a point `x` that [`Light::sample`] produced from `u`.
     #[inline]
     fn point_error(&self, x: Vec3A, u: Vec2) -> Vec3A {
@@ -144,6 +232,7 @@ impl Light {
             LightShape::Quad(q) => q.point_error(u.x, u.y),
             LightShape::Sphere { center, .. } => sphere_point_error(*center, x - *center),
             LightShape::Mesh(m) => m.point_error(u),
+            _ => Vec3A::ZERO,
         }
     }
 
@@ -166,6 +255,7 @@ impl Light {
                 let (wi, pdf) = area_to_solid_angle(p, x, n, m.area)?;
                 Some((x, n, wi, pdf))
             }
+            _ => None,
         }
     }
 
@@ -182,6 +272,7 @@ impl Light {
                 4.0 * PI * r2
             }
             LightShape::Mesh(m) => m.area,
+            _ => return 0.0,
         };
         area_to_solid_angle(p, x, n, area).map_or(0.0, |(_, pdf)| pdf)
     }
@@ -278,7 +369,37 @@ impl Lights {
     pub fn new(lights: Vec<Light>) -> Self {
         let weights: Vec<f32> = lights.iter().map(Light::power_weight).collect();
         let select = Distribution1D::new(&weights);
-        Self { lights, select }
+        let delta_index: Vec<u32> = (0..lights.len() as u32)
+            .filter(|&i| lights[i as usize].is_delta())
+            .collect();
+        let delta_weights: Vec<f32> = delta_index.iter().map(|&i| weights[i as usize]).collect();
+        let delta = Distribution1D::new(&delta_weights).map(|d| (d, delta_index));
+        Self {
+            lights,
+            select,
+            delta,
+        }
+    }
+
+    /// Whether any light is punctual.
+    #[inline]
+    pub fn has_delta(&self) -> bool {
+        self.delta.is_some()
+    }
+
+    /// Picks a punctual light by power among the punctual ones: what rendering with BSDF
+    /// sampling alone still needs, since no ray finds them.
+    pub fn sample_delta(&self, p: Vec3A, u_select: f32) -> Option<LightSample> {
+        let (dist, index) = self.delta.as_ref()?;
+        let k = dist.sample(u_select);
+        let (x, wi, le) = self.lights[index[k] as usize].sample_delta(p)?;
+        Some(LightSample {
+            p: x,
+            wi,
+            le,
+            pdf: dist.pmf(k),
+            delta: true,
+        })
     }
 
     /// Whether there is anything to sample.
@@ -299,6 +420,16 @@ impl Lights {
         let dist = self.select.as_ref()?;
         let i = dist.sample(u_select);
         let light = &self.lights[i];
+        if light.is_delta() {
+            let (x, wi, le) = light.sample_delta(p)?;
+            return Some(LightSample {
+                p: x,
+                wi,
+                le,
+                pdf: dist.pmf(i),
+                delta: true,
+            });
+        }
         let (x, n, wi, pdf) = light.sample(p, u)?;
         let pdf = pdf * dist.pmf(i);
         if !positive_finite(pdf) {
@@ -311,6 +442,7 @@ impl Lights {
             wi,
             le,
             pdf,
+            delta: false,
         })
     }
 
@@ -342,6 +474,7 @@ impl Lights {
                     }
                     None
                 }
+                _ => None,
             };
             if let Some((x, n)) = hit {
                 total += d.pmf(i) * light.pdf(p, x, n);

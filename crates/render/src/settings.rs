@@ -13,7 +13,8 @@ pub enum Strategy {
     /// Next-event estimation and BSDF sampling, combined by the power heuristic.
     #[default]
     Mis,
-    /// BSDF sampling only: emitters count only when a path happens to hit them.
+    /// BSDF sampling only: emitters count only when a path happens to hit them. Punctual
+    /// lights, which no path can hit, are still light-sampled.
     Bsdf,
     /// Light sampling only at diffuse vertices (emitters reached by a diffuse bounce count 0).
     Nee,

@@ -123,6 +123,28 @@ fn strategies_agree_on_rough_and_coloured_glass() {
 }
 
 #[test]
+fn strategies_agree_with_punctual_and_area_lights_together() {
+    // A point, a spot and a directional light beside an area light, over diffuse and rough
+    // metal: BSDF-only rendering samples the punctual ones (nothing else can reach them) and
+    // finds the area light by its rays.
+    let text = "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 1.5, 5]\ntarget = [0, 0.5, 0]\n\
+                fov = 45\n[film]\nwidth = 32\nheight = 24\n\
+                [materials.floor]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n\
+                [materials.metal]\ntype = \"conductor\"\nmetal = \"copper\"\nroughness = 0.5\n\
+                [materials.lamp]\ntype = \"diffuse\"\nalbedo = [0, 0, 0]\nemission = [3, 3, 3]\n\
+                [[objects]]\nshape = \"plane\"\nmaterial = \"floor\"\npoint = [0, 0, 0]\nnormal = [0, 1, 0]\n\
+                [[objects]]\nshape = \"sphere\"\nmaterial = \"metal\"\ncenter = [-0.8, 0.7, 0]\nradius = 0.7\n\
+                [[objects]]\nshape = \"box\"\nmaterial = \"floor\"\nmin = [0.4, 0, -0.5]\nmax = [1.4, 1, 0.5]\n\
+                [[objects]]\nshape = \"sphere\"\nmaterial = \"lamp\"\ncenter = [2, 3, -1]\nradius = 0.6\n\
+                [[lights]]\ntype = \"point\"\nposition = [-1.5, 2, 1.5]\nintensity = [4, 3, 2]\n\
+                [[lights]]\ntype = \"spot\"\nposition = [1, 2.5, 1]\ndirection = [0, -1, -0.3]\nintensity = [6, 6, 6]\ninner_angle = 15\nouter_angle = 30\n\
+                [[lights]]\ntype = \"directional\"\ndirection = [1, -2, -1]\nirradiance = [0.5, 0.6, 0.8]\n";
+    let scene =
+        Scene::from_str(text, Format::Toml, "punctual.toml", &Limits::default()).expect("valid");
+    agree(&scene, [256, 256, 1024], 8);
+}
+
+#[test]
 fn nee_reduces_variance_against_bsdf_sampling() {
     // Not a time assertion: the same sample count, and MIS must be the less noisy estimator.
     let scene = shrink("cornell-box.toml", 32, 32);

@@ -423,3 +423,56 @@ fn dielectric_errors_name_the_key() {
         "a dielectric material needs `ior`",
     );
 }
+
+#[test]
+fn punctual_light_errors_name_the_key() {
+    let light = |body: &str| format!("{HEAD}[[lights]]\n{body}");
+    check(
+        &light("type = \"spot\"\nposition = [0, 1, 0]\ndirection = [0, -1, 0]\nintensity = [1, 1, 1]\ninner_angle = 30\nouter_angle = 20\n"),
+        19,
+        "lights[0].outer_angle",
+        "must be greater than inner_angle (30)",
+    );
+    check(
+        &light("type = \"spot\"\nposition = [0, 1, 0]\ndirection = [0, -1, 0]\nintensity = [1, 1, 1]\nouter_angle = 120\n"),
+        18,
+        "lights[0].outer_angle",
+        "at most 90 degrees, got 120",
+    );
+    check(
+        &light("type = \"point\"\nintensity = [1, 1, 1]\n"),
+        13,
+        "lights[0].position",
+        "a point light needs `position`",
+    );
+    check(
+        &light("type = \"point\"\nposition = [0, 1, 0]\nintensity = [0, 0, 0]\n"),
+        16,
+        "lights[0].intensity",
+        "a light must emit something",
+    );
+    check(
+        &light("type = \"point\"\nposition = [0, 1, 0]\nintensity = [1, -1, 1]\n"),
+        16,
+        "lights[0].intensity",
+        "must not be negative",
+    );
+    check(
+        &light("type = \"directional\"\ndirection = [0, 0, 0]\nirradiance = [1, 1, 1]\n"),
+        15,
+        "lights[0].direction",
+        "must not be zero",
+    );
+    check(
+        &light("type = \"directional\"\ndirection = [0, -1, 0]\nintensity = [1, 1, 1]\n"),
+        16,
+        "lights[0].intensity",
+        "`intensity` does not apply to a directional light",
+    );
+    check(
+        &light("type = \"area\"\n"),
+        14,
+        "lights[0].type",
+        "unknown variant `area`",
+    );
+}

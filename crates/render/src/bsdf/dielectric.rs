@@ -162,6 +162,6 @@ mod tests {
         }
         // Normal incidence, η = 1.5: R = 0.04, R' = 2R/(1 + R) = 0.0769….
         assert!((thin_reflectance(1.0, 1.5) - 0.08 / 1.04).abs() < 1e-6);
-        assert_eq!(thin_reflectance(0.3, 1.0), 0.0);
+        assert!(thin_reflectance(0.3, 1.0) < 1e-6, "index 1: no interface");
     }
 }

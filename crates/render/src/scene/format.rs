@@ -41,6 +41,9 @@ pub struct SceneFile {
     /// The objects.
     #[serde(default)]
     pub objects: Vec<ObjectDesc>,
+    /// Punctual lights (point, spot, directional), besides the emitting objects.
+    #[serde(default)]
+    pub lights: Vec<LightDesc>,
     /// Keyframes, if the scene moves.
     pub animation: Option<AnimationDesc>,
 }
@@ -184,6 +187,43 @@ pub struct EnvironmentDesc {
     /// Radiance straight down (gradient).
     #[serde(default, deserialize_with = "maybe_three")]
     pub bottom: Option<[f32; 3]>,
+}
+
+/// Punctual light kinds (glTF's KHR_lights_punctual).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LightKind {
+    /// Light from a point, the same in every direction.
+    Point,
+    /// A point light within a cone.
+    Spot,
+    /// Parallel light from infinitely far away.
+    Directional,
+}
+
+/// `[[lights]]`: a punctual light.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LightDesc {
+    /// Kind.
+    #[serde(rename = "type")]
+    pub kind: LightKind,
+    /// Where it is (point, spot).
+    #[serde(default, deserialize_with = "maybe_three")]
+    pub position: Option<[f32; 3]>,
+    /// Where it shines (spot: its axis; directional: the way its light travels).
+    #[serde(default, deserialize_with = "maybe_three")]
+    pub direction: Option<[f32; 3]>,
+    /// Intensity per steradian, per channel (point, spot).
+    #[serde(default, deserialize_with = "maybe_three")]
+    pub intensity: Option<[f32; 3]>,
+    /// Irradiance on a surface facing it, per channel (directional).
+    #[serde(default, deserialize_with = "maybe_three")]
+    pub irradiance: Option<[f32; 3]>,
+    /// Half-angle of the full-intensity cone, degrees (spot; default 0).
+    pub inner_angle: Option<f32>,
+    /// Half-angle where the intensity reaches zero, degrees (spot; default 45).
+    pub outer_angle: Option<f32>,
 }
 
 /// Material kinds.

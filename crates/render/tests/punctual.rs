@@ -1,0 +1,130 @@
+//! Punctual lights (glTF's point, spot and directional) against their analytic answers over a
+//! diffuse plane, whatever the sampling strategy: no ray can hit them, so BSDF-only rendering
+//! must still sample them.
+//!
+//! A point of intensity I at height h over a plane of albedo ρ gives, at horizontal distance r
+//! (d² = h² + r²), irradiance E = I cos θ / d² = I h / d³, and the plane's radiance is ρE/π in
+//! every direction. A spot multiplies I by its falloff, the square of a linear ramp in the
+//! cosine from the outer cone (0) to the inner one (1). A directional light of irradiance E at
+//! angle θ from the normal gives ρ E cos θ / π.
+
+mod common;
+
+use common::scene;
+use glam::{DVec3, Vec3A};
+use tessera_render::integrator::radiance;
+use tessera_render::math::Ray;
+use tessera_render::sampling::PixelSampler;
+use tessera_render::scene::Scene;
+use tessera_render::{RenderSettings, Strategy};
+
+const RHO: f64 = 0.5;
+
+fn plane_with(lights: &str) -> Scene {
+    scene(&format!(
+        "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 1, 1]\ntarget = [0, 0, 0]\nfov = 40\n\
+         [film]\nwidth = 4\nheight = 4\n\
+         [materials.ground]\ntype = \"diffuse\"\nalbedo = [{RHO}, {RHO}, {RHO}]\n\
+         [[objects]]\nshape = \"plane\"\nmaterial = \"ground\"\n{lights}"
+    ))
+}
+
+/// The radiance the plane sends up from `x` (y = 0), averaged over `n` paths, under
+/// `strategy`.
+fn at(sc: &Scene, x: [f32; 2], strategy: Strategy, n: u32) -> DVec3 {
+    let p = Vec3A::new(x[0], 0.0, x[1]);
+    let eye = p + Vec3A::new(0.3, 2.0, 0.1);
+    let ray = Ray::new(eye, (p - eye).normalize());
+    let settings = RenderSettings {
+        strategy,
+        ..RenderSettings::default()
+    };
+    let mut sum = DVec3::ZERO;
+    for i in 0..n {
+        sum += radiance(sc, &settings, ray, &PixelSampler::new(1, 7, 7, i)).as_dvec3();
+    }
+    sum / n as f64
+}
+
+fn assert_close(got: DVec3, want: [f64; 3], what: &str) {
+    for c in 0..3 {
+        let (g, w) = (got[c], want[c]);
+        assert!(
+            (g - w).abs() <= 1e-4 * w.max(1e-6) + 1e-9,
+            "{what}, channel {c}: {g} vs {w}"
+        );
+    }
+}
+
+const STRATEGIES: [Strategy; 3] = [Strategy::Mis, Strategy::Nee, Strategy::Bsdf];
+
+#[test]
+fn point_light_follows_the_inverse_square_and_cosine_laws() {
+    let i = [4.0f64, 2.0, 1.0];
+    let h = 1.5f64;
+    let sc = plane_with(&format!(
+        "[[lights]]\ntype = \"point\"\nposition = [0, {h}, 0]\nintensity = {i:?}\n"
+    ));
+    for strategy in STRATEGIES {
+        for r in [0.0f64, 0.7, 3.0] {
+            let d = (h * h + r * r).sqrt();
+            let want = i.map(|i| RHO / std::f64::consts::PI * i * h / (d * d * d));
+            // The light is the only emitter and the plane cannot see itself: one path is the
+            // whole answer.
+            assert_close(
+                at(&sc, [r as f32, 0.0], strategy, 4),
+                want,
+                &format!("{strategy:?} r {r}"),
+            );
+        }
+    }
+}
+
+#[test]
+fn spot_light_is_full_inside_its_inner_cone_and_dark_outside_its_outer() {
+    let h = 2.0f64;
+    let (inner, outer) = (20.0f64, 40.0f64);
+    let sc = plane_with(&format!(
+        "[[lights]]\ntype = \"spot\"\nposition = [0, {h}, 0]\ndirection = [0, -1, 0]\n\
+         intensity = [3, 3, 3]\ninner_angle = {inner}\nouter_angle = {outer}\n"
+    ));
+    for strategy in STRATEGIES {
+        for deg in [0.0f64, 10.0, 25.0, 30.0, 35.0, 45.0] {
+            let r = h * deg.to_radians().tan();
+            let d = (h * h + r * r).sqrt();
+            let cos = h / d;
+            let ramp = ((cos - outer.to_radians().cos())
+                / (inner.to_radians().cos() - outer.to_radians().cos()))
+            .clamp(0.0, 1.0);
+            let want = [RHO / std::f64::consts::PI * 3.0 * ramp * ramp * h / (d * d * d); 3];
+            assert_close(
+                at(&sc, [r as f32, 0.0], strategy, 4),
+                want,
+                &format!("{strategy:?} {deg}°"),
+            );
+        }
+    }
+}
+
+#[test]
+fn directional_light_gives_e_cos_theta_everywhere_and_casts_shadows() {
+    let e = [2.0f64, 1.0, 0.5];
+    // Light travelling down and along +x, 30° from the vertical, and a box whose shadow falls
+    // on the plane beside it.
+    let theta = 30.0f64.to_radians();
+    let sc = plane_with(&format!(
+        "[[lights]]\ntype = \"directional\"\ndirection = [{}, {}, 0]\nirradiance = {e:?}\n\
+         [[objects]]\nshape = \"box\"\nmaterial = \"ground\"\nmin = [-0.5, 0, -0.5]\nmax = [0.5, 1, 0.5]\n",
+        theta.sin(),
+        -theta.cos()
+    ));
+    for strategy in STRATEGIES {
+        let lit = at(&sc, [-3.0, 0.0], strategy, 4);
+        let want = e.map(|e| RHO / std::f64::consts::PI * e * theta.cos());
+        assert_close(lit, want, &format!("{strategy:?} lit"));
+        // Just past the box along the light's travel: in its shadow, lit by nothing but the
+        // light the box's lit side sends down (one bounce), so far below the direct value.
+        let shade = at(&sc, [0.7, 0.0], strategy, 64);
+        assert!(shade.x < 0.3 * want[0], "{strategy:?} shade {shade}");
+    }
+}
