@@ -10,7 +10,7 @@ pub mod microfacet;
 
 use glam::{Vec2, Vec3A};
 
-pub use conductor::{Conductor, Fresnel, Sampled};
+pub use conductor::{Conductor, Fresnel, Metal, Sampled};
 pub use dielectric::{DielectricSample, RoughDielectric};
 
 use crate::util::math::Frame;
@@ -26,7 +26,7 @@ pub enum Bsdf {
     /// Smooth dielectric with this relative index of refraction (inside / outside).
     Dielectric(f32),
     /// A metal, rough or smooth.
-    Conductor(Conductor),
+    Conductor(Metal),
     /// Rough glass (its roughness above the mirror threshold, its index not 1: otherwise it
     /// is a [`Bsdf::Dielectric`]).
     RoughDielectric(RoughDielectric),

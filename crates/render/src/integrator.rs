@@ -93,14 +93,7 @@ fn trace(
     loop {
         let found = scene.intersect(&ray, f32::INFINITY);
         if absorbing && path.medium != Vec3A::ZERO {
-            // Beer–Lambert over the segment; one that never ends inside absorbs all of the
-            // channels that absorb at all.
-            let t = found.map_or(f32::INFINITY, |h| h.t);
-            path.beta *= Vec3A::new(
-                transmittance(path.medium.x, t),
-                transmittance(path.medium.y, t),
-                transmittance(path.medium.z, t),
-            );
+            absorb(&mut path, found.map_or(f32::INFINITY, |h| h.t));
         }
         let Some(hit) = found else {
             if let Some(env) = &scene.environment {
@@ -139,7 +132,7 @@ fn trace(
         let nee = light_sampling
             && match mat.bsdf {
                 Bsdf::Diffuse(_) | Bsdf::RoughDielectric(_) => true,
-                Bsdf::Conductor(c) => !c.distribution.is_smooth(),
+                Bsdf::Conductor(m) => !m.is_smooth(),
                 Bsdf::Mirror(_) | Bsdf::Dielectric(_) | Bsdf::ThinDielectric(_) => false,
             };
         // u_rr decides Russian roulette after this bounce.
@@ -174,13 +167,13 @@ fn trace(
                 }
                 Ray::new(offset_ray_origin(sp.p, sp.err, n), wi)
             }
-            Bsdf::Conductor(c) => {
+            Bsdf::Conductor(ref m) => {
                 let light_u = nee.then_some((u_select, Vec2::new(lx, ly)));
                 let Some(next) = conductor(
                     scene,
                     strategy,
                     &mut path,
-                    &c,
+                    &m.conductor(),
                     wo,
                     &sp,
                     &at,
@@ -199,18 +192,22 @@ fn trace(
                 path.beta /= next.attenuation;
                 path.eta_scale *= next.attenuation;
                 if absorbing && next.through {
-                    path.medium = if front { mat.absorption } else { Vec3A::ZERO };
+                    path.medium = if front {
+                        scene.absorption(prim.material)
+                    } else {
+                        Vec3A::ZERO
+                    };
                 }
                 next.ray
             }
-            Bsdf::RoughDielectric(rd) => {
+            Bsdf::RoughDielectric(ref rd) => {
                 let light_u = nee.then_some((u_select, Vec2::new(lx, ly)));
                 let eta = if front { rd.ior } else { 1.0 / rd.ior };
                 let Some((next, through)) = rough_dielectric(
                     scene,
                     strategy,
                     &mut path,
-                    &rd,
+                    rd,
                     eta,
                     wo,
                     &sp,
@@ -221,26 +218,20 @@ fn trace(
                     break;
                 };
                 if absorbing && through {
-                    path.medium = if front { mat.absorption } else { Vec3A::ZERO };
+                    path.medium = if front {
+                        scene.absorption(prim.material)
+                    } else {
+                        Vec3A::ZERO
+                    };
                 }
                 next
             }
             Bsdf::ThinDielectric(ior) => {
-                let cos_i = ns.dot(wo).min(1.0);
-                if shaded && !(cos_i > 0.0) {
+                let Some(next) = thin_dielectric(&ray, &sp, &at, ior, u_choice) else {
                     break;
-                }
-                path.specular = true;
-                // Both faces at once: reflected with R', or straight on, unbent.
-                let (wi, side) = if u_choice < thin_reflectance(cos_i, ior) {
-                    (reflect(ray.d, ns), n)
-                } else {
-                    (ray.d, -n)
                 };
-                if shaded && n.dot(wi) * side.dot(n) <= 0.0 {
-                    break;
-                }
-                Ray::new(offset_ray_origin(sp.p, sp.err, side), wi)
+                path.specular = true;
+                next
             }
         };
         path.prev_p = sp.p;
@@ -274,6 +265,18 @@ struct Path {
     /// in scenes with coloured glass. Media do not nest: leaving any glass is leaving to clear
     /// air.
     medium: Vec3A,
+}
+
+/// Beer–Lambert over a segment of length `t` in the path's medium; one that never ends inside
+/// absorbs all of the channels that absorb at all. Out of line, as only coloured glass needs
+/// it.
+#[inline(never)]
+fn absorb(path: &mut Path, t: f32) {
+    path.beta *= Vec3A::new(
+        transmittance(path.medium.x, t),
+        transmittance(path.medium.y, t),
+        transmittance(path.medium.z, t),
+    );
 }
 
 /// e^(−σt), with a segment that never ends (t = ∞) absorbing wholly where σ > 0 and not at
@@ -440,7 +443,8 @@ fn visible_light(
 /// against the BSDF's own density under MIS, then a direction by visible normals with weight
 /// f·cos/pdf (= F·G/G1, see [`crate::bsdf::microfacet`]). `None` ends the path.
 #[allow(clippy::too_many_arguments)]
-#[inline(always)]
+// Out of line: the loop that diffuse, mirror and glass scenes run stays as small as it was.
+#[inline(never)]
 fn conductor(
     scene: &Scene,
     strategy: Strategy,
@@ -494,7 +498,8 @@ fn conductor(
 /// [`crate::bsdf::dielectric`]). Returns the next ray and whether it went through; `None` ends
 /// the path.
 #[allow(clippy::too_many_arguments)]
-#[inline(always)]
+// Out of line: the loop that diffuse, mirror and glass scenes run stays as small as it was.
+#[inline(never)]
 fn rough_dielectric(
     scene: &Scene,
     strategy: Strategy,
@@ -550,6 +555,33 @@ fn rough_dielectric(
         Ray::new(offset_ray_origin(sp.p, sp.err, side), wi),
         s.refracted,
     ))
+}
+
+/// A path's next ray off or through a thin sheet of glass of index `ior`: both faces at once,
+/// reflected with R' (see [`thin_reflectance`]) or straight on, unbent. `None` where the
+/// shading normal and the geometric one disagree.
+#[inline(never)]
+fn thin_dielectric(
+    ray: &Ray,
+    sp: &SurfacePoint,
+    at: &Shading,
+    ior: f32,
+    u_choice: f32,
+) -> Option<Ray> {
+    let (n, ns) = (at.n, at.ns);
+    let cos_i = ns.dot(-ray.d).min(1.0);
+    if at.shaded && !(cos_i > 0.0) {
+        return None;
+    }
+    let (wi, side) = if u_choice < thin_reflectance(cos_i, ior) {
+        (reflect(ray.d, ns), n)
+    } else {
+        (ray.d, -n)
+    };
+    if at.shaded && n.dot(wi) * side.dot(n) <= 0.0 {
+        return None;
+    }
+    Some(Ray::new(offset_ray_origin(sp.p, sp.err, side), wi))
 }
 
 /// A path's next ray through (or off) a smooth dielectric, and what its throughput is divided

@@ -241,7 +241,8 @@ impl Light {
     ///
     /// Inlined for quads, whose sample is a few operations: called, it cost the integrator a
     /// call and the reloads of a dozen spilled registers after it. Spheres stay a call.
-    #[inline]
+    /// Always: with the punctual lights' arm, LLVM stopped inlining it of its own accord.
+    #[inline(always)]
     fn sample(&self, p: Vec3A, u: Vec2) -> Option<(Vec3A, Vec3A, Vec3A, f32)> {
         match &self.shape {
             LightShape::Quad(q) => {
@@ -311,6 +312,20 @@ fn sample_sphere(
     let n = ((p64 - c64) + w64 * t).normalize().as_vec3a();
     let x = center + n * radius;
     Some((x, n, wi, 1.0 / (2.0 * PI * one_minus_cos)))
+}
+
+/// A punctual light's sample from `p`, selected with probability `pmf`. Out of line, so that
+/// [`Lights::sample`] stays small enough to inline into the integrator.
+#[inline(never)]
+fn delta_sample(light: &Light, p: Vec3A, pmf: f32) -> Option<LightSample> {
+    let (x, wi, le) = light.sample_delta(p)?;
+    Some(LightSample {
+        p: x,
+        wi,
+        le,
+        pdf: pmf,
+        delta: true,
+    })
 }
 
 /// Converts a uniform density 1/`area` at point `x` (normal `n`) into solid angle as seen from
@@ -392,14 +407,7 @@ impl Lights {
     pub fn sample_delta(&self, p: Vec3A, u_select: f32) -> Option<LightSample> {
         let (dist, index) = self.delta.as_ref()?;
         let k = dist.sample(u_select);
-        let (x, wi, le) = self.lights[index[k] as usize].sample_delta(p)?;
-        Some(LightSample {
-            p: x,
-            wi,
-            le,
-            pdf: dist.pmf(k),
-            delta: true,
-        })
+        delta_sample(&self.lights[index[k] as usize], p, dist.pmf(k))
     }
 
     /// Whether there is anything to sample.
@@ -414,21 +422,15 @@ impl Lights {
         self.select.as_ref().map_or(0.0, |d| d.pmf(0))
     }
 
-    /// Picks a light and a point on it as seen from `p`.
-    #[inline]
+    /// Picks a light and a point on it as seen from `p`. Always inlined, as it was before
+    /// punctual lights, whose case is a call: inlined, it costs the area lights nothing.
+    #[inline(always)]
     pub fn sample(&self, p: Vec3A, u_select: f32, u: Vec2) -> Option<LightSample> {
         let dist = self.select.as_ref()?;
         let i = dist.sample(u_select);
         let light = &self.lights[i];
         if light.is_delta() {
-            let (x, wi, le) = light.sample_delta(p)?;
-            return Some(LightSample {
-                p: x,
-                wi,
-                le,
-                pdf: dist.pmf(i),
-                delta: true,
-            });
+            return delta_sample(light, p, dist.pmf(i));
         }
         let (x, n, wi, pdf) = light.sample(p, u)?;
         let pdf = pdf * dist.pmf(i);

@@ -120,6 +120,60 @@ pub struct Conductor {
     pub fresnel: Fresnel,
 }
 
+/// A metal as a material stores it: 28 bytes of f32s, so that [`super::Bsdf`] stays the 32
+/// bytes it was before metals (a larger enum made every material larger and measurably slowed
+/// the scenes that have none). [`Metal::conductor`] unpacks it at the vertex.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Metal {
+    alpha: f32,
+    /// η, or F0 for Schlick's term.
+    a: [f32; 3],
+    /// k, or a negative first element (k is never negative) for Schlick's term.
+    b: [f32; 3],
+}
+
+impl Metal {
+    /// Packs `c`.
+    pub fn new(c: &Conductor) -> Self {
+        let alpha = c.distribution.alpha();
+        match c.fresnel {
+            Fresnel::Complex { eta, k } => Self {
+                alpha,
+                a: eta.into(),
+                b: k.into(),
+            },
+            Fresnel::Schlick(f0) => Self {
+                alpha,
+                a: f0.into(),
+                b: [-1.0; 3],
+            },
+        }
+    }
+
+    /// The conductor it packs.
+    #[inline]
+    pub fn conductor(&self) -> Conductor {
+        let fresnel = if self.b[0] < 0.0 {
+            Fresnel::Schlick(Vec3A::from(self.a))
+        } else {
+            Fresnel::Complex {
+                eta: Vec3A::from(self.a),
+                k: Vec3A::from(self.b),
+            }
+        };
+        Conductor {
+            distribution: TrowbridgeReitz::new(self.alpha),
+            fresnel,
+        }
+    }
+
+    /// Whether it is a mirror for all purposes.
+    #[inline]
+    pub fn is_smooth(&self) -> bool {
+        TrowbridgeReitz::new(self.alpha).is_smooth()
+    }
+}
+
 /// A direction drawn from a BSDF lobe.
 #[derive(Clone, Copy, Debug)]
 pub struct Sampled {

@@ -19,7 +19,7 @@ use super::{
 use crate::aggregate::Accel;
 use crate::bsdf::conductor::{metal, METALS};
 use crate::bsdf::microfacet::TrowbridgeReitz;
-use crate::bsdf::{Bsdf, Conductor, Fresnel, RoughDielectric};
+use crate::bsdf::{Bsdf, Conductor, Fresnel, Metal, RoughDielectric};
 use crate::camera::Camera;
 use crate::light::{Light, LightShape, Lights, MeshLight};
 use crate::mesh::load::{self, MeshFormat};
@@ -188,7 +188,7 @@ pub(super) fn build(
     let camera = build_camera(desc, w, h)?;
     let environment = build_environment(desc)?;
     let mut files = SceneFiles::default();
-    let (materials, names) = build_materials(desc, &mut files, limits, assets)?;
+    let (materials, absorption, names) = build_materials(desc, &mut files, limits, assets)?;
     if desc.objects.len() > limits.max_objects {
         return Err((
             root("objects"),
@@ -242,7 +242,11 @@ pub(super) fn build(
     let shading_normals = prims
         .iter()
         .any(|p| matches!(&p.shape, Shape::Mesh(m) if m.smooth && m.mesh.has_normals()));
-    let absorbing = materials.iter().any(|m| m.absorption != Vec3A::ZERO);
+    let absorption = if absorption.iter().any(|a| *a != Vec3A::ZERO) {
+        absorption
+    } else {
+        Vec::new()
+    };
     let scene = Scene {
         camera,
         width: w,
@@ -257,7 +261,7 @@ pub(super) fn build(
         textures,
         accel,
         shading_normals,
-        absorbing,
+        absorption,
     };
     Ok((scene, files.read))
 }
@@ -475,14 +479,18 @@ fn build_environment(desc: &SceneFile) -> Result<Option<Environment>, Invalid> {
     Ok(environment)
 }
 
+/// The materials, each one's absorption inside, and each one's index by name.
+type BuiltMaterials<'a> = (Vec<Material>, Vec<Vec3A>, BTreeMap<&'a str, u32>);
+
 /// The materials, and each one's index by name; textures are read through `files`.
 fn build_materials<'a>(
     desc: &'a SceneFile,
     files: &mut SceneFiles,
     limits: &Limits,
     assets: &dyn Assets,
-) -> Result<(Vec<Material>, BTreeMap<&'a str, u32>), Invalid> {
+) -> Result<BuiltMaterials<'a>, Invalid> {
     let mut materials = Vec::with_capacity(desc.materials.len());
+    let mut absorptions = Vec::with_capacity(desc.materials.len());
     let mut names = BTreeMap::new();
     for (name, m) in &desc.materials {
         let mp = root("materials").key(name);
@@ -540,7 +548,7 @@ fn build_materials<'a>(
                     &present,
                     &["roughness", "metal", "eta", "k", "f0"],
                 )?;
-                Bsdf::Conductor(conductor(m, &mp)?)
+                Bsdf::Conductor(Metal::new(&conductor(m, &mp)?))
             }
         };
         let emission = match m.emission {
@@ -553,20 +561,19 @@ fn build_materials<'a>(
                 "a dielectric has two sides by nature; `two_sided` does not apply".into(),
             ));
         }
-        let absorption = match m.absorption {
+        absorptions.push(match m.absorption {
             Some(a) => color(a, &mp.key("absorption"), false)?,
             None => Vec3A::ZERO,
-        };
+        });
         names.insert(name.as_str(), materials.len() as u32);
         materials.push(Material {
             bsdf,
             emission,
             two_sided: m.two_sided.unwrap_or(false),
             texture,
-            absorption,
         });
     }
-    Ok((materials, names))
+    Ok((materials, absorptions, names))
 }
 
 /// The scene's `[[lights]]`, appended to its emitting objects' lights. A directional light's

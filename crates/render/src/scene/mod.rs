@@ -137,8 +137,6 @@ pub struct Material {
     /// A texture whose texel replaces a diffuse albedo, as an index into
     /// [`Scene::textures`].
     pub texture: Option<u32>,
-    /// Absorption per unit length inside a dielectric (zero: clear).
-    pub absorption: Vec3A,
 }
 
 /// Light from infinitely far away.
@@ -197,7 +195,10 @@ pub struct Scene {
     pub textures: Vec<std::sync::Arc<crate::texture::Texture>>,
     accel: Accel,
     shading_normals: bool,
-    absorbing: bool,
+    /// Each material's absorption per unit length inside (zero: clear), kept apart from
+    /// [`Material`] so that the materials every bounce reads stay as small as they were; empty
+    /// when no material absorbs.
+    absorption: Vec<Vec3A>,
 }
 
 impl Scene {
@@ -307,7 +308,17 @@ impl Scene {
     /// medium they travel in.
     #[inline]
     pub fn has_absorption(&self) -> bool {
-        self.absorbing
+        !self.absorption.is_empty()
+    }
+
+    /// Material `index`'s absorption per unit length (zero where it is clear, and in every
+    /// scene without absorption).
+    #[inline]
+    pub fn absorption(&self, index: u32) -> Vec3A {
+        self.absorption
+            .get(index as usize)
+            .copied()
+            .unwrap_or(Vec3A::ZERO)
     }
 
     /// The scene's ray queries.
