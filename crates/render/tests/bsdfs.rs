@@ -344,3 +344,25 @@ fn rough_glass_at_grazing_and_under_total_internal_reflection_stays_finite() {
         }
     }
 }
+
+#[test]
+fn chi_square_with_failures_rejects_a_wrong_failure_share() {
+    // Guard against a harness that cannot fail: a cosine sampler that drops a tenth of its
+    // draws, against the cosine density that claims them all.
+    let result = std::panic::catch_unwind(|| {
+        common::chi2::chi_square_with_failures(
+            "lossy cosine",
+            1.0,
+            |rng| {
+                let u = u2(rng);
+                (rng.next_f32() >= 0.1)
+                    .then(|| tessera_render::sampling::square_to_cosine_hemisphere(u))
+            },
+            &|w| tessera_render::sampling::cosine_hemisphere_pdf(w.z) as f64,
+        )
+    });
+    assert!(
+        result.is_err(),
+        "the harness accepted a sampler that fails 10% of the time"
+    );
+}
