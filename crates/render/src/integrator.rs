@@ -93,7 +93,7 @@ fn trace(
     loop {
         let found = scene.intersect(&ray, f32::INFINITY);
         if absorbing && path.medium != Vec3A::ZERO {
-            absorb(&mut path, found.map_or(f32::INFINITY, |h| h.t));
+            path.beta *= absorbed(path.medium, found.map_or(f32::INFINITY, |h| h.t));
         }
         let Some(hit) = found else {
             if let Some(env) = &scene.environment {
@@ -169,17 +169,22 @@ fn trace(
             }
             Bsdf::Conductor(ref m) => {
                 let light_u = nee.then_some((u_select, Vec2::new(lx, ly)));
-                let Some(next) = conductor(
+                // A copy, updated and taken back even when the path ends here (its direct
+                // light counts).
+                let mut updated = path;
+                let next = conductor(
                     scene,
                     strategy,
-                    &mut path,
+                    &mut updated,
                     &m.conductor(),
                     wo,
                     &sp,
                     &at,
                     Vec2::new(u0, u1),
                     light_u,
-                ) else {
+                );
+                path = updated;
+                let Some(next) = next else {
                     break;
                 };
                 next
@@ -203,10 +208,11 @@ fn trace(
             Bsdf::RoughDielectric(ref rd) => {
                 let light_u = nee.then_some((u_select, Vec2::new(lx, ly)));
                 let eta = if front { rd.ior } else { 1.0 / rd.ior };
-                let Some((next, through)) = rough_dielectric(
+                let mut updated = path;
+                let next = rough_dielectric(
                     scene,
                     strategy,
-                    &mut path,
+                    &mut updated,
                     rd,
                     eta,
                     wo,
@@ -214,7 +220,9 @@ fn trace(
                     &at,
                     (Vec2::new(u0, u1), u_choice),
                     light_u,
-                ) else {
+                );
+                path = updated;
+                let Some((next, through)) = next else {
                     break;
                 };
                 if absorbing && through {
@@ -249,7 +257,11 @@ fn trace(
 }
 
 /// A path between vertices: what it has gathered, its throughput, and how it arrived at
-/// its last vertex (what weighs an emitter it finds next).
+/// its last vertex (what weighs an emitter it finds next). Copy, so that the out-of-line
+/// vertices (metal, rough and thin glass) get a copy to update: a `&mut` to the loop's own
+/// path would make its address escape, and keep it in memory rather than in registers for
+/// every other bounce.
+#[derive(Clone, Copy)]
 struct Path {
     l: Vec3A,
     beta: Vec3A,
@@ -267,16 +279,16 @@ struct Path {
     medium: Vec3A,
 }
 
-/// Beer–Lambert over a segment of length `t` in the path's medium; one that never ends inside
-/// absorbs all of the channels that absorb at all. Out of line, as only coloured glass needs
-/// it.
+/// Beer–Lambert's factor over a segment of length `t` in a medium absorbing `sigma` per unit;
+/// one that never ends inside absorbs all of the channels that absorb at all. Out of line, as
+/// only coloured glass needs it.
 #[inline(never)]
-fn absorb(path: &mut Path, t: f32) {
-    path.beta *= Vec3A::new(
-        transmittance(path.medium.x, t),
-        transmittance(path.medium.y, t),
-        transmittance(path.medium.z, t),
-    );
+fn absorbed(sigma: Vec3A, t: f32) -> Vec3A {
+    Vec3A::new(
+        transmittance(sigma.x, t),
+        transmittance(sigma.y, t),
+        transmittance(sigma.z, t),
+    )
 }
 
 /// e^(−σt), with a segment that never ends (t = ∞) absorbing wholly where σ > 0 and not at
