@@ -12,14 +12,13 @@ use super::check::{
     build_transform, color, finite, finite3, only, positive, required, root, similarity_scale,
     Invalid,
 };
+use super::lights::punctual_lights;
+use super::materials::build_materials;
 use super::{
-    AlbedoDesc, CameraModel, Environment, EnvironmentKind, KeyPath, LightKind, Limits, Material,
-    MaterialDesc, MaterialKind, ObjectDesc, Primitive, Scene, SceneFile, ShapeKind,
+    CameraModel, Environment, EnvironmentKind, KeyPath, Limits, Material, ObjectDesc, Primitive,
+    Scene, SceneFile, ShapeKind,
 };
 use crate::aggregate::Accel;
-use crate::bsdf::conductor::{metal, METALS};
-use crate::bsdf::microfacet::TrowbridgeReitz;
-use crate::bsdf::{Bsdf, Conductor, Fresnel, Metal, RoughDielectric};
 use crate::camera::Camera;
 use crate::light::{Light, LightShape, Lights, MeshLight};
 use crate::mesh::load::{self, MeshFormat};
@@ -33,7 +32,7 @@ type MeshGroups = Vec<(Option<String>, Arc<TriMesh>)>;
 /// The files a scene has read (meshes and textures): each once, however many objects or
 /// materials name it.
 #[derive(Default)]
-struct SceneFiles {
+pub(super) struct SceneFiles {
     /// By file name: each material group's name and mesh.
     files: BTreeMap<String, MeshGroups>,
     /// Textures by file name, as indices into `pending_textures` (and, once decoded, the
@@ -86,7 +85,7 @@ impl SceneFiles {
     }
 
     /// The texture of file `name`, read and decoded once.
-    fn texture(
+    pub(super) fn texture(
         &mut self,
         name: &str,
         path: &KeyPath,
@@ -477,311 +476,6 @@ fn build_environment(desc: &SceneFile) -> Result<Option<Environment>, Invalid> {
         }
     };
     Ok(environment)
-}
-
-/// The materials, each one's absorption inside, and each one's index by name.
-type BuiltMaterials<'a> = (Vec<Material>, Vec<Vec3A>, BTreeMap<&'a str, u32>);
-
-/// The materials, and each one's index by name; textures are read through `files`.
-fn build_materials<'a>(
-    desc: &'a SceneFile,
-    files: &mut SceneFiles,
-    limits: &Limits,
-    assets: &dyn Assets,
-) -> Result<BuiltMaterials<'a>, Invalid> {
-    let mut materials = Vec::with_capacity(desc.materials.len());
-    let mut absorptions = Vec::with_capacity(desc.materials.len());
-    let mut names = BTreeMap::new();
-    for (name, m) in &desc.materials {
-        let mp = root("materials").key(name);
-        let present = [
-            ("albedo", m.albedo.is_some()),
-            ("reflectance", m.reflectance.is_some()),
-            ("ior", m.ior.is_some()),
-            ("roughness", m.roughness.is_some()),
-            ("metal", m.metal.is_some()),
-            ("eta", m.eta.is_some()),
-            ("k", m.k.is_some()),
-            ("f0", m.f0.is_some()),
-            ("thin", m.thin.is_some()),
-            ("absorption", m.absorption.is_some()),
-        ];
-        let mut texture = None;
-        let bsdf = match m.kind {
-            MaterialKind::Diffuse => {
-                only(&mp, "a diffuse material", &present, &["albedo"])?;
-                let a = required(m.albedo.as_ref(), &mp, "a diffuse material", "albedo")?;
-                match a {
-                    AlbedoDesc::Color(c) => Bsdf::Diffuse(color(*c, &mp.key("albedo"), true)?),
-                    AlbedoDesc::Texture(file) => {
-                        let path = mp.key("albedo").key("texture");
-                        texture = Some(files.texture(file, &path, limits, assets)?);
-                        // The texel replaces it at each hit; this is what NEE-free code
-                        // paths and tests see.
-                        Bsdf::Diffuse(Vec3A::splat(0.5))
-                    }
-                }
-            }
-            MaterialKind::Mirror => {
-                only(&mp, "a mirror material", &present, &["reflectance"])?;
-                Bsdf::Mirror(color(
-                    m.reflectance.unwrap_or([1.0; 3]),
-                    &mp.key("reflectance"),
-                    true,
-                )?)
-            }
-            MaterialKind::Dielectric => {
-                let kind = "a dielectric material";
-                only(
-                    &mp,
-                    kind,
-                    &present,
-                    &["ior", "roughness", "thin", "absorption"],
-                )?;
-                dielectric(m, &mp)?
-            }
-            MaterialKind::Conductor => {
-                let kind = "a conductor material";
-                only(
-                    &mp,
-                    kind,
-                    &present,
-                    &["roughness", "metal", "eta", "k", "f0"],
-                )?;
-                Bsdf::Conductor(Metal::new(&conductor(m, &mp)?))
-            }
-        };
-        let emission = match m.emission {
-            Some(e) => color(e, &mp.key("emission"), false)?,
-            None => Vec3A::ZERO,
-        };
-        if m.two_sided.is_some() && m.kind == MaterialKind::Dielectric && m.emission.is_none() {
-            return Err((
-                mp.key("two_sided"),
-                "a dielectric has two sides by nature; `two_sided` does not apply".into(),
-            ));
-        }
-        absorptions.push(match m.absorption {
-            Some(a) => color(a, &mp.key("absorption"), false)?,
-            None => Vec3A::ZERO,
-        });
-        names.insert(name.as_str(), materials.len() as u32);
-        materials.push(Material {
-            bsdf,
-            emission,
-            two_sided: m.two_sided.unwrap_or(false),
-            texture,
-        });
-    }
-    Ok((materials, absorptions, names))
-}
-
-/// The scene's `[[lights]]`, appended to its emitting objects' lights. A directional light's
-/// reach is the radius of a sphere about the origin holding every finite object.
-fn punctual_lights(
-    desc: &SceneFile,
-    prims: &[Primitive],
-    lights: &mut Vec<Light>,
-) -> Result<(), Invalid> {
-    let reach = prims
-        .iter()
-        .map(|p| p.shape.bounds())
-        .filter(|b| b.min.is_finite() && b.max.is_finite())
-        .map(|b| b.min.length().max(b.max.length()))
-        .fold(1.0f32, f32::max);
-    for (i, l) in desc.lights.iter().enumerate() {
-        let lp = root("lights").index(i);
-        let present = [
-            ("position", l.position.is_some()),
-            ("direction", l.direction.is_some()),
-            ("intensity", l.intensity.is_some()),
-            ("irradiance", l.irradiance.is_some()),
-            ("inner_angle", l.inner_angle.is_some()),
-            ("outer_angle", l.outer_angle.is_some()),
-        ];
-        let power = |v: Option<[f32; 3]>, kind: &str, key: &str| -> Result<Vec3A, Invalid> {
-            let c = color(required(v, &lp, kind, key)?, &lp.key(key), false)?;
-            if c == Vec3A::ZERO {
-                return Err((
-                    lp.key(key),
-                    "a light must emit something; all three are 0".into(),
-                ));
-            }
-            Ok(c)
-        };
-        let direction = |kind: &str| -> Result<Vec3A, Invalid> {
-            let d = finite3(
-                required(l.direction, &lp, kind, "direction")?,
-                &lp.key("direction"),
-            )?;
-            d.try_normalize()
-                .ok_or_else(|| (lp.key("direction"), "must not be zero".to_string()))
-        };
-        let position = |kind: &str| -> Result<Vec3A, Invalid> {
-            finite3(
-                required(l.position, &lp, kind, "position")?,
-                &lp.key("position"),
-            )
-        };
-        let (shape, radiance) = match l.kind {
-            LightKind::Point => {
-                let kind = "a point light";
-                only(&lp, kind, &present, &["position", "intensity"])?;
-                let position = position(kind)?;
-                (
-                    LightShape::Point { position },
-                    power(l.intensity, kind, "intensity")?,
-                )
-            }
-            LightKind::Spot => {
-                let kind = "a spot light";
-                only(
-                    &lp,
-                    kind,
-                    &present,
-                    &[
-                        "position",
-                        "direction",
-                        "intensity",
-                        "inner_angle",
-                        "outer_angle",
-                    ],
-                )?;
-                let inner = l.inner_angle.unwrap_or(0.0);
-                let outer = l.outer_angle.unwrap_or(45.0);
-                if !(0.0..90.0).contains(&inner) {
-                    return Err((
-                        lp.key("inner_angle"),
-                        format!("must be at least 0 and under 90 degrees, got {inner}"),
-                    ));
-                }
-                if !(outer > inner && outer <= 90.0) {
-                    return Err((
-                        lp.key("outer_angle"),
-                        format!(
-                            "must be greater than inner_angle ({inner}) and at most 90 degrees, \
-                             got {outer}"
-                        ),
-                    ));
-                }
-                // In f64, rounded once, as for rotations: every worker gets the same bits.
-                let cos = |deg: f32| f64::from(deg).to_radians().cos() as f32;
-                let shape = LightShape::Spot {
-                    position: position(kind)?,
-                    axis: direction(kind)?,
-                    cos_inner: cos(inner),
-                    cos_outer: cos(outer),
-                };
-                (shape, power(l.intensity, kind, "intensity")?)
-            }
-            LightKind::Directional => {
-                let kind = "a directional light";
-                only(&lp, kind, &present, &["direction", "irradiance"])?;
-                let towards = -direction(kind)?;
-                (
-                    LightShape::Directional { towards, reach },
-                    power(l.irradiance, kind, "irradiance")?,
-                )
-            }
-        };
-        lights.push(Light {
-            shape,
-            radiance,
-            two_sided: false,
-        });
-    }
-    Ok(())
-}
-
-/// Glass: smooth, rough, or a thin sheet (smooth only, and with no inside to absorb in).
-/// Roughness under the mirror threshold, or an index of 1 (no interface to scatter at), is
-/// the smooth dielectric, bit for bit.
-fn dielectric(m: &MaterialDesc, mp: &KeyPath) -> Result<Bsdf, Invalid> {
-    let ior = required(m.ior, mp, "a dielectric material", "ior")?;
-    let ior = positive(ior, &mp.key("ior"))?;
-    let roughness = match m.roughness {
-        None => 0.0,
-        Some(r) => unit(r, &mp.key("roughness"))?,
-    };
-    let distribution = TrowbridgeReitz::from_roughness(roughness);
-    if m.thin == Some(true) {
-        if roughness > 0.0 {
-            return Err((
-                mp.key("roughness"),
-                "a thin dielectric is smooth: rough thin sheets are not modelled".into(),
-            ));
-        }
-        if m.absorption.is_some() {
-            return Err((
-                mp.key("absorption"),
-                "a thin dielectric has no inside to absorb in".into(),
-            ));
-        }
-        return Ok(Bsdf::ThinDielectric(ior));
-    }
-    if distribution.is_smooth() || ior == 1.0 {
-        return Ok(Bsdf::Dielectric(ior));
-    }
-    Ok(Bsdf::RoughDielectric(RoughDielectric { distribution, ior }))
-}
-
-/// A conductor's distribution and Fresnel term: exactly one of `metal`, `eta` with `k`, or
-/// `f0`.
-fn conductor(m: &MaterialDesc, mp: &KeyPath) -> Result<Conductor, Invalid> {
-    let roughness = match m.roughness {
-        None => 0.0,
-        Some(r) => unit(r, &mp.key("roughness"))?,
-    };
-    let given = [
-        m.metal.is_some(),
-        m.eta.is_some() || m.k.is_some(),
-        m.f0.is_some(),
-    ];
-    if given.iter().filter(|g| **g).count() != 1 {
-        return Err((
-            mp.clone(),
-            "a conductor needs exactly one of `metal` (a name), `eta` with `k` (a complex \
-             index of refraction), or `f0` (its colour at normal incidence)"
-                .into(),
-        ));
-    }
-    let fresnel = if let Some(name) = &m.metal {
-        let (eta, k) = metal(name).ok_or_else(|| {
-            let known: Vec<&str> = METALS.iter().map(|(n, _, _)| *n).collect();
-            (
-                mp.key("metal"),
-                format!("unknown metal {name:?}; known: {}", known.join(", ")),
-            )
-        })?;
-        Fresnel::Complex { eta, k }
-    } else if let Some(f0) = m.f0 {
-        Fresnel::Schlick(color(f0, &mp.key("f0"), true)?)
-    } else {
-        let eta = required(m.eta, mp, "a conductor given `k`", "eta")?;
-        let k = required(m.k, mp, "a conductor given `eta`", "k")?;
-        let eta_p = mp.key("eta");
-        let eta = finite3(eta, &eta_p)?;
-        if !(eta.min_element() > 0.0) {
-            return Err((eta_p, format!("must be greater than 0, got {:?}", m.eta)));
-        }
-        Fresnel::Complex {
-            eta,
-            k: color(k, &mp.key("k"), false)?,
-        }
-    };
-    Ok(Conductor {
-        distribution: TrowbridgeReitz::from_roughness(roughness),
-        fresnel,
-    })
-}
-
-/// A number in [0, 1].
-fn unit(x: f32, path: &KeyPath) -> Result<f32, Invalid> {
-    if (0.0..=1.0).contains(&x) {
-        Ok(x)
-    } else {
-        Err((path.clone(), format!("must be between 0 and 1, got {x}")))
-    }
 }
 
 /// Which of the keys that belong to some shapes only an object gives, for [`only`].

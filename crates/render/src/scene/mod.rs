@@ -11,7 +11,9 @@ mod build;
 mod check;
 mod format;
 mod frames;
+mod lights;
 mod locate;
+mod materials;
 mod parse;
 
 use build::build;
