@@ -8,7 +8,8 @@
 #
 # BATCH=B passes --batch B to both (default: the unit rule's batch); CHECKPOINT=S passes
 # --checkpoint-interval S to the coordinator; TILE=N --tile-size N to the farm job; OUT=FILE
-# names the report.
+# names the report; TESSERA=BINARY uses that build instead of building one (a machine
+# without cargo).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 SCENE=${1:-scenes/cornell-box.toml}
@@ -19,8 +20,10 @@ BATCH=${BATCH:-}
 CHECKPOINT=${CHECKPOINT:-}
 OUT=${OUT:-docs/benchmarks/farm-overhead-${SPP}spp${TILE:+-tile$TILE}${BATCH:+-batch$BATCH}${CHECKPOINT:+-checkpoint$CHECKPOINT}.md}
 THREADS=$(nproc)
-cargo build --release -q -p tessera-cli
-T=$PWD/target/release/tessera
+if [ -n "${TESSERA:-}" ]; then T=$(realpath "$TESSERA"); else
+  cargo build --release -q -p tessera-cli
+  T=$PWD/target/release/tessera
+fi
 WORK=$(mktemp -d)
 trap 'kill $(jobs -p) 2>/dev/null || true; rm -rf "$WORK"' EXIT
 TICK=$(getconf CLK_TCK)

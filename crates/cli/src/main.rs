@@ -124,6 +124,7 @@ fn without_bench(command: &str, args: &[String]) -> anyhow::Result<()> {
 /// which returns freed memory from its arenas only at their top (docs/farm.md, "Memory").
 /// Built without transparent huge pages (the workspace's `no_thp` feature): each fresh huge
 /// page is zeroed whole, which was most of a coordinator's CPU time on small jobs.
+#[cfg(feature = "mimalloc")]
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
