@@ -10,6 +10,9 @@ These scenes have exact Mitsuba counterparts, built here as dictionaries:
 - metals-box: scenes/metals-box.toml, the box with a gold and an aluminium ball of GGX
   roughness alpha 0.09 (`roughconductor`, RGB eta and k; its masking term is the separable
   G1(o)G1(i), tessera's the height-correlated one: docs/renderer.md, "Metals");
+- envmap-balls: scenes/envmap-balls.toml, three balls (diffuse, `roughconductor` gold,
+  `roughdielectric` glass, GGX alpha 0.09) on a ground square under `envmap` of
+  scenes/textures/sky.exr (bench/make_sky.py), turned 30 degrees about +y;
 - mesh-million: bench/make_million.py's million triangles in the box, and
   mesh-million-analytic, the same with an analytic sphere in the mesh's place.
 All use a box filter and the unbiased path tracer (max_depth = -1).
@@ -51,7 +54,8 @@ import time
 import numpy as np
 
 
-SCENES = ("cornell-box", "glass-mirror", "mesh-glass", "metals-box", "mesh-million", "mesh-million-analytic")
+SCENES = ("cornell-box", "glass-mirror", "mesh-glass", "metals-box", "envmap-balls", "mesh-million",
+          "mesh-million-analytic")
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 MESHES = os.path.join(HERE, "..", "scenes", "meshes")
@@ -108,9 +112,42 @@ def mesh_glass(mi, d):
                        "bsdf": {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0}}
 
 
+def envmap_balls(mi):
+    """scenes/envmap-balls.toml: its own camera, no box."""
+    T = mi.ScalarTransform4f
+
+    def rgb(v):
+        return {"type": "rgb", "value": v}
+
+    def ball(center, bsdf):
+        return {"type": "sphere", "center": center, "radius": 0.45, "bsdf": bsdf}
+
+    return {
+        "type": "scene",
+        "sensor": {"type": "perspective", "fov": 40.0,
+                   "to_world": T().look_at(origin=[0.0, 0.6, 4.0], target=[0.0, -0.45, 0.0],
+                                           up=[0.0, 1.0, 0.0]),
+                   "film": {"type": "hdrfilm"}},
+        "sky": {"type": "envmap", "filename": os.path.join(HERE, "..", "scenes", "textures", "sky.exr"),
+                "to_world": T().rotate([0, 1, 0], 30.0)},
+        "ground": {"type": "rectangle",
+                   "to_world": T([[10, 0, 0, 0], [0, 0, 10, -1], [0, -10, 0, 0], [0, 0, 0, 1]]),
+                   "bsdf": {"type": "diffuse", "reflectance": rgb([0.5, 0.5, 0.5])}},
+        "white": ball([-1.05, -0.55, 0.0], {"type": "diffuse", "reflectance": rgb([0.8, 0.8, 0.8])}),
+        # crates/render/src/bsdf/conductor.rs's "gold".
+        "gold": ball([0.0, -0.55, 0.35],
+                     {"type": "roughconductor", "distribution": "ggx", "alpha": 0.09,
+                      "eta": rgb([0.18299, 0.42108, 1.3734]), "k": rgb([3.4242, 2.3459, 1.7704])}),
+        # tessera's outside is vacuum; Mitsuba's default ext_ior is air (1.000277).
+        "frosted": ball([1.05, -0.55, 0.0],
+                        {"type": "roughdielectric", "distribution": "ggx", "alpha": 0.09,
+                         "int_ior": 1.5, "ext_ior": 1.0}),
+    }
+
+
 def scene_dict(mi, name, size):
     """The Mitsuba scene dictionary of `name` at `size`x`size` pixels."""
-    d = mi.cornell_box()
+    d = envmap_balls(mi) if name == "envmap-balls" else mi.cornell_box()
     if name == "glass-mirror":
         # scenes/glass-mirror.toml: the box, lit as before, with two balls for the cuboids.
         del d["small-box"], d["large-box"]
@@ -152,7 +189,7 @@ def scene_dict(mi, name, size):
         del d["small-box"], d["large-box"]
         d["sphere"] = {"type": "sphere", "center": [0, -0.5, 0], "radius": 0.45,
                        "bsdf": {"type": "ref", "id": "white"}}
-    elif name != "cornell-box":
+    elif name not in ("cornell-box", "envmap-balls"):
         raise SystemExit(f"no Mitsuba counterpart for scene {name!r}; known: {SCENES}")
     d["sensor"]["film"].update(width=size, height=size, rfilter={"type": "box"})
     d["sensor"]["sampler"] = {"type": "independent", "sample_count": 4}

@@ -15,9 +15,10 @@ use crate::bsdf::dielectric::thin_reflectance;
 use crate::bsdf::{
     fresnel_dielectric, reflect, refract, sample_diffuse, Bsdf, Conductor, RoughDielectric,
 };
+use crate::envmap::EnvMap;
 use crate::interaction::SurfacePoint;
 use crate::light::LightSample;
-use crate::scene::Scene;
+use crate::scene::{Environment, Scene};
 pub use crate::settings::{
     unit_batch, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_TILE, DEFAULT_UNIT_SAMPLES,
     MIN_UNITS_PER_FRAME, TILE_RANGE, UNIT_SAMPLES_RANGE,
@@ -96,8 +97,12 @@ fn trace(
             path.beta *= absorbed(path.medium, found.map_or(f32::INFINITY, |h| h.t));
         }
         let Some(hit) = found else {
-            if let Some(env) = &scene.environment {
-                path.l += path.beta * env.radiance(ray.d);
+            match &scene.environment {
+                None => {}
+                Some(Environment::Map { map, light }) => {
+                    add_environment(&mut path, scene, strategy, map, *light, ray.d);
+                }
+                Some(env) => path.l += path.beta * env.radiance(ray.d),
             }
             break;
         };
@@ -351,6 +356,30 @@ fn add_emitted(
         }
         Strategy::Nee => {}
     }
+}
+
+/// What an environment map (light `light`) gives a path that escapes along `d`: weighted
+/// against light sampling as an emitter hit by a BSDF-sampled ray is ([`add_emitted`]). Out
+/// of line: only scenes with a map reach it.
+#[inline(never)]
+fn add_environment(
+    path: &mut Path,
+    scene: &Scene,
+    strategy: Strategy,
+    map: &EnvMap,
+    light: u32,
+    d: Vec3A,
+) {
+    let w = match strategy {
+        _ if path.specular => 1.0,
+        Strategy::Bsdf => 1.0,
+        Strategy::Mis => {
+            let light_pdf = scene.lights.selection(light as usize) * map.pdf(d);
+            power_heuristic(path.prev_pdf, light_pdf)
+        }
+        Strategy::Nee => return,
+    };
+    path.l += path.beta * map.radiance(d) * w;
 }
 
 /// A diffuse vertex of albedo `albedo`: direct light by next-event estimation (when

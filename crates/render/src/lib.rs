@@ -20,7 +20,7 @@
 //!   lanes).
 //! - Geometry: [`mesh`] and [`shape`]; [`primitive`] (a shape with its material and lights);
 //!   [`aggregate`] (the scene's ray queries: a BVH whose leaves test quads four at a time).
-//! - Appearance and light: [`texture`], [`bsdf`], [`light`], [`camera`].
+//! - Appearance and light: [`texture`], [`bsdf`], [`envmap`], [`light`], [`camera`].
 //! - [`scene`] (file format, parsing, validation, the runtime scene).
 //! - Rendering: [`integrator`], [`wide`] (the integrator four to sixteen paths at a time, for
 //!   the scenes whose bounce it models, with the same bits), [`adaptive`] (noise-targeted
@@ -40,6 +40,7 @@ pub mod adaptive;
 pub mod aggregate;
 pub mod bsdf;
 pub mod camera;
+pub mod envmap;
 pub mod film;
 pub mod integrator;
 pub mod interaction;

@@ -7,7 +7,11 @@
 
 use std::f32::consts::PI;
 
+use std::sync::Arc;
+
 use glam::{Vec2, Vec3A};
+
+use crate::envmap::EnvMap;
 
 use crate::shape::{sphere_point_error, sphere_roots, sphere_roots_f64, Parallelogram};
 use crate::util::math::{offset_ray_origin, Frame};
@@ -53,6 +57,15 @@ pub enum LightShape {
         towards: Vec3A,
         /// The radius of a sphere around the scene's finite objects, which a shadow ray must
         /// leave to reach the light, and whose disk the light's power falls on.
+        reach: f32,
+    },
+    /// An environment map: light from every direction, infinitely far away, sampled by the
+    /// map's own distribution ([`EnvMap::sample`]). No ray hits it as a surface: a ray that
+    /// escapes the scene reads it ([`crate::scene::Environment`]).
+    Environment {
+        /// The map.
+        map: Arc<EnvMap>,
+        /// As for [`LightShape::Directional`].
         reach: f32,
     },
 }
@@ -169,6 +182,9 @@ impl Light {
                 ..
             } => return 2.0 * PI * (1.0 - 0.5 * (cos_inner + cos_outer)) * sum,
             LightShape::Directional { reach, .. } => return PI * reach * reach * sum,
+            // Radiance over the sphere through the scene's cross-section, as a directional
+            // light's irradiance is.
+            LightShape::Environment { map, reach } => return reach * reach * map.power(),
         };
         let sides = if self.two_sided { 2.0 } else { 1.0 };
         area * sides * (self.radiance.x + self.radiance.y + self.radiance.z)
@@ -182,6 +198,16 @@ impl Light {
         } else {
             Vec3A::ZERO
         }
+    }
+
+    /// Whether it has a surface a ray can hit (quad, sphere, mesh): what [`Lights::sample`]
+    /// samples inline.
+    #[inline]
+    fn is_area(&self) -> bool {
+        matches!(
+            self.shape,
+            LightShape::Quad(_) | LightShape::Sphere { .. } | LightShape::Mesh(_)
+        )
     }
 
     /// Whether it is punctual (no surface).
@@ -314,9 +340,30 @@ fn sample_sphere(
     Some((x, n, wi, 1.0 / (2.0 * PI * one_minus_cos)))
 }
 
-/// A punctual light's sample from `p`, selected with probability `pmf`. Out of line, so that
-/// [`Lights::sample`] stays small enough to inline into the integrator.
+/// A sample of a light without a surface (punctual, or an environment map) from `p`, selected
+/// with probability `pmf`. Out of line, so that [`Lights::sample`] stays small enough to inline
+/// into the integrator.
 #[inline(never)]
+fn surfaceless_sample(light: &Light, p: Vec3A, u: Vec2, pmf: f32) -> Option<LightSample> {
+    let LightShape::Environment { map, reach } = &light.shape else {
+        return delta_sample(light, p, pmf);
+    };
+    let (wi, pdf) = map.sample(u)?;
+    let pdf = pdf * pmf;
+    if !positive_finite(pdf) {
+        return None;
+    }
+    Some(LightSample {
+        // Past the sphere of the scene's finite objects, as for a directional light.
+        p: p + wi * (2.0 * reach + p.length()),
+        wi,
+        le: map.radiance(wi),
+        pdf,
+        delta: false,
+    })
+}
+
+/// A punctual light's sample from `p`, selected with probability `pmf`.
 fn delta_sample(light: &Light, p: Vec3A, pmf: f32) -> Option<LightSample> {
     let (x, wi, le) = light.sample_delta(p)?;
     Some(LightSample {
@@ -429,8 +476,8 @@ impl Lights {
         let dist = self.select.as_ref()?;
         let i = dist.sample(u_select);
         let light = &self.lights[i];
-        if light.is_delta() {
-            return delta_sample(light, p, dist.pmf(i));
+        if !light.is_area() {
+            return surfaceless_sample(light, p, u, dist.pmf(i));
         }
         let (x, n, wi, pdf) = light.sample(p, u)?;
         let pdf = pdf * dist.pmf(i);
@@ -476,6 +523,10 @@ impl Lights {
                     }
                     None
                 }
+                LightShape::Environment { map, .. } => {
+                    total += d.pmf(i) * map.pdf(w);
+                    None
+                }
                 _ => None,
             };
             if let Some((x, n)) = hit {
@@ -483,6 +534,13 @@ impl Lights {
             }
         }
         total
+    }
+
+    /// The probability with which [`Lights::sample`] selects light `index` (0 where there is
+    /// no light).
+    #[inline]
+    pub fn selection(&self, index: usize) -> f32 {
+        self.select.as_ref().map_or(0.0, |d| d.pmf(index))
     }
 
     /// Density (solid angle, selection included) with which [`Lights::sample`] from `p` would

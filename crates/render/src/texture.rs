@@ -1,8 +1,9 @@
-//! Image textures: a diffuse material's albedo read from a PNG, JPEG or EXR file, looked up
-//! at a mesh's texture coordinates with bilinear filtering.
+//! Image textures: a diffuse material's albedo read from a PNG, JPEG, EXR or Radiance .hdr
+//! file, looked up at a mesh's texture coordinates with bilinear filtering; and the decoding of
+//! those formats to linear RGB that environment maps share ([`decode_linear`]).
 //!
 //! 8-bit and 16-bit images hold display-encoded (sRGB) values and are decoded to linear once,
-//! at load; EXR files hold linear values already. Texels are clamped to [0, 1]: an albedo above
+//! at load; EXR and .hdr files hold linear values already. Texels are clamped to [0, 1]: an albedo above
 //! 1 would create energy. Coordinates wrap (repeat), and v runs up the image, as in OBJ files.
 
 use std::io::Cursor;
@@ -26,6 +27,8 @@ pub enum ImageFormat {
     Jpeg,
     /// OpenEXR.
     Exr,
+    /// Radiance RGBE (.hdr).
+    Hdr,
 }
 
 impl ImageFormat {
@@ -36,6 +39,7 @@ impl ImageFormat {
             "png" => Some(Self::Png),
             "jpg" | "jpeg" => Some(Self::Jpeg),
             "exr" => Some(Self::Exr),
+            "hdr" => Some(Self::Hdr),
             _ => None,
         }
     }
@@ -58,17 +62,9 @@ impl Texture {
     /// before any pixel is decoded, so neither a small file that declares a huge image nor
     /// many parses at once can take more memory than the budget.
     pub fn decode(bytes: &[u8], format: ImageFormat, max_texels: u64) -> Result<Self, String> {
-        let (w, h) = probe(bytes, format)?;
-        check_size(w, h, max_texels)?;
-        let _reserved = DecodeBudget::global().reserve(decode_bytes(w, h))?;
-        let (width, height, texels) = match format {
-            ImageFormat::Png | ImageFormat::Jpeg => decode_8_16(bytes, format, max_texels)?,
-            ImageFormat::Exr => decode_exr(bytes, max_texels)?,
-        };
-        if (width as u64, height as u64) != (w, h) {
-            return Err(format!(
-                "the header says {w}×{h} texels, the image holds {width}×{height}"
-            ));
+        let (width, height, mut texels) = decode_linear(bytes, format, max_texels)?;
+        for t in &mut texels {
+            *t = albedo((*t).into());
         }
         Ok(Self {
             width,
@@ -118,16 +114,38 @@ impl Texture {
     }
 }
 
+/// Decodes `bytes` as `format` to linear RGB, row 0 at the top, values as the file holds them
+/// (an EXR's or .hdr's may be above 1, or NaN: the caller decides what it accepts), within the
+/// same limits and decode budget as [`Texture::decode`]. The error is one line.
+pub fn decode_linear(
+    bytes: &[u8],
+    format: ImageFormat,
+    max_texels: u64,
+) -> Result<(usize, usize, Vec<Vec3A>), String> {
+    let (w, h) = probe(bytes, format)?;
+    check_size(w, h, max_texels)?;
+    let _reserved = DecodeBudget::global().reserve(decode_bytes(w, h))?;
+    let (width, height, texels) = match format {
+        ImageFormat::Png | ImageFormat::Jpeg | ImageFormat::Hdr => {
+            decode_8_16(bytes, format, max_texels)?
+        }
+        ImageFormat::Exr => decode_exr(bytes, max_texels)?,
+    };
+    if (width as u64, height as u64) != (w, h) {
+        return Err(format!(
+            "the header says {w}×{h} texels, the image holds {width}×{height}"
+        ));
+    }
+    Ok((width, height, texels))
+}
+
 /// The size an image's header declares, read without decoding any pixel: what every check that
 /// needs no pixels (the texel limit, the decode budget) is decided from. An image of no texels
 /// is refused here.
 pub fn probe(bytes: &[u8], format: ImageFormat) -> Result<(u64, u64), String> {
     let (w, h) = match format {
-        ImageFormat::Png | ImageFormat::Jpeg => {
-            let format = match format {
-                ImageFormat::Png => image::ImageFormat::Png,
-                _ => image::ImageFormat::Jpeg,
-            };
+        ImageFormat::Png | ImageFormat::Jpeg | ImageFormat::Hdr => {
+            let format = image_format(format);
             let (w, h) = image::ImageReader::with_format(Cursor::new(bytes), format)
                 .into_dimensions()
                 .map_err(|e| format!("not a readable image: {e}"))?;
@@ -160,7 +178,8 @@ pub fn probe(bytes: &[u8], format: ImageFormat) -> Result<(u64, u64), String> {
 /// The most memory decoding a `w` × `h` image takes at once: the decoder's buffer (at most 4
 /// channels of 16 bits) and the texels it is converted into.
 pub fn decode_bytes(w: u64, h: u64) -> u64 {
-    const DECODER: u64 = 8;
+    // Four channels of 16 bits, or three f32s (a Radiance .hdr's decoded buffer).
+    const DECODER: u64 = 12;
     let texel = std::mem::size_of::<Vec3A>() as u64;
     w.saturating_mul(h).saturating_mul(DECODER + texel)
 }
@@ -267,11 +286,19 @@ fn check_size(width: u64, height: u64, max_texels: u64) -> Result<(), String> {
     Ok(())
 }
 
-fn decode_8_16(bytes: &[u8], format: ImageFormat, max_texels: u64) -> Result<Decoded, String> {
-    let format = match format {
+/// The `image` crate's name for a format it decodes.
+fn image_format(format: ImageFormat) -> image::ImageFormat {
+    match format {
         ImageFormat::Png => image::ImageFormat::Png,
+        ImageFormat::Hdr => image::ImageFormat::Hdr,
         _ => image::ImageFormat::Jpeg,
-    };
+    }
+}
+
+/// PNG and JPEG (8 or 16 bits, sRGB-encoded, decoded to linear) and Radiance .hdr (linear
+/// floats already).
+fn decode_8_16(bytes: &[u8], format: ImageFormat, max_texels: u64) -> Result<Decoded, String> {
+    let format = image_format(format);
     let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format);
     let mut limits = image::Limits::default();
     limits.max_alloc = Some(max_texels.saturating_mul(16));
@@ -294,7 +321,7 @@ fn decode_8_16(bytes: &[u8], format: ImageFormat, max_texels: u64) -> Result<Dec
             .chunks_exact(channels)
             .map(|p| {
                 let c = |i: usize| table[p[i].into()];
-                albedo(if channels < 3 {
+                Vec3A::from(if channels < 3 {
                     [c(0); 3]
                 } else {
                     [c(0), c(1), c(2)]
@@ -312,6 +339,11 @@ fn decode_8_16(bytes: &[u8], format: ImageFormat, max_texels: u64) -> Result<Dec
         D::ImageLumaA16(i) => convert(i.as_raw(), 2, &table(65535)),
         D::ImageRgb16(i) => convert(i.as_raw(), 3, &table(65535)),
         D::ImageRgba16(i) => convert(i.as_raw(), 4, &table(65535)),
+        D::ImageRgb32F(i) => i
+            .as_raw()
+            .chunks_exact(3)
+            .map(|p| Vec3A::new(p[0], p[1], p[2]))
+            .collect(),
         other => convert(other.to_rgb8().as_raw(), 3, &table(255)),
     };
     Ok((w as usize, h as usize, texels))
@@ -336,7 +368,7 @@ fn decode_exr(bytes: &[u8], max_texels: u64) -> Result<Decoded, String> {
              pos,
              (r, g, b, _a): (f32, f32, f32, f32)| {
                 if let Some(t) = px.get_mut(pos.y() * *w + pos.x()) {
-                    *t = albedo([r, g, b]);
+                    *t = Vec3A::new(r, g, b);
                 }
             },
         )

@@ -477,7 +477,7 @@ fn texture_errors_name_the_key() {
         (scene(tex, "shape = \"sphere\""), "objects[0].material: its material has a texture, which needs a mesh with texture coordinates"),
         (scene(tex, "shape = \"mesh\"\nfile = \"flat.obj\""), "objects[0].material: its material has a texture, but `flat.obj` gives no texture coordinates"),
         (scene("{ texture = \"nope.png\" }", mesh), "materials.m.albedo.texture: `nope.png` is not among the scene's files"),
-        (scene("{ texture = \"m.obj\" }", mesh), "materials.m.albedo.texture: `m.obj`: a texture must be .png, .jpg, .jpeg or .exr (by its extension)"),
+        (scene("{ texture = \"m.obj\" }", mesh), "materials.m.albedo.texture: `m.obj`: a texture must be .png, .jpg, .jpeg, .exr or .hdr (by its extension)"),
         (scene("{ texture = \"t.png\", scale = 2 }", mesh), "unknown field `scale`"),
         (scene("[0.5, 0.5]", mesh), "invalid length 2"),
     ];

@@ -8,7 +8,10 @@
 //!   likewise (`tests/data/mesh-glass-reference-4x4.exr`), Mitsuba reading the same files;
 //! - cornell-mesh (the boxes as triangle meshes) against cornell-box's reference;
 //! - metals-box (rough gold and aluminium balls in the box) against Mitsuba's `roughconductor`,
-//!   its 4×4 block means (`tests/data/metals-box-reference-4x4.exr`).
+//!   its 4×4 block means (`tests/data/metals-box-reference-4x4.exr`);
+//! - envmap-balls (a diffuse, a rough gold and a frosted glass ball on a ground square under an
+//!   HDR sky with a sun) against Mitsuba's `envmap`, `roughconductor` and `roughdielectric`, its
+//!   4×4 block means (`tests/data/envmap-balls-reference-4x4.exr`).
 //!
 //! Three checks per scene, each able to fail:
 //! - z-test: every 32×32 region mean agrees within 4.5 standard errors (192 region-channels,
@@ -225,13 +228,45 @@ fn metals_box_regions_within_half_a_percent_at_16384_spp() {
     );
 }
 
+/// An environment map against an independent renderer: `scenes/envmap-balls.toml` against
+/// Mitsuba 3's `envmap` (the same texels, parameterisation and bilinear lookup), with a rough
+/// gold ball (`roughconductor`) and a frosted glass one (`roughdielectric`, α = 0.09: the
+/// masking terms differ as for the metals).
+#[test]
+fn envmap_balls_matches_the_independent_reference() {
+    check_against(
+        "envmap-balls.toml",
+        &Reference::load("envmap-balls-reference-4x4.exr", 4),
+    );
+}
+
+/// The materials issue's bound for the environment map: every 32² region of
+/// `scenes/envmap-balls.toml` within 0.5% of Mitsuba's 16384-spp render, ours at 4096 spp
+/// (about two minutes on two cores: a fourth check at 16384 spp would take CI's run past its
+/// budget, and at 4096 spp the worst region's own noise is still a fraction of the bound).
+/// Ignored in `cargo test`; `.ci/run` runs it.
+#[test]
+#[ignore = "about two minutes on two cores: .ci/run runs it"]
+fn envmap_balls_regions_within_half_a_percent_at_4096_spp() {
+    regions_within_half_a_percent(
+        "envmap-balls.toml",
+        &Reference::load("envmap-balls-reference-4x4.exr", 4),
+        4096,
+    );
+}
+
 /// Renders `scene` at 16384 spp: every 32² region, each channel, within 0.5% of `reference`.
 fn regions_within_half_a_percent_at_16384_spp(scene: &str, reference: &Reference) {
+    regions_within_half_a_percent(scene, reference, 16384)
+}
+
+/// Renders `scene` at `spp`: every 32² region, each channel, within 0.5% of `reference`.
+fn regions_within_half_a_percent(scene: &str, reference: &Reference, spp: u32) {
     let scene = load(scene);
     let img = render(
         &scene,
         &RenderSettings {
-            spp: 16384,
+            spp,
             seed: 1,
             ..RenderSettings::default()
         },
@@ -253,6 +288,6 @@ fn regions_within_half_a_percent_at_16384_spp(scene: &str, reference: &Reference
             }
         }
     }
-    eprintln!("worst over 32² regions at 16384 spp: {:.3}%", worst * 100.0);
+    eprintln!("worst over 32² regions at {spp} spp: {:.3}%", worst * 100.0);
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }

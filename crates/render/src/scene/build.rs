@@ -9,13 +9,13 @@ use glam::{Affine3A, Vec3, Vec3A};
 
 use super::assets::{sha256_hex, Assets};
 use super::check::{
-    build_transform, color, finite, finite3, only, positive, required, root, similarity_scale,
+    build_transform, finite, finite3, only, positive, required, root, similarity_scale,
     Invalid,
 };
-use super::lights::punctual_lights;
+use super::lights::{environment, punctual_lights, reach};
 use super::materials::build_materials;
 use super::{
-    CameraModel, Environment, EnvironmentKind, KeyPath, Limits, Material, ObjectDesc, Primitive,
+    CameraModel, KeyPath, Limits, Material, ObjectDesc, Primitive,
     Scene, SceneFile, ShapeKind,
 };
 use crate::aggregate::Accel;
@@ -57,7 +57,7 @@ struct PendingTexture {
 }
 
 /// Most texels over a scene's textures.
-const MAX_TEXELS: u64 = 1 << 28;
+pub(super) const MAX_TEXELS: u64 = 1 << 28;
 
 impl SceneFiles {
     /// Reads `name` (counting it against the file limit) and records its hash.
@@ -95,23 +95,7 @@ impl SceneFiles {
         if let Some(&i) = self.textures.get(name) {
             return Ok(i);
         }
-        let format = ImageFormat::from_name(name).ok_or_else(|| {
-            (
-                path.clone(),
-                format!("`{name}`: a texture must be .png, .jpg, .jpeg or .exr (by its extension)"),
-            )
-        })?;
-        let bytes = self.read_file(name, path, limits, assets)?;
-        let fail = |m: String| (path.clone(), format!("{name}: {m}"));
-        let (w, h) = texture::probe(&bytes, format).map_err(fail)?;
-        let left = MAX_TEXELS - self.texels;
-        if w.saturating_mul(h) > left {
-            return Err(fail(format!(
-                "{w}×{h} texels, above what is left of the scene's limit of {MAX_TEXELS} \
-                 texels over all its textures ({left})"
-            )));
-        }
-        self.texels += w * h;
+        let (format, bytes) = self.image_file(name, path, limits, assets, "a texture")?;
         let i = self.pending_textures.len() as u32;
         self.pending_textures.push(PendingTexture {
             name: name.to_string(),
@@ -121,6 +105,39 @@ impl SceneFiles {
         });
         self.textures.insert(name.to_string(), i);
         Ok(i)
+    }
+
+    /// Reads image file `name` for `what` (a texture, an environment map) and checks its
+    /// header: its format by extension, and its size against what is left of the scene's
+    /// texel limit, which it then takes.
+    pub(super) fn image_file(
+        &mut self,
+        name: &str,
+        path: &KeyPath,
+        limits: &Limits,
+        assets: &dyn Assets,
+        what: &str,
+    ) -> Result<(ImageFormat, Vec<u8>), Invalid> {
+        let format = ImageFormat::from_name(name).ok_or_else(|| {
+            (
+                path.clone(),
+                format!(
+                    "`{name}`: {what} must be .png, .jpg, .jpeg, .exr or .hdr (by its extension)"
+                ),
+            )
+        })?;
+        let bytes = self.read_file(name, path, limits, assets)?;
+        let fail = |m: String| (path.clone(), format!("{name}: {m}"));
+        let (w, h) = texture::probe(&bytes, format).map_err(fail)?;
+        let left = MAX_TEXELS - self.texels;
+        if w.saturating_mul(h) > left {
+            return Err(fail(format!(
+                "{w}×{h} texels, above what is left of the scene's limit of {MAX_TEXELS} \
+                 texels over all its images ({left})"
+            )));
+        }
+        self.texels += w * h;
+        Ok((format, bytes))
     }
 
     /// Decodes the textures, one at a time and each within the process's decode budget
@@ -185,8 +202,8 @@ pub(super) fn build(
     }
     let (w, h) = film_size(desc, limits)?;
     let camera = build_camera(desc, w, h)?;
-    let environment = build_environment(desc)?;
     let mut files = SceneFiles::default();
+    let environment = environment(desc, &mut files, limits, assets)?;
     let (materials, absorption, names) = build_materials(desc, &mut files, limits, assets)?;
     if desc.objects.len() > limits.max_objects {
         return Err((
@@ -237,7 +254,9 @@ pub(super) fn build(
     }
     let textures = files.decode_textures()?;
     let accel = Accel::build(&prims);
-    punctual_lights(desc, &prims, &mut lights)?;
+    let reach = reach(&prims);
+    punctual_lights(desc, reach, &mut lights)?;
+    let environment = environment.finish(reach, &mut lights)?;
     let shading_normals = prims
         .iter()
         .any(|p| matches!(&p.shape, Shape::Mesh(m) if m.smooth && m.mesh.has_normals()));
@@ -444,38 +463,6 @@ fn build_camera(desc: &SceneFile, w: u32, h: u32) -> Result<Camera, Invalid> {
         }
     };
     Ok(camera)
-}
-
-/// The environment, if the file has one.
-fn build_environment(desc: &SceneFile) -> Result<Option<Environment>, Invalid> {
-    let environment = match &desc.environment {
-        None => None,
-        Some(e) => {
-            let ep = root("environment");
-            let present = [
-                ("radiance", e.radiance.is_some()),
-                ("top", e.top.is_some()),
-                ("bottom", e.bottom.is_some()),
-            ];
-            Some(match e.kind {
-                EnvironmentKind::Constant => {
-                    only(&ep, "a constant environment", &present, &["radiance"])?;
-                    let r = required(e.radiance, &ep, "a constant environment", "radiance")?;
-                    Environment::Constant(color(r, &ep.key("radiance"), false)?)
-                }
-                EnvironmentKind::Gradient => {
-                    only(&ep, "a gradient environment", &present, &["top", "bottom"])?;
-                    let top = required(e.top, &ep, "a gradient environment", "top")?;
-                    let bottom = required(e.bottom, &ep, "a gradient environment", "bottom")?;
-                    Environment::Gradient {
-                        top: color(top, &ep.key("top"), false)?,
-                        bottom: color(bottom, &ep.key("bottom"), false)?,
-                    }
-                }
-            })
-        }
-    };
-    Ok(environment)
 }
 
 /// Which of the keys that belong to some shapes only an object gives, for [`only`].

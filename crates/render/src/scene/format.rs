@@ -169,6 +169,8 @@ pub enum EnvironmentKind {
     Constant,
     /// A blend from `bottom` (straight down) to `top` (straight up), linear in the direction's y.
     Gradient,
+    /// An equirectangular HDR image (OpenEXR or Radiance .hdr), importance-sampled.
+    Map,
 }
 
 /// Environment description.
@@ -187,6 +189,12 @@ pub struct EnvironmentDesc {
     /// Radiance straight down (gradient).
     #[serde(default, deserialize_with = "maybe_three")]
     pub bottom: Option<[f32; 3]>,
+    /// The image file, relative to the scene file (map).
+    pub file: Option<String>,
+    /// Scale on the image's texels (map; default 1).
+    pub intensity: Option<f32>,
+    /// Turn about +y, in degrees (map; default 0).
+    pub rotate: Option<f32>,
 }
 
 /// Punctual light kinds (glTF's KHR_lights_punctual).

@@ -1,25 +1,36 @@
-//! The `[[lights]]` array: punctual lights (point, spot, directional) validated and appended
-//! to the lights of the scene's emitting objects.
+//! Light that is not an emitting object: the `[[lights]]` array (punctual lights: point, spot,
+//! directional) and the `[environment]`, validated and appended to the lights of the scene's
+//! emitting objects.
+
+use std::sync::Arc;
 
 use glam::Vec3A;
 
-use super::check::{color, finite3, only, required, root, Invalid};
-use super::{LightKind, Primitive, SceneFile};
+use super::assets::Assets;
+use super::build::{SceneFiles, MAX_TEXELS};
+use super::check::{color, finite, finite3, only, required, root, Invalid};
+use super::{Environment, EnvironmentKind, KeyPath, LightKind, Limits, Primitive, SceneFile};
+use crate::envmap::EnvMap;
 use crate::light::{Light, LightShape};
+use crate::texture::{self, ImageFormat};
 
-/// The scene's `[[lights]]`, appended to its emitting objects' lights. A directional light's
-/// reach is the radius of a sphere about the origin holding every finite object.
-pub(super) fn punctual_lights(
-    desc: &SceneFile,
-    prims: &[Primitive],
-    lights: &mut Vec<Light>,
-) -> Result<(), Invalid> {
-    let reach = prims
+/// The radius of a sphere about the origin holding every finite object: what a light from
+/// infinitely far away (directional, environment map) must reach past.
+pub(super) fn reach(prims: &[Primitive]) -> f32 {
+    prims
         .iter()
         .map(|p| p.shape.bounds())
         .filter(|b| b.min.is_finite() && b.max.is_finite())
         .map(|b| b.min.length().max(b.max.length()))
-        .fold(1.0f32, f32::max);
+        .fold(1.0f32, f32::max)
+}
+
+/// The scene's `[[lights]]`, appended to its emitting objects' lights.
+pub(super) fn punctual_lights(
+    desc: &SceneFile,
+    reach: f32,
+    lights: &mut Vec<Light>,
+) -> Result<(), Invalid> {
     for (i, l) in desc.lights.iter().enumerate() {
         let lp = root("lights").index(i);
         let present = [
@@ -122,4 +133,118 @@ pub(super) fn punctual_lights(
         });
     }
     Ok(())
+}
+
+/// The environment as far as it can be built before the scene's objects are: whole, or an
+/// image read and its header checked, whose texels are decoded last ([`Environment::finish`]),
+/// after every check that needs none, as textures are.
+pub(super) enum PendingEnvironment {
+    /// Built (or absent).
+    Ready(Option<Environment>),
+    /// An environment map to decode.
+    Map {
+        name: String,
+        path: KeyPath,
+        format: ImageFormat,
+        bytes: Vec<u8>,
+        intensity: f32,
+        turns: f32,
+    },
+}
+
+/// The `[environment]`, if the file has one; a map's file is read and its header checked.
+pub(super) fn environment(
+    desc: &SceneFile,
+    files: &mut SceneFiles,
+    limits: &Limits,
+    assets: &dyn Assets,
+) -> Result<PendingEnvironment, Invalid> {
+    let Some(e) = &desc.environment else {
+        return Ok(PendingEnvironment::Ready(None));
+    };
+    let ep = root("environment");
+    let present = [
+        ("radiance", e.radiance.is_some()),
+        ("top", e.top.is_some()),
+        ("bottom", e.bottom.is_some()),
+        ("file", e.file.is_some()),
+        ("intensity", e.intensity.is_some()),
+        ("rotate", e.rotate.is_some()),
+    ];
+    let env = match e.kind {
+        EnvironmentKind::Constant => {
+            only(&ep, "a constant environment", &present, &["radiance"])?;
+            let r = required(e.radiance, &ep, "a constant environment", "radiance")?;
+            Environment::Constant(color(r, &ep.key("radiance"), false)?)
+        }
+        EnvironmentKind::Gradient => {
+            only(&ep, "a gradient environment", &present, &["top", "bottom"])?;
+            let top = required(e.top, &ep, "a gradient environment", "top")?;
+            let bottom = required(e.bottom, &ep, "a gradient environment", "bottom")?;
+            Environment::Gradient {
+                top: color(top, &ep.key("top"), false)?,
+                bottom: color(bottom, &ep.key("bottom"), false)?,
+            }
+        }
+        EnvironmentKind::Map => {
+            let what = "an environment map";
+            only(&ep, what, &present, &["file", "intensity", "rotate"])?;
+            let name = required(e.file.as_deref(), &ep, what, "file")?;
+            let intensity = finite(e.intensity.unwrap_or(1.0), &ep.key("intensity"))?;
+            if !(intensity > 0.0) {
+                return Err((
+                    ep.key("intensity"),
+                    format!("must be above 0, got {intensity}"),
+                ));
+            }
+            let degrees = finite(e.rotate.unwrap_or(0.0), &ep.key("rotate"))?;
+            let path = ep.key("file");
+            let (format, bytes) = files.image_file(name, &path, limits, assets, what)?;
+            return Ok(PendingEnvironment::Map {
+                name: name.to_string(),
+                path,
+                format,
+                bytes,
+                intensity,
+                turns: (f64::from(degrees) / 360.0).rem_euclid(1.0) as f32,
+            });
+        }
+    };
+    Ok(PendingEnvironment::Ready(Some(env)))
+}
+
+impl PendingEnvironment {
+    /// The environment, a map decoded and added to `lights` (sampled like them, reaching past
+    /// `reach`).
+    pub(super) fn finish(
+        self,
+        reach: f32,
+        lights: &mut Vec<Light>,
+    ) -> Result<Option<Environment>, Invalid> {
+        let (name, path, format, bytes, intensity, turns) = match self {
+            PendingEnvironment::Ready(env) => return Ok(env),
+            PendingEnvironment::Map {
+                name,
+                path,
+                format,
+                bytes,
+                intensity,
+                turns,
+            } => (name, path, format, bytes, intensity, turns),
+        };
+        let fail = |m: String| (path.clone(), format!("{name}: {m}"));
+        let (w, h, texels) = texture::decode_linear(&bytes, format, MAX_TEXELS).map_err(fail)?;
+        let map = EnvMap::new(w, h, &texels, intensity, turns).map_err(|e| fail(e.to_string()))?;
+        let map = Arc::new(map);
+        let light = lights.len() as u32;
+        lights.push(Light {
+            shape: LightShape::Environment {
+                map: map.clone(),
+                reach,
+            },
+            radiance: Vec3A::ZERO,
+            two_sided: false,
+        });
+        Ok(Some(Environment::Map { map, light }))
+    }
 }

@@ -142,7 +142,7 @@ pub struct Material {
 }
 
 /// Light from infinitely far away.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub enum Environment {
     /// Uniform radiance.
     Constant(Vec3A),
@@ -152,6 +152,13 @@ pub enum Environment {
         top: Vec3A,
         /// Radiance straight down.
         bottom: Vec3A,
+    },
+    /// An HDR image ([`crate::envmap`]), which light sampling draws from too.
+    Map {
+        /// The map.
+        map: std::sync::Arc<crate::envmap::EnvMap>,
+        /// Its index among [`Scene::lights`], for the MIS weight of a ray that escapes.
+        light: u32,
     },
 }
 
@@ -165,6 +172,7 @@ impl Environment {
                 let t = (0.5 * (d.y + 1.0)).clamp(0.0, 1.0);
                 bottom * (1.0 - t) + top * t
             }
+            Environment::Map { ref map, .. } => map.radiance(d),
         }
     }
 }

@@ -257,6 +257,50 @@ pub fn exp_nonpositive(x: f32) -> f32 {
     p * f32::from_bits(((k as i32 + 127) as u32) << 23)
 }
 
+/// atan2(y, x) in (−π, π], in basic f32 arithmetic: reduced to atan of a ratio in [0, 1], then
+/// about tan(π/8) to [−0.42, 0.42], where Cephes' degree-9 odd polynomial is within 2 ulp.
+/// Not `f32::atan2`, whose implementation glibc picks per CPU at load time (see
+/// [`crate::util::sampling::sin_cos_octant`]): an environment map's texel for a direction must
+/// be the same on every worker. atan2(0, 0) is 0; NaN gives NaN.
+#[inline]
+pub fn atan2(y: f32, x: f32) -> f32 {
+    use std::f32::consts::{FRAC_PI_2, FRAC_PI_4, PI};
+    let (ax, ay) = (x.abs(), y.abs());
+    let (lo, hi) = if ay > ax { (ax, ay) } else { (ay, ax) };
+    let t = if hi > 0.0 { lo / hi } else { lo };
+    // tan(π/8): above it, atan t = π/4 + atan((t − 1)/(t + 1)).
+    let (base, t) = if t > 0.414_213_57 {
+        (FRAC_PI_4, (t - 1.0) / (t + 1.0))
+    } else {
+        (0.0, t)
+    };
+    let z = t * t;
+    let p = (((8.053_744_5e-2 * z - 1.387_768_6e-1) * z + 1.997_771_1e-1) * z - 3.333_295e-1)
+        * z
+        * t
+        + t;
+    let mut r = base + p;
+    if ay > ax {
+        r = FRAC_PI_2 - r;
+    }
+    if x < 0.0 {
+        r = PI - r;
+    }
+    if y < 0.0 || (y == 0.0 && y.is_sign_negative() && x < 0.0) {
+        r = -r;
+    }
+    r
+}
+
+/// The polar angle θ ∈ [0, π] of a unit vector whose cosine (its component along the pole) is
+/// `cos`: acos, by [`atan2`] (same reason).
+#[inline]
+pub fn acos(cos: f32) -> f32 {
+    let c = cos.clamp(-1.0, 1.0);
+    // (1 − c)(1 + c) rather than 1 − c²: no cancellation near the poles.
+    atan2(((1.0 - c) * (1.0 + c)).sqrt(), c)
+}
+
 #[cfg(test)]
 pub(crate) mod testing {
     /// Counts a randomised test's hits and misses, so that it can check that both answers were
@@ -540,5 +584,38 @@ mod tests {
         assert_eq!(super::exp_nonpositive(-1000.0), 0.0);
         assert_eq!(super::exp_nonpositive(f32::NEG_INFINITY), 0.0);
         assert_eq!(super::exp_nonpositive(f32::NAN), 0.0);
+    }
+
+    #[test]
+    fn atan2_and_acos_are_within_a_few_ulp_of_f64() {
+        let mut worst = 0.0f64;
+        let n = 2000;
+        for i in 0..n {
+            for j in 0..n {
+                let y = -2.0 + 4.0 * (i as f32 + 0.37) / n as f32;
+                let x = -2.0 + 4.0 * (j as f32 + 0.61) / n as f32;
+                let want = (y as f64).atan2(x as f64);
+                worst = worst.max((super::atan2(y, x) as f64 - want).abs());
+            }
+        }
+        assert!(worst < 5e-7, "atan2 off by {worst}");
+        for (y, x, want) in [
+            (0.0f32, 1.0f32, 0.0f64),
+            (1.0, 0.0, std::f64::consts::FRAC_PI_2),
+            (0.0, -1.0, std::f64::consts::PI),
+            (-1.0, 0.0, -std::f64::consts::FRAC_PI_2),
+            (1.0, 1.0, std::f64::consts::FRAC_PI_4),
+            (0.0, 0.0, 0.0),
+        ] {
+            assert!((super::atan2(y, x) as f64 - want).abs() < 3e-7, "atan2({y}, {x})");
+        }
+        assert!(super::atan2(f32::NAN, 1.0).is_nan());
+        let mut worst = 0.0f64;
+        for i in 0..=20000 {
+            let c = -1.0 + 2.0 * i as f32 / 20000.0;
+            worst = worst.max((super::acos(c) as f64 - (c as f64).acos()).abs());
+        }
+        assert!(worst < 5e-7, "acos off by {worst}");
+        assert_eq!(super::acos(1.5), 0.0);
     }
 }

@@ -1,0 +1,355 @@
+//! Environment maps: light from infinitely far away read from an equirectangular (latitude–
+//! longitude) HDR image, and importance sampling of it.
+//!
+//! **Parameterisation** (Mitsuba 3's `envmap`, so that its renders are a reference for ours):
+//! in the map's own frame, +y is up and a unit direction d has u = atan2(dₓ, −d_z)/2π (wrapped
+//! to [0, 1)) and v = θ/π with θ its angle from +y. Column i's texels sit at u = (i + ½)/W and
+//! the last column wraps to the first; row j's texels sit at θ = πj/(H − 1), so the first row is
+//! the zenith and the last the nadir. Radiance between texels is bilinear. The scene's `rotate`
+//! turns the map about +y.
+//!
+//! **Sampling.** The texels' centres cut the sphere into W × (H − 1) cells, each a band of
+//! latitude [θ_j, θ_{j+1}] by a slice of longitude 2π/W. Radiance over a cell is the bilinear
+//! blend of its four corner texels, whose mean luminance ℓ is the blend's mean over the cell.
+//! A cell is chosen with probability proportional to ℓ · Ω (its solid angle Ω = (2π/W)(cos θ_j
+//! − cos θ_{j+1})), a row by the marginal and then a column by that row's conditional, and the
+//! direction is uniform in solid angle inside it (longitude uniform, cos θ uniform). The
+//! density is then constant over a cell, p = P(cell)/Ω — no 1/sin θ, so no singularity at the
+//! poles — and it is positive wherever the radiance is: radiance is a blend of non-negative
+//! texels, which is non-zero only where some corner is, and then ℓ > 0. Every number the
+//! sampler and the density use comes from basic f32 arithmetic and [`crate::util::math::atan2`]
+//! (no libm), so every worker gets the same bits.
+
+use std::f32::consts::PI;
+
+use glam::{Vec2, Vec3A};
+
+use crate::util::math::{atan2, luminance};
+use crate::util::sampling::{sin_cos_turn, Distribution1D};
+
+/// An equirectangular environment map, ready to evaluate and sample.
+#[derive(Clone, Debug)]
+pub struct EnvMap {
+    width: usize,
+    height: usize,
+    /// Radiance (the image times the scene's intensity), row-major, row 0 at the zenith.
+    texels: Vec<Vec3A>,
+    /// (sin, cos) of the rotation about +y that takes the map's frame to the world's.
+    rotation: (f32, f32),
+    /// cos θ_j of each row of texels.
+    cos_rows: Vec<f32>,
+    /// Rows of cells (H − 1), by their share of ℓ·Ω.
+    rows: Distribution1D,
+    /// Each row's cells by ℓ (`None` for a row that is black throughout).
+    columns: Vec<Option<Distribution1D>>,
+    /// ∫ (R + G + B) dω over the sphere, for choosing between the map and other lights.
+    power: f32,
+}
+
+/// Why a map cannot light a scene.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum EnvMapError {
+    /// Too small to interpolate.
+    #[error("{0}×{1} texels: an environment map needs at least 2×2")]
+    TooSmall(usize, usize),
+    /// A texel that is not a radiance.
+    #[error("texel ({x}, {y}) is {what}: an environment map's texels must be finite and not negative")]
+    BadTexel {
+        /// Column.
+        x: usize,
+        /// Row from the top.
+        y: usize,
+        /// NaN, infinite or negative.
+        what: &'static str,
+    },
+    /// So bright that its integral overflows f32.
+    #[error("its radiance (after `intensity`) is too large to integrate in f32")]
+    TooBright,
+    /// Nothing to light with.
+    #[error("every texel is black (after `intensity`): the map would light nothing")]
+    Black,
+}
+
+impl EnvMap {
+    /// A map of `width` × `height` linear RGB texels (row 0 at the top), scaled by
+    /// `intensity`, turned `rotate_turns` of a full turn about +y.
+    pub fn new(
+        width: usize,
+        height: usize,
+        texels: &[Vec3A],
+        intensity: f32,
+        rotate_turns: f32,
+    ) -> Result<Self, EnvMapError> {
+        if width < 2 || height < 2 || texels.len() != width * height {
+            return Err(EnvMapError::TooSmall(width, height));
+        }
+        for (k, t) in texels.iter().enumerate() {
+            let what = if t.is_nan() {
+                "NaN"
+            } else if !t.is_finite() {
+                "infinite"
+            } else if t.min_element() < 0.0 {
+                "negative"
+            } else {
+                continue;
+            };
+            let (x, y) = (k % width, k / width);
+            return Err(EnvMapError::BadTexel { x, y, what });
+        }
+        let texels: Vec<Vec3A> = texels.iter().map(|t| *t * intensity).collect();
+        if texels.iter().any(|t| !t.is_finite()) {
+            let k = texels.iter().position(|t| !t.is_finite()).unwrap_or(0);
+            let (x, y) = (k % width, k / width);
+            return Err(EnvMapError::BadTexel { x, y, what: "infinite" });
+        }
+        // cos(πj/(H − 1)) = cos 2π·(j / 2(H − 1)), by the libm-free sine.
+        let cos_rows: Vec<f32> = (0..height)
+            .map(|j| sin_cos_turn(j as f32 / (2 * (height - 1)) as f32).1)
+            .collect();
+        let lum: Vec<f32> = texels.iter().map(|t| luminance(*t).max(0.0)).collect();
+        let mut row_weights = Vec::with_capacity(height - 1);
+        let mut columns = Vec::with_capacity(height - 1);
+        let mut power = 0.0f64;
+        let mut cell = vec![0.0f32; width];
+        for j in 0..height - 1 {
+            let band = (cos_rows[j] - cos_rows[j + 1]).max(0.0);
+            let (top, bottom) = (j * width, (j + 1) * width);
+            let mut row_sum = 0.0f64;
+            for (i, c) in cell.iter_mut().enumerate() {
+                let i1 = (i + 1) % width;
+                *c = 0.25 * (lum[top + i] + lum[top + i1] + lum[bottom + i] + lum[bottom + i1]);
+                row_sum += f64::from(*c);
+                let rgb = texels[top + i] + texels[top + i1] + texels[bottom + i] + texels[bottom + i1];
+                power += 0.25 * f64::from(rgb.x + rgb.y + rgb.z) * f64::from(band);
+            }
+            row_weights.push((row_sum * f64::from(band)) as f32);
+            columns.push(Distribution1D::new(&cell));
+        }
+        let power = (power * 2.0 * std::f64::consts::PI / width as f64) as f32;
+        if !power.is_finite() || row_weights.iter().any(|w| !w.is_finite()) {
+            return Err(EnvMapError::TooBright);
+        }
+        let rows = Distribution1D::new(&row_weights).ok_or(EnvMapError::Black)?;
+        let (s, c) = sin_cos_turn(rotate_turns.rem_euclid(1.0));
+        Ok(Self {
+            width,
+            height,
+            texels,
+            rotation: (s, c),
+            cos_rows,
+            rows,
+            columns,
+            power,
+        })
+    }
+
+    /// Size in texels.
+    pub fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    /// ∫ (R + G + B) dω over the sphere.
+    pub fn power(&self) -> f32 {
+        self.power
+    }
+
+    fn to_local(&self, d: Vec3A) -> Vec3A {
+        let (s, c) = self.rotation;
+        Vec3A::new(c * d.x - s * d.z, d.y, s * d.x + c * d.z)
+    }
+
+    fn to_world(&self, d: Vec3A) -> Vec3A {
+        let (s, c) = self.rotation;
+        Vec3A::new(c * d.x + s * d.z, d.y, -s * d.x + c * d.z)
+    }
+
+    /// (u, v) of a local direction: u ∈ [0, 1), v ∈ [0, 1].
+    fn uv(d: Vec3A) -> Vec2 {
+        let u = atan2(d.x, -d.z) * (0.5 / PI);
+        let u = if u < 0.0 { u + 1.0 } else { u };
+        let v = atan2((d.x * d.x + d.z * d.z).sqrt(), d.y) * (1.0 / PI);
+        Vec2::new(u.min(1.0 - f32::EPSILON / 2.0), v.clamp(0.0, 1.0))
+    }
+
+    /// Column i (left texel of the cell or blend) and fraction towards i + 1 at `u`.
+    fn column(&self, u: f32) -> (usize, f32) {
+        let x = u * self.width as f32 - 0.5;
+        let x = if x < 0.0 { x + self.width as f32 } else { x };
+        let i = (x as usize).min(self.width - 1);
+        (i, (x - i as f32).clamp(0.0, 1.0))
+    }
+
+    /// Row j (upper texel of the cell or blend, at most H − 2) and fraction towards j + 1.
+    fn row(&self, v: f32) -> (usize, f32) {
+        let y = v * (self.height - 1) as f32;
+        let j = (y as usize).min(self.height - 2);
+        (j, (y - j as f32).clamp(0.0, 1.0))
+    }
+
+    /// Radiance arriving from direction `d` (world space, unit): along a ray with direction
+    /// `d` that escapes the scene.
+    pub fn radiance(&self, d: Vec3A) -> Vec3A {
+        let uv = Self::uv(self.to_local(d));
+        let (i, fx) = self.column(uv.x);
+        let (j, fy) = self.row(uv.y);
+        let i1 = (i + 1) % self.width;
+        let (top, bottom) = (j * self.width, (j + 1) * self.width);
+        let t = &self.texels;
+        let upper = t[top + i] * (1.0 - fx) + t[top + i1] * fx;
+        let lower = t[bottom + i] * (1.0 - fx) + t[bottom + i1] * fx;
+        upper * (1.0 - fy) + lower * fy
+    }
+
+    /// Solid angle of a cell of row `j`.
+    fn cell_solid_angle(&self, j: usize) -> f32 {
+        (self.cos_rows[j] - self.cos_rows[j + 1]) * (2.0 * PI / self.width as f32)
+    }
+
+    /// A direction (world space, unit) from two uniform numbers, with its density in solid
+    /// angle; `None` where the density is not positive and finite (a cell too thin to hold
+    /// one in f32).
+    pub fn sample(&self, u: Vec2) -> Option<(Vec3A, f32)> {
+        let (j, uy) = self.rows.sample_remap(u.y);
+        let columns = self.columns[j].as_ref()?;
+        let (i, ux) = columns.sample_remap(u.x);
+        let pdf = self.rows.pmf(j) * columns.pmf(i) / self.cell_solid_angle(j);
+        if !(pdf > 0.0 && pdf.is_finite()) {
+            return None;
+        }
+        let mut phi = (i as f32 + 0.5 + ux) / self.width as f32;
+        if phi >= 1.0 {
+            phi -= 1.0;
+        }
+        let (c0, c1) = (self.cos_rows[j], self.cos_rows[j + 1]);
+        let cos = (c0 + uy * (c1 - c0)).clamp(-1.0, 1.0);
+        let sin = ((1.0 - cos) * (1.0 + cos)).max(0.0).sqrt();
+        let (sin_phi, cos_phi) = sin_cos_turn(phi);
+        let local = Vec3A::new(sin_phi * sin, cos, -cos_phi * sin);
+        Some((self.to_world(local), pdf))
+    }
+
+    /// The density in solid angle with which [`EnvMap::sample`] draws direction `d`.
+    pub fn pdf(&self, d: Vec3A) -> f32 {
+        let uv = Self::uv(self.to_local(d));
+        // The cell's corners are the texels at or before the direction in each axis.
+        let (i, _) = self.column(uv.x);
+        let (j, _) = self.row(uv.y);
+        match &self.columns[j] {
+            Some(c) => self.rows.pmf(j) * c.pmf(i) / self.cell_solid_angle(j),
+            None => 0.0,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::util::sampling::HashRng;
+
+    fn map(width: usize, height: usize, f: impl Fn(usize, usize) -> Vec3A) -> Vec<Vec3A> {
+        (0..width * height).map(|k| f(k % width, k / width)).collect()
+    }
+
+    #[test]
+    fn texel_centres_are_where_the_parameterisation_puts_them() {
+        // One bright texel at column 3, row 2 of an 8 × 5 map: its centre is u = 3.5/8,
+        // θ = π·2/4 (the horizon), i.e. φ = 2π·3.5/8, direction (sin φ, 0, −cos φ).
+        let t = map(8, 5, |x, y| if (x, y) == (3, 2) { Vec3A::ONE } else { Vec3A::ZERO });
+        let m = EnvMap::new(8, 5, &t, 1.0, 0.0).expect("map");
+        let phi = 2.0 * PI * 3.5 / 8.0;
+        let d = Vec3A::new(phi.sin(), 0.0, -phi.cos());
+        assert!((m.radiance(d) - Vec3A::ONE).abs().max_element() < 1e-5);
+        // Halfway to the next column the blend is half.
+        let phi = 2.0 * PI * 4.0 / 8.0;
+        let d = Vec3A::new(phi.sin(), 0.0, -phi.cos());
+        assert!((m.radiance(d) - Vec3A::splat(0.5)).abs().max_element() < 1e-5);
+        // A quarter turn of `rotate` moves it a quarter of the way round, towards −x... from
+        // the world's view: world = R·local.
+        let r = EnvMap::new(8, 5, &t, 1.0, 0.25).expect("map");
+        let phi = 2.0 * PI * 3.5 / 8.0;
+        let local = Vec3A::new(phi.sin(), 0.0, -phi.cos());
+        let world = Vec3A::new(local.z, 0.0, -local.x);
+        assert!((r.radiance(world) - Vec3A::ONE).abs().max_element() < 1e-5);
+        // The zenith row is the first, the nadir the last.
+        let t = map(4, 3, |_, y| Vec3A::splat(y as f32 + 1.0));
+        let m = EnvMap::new(4, 3, &t, 2.0, 0.0).expect("map");
+        assert!((m.radiance(Vec3A::Y) - Vec3A::splat(2.0)).abs().max_element() < 1e-5);
+        assert!((m.radiance(-Vec3A::Y) - Vec3A::splat(6.0)).abs().max_element() < 1e-5);
+    }
+
+    #[test]
+    fn bad_maps_are_refused_by_texel() {
+        let ok = map(4, 4, |_, _| Vec3A::ONE);
+        let mut t = ok.clone();
+        t[6] = Vec3A::new(f32::NAN, 0.0, 0.0);
+        assert_eq!(
+            EnvMap::new(4, 4, &t, 1.0, 0.0).expect_err("refused"),
+            EnvMapError::BadTexel { x: 2, y: 1, what: "NaN" }
+        );
+        t[6] = Vec3A::new(0.0, -1.0, 0.0);
+        assert!(EnvMap::new(4, 4, &t, 1.0, 0.0)
+            .expect_err("refused")
+            .to_string()
+            .contains("texel (2, 1) is negative"));
+        t[6] = Vec3A::splat(f32::INFINITY);
+        assert!(matches!(
+            EnvMap::new(4, 4, &t, 1.0, 0.0),
+            Err(EnvMapError::BadTexel { what: "infinite", .. })
+        ));
+        let black = map(4, 4, |_, _| Vec3A::ZERO);
+        assert_eq!(EnvMap::new(4, 4, &black, 1.0, 0.0).expect_err("refused"), EnvMapError::Black);
+        assert_eq!(EnvMap::new(4, 4, &ok, 0.0, 0.0).expect_err("refused"), EnvMapError::Black);
+        assert!(matches!(
+            EnvMap::new(4, 4, &ok, f32::MAX, 0.0),
+            Err(EnvMapError::TooBright)
+        ));
+        let huge = map(4, 4, |_, _| Vec3A::splat(3e38));
+        assert!(matches!(
+            EnvMap::new(4, 4, &huge, 2.0, 0.0),
+            Err(EnvMapError::BadTexel { what: "infinite", .. })
+        ));
+        assert_eq!(EnvMap::new(1, 4, &ok[..4], 1.0, 0.0).expect_err("refused"), EnvMapError::TooSmall(1, 4));
+    }
+
+    /// The sampler's own density agrees with `pdf` at the directions it draws (but for the
+    /// few that land on a cell's edge, where rounding may put them in the neighbour), and the
+    /// estimate ∫ L dω ≈ mean(L/p) converges to the integral by quadrature.
+    #[test]
+    fn samples_carry_the_density_pdf_gives_and_integrate_the_radiance() {
+        let t = map(16, 9, |x, y| {
+            Vec3A::new(0.1 + x as f32 * 0.05, 0.2, 0.05 * y as f32)
+                + if (x, y) == (5, 3) { Vec3A::splat(500.0) } else { Vec3A::ZERO }
+        });
+        let m = EnvMap::new(16, 9, &t, 1.0, 0.3).expect("map");
+        let sum_rgb = |l: Vec3A| f64::from(l.x + l.y + l.z);
+        // Midpoint quadrature in (φ, cos θ), which is uniform in solid angle.
+        let k = 1500;
+        let mut want = 0.0f64;
+        for a in 0..k {
+            let cos = 1.0 - 2.0 * (a as f64 + 0.5) / k as f64;
+            let sin = (1.0 - cos * cos).sqrt();
+            for b in 0..2 * k {
+                let phi = std::f64::consts::PI * (b as f64 + 0.5) / k as f64;
+                let d = Vec3A::new((sin * phi.cos()) as f32, cos as f32, (sin * phi.sin()) as f32);
+                want += sum_rgb(m.radiance(d));
+            }
+        }
+        want *= 4.0 * std::f64::consts::PI / (2 * k * k) as f64;
+        assert!((want - f64::from(m.power())).abs() < 0.05 * want, "{want} vs {}", m.power());
+        let mut rng = HashRng::new(3);
+        let n = 400_000;
+        let (mut sum, mut off_edge) = (0.0f64, 0);
+        for _ in 0..n {
+            let u = Vec2::new(rng.next_f32(), rng.next_f32());
+            let (d, pdf) = m.sample(u).expect("map");
+            assert!((d.length() - 1.0).abs() < 1e-5);
+            if (m.pdf(d) - pdf).abs() > 1e-3 * pdf {
+                off_edge += 1;
+            }
+            sum += sum_rgb(m.radiance(d)) / f64::from(pdf);
+        }
+        assert!(off_edge < n / 10_000, "{off_edge} samples disagree with pdf");
+        let est = sum / n as f64;
+        assert!((est - want).abs() < 0.01 * want, "{est} vs {want}");
+    }
+}
