@@ -2,7 +2,9 @@
 
 64 x 32 texels, equirectangular as tessera and Mitsuba 3 read it (row 0 the zenith, the last
 row the nadir; crates/render/src/envmap.rs): a blue sky brightening towards the horizon, a
-dim brown ground, and a sun of one very bright texel 32 degrees above the horizon. Run with
+dim brown ground, and a sun of 2 x 2 bright texels about 30 degrees above the horizon (soft
+enough that the caustics it casts through the balls of scenes/envmap-balls.toml converge in
+the time CI has; tests/envmap.rs tests a one-texel sun 10^7 times the sky). Run with
 any Python that has NumPy and Mitsuba 3 (the bench venv: bench/peer-env.sh):
 
     python bench/make_sky.py scenes/textures/sky.exr
@@ -21,8 +23,8 @@ def sky(width=64, height=32):
             img[j, :] = np.array([0.25, 0.45, 0.9]) * (0.5 + 0.9 * t * t)
         else:
             img[j, :] = [0.22, 0.17, 0.12]
-    # The sun: one texel, 32 degrees up, from the +x, +z quarter.
-    img[10, 20] = [900.0, 780.0, 600.0]
+    # The sun: 2 x 2 texels, about 30 degrees up, from the +x, +z quarter.
+    img[10:12, 20:22] = [225.0, 195.0, 150.0]
     return img
 
 

@@ -10,7 +10,7 @@ These scenes have exact Mitsuba counterparts, built here as dictionaries:
 - metals-box: scenes/metals-box.toml, the box with a gold and an aluminium ball of GGX
   roughness alpha 0.09 (`roughconductor`, RGB eta and k; its masking term is the separable
   G1(o)G1(i), tessera's the height-correlated one: docs/renderer.md, "Metals");
-- envmap-balls: scenes/envmap-balls.toml, three balls (diffuse, `roughconductor` gold,
+- envmap-balls: scenes/envmap-balls.toml, three balls (`plastic`, `roughconductor` gold,
   `roughdielectric` glass, GGX alpha 0.09) on a ground square under `envmap` of
   scenes/textures/sky.exr (bench/make_sky.py), turned 30 degrees about +y;
 - mesh-million: bench/make_million.py's million triangles in the box, and
@@ -133,7 +133,10 @@ def envmap_balls(mi):
         "ground": {"type": "rectangle",
                    "to_world": T([[10, 0, 0, 0], [0, 0, 10, -1], [0, -10, 0, 0], [0, 0, 0, 1]]),
                    "bsdf": {"type": "diffuse", "reflectance": rgb([0.5, 0.5, 0.5])}},
-        "white": ball([-1.05, -0.55, 0.0], {"type": "diffuse", "reflectance": rgb([0.8, 0.8, 0.8])}),
+        # tessera's plastic is Mitsuba's model (linear, specular_reflectance 1).
+        "plastic": ball([-1.05, -0.55, 0.0],
+                        {"type": "plastic", "int_ior": 1.5, "ext_ior": 1.0,
+                         "diffuse_reflectance": rgb([0.7, 0.15, 0.1])}),
         # crates/render/src/bsdf/conductor.rs's "gold".
         "gold": ball([0.0, -0.55, 0.35],
                      {"type": "roughconductor", "distribution": "ggx", "alpha": 0.09,

@@ -53,7 +53,9 @@ pub enum EnvMapError {
     #[error("{0}×{1} texels: an environment map needs at least 2×2")]
     TooSmall(usize, usize),
     /// A texel that is not a radiance.
-    #[error("texel ({x}, {y}) is {what}: an environment map's texels must be finite and not negative")]
+    #[error(
+        "texel ({x}, {y}) is {what}: an environment map's texels must be finite and not negative"
+    )]
     BadTexel {
         /// Column.
         x: usize,
@@ -100,7 +102,11 @@ impl EnvMap {
         if texels.iter().any(|t| !t.is_finite()) {
             let k = texels.iter().position(|t| !t.is_finite()).unwrap_or(0);
             let (x, y) = (k % width, k / width);
-            return Err(EnvMapError::BadTexel { x, y, what: "infinite" });
+            return Err(EnvMapError::BadTexel {
+                x,
+                y,
+                what: "infinite",
+            });
         }
         // cos(πj/(H − 1)) = cos 2π·(j / 2(H − 1)), by the libm-free sine.
         let cos_rows: Vec<f32> = (0..height)
@@ -119,7 +125,8 @@ impl EnvMap {
                 let i1 = (i + 1) % width;
                 *c = 0.25 * (lum[top + i] + lum[top + i1] + lum[bottom + i] + lum[bottom + i1]);
                 row_sum += f64::from(*c);
-                let rgb = texels[top + i] + texels[top + i1] + texels[bottom + i] + texels[bottom + i1];
+                let rgb =
+                    texels[top + i] + texels[top + i1] + texels[bottom + i] + texels[bottom + i1];
                 power += 0.25 * f64::from(rgb.x + rgb.y + rgb.z) * f64::from(band);
             }
             row_weights.push((row_sum * f64::from(band)) as f32);
@@ -247,14 +254,22 @@ mod tests {
     use crate::util::sampling::HashRng;
 
     fn map(width: usize, height: usize, f: impl Fn(usize, usize) -> Vec3A) -> Vec<Vec3A> {
-        (0..width * height).map(|k| f(k % width, k / width)).collect()
+        (0..width * height)
+            .map(|k| f(k % width, k / width))
+            .collect()
     }
 
     #[test]
     fn texel_centres_are_where_the_parameterisation_puts_them() {
         // One bright texel at column 3, row 2 of an 8 × 5 map: its centre is u = 3.5/8,
         // θ = π·2/4 (the horizon), i.e. φ = 2π·3.5/8, direction (sin φ, 0, −cos φ).
-        let t = map(8, 5, |x, y| if (x, y) == (3, 2) { Vec3A::ONE } else { Vec3A::ZERO });
+        let t = map(8, 5, |x, y| {
+            if (x, y) == (3, 2) {
+                Vec3A::ONE
+            } else {
+                Vec3A::ZERO
+            }
+        });
         let m = EnvMap::new(8, 5, &t, 1.0, 0.0).expect("map");
         let phi = 2.0 * PI * 3.5 / 8.0;
         let d = Vec3A::new(phi.sin(), 0.0, -phi.cos());
@@ -273,8 +288,18 @@ mod tests {
         // The zenith row is the first, the nadir the last.
         let t = map(4, 3, |_, y| Vec3A::splat(y as f32 + 1.0));
         let m = EnvMap::new(4, 3, &t, 2.0, 0.0).expect("map");
-        assert!((m.radiance(Vec3A::Y) - Vec3A::splat(2.0)).abs().max_element() < 1e-5);
-        assert!((m.radiance(-Vec3A::Y) - Vec3A::splat(6.0)).abs().max_element() < 1e-5);
+        assert!(
+            (m.radiance(Vec3A::Y) - Vec3A::splat(2.0))
+                .abs()
+                .max_element()
+                < 1e-5
+        );
+        assert!(
+            (m.radiance(-Vec3A::Y) - Vec3A::splat(6.0))
+                .abs()
+                .max_element()
+                < 1e-5
+        );
     }
 
     #[test]
@@ -284,7 +309,11 @@ mod tests {
         t[6] = Vec3A::new(f32::NAN, 0.0, 0.0);
         assert_eq!(
             EnvMap::new(4, 4, &t, 1.0, 0.0).expect_err("refused"),
-            EnvMapError::BadTexel { x: 2, y: 1, what: "NaN" }
+            EnvMapError::BadTexel {
+                x: 2,
+                y: 1,
+                what: "NaN"
+            }
         );
         t[6] = Vec3A::new(0.0, -1.0, 0.0);
         assert!(EnvMap::new(4, 4, &t, 1.0, 0.0)
@@ -294,11 +323,20 @@ mod tests {
         t[6] = Vec3A::splat(f32::INFINITY);
         assert!(matches!(
             EnvMap::new(4, 4, &t, 1.0, 0.0),
-            Err(EnvMapError::BadTexel { what: "infinite", .. })
+            Err(EnvMapError::BadTexel {
+                what: "infinite",
+                ..
+            })
         ));
         let black = map(4, 4, |_, _| Vec3A::ZERO);
-        assert_eq!(EnvMap::new(4, 4, &black, 1.0, 0.0).expect_err("refused"), EnvMapError::Black);
-        assert_eq!(EnvMap::new(4, 4, &ok, 0.0, 0.0).expect_err("refused"), EnvMapError::Black);
+        assert_eq!(
+            EnvMap::new(4, 4, &black, 1.0, 0.0).expect_err("refused"),
+            EnvMapError::Black
+        );
+        assert_eq!(
+            EnvMap::new(4, 4, &ok, 0.0, 0.0).expect_err("refused"),
+            EnvMapError::Black
+        );
         assert!(matches!(
             EnvMap::new(4, 4, &ok, f32::MAX, 0.0),
             Err(EnvMapError::TooBright)
@@ -306,9 +344,15 @@ mod tests {
         let huge = map(4, 4, |_, _| Vec3A::splat(3e38));
         assert!(matches!(
             EnvMap::new(4, 4, &huge, 2.0, 0.0),
-            Err(EnvMapError::BadTexel { what: "infinite", .. })
+            Err(EnvMapError::BadTexel {
+                what: "infinite",
+                ..
+            })
         ));
-        assert_eq!(EnvMap::new(1, 4, &ok[..4], 1.0, 0.0).expect_err("refused"), EnvMapError::TooSmall(1, 4));
+        assert_eq!(
+            EnvMap::new(1, 4, &ok[..4], 1.0, 0.0).expect_err("refused"),
+            EnvMapError::TooSmall(1, 4)
+        );
     }
 
     /// The sampler's own density agrees with `pdf` at the directions it draws (but for the
@@ -318,7 +362,11 @@ mod tests {
     fn samples_carry_the_density_pdf_gives_and_integrate_the_radiance() {
         let t = map(16, 9, |x, y| {
             Vec3A::new(0.1 + x as f32 * 0.05, 0.2, 0.05 * y as f32)
-                + if (x, y) == (5, 3) { Vec3A::splat(500.0) } else { Vec3A::ZERO }
+                + if (x, y) == (5, 3) {
+                    Vec3A::splat(500.0)
+                } else {
+                    Vec3A::ZERO
+                }
         });
         let m = EnvMap::new(16, 9, &t, 1.0, 0.3).expect("map");
         let sum_rgb = |l: Vec3A| f64::from(l.x + l.y + l.z);
@@ -330,12 +378,20 @@ mod tests {
             let sin = (1.0 - cos * cos).sqrt();
             for b in 0..2 * k {
                 let phi = std::f64::consts::PI * (b as f64 + 0.5) / k as f64;
-                let d = Vec3A::new((sin * phi.cos()) as f32, cos as f32, (sin * phi.sin()) as f32);
+                let d = Vec3A::new(
+                    (sin * phi.cos()) as f32,
+                    cos as f32,
+                    (sin * phi.sin()) as f32,
+                );
                 want += sum_rgb(m.radiance(d));
             }
         }
         want *= 4.0 * std::f64::consts::PI / (2 * k * k) as f64;
-        assert!((want - f64::from(m.power())).abs() < 0.05 * want, "{want} vs {}", m.power());
+        assert!(
+            (want - f64::from(m.power())).abs() < 0.05 * want,
+            "{want} vs {}",
+            m.power()
+        );
         let mut rng = HashRng::new(3);
         let n = 400_000;
         let (mut sum, mut off_edge) = (0.0f64, 0);
@@ -348,7 +404,10 @@ mod tests {
             }
             sum += sum_rgb(m.radiance(d)) / f64::from(pdf);
         }
-        assert!(off_edge < n / 10_000, "{off_edge} samples disagree with pdf");
+        assert!(
+            off_edge < n / 10_000,
+            "{off_edge} samples disagree with pdf"
+        );
         let est = sum / n as f64;
         assert!((est - want).abs() < 0.01 * want, "{est} vs {want}");
     }

@@ -13,7 +13,7 @@ use glam::{Vec2, Vec3A};
 
 use crate::bsdf::dielectric::thin_reflectance;
 use crate::bsdf::{
-    fresnel_dielectric, reflect, refract, sample_diffuse, Bsdf, Conductor, RoughDielectric,
+    fresnel_dielectric, reflect, refract, sample_diffuse, Bsdf, Conductor, Plastic, RoughDielectric,
 };
 use crate::envmap::EnvMap;
 use crate::interaction::SurfacePoint;
@@ -136,17 +136,21 @@ fn trace(
         // rough glass.
         let nee = light_sampling
             && match mat.bsdf {
-                Bsdf::Diffuse(_) | Bsdf::RoughDielectric(_) => true,
+                Bsdf::Diffuse(_) | Bsdf::RoughDielectric(_) | Bsdf::Plastic(_) => true,
                 Bsdf::Conductor(m) => !m.is_smooth(),
                 Bsdf::Mirror(_) | Bsdf::Dielectric(_) | Bsdf::ThinDielectric(_) => false,
             };
-        // u_rr decides Russian roulette after this bounce.
-        let [u_select, u_choice, u_rr, _] =
-            if (nee && scene.lights.lights.len() > 1) || glass || depth + 1 >= settings.rr_depth {
-                sampler.get4(2 + 2 * depth)
-            } else {
-                [0.0; 4]
-            };
+        // u_rr decides Russian roulette after this bounce; u_choice a glass's reflection or
+        // refraction, or a plastic's lobe.
+        let chooses = glass || matches!(mat.bsdf, Bsdf::Plastic(_));
+        let [u_select, u_choice, u_rr, _] = if (nee && scene.lights.lights.len() > 1)
+            || chooses
+            || depth + 1 >= settings.rr_depth
+        {
+            sampler.get4(2 + 2 * depth)
+        } else {
+            [0.0; 4]
+        };
         let [lx, ly] = std::mem::replace(&mut light_uv, [next_lx, next_ly]);
         let next = match mat.bsdf {
             Bsdf::Diffuse(albedo) => {
@@ -244,6 +248,26 @@ fn trace(
                     break;
                 };
                 path.specular = true;
+                next
+            }
+            Bsdf::Plastic(index) => {
+                let light_u = nee.then_some((u_select, Vec2::new(lx, ly)));
+                let mut updated = path;
+                let next = plastic(
+                    scene,
+                    strategy,
+                    &mut updated,
+                    scene.plastic(index),
+                    wo,
+                    &sp,
+                    &at,
+                    (Vec2::new(u0, u1), u_choice),
+                    light_u,
+                );
+                path = updated;
+                let Some(next) = next else {
+                    break;
+                };
                 next
             }
         };
@@ -472,8 +496,8 @@ fn visible_light(
     if !(cos > 0.0 && reachable && ls.le != Vec3A::ZERO) {
         return None;
     }
-    let d = ls.p - p_out;
-    if scene.occluded(&Ray::new(p_out, d), 1.0 - 1e-4) {
+    let (shadow, t_max) = ls.shadow_ray(p_out);
+    if scene.occluded(&shadow, t_max) {
         return None;
     }
     Some((ls, cos))
@@ -510,22 +534,119 @@ fn conductor(
     let frame = Frame::from_normal(at.ns);
     let o = frame.to_local(wo);
     if let Some(u) = light_u {
-        if let Some((ls, _)) = visible_light(scene, strategy, sp, at, p_out, u) {
-            let i = frame.to_local(ls.wi);
-            let f = c.eval(o, i);
-            let w = if strategy == Strategy::Mis && !ls.delta {
-                power_heuristic(ls.pdf, c.pdf(o, i))
-            } else {
-                1.0
-            };
-            path.l += path.beta * ls.le * f * (w / ls.pdf);
-        }
+        let lobe = Lobe {
+            frame: &frame,
+            eval: |i| c.eval(o, i),
+            pdf: |i| c.pdf(o, i),
+        };
+        reflected_light(scene, strategy, path, sp, at, p_out, u, lobe);
     }
     let s = c.sample(o, bsdf_u)?;
-    let wi = frame.to_world(s.wi);
-    path.beta *= s.weight;
-    path.specular = false;
-    path.prev_pdf = s.pdf;
+    follow(
+        path,
+        at,
+        p_out,
+        frame.to_world(s.wi),
+        s.weight,
+        s.pdf,
+        false,
+    )
+}
+
+/// A plastic vertex: direct light by next-event estimation (when `light_u` is given) through
+/// both lobes, weighed against the mixture's density under MIS, then a direction from the
+/// coat or the base chosen by `u.1` (see [`crate::bsdf::plastic`]); a smooth coat's mirror
+/// direction is a specular bounce. `None` ends the path.
+#[allow(clippy::too_many_arguments)]
+// Out of line: the loop that diffuse, mirror and glass scenes run stays as small as it was.
+#[inline(never)]
+fn plastic(
+    scene: &Scene,
+    strategy: Strategy,
+    path: &mut Path,
+    p: &Plastic,
+    wo: Vec3A,
+    sp: &SurfacePoint,
+    at: &Shading,
+    (bsdf_u, u_lobe): (Vec2, f32),
+    light_u: Option<(f32, Vec2)>,
+) -> Option<Ray> {
+    let p_out = offset_ray_origin(sp.p, sp.err, at.n);
+    let frame = Frame::from_normal(at.ns);
+    let o = frame.to_local(wo);
+    if let Some(u) = light_u {
+        let lobe = Lobe {
+            frame: &frame,
+            eval: |i| p.eval(o, i),
+            pdf: |i| p.pdf(o, i),
+        };
+        reflected_light(scene, strategy, path, sp, at, p_out, u, lobe);
+    }
+    let s = p.sample(o, bsdf_u, u_lobe)?;
+    follow(
+        path,
+        at,
+        p_out,
+        frame.to_world(s.wi),
+        s.weight,
+        s.pdf,
+        s.delta,
+    )
+}
+
+/// A reflection lobe at a vertex, in its shading `frame`, for the path's outgoing direction:
+/// f·cos θi and the density of its sampler, both of the local direction i.
+struct Lobe<'a, E, P> {
+    frame: &'a Frame,
+    eval: E,
+    pdf: P,
+}
+
+/// Next-event estimation through a reflection lobe (rough metal, plastic): a light sample
+/// from `p_out`, weighed by the power heuristic against the lobe's own density under MIS.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn reflected_light<E, P>(
+    scene: &Scene,
+    strategy: Strategy,
+    path: &mut Path,
+    sp: &SurfacePoint,
+    at: &Shading,
+    p_out: Vec3A,
+    u: (f32, Vec2),
+    lobe: Lobe<'_, E, P>,
+) where
+    E: Fn(Vec3A) -> Vec3A,
+    P: Fn(Vec3A) -> f32,
+{
+    if let Some((ls, _)) = visible_light(scene, strategy, sp, at, p_out, u) {
+        let i = lobe.frame.to_local(ls.wi);
+        let f = (lobe.eval)(i);
+        let w = if strategy == Strategy::Mis && !ls.delta {
+            power_heuristic(ls.pdf, (lobe.pdf)(i))
+        } else {
+            1.0
+        };
+        path.l += path.beta * ls.le * f * (w / ls.pdf);
+    }
+}
+
+/// Continues the path from `p_out` along the reflected direction `wi` (world space) drawn
+/// with weight f·cos/pdf `weight` and density `pdf` (a delta direction: `specular`); `None`
+/// where it points into the geometric surface.
+#[inline(always)]
+fn follow(
+    path: &mut Path,
+    at: &Shading,
+    p_out: Vec3A,
+    wi: Vec3A,
+    weight: Vec3A,
+    pdf: f32,
+    specular: bool,
+) -> Option<Ray> {
+    path.beta *= weight;
+    path.specular = specular;
+    path.prev_pdf = pdf;
     if at.shaded && at.n.dot(wi) <= 0.0 {
         return None;
     }
@@ -563,7 +684,8 @@ fn rough_dielectric(
             let reachable = !at.shaded || at.n.dot(ls.wi) * side.dot(at.n) > 0.0;
             if cos != 0.0 && reachable && ls.le != Vec3A::ZERO {
                 let p_out = offset_ray_origin(sp.p, sp.err, side);
-                if !scene.occluded(&Ray::new(p_out, ls.p - p_out), 1.0 - 1e-4) {
+                let (shadow, t_max) = ls.shadow_ray(p_out);
+                if !scene.occluded(&shadow, t_max) {
                     let i = frame.to_local(ls.wi);
                     let f = rd.eval(o, i, eta);
                     let w = if strategy == Strategy::Mis && !ls.delta {

@@ -14,7 +14,7 @@ use glam::{Vec2, Vec3A};
 use crate::envmap::EnvMap;
 
 use crate::shape::{sphere_point_error, sphere_roots, sphere_roots_f64, Parallelogram};
-use crate::util::math::{offset_ray_origin, Frame};
+use crate::util::math::{offset_ray_origin, Frame, Ray};
 use crate::util::sampling::{square_to_uniform_cone, square_to_uniform_sphere, Distribution1D};
 
 /// The part of an emitter that can be sampled.
@@ -153,6 +153,23 @@ pub struct LightSample {
     pub pdf: f32,
     /// A punctual light: no BSDF sample can find it, so it takes no MIS weight.
     pub delta: bool,
+    /// A light at infinity (directional, environment map): its shadow ray has no end.
+    pub distant: bool,
+}
+
+impl LightSample {
+    /// The shadow ray from `from` and the t it must be clear to: short of the sampled point,
+    /// or, towards a light at infinity, all the way. A finite segment there would end past
+    /// the scene's finite objects but let an infinite plane's far part through: from a ball
+    /// above an infinite floor, the sky just under the horizon lit the ball.
+    #[inline]
+    pub fn shadow_ray(&self, from: Vec3A) -> (Ray, f32) {
+        if self.distant {
+            (Ray::new(from, self.wi), f32::INFINITY)
+        } else {
+            (Ray::new(from, self.p - from), 1.0 - 1e-4)
+        }
+    }
 }
 
 /// All emitters with a power-proportional selection distribution.
@@ -360,6 +377,7 @@ fn surfaceless_sample(light: &Light, p: Vec3A, u: Vec2, pmf: f32) -> Option<Ligh
         le: map.radiance(wi),
         pdf,
         delta: false,
+        distant: true,
     })
 }
 
@@ -372,6 +390,7 @@ fn delta_sample(light: &Light, p: Vec3A, pmf: f32) -> Option<LightSample> {
         le,
         pdf: pmf,
         delta: true,
+        distant: matches!(light.shape, LightShape::Directional { .. }),
     })
 }
 
@@ -492,6 +511,7 @@ impl Lights {
             le,
             pdf,
             delta: false,
+            distant: false,
         })
     }
 
@@ -501,7 +521,7 @@ impl Lights {
     /// because a sample behind another surface is blocked by its shadow ray.
     pub fn pdf_direction(&self, p: Vec3A, w: Vec3A) -> f32 {
         let Some(d) = &self.select else { return 0.0 };
-        let ray = crate::util::math::Ray::new(p, w);
+        let ray = Ray::new(p, w);
         let mut total = 0.0;
         for (i, light) in self.lights.iter().enumerate() {
             let hit = match &light.shape {

@@ -10,8 +10,9 @@
 //! - metals-box (rough gold and aluminium balls in the box) against Mitsuba's `roughconductor`,
 //!   its 4×4 block means (`tests/data/metals-box-reference-4x4.exr`);
 //! - envmap-balls (a diffuse, a rough gold and a frosted glass ball on a ground square under an
-//!   HDR sky with a sun) against Mitsuba's `envmap`, `roughconductor` and `roughdielectric`, its
-//!   4×4 block means (`tests/data/envmap-balls-reference-4x4.exr`).
+//!   HDR sky with a sun), its film cut to 128², against Mitsuba's `envmap`, `plastic`,
+//!   `roughconductor` and `roughdielectric`, its 4×4 block means
+//!   (`tests/data/envmap-balls-128-reference-4x4.exr`).
 //!
 //! Three checks per scene, each able to fail:
 //! - z-test: every 32×32 region mean agrees within 4.5 standard errors (192 region-channels,
@@ -25,6 +26,7 @@ mod common;
 
 use common::{load, region_stats, render, repo_root};
 use tessera_render::output::{read_exr_rgb, RgbImage};
+use tessera_render::scene::{Format, Limits, Scene};
 use tessera_render::{Image, RenderSettings};
 
 const SPP: u32 = 1024;
@@ -86,14 +88,42 @@ fn compare(
 
 /// Renders `scene` at [`SPP`] and runs the three checks against `reference`.
 fn check_against(scene: &str, reference: &Reference) {
-    let scene = load(scene);
-    assert_eq!((scene.width, scene.height), (256, 256));
+    check_scene_against(&load(scene), reference)
+}
+
+/// A bundled scene with its film cut to `size`², the rest of its text unchanged.
+fn load_at(name: &str, size: u32) -> Scene {
+    let text = std::fs::read_to_string(repo_root().join("scenes").join(name)).expect("scene");
+    let text: Vec<String> = text
+        .lines()
+        .map(|l| match l {
+            _ if l.starts_with("width =") => format!("width = {size}"),
+            _ if l.starts_with("height =") => format!("height = {size}"),
+            _ => l.to_string(),
+        })
+        .collect();
+    let files = tessera_render::scene::assets::DirAssets(repo_root().join("scenes"));
+    Scene::from_str_with(
+        &text.join("\n"),
+        Format::Toml,
+        name,
+        &Limits::default(),
+        1,
+        &files,
+    )
+    .expect("scene")
+}
+
+/// [`check_against`] for a scene already loaded: its film square, a multiple of 64 pixels.
+fn check_scene_against(scene: &Scene, reference: &Reference) {
+    let size = scene.width;
+    assert!(scene.height == size && size.is_multiple_of(64));
     assert_eq!(
         (reference.img.width as u32, reference.img.height as u32),
-        (256 / reference.block, 256 / reference.block)
+        (size / reference.block, size / reference.block)
     );
     let img = render(
-        &scene,
+        scene,
         &RenderSettings {
             spp: SPP,
             seed: 1,
@@ -106,8 +136,8 @@ fn check_against(scene: &str, reference: &Reference) {
     let mut worst_z = 0f64;
     let mut worst_rel = 0f64;
     for block in [32u32, 64] {
-        for y0 in (0..256).step_by(block as usize) {
-            for x0 in (0..256).step_by(block as usize) {
+        for y0 in (0..size).step_by(block as usize) {
+            for x0 in (0..size).step_by(block as usize) {
                 for (c, (rel, z, rel_se, ours, theirs)) in
                     compare(&img, reference, x0, y0, block, block)
                         .into_iter()
@@ -127,7 +157,7 @@ fn check_against(scene: &str, reference: &Reference) {
             }
         }
     }
-    for (c, (rel, z, _, ours, theirs)) in compare(&img, reference, 0, 0, 256, 256)
+    for (c, (rel, z, _, ours, theirs)) in compare(&img, reference, 0, 0, size, size)
         .into_iter()
         .enumerate()
     {
@@ -228,30 +258,29 @@ fn metals_box_regions_within_half_a_percent_at_16384_spp() {
     );
 }
 
-/// An environment map against an independent renderer: `scenes/envmap-balls.toml` against
-/// Mitsuba 3's `envmap` (the same texels, parameterisation and bilinear lookup), with a rough
-/// gold ball (`roughconductor`) and a frosted glass one (`roughdielectric`, α = 0.09: the
-/// masking terms differ as for the metals).
+/// An environment map against an independent renderer: `scenes/envmap-balls.toml`, its film
+/// cut to 128² (a quarter of the pixels, so that the raw bound below can run at 16384 spp in
+/// the time CI has), against Mitsuba 3's `envmap` (the same texels, parameterisation and
+/// bilinear lookup), `plastic` (the smooth-coated ball: the same model), `roughconductor` and
+/// `roughdielectric` (α = 0.09: the masking terms differ as for the metals).
 #[test]
 fn envmap_balls_matches_the_independent_reference() {
-    check_against(
-        "envmap-balls.toml",
-        &Reference::load("envmap-balls-reference-4x4.exr", 4),
+    check_scene_against(
+        &load_at("envmap-balls.toml", 128),
+        &Reference::load("envmap-balls-128-reference-4x4.exr", 4),
     );
 }
 
-/// The materials issue's bound for the environment map: every 32² region of
-/// `scenes/envmap-balls.toml` within 0.5% of Mitsuba's 16384-spp render, ours at 4096 spp
-/// (about two minutes on two cores: a fourth check at 16384 spp would take CI's run past its
-/// budget, and at 4096 spp the worst region's own noise is still a fraction of the bound).
-/// Ignored in `cargo test`; `.ci/run` runs it.
+/// The materials issue's bound for the environment map and plastic: at 16384 spp every 32²
+/// region of `scenes/envmap-balls.toml` at 128² within 0.5% of Mitsuba's 16384-spp render.
+/// Ignored in `cargo test` (about two minutes on two cores); `.ci/run` runs it.
 #[test]
 #[ignore = "about two minutes on two cores: .ci/run runs it"]
-fn envmap_balls_regions_within_half_a_percent_at_4096_spp() {
-    regions_within_half_a_percent(
-        "envmap-balls.toml",
-        &Reference::load("envmap-balls-reference-4x4.exr", 4),
-        4096,
+fn envmap_balls_regions_within_half_a_percent_at_16384_spp() {
+    scene_regions_within_half_a_percent(
+        &load_at("envmap-balls.toml", 128),
+        &Reference::load("envmap-balls-128-reference-4x4.exr", 4),
+        16384,
     );
 }
 
@@ -262,9 +291,14 @@ fn regions_within_half_a_percent_at_16384_spp(scene: &str, reference: &Reference
 
 /// Renders `scene` at `spp`: every 32² region, each channel, within 0.5% of `reference`.
 fn regions_within_half_a_percent(scene: &str, reference: &Reference, spp: u32) {
-    let scene = load(scene);
+    scene_regions_within_half_a_percent(&load(scene), reference, spp)
+}
+
+/// [`regions_within_half_a_percent`] for a scene already loaded.
+fn scene_regions_within_half_a_percent(scene: &Scene, reference: &Reference, spp: u32) {
+    let size = scene.width;
     let img = render(
-        &scene,
+        scene,
         &RenderSettings {
             spp,
             seed: 1,
@@ -273,8 +307,8 @@ fn regions_within_half_a_percent(scene: &str, reference: &Reference, spp: u32) {
     );
     assert_eq!(img.nonfinite, 0);
     let (mut worst, mut failures) = (0f64, Vec::new());
-    for y0 in (0..256).step_by(32) {
-        for x0 in (0..256).step_by(32) {
+    for y0 in (0..size).step_by(32) {
+        for x0 in (0..size).step_by(32) {
             // Only the raw difference is read: `compare`'s z and standard error are for SPP.
             let regions = compare(&img, reference, x0, y0, 32, 32);
             for (c, (rel, _, _, ours, theirs)) in regions.into_iter().enumerate() {

@@ -289,6 +289,53 @@ fn garbage_never_panics() {
 }
 
 #[test]
+fn plastic_errors_name_the_key() {
+    let plastic = |body: &str| format!("{HEAD}[materials.p]\ntype = \"plastic\"\n{body}");
+    check(
+        &plastic("albedo = [0.5, 0.5, 0.5]\nroughness = 2\n"),
+        16,
+        "materials.p.roughness",
+        "must be between 0 and 1, got 2",
+    );
+    check(
+        &plastic("albedo = [0.5, 0.5, 0.5]\nior = 1\n"),
+        16,
+        "materials.p.ior",
+        "a plastic's coat of index 1 is no coat",
+    );
+    check(
+        &plastic("albedo = [0.5, 0.5, 0.5]\nior = -1.5\n"),
+        16,
+        "materials.p.ior",
+        "must be a finite number greater than 0, got -1.5",
+    );
+    check(
+        &plastic("roughness = 0.3\n"),
+        13,
+        "materials.p.albedo",
+        "a plastic material needs `albedo`",
+    );
+    check(
+        &plastic("albedo = [1.5, 0.5, 0.5]\n"),
+        15,
+        "materials.p.albedo",
+        "must be at most 1",
+    );
+    check(
+        &plastic("albedo = { texture = \"t.png\" }\n"),
+        15,
+        "materials.p.albedo.texture",
+        "a plastic's albedo is a colour",
+    );
+    check(
+        &plastic("albedo = [0.5, 0.5, 0.5]\nmetal = \"gold\"\n"),
+        16,
+        "materials.p.metal",
+        "`metal` does not apply to a plastic material",
+    );
+}
+
+#[test]
 fn conductor_errors_name_the_key() {
     let metal = |body: &str| format!("{HEAD}[materials.c]\ntype = \"conductor\"\n{body}");
     check(

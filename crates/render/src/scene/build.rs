@@ -9,14 +9,12 @@ use glam::{Affine3A, Vec3, Vec3A};
 
 use super::assets::{sha256_hex, Assets};
 use super::check::{
-    build_transform, finite, finite3, only, positive, required, root, similarity_scale,
-    Invalid,
+    build_transform, finite, finite3, only, positive, required, root, similarity_scale, Invalid,
 };
 use super::lights::{environment, punctual_lights, reach};
 use super::materials::build_materials;
 use super::{
-    CameraModel, KeyPath, Limits, Material, ObjectDesc, Primitive,
-    Scene, SceneFile, ShapeKind,
+    CameraModel, KeyPath, Limits, Material, ObjectDesc, Primitive, Scene, SceneFile, ShapeKind,
 };
 use crate::aggregate::Accel;
 use crate::camera::Camera;
@@ -204,7 +202,8 @@ pub(super) fn build(
     let camera = build_camera(desc, w, h)?;
     let mut files = SceneFiles::default();
     let environment = environment(desc, &mut files, limits, assets)?;
-    let (materials, absorption, names) = build_materials(desc, &mut files, limits, assets)?;
+    let (materials, absorption, plastics, names) =
+        build_materials(desc, &mut files, limits, assets)?;
     if desc.objects.len() > limits.max_objects {
         return Err((
             root("objects"),
@@ -280,6 +279,7 @@ pub(super) fn build(
         accel,
         shading_normals,
         absorption,
+        plastics,
     };
     Ok((scene, files.read))
 }

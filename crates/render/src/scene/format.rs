@@ -246,6 +246,8 @@ pub enum MaterialKind {
     Dielectric,
     /// A metal: GGX microfacets over a conductor's Fresnel reflectance.
     Conductor,
+    /// A diffuse base under a clear dielectric coat, rough or smooth.
+    Plastic,
 }
 
 /// Material description.
@@ -255,15 +257,16 @@ pub struct MaterialDesc {
     /// Kind.
     #[serde(rename = "type")]
     pub kind: MaterialKind,
-    /// Diffuse reflectance in [0, 1] (diffuse): a colour, or `{ texture = "file" }`.
+    /// Diffuse reflectance in [0, 1] (diffuse: a colour, or `{ texture = "file" }`; plastic:
+    /// its base's colour).
     #[serde(default)]
     pub albedo: Option<AlbedoDesc>,
     /// Mirror reflectance in [0, 1] (mirror; default 1).
     #[serde(default, deserialize_with = "maybe_three")]
     pub reflectance: Option<[f32; 3]>,
-    /// Index of refraction, inside over outside (dielectric).
+    /// Index of refraction, inside over outside (dielectric; plastic's coat, default 1.5).
     pub ior: Option<f32>,
-    /// Microfacet roughness in [0, 1] (conductor, dielectric; default 0, smooth); α =
+    /// Microfacet roughness in [0, 1] (conductor, dielectric, plastic; default 0, smooth); α =
     /// roughness².
     pub roughness: Option<f32>,
     /// A thin sheet rather than a solid (dielectric, smooth only): light reflects or passes

@@ -1,5 +1,6 @@
 //! The `[materials]` table: each material validated and converted into its runtime BSDF
-//! (diffuse, mirror, glass of every kind, metals), with the errors naming the key at fault.
+//! (diffuse, mirror, glass of every kind, metals, plastic), with the errors naming the key at
+//! fault.
 
 use std::collections::BTreeMap;
 
@@ -11,10 +12,16 @@ use super::check::{color, finite3, only, positive, required, root, Invalid};
 use super::{AlbedoDesc, KeyPath, Limits, Material, MaterialDesc, MaterialKind, SceneFile};
 use crate::bsdf::conductor::{metal, METALS};
 use crate::bsdf::microfacet::TrowbridgeReitz;
-use crate::bsdf::{Bsdf, Conductor, Fresnel, Metal, RoughDielectric};
+use crate::bsdf::{Bsdf, Conductor, Fresnel, Metal, Plastic, RoughDielectric};
 
-/// The materials, each one's absorption inside, and each one's index by name.
-pub(super) type BuiltMaterials<'a> = (Vec<Material>, Vec<Vec3A>, BTreeMap<&'a str, u32>);
+/// The materials, each one's absorption inside, the plastics they index, and each material's
+/// index by name.
+pub(super) type BuiltMaterials<'a> = (
+    Vec<Material>,
+    Vec<Vec3A>,
+    Vec<Plastic>,
+    BTreeMap<&'a str, u32>,
+);
 
 /// The materials, and each one's index by name; textures are read through `files`.
 pub(super) fn build_materials<'a>(
@@ -25,6 +32,7 @@ pub(super) fn build_materials<'a>(
 ) -> Result<BuiltMaterials<'a>, Invalid> {
     let mut materials = Vec::with_capacity(desc.materials.len());
     let mut absorptions = Vec::with_capacity(desc.materials.len());
+    let mut plastics = Vec::new();
     let mut names = BTreeMap::new();
     for (name, m) in &desc.materials {
         let mp = root("materials").key(name);
@@ -84,6 +92,32 @@ pub(super) fn build_materials<'a>(
                 )?;
                 Bsdf::Conductor(Metal::new(&conductor(m, &mp)?))
             }
+            MaterialKind::Plastic => {
+                let kind = "a plastic material";
+                only(&mp, kind, &present, &["albedo", "roughness", "ior"])?;
+                let albedo =
+                    match required(m.albedo.as_ref(), &mp, kind, "albedo")? {
+                        AlbedoDesc::Color(c) => color(*c, &mp.key("albedo"), true)?,
+                        AlbedoDesc::Texture(_) => return Err((
+                            mp.key("albedo").key("texture"),
+                            "a plastic's albedo is a colour: textures are for diffuse materials"
+                                .into(),
+                        )),
+                    };
+                let roughness = match m.roughness {
+                    None => 0.0,
+                    Some(r) => unit(r, &mp.key("roughness"))?,
+                };
+                let ior = positive(m.ior.unwrap_or(1.5), &mp.key("ior"))?;
+                if ior == 1.0 {
+                    return Err((
+                        mp.key("ior"),
+                        "a plastic's coat of index 1 is no coat: use a diffuse material".into(),
+                    ));
+                }
+                plastics.push(Plastic::new(albedo, roughness, ior));
+                Bsdf::Plastic(plastics.len() as u32 - 1)
+            }
         };
         let emission = match m.emission {
             Some(e) => color(e, &mp.key("emission"), false)?,
@@ -107,7 +141,7 @@ pub(super) fn build_materials<'a>(
             texture,
         });
     }
-    Ok((materials, absorptions, names))
+    Ok((materials, absorptions, plastics, names))
 }
 
 /// Glass: smooth, rough, or a thin sheet (smooth only, and with no inside to absorb in).

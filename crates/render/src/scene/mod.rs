@@ -209,6 +209,8 @@ pub struct Scene {
     /// [`Material`] so that the materials every bounce reads stay as small as they were; empty
     /// when no material absorbs.
     absorption: Vec<Vec3A>,
+    /// The plastics that [`Bsdf::Plastic`] materials index.
+    plastics: Vec<crate::bsdf::Plastic>,
 }
 
 impl Scene {
@@ -329,6 +331,12 @@ impl Scene {
             .get(index as usize)
             .copied()
             .unwrap_or(Vec3A::ZERO)
+    }
+
+    /// The plastic a [`Bsdf::Plastic`] material names by `index`.
+    #[inline]
+    pub fn plastic(&self, index: u32) -> &crate::bsdf::Plastic {
+        &self.plastics[index as usize]
     }
 
     /// The scene's ray queries.

@@ -275,10 +275,9 @@ pub fn atan2(y: f32, x: f32) -> f32 {
         (0.0, t)
     };
     let z = t * t;
-    let p = (((8.053_744_5e-2 * z - 1.387_768_6e-1) * z + 1.997_771_1e-1) * z - 3.333_295e-1)
-        * z
-        * t
-        + t;
+    let p =
+        (((8.053_744_5e-2 * z - 1.387_768_6e-1) * z + 1.997_771_1e-1) * z - 3.333_295e-1) * z * t
+            + t;
     let mut r = base + p;
     if ay > ax {
         r = FRAC_PI_2 - r;
@@ -607,7 +606,10 @@ mod tests {
             (1.0, 1.0, std::f64::consts::FRAC_PI_4),
             (0.0, 0.0, 0.0),
         ] {
-            assert!((super::atan2(y, x) as f64 - want).abs() < 3e-7, "atan2({y}, {x})");
+            assert!(
+                (super::atan2(y, x) as f64 - want).abs() < 3e-7,
+                "atan2({y}, {x})"
+            );
         }
         assert!(super::atan2(f32::NAN, 1.0).is_nan());
         let mut worst = 0.0f64;
