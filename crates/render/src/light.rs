@@ -199,9 +199,9 @@ impl Light {
                 ..
             } => return 2.0 * PI * (1.0 - 0.5 * (cos_inner + cos_outer)) * sum,
             LightShape::Directional { reach, .. } => return PI * reach * reach * sum,
-            // Radiance over the sphere through the scene's cross-section, as a directional
-            // light's irradiance is.
-            LightShape::Environment { map, reach } => return reach * reach * map.power(),
+            // Radiance over the sphere through the scene's cross-section π·reach², as a
+            // directional light's irradiance is.
+            LightShape::Environment { map, reach } => return PI * reach * reach * map.power(),
         };
         let sides = if self.two_sided { 2.0 } else { 1.0 };
         area * sides * (self.radiance.x + self.radiance.y + self.radiance.z)

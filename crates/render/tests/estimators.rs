@@ -125,8 +125,8 @@ fn strategies_agree_on_rough_and_coloured_glass() {
 #[test]
 fn strategies_agree_on_plastic_and_on_an_environment_map() {
     // A smooth-coated and a rough-coated plastic ball under a large lamp; then the same balls
-    // under the bundled sky alone (a sun texel in it), whose directions light sampling draws
-    // from the map and weighs against the plastics' mixture densities. Halving the plastic's
+    // under the bundled sky alone (a sun in it), whose directions light sampling draws from the
+    // map and weighs against the plastics' mixture densities; then under both. Halving the plastic's
     // BSDF density in its MIS weight fails the first (|z| = 7.5); halving the map's density in
     // an escaping ray's weight fails the second (|z| = 10.0). The second found a real bug:
     // shadow rays towards the map ended past the scene's finite objects, so the sky just under
@@ -152,6 +152,13 @@ fn strategies_agree_on_plastic_and_on_an_environment_map() {
     agree(
         &common::scene_with_files(&mapped, &[("sky.exr", &sky)]),
         [4096, 4096, 4096],
+        8,
+    );
+    // Both: light sampling chooses between the lamp and the map by power.
+    let both = format!("{mapped}{}", &lamp[camera.len() + balls.len()..]);
+    agree(
+        &common::scene_with_files(&both, &[("sky.exr", &sky)]),
+        [2048, 2048, 4096],
         8,
     );
 }
