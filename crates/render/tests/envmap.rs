@@ -17,8 +17,7 @@ use tessera_render::envmap::EnvMap;
 use tessera_render::integrator::radiance;
 use tessera_render::math::Ray;
 use tessera_render::sampling::PixelSampler;
-use tessera_render::scene::assets::MemAssets;
-use tessera_render::scene::{Format, Limits, Scene};
+use tessera_render::scene::Scene;
 use tessera_render::{RenderSettings, Strategy};
 
 const STRATEGIES: [Strategy; 3] = [Strategy::Mis, Strategy::Nee, Strategy::Bsdf];
@@ -68,21 +67,29 @@ fn hdr_bytes(w: usize, h: usize, texels: &[Vec3A]) -> Vec<u8> {
 }
 
 fn load(text: &str, files: &[(&str, Vec<u8>)]) -> Result<Scene, String> {
-    let assets = MemAssets(
-        files
-            .iter()
-            .map(|(n, b)| (n.to_string(), b.clone()))
-            .collect(),
-    );
-    Scene::from_str_with(
-        text,
-        Format::Toml,
-        "test.toml",
-        &Limits::default(),
-        1,
-        &assets,
-    )
-    .map_err(|e| e.to_string())
+    let files: Vec<(&str, &[u8])> = files.iter().map(|(n, b)| (*n, b.as_slice())).collect();
+    common::try_scene_with_files(text, &files)
+}
+
+/// E = ∫ L cos θ dω of `map` over the upper hemisphere, by a midpoint rule in (φ, cos θ) fine
+/// enough to resolve a sun texel's bilinear footprint (two texels of a 32-wide map).
+fn irradiance(map: &EnvMap) -> DVec3 {
+    let k = 1200;
+    let mut e = DVec3::ZERO;
+    for a in 0..k {
+        let cos = (a as f64 + 0.5) / k as f64;
+        let sin = (1.0 - cos * cos).sqrt();
+        for b in 0..4 * k {
+            let phi = 2.0 * std::f64::consts::PI * (b as f64 + 0.5) / (4 * k) as f64;
+            let d = Vec3A::new(
+                (sin * phi.cos()) as f32,
+                cos as f32,
+                (sin * phi.sin()) as f32,
+            );
+            e += map.radiance(d).as_dvec3() * cos;
+        }
+    }
+    e * (2.0 * std::f64::consts::PI / (4 * k * k) as f64)
 }
 
 const CAMERA: &str = "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 1, 4]\ntarget = [0, 0, 0]\nfov = 40\n[film]\nwidth = 4\nheight = 4\n";
@@ -185,24 +192,7 @@ fn a_sun_lit_plane_gives_rho_e_over_pi_under_every_strategy() {
     let texels = sky(w, h, 2000.0, (11, 5));
     let rho = 0.5;
     let map = EnvMap::new(w, h, &texels, 1.0, 0.1).expect("map");
-    // E = ∫ L cos θ dω over the upper hemisphere, by a midpoint rule in (φ, cos θ) fine enough
-    // to resolve the sun's bilinear footprint (two texels, about 11° by 12°).
-    let k = 1200;
-    let mut e = DVec3::ZERO;
-    for a in 0..k {
-        let cos = (a as f64 + 0.5) / k as f64;
-        let sin = (1.0 - cos * cos).sqrt();
-        for b in 0..4 * k {
-            let phi = 2.0 * std::f64::consts::PI * (b as f64 + 0.5) / (4 * k) as f64;
-            let d = Vec3A::new(
-                (sin * phi.cos()) as f32,
-                cos as f32,
-                (sin * phi.sin()) as f32,
-            );
-            e += map.radiance(d).as_dvec3() * cos;
-        }
-    }
-    e *= 2.0 * std::f64::consts::PI / (4 * k * k) as f64;
+    let e = irradiance(&map);
     let text = with_map(
         "file = \"sky.hdr\"\nrotate = 36.0",
         &format!("[materials.ground]\ntype = \"diffuse\"\nalbedo = [{rho}, {rho}, {rho}]\n[[objects]]\nshape = \"plane\"\nmaterial = \"ground\"\n"),
@@ -217,21 +207,7 @@ fn a_sun_lit_plane_gives_rho_e_over_pi_under_every_strategy() {
     )
     .expect("decode");
     let map = EnvMap::new(w, h, &decoded, 1.0, 0.1).expect("map");
-    let mut e_file = DVec3::ZERO;
-    for a in 0..k {
-        let cos = (a as f64 + 0.5) / k as f64;
-        let sin = (1.0 - cos * cos).sqrt();
-        for b in 0..4 * k {
-            let phi = 2.0 * std::f64::consts::PI * (b as f64 + 0.5) / (4 * k) as f64;
-            let d = Vec3A::new(
-                (sin * phi.cos()) as f32,
-                cos as f32,
-                (sin * phi.sin()) as f32,
-            );
-            e_file += map.radiance(d).as_dvec3() * cos;
-        }
-    }
-    e_file *= 2.0 * std::f64::consts::PI / (4 * k * k) as f64;
+    let e_file = irradiance(&map);
     assert!(
         (e_file - e).abs().max_element() < 0.02 * e.max_element(),
         "{e_file} vs {e}"

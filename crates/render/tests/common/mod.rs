@@ -19,6 +19,11 @@ pub fn load(name: &str) -> Scene {
 
 /// A scene from text with the files it names held in memory.
 pub fn scene_with_files(text: &str, files: &[(&str, &[u8])]) -> Scene {
+    try_scene_with_files(text, files).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// [`scene_with_files`], or the error as the user would read it.
+pub fn try_scene_with_files(text: &str, files: &[(&str, &[u8])]) -> Result<Scene, String> {
     let files = tessera_render::scene::assets::MemAssets(
         files
             .iter()
@@ -33,7 +38,7 @@ pub fn scene_with_files(text: &str, files: &[(&str, &[u8])]) -> Scene {
         1,
         &files,
     )
-    .unwrap_or_else(|e| panic!("{e}"))
+    .map_err(|e| e.to_string())
 }
 
 pub fn scene(text: &str) -> Scene {
