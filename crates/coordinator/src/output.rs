@@ -4,8 +4,8 @@
 use std::sync::Arc;
 
 use tessera_proto::ids::JobId;
-use tessera_render::assemble_image;
-use tessera_render::output::{render_metadata, write_new_exr, ExrChannels};
+use tessera_render::output::{render_metadata, write_new_exr_strips, ExrChannels};
+use tessera_render::{NoiseSum, Strips};
 use tracing::{error, info, warn};
 
 use crate::job::FrameTile;
@@ -50,7 +50,9 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
     let path = dir.join(&rec.output_name);
     let store = shared.store.clone();
     let written = tokio::task::spawn_blocking(move || -> Result<_, FinishError> {
-        // Tiles the store holds are read back one at a time, as the image takes them.
+        // Tiles the store holds are read back one at a time, as the strips take them, and
+        // each strip of rows is dropped once the encoder has compressed it: writing a frame
+        // holds one band of tiles, not the image.
         let mut unread = None;
         let sums = tiles.into_iter().map_while(|t| match t {
             FrameTile::Here(s) => Some(s),
@@ -59,24 +61,33 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
                 .map_err(|e| unread = Some(e))
                 .ok(),
         });
-        let image = assemble_image(&settings, rec.width, rec.height, sums);
-        if let Some(e) = unread {
-            return Err(e.into());
-        }
-        let image = image?;
-        let noise = image.noise();
+        let mut unfit = None;
+        let mut noise = NoiseSum::default();
+        let strips = Strips::new(&settings, rec.width, rec.height, sums)
+            .map_while(|s| s.map_err(|e| unfit = Some(e)).ok())
+            .inspect(|s| noise.add(s));
         let channels = ExrChannels {
             variance: rec.variance,
             samples: rec.sample_count,
         };
         // Never over another file: output names are unique among the coordinator's jobs, so a
         // file already there was put there by someone else, and is theirs.
-        write_new_exr(
+        let written = write_new_exr_strips(
             &path,
-            &image,
+            (rec.width, rec.height),
             channels,
             &render_metadata(&rec.scene_hash, &settings),
-        )?;
+            strips,
+        );
+        // A strip source that failed explains why the strips fell short.
+        if let Some(e) = unread {
+            return Err(e.into());
+        }
+        if let Some(e) = unfit {
+            return Err(e.into());
+        }
+        written?;
+        let noise = noise.noise();
         Ok(noise)
     })
     .await

@@ -59,7 +59,8 @@ pub mod wide;
 
 pub use adaptive::Adaptive;
 pub use film::{
-    assemble_frame, assemble_image, assemble_render, Image, MergeError, PixelRect, TileSums,
+    assemble_frame, assemble_image, assemble_render, Image, MergeError, NoiseSum, PixelRect,
+    Strips, TileSums,
 };
 pub use settings::{
     unit_batch, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_TILE, DEFAULT_UNIT_SAMPLES,

@@ -235,9 +235,10 @@ radius = 0.3
     );
 }
 
-/// The farm writes its frames tile by tile ([`assemble_image`]), `tessera render` from one
-/// frame of sums: the two images must be the same bits, for full and adaptive renders, and the
-/// tile-by-tile path must refuse what the frame path refuses.
+/// The farm writes its frames a band of tiles at a time ([`assemble_image`] puts those strips
+/// together), `tessera render` from one frame of sums: the two images must be the same bits,
+/// for full and adaptive renders, and the tile-by-tile path must refuse what the frame path
+/// refuses.
 #[test]
 fn an_image_assembled_tile_by_tile_is_the_frame_finalized() {
     let scene = load("spheres.toml");

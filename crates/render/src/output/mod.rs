@@ -2,13 +2,14 @@
 
 use std::path::{Path, PathBuf};
 
-use exr::prelude::{
-    read_first_rgba_layer_from_file, AnyChannel, AnyChannels, AttributeValue, Encoding,
-    FlatSamples, Layer, LayerAttributes, Text, WritableImage,
-};
+use exr::prelude::{read_first_rgba_layer_from_file, AttributeValue, Text};
 
 use crate::film::Image;
 use crate::util::files::{self, Access, Place};
+
+mod rows;
+
+pub use rows::write_new_exr_strips;
 
 /// Errors writing or reading images.
 #[derive(Debug, thiserror::Error)]
@@ -115,69 +116,15 @@ fn write_exr_as(
     metadata: &[(String, String)],
     no_clobber: bool,
 ) -> Result<(), OutputError> {
-    let size = (image.width as usize, image.height as usize);
-    let plane = |f: &dyn Fn(usize) -> f32| FlatSamples::F32((0..image.rgb.len()).map(f).collect());
-    let mut list: Vec<AnyChannel<FlatSamples>> = vec![
-        AnyChannel::new("R", plane(&|i| image.rgb[i][0])),
-        AnyChannel::new("G", plane(&|i| image.rgb[i][1])),
-        AnyChannel::new("B", plane(&|i| image.rgb[i][2])),
-    ];
-    if channels.variance {
-        for (c, name) in ["variance.R", "variance.G", "variance.B"]
-            .iter()
-            .enumerate()
-        {
-            list.push(AnyChannel::new(*name, plane(&|i| image.variance[i][c])));
-        }
-    }
-    if channels.samples {
-        list.push(AnyChannel::new(
-            "samples",
-            plane(&|i| image.count[i] as f32),
-        ));
-    }
-    let mut attrs = LayerAttributes::default();
-    let texts: Vec<Text> = metadata
-        .iter()
-        .filter_map(|(k, v)| Text::new_or_none(format!("{k}={v}")))
-        .collect();
-    if !texts.is_empty() {
-        attrs
-            .other
-            .insert(Text::from("tessera"), AttributeValue::TextVector(texts));
-    }
-    let layer = Layer::new(
+    let size = (image.width, image.height);
+    rows::write(
+        path,
         size,
-        attrs,
-        Encoding::SMALL_LOSSLESS,
-        AnyChannels::sort(list.into_iter().collect()),
-    );
-    let exr_image = exr::image::Image::from_layer(layer);
-
-    let how = if no_clobber {
-        Place::New
-    } else {
-        Place::Replace
-    };
-    let mut encoded: Option<exr::error::Error> = None;
-    let placed = files::place(path, how, Access::Shared, |w| {
-        exr_image.write().to_buffered(w).map_err(|e| {
-            let io = std::io::Error::other(e.to_string());
-            encoded = Some(e);
-            io
-        })
-    });
-    match (placed, encoded) {
-        (Ok(()), _) => Ok(()),
-        (Err(_), Some(e)) => Err(OutputError::Exr {
-            path: path.to_path_buf(),
-            message: e.to_string(),
-        }),
-        (Err(source), None) => Err(OutputError::Io {
-            path: path.to_path_buf(),
-            source,
-        }),
-    }
+        channels,
+        metadata,
+        std::iter::once(image),
+        no_clobber,
+    )
 }
 
 /// An RGB float image read from an EXR file.

@@ -8,6 +8,10 @@
 
 use std::ops::Range;
 
+mod strips;
+
+pub use strips::{assemble_image, Strips};
+
 /// A rectangle of pixels.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct PixelRect {
@@ -285,19 +289,38 @@ impl Image {
     /// Noise summary: root-mean-square standard error of pixel means (luminance-weighted
     /// channels averaged), and the same relative to the mean pixel value.
     pub fn noise(&self) -> (f64, f64) {
-        let n = self.rgb.len().max(1) as f64;
-        let var: f64 = self
-            .variance
-            .iter()
-            .map(|v| (v[0] + v[1] + v[2]) as f64 / 3.0)
-            .sum::<f64>()
-            / n;
-        let mean: f64 = self
-            .rgb
-            .iter()
-            .map(|c| (c[0] + c[1] + c[2]) as f64 / 3.0)
-            .sum::<f64>()
-            / n;
+        let mut sum = NoiseSum::default();
+        sum.add(self);
+        sum.noise()
+    }
+}
+
+/// [`Image::noise`] of an image taken a strip of rows at a time: the same bits as the whole
+/// image's, when the strips are added top to bottom, since each total is a running sum over
+/// the pixels in row-major order either way.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NoiseSum {
+    var: f64,
+    mean: f64,
+    pixels: usize,
+}
+
+impl NoiseSum {
+    /// Adds the next strip's pixels.
+    pub fn add(&mut self, strip: &Image) {
+        for v in &strip.variance {
+            self.var += (v[0] + v[1] + v[2]) as f64 / 3.0;
+        }
+        for c in &strip.rgb {
+            self.mean += (c[0] + c[1] + c[2]) as f64 / 3.0;
+        }
+        self.pixels += strip.rgb.len();
+    }
+
+    /// The noise of the pixels added so far, as [`Image::noise`] gives it.
+    pub fn noise(&self) -> (f64, f64) {
+        let n = self.pixels.max(1) as f64;
+        let (var, mean) = (self.var / n, self.mean / n);
         let rms = var.sqrt();
         (rms, if mean > 0.0 { rms / mean } else { 0.0 })
     }
@@ -329,71 +352,6 @@ pub fn assemble_render(
         TileSums::insert
     };
     assemble(width, height, settings.spp, tiles, insert)
-}
-
-/// The finished image of a render with `settings` from its tiles, taken one at a time: the
-/// same pixels as [`assemble_render`]'s frame finalized (each pixel's mean and variance are
-/// arithmetic on its own sums alone, so finalizing tile by tile changes no bit), with the same
-/// checks of each tile, but without a frame of sums beside the tiles: a large frame's peak
-/// memory is its tiles and its image, each tile freed once it is in the image, rather than
-/// twice its sums.
-pub fn assemble_image(
-    settings: &crate::RenderSettings,
-    width: u32,
-    height: u32,
-    tiles: impl IntoIterator<Item = TileSums>,
-) -> Result<Image, MergeError> {
-    let full = PixelRect {
-        x0: 0,
-        y0: 0,
-        width,
-        height,
-    };
-    let samples = 0..settings.spp;
-    let n = full.area();
-    let mut image = Image {
-        width,
-        height,
-        rgb: vec![[0.0; 3]; n],
-        variance: vec![[0.0; 3]; n],
-        count: vec![0; n],
-        nonfinite: 0,
-    };
-    for tile in tiles {
-        let fits = if settings.adaptive.is_some() {
-            tile.samples.start == samples.start && tile.samples.end <= samples.end
-        } else {
-            tile.samples == samples
-        };
-        if !fits {
-            return Err(MergeError::Order {
-                have: samples,
-                got: tile.samples,
-            });
-        }
-        let t = tile.rect;
-        if t.x0 as u64 + t.width as u64 > width as u64
-            || t.y0 as u64 + t.height as u64 > height as u64
-        {
-            return Err(MergeError::Rect {
-                expected: full,
-                got: t,
-            });
-        }
-        tile.check_shape()?;
-        let part = tile.finalize();
-        drop(tile);
-        for row in 0..t.height {
-            let src = (row * t.width) as usize;
-            let dst = ((t.y0 + row) * width + t.x0) as usize;
-            let w = t.width as usize;
-            image.rgb[dst..dst + w].copy_from_slice(&part.rgb[src..src + w]);
-            image.variance[dst..dst + w].copy_from_slice(&part.variance[src..src + w]);
-            image.count[dst..dst + w].copy_from_slice(&part.count[src..src + w]);
-        }
-        image.nonfinite += part.nonfinite;
-    }
-    Ok(image)
 }
 
 fn assemble(
