@@ -105,6 +105,9 @@ fn trace(
                 }
                 Some(env) => path.l += path.beta * env.radiance(ray.d),
             }
+            if !scene.lights.suns().is_empty() {
+                add_suns(&mut path, scene, strategy, ray.d);
+            }
             break;
         };
         let prim = &scene.prims[hit.prim as usize];
@@ -405,6 +408,26 @@ fn add_environment(
         Strategy::Nee => return,
     };
     path.l += path.beta * map.radiance(d) * w;
+}
+
+/// The suns a ray that escapes the scene along `d` looks into, weighted as
+/// [`add_environment`] weights the map.
+#[inline(never)]
+fn add_suns(path: &mut Path, scene: &Scene, strategy: Strategy, d: Vec3A) {
+    for &i in scene.lights.suns() {
+        let Some((le, pdf)) = scene.lights.lights[i as usize].sun_seen(d) else {
+            continue;
+        };
+        let w = match strategy {
+            _ if path.specular => 1.0,
+            Strategy::Bsdf => 1.0,
+            Strategy::Mis => {
+                power_heuristic(path.prev_pdf, scene.lights.selection(i as usize) * pdf)
+            }
+            Strategy::Nee => return,
+        };
+        path.l += path.beta * le * w;
+    }
 }
 
 /// A diffuse vertex of albedo `albedo`: direct light by next-event estimation (when

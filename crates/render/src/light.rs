@@ -59,6 +59,22 @@ pub enum LightShape {
         /// leave to reach the light, and whose disk the light's power falls on.
         reach: f32,
     },
+    /// A directional light with an angular diameter (a sun): radiance [`Light::radiance`] from
+    /// every direction within a cone around `towards`, infinitely far away. Not a delta: a
+    /// ray that escapes the scene inside the cone reads it ([`Lights::suns`]), so BSDF
+    /// sampling finds it and MIS combines the two.
+    Sun {
+        /// Unit direction towards the sun's centre.
+        towards: Vec3A,
+        /// sin² of the cone's half-angle: what a direction's offset from `towards` is tested
+        /// against, since |d × towards|² keeps its precision for a small sun where the cosine
+        /// rounds to 1.
+        sin2_max: f32,
+        /// 1 − cos of the cone's half-angle, computed without cancellation.
+        one_minus_cos: f32,
+        /// As for [`LightShape::Directional`].
+        reach: f32,
+    },
     /// An environment map: light from every direction, infinitely far away, sampled by the
     /// map's own distribution ([`EnvMap::sample`]). No ray hits it as a surface: a ray that
     /// escapes the scene reads it ([`crate::scene::Environment`]).
@@ -181,6 +197,8 @@ pub struct Lights {
     /// The punctual lights alone, by power, with their indices: what BSDF-only rendering
     /// samples.
     delta: Option<(Distribution1D, Vec<u32>)>,
+    /// The suns' indices: what a ray that escapes the scene must look for.
+    suns: Vec<u32>,
 }
 
 impl Light {
@@ -199,6 +217,10 @@ impl Light {
                 ..
             } => return 2.0 * PI * (1.0 - 0.5 * (cos_inner + cos_outer)) * sum,
             LightShape::Directional { reach, .. } => return PI * reach * reach * sum,
+            // Its irradiance on a surface facing it, L·π·sin²θ, through the cross-section.
+            LightShape::Sun {
+                reach, sin2_max, ..
+            } => return PI * reach * reach * PI * sin2_max * sum,
             // Radiance over the sphere through the scene's cross-section π·reach², as a
             // directional light's irradiance is.
             LightShape::Environment { map, reach } => return PI * reach * reach * map.power(),
@@ -234,6 +256,23 @@ impl Light {
             self.shape,
             LightShape::Point { .. } | LightShape::Spot { .. } | LightShape::Directional { .. }
         )
+    }
+
+    /// A sun's radiance and sampling density (solid angle, without selection) along a ray
+    /// leaving in unit direction `d`, if `d` points into its disk.
+    #[inline]
+    pub fn sun_seen(&self, d: Vec3A) -> Option<(Vec3A, f32)> {
+        let LightShape::Sun {
+            towards,
+            sin2_max,
+            one_minus_cos,
+            ..
+        } = self.shape
+        else {
+            return None;
+        };
+        (d.dot(towards) > 0.0 && d.cross(towards).length_squared() <= sin2_max)
+            .then(|| (self.radiance, 1.0 / (2.0 * PI * one_minus_cos)))
     }
 
     /// A punctual light as seen from `p`: the shadow ray's end, the unit direction to it, and
@@ -357,15 +396,29 @@ fn sample_sphere(
     Some((x, n, wi, 1.0 / (2.0 * PI * one_minus_cos)))
 }
 
-/// A sample of a light without a surface (punctual, or an environment map) from `p`, selected
+/// A sample of a light without a surface (punctual, a sun, or an environment map) from `p`, selected
 /// with probability `pmf`. Out of line, so that [`Lights::sample`] stays small enough to inline
 /// into the integrator.
 #[inline(never)]
 fn surfaceless_sample(light: &Light, p: Vec3A, u: Vec2, pmf: f32) -> Option<LightSample> {
-    let LightShape::Environment { map, reach } = &light.shape else {
-        return delta_sample(light, p, pmf);
+    let (wi, pdf, le, reach) = match &light.shape {
+        LightShape::Environment { map, reach } => {
+            let (wi, pdf) = map.sample(u)?;
+            (wi, pdf, map.radiance(wi), *reach)
+        }
+        LightShape::Sun {
+            towards,
+            one_minus_cos,
+            reach,
+            ..
+        } => {
+            let local = square_to_uniform_cone(u, *one_minus_cos);
+            let wi = Frame::from_normal(*towards).to_world(local).normalize();
+            let pdf = 1.0 / (2.0 * PI * one_minus_cos);
+            (wi, pdf, light.radiance, *reach)
+        }
+        _ => return delta_sample(light, p, pmf),
     };
-    let (wi, pdf) = map.sample(u)?;
     let pdf = pdf * pmf;
     if !positive_finite(pdf) {
         return None;
@@ -374,7 +427,7 @@ fn surfaceless_sample(light: &Light, p: Vec3A, u: Vec2, pmf: f32) -> Option<Ligh
         // Past the sphere of the scene's finite objects, as for a directional light.
         p: p + wi * (2.0 * reach + p.length()),
         wi,
-        le: map.radiance(wi),
+        le,
         pdf,
         delta: false,
         distant: true,
@@ -455,10 +508,14 @@ impl Lights {
             .collect();
         let delta_weights: Vec<f32> = delta_index.iter().map(|&i| weights[i as usize]).collect();
         let delta = Distribution1D::new(&delta_weights).map(|d| (d, delta_index));
+        let suns = (0..lights.len() as u32)
+            .filter(|&i| matches!(lights[i as usize].shape, LightShape::Sun { .. }))
+            .collect();
         Self {
             lights,
             select,
             delta,
+            suns,
         }
     }
 
@@ -474,6 +531,12 @@ impl Lights {
         let (dist, index) = self.delta.as_ref()?;
         let k = dist.sample(u_select);
         delta_sample(&self.lights[index[k] as usize], p, dist.pmf(k))
+    }
+
+    /// The indices of the suns, which a ray that escapes the scene may see.
+    #[inline]
+    pub fn suns(&self) -> &[u32] {
+        &self.suns
     }
 
     /// Whether there is anything to sample.
@@ -545,6 +608,10 @@ impl Lights {
                 }
                 LightShape::Environment { map, .. } => {
                     total += d.pmf(i) * map.pdf(w);
+                    None
+                }
+                LightShape::Sun { .. } => {
+                    total += light.sun_seen(w).map_or(0.0, |(_, pdf)| d.pmf(i) * pdf);
                     None
                 }
                 _ => None,

@@ -335,8 +335,9 @@ fn maps_that_cannot_light_a_scene_are_refused_with_the_file_and_the_reason() {
 }
 
 /// Hard case: one texel of 10⁷ (a sun far brighter than the sky) over every kind of surface
-/// (diffuse, rough and smooth metal, rough and smooth glass, grazing floor): half a million
-/// paths under MIS, none of them non-finite.
+/// (diffuse, rough and smooth metal, rough and smooth glass, grazing floor), then a tiny,
+/// blinding sun light beside it: half a million paths under MIS each, none of them
+/// non-finite.
 #[test]
 fn a_map_with_a_blinding_sun_stays_finite() {
     let (w, h) = (16, 8);
@@ -396,19 +397,27 @@ material = "c"
 center = [0, 0.6, -0.5]
 radius = 0.4
 "#;
-    let sc = load(text, &[("sky.exr", exr)]).expect("scene");
-    let img = common::render(
-        &sc,
-        &RenderSettings {
-            spp: 128,
-            ..RenderSettings::default()
-        },
+    // Then with a sun of a thousandth of a degree and 10⁹ of irradiance beside the map: its
+    // radiance is about 10²⁰ and its density 10⁹ per steradian.
+    let tiny_sun = format!(
+        "{text}[[lights]]\ntype = \"directional\"\ndirection = [-1, -1, -0.5]\n\
+         irradiance = [1e9, 1e9, 1e9]\nangle = 0.001\n"
     );
-    assert_eq!(img.nonfinite, 0);
-    assert!(img
-        .rgb
-        .iter()
-        .all(|p| p.iter().all(|c| c.is_finite() && *c >= 0.0)));
+    for text in [text, tiny_sun.as_str()] {
+        let sc = load(text, &[("sky.exr", exr.clone())]).expect("scene");
+        let img = common::render(
+            &sc,
+            &RenderSettings {
+                spp: 128,
+                ..RenderSettings::default()
+            },
+        );
+        assert_eq!(img.nonfinite, 0);
+        assert!(img
+            .rgb
+            .iter()
+            .all(|p| p.iter().all(|c| c.is_finite() && *c >= 0.0)));
+    }
 }
 
 /// A light at infinity below the horizon of an infinite floor reaches nothing above it: the

@@ -128,3 +128,91 @@ fn directional_light_gives_e_cos_theta_everywhere_and_casts_shadows() {
         assert!(shade.x < 0.3 * want[0], "{strategy:?} shade {shade}");
     }
 }
+
+/// Mean and standard error of [`at`]'s estimate over `n` paths, seen from under 1 m.
+fn at_with_error(sc: &Scene, x: [f32; 2], strategy: Strategy, n: u32) -> (DVec3, DVec3) {
+    let p = Vec3A::new(x[0], 0.0, x[1]);
+    let eye = p + Vec3A::new(0.1, 0.5, 0.4);
+    let ray = Ray::new(eye, (p - eye).normalize());
+    let settings = RenderSettings {
+        strategy,
+        ..RenderSettings::default()
+    };
+    let (mut sum, mut sq) = (DVec3::ZERO, DVec3::ZERO);
+    for i in 0..n {
+        let l = radiance(sc, &settings, ray, &PixelSampler::new(1, 7, 7, i)).as_dvec3();
+        sum += l;
+        sq += l * l;
+    }
+    let mean = sum / n as f64;
+    let var = (sq / n as f64 - mean * mean).max(DVec3::ZERO);
+    (mean, (var / n as f64).max(DVec3::ZERO).map(f64::sqrt))
+}
+
+/// A sun (a directional light with an angular diameter) is an emitter at infinity: light
+/// sampling draws directions in its disk, and a ray that escapes into the disk reads it, so
+/// each strategy alone converges to the same answer. A plane tilted `t` from the disk's axis,
+/// with the disk wholly above its horizon, receives n·∫ω L dω = L·π·sin²θ·cos t = E cos t (the
+/// `irradiance` is what a surface facing it receives). Half a disk hidden by a black roof
+/// whose edge passes under the disk's centre gives exactly half that, by the disk's symmetry
+/// about the edge's plane: the soft shadow a delta light cannot cast.
+#[test]
+fn a_sun_gives_e_cos_theta_under_every_strategy_and_a_half_shadow_under_an_edge() {
+    let e = [2.0f64, 1.0, 0.5];
+    let t = 30.0f64.to_radians();
+    for (angle, strategies, n) in [
+        // Small as the sun is (0.53°), BSDF sampling alone would hardly ever find it.
+        (0.53f64, &STRATEGIES[..2], 20_000u32),
+        (20.0, &STRATEGIES[..], 400_000),
+    ] {
+        let sc = plane_with(&format!(
+            "[[lights]]\ntype = \"directional\"\ndirection = [{}, {}, 0]\nirradiance = {e:?}\n\
+             angle = {angle}\n",
+            t.sin(),
+            -t.cos()
+        ));
+        let lit = e.map(|e| RHO / std::f64::consts::PI * e * t.cos());
+        for &strategy in strategies {
+            let (got, se) = at_with_error(&sc, [0.0, 0.0], strategy, n);
+            for c in 0..3 {
+                let z = (got[c] - lit[c]) / se[c].max(1e-12);
+                assert!(
+                    z.abs() < 5.0 && (got[c] / lit[c] - 1.0).abs() < 0.05,
+                    "{angle}° {strategy:?} channel {c}: {} vs {} (z {z:.2})",
+                    got[c],
+                    lit[c]
+                );
+            }
+        }
+    }
+    // Overhead, with a black roof over z < 0 at height 1: at the origin the roof's edge runs
+    // along x over the point, under the disk's centre.
+    let sc = plane_with(&format!(
+        "[materials.black]\ntype = \"diffuse\"\nalbedo = [0, 0, 0]\n\
+         [[lights]]\ntype = \"directional\"\ndirection = [0, -1, 0]\nirradiance = {e:?}\n\
+         angle = 10\n\
+         [[objects]]\nshape = \"box\"\nmaterial = \"black\"\n\
+         min = [-40, 1, -40]\nmax = [40, 1.1, 0]\n"
+    ));
+    let full = e.map(|e| RHO / std::f64::consts::PI * e);
+    for strategy in &STRATEGIES[..2] {
+        let (half, se) = at_with_error(&sc, [0.0, 0.0], *strategy, 100_000);
+        for c in 0..3 {
+            let z = (half[c] - full[c] / 2.0) / se[c].max(1e-12);
+            assert!(
+                z.abs() < 5.0,
+                "{strategy:?} channel {c}: {} under the edge vs half of {} (z {z:.2})",
+                half[c],
+                full[c]
+            );
+        }
+        // Past the penumbra on either side: all of it, and none.
+        let (out, _) = at_with_error(&sc, [0.0, 0.2], *strategy, 1000);
+        let (under, _) = at_with_error(&sc, [0.0, -0.2], *strategy, 1000);
+        assert!(
+            (out.x / full[0] - 1.0).abs() < 0.01,
+            "{strategy:?} outside: {out}"
+        );
+        assert_eq!(under, DVec3::ZERO, "{strategy:?} under the roof");
+    }
+}

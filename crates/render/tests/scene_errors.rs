@@ -517,6 +517,26 @@ fn punctual_light_errors_name_the_key() {
         "`intensity` does not apply to a directional light",
     );
     check(
+        &light(
+            "type = \"directional\"\ndirection = [0, -1, 0]\nirradiance = [1, 1, 1]\nangle = 120\n",
+        ),
+        17,
+        "lights[0].angle",
+        "must be from 0 to 90 degrees, got 120",
+    );
+    check(
+        &light("type = \"directional\"\ndirection = [0, -1, 0]\nirradiance = [1, 1, 1]\nangle = -0.5\n"),
+        17,
+        "lights[0].angle",
+        "must be from 0 to 90 degrees, got -0.5",
+    );
+    check(
+        &light("type = \"directional\"\ndirection = [0, -1, 0]\nirradiance = [1e36, 1, 1]\nangle = 0.001\n"),
+        16,
+        "lights[0].irradiance",
+        "overflows a 32-bit float",
+    );
+    check(
         &light("type = \"area\"\n"),
         14,
         "lights[0].type",

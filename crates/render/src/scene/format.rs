@@ -232,6 +232,8 @@ pub struct LightDesc {
     pub inner_angle: Option<f32>,
     /// Half-angle where the intensity reaches zero, degrees (spot; default 45).
     pub outer_angle: Option<f32>,
+    /// Angular diameter, degrees (directional: a sun's disk; default 0, parallel light).
+    pub angle: Option<f32>,
 }
 
 /// Material kinds.

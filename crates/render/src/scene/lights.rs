@@ -40,6 +40,7 @@ pub(super) fn punctual_lights(
             ("irradiance", l.irradiance.is_some()),
             ("inner_angle", l.inner_angle.is_some()),
             ("outer_angle", l.outer_angle.is_some()),
+            ("angle", l.angle.is_some()),
         ];
         let power = |v: Option<[f32; 3]>, kind: &str, key: &str| -> Result<Vec3A, Invalid> {
             let c = color(required(v, &lp, kind, key)?, &lp.key(key), false)?;
@@ -118,12 +119,29 @@ pub(super) fn punctual_lights(
             }
             LightKind::Directional => {
                 let kind = "a directional light";
-                only(&lp, kind, &present, &["direction", "irradiance"])?;
+                only(&lp, kind, &present, &["direction", "irradiance", "angle"])?;
                 let towards = -direction(kind)?;
-                (
-                    LightShape::Directional { towards, reach },
-                    power(l.irradiance, kind, "irradiance")?,
-                )
+                let irradiance = power(l.irradiance, kind, "irradiance")?;
+                let angle = l.angle.unwrap_or(0.0);
+                if !(0.0..=90.0).contains(&angle) {
+                    return Err((
+                        lp.key("angle"),
+                        format!("must be from 0 to 90 degrees, got {angle}"),
+                    ));
+                }
+                if angle == 0.0 {
+                    (LightShape::Directional { towards, reach }, irradiance)
+                } else {
+                    sun(towards, angle, irradiance, reach).ok_or_else(|| {
+                        (
+                            lp.key("irradiance"),
+                            format!(
+                                "spread over a disk of {angle} degrees, the radiance \
+                                     irradiance / (π sin²(angle / 2)) overflows a 32-bit float"
+                            ),
+                        )
+                    })?
+                }
             }
         };
         lights.push(Light {
@@ -133,6 +151,29 @@ pub(super) fn punctual_lights(
         });
     }
     Ok(())
+}
+
+/// A sun of angular diameter `angle` degrees whose disk gives `irradiance` to a surface facing
+/// it: radiance E / (π sin²θ) over the cone of half-angle θ, since ∫ L cos dω over that cone is
+/// L·π·sin²θ. `None` where the radiance or the power overflows. In f64, rounded once, so that
+/// every worker gets the same bits; 1 − cos θ as 2 sin²(θ/2), without cancellation.
+fn sun(towards: Vec3A, angle: f32, irradiance: Vec3A, reach: f32) -> Option<(LightShape, Vec3A)> {
+    let half = f64::from(angle).to_radians() / 2.0;
+    let sin2 = half.sin().powi(2);
+    let one_minus_cos = 2.0 * (half / 2.0).sin().powi(2);
+    let scale = 1.0 / (std::f64::consts::PI * sin2);
+    let radiance = (irradiance.as_dvec3() * scale).as_vec3a();
+    let power = f64::from(reach).powi(2) * irradiance.as_dvec3().element_sum();
+    let power_fits = ((std::f64::consts::PI * power) as f32).is_finite();
+    (radiance.is_finite() && power_fits).then_some((
+        LightShape::Sun {
+            towards,
+            sin2_max: sin2 as f32,
+            one_minus_cos: one_minus_cos as f32,
+            reach,
+        },
+        radiance,
+    ))
 }
 
 /// The environment as far as it can be built before the scene's objects are: whole, or an
