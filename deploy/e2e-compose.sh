@@ -24,10 +24,11 @@ if ! docker image inspect rust:1-slim-bookworm >/dev/null 2>&1 || ! docker image
   docker pull -q rust:1-slim-bookworm && docker pull -q debian:bookworm-slim \
     || deploy/airgap-base-images.sh
 fi
+echo "== [$((SECONDS / 60))m$((SECONDS % 60))s] base images present"
 cargo build --release -q -p tessera-cli
 T=$PWD/target/release/tessera
 
-echo "== the README's docker compose commands, exactly as written, with no extra environment"
+echo "== [$((SECONDS / 60))m$((SECONDS % 60))s] the README's docker compose commands, exactly as written, with no extra environment"
 # The block under "Or everything on one box with docker compose" in README.md, run as a user
 # would paste it into a fresh shell: nothing but PATH and HOME (and DOCKER_HOST, if the host
 # uses one). Compose then passes `TESSERA_WORKER_THREADS=` and `TESSERA_TOKEN=` as empty
@@ -48,6 +49,7 @@ trap readme_cleanup EXIT
 # The image is built first, untimed (a cold build on 2 cores takes many minutes); the block's
 # own `up --build` then finds it current, as it would for a user who built it before.
 docker-compose -f deploy/docker-compose.yml build -q
+echo "== [$((SECONDS / 60))m$((SECONDS % 60))s] the image is built"
 printf '%s\n' "$README_BLOCK" | sed 's/^/  $ /'
 timeout 1200 env -i PATH="$PATH" HOME="$HOME" ${DOCKER_HOST:+DOCKER_HOST="$DOCKER_HOST"} \
   bash -euo pipefail -c "$README_BLOCK" \
@@ -57,7 +59,7 @@ cmp cornell-box.exr "$OUT/readme-local.exr" \
   || { echo "the README's compose EXR differs from tessera render's" >&2; exit 1; }
 rm -f cornell-box.exr
 trap cleanup EXIT
-echo "== README commands: bit-identical to tessera render"
+echo "== [$((SECONDS / 60))m$((SECONDS % 60))s] README commands: bit-identical to tessera render"
 
 free_port() { python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
 export TESSERA_PORT=$(free_port)
@@ -69,13 +71,13 @@ export TESSERA_WORKER_THREADS=1
 export TESSERA_COORDINATOR=http://127.0.0.1:$TESSERA_PORT
 LEASE=$TESSERA_LEASE_TIMEOUT
 
-echo "== build and up (project $PROJECT, port $TESSERA_PORT)"
+echo "== [$((SECONDS / 60))m$((SECONDS % 60))s] build and up (project $PROJECT, port $TESSERA_PORT)"
 dc build -q
 dc up -d --scale worker=3
 for i in $(seq 120); do "$T" status >/dev/null 2>&1 && break; sleep 1; done
 "$T" status >/dev/null
 
-echo "== submit from the host"
+echo "== [$((SECONDS / 60))m$((SECONDS % 60))s] submit from the host"
 SPP=256
 JOB=$("$T" submit scenes/cornell-box.toml --spp $SPP)
 echo "$JOB"
@@ -97,7 +99,7 @@ echo "  reconnected"
 "$T" fetch "$JOB" --wait --output "$OUT/farm.exr"
 "$T" render scenes/cornell-box.toml --spp $SPP --output "$OUT/local.exr" >/dev/null
 cmp "$OUT/farm.exr" "$OUT/local.exr" || { echo "compose EXR differs from tessera render's" >&2; exit 1; }
-echo "== bit-identical to tessera render"
+echo "== [$((SECONDS / 60))m$((SECONDS % 60))s] bit-identical to tessera render"
 "$T" status "$JOB" | grep -q "(0 leased)" || { echo "leases left behind" >&2; exit 1; }
 # The worker that was cut off comes back by itself (its name is its container's host name).
 # Its capped backoff (up to 10 s a step) may still be running when the job ends, so it gets
@@ -112,7 +114,7 @@ done
 cat "$OUT/workers"
 [[ -n $back ]] || { echo "the disconnected worker did not come back within 30 s" >&2; exit 1; }
 
-echo "== the dashboard and Prometheus (monitoring profile, Debian's prometheus package)"
+echo "== [$((SECONDS / 60))m$((SECONDS % 60))s] the dashboard and Prometheus (monitoring profile, Debian's prometheus package)"
 DASH=http://127.0.0.1:$TESSERA_HTTP_PORT
 code=$(curl -s -o /dev/null -w '%{http_code}' "$DASH/metrics")
 [[ $code == 401 ]] || { echo "/metrics without the token answered $code" >&2; exit 1; }
@@ -136,7 +138,7 @@ done
   || { echo "Prometheus scraped tessera_units_merged_total=${scraped:-nothing}, the job has $total units" >&2; exit 1; }
 echo "Prometheus scraped tessera_units_merged_total = $scraped = the job's units"
 
-echo "== down -v"
+echo "== [$((SECONDS / 60))m$((SECONDS % 60))s] down -v"
 dc --profile monitoring down -v --remove-orphans
 left=$(docker ps -aq --filter "label=com.docker.compose.project=$PROJECT"; \
        docker volume ls -q --filter "label=com.docker.compose.project=$PROJECT"; \
