@@ -32,3 +32,45 @@ async fn three_workers_render_the_same_bits_as_a_local_render() {
     }
     coord.stop().await;
 }
+
+/// A frame whose tiles do not line up with the EXR's 16-row blocks (tiles of 12 in a 45² frame:
+/// bands of 12 rows and a last one of 9, while the encoder asks for rows 16 at a time) and
+/// whose variance and sample channels are written too: the farm's EXR, written a band at a
+/// time from its strips, is the bytes of `tessera render`'s.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_frame_written_in_bands_across_the_exr_blocks_is_the_local_render() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start(&dir.path().join("data"), Duration::from_secs(30)).await;
+    let workers: Vec<_> = (0..2)
+        .map(|i| worker(&coord.url(), &format!("w{i}")))
+        .collect();
+    let text = scene_text(45);
+    let mut client = coord.client().await;
+    let job = client
+        .submit_job(pb::SubmitJobRequest {
+            tile_size: 12,
+            channels: Some(pb::OutputChannels {
+                variance: true,
+                sample_count: true,
+            }),
+            ..submit_request(&text, 8, 4)
+        })
+        .await
+        .expect("submit")
+        .into_inner()
+        .job_id;
+    let status = wait(&mut client, &job).await;
+    assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
+    assert_eq!(status.units_total, 16 * 2);
+    let farm = fetch(&mut client, &job).await;
+    let channels = ExrChannels {
+        variance: true,
+        samples: true,
+    };
+    let local = local_exr_with(&text, &job_settings(8, 4), channels, dir.path());
+    assert!(farm == local, "farm EXR differs from the local render");
+    for w in workers {
+        w.abort();
+    }
+    coord.stop().await;
+}
