@@ -44,16 +44,7 @@ async fn liar(url: String, text: String, settings: RenderSettings, stop: Arc<Ato
                 *v *= 1.01;
             }
         }
-        let _ = client
-            .submit_result(pb::SubmitResultRequest {
-                worker_id: id.clone(),
-                lease_id: u.lease_id.clone(),
-                job_id: u.job_id.clone(),
-                tile_index: u.tile_index,
-                batch_index: u.batch_index,
-                result: Some(r),
-            })
-            .await;
+        let _ = client.submit_result(result_for(&id, &u, r)).await;
     }
     forged
 }

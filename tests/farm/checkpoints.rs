@@ -30,14 +30,7 @@ async fn merge_by_hand(coord: &Coordinator, scene: &Scene, n: usize) {
     for u in units {
         let result = honest_result(scene, &job_settings(16, 16), &u);
         workers
-            .submit_result(pb::SubmitResultRequest {
-                worker_id: id.clone(),
-                lease_id: u.lease_id.clone(),
-                job_id: u.job_id.clone(),
-                tile_index: u.tile_index,
-                batch_index: u.batch_index,
-                result: Some(result),
-            })
+            .submit_result(result_for(&id, &u, result))
             .await
             .expect("merged");
     }

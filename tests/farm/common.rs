@@ -166,15 +166,40 @@ pub async fn submit(
     batch: u32,
     priority: i32,
 ) -> String {
-    client
-        .submit_job(pb::SubmitJobRequest {
+    submit_job(
+        client,
+        pb::SubmitJobRequest {
             priority,
             ..submit_request(text, spp, batch)
-        })
+        },
+    )
+    .await
+}
+
+/// Submits `request`, which must be admitted, and returns the job id.
+pub async fn submit_job(client: &mut Client, request: pb::SubmitJobRequest) -> String {
+    client
+        .submit_job(request)
         .await
         .expect("submit")
         .into_inner()
         .job_id
+}
+
+/// The request that hands in `result` for unit `u` leased by `worker_id`.
+pub fn result_for(
+    worker_id: &str,
+    u: &pb::WorkUnit,
+    result: pb::TileResult,
+) -> pb::SubmitResultRequest {
+    pb::SubmitResultRequest {
+        worker_id: worker_id.to_string(),
+        lease_id: u.lease_id.clone(),
+        job_id: u.job_id.clone(),
+        tile_index: u.tile_index,
+        batch_index: u.batch_index,
+        result: Some(result),
+    }
 }
 
 /// The workers the coordinator lists.

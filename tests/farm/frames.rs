@@ -20,15 +20,14 @@ async fn a_frame_job_gives_the_local_render_of_that_frame() {
             frame: Some(frame),
             ..job_settings(8, 4)
         };
-        let job = client
-            .submit_job(pb::SubmitJobRequest {
+        let job = submit_job(
+            &mut client,
+            pb::SubmitJobRequest {
                 settings: Some(pb::RenderSettings::from(&settings)),
                 ..submit_request(&text, 8, 4)
-            })
-            .await
-            .expect("submit")
-            .into_inner()
-            .job_id;
+            },
+        )
+        .await;
         let status = wait(&mut client, &job).await;
         assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
         assert_eq!(status.settings.and_then(|s| s.frame), Some(frame));
@@ -202,12 +201,7 @@ async fn a_frame_range_is_listed_and_cancelled_as_one_job() {
         }),
         ..submit_request(&text, 4, 4)
     };
-    let job = client
-        .submit_job(range(1, 5))
-        .await
-        .expect("submit")
-        .into_inner()
-        .job_id;
+    let job = submit_job(&mut client, range(1, 5)).await;
     let other = submit(&mut client, &text, 4, 4, 0).await;
     let listed: Vec<_> = client
         .list_jobs(pb::ListJobsRequest {})

@@ -46,19 +46,18 @@ async fn a_frame_written_in_bands_across_the_exr_blocks_is_the_local_render() {
         .collect();
     let text = scene_text(45);
     let mut client = coord.client().await;
-    let job = client
-        .submit_job(pb::SubmitJobRequest {
+    let job = submit_job(
+        &mut client,
+        pb::SubmitJobRequest {
             tile_size: 12,
             channels: Some(pb::OutputChannels {
                 variance: true,
                 sample_count: true,
             }),
             ..submit_request(&text, 8, 4)
-        })
-        .await
-        .expect("submit")
-        .into_inner()
-        .job_id;
+        },
+    )
+    .await;
     let status = wait(&mut client, &job).await;
     assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
     assert_eq!(status.units_total, 16 * 2);

@@ -12,11 +12,10 @@ mod common;
 use std::io::Cursor;
 
 use common::chi2::chi_square;
+use common::estimate;
 use glam::{DVec3, Vec2, Vec3A};
 use tessera_render::envmap::EnvMap;
-use tessera_render::integrator::radiance;
 use tessera_render::math::Ray;
-use tessera_render::sampling::PixelSampler;
 use tessera_render::scene::Scene;
 use tessera_render::{RenderSettings, Strategy};
 
@@ -96,24 +95,6 @@ const CAMERA: &str = "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 1, 4
 
 fn with_map(environment: &str, objects: &str) -> String {
     format!("{CAMERA}[environment]\ntype = \"map\"\n{environment}\n{objects}")
-}
-
-/// The mean radiance along `ray` over `n` paths, and its standard error, per channel.
-fn estimate(sc: &Scene, ray: Ray, strategy: Strategy, n: u32) -> (DVec3, DVec3) {
-    let settings = RenderSettings {
-        strategy,
-        ..RenderSettings::default()
-    };
-    let (mut sum, mut sq) = (DVec3::ZERO, DVec3::ZERO);
-    for i in 0..n {
-        let l = radiance(sc, &settings, ray, &PixelSampler::new(1, 3, 5, i)).as_dvec3();
-        assert!(l.is_finite(), "{strategy:?}: non-finite radiance {l}");
-        sum += l;
-        sq += l * l;
-    }
-    let mean = sum / n as f64;
-    let var = (sq / n as f64 - mean * mean).max(DVec3::ZERO);
-    (mean, (var / n as f64).map(f64::sqrt))
 }
 
 fn assert_within(got: (DVec3, DVec3), want: DVec3, slack: f64, what: &str) {

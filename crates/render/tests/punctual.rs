@@ -129,24 +129,12 @@ fn directional_light_gives_e_cos_theta_everywhere_and_casts_shadows() {
     }
 }
 
-/// Mean and standard error of [`at`]'s estimate over `n` paths, seen from under 1 m.
+/// Mean and standard error of the radiance the plane sends up from `x` over `n` paths, seen
+/// from under 1 m.
 fn at_with_error(sc: &Scene, x: [f32; 2], strategy: Strategy, n: u32) -> (DVec3, DVec3) {
     let p = Vec3A::new(x[0], 0.0, x[1]);
     let eye = p + Vec3A::new(0.1, 0.5, 0.4);
-    let ray = Ray::new(eye, (p - eye).normalize());
-    let settings = RenderSettings {
-        strategy,
-        ..RenderSettings::default()
-    };
-    let (mut sum, mut sq) = (DVec3::ZERO, DVec3::ZERO);
-    for i in 0..n {
-        let l = radiance(sc, &settings, ray, &PixelSampler::new(1, 7, 7, i)).as_dvec3();
-        sum += l;
-        sq += l * l;
-    }
-    let mean = sum / n as f64;
-    let var = (sq / n as f64 - mean * mean).max(DVec3::ZERO);
-    (mean, (var / n as f64).max(DVec3::ZERO).map(f64::sqrt))
+    common::estimate(sc, Ray::new(eye, (p - eye).normalize()), strategy, n)
 }
 
 /// A sun (a directional light with an angular diameter) is an emitter at infinity: light

@@ -49,9 +49,6 @@ pub struct ExrChannels {
     pub samples: bool,
 }
 
-/// Writes `image` as a float32 OpenEXR file, atomically (a temporary file in the same
-/// directory, then a rename), so a reader never sees a half-written frame.
-///
 /// The header metadata of a render: everything that decides its pixels. The local renderer and
 /// the farm both write exactly this, so the same job gives the same file bytes either way.
 pub fn render_metadata(
@@ -85,6 +82,9 @@ pub fn render_metadata(
     meta
 }
 
+/// Writes `image` as a float32 OpenEXR file, atomically (a temporary file in the same
+/// directory, then a rename), so a reader never sees a half-written frame.
+///
 /// `metadata` pairs go into one `tessera` text-vector header attribute as `key=value`. One
 /// attribute, because the `exr` crate keeps custom attributes in a hash map whose order varies
 /// between processes, and the same job must give the same file bytes.
@@ -94,28 +94,6 @@ pub fn write_exr(
     channels: ExrChannels,
     metadata: &[(String, String)],
 ) -> Result<(), OutputError> {
-    write_exr_as(path, image, channels, metadata, false)
-}
-
-/// [`write_exr`], except that an existing file at `path` is left alone and the call fails
-/// with [`std::io::ErrorKind::AlreadyExists`]: for a server that must never replace a file
-/// someone else may rely on (another job's output, a file put there by hand).
-pub fn write_new_exr(
-    path: &Path,
-    image: &Image,
-    channels: ExrChannels,
-    metadata: &[(String, String)],
-) -> Result<(), OutputError> {
-    write_exr_as(path, image, channels, metadata, true)
-}
-
-fn write_exr_as(
-    path: &Path,
-    image: &Image,
-    channels: ExrChannels,
-    metadata: &[(String, String)],
-    no_clobber: bool,
-) -> Result<(), OutputError> {
     let size = (image.width, image.height);
     rows::write(
         path,
@@ -123,7 +101,7 @@ fn write_exr_as(
         channels,
         metadata,
         std::iter::once(image),
-        no_clobber,
+        false,
     )
 }
 

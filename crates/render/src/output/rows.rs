@@ -23,9 +23,11 @@ use super::{ExrChannels, OutputError};
 use crate::film::Image;
 use crate::util::files::{self, Access, Place};
 
-/// [`super::write_new_exr`] of a `size.0` × `size.1` frame given as strips of whole rows, top
-/// to bottom (as [`crate::film::Strips`] gives them), each taken when the encoder reaches it
-/// and dropped once its rows are compressed. Fails, leaving no file, if the strips are not
+/// [`super::write_exr`] of a `size.0` × `size.1` frame given as strips of whole rows, top to
+/// bottom (as [`crate::film::Strips`] gives them), each taken when the encoder reaches it and
+/// dropped once its rows are compressed, except that an existing file at `path` is left alone
+/// and the call fails with [`std::io::ErrorKind::AlreadyExists`]: for a server that must never
+/// replace a file someone else may rely on (another job's output, a file put there by hand). Fails, leaving no file, if the strips are not
 /// `size.0` wide or do not add up to `size.1` rows: a caller whose strips stop early because
 /// their source failed reports that failure first.
 pub fn write_new_exr_strips<S: Borrow<Image>>(

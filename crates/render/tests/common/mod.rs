@@ -5,8 +5,12 @@ pub mod chi2;
 
 use std::path::PathBuf;
 
+use glam::DVec3;
+use tessera_render::integrator::radiance;
+use tessera_render::math::Ray;
+use tessera_render::sampling::PixelSampler;
 use tessera_render::scene::{Format, Limits, Scene};
-use tessera_render::{render_frame, Image, RenderSettings};
+use tessera_render::{render_frame, Image, RenderSettings, Strategy};
 
 pub fn repo_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -76,4 +80,22 @@ pub fn region_stats(img: &Image, x0: u32, y0: u32, w: u32, h: u32) -> ([f64; 3],
     }
     let n = (w * h) as f64;
     (mean.map(|m| m / n), var.map(|v| (v / (n * n)).sqrt()))
+}
+
+/// The mean radiance along `ray` over `n` paths, and its standard error, per channel.
+pub fn estimate(sc: &Scene, ray: Ray, strategy: Strategy, n: u32) -> (DVec3, DVec3) {
+    let settings = RenderSettings {
+        strategy,
+        ..RenderSettings::default()
+    };
+    let (mut sum, mut sq) = (DVec3::ZERO, DVec3::ZERO);
+    for i in 0..n {
+        let l = radiance(sc, &settings, ray, &PixelSampler::new(1, 3, 5, i)).as_dvec3();
+        assert!(l.is_finite(), "{strategy:?}: non-finite radiance {l}");
+        sum += l;
+        sq += l * l;
+    }
+    let mean = sum / n as f64;
+    let var = (sq / n as f64 - mean * mean).max(DVec3::ZERO);
+    (mean, (var / n as f64).map(f64::sqrt))
 }
