@@ -55,11 +55,27 @@ pub struct Config {
     /// last one). A crash loses at most the units merged since the last checkpoint, which are
     /// rendered again; zero makes every merge durable before it is acknowledged.
     pub checkpoint_interval: Duration,
+    /// Bytes of a job's whole frame of sums (52 a pixel) above which its open tiles leave
+    /// memory once a checkpoint stored them, and are read back for their next batch: memory
+    /// that does not grow with the frame, for a tile read per merge.
+    pub evict_open_over: u64,
+    /// Bytes of merged sums not yet in the store at which results are deferred (workers
+    /// retry them) until a checkpoint commits: bounds the coordinator's memory when results
+    /// arrive faster than its disk and CPU can store them.
+    pub max_unstored_bytes: u64,
 }
 
 /// Checkpoint interval unless configured: a crash costs at most this much of the farm's time
 /// in re-rendering, and the store writes each merged tile at most once in this time.
 pub const DEFAULT_CHECKPOINT_INTERVAL: Duration = Duration::from_secs(5);
+
+/// [`Config::evict_open_over`]'s default: 64 MiB of sums, a frame of about 1.3 Mpixels (1160²),
+/// above which the memory of open tiles is worth a tile read per merge.
+pub const DEFAULT_EVICT_OPEN_OVER: u64 = 64 << 20;
+
+/// [`Config::max_unstored_bytes`]'s default: three early checkpoints' worth
+/// ([`crate::job::MAX_DIRTY_BYTES`]), so one can be written while the next fills.
+pub const DEFAULT_MAX_UNSTORED_BYTES: u64 = 3 * crate::job::MAX_DIRTY_BYTES;
 
 /// Most live worker registrations from one host, unless configured: enough for a host running
 /// many worker containers behind one address, few enough that one token holder cannot fill
@@ -133,6 +149,8 @@ impl Config {
             asset_store_bytes: DEFAULT_ASSET_STORE_BYTES,
             asset_retention: DEFAULT_ASSET_RETENTION,
             checkpoint_interval: DEFAULT_CHECKPOINT_INTERVAL,
+            evict_open_over: DEFAULT_EVICT_OPEN_OVER,
+            max_unstored_bytes: DEFAULT_MAX_UNSTORED_BYTES,
         }
     }
 

@@ -69,6 +69,8 @@ pub enum Refusal {
     Exhausted(String),
     /// A name that is taken (output names).
     Exists(String),
+    /// Not now, for a reason that passes by itself: the caller retries.
+    Unavailable(String),
 }
 
 impl From<Refusal> for Status {
@@ -81,6 +83,7 @@ impl From<Refusal> for Status {
             Refusal::Denied(m) => Status::permission_denied(m),
             Refusal::Exhausted(m) => Status::resource_exhausted(m),
             Refusal::Exists(m) => Status::already_exists(m),
+            Refusal::Unavailable(m) => Status::unavailable(m),
         }
     }
 }

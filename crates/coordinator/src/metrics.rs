@@ -107,6 +107,10 @@ pub struct Counters {
     pub results_refused: u64,
     /// Samples in the merged units.
     pub samples_merged: u64,
+    /// Open tiles read back from the store for a merge, having left memory between batches.
+    pub tiles_reloaded: u64,
+    /// Results told to come back later because merged sums waited for the store.
+    pub results_deferred: u64,
 }
 
 /// What the scheduler holds, read under its lock in one go and formatted after it is let go.
@@ -192,6 +196,16 @@ impl Metrics {
                 "tessera_units_held_total",
                 "Results held for an audit.",
                 c.units_held,
+            ),
+            (
+                "tessera_tiles_reloaded_total",
+                "Open tiles of large jobs read back from the store for their next merge.",
+                c.tiles_reloaded,
+            ),
+            (
+                "tessera_results_deferred_total",
+                "Results told to retry while merged sums waited for a checkpoint to store them.",
+                c.results_deferred,
             ),
             (
                 "tessera_results_refused_total",

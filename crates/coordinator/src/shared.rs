@@ -9,7 +9,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use tokio::sync::{mpsc, oneshot, watch};
-use tracing::{error, info};
+use tracing::{debug, error, info};
 
 use crate::assets::{AssetStore, Collected};
 use crate::config::Config;
@@ -85,6 +85,8 @@ impl Shared {
                 } else {
                     0.0
                 },
+                evict_open_over: config.evict_open_over,
+                max_unstored_bytes: config.max_unstored_bytes.max(1),
             },
         );
         let mut seed = [0u8; 8];
@@ -314,6 +316,11 @@ pub(crate) async fn writer(
                 // What the store now holds and no result will change leaves memory.
                 if let Some(shared) = shared.upgrade() {
                     let freed = shared.scheduler().evict(&written);
+                    debug!(
+                        "checkpoint: {} tiles written, {freed} bytes of sums left memory, {:.3} s after it was due",
+                        written.len(),
+                        now.elapsed().as_secs_f64()
+                    );
                     metrics
                         .evicted_bytes
                         .fetch_add(freed, std::sync::atomic::Ordering::Relaxed);

@@ -3,9 +3,10 @@
 
 use std::time::{Duration, Instant};
 
+use tessera_coordinator::error::Refusal;
 use tessera_coordinator::job::{FrameTile, Job, Unit};
 use tessera_coordinator::scheduler::{Merged, Policy, Scheduler};
-use tessera_coordinator::store::{encode_sums, JobRecord, Op};
+use tessera_coordinator::store::{decode_sums, encode_sums, JobRecord, Op};
 use tessera_proto::ids::JobId;
 use tessera_render::TileSums;
 
@@ -155,4 +156,148 @@ fn an_audited_job_keeps_its_sums() {
     assert_eq!(resident(&core).len(), 16, "every tile merged and closed");
     assert_eq!(checkpoint(&mut core), 0);
     assert_eq!(resident(&core).len(), 16);
+}
+
+/// The sums a checkpoint's changes hold for `tile` of job 1, decoded as the store would give
+/// them back.
+fn stored(ops: &[Op], core: &Scheduler, tile: u32) -> TileSums {
+    let rect = core
+        .job(JobId(1))
+        .expect("job")
+        .tiles
+        .get(tile)
+        .expect("tile");
+    ops.iter()
+        .find_map(|op| match op {
+            Op::PutTile(1, t, bytes) if *t == tile => {
+                Some(decode_sums(bytes, rect).expect("decodes"))
+            }
+            _ => None,
+        })
+        .expect("the tile was written")
+}
+
+#[test]
+fn open_tiles_of_a_large_job_leave_memory_and_are_read_back_before_they_merge() {
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(60)));
+    core.policy_mut().max_leases_per_worker = usize::MAX;
+    core.policy_mut().evict_open_over = 0;
+    core.insert_job(Job::new(record(false)));
+    let now = Instant::now();
+    let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+    let granted = core.lease(w, usize::MAX, now);
+    // Every tile's batch 0; then a checkpoint, which stores them, and all 16 open tiles leave.
+    for g in &granted[..16] {
+        let r = result(core.job(JobId(1)).expect("job"), g.unit);
+        core.submit(w, g.lease, JobId(1), g.unit, r, now)
+            .expect("merged");
+    }
+    let ops = core.checkpoint().ops();
+    let written: Vec<(u64, u32)> = ops.iter().filter_map(Op::written_tile).collect();
+    assert_eq!(core.evict(&written), 16 * 16 * 52);
+    assert!(resident(&core).is_empty());
+    // Tile 3's batch 1 cannot merge into nothing: it is refused for a retry, and the lease
+    // stays. Only the lease's holder makes the coordinator read the tile.
+    let g = &granted[16 + 3];
+    assert_eq!(g.unit, Unit { tile: 3, batch: 1 });
+    let rect = core
+        .needs_reload(w, g.lease, JobId(1), g.unit)
+        .expect("read back first");
+    assert_eq!(
+        core.needs_reload(w, granted[3].lease, JobId(1), g.unit),
+        None,
+        "another lease"
+    );
+    let stranger = core.register("x".into(), 1, "v".into(), "s".into(), now);
+    assert_eq!(core.needs_reload(stranger, g.lease, JobId(1), g.unit), None);
+    let r = result(core.job(JobId(1)).expect("job"), g.unit);
+    assert!(matches!(
+        core.submit(w, g.lease, JobId(1), g.unit, r, now),
+        Err(Refusal::Unavailable(_))
+    ));
+    // A read that does not cover the merged batches (a stale or foreign copy) is not put back.
+    let mut wrong = stored(&ops, &core, 3);
+    wrong.samples = 0..4;
+    assert!(!core.reload(JobId(1), 3, wrong));
+    assert!(
+        !core.reload(JobId(1), 3, stored(&ops, &core, 2)),
+        "tile 2's sums"
+    );
+    // The store's copy goes back, and the merge then gives what never leaving memory gives.
+    assert_eq!(stored(&ops, &core, 3).rect, rect);
+    assert!(core.reload(JobId(1), 3, stored(&ops, &core, 3)));
+    assert!(
+        !core.reload(JobId(1), 3, stored(&ops, &core, 3)),
+        "already back"
+    );
+    let r = result(core.job(JobId(1)).expect("job"), g.unit);
+    core.submit(w, g.lease, JobId(1), g.unit, r, now)
+        .expect("merged");
+    let mut kept = Scheduler::new(1, Policy::new(Duration::from_secs(60)));
+    kept.policy_mut().max_leases_per_worker = usize::MAX;
+    kept.insert_job(Job::new(record(false)));
+    let kw = kept.register("w".into(), 1, "v".into(), "s".into(), now);
+    let kg = kept.lease(kw, usize::MAX, now);
+    for i in [3, 16 + 3] {
+        let r = result(kept.job(JobId(1)).expect("job"), kg[i].unit);
+        kept.submit(kw, kg[i].lease, JobId(1), kg[i].unit, r, now)
+            .expect("merged");
+    }
+    let sums = |c: &Scheduler| {
+        encode_sums(
+            c.job(JobId(1)).expect("job").acc[&3]
+                .sums
+                .as_deref()
+                .expect("in memory"),
+        )
+    };
+    assert_eq!(sums(&core), sums(&kept));
+    // A job under the bound keeps its open tiles, as before.
+    let mut small = Scheduler::new(1, Policy::new(Duration::from_secs(60)));
+    small.policy_mut().max_leases_per_worker = usize::MAX;
+    small.policy_mut().evict_open_over = 16 * 16 * 52;
+    small.insert_job(Job::new(record(false)));
+    let sw = small.register("w".into(), 1, "v".into(), "s".into(), now);
+    for g in small.lease(sw, 16, now) {
+        let r = result(small.job(JobId(1)).expect("job"), g.unit);
+        small
+            .submit(sw, g.lease, JobId(1), g.unit, r, now)
+            .expect("merged");
+    }
+    assert_eq!(checkpoint(&mut small), 0);
+}
+
+#[test]
+fn merged_sums_count_as_unstored_until_a_commit_and_results_wait_past_the_bound() {
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(60)));
+    core.policy_mut().max_leases_per_worker = usize::MAX;
+    core.policy_mut().max_unstored_bytes = 3 * 16 * 52;
+    core.insert_job(Job::new(record(false)));
+    let now = Instant::now();
+    let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+    let granted = core.lease(w, usize::MAX, now);
+    let mut merge = |core: &mut Scheduler, i: usize| {
+        let r = result(core.job(JobId(1)).expect("job"), granted[i].unit);
+        core.submit(w, granted[i].lease, JobId(1), granted[i].unit, r, now)
+            .expect("merged");
+    };
+    for i in 0..2 {
+        merge(&mut core, i);
+    }
+    assert_eq!(core.unstored_bytes(), 2 * 16 * 52);
+    assert!(!core.defer_result());
+    // A checkpoint's snapshot still counts until the commit; the tiles merged meanwhile too.
+    let ops = core.checkpoint().ops();
+    merge(&mut core, 2);
+    assert_eq!(core.unstored_bytes(), 3 * 16 * 52);
+    assert!(core.defer_result(), "at the bound");
+    assert_eq!(core.counters().results_deferred, 1);
+    let written: Vec<(u64, u32)> = ops.iter().filter_map(Op::written_tile).collect();
+    core.evict(&written);
+    assert_eq!(
+        core.unstored_bytes(),
+        16 * 52,
+        "the commit let the snapshot go"
+    );
+    assert!(!core.defer_result());
 }

@@ -59,6 +59,12 @@ pub struct LoadArgs {
     /// The coordinator's --checkpoint-interval, in seconds (default: its default).
     #[arg(long)]
     checkpoint_interval: Option<f64>,
+    /// The coordinator's --evict-open-over, in bytes (default: its default).
+    #[arg(long)]
+    evict_open_over: Option<u64>,
+    /// The coordinator's --max-unstored-bytes (default: its default).
+    #[arg(long)]
+    max_unstored_bytes: Option<u64>,
     /// Instead of the rate runs: for each frame edge here (e.g. 4096,8192), render --jobs
     /// jobs of that size² at 8 spp to the end with 16 simulated workers, and report the
     /// coordinator's peak memory and its memory once they are done.
@@ -76,6 +82,21 @@ const SPP: u32 = 65_536;
 pub(super) const TILE: u32 = 128;
 /// Samples a pixel of the one real render whose sums every result replays.
 const TEMPLATE_SPP: u32 = 16;
+
+/// The flags the coordinator under test takes from the load test's own.
+fn coordinator_args(args: &LoadArgs) -> Vec<String> {
+    let mut out = Vec::new();
+    if let Some(c) = args.checkpoint_interval {
+        out.extend(["--checkpoint-interval".to_string(), c.to_string()]);
+    }
+    if let Some(b) = args.evict_open_over {
+        out.extend(["--evict-open-over".to_string(), b.to_string()]);
+    }
+    if let Some(b) = args.max_unstored_bytes {
+        out.extend(["--max-unstored-bytes".to_string(), b.to_string()]);
+    }
+    out
+}
 
 fn scene_text() -> String {
     sized_scene(SIZE)
@@ -177,7 +198,7 @@ impl Coordinator {
         data: &std::path::Path,
         max_connections: usize,
         split_cores: bool,
-        checkpoint_interval: Option<f64>,
+        extra_args: &[String],
     ) -> Result<(Self, String)> {
         let exe = std::env::current_exe()?;
         let mut command = if split_cores {
@@ -195,11 +216,7 @@ impl Coordinator {
             // coordinator can tell.
             .args(["--max-workers-per-host", &max_connections.to_string()])
             .args(["--tile-size", &TILE.to_string()])
-            .args(
-                checkpoint_interval
-                    .map(|c| vec!["--checkpoint-interval".to_string(), c.to_string()])
-                    .unwrap_or_default(),
-            )
+            .args(extra_args)
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
             .spawn()
@@ -279,6 +296,8 @@ pub(super) struct Shared {
     merged: AtomicU64,
     samples: AtomicU64,
     refused: AtomicU64,
+    /// Results the coordinator deferred (told to retry while it stored merged sums).
+    pub(super) deferred: AtomicU64,
     latencies: Mutex<Vec<f64>>,
     /// The probe worker's: one more worker on a thread of its own, whose round trips are the
     /// coordinator's answer time under the others' load, not the load generator's queueing.
@@ -297,6 +316,7 @@ impl Shared {
             merged: AtomicU64::new(0),
             samples: AtomicU64::new(0),
             refused: AtomicU64::new(0),
+            deferred: AtomicU64::new(0),
             latencies: Mutex::new(Vec::new()),
             probe_latencies: Mutex::new(Vec::new()),
         }
@@ -355,18 +375,31 @@ pub(super) async fn simulated_worker(
                 tokio::time::sleep_until(next.into()).await;
                 next = Instant::now().max(next) + pace;
             }
-            let outcome = client
-                .submit_result(pb::SubmitResultRequest {
-                    worker_id: id.clone(),
-                    lease_id: u.lease_id,
-                    job_id: u.job_id,
-                    tile_index: u.tile_index,
-                    batch_index: u.batch_index,
-                    result: Some(result),
-                })
-                .await?
-                .into_inner()
-                .outcome;
+            // A deferred result is sent again after the worker's own backoff, as a worker does.
+            let mut attempt = 0;
+            let outcome = loop {
+                let sent = client
+                    .submit_result(pb::SubmitResultRequest {
+                        worker_id: id.clone(),
+                        lease_id: u.lease_id.clone(),
+                        job_id: u.job_id.clone(),
+                        tile_index: u.tile_index,
+                        batch_index: u.batch_index,
+                        result: Some(result.clone()),
+                    })
+                    .await;
+                match sent {
+                    Ok(r) => break r.into_inner().outcome,
+                    Err(e) if e.code() == tonic::Code::Unavailable => {
+                        shared.deferred.fetch_add(1, Ordering::Relaxed);
+                        // The worker's default longest wait.
+                        let max = Duration::from_secs(10);
+                        tokio::time::sleep(tessera_worker::backoff_delay(attempt, max)).await;
+                        attempt += 1;
+                    }
+                    Err(e) => return Err(e.into()),
+                }
+            };
             if shared.measuring.load(Ordering::Relaxed) {
                 if outcome == pb::ResultOutcome::Merged as i32 {
                     shared.merged.fetch_add(1, Ordering::Relaxed);
@@ -394,7 +427,7 @@ struct Plan {
     seconds: u64,
     split_cores: bool,
     rate: f64,
-    checkpoint_interval: Option<f64>,
+    coordinator_args: Vec<String>,
     settings: RenderSettings,
     template: TileSums,
 }
@@ -407,7 +440,7 @@ async fn run_one(workers: usize, plan: &Plan) -> Result<Run> {
         &dir.path().join("data"),
         workers + 64,
         split_cores,
-        plan.checkpoint_interval,
+        &plan.coordinator_args,
     )?;
     let pid = coordinator.0.id();
     let mut jobs = JobsClient::connect(url.clone()).await?;
@@ -557,8 +590,12 @@ pub fn run(args: LoadArgs) -> Result<()> {
     if !args.memory.is_empty() {
         return super::memory::run(
             &args.memory,
-            args.jobs,
-            args.split_cores,
+            &super::memory::Plan {
+                jobs: args.jobs,
+                split_cores: args.split_cores,
+                batch: args.batch,
+                coordinator_args: coordinator_args(&args),
+            },
             &scene,
             &args.out_dir,
             &args.name,
@@ -569,7 +606,7 @@ pub fn run(args: LoadArgs) -> Result<()> {
         seconds: args.seconds,
         split_cores: args.split_cores,
         rate: args.rate,
-        checkpoint_interval: args.checkpoint_interval,
+        coordinator_args: coordinator_args(&args),
         template: template(&scene, settings.batch),
         settings,
     };
@@ -693,13 +730,15 @@ fn report(runs: &[Run], command: &str, machine: &str, plan: &Plan) -> String {
          answered, so the rate is the most the coordinator took."
             .to_string()
     };
-    let checkpoint = plan
-        .checkpoint_interval
-        .map_or("its default".to_string(), |c| format!("{c} s"));
+    let flags = if plan.coordinator_args.is_empty() {
+        "its default flags".to_string()
+    } else {
+        format!("`{}`", plan.coordinator_args.join(" "))
+    };
     let _ = writeln!(
         md,
         "A `tessera coordinator` process on loopback, with its store on this machine's disk and \
-         a checkpoint interval of {checkpoint}; N simulated workers in one other process, each \
+         {flags}; N simulated workers in one other process, each \
          with its own connection and registration, leasing one unit at a time and submitting \
          a full-size result for it: a {TILE}² tile × {batch} samples ({msamples:.1} Msamples, \
          {kb:.0} KB of sums) of a {SIZE}² Cornell box, the sums of one real render of a tile \

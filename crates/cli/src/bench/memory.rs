@@ -36,28 +36,41 @@ struct MemRun {
     later_mib: f64,
     idle_mib: f64,
     sums_mib: f64,
+    deferred: u64,
+}
+
+/// How `--memory` runs its jobs.
+pub(crate) struct Plan {
+    /// Jobs at once.
+    pub jobs: usize,
+    /// The coordinator on core 0, the simulated workers on the rest.
+    pub split_cores: bool,
+    /// Every job's batch (default: the unit rule's).
+    pub batch: Option<u32>,
+    /// Flags for the coordinator.
+    pub coordinator_args: Vec<String>,
 }
 
 /// Runs `--memory` for each of `sizes` and writes OUT_DIR/NAME.md.
 pub(crate) fn run(
     sizes: &[u32],
-    jobs: usize,
-    split_cores: bool,
+    plan: &Plan,
     scene: &Scene,
     out_dir: &Path,
     name: &str,
     runtime: &tokio::runtime::Runtime,
 ) -> Result<()> {
+    let jobs = plan.jobs;
     if jobs == 0 || sizes.iter().any(|s| *s < TILE || s % TILE != 0) {
         bail!("--memory needs frame edges that are multiples of {TILE}, and --jobs at least 1");
     }
     let mut runs = Vec::new();
     for &size in sizes {
         errln!("{jobs} jobs of {size}² at {SPP} spp …");
-        let r = runtime.block_on(one(size, jobs, split_cores, scene))?;
+        let r = runtime.block_on(one(size, plan, scene))?;
         errln!(
-            "  {:.1} s; coordinator RSS peak {:.0} MiB, {:.0} MiB 2 s after the jobs are done and {:.0} MiB 15 s after ({:.0} MiB before them); their sums {:.0} MiB",
-            r.seconds, r.peak_mib, r.done_mib, r.later_mib, r.idle_mib, r.sums_mib
+            "  {:.1} s; coordinator RSS peak {:.0} MiB, {:.0} MiB 2 s after the jobs are done and {:.0} MiB 15 s after ({:.0} MiB before them); their sums {:.0} MiB; {} results deferred",
+            r.seconds, r.peak_mib, r.done_mib, r.later_mib, r.idle_mib, r.sums_mib, r.deferred
         );
         runs.push(r);
     }
@@ -75,17 +88,29 @@ pub(crate) fn run(
     let _ = writeln!(
         md,
         "Each row: a `tessera coordinator` process on loopback, {jobs} Cornell-box jobs of the \
-         frame size at {SPP} spp submitted at once (the batch the unit rule gives them), \
+         frame size at {SPP} spp submitted at once (in the batch the table gives: {}), \
          rendered to the end by {WORKERS} simulated workers replaying real sums, each job's \
          EXR written. The resident set (`VmRSS`) is sampled every 50 ms; the peak is the \
          kernel's `VmHWM`. \"Sums\" is what the jobs' per-pixel accumulators take (52 bytes a \
-         pixel), for scale.\n"
+         pixel), for scale. \"Results deferred\" counts the times the coordinator told a worker to send a result again later, because merged sums were waiting for its store.\n",
+        if plan.batch.is_some() {
+            "the load test's --batch"
+        } else {
+            "the unit rule's"
+        }
     );
-    md.push_str("| frame | jobs | batch | seconds | RSS before the jobs, MiB | peak RSS, MiB | RSS 2 s after the jobs are done, MiB | 15 s after, MiB | their sums, MiB |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+    if !plan.coordinator_args.is_empty() {
+        let _ = writeln!(
+            md,
+            "The coordinator ran with `{}`.\n",
+            plan.coordinator_args.join(" ")
+        );
+    }
+    md.push_str("| frame | jobs | batch | seconds | RSS before the jobs, MiB | peak RSS, MiB | RSS 2 s after the jobs are done, MiB | 15 s after, MiB | their sums, MiB | results deferred |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
     for r in &runs {
         let _ = writeln!(
             md,
-            "| {s}² | {} | {} | {:.1} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} |",
+            "| {s}² | {} | {} | {:.1} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {} |",
             r.jobs,
             r.batch,
             r.seconds,
@@ -94,6 +119,7 @@ pub(crate) fn run(
             r.done_mib,
             r.later_mib,
             r.sums_mib,
+            r.deferred,
             s = r.size
         );
     }
@@ -104,14 +130,20 @@ pub(crate) fn run(
     Ok(())
 }
 
-async fn one(size: u32, jobs: usize, split_cores: bool, scene: &Scene) -> Result<MemRun> {
+async fn one(size: u32, plan: &Plan, scene: &Scene) -> Result<MemRun> {
+    let jobs = plan.jobs;
     let dir = tempfile::tempdir()?;
-    let (coordinator, url) =
-        Coordinator::start(&dir.path().join("data"), WORKERS + 64, split_cores, None)?;
+    let (coordinator, url) = Coordinator::start(
+        &dir.path().join("data"),
+        WORKERS + 64,
+        plan.split_cores,
+        &plan.coordinator_args,
+    )?;
     let pid = coordinator.0.id();
     let idle_mib = proc_figures(pid)?.1;
-    let batch =
-        tessera_render::unit_batch(size, size, SPP, false, tessera_render::DEFAULT_UNIT_SAMPLES);
+    let batch = plan.batch.unwrap_or_else(|| {
+        tessera_render::unit_batch(size, size, SPP, false, tessera_render::DEFAULT_UNIT_SAMPLES)
+    });
     let settings = RenderSettings {
         spp: SPP,
         batch,
@@ -170,6 +202,7 @@ async fn one(size: u32, jobs: usize, split_cores: bool, scene: &Scene) -> Result
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
     let seconds = start.elapsed().as_secs_f64();
+    let deferred = shared.deferred.load(Ordering::Relaxed);
     shared.stop.store(true, Ordering::Relaxed);
     for t in tasks {
         t.await??;
@@ -192,5 +225,6 @@ async fn one(size: u32, jobs: usize, split_cores: bool, scene: &Scene) -> Result
         later_mib,
         idle_mib,
         sums_mib: jobs as f64 * f64::from(size) * f64::from(size) * 52.0 / (1 << 20) as f64,
+        deferred,
     })
 }

@@ -34,6 +34,16 @@ pub struct CoordinatorArgs {
     /// result.
     #[arg(long, default_value_t = config::DEFAULT_CHECKPOINT_INTERVAL.as_secs_f64())]
     checkpoint_interval: f64,
+    /// Bytes of a job's frame of sums (52 a pixel) above which its open tiles leave memory
+    /// once checkpointed and are read back from the state store for their next batch, so
+    /// memory does not grow with the frame; smaller jobs keep them, saving a read per merge.
+    #[arg(long, default_value_t = config::DEFAULT_EVICT_OPEN_OVER)]
+    evict_open_over: u64,
+    /// Bytes of merged sums not yet written to the state store at which workers' results are
+    /// deferred (they retry) until a checkpoint commits: bounds the coordinator's memory when
+    /// results arrive faster than its disk and CPU store them.
+    #[arg(long, default_value_t = config::DEFAULT_MAX_UNSTORED_BYTES)]
+    max_unstored_bytes: u64,
     /// Default tile edge in pixels for jobs that do not choose one.
     #[arg(long, default_value_t = DEFAULT_TILE, value_parser = tile_range())]
     tile_size: u32,
@@ -161,6 +171,8 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
     config.limits.max_spp = args.max_spp;
     config.limits.max_asset_bytes = args.max_asset_bytes;
     config.asset_store_bytes = args.asset_store_bytes;
+    config.evict_open_over = args.evict_open_over;
+    config.max_unstored_bytes = args.max_unstored_bytes;
     config.asset_retention = Duration::from_secs_f64(args.asset_retention);
     config.limits.max_resolution = args.max_resolution;
     config.max_message_bytes = config

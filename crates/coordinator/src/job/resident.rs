@@ -3,9 +3,21 @@
 //! the store holds the same bits and nothing will change them, so it is dropped from memory
 //! ([`Job::evict`]) and read back once, tile by tile, when the frame is written
 //! ([`FrameTile::Stored`]). What stays is the tile's means at the dashboard preview's
-//! resolution ([`Thumb`]), so a preview of a large frame still shows every tile. A job's
-//! resident sums are then its open tiles and the tiles merged since the last checkpoint, and
-//! the coordinator asks for a checkpoint early once those reach [`MAX_DIRTY_BYTES`].
+//! resolution ([`Thumb`]), so a preview of a large frame still shows every tile.
+//!
+//! A job whose whole frame of sums is larger than the policy's bound
+//! ([`Policy::evict_open_over`](crate::scheduler::Policy::evict_open_over)) also lets its open
+//! tiles go once stored, between their batches: units go out batch-major, so every tile of
+//! such a job is open for most of its life, and keeping them would hold the whole frame. The
+//! next batch's result reads the tile back first ([`Job::reload`]), at the cost of one tile
+//! read per merge, which is why small jobs keep theirs. A job's resident sums are then the
+//! tiles merged since the last checkpoint and results that wait for an earlier batch, and the
+//! coordinator asks for a checkpoint early once the former reach [`MAX_DIRTY_BYTES`].
+//!
+//! A tile read back is the one that left only if the store still holds what memory dropped:
+//! an evicted tile is never dirty, so no checkpoint writes it until it is read back and merged
+//! into, and [`Job::reload`] checks the read's sample count against the tile's merged batches,
+//! which refuses a read that raced a later checkpoint's copy.
 //!
 //! Audited jobs keep every tile (an audit folds a tile again from its sums) and so do adaptive
 //! ones (their decisions read the sums); so does a job in the last moments before its frame is
@@ -15,7 +27,7 @@ use std::sync::Arc;
 
 use tessera_render::{PixelRect, TileSums};
 
-use super::{Job, TileGrid};
+use super::{Job, TileGrid, Unit};
 use crate::store::{encode_sums, JobPhase, Op};
 
 /// Longest edge of a dashboard preview, in pixels: larger frames are averaged down to it, so a
@@ -150,8 +162,9 @@ impl Job {
     }
 
     /// Drops from memory the sums of those of `tiles` (just written by a checkpoint) that are
-    /// closed and not merged into since, keeping their preview means. Returns the bytes freed.
-    pub fn evict(&mut self, tiles: impl IntoIterator<Item = u32>) -> u64 {
+    /// not merged into since and have no result waiting, keeping their preview means: closed
+    /// tiles only, unless `open` (see the module's doc). Returns the bytes freed.
+    pub fn evict(&mut self, tiles: impl IntoIterator<Item = u32>, open: bool) -> u64 {
         if !self.evicts() {
             return 0;
         }
@@ -165,7 +178,7 @@ impl Job {
             let Some(acc) = self.acc.get_mut(&t) else {
                 continue;
             };
-            if acc.next < n_batches || !acc.pending.is_empty() {
+            if (acc.next < n_batches && !open) || !acc.pending.is_empty() {
                 continue;
             }
             if let Some(sums) = acc.sums.take() {
@@ -175,6 +188,44 @@ impl Job {
             }
         }
         freed
+    }
+
+    /// Bytes of this job's sums were every tile in memory: what
+    /// [`Policy::evict_open_over`](crate::scheduler::Policy::evict_open_over) is compared with.
+    pub fn frame_bytes(&self) -> u64 {
+        self.rec.width as u64 * self.rec.height as u64 * 52
+    }
+
+    /// Where `unit`'s result must read its tile back from the store before it merges: the
+    /// tile's sums left memory and the result is its next batch (an early one waits without
+    /// them). Returns the tile's rectangle.
+    pub fn needs_reload(&self, unit: Unit) -> Option<PixelRect> {
+        let acc = self.acc.get(&unit.tile)?;
+        (acc.sums.is_none() && acc.thumb.is_some() && acc.next == unit.batch && self.is_live())
+            .then(|| self.tiles.get(unit.tile))
+            .flatten()
+    }
+
+    /// Puts back the sums of `tile` read from the store, if they are still out of memory and
+    /// are what left it (they cover every merged batch: a read that raced a later checkpoint
+    /// holds more, and is dropped). Returns whether they went back.
+    pub fn reload(&mut self, tile: u32, sums: TileSums) -> bool {
+        let Some(acc) = self.acc.get(&tile) else {
+            return false;
+        };
+        if acc.sums.is_some() || acc.thumb.is_none() || acc.next == 0 {
+            return false;
+        }
+        let want = self.batch_range(acc.next - 1).end;
+        if sums.samples != (0..want) || Some(sums.rect) != self.tiles.get(tile) {
+            return false;
+        }
+        let Some(acc) = self.acc.get_mut(&tile) else {
+            return false;
+        };
+        acc.sums = Some(Arc::new(sums));
+        acc.thumb = None;
+        true
     }
 
     /// Every tile's sums, row-major, copied (what tests compare frames by; writing the frame

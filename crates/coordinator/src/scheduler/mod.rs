@@ -29,10 +29,11 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::time::{Duration, Instant};
 
 use tessera_proto::ids::{JobId, LeaseId};
-use tessera_render::{RenderSettings, TileSums};
+use tessera_render::{PixelRect, RenderSettings, TileSums};
 
 use crate::config::{
-    DEFAULT_MAX_LEASES_PER_WORKER, DEFAULT_MAX_WORKERS_PER_HOST, DEFAULT_QUARANTINE_AFTER,
+    DEFAULT_EVICT_OPEN_OVER, DEFAULT_MAX_LEASES_PER_WORKER, DEFAULT_MAX_UNSTORED_BYTES,
+    DEFAULT_MAX_WORKERS_PER_HOST, DEFAULT_QUARANTINE_AFTER,
 };
 use crate::error::Refusal;
 use crate::job::{FrameTile, Job, Snapshot, Source, Unit, MAX_DIRTY_BYTES};
@@ -92,6 +93,14 @@ pub struct Policy {
     /// Fraction of the units of audited jobs rendered a second time by another worker; jobs
     /// admitted while it is above 0 are audited ([`crate::store::JobRecord::audited`]).
     pub audit: f64,
+    /// Bytes of a job's whole frame of sums ([`Job::frame_bytes`]) above which its open tiles
+    /// leave memory between batches once stored, and are read back for their next merge
+    /// (see [`crate::job`]'s `resident` module).
+    pub evict_open_over: u64,
+    /// Bytes of merged sums not yet in the store ([`Scheduler::unstored_bytes`]) at which
+    /// results are deferred (the worker is told to retry) until a checkpoint commits: the
+    /// bound on that memory when results arrive faster than the store takes them.
+    pub max_unstored_bytes: u64,
 }
 
 impl Policy {
@@ -103,6 +112,8 @@ impl Policy {
             max_leases_per_worker: DEFAULT_MAX_LEASES_PER_WORKER,
             max_workers_per_host: DEFAULT_MAX_WORKERS_PER_HOST,
             audit: 0.0,
+            evict_open_over: DEFAULT_EVICT_OPEN_OVER,
+            max_unstored_bytes: DEFAULT_MAX_UNSTORED_BYTES,
         }
     }
 }
@@ -148,6 +159,10 @@ pub struct Scheduler {
     counters: Counters,
     /// An early checkpoint has been asked for since the last one ([`Scheduler::wants_checkpoint`]).
     checkpoint_asked: bool,
+    /// Bytes of tile sums in the last checkpoint's snapshot, until the store has them
+    /// ([`Scheduler::evict`]): with the tiles dirty since, what memory holds that only a
+    /// commit can let go ([`Scheduler::unstored_bytes`]).
+    storing_bytes: u64,
 }
 
 impl Scheduler {
@@ -169,6 +184,7 @@ impl Scheduler {
             referee_wanted: BTreeSet::new(),
             counters: Counters::default(),
             checkpoint_asked: false,
+            storing_bytes: 0,
         }
     }
 
@@ -332,6 +348,14 @@ impl Scheduler {
                 unit.tile, unit.batch
             )));
         }
+        if job.needs_reload(unit).is_some() {
+            // The caller reads the tile back first (`needs_reload`); merging now would fold the
+            // batch into an empty tile. The lease stays, so the worker's retry merges it.
+            return Err(Refusal::Unavailable(format!(
+                "{job_id} tile {}: its sums are being read back from the store; retry",
+                unit.tile
+            )));
+        }
         let samples = sums.rect.area() as u64 * sums.samples.len() as u64;
         for l in job.issued.remove(&unit).unwrap_or_default() {
             self.leases.remove(&l);
@@ -419,10 +443,26 @@ impl Scheduler {
     pub fn checkpoint(&mut self) -> Snapshot {
         self.checkpoint_asked = false;
         let mut all = Snapshot::default();
+        self.storing_bytes = 0;
         for job in self.jobs.values_mut() {
+            self.storing_bytes += job.dirty_bytes;
             all.extend(job.checkpoint());
         }
         all
+    }
+
+    /// Bytes of merged tile sums that only a commit can let go: the tiles merged since the
+    /// last checkpoint, and that checkpoint's until it is committed.
+    pub fn unstored_bytes(&self) -> u64 {
+        self.storing_bytes + self.jobs.values().map(|j| j.dirty_bytes).sum::<u64>()
+    }
+
+    /// Whether a result should wait ([`Policy::max_unstored_bytes`]): merged sums are arriving
+    /// faster than checkpoints store them. Counted in [`Counters::results_deferred`].
+    pub fn defer_result(&mut self) -> bool {
+        let defer = self.unstored_bytes() >= self.policy.max_unstored_bytes;
+        self.counters.results_deferred += u64::from(defer);
+        defer
     }
 
     /// Whether the tiles merged since the last checkpoint have reached [`MAX_DIRTY_BYTES`]
@@ -444,7 +484,8 @@ impl Scheduler {
             .values_mut()
             .map(|job| {
                 let tiles: Vec<u32> = job.acc.keys().copied().collect();
-                job.evict(tiles)
+                let open = job.frame_bytes() > self.policy.evict_open_over;
+                job.evict(tiles, open)
             })
             .sum()
     }
@@ -452,14 +493,48 @@ impl Scheduler {
     /// After a checkpoint that wrote `tiles` ((job, tile) pairs): drops from memory those
     /// that no result will change ([`Job::evict`]). Returns the bytes freed.
     pub fn evict(&mut self, tiles: &[(u64, u32)]) -> u64 {
+        self.storing_bytes = 0;
         let mut by_job: BTreeMap<u64, Vec<u32>> = BTreeMap::new();
         for &(j, t) in tiles {
             by_job.entry(j).or_default().push(t);
         }
         by_job
             .into_iter()
-            .filter_map(|(j, ts)| Some(self.jobs.get_mut(&JobId(j))?.evict(ts)))
+            .filter_map(|(j, ts)| {
+                let job = self.jobs.get_mut(&JobId(j))?;
+                let open = job.frame_bytes() > self.policy.evict_open_over;
+                Some(job.evict(ts, open))
+            })
             .sum()
+    }
+
+    /// Whether worker `w`'s result for `unit` under `lease` must first read its tile back
+    /// from the store ([`Job::needs_reload`]): only for a lease this worker holds for that unit,
+    /// so a forged result costs no store read. Returns the tile's rectangle.
+    pub fn needs_reload(
+        &self,
+        w: u64,
+        lease: LeaseId,
+        job_id: JobId,
+        unit: Unit,
+    ) -> Option<PixelRect> {
+        let n = self.held_by(w, lease)?;
+        let l = self.leases.get(&n)?;
+        if l.job != job_id || l.unit != unit {
+            return None;
+        }
+        self.jobs.get(&job_id)?.needs_reload(unit)
+    }
+
+    /// Puts back a tile read from the store for a merge ([`Job::reload`]); whether it went
+    /// back. Counted in [`Counters::tiles_reloaded`].
+    pub fn reload(&mut self, job_id: JobId, tile: u32, sums: TileSums) -> bool {
+        let back = self
+            .jobs
+            .get_mut(&job_id)
+            .is_some_and(|j| j.reload(tile, sums));
+        self.counters.tiles_reloaded += u64::from(back);
+        back
     }
 
     /// Ends a job (done, cancelled or failed): frees its units, leases and sums.

@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 use tessera_proto::ids::LeaseId;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::workers_server::Workers;
-use tessera_render::IMAGE_REVISION;
+use tessera_render::{PixelRect, TileSums, IMAGE_REVISION};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status};
@@ -165,50 +165,98 @@ impl Workers for Service {
             tile: req.tile_index,
             batch: req.batch_index,
         };
-        let (merged, new) = {
-            let mut core = self.shared.scheduler();
-            let now = Instant::now();
-            let w = core.touch_worker(&cred, now)?;
-            let decoded = req
-                .result
-                .ok_or_else(|| Status::invalid_argument("request has no result"))
-                .and_then(decode_result);
-            let sums = match decoded {
-                Ok(s) => s,
-                Err(e) => {
-                    core.refuse_result(w);
-                    warn!("result from {} refused: {}", cred.id, e.message());
-                    return Err(e);
+        let mut result = req.result;
+        let mut decoded: Option<TileSums> = None;
+        let mut read_back: Option<TileSums> = None;
+        let mut reads = 0;
+        let (merged, new) = loop {
+            // The lock is let go before any await: a tile read back happens outside it.
+            let step: Result<(bool, bool), PixelRect> = {
+                let mut core = self.shared.scheduler();
+                let now = Instant::now();
+                let w = core.touch_worker(&cred, now)?;
+                if decoded.is_none() && core.defer_result() {
+                    // Before decoding: a deferred result costs the coordinator nothing, and the
+                    // worker keeps it (its lease renewed by heartbeats) until the retry.
+                    drop(core);
+                    self.shared.request_checkpoint();
+                    return Err(Status::unavailable(
+                        "the coordinator is storing merged results; retry shortly",
+                    ));
+                }
+                let sums = match decoded.take() {
+                    Some(s) => s,
+                    None => match result
+                        .take()
+                        .ok_or_else(|| Status::invalid_argument("request has no result"))
+                        .and_then(decode_result)
+                    {
+                        Ok(s) => s,
+                        Err(e) => {
+                            core.refuse_result(w);
+                            warn!("result from {} refused: {}", cred.id, e.message());
+                            return Err(e);
+                        }
+                    },
+                };
+                if let Some(back) = read_back.take() {
+                    core.reload(job, unit.tile, back);
+                }
+                if let Some(rect) = core.needs_reload(w, lease, job, unit) {
+                    decoded = Some(sums);
+                    Err(rect)
+                } else {
+                    Ok(match core.submit(w, lease, job, unit, sums, now) {
+                        Ok(Merged::New { ops, finished }) => {
+                            // Acknowledged once merged in memory: the next checkpoint makes it
+                            // durable, and a crash before then costs its rendering again, not
+                            // its bits.
+                            self.shared.queue_checkpointed(ops);
+                            if core.wants_checkpoint() {
+                                self.shared.request_checkpoint();
+                            }
+                            (finished, true)
+                        }
+                        Ok(Merged::Duplicate) => {
+                            return Ok(Response::new(pb::SubmitResultResponse {
+                                outcome: pb::ResultOutcome::Duplicate as i32,
+                            }))
+                        }
+                        // Told merged, like any accepted result: a worker must not learn which
+                        // of its units are audited.
+                        Ok(Merged::Held) => (false, false),
+                        Ok(Merged::Discarded) => {
+                            return Ok(Response::new(pb::SubmitResultResponse {
+                                outcome: pb::ResultOutcome::Discarded as i32,
+                            }))
+                        }
+                        Err(r) => {
+                            warn!("result from {} refused: {r:?}", cred.id);
+                            return Err(r.into());
+                        }
+                    })
                 }
             };
-            match core.submit(w, lease, job, unit, sums, now) {
-                Ok(Merged::New { ops, finished }) => {
-                    // Acknowledged once merged in memory: the next checkpoint makes it durable,
-                    // and a crash before then costs its rendering again, not its bits.
-                    self.shared.queue_checkpointed(ops);
-                    if core.wants_checkpoint() {
-                        self.shared.request_checkpoint();
-                    }
-                    (finished, true)
-                }
-                Ok(Merged::Duplicate) => {
-                    return Ok(Response::new(pb::SubmitResultResponse {
-                        outcome: pb::ResultOutcome::Duplicate as i32,
-                    }))
-                }
-                // Told merged, like any accepted result: a worker must not learn which of
-                // its units are audited.
-                Ok(Merged::Held) => (false, false),
-                Ok(Merged::Discarded) => {
-                    return Ok(Response::new(pb::SubmitResultResponse {
-                        outcome: pb::ResultOutcome::Discarded as i32,
-                    }))
-                }
-                Err(r) => {
-                    warn!("result from {} refused: {r:?}", cred.id);
-                    return Err(r.into());
-                }
+            let rect = match step {
+                Ok(outcome) => break outcome,
+                Err(rect) => rect,
+            };
+            // The tile left memory between batches (a large job's open tile): read it back,
+            // then merge. A read that raced a checkpoint is refused by `reload` and read
+            // again; past a few, the worker's retry tries once more.
+            if reads == 3 {
+                return Err(Status::unavailable(format!(
+                    "{job} tile {}: its sums could not be read back; retry",
+                    unit.tile
+                )));
             }
+            reads += 1;
+            let store = self.shared.store.clone();
+            let read = tokio::task::spawn_blocking(move || store.tile(job.0, unit.tile, rect))
+                .await
+                .map_err(|e| Status::internal(format!("reading a tile back: {e}")))?;
+            read_back =
+                Some(read.map_err(|e| Status::internal(format!("coordinator state store: {e}")))?);
         };
         crate::referee::spawn_pending(&self.shared);
         if new {
