@@ -329,6 +329,42 @@ fn loadtest_memory_renders_large_frames_to_the_end_and_reports_the_coordinators_
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let md = std::fs::read_to_string(out.join("mem.md")).expect("md");
     assert!(md.contains("| 256² | 2 | 8 |"), "{md}");
+    // In four batches a tile, with every open tile sent to the store between them and every
+    // merged tile holding the next result back until a checkpoint: both jobs still end.
+    let o = tessera(&[
+        "loadtest",
+        "--memory",
+        "256",
+        "--batch",
+        "2",
+        "--evict-open-over",
+        "0",
+        "--max-unstored-bytes",
+        "1",
+        "--checkpoint-interval",
+        "0.05",
+        "--name",
+        "mem-open",
+        "--out-dir",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let md = std::fs::read_to_string(out.join("mem-open.md")).expect("md");
+    assert!(
+        md.contains("--evict-open-over 0 --max-unstored-bytes 1"),
+        "{md}"
+    );
+    let row = md
+        .lines()
+        .find(|l| l.starts_with("| 256² | 2 | 2 |"))
+        .unwrap_or_else(|| panic!("{md}"));
+    let deferred: u64 = row
+        .trim_end_matches(" |")
+        .rsplit("| ")
+        .next()
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or_else(|| panic!("{row}"));
+    assert!(deferred > 0, "no result was deferred: {row}");
     let bad = tessera(&["loadtest", "--memory", "100"]);
     assert_clean_failure(&bad, &["--memory"]);
 }
