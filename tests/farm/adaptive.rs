@@ -56,6 +56,7 @@ async fn an_adaptive_job_gives_the_local_bits_across_a_coordinator_restart() {
     let channels = ExrChannels {
         variance: false,
         samples: true,
+        ..ExrChannels::default()
     };
     let local = local_exr_with(&text, &settings, channels, dir.path());
     assert!(

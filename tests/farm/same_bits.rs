@@ -65,6 +65,7 @@ async fn a_frame_written_in_bands_across_the_exr_blocks_is_the_local_render() {
     let channels = ExrChannels {
         variance: true,
         samples: true,
+        ..ExrChannels::default()
     };
     let local = local_exr_with(&text, &job_settings(8, 4), channels, dir.path());
     assert!(farm == local, "farm EXR differs from the local render");

@@ -7,7 +7,7 @@ use std::path::Path;
 use common::{assert_clean_failure, repo, tessera, tessera_at, write};
 use std::process::Command;
 
-use tessera_render::output::{read_exr_metadata, read_exr_rgb};
+use tessera_render::output::{read_exr_channel, read_exr_metadata, read_exr_rgb};
 
 #[test]
 fn renders_the_cornell_box_to_a_valid_exr() {
@@ -536,4 +536,64 @@ fn submit_names_a_bad_file_as_render_does() {
         );
         assert!(stderr.contains(names), "{what}: {stderr:?}");
     }
+}
+
+#[test]
+fn render_writes_the_aovs_it_is_asked_for_and_names_one_it_does_not_know() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let plain = dir.path().join("plain.exr");
+    let out = dir.path().join("aov.exr");
+    let scene = repo("scenes/cornell-box.toml");
+    for (path, aov) in [(&plain, None), (&out, Some("albedo,normal,depth"))] {
+        let mut args = vec![
+            "render",
+            &scene,
+            "--spp",
+            "2",
+            "--output",
+            path.to_str().expect("utf8"),
+        ];
+        args.extend(aov.iter().flat_map(|a| ["--aov", *a]));
+        let r = tessera(&args);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    }
+    // The beauty is the same with or without them.
+    for c in ["R", "G", "B"] {
+        let (a, b) = (
+            read_exr_channel(&plain, c).expect("plain"),
+            read_exr_channel(&out, c).expect("aov"),
+        );
+        assert!(a == b, "channel {c} changed");
+    }
+    let albedo = read_exr_channel(&out, "albedo.R").expect("albedo.R");
+    assert!(albedo.iter().all(|v| (0.0..=1.0).contains(v)));
+    assert!(albedo.iter().any(|v| *v > 0.1), "a lit box has some albedo");
+    let (nx, ny, nz) = (
+        read_exr_channel(&out, "normal.X").expect("normal.X"),
+        read_exr_channel(&out, "normal.Y").expect("normal.Y"),
+        read_exr_channel(&out, "normal.Z").expect("normal.Z"),
+    );
+    for i in 0..nx.len() {
+        let len2 = nx[i] * nx[i] + ny[i] * ny[i] + nz[i] * nz[i];
+        assert!(len2 <= 1.0 + 1e-4, "pixel {i}: |n|² = {len2}");
+    }
+    let z = read_exr_channel(&out, "Z").expect("Z");
+    // Depth is a distance, or +∞ where no sample met a surface (past the box's open front).
+    assert!(z.iter().all(|d| *d > 0.0 && !d.is_nan()));
+    let met = z.iter().filter(|d| d.is_finite()).count();
+    assert!(met * 10 > z.len() * 9, "{met} of {} pixels met the box", z.len());
+    assert!(read_exr_metadata(&out)
+        .expect("meta")
+        .contains(&"aovs=albedo,normal,depth".to_string()));
+    let e = read_exr_channel(&plain, "Z").expect_err("no AOVs asked for");
+    assert!(e.to_string().contains("no channel \"Z\""), "{e}");
+    let bad = tessera(&[
+        "render",
+        &scene,
+        "--aov",
+        "albedo,mist",
+        "--output",
+        dir.path().join("x.exr").to_str().expect("utf8"),
+    ]);
+    assert_clean_failure(&bad, &["--aov", "\"mist\""]);
 }

@@ -69,6 +69,7 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
         let channels = ExrChannels {
             variance: rec.variance,
             samples: rec.sample_count,
+            aovs: settings.aovs,
         };
         // Never over another file: output names are unique among the coordinator's jobs, so a
         // file already there was put there by someone else, and is theirs.

@@ -276,7 +276,7 @@ fn merged_sums_count_as_unstored_until_a_commit_and_results_wait_past_the_bound(
     let now = Instant::now();
     let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
     let granted = core.lease(w, usize::MAX, now);
-    let mut merge = |core: &mut Scheduler, i: usize| {
+    let merge = |core: &mut Scheduler, i: usize| {
         let r = result(core.job(JobId(1)).expect("job"), granted[i].unit);
         core.submit(w, granted[i].lease, JobId(1), granted[i].unit, r, now)
             .expect("merged");

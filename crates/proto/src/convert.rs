@@ -216,6 +216,8 @@ impl TryFrom<pb::TileResult> for TileSums {
             sum_sq: triples(r.sum_sq),
             count: r.count,
             nonfinite: r.nonfinite,
+            // The wire has no AOV sums yet: the farm renders no AOVs (`submit` offers none).
+            aov: None,
         })
     }
 }

@@ -338,10 +338,10 @@ fn transmittance(sigma: f32, t: f32) -> f32 {
 /// The normals at a vertex, on the side the path arrived from: the geometric one (offsets,
 /// and which side a direction leaves by) and the shading one (scattering), and whether they
 /// differ (a smooth mesh).
-struct Shading {
-    n: Vec3A,
-    ns: Vec3A,
-    shaded: bool,
+pub(crate) struct Shading {
+    pub(crate) n: Vec3A,
+    pub(crate) ns: Vec3A,
+    pub(crate) shaded: bool,
 }
 
 impl Shading {
@@ -349,7 +349,7 @@ impl Shading {
     /// front side. Without `shading_normals` (every scene but smooth meshes) ns = n, and the
     /// side tests that compare the two are skipped: they would repeat the shading ones.
     #[inline(always)]
-    fn facing(sp: &SurfacePoint, wo: Vec3A, shading_normals: bool) -> (bool, Self) {
+    pub(crate) fn facing(sp: &SurfacePoint, wo: Vec3A, shading_normals: bool) -> (bool, Self) {
         let front = sp.n.dot(wo) >= 0.0;
         let n = if front { sp.n } else { -sp.n };
         let shaded = shading_normals && sp.ns != sp.n;
@@ -598,7 +598,7 @@ fn rough_dielectric(
 /// reflected with R' (see [`thin_reflectance`]) or straight on, unbent. `None` where the
 /// shading normal and the geometric one disagree.
 #[inline(never)]
-fn thin_dielectric(
+pub(crate) fn thin_dielectric(
     ray: &Ray,
     sp: &SurfacePoint,
     at: &Shading,
@@ -623,8 +623,8 @@ fn thin_dielectric(
 
 /// A path's next ray through (or off) a smooth dielectric, and what its throughput is divided
 /// by.
-struct Refracted {
-    ray: Ray,
+pub(crate) struct Refracted {
+    pub(crate) ray: Ray,
     /// η² through the surface (radiance is compressed by 1/η² entering a denser medium), 1
     /// on reflection.
     attenuation: f32,
@@ -636,7 +636,7 @@ struct Refracted {
 /// side), choosing by the Fresnel reflectance with `u_choice`; `None` when no Fresnel term is
 /// defined (seen from behind the shading normal).
 #[inline(always)]
-fn dielectric(
+pub(crate) fn dielectric(
     ray: &Ray,
     sp: &SurfacePoint,
     at: &Shading,

@@ -22,7 +22,7 @@
 //!   [`aggregate`] (the scene's ray queries: a BVH whose leaves test quads four at a time).
 //! - Appearance and light: [`texture`], [`bsdf`], [`envmap`], [`light`], [`camera`].
 //! - [`scene`] (file format, parsing, validation, the runtime scene).
-//! - Rendering: [`integrator`], [`wide`] (the integrator four to sixteen paths at a time, for
+//! - Rendering: [`integrator`], [`aov`] (auxiliary images for denoising), [`wide`] (the integrator four to sixteen paths at a time, for
 //!   the scenes whose bounce it models, with the same bits), [`adaptive`] (noise-targeted
 //!   sampling), [`film`] (partial sums and images), [`tile`] (the render driver) and
 //!   [`output`] (EXR, PNG).
@@ -38,6 +38,7 @@
 pub mod accel;
 pub mod adaptive;
 pub mod aggregate;
+pub mod aov;
 pub mod bsdf;
 pub mod camera;
 pub mod envmap;
@@ -63,7 +64,7 @@ pub use film::{
     Strips, TileSums,
 };
 pub use settings::{
-    unit_batch, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_TILE, DEFAULT_UNIT_SAMPLES,
+    unit_batch, Aovs, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_TILE, DEFAULT_UNIT_SAMPLES,
     MIN_UNITS_PER_FRAME, TILE_RANGE, UNIT_SAMPLES_RANGE,
 };
 pub use tile::{render_frame, render_tile};

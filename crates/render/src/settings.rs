@@ -135,6 +135,66 @@ pub struct RenderSettings {
     /// built from the file ([`crate::scene::Scene::from_str_at`]) and goes into the EXR's
     /// header, so it is part of the render's identity when set.
     pub frame: Option<u32>,
+    /// Extra images for denoising to render beside the beauty ([`Aovs`]); none by default. They
+    /// come from a pass of their own, so the beauty has the same bits and speed without them.
+    pub aovs: Aovs,
+}
+
+/// Which auxiliary images (AOVs) a render writes beside the beauty, for a denoiser (Intel Open
+/// Image Denoise, Blender's compositor): each pixel's mean over its samples of what the
+/// camera ray sees at its first non-specular surface ([`crate::aov`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct Aovs {
+    /// `albedo.R`, `albedo.G`, `albedo.B`: the surface's reflectance colour, in [0, 1].
+    pub albedo: bool,
+    /// `normal.X`, `normal.Y`, `normal.Z`: its world-space shading normal, facing the camera
+    /// ray; zero where the ray escapes.
+    pub normal: bool,
+    /// `Z`: the distance along the camera ray to the first surface it meets, over the samples
+    /// that meet one; +∞ where none does.
+    pub depth: bool,
+}
+
+impl Aovs {
+    /// The names `--aov` takes, in the order the header lists them.
+    pub const NAMES: [&'static str; 3] = ["albedo", "normal", "depth"];
+
+    /// From a comma-separated list of [`Aovs::NAMES`] (empty: none). The error names the
+    /// entry that is not one.
+    pub fn parse(list: &str) -> Result<Self, String> {
+        let mut out = Self::default();
+        for name in list.split(',').map(str::trim).filter(|n| !n.is_empty()) {
+            match name {
+                "albedo" => out.albedo = true,
+                "normal" => out.normal = true,
+                "depth" => out.depth = true,
+                other => {
+                    return Err(format!(
+                        "unknown AOV {other:?}: expected a comma-separated list of {}",
+                        Self::NAMES.join(", ")
+                    ))
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Whether any is asked for.
+    pub fn any(self) -> bool {
+        self.albedo || self.normal || self.depth
+    }
+
+    /// The list [`Aovs::parse`] reads back (empty for none).
+    pub fn list(self) -> String {
+        let on = [self.albedo, self.normal, self.depth];
+        Self::NAMES
+            .iter()
+            .zip(on)
+            .filter(|(_, on)| *on)
+            .map(|(n, _)| *n)
+            .collect::<Vec<_>>()
+            .join(",")
+    }
 }
 
 impl Default for RenderSettings {
@@ -149,6 +209,7 @@ impl Default for RenderSettings {
             tracer: Tracer::Auto,
             adaptive: None,
             frame: None,
+            aovs: Aovs::default(),
         }
     }
 }

@@ -13,7 +13,8 @@ use std::ops::Range;
 use rayon::prelude::*;
 
 use crate::adaptive::{neyman_scale, pilot_samples, tile_wants_more};
-use crate::film::{assemble_render, PixelRect, TileSums};
+use crate::aov::first_hit;
+use crate::film::{assemble_render, AovBatch, AovSums, PixelRect, TileSums};
 use crate::integrator::{sample_pixel, RenderSettings, Tracer};
 use crate::scene::Scene;
 use crate::util::sampling::PixelSampler;
@@ -124,7 +125,47 @@ pub fn render_tile(
         })
         .sum();
     out.nonfinite = nonfinite;
+    if settings.aovs.any() {
+        out.aov = Some(aov_sums(scene, settings, rect, &samples));
+    }
     out
+}
+
+/// The AOVs' sums of `rect` over `samples` ([`crate::aov`]): their own pass over the tile,
+/// parallel over rows, each pixel's samples summed by batch in index order as the beauty's are.
+fn aov_sums(
+    scene: &Scene,
+    settings: &RenderSettings,
+    rect: PixelRect,
+    samples: &Range<u32>,
+) -> AovSums {
+    let w = rect.width as usize;
+    let batch = settings.batch.max(1);
+    let rows: Vec<AovSums> = (0..rect.height)
+        .into_par_iter()
+        .map(|row| {
+            let y = rect.y0 + row;
+            let mut sums = AovSums::zeros(w);
+            for col in 0..w {
+                let x = rect.x0 + col as u32;
+                let mut sampler = PixelSampler::new(settings.seed, x, y, samples.start);
+                let mut b = AovBatch::default();
+                for index in samples.clone() {
+                    sampler.set_index(index);
+                    b.add(first_hit(scene, settings, x, y, &sampler));
+                    if (index + 1) % batch == 0 || index + 1 == samples.end {
+                        b.flush_into(&mut sums, col);
+                    }
+                }
+            }
+            sums
+        })
+        .collect();
+    let mut all = AovSums::zeros(rect.area());
+    for (row, sums) in rows.iter().enumerate() {
+        all.copy(row * w, sums, 0, w);
+    }
+    all
 }
 
 /// One row of a tile through the many-path tracer: the row's pixels and samples cut into runs

@@ -123,6 +123,7 @@ fn exr_files_are_bit_identical() {
     let ch = ExrChannels {
         variance: true,
         samples: true,
+        ..ExrChannels::default()
     };
     write_exr(&dir.join("a.exr"), &img, ch, &meta).expect("write");
     write_exr(&dir.join("b.exr"), &img, ch, &meta).expect("write");

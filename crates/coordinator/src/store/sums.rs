@@ -63,5 +63,7 @@ pub fn decode_sums(bytes: &[u8], rect: PixelRect) -> Result<TileSums, String> {
         sum_sq,
         count,
         nonfinite: u64_at(8),
+        // Jobs have no AOVs yet (the farm renders none), so the store keeps none.
+        aov: None,
     })
 }

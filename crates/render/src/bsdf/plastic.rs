@@ -100,6 +100,12 @@ impl Plastic {
         }
     }
 
+    /// The diffuse base's albedo (what a denoiser's albedo image shows of it).
+    #[inline]
+    pub fn albedo(&self) -> Vec3A {
+        self.albedo
+    }
+
     /// Whether the coat is a mirror.
     #[inline]
     pub fn is_smooth(&self) -> bool {

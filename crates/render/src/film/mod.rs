@@ -8,8 +8,11 @@
 
 use std::ops::Range;
 
+mod aov;
 mod strips;
 
+pub(crate) use aov::AovBatch;
+pub use aov::{AovPlanes, AovSums};
 pub use strips::{assemble_image, Strips};
 
 /// A rectangle of pixels.
@@ -75,6 +78,8 @@ pub struct TileSums {
     pub count: Vec<u32>,
     /// Non-finite samples that were counted and left out of the sums.
     pub nonfinite: u64,
+    /// The AOVs' sums, when the render asked for any ([`crate::settings::Aovs`]).
+    pub aov: Option<AovSums>,
 }
 
 /// Why two partial sums cannot be merged.
@@ -104,6 +109,9 @@ pub enum MergeError {
         /// Entries present.
         got: usize,
     },
+    /// One has AOV sums and the other none.
+    #[error("one of the partial sums has AOV sums and the other has none")]
+    Aov,
 }
 
 impl TileSums {
@@ -117,6 +125,7 @@ impl TileSums {
             sum_sq: vec![[0.0; 3]; n],
             count: vec![0; n],
             nonfinite: 0,
+            aov: None,
         }
     }
 
@@ -131,7 +140,10 @@ impl TileSums {
                 });
             }
         }
-        Ok(())
+        match &self.aov {
+            Some(a) => a.check_shape(n),
+            None => Ok(()),
+        }
     }
 
     /// Adds `next`, which must cover the same rectangle and the samples right after ours.
@@ -148,6 +160,13 @@ impl TileSums {
                 have: self.samples.clone(),
                 got: next.samples.clone(),
             });
+        }
+        match (&mut self.aov, &next.aov) {
+            (Some(a), Some(b)) => a.add(b),
+            (None, None) => {}
+            // An accumulator with no samples yet takes the AOVs' shape from its first part.
+            (None, Some(b)) if self.samples.is_empty() => self.aov = Some(b.clone()),
+            _ => return Err(MergeError::Aov),
         }
         for i in 0..self.sum.len() {
             for c in 0..3 {
@@ -199,10 +218,16 @@ impl TileSums {
             });
         }
         tile.check_shape()?;
+        if let (None, Some(_)) = (&self.aov, &tile.aov) {
+            self.aov = Some(AovSums::zeros(r.area()));
+        }
         for row in 0..t.height {
             let src = (row * t.width) as usize;
             let dst = ((t.y0 - r.y0 + row) * r.width + (t.x0 - r.x0)) as usize;
             let w = t.width as usize;
+            if let (Some(to), Some(from)) = (&mut self.aov, &tile.aov) {
+                to.copy(dst, from, src, w);
+            }
             self.sum[dst..dst + w].copy_from_slice(&tile.sum[src..src + w]);
             self.sum_sq[dst..dst + w].copy_from_slice(&tile.sum_sq[src..src + w]);
             self.count[dst..dst + w].copy_from_slice(&tile.count[src..src + w]);
@@ -264,6 +289,7 @@ impl TileSums {
             variance,
             count: self.count.clone(),
             nonfinite: self.nonfinite,
+            aov: self.aov.as_ref().map(AovSums::finalize),
         }
     }
 }
@@ -283,6 +309,8 @@ pub struct Image {
     pub count: Vec<u32>,
     /// Non-finite samples left out.
     pub nonfinite: u64,
+    /// The AOVs' planes, when the render asked for any.
+    pub aov: Option<AovPlanes>,
 }
 
 impl Image {

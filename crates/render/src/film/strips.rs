@@ -9,7 +9,7 @@
 //! lists them row-major: then once a tile starting at row `y` arrives, no later tile touches a
 //! row above `y`, and those rows can leave as a finished strip.
 
-use super::{Image, MergeError, PixelRect, TileSums};
+use super::{AovPlanes, Image, MergeError, PixelRect, TileSums};
 
 /// The rows of a frame, top to bottom, from its tiles in row-major order: an iterator of
 /// strips, each `width` pixels wide, whose heights add up to the frame's. A tile that does not
@@ -22,6 +22,8 @@ pub struct Strips<I> {
     /// The sample range every tile must cover, or (adaptive) start at and stay within.
     samples: std::ops::Range<u32>,
     adaptive: bool,
+    /// Whether the render has AOVs: every tile must have their sums, or none may.
+    aov: bool,
     /// Rows `top..top + buf.height` of the frame, with the tiles taken so far.
     top: u32,
     buf: Image,
@@ -44,14 +46,18 @@ impl<I: Iterator<Item = TileSums>> Strips<I> {
             height,
             samples: 0..settings.spp,
             adaptive: settings.adaptive.is_some(),
+            aov: settings.aovs.any(),
             top: 0,
-            buf: empty(width, 0),
+            buf: empty(width, 0, settings.aovs.any()),
             next: None,
             done: false,
         }
     }
 
     fn check(&self, tile: &TileSums) -> Result<(), MergeError> {
+        if tile.aov.is_some() != self.aov {
+            return Err(MergeError::Aov);
+        }
         let fits = if self.adaptive {
             tile.samples.start == self.samples.start && tile.samples.end <= self.samples.end
         } else {
@@ -100,6 +106,9 @@ impl<I: Iterator<Item = TileSums>> Strips<I> {
             self.buf.rgb[dst..dst + w].copy_from_slice(&part.rgb[src..src + w]);
             self.buf.variance[dst..dst + w].copy_from_slice(&part.variance[src..src + w]);
             self.buf.count[dst..dst + w].copy_from_slice(&part.count[src..src + w]);
+            if let (Some(to), Some(from)) = (&mut self.buf.aov, &part.aov) {
+                to.copy(dst, from, src, w);
+            }
         }
         self.buf.nonfinite += part.nonfinite;
     }
@@ -110,7 +119,7 @@ impl<I: Iterator<Item = TileSums>> Strips<I> {
             grow(&mut self.buf, rows);
         }
         let rest = if rows == self.buf.height {
-            empty(self.width, 0)
+            empty(self.width, 0, self.aov)
         } else {
             let at = (rows * self.width) as usize;
             Image {
@@ -120,6 +129,7 @@ impl<I: Iterator<Item = TileSums>> Strips<I> {
                 variance: self.buf.variance.split_off(at),
                 count: self.buf.count.split_off(at),
                 nonfinite: 0,
+                aov: self.buf.aov.as_mut().map(|a| a.split_off(at)),
             }
         };
         let mut strip = std::mem::replace(&mut self.buf, rest);
@@ -160,7 +170,7 @@ impl<I: Iterator<Item = TileSums>> Iterator for Strips<I> {
     }
 }
 
-fn empty(width: u32, height: u32) -> Image {
+fn empty(width: u32, height: u32, aov: bool) -> Image {
     let n = width as usize * height as usize;
     Image {
         width,
@@ -169,6 +179,11 @@ fn empty(width: u32, height: u32) -> Image {
         variance: vec![[0.0; 3]; n],
         count: vec![0; n],
         nonfinite: 0,
+        aov: aov.then(|| {
+            let mut planes = AovPlanes::default();
+            planes.resize(n);
+            planes
+        }),
     }
 }
 
@@ -177,6 +192,9 @@ fn grow(image: &mut Image, rows: u32) {
     image.rgb.resize(n, [0.0; 3]);
     image.variance.resize(n, [0.0; 3]);
     image.count.resize(n, 0);
+    if let Some(a) = &mut image.aov {
+        a.resize(n);
+    }
     image.height = rows;
 }
 
@@ -190,12 +208,15 @@ pub fn assemble_image(
     height: u32,
     tiles: impl IntoIterator<Item = TileSums>,
 ) -> Result<Image, MergeError> {
-    let mut image = empty(width, 0);
+    let mut image = empty(width, 0, settings.aovs.any());
     for strip in Strips::new(settings, width, height, tiles) {
         let strip = strip?;
         image.rgb.extend_from_slice(&strip.rgb);
         image.variance.extend_from_slice(&strip.variance);
         image.count.extend_from_slice(&strip.count);
+        if let (Some(to), Some(from)) = (&mut image.aov, &strip.aov) {
+            to.extend(from);
+        }
         image.nonfinite += strip.nonfinite;
         image.height += strip.height;
     }

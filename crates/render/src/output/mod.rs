@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use exr::prelude::{read_first_rgba_layer_from_file, AttributeValue, Text};
+use exr::prelude::{read_first_rgba_layer_from_file, AttributeValue, ReadChannels, ReadLayers, Text};
 
 use crate::film::Image;
 use crate::util::files::{self, Access, Place};
@@ -47,6 +47,8 @@ pub struct ExrChannels {
     pub variance: bool,
     /// `samples`: the sample count per pixel.
     pub samples: bool,
+    /// The AOVs' channels ([`crate::settings::Aovs`]): `albedo.R/G/B`, `normal.X/Y/Z`, `Z`.
+    pub aovs: crate::settings::Aovs,
 }
 
 /// The header metadata of a render: everything that decides its pixels. The local renderer and
@@ -70,6 +72,9 @@ pub fn render_metadata(
     if let Some(a) = settings.adaptive {
         meta.push(("noise_target".to_string(), a.noise_target.to_string()));
         meta.push(("adaptive_tile".to_string(), a.tile.to_string()));
+    }
+    if settings.aovs.any() {
+        meta.push(("aovs".to_string(), settings.aovs.list()));
     }
     meta.push((
         "renderer".to_string(),
@@ -134,6 +139,33 @@ pub fn read_exr_rgb(path: &Path) -> Result<RgbImage, OutputError> {
         height: size.height(),
         rgb,
     })
+}
+
+/// The channel `name` of an EXR file's first layer (`R`, `albedo.G`, `Z`, …) as f32s,
+/// row-major: how a pipeline tool (or a test) reads one AOV back. A channel that is not there
+/// is an error naming the ones that are.
+pub fn read_exr_channel(path: &Path, name: &str) -> Result<Vec<f32>, OutputError> {
+    let exr_error = |message: String| OutputError::Exr {
+        path: path.to_path_buf(),
+        message,
+    };
+    let image = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(path)
+        .map_err(|e| exr_error(e.to_string()))?;
+    let channels = &image.layer_data.channel_data.list;
+    let channel = channels.iter().find(|c| c.name.eq(name)).ok_or_else(|| {
+        let names: Vec<String> = channels.iter().map(|c| c.name.to_string()).collect();
+        exr_error(format!(
+            "no channel {name:?} (it has {})",
+            names.join(", ")
+        ))
+    })?;
+    Ok(channel.sample_data.values_as_f32().collect())
 }
 
 /// How a PNG preview maps radiance to display values.
@@ -361,6 +393,7 @@ mod tests {
             variance: vec![[0.0; 3]; 2],
             count: vec![1; 2],
             nonfinite: 0,
+            aov: None,
         };
         let settings = crate::RenderSettings::default();
         let ours = dir.join("ours.exr");

@@ -46,9 +46,14 @@ enum Plane {
     Rgb(usize),
     Variance(usize),
     Samples,
+    Albedo(usize),
+    Normal(usize),
+    Depth,
 }
 
-const NAMES: [(&str, Plane); 7] = [
+/// Channel names: the beauty's, then the AOVs' as OpenEXR's conventions and Blender's passes
+/// name them (`Z` is OpenEXR's standard name for depth).
+const NAMES: [(&str, Plane); 14] = [
     ("R", Plane::Rgb(0)),
     ("G", Plane::Rgb(1)),
     ("B", Plane::Rgb(2)),
@@ -56,6 +61,13 @@ const NAMES: [(&str, Plane); 7] = [
     ("variance.G", Plane::Variance(1)),
     ("variance.B", Plane::Variance(2)),
     ("samples", Plane::Samples),
+    ("albedo.R", Plane::Albedo(0)),
+    ("albedo.G", Plane::Albedo(1)),
+    ("albedo.B", Plane::Albedo(2)),
+    ("normal.X", Plane::Normal(0)),
+    ("normal.Y", Plane::Normal(1)),
+    ("normal.Z", Plane::Normal(2)),
+    ("Z", Plane::Depth),
 ];
 
 /// Writes the frame, replacing any file at `path` unless `no_clobber`.
@@ -89,6 +101,7 @@ pub(super) fn write<S: Borrow<Image>>(
         held: VecDeque::new(),
         end: 0,
         width: size.0,
+        aov: channels.aovs.any(),
         problem: None,
     };
     let how = if no_clobber {
@@ -115,6 +128,19 @@ pub(super) fn write<S: Borrow<Image>>(
                             Plane::Rgb(c) => line.write_samples(|x| row.0.rgb[at(x)][c]),
                             Plane::Variance(c) => line.write_samples(|x| row.0.variance[at(x)][c]),
                             Plane::Samples => line.write_samples(|x| row.0.count[at(x)] as f32),
+                            // A strip without planes is refused when pulled (`reach`).
+                            Plane::Albedo(c) => match &row.0.aov {
+                                Some(a) => line.write_samples(|x| a.albedo[at(x)][c]),
+                                None => Ok(()),
+                            },
+                            Plane::Normal(c) => match &row.0.aov {
+                                Some(a) => line.write_samples(|x| a.normal[at(x)][c]),
+                                None => Ok(()),
+                            },
+                            Plane::Depth => match &row.0.aov {
+                                Some(a) => line.write_samples(|x| a.depth[at(x)]),
+                                None => Ok(()),
+                            },
                         };
                     }
                 })
@@ -163,6 +189,9 @@ fn headers(
         Plane::Rgb(_) => true,
         Plane::Variance(_) => channels.variance,
         Plane::Samples => channels.samples,
+        Plane::Albedo(_) => channels.aovs.albedo,
+        Plane::Normal(_) => channels.aovs.normal,
+        Plane::Depth => channels.aovs.depth,
     });
     let list: Vec<AnyChannel<FlatSamples>> = names
         .map(|(n, _)| AnyChannel::new(*n, FlatSamples::F32(Vec::new())))
@@ -196,6 +225,8 @@ struct Rows<I, S> {
     /// The row below the last strip pulled.
     end: u32,
     width: u32,
+    /// Whether the file has AOV channels, which every strip must then have planes for.
+    aov: bool,
     /// Why the strips do not make the frame, once they are seen not to.
     problem: Option<String>,
 }
@@ -226,6 +257,16 @@ impl<I: Iterator<Item = S>, S: Borrow<Image>> Rows<I, S> {
                     s.variance.len(),
                     s.count.len(),
                     self.width
+                ));
+                return;
+            }
+            let planes = s.aov.as_ref().filter(|a| {
+                a.albedo.len() == n && a.normal.len() == n && a.depth.len() == n
+            });
+            if self.aov && planes.is_none() {
+                self.problem = Some(format!(
+                    "a strip of rows {}.. has no AOV planes for the file's AOV channels",
+                    self.end
                 ));
                 return;
             }
@@ -286,6 +327,27 @@ mod tests {
                 plane(&|i| image.count[i] as f32),
             ));
         }
+        if let Some(a) = &image.aov {
+            for (c, axis) in ["R", "G", "B"].iter().enumerate() {
+                if channels.aovs.albedo {
+                    list.push(AnyChannel::new(
+                        format!("albedo.{axis}").as_str(),
+                        plane(&|i| a.albedo[i][c]),
+                    ));
+                }
+            }
+            for (c, axis) in ["X", "Y", "Z"].iter().enumerate() {
+                if channels.aovs.normal {
+                    list.push(AnyChannel::new(
+                        format!("normal.{axis}").as_str(),
+                        plane(&|i| a.normal[i][c]),
+                    ));
+                }
+            }
+            if channels.aovs.depth {
+                list.push(AnyChannel::new("Z", plane(&|i| a.depth[i])));
+            }
+        }
         let mut attrs = LayerAttributes::default();
         let texts: Vec<Text> = meta
             .iter()
@@ -318,6 +380,13 @@ mod tests {
             variance: (0..n).map(|i| [f(i, 3), f(i, 4), f(i, 5)]).collect(),
             count: (0..n).map(|i| (i % 5) as u32).collect(),
             nonfinite: 0,
+            aov: Some(crate::film::AovPlanes {
+                albedo: (0..n).map(|i| [f(i, 6), f(i, 7), f(i, 8)]).collect(),
+                normal: (0..n).map(|i| [f(i, 9), -f(i, 10), f(i, 11)]).collect(),
+                depth: (0..n)
+                    .map(|i| if i % 9 == 0 { f32::INFINITY } else { f(i, 12) })
+                    .collect(),
+            }),
         }
     }
 
@@ -331,6 +400,11 @@ mod tests {
             variance: image.variance[a..b].to_vec(),
             count: image.count[a..b].to_vec(),
             nonfinite: 0,
+            aov: image.aov.as_ref().map(|p| crate::film::AovPlanes {
+                albedo: p.albedo[a..b].to_vec(),
+                normal: p.normal[a..b].to_vec(),
+                depth: p.depth[a..b].to_vec(),
+            }),
         }
     }
 
@@ -344,6 +418,23 @@ mod tests {
             ExrChannels {
                 variance: true,
                 samples: true,
+                ..ExrChannels::default()
+            },
+            ExrChannels {
+                samples: true,
+                aovs: crate::Aovs {
+                    albedo: true,
+                    normal: true,
+                    depth: true,
+                },
+                ..ExrChannels::default()
+            },
+            ExrChannels {
+                aovs: crate::Aovs {
+                    normal: true,
+                    ..crate::Aovs::default()
+                },
+                ..ExrChannels::default()
             },
         ] {
             let want = image_writer_bytes(&frame, channels, &meta);
@@ -352,7 +443,11 @@ mod tests {
                 let strips = (0..53u32)
                     .step_by(cut)
                     .map(|y| rows_of(&frame, y, (y + cut as u32).min(53)));
-                let path = dir.path().join(format!("{cut}-{}.exr", channels.variance));
+                let path = dir.path().join(format!(
+                    "{cut}-{}-{}.exr",
+                    channels.variance,
+                    channels.aovs.list()
+                ));
                 write(&path, (37, 53), channels, &meta, strips, true).expect("writes");
                 let got = std::fs::read(&path).expect("reads");
                 assert!(
