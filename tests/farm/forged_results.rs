@@ -105,3 +105,88 @@ async fn forged_results_are_refused_and_leave_the_image_unaffected() {
     w.abort();
     coord.stop().await;
 }
+
+/// A job with AOVs: a result whose AOV sums no samples could give, or that leaves them out,
+/// is refused with a message naming them; the honest one merges, and the EXR is the local
+/// render's bytes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn forged_aov_sums_are_refused_and_leave_the_image_unaffected() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start(&dir.path().join("data"), Duration::from_secs(30)).await;
+    let url = coord.url();
+    let text = scene_text(32);
+    let settings = RenderSettings {
+        aovs: tessera_render::Aovs {
+            albedo: true,
+            normal: true,
+            depth: true,
+        },
+        ..job_settings(8, 4)
+    };
+    let mut client = coord.client().await;
+    let job = submit_job(
+        &mut client,
+        pb::SubmitJobRequest {
+            settings: Some(pb::RenderSettings::from(&settings)),
+            ..submit_request(&text, 8, 4)
+        },
+    )
+    .await;
+    let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
+    let mut forger = workers_client(&url);
+    let id = register_as(&mut forger, "forger", "0", IMAGE_REVISION)
+        .await
+        .expect("register");
+    let units = lease_now(&mut forger, &id, 1).await.expect("lease");
+    let u = &units[0];
+    let honest = || honest_result(&scene, &settings, u);
+    let send = |result: pb::TileResult| pb::SubmitResultRequest {
+        worker_id: id.clone(),
+        lease_id: u.lease_id.clone(),
+        job_id: u.job_id.clone(),
+        tile_index: u.tile_index,
+        batch_index: u.batch_index,
+        result: Some(result),
+    };
+    let mut bright = honest();
+    bright.aov_albedo[4] = 1e6;
+    let mut deep = honest();
+    deep.aov_depth[0] = -1.0;
+    let mut bare = honest();
+    bare.aov_albedo.clear();
+    bare.aov_normal.clear();
+    bare.aov_depth.clear();
+    bare.aov_hits.clear();
+    bare.aov_count.clear();
+    let mut short = honest();
+    short.aov_hits.pop();
+    for (what, forged, needle) in [
+        ("albedo above its count", bright, "AOV sums"),
+        ("negative depth", deep, "AOV sums"),
+        ("no AOV sums", bare, "no AOV sums"),
+        ("a short array", short, "AOV arrays"),
+    ] {
+        let e = forger.submit_result(send(forged)).await.expect_err(what);
+        assert_eq!(e.code(), tonic::Code::InvalidArgument, "{what}: {e:?}");
+        assert!(e.message().contains(needle), "{what}: {}", e.message());
+    }
+    let ok = forger
+        .submit_result(send(honest()))
+        .await
+        .expect("honest")
+        .into_inner();
+    assert_eq!(ok.outcome, pb::ResultOutcome::Merged as i32);
+    let w = worker(&url, "honest");
+    let status = wait(&mut client, &job).await;
+    assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
+    let channels = ExrChannels {
+        aovs: settings.aovs,
+        ..ExrChannels::default()
+    };
+    assert!(
+        fetch(&mut client, &job).await == local_exr_with(&text, &settings, channels, dir.path()),
+        "forged AOV sums reached the image"
+    );
+    w.abort();
+    coord.stop().await;
+}

@@ -74,3 +74,49 @@ async fn a_frame_written_in_bands_across_the_exr_blocks_is_the_local_render() {
     }
     coord.stop().await;
 }
+
+/// AOVs on the farm: each unit's result carries their sums, the coordinator merges them in
+/// batch order and writes their channels, and the EXR is `tessera render --aov`'s bytes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn aovs_rendered_by_the_farm_are_the_local_renders_bytes() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord = Coordinator::start(&dir.path().join("data"), Duration::from_secs(30)).await;
+    let workers: Vec<_> = (0..2)
+        .map(|i| worker(&coord.url(), &format!("w{i}")))
+        .collect();
+    let text = scene_text(40);
+    let all = tessera_render::Aovs {
+        albedo: true,
+        normal: true,
+        depth: true,
+    };
+    let settings = RenderSettings {
+        aovs: all,
+        ..job_settings(8, 4)
+    };
+    let mut client = coord.client().await;
+    let job = submit_job(
+        &mut client,
+        pb::SubmitJobRequest {
+            settings: Some(pb::RenderSettings::from(&settings)),
+            ..submit_request(&text, 8, 4)
+        },
+    )
+    .await;
+    let status = wait(&mut client, &job).await;
+    assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
+    let farm = fetch(&mut client, &job).await;
+    let channels = ExrChannels {
+        aovs: all,
+        ..ExrChannels::default()
+    };
+    let local = local_exr_with(&text, &settings, channels, dir.path());
+    assert!(
+        farm == local,
+        "farm EXR with AOVs differs from the local render"
+    );
+    for w in workers {
+        w.abort();
+    }
+    coord.stop().await;
+}

@@ -4,7 +4,7 @@
 
 use anyhow::{bail, Context, Result};
 use tessera_render::{
-    unit_batch, Adaptive, RenderSettings, Strategy, BATCH_RANGE, DEFAULT_TILE,
+    unit_batch, Adaptive, Aovs, RenderSettings, Strategy, BATCH_RANGE, DEFAULT_TILE,
     DEFAULT_UNIT_SAMPLES, TILE_RANGE, UNIT_SAMPLES_RANGE,
 };
 
@@ -50,6 +50,16 @@ pub struct SettingsArgs {
     /// part of the render's identity).
     #[arg(long, value_parser = clap::value_parser!(u32).range(0..=9_999_999))]
     pub frame: Option<u32>,
+    /// Auxiliary images for denoising, as EXR channels beside the beauty: a comma-separated
+    /// list of albedo (albedo.R/G/B), normal (normal.X/Y/Z, world space) and depth (Z), each
+    /// pixel's mean at its first non-specular surface. The beauty's bits do not change.
+    #[arg(long, value_name = "LIST", value_parser = parse_aovs)]
+    pub aov: Option<Aovs>,
+}
+
+/// `--aov`'s list ([`Aovs::parse`]).
+fn parse_aovs(list: &str) -> Result<Aovs, String> {
+    Aovs::parse(list)
 }
 
 /// clap's parser for a noise target in [`tessera_render::adaptive::NOISE_TARGET_RANGE`].
@@ -99,6 +109,7 @@ impl SettingsArgs {
                 .noise_target
                 .map(|noise_target| Adaptive { noise_target, tile }),
             frame: self.frame,
+            aovs: self.aov.unwrap_or_default(),
             ..RenderSettings::default()
         }
     }

@@ -8,7 +8,7 @@ use anyhow::{bail, Context, Result};
 use indicatif::ProgressBar;
 use tessera_render::output::{render_metadata, write_exr, write_png_preview, ExrChannels, Preview};
 use tessera_render::scene::{Limits, Scene, FIRST_FRAME};
-use tessera_render::{render_frame, Aovs, RenderSettings, Tracer, DEFAULT_TILE};
+use tessera_render::{render_frame, RenderSettings, Tracer, DEFAULT_TILE};
 
 use crate::args::{check_extension, check_output_dir, tile_range, SettingsArgs};
 
@@ -42,11 +42,7 @@ pub struct RenderArgs {
     /// Add a per-pixel sample-count channel (samples) to the EXR.
     #[arg(long)]
     sample_count: bool,
-    /// Auxiliary images for denoising, as EXR channels beside the beauty: a comma-separated
-    /// list of albedo (albedo.R/G/B), normal (normal.X/Y/Z, world space) and depth (Z), each
-    /// pixel's mean at its first non-specular surface. The beauty's bits do not change.
-    #[arg(long, value_name = "LIST", value_parser = parse_aovs)]
-    aov: Option<Aovs>,
+
     /// Which path tracer runs. Every choice gives the same bits; it is for timing the tracers
     /// against each other.
     #[arg(long, value_enum, default_value_t = TracerArg::Auto)]
@@ -57,11 +53,6 @@ pub struct RenderArgs {
     /// Largest image width or height accepted.
     #[arg(long, default_value_t = Limits::default().max_resolution)]
     max_resolution: u32,
-}
-
-/// `--aov`'s list ([`Aovs::parse`]).
-fn parse_aovs(list: &str) -> Result<Aovs, String> {
-    Aovs::parse(list)
 }
 
 /// `--tracer` values.
@@ -119,7 +110,6 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let scene = Scene::load_at(&args.scene, &limits, frame)?;
     let settings = RenderSettings {
         tracer: args.tracer.to_tracer(),
-        aovs: args.aov.unwrap_or_default(),
         ..args
             .settings
             .to_settings(args.tile_size, scene.width, scene.height)

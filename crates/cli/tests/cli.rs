@@ -581,7 +581,11 @@ fn render_writes_the_aovs_it_is_asked_for_and_names_one_it_does_not_know() {
     // Depth is a distance, or +∞ where no sample met a surface (past the box's open front).
     assert!(z.iter().all(|d| *d > 0.0 && !d.is_nan()));
     let met = z.iter().filter(|d| d.is_finite()).count();
-    assert!(met * 10 > z.len() * 9, "{met} of {} pixels met the box", z.len());
+    assert!(
+        met * 10 > z.len() * 9,
+        "{met} of {} pixels met the box",
+        z.len()
+    );
     assert!(read_exr_metadata(&out)
         .expect("meta")
         .contains(&"aovs=albedo,normal,depth".to_string()));

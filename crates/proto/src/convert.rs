@@ -3,8 +3,9 @@
 //! another to a worker.
 
 use tessera_render::adaptive::BadNoiseTarget;
+use tessera_render::film::AovSums;
 use tessera_render::{
-    Adaptive, PixelRect, RenderSettings, Strategy, TileSums, BATCH_RANGE, DEFAULT_TILE,
+    Adaptive, Aovs, PixelRect, RenderSettings, Strategy, TileSums, BATCH_RANGE, DEFAULT_TILE,
 };
 
 use crate::v1 as pb;
@@ -67,6 +68,7 @@ impl From<&RenderSettings> for pb::RenderSettings {
             strategy: pb::Strategy::from(s.strategy) as i32,
             noise_target: s.adaptive.map_or(0.0, |a| a.noise_target),
             frame: s.frame,
+            aovs: s.aovs.list(),
         }
     }
 }
@@ -89,6 +91,9 @@ pub enum BadSettings {
     /// A noise target outside the accepted range.
     #[error(transparent)]
     NoiseTarget(#[from] BadNoiseTarget),
+    /// An AOV list naming something that is not one.
+    #[error("aovs: {0}")]
+    Aovs(String),
 }
 
 /// The renderer's settings from a message's: an unset strategy is MIS, as the protocol says,
@@ -120,6 +125,7 @@ impl TryFrom<&pb::RenderSettings> for RenderSettings {
                 Some(Adaptive::new(s.noise_target, DEFAULT_TILE)?)
             },
             frame: s.frame,
+            aovs: Aovs::parse(&s.aovs).map_err(BadSettings::Aovs)?,
             ..RenderSettings::default()
         })
     }
@@ -142,6 +148,11 @@ impl From<&TileSums> for pb::TileResult {
             sum_sq: flat(&t.sum_sq),
             count: t.count.clone(),
             nonfinite: t.nonfinite,
+            aov_albedo: t.aov.as_ref().map_or_else(Vec::new, |a| flat(&a.albedo)),
+            aov_normal: t.aov.as_ref().map_or_else(Vec::new, |a| flat(&a.normal)),
+            aov_depth: t.aov.as_ref().map_or_else(Vec::new, |a| a.depth.clone()),
+            aov_hits: t.aov.as_ref().map_or_else(Vec::new, |a| a.hits.clone()),
+            aov_count: t.aov.as_ref().map_or_else(Vec::new, |a| a.count.clone()),
         }
     }
 }
@@ -173,6 +184,25 @@ pub enum BadResult {
     /// A sample range that ends before it starts.
     #[error("result sample range {0}..{1} is backwards")]
     Backwards(u32, u32),
+    /// AOV arrays of other lengths than the rectangle's (all five are sent, or none).
+    #[error(
+        "result for a {pixels}-pixel rect has AOV arrays of {albedo}, {normal}, {depth}, {hits} and {count} values (want {}, {}, {pixels}, {pixels}, {pixels}, or none)",
+        3 * pixels, 3 * pixels
+    )]
+    AovLengths {
+        /// Pixels in the rectangle.
+        pixels: u64,
+        /// Albedo sums sent.
+        albedo: usize,
+        /// Normal sums sent.
+        normal: usize,
+        /// Depth sums sent.
+        depth: usize,
+        /// Hit counts sent.
+        hits: usize,
+        /// Sample counts sent.
+        count: usize,
+    },
 }
 
 /// A flat array of RGB values as per-pixel triples, moved rather than copied, so that a large
@@ -209,6 +239,33 @@ impl TryFrom<pb::TileResult> for TileSums {
         if r.sample_start > r.sample_end {
             return Err(BadResult::Backwards(r.sample_start, r.sample_end));
         }
+        let lens = [
+            r.aov_albedo.len(),
+            r.aov_normal.len(),
+            r.aov_depth.len(),
+            r.aov_hits.len(),
+            r.aov_count.len(),
+        ];
+        let aov = if lens == [0; 5] {
+            None
+        } else if lens.map(|l| l as u64) == [3 * n, 3 * n, n, n, n] {
+            Some(AovSums {
+                albedo: triples(r.aov_albedo),
+                normal: triples(r.aov_normal),
+                depth: r.aov_depth,
+                hits: r.aov_hits,
+                count: r.aov_count,
+            })
+        } else {
+            return Err(BadResult::AovLengths {
+                pixels: n,
+                albedo: lens[0],
+                normal: lens[1],
+                depth: lens[2],
+                hits: lens[3],
+                count: lens[4],
+            });
+        };
         Ok(TileSums {
             rect,
             samples: r.sample_start..r.sample_end,
@@ -216,8 +273,7 @@ impl TryFrom<pb::TileResult> for TileSums {
             sum_sq: triples(r.sum_sq),
             count: r.count,
             nonfinite: r.nonfinite,
-            // The wire has no AOV sums yet: the farm renders no AOVs (`submit` offers none).
-            aov: None,
+            aov,
         })
     }
 }

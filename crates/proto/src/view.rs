@@ -105,6 +105,9 @@ pub enum BadView {
     /// A frame range that is not one.
     #[error("frame range: {0}")]
     Frames(String),
+    /// An AOV list naming something that is not one.
+    #[error("aovs: {0}")]
+    Aovs(String),
 }
 
 impl TryFrom<i32> for JobState {
@@ -137,6 +140,8 @@ pub struct SettingsView {
     pub frame: Option<u32>,
     /// The noise target of an adaptive job.
     pub noise_target: Option<f64>,
+    /// The AOVs rendered beside the beauty.
+    pub aovs: tessera_render::Aovs,
 }
 
 impl From<&RenderSettings> for SettingsView {
@@ -148,6 +153,7 @@ impl From<&RenderSettings> for SettingsView {
             strategy: s.strategy,
             frame: s.frame,
             noise_target: s.adaptive.map(|a| a.noise_target),
+            aovs: s.aovs,
         }
     }
 }
@@ -161,6 +167,7 @@ impl From<&SettingsView> for pb::RenderSettings {
             strategy: pb::Strategy::from(s.strategy) as i32,
             noise_target: s.noise_target.unwrap_or(0.0),
             frame: s.frame,
+            aovs: s.aovs.list(),
         }
     }
 }
@@ -176,6 +183,7 @@ impl TryFrom<&pb::RenderSettings> for SettingsView {
             strategy: strategy_from_wire(s.strategy).map_err(|e| BadView::Strategy(e.0))?,
             frame: s.frame,
             noise_target: (s.noise_target > 0.0).then_some(s.noise_target),
+            aovs: tessera_render::Aovs::parse(&s.aovs).map_err(BadView::Aovs)?,
         })
     }
 }
@@ -319,7 +327,7 @@ impl TryFrom<&pb::JobStatus> for JobView {
             scene_sha256: s.scene_hash.clone(),
             width: s.width,
             height: s.height,
-            settings: SettingsView::try_from(&s.settings.unwrap_or_default())?,
+            settings: SettingsView::try_from(&s.settings.clone().unwrap_or_default())?,
             tile_size: s.tile_size,
             priority: s.priority,
             units_done: s.units_done,
@@ -513,6 +521,7 @@ mod tests {
                 strategy: pb::Strategy::Nee as i32,
                 noise_target: 0.02,
                 frame: None,
+                aovs: "normal,depth".into(),
             }),
             tile_size: 32,
             units_total: 20,

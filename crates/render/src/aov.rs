@@ -107,12 +107,10 @@ pub fn first_hit(
                 }
                 Ray::new(offset_ray_origin(sp.p, sp.err, at.n), wi)
             }
-            Bsdf::Dielectric(ior) => {
-                match dielectric(&ray, &sp, &at, front, ior, u_choice()) {
-                    Some(r) => r.ray,
-                    None => return out,
-                }
-            }
+            Bsdf::Dielectric(ior) => match dielectric(&ray, &sp, &at, front, ior, u_choice()) {
+                Some(r) => r.ray,
+                None => return out,
+            },
             Bsdf::ThinDielectric(ior) => match thin_dielectric(&ray, &sp, &at, ior, u_choice()) {
                 Some(r) => r,
                 None => return out,

@@ -64,8 +64,8 @@ pub use film::{
     Strips, TileSums,
 };
 pub use settings::{
-    unit_batch, Aovs, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_TILE, DEFAULT_UNIT_SAMPLES,
-    MIN_UNITS_PER_FRAME, TILE_RANGE, UNIT_SAMPLES_RANGE,
+    unit_batch, Aovs, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_TILE,
+    DEFAULT_UNIT_SAMPLES, MIN_UNITS_PER_FRAME, TILE_RANGE, UNIT_SAMPLES_RANGE,
 };
 pub use tile::{render_frame, render_tile};
 pub use util::{files, lanes, math, sampling};

@@ -143,7 +143,7 @@ pub struct RenderSettings {
 /// Which auxiliary images (AOVs) a render writes beside the beauty, for a denoiser (Intel Open
 /// Image Denoise, Blender's compositor): each pixel's mean over its samples of what the
 /// camera ray sees at its first non-specular surface ([`crate::aov`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
 pub struct Aovs {
     /// `albedo.R`, `albedo.G`, `albedo.B`: the surface's reflectance colour, in [0, 1].
     pub albedo: bool,

@@ -66,7 +66,11 @@ fn a_mirror_shows_the_albedo_it_reflects_and_the_depth_of_the_mirror() {
     for x in 0..8 {
         let i = 7 * 8 + x;
         assert_eq!(aov.albedo[i], [0.5, 0.25, 0.125], "bottom row, column {x}");
-        assert!(aov.depth[i] < 1.9, "the mirror is nearer than the sphere: {}", aov.depth[i]);
+        assert!(
+            aov.depth[i] < 1.9,
+            "the mirror is nearer than the sphere: {}",
+            aov.depth[i]
+        );
         // The sphere's normal, seen via the floor, faces down-ish: the reflected rays go up.
         assert!(aov.normal[7 * 8 + x][1] < 0.0, "{:?}", aov.normal[i]);
     }
@@ -76,7 +80,11 @@ fn a_mirror_shows_the_albedo_it_reflects_and_the_depth_of_the_mirror() {
     let img = render(&scene(&inside_sphere("[0, 0, 1]", floor)), &with_aovs(8, 8));
     let aov = img.aov.as_ref().expect("AOV planes");
     assert_eq!(aov.albedo[60], [0.75; 3]);
-    assert!((aov.normal[60][1] - 1.0).abs() < 1e-6, "{:?}", aov.normal[60]);
+    assert!(
+        (aov.normal[60][1] - 1.0).abs() < 1e-6,
+        "{:?}",
+        aov.normal[60]
+    );
 }
 
 #[test]
@@ -95,7 +103,11 @@ fn a_ray_that_meets_nothing_has_no_albedo_no_normal_and_infinite_depth() {
     // Within 2.5° of the axis every ray meets the sphere's near side, 9 to 9.09 away
     // (10 cos θ − √(1 − 100 sin² θ)).
     let centre = 3 * 8 + 3;
-    assert!((9.0..9.09).contains(&aov.depth[centre]), "{}", aov.depth[centre]);
+    assert!(
+        (9.0..9.09).contains(&aov.depth[centre]),
+        "{}",
+        aov.depth[centre]
+    );
     assert_eq!(aov.albedo[centre], [0.5; 3]);
 }
 
@@ -141,8 +153,14 @@ fn aov_sums_of_two_batches_merge_to_the_bits_of_one_call() {
 
 #[test]
 fn the_aov_list_parses_and_names_what_it_does_not_know() {
-    assert_eq!(Aovs::parse("albedo, depth").expect("ok").list(), "albedo,depth");
+    assert_eq!(
+        Aovs::parse("albedo, depth").expect("ok").list(),
+        "albedo,depth"
+    );
     assert_eq!(Aovs::parse("").expect("ok"), Aovs::default());
     let e = Aovs::parse("albedo,normals").expect_err("unknown");
-    assert!(e.contains("\"normals\"") && e.contains("albedo, normal, depth"), "{e}");
+    assert!(
+        e.contains("\"normals\"") && e.contains("albedo, normal, depth"),
+        "{e}"
+    );
 }

@@ -10,7 +10,7 @@ use std::time::Instant;
 use tessera_proto::ids::JobId;
 use tessera_proto::view::JobState;
 use tessera_render::adaptive::{min_batches, neyman_scale, tile_wants_more, wants_more};
-use tessera_render::{Adaptive, RenderSettings, TileSums};
+use tessera_render::{Adaptive, Aovs, RenderSettings, TileSums};
 
 use crate::error::Refusal;
 
@@ -23,7 +23,7 @@ use crate::store::{decode_sums, encode_sums, JobPhase, JobRecord, LoadedJob, Op}
 pub use audit::{same_bits, AuditHold, KeptUnits, Source, NOBODY};
 pub use rate::Rate;
 pub use resident::{preview_step, FrameTile, Snapshot, Thumb, MAX_DIRTY_BYTES, PREVIEW_EDGE};
-pub use tiles::{pixel_in_range, sums_in_range, TileGrid};
+pub use tiles::{check_aov_sums, pixel_in_range, sums_in_range, TileGrid};
 
 /// One work unit: a tile and a batch of sample indices.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -397,6 +397,8 @@ impl Job {
                 tile: self.rec.tile_size,
             }),
             frame: self.rec.frame,
+            // Written by admission from a list that parsed; a damaged record gives none.
+            aovs: Aovs::parse(&self.rec.aovs).unwrap_or_default(),
             ..RenderSettings::default()
         }
     }
@@ -509,7 +511,15 @@ impl Job {
                 r.nonfinite
             ));
         }
-        Ok(())
+        match (&r.aov, self.rec.aovs.is_empty()) {
+            (None, true) => Ok(()),
+            (Some(a), false) => check_aov_sums(a, per_pixel),
+            (Some(_), true) => Err("result has AOV sums, and the job renders no AOVs".into()),
+            (None, false) => Err(format!(
+                "result has no AOV sums, and the job renders {}",
+                self.rec.aovs
+            )),
+        }
     }
 
     /// Folds a checked result for `unit` into its tile: at once if it is the tile's next batch

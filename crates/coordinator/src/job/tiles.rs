@@ -1,6 +1,7 @@
 //! A job's tiles as arithmetic, and the bounds a result's sums must keep to before they are
 //! merged into them.
 
+use tessera_render::film::AovSums;
 use tessera_render::{PixelRect, TileSums};
 
 /// A job's tiles, row-major, as arithmetic: a rectangle is computed when asked for, so a job
@@ -72,6 +73,30 @@ pub fn sums_in_range(t: &TileSums) -> bool {
         .zip(&t.sum_sq)
         .zip(&t.count)
         .all(|((s, q), k)| pixel_in_range(s, q, *k))
+}
+
+/// Why a result's AOV sums cannot be `per_pixel` samples' of AOVs: each pixel's albedo
+/// within [0, count] (an albedo is in [0, 1]), each normal component within [−count, count],
+/// depth within [0, hits × f32::MAX], hits at most count and count at most `per_pixel`.
+/// Whether the job asks for AOVs at all is the caller's to check.
+pub fn check_aov_sums(a: &AovSums, per_pixel: u64) -> Result<(), String> {
+    let max = f64::from(f32::MAX);
+    for i in 0..a.count.len() {
+        let (k, h) = (f64::from(a.count[i]), f64::from(a.hits[i]));
+        let ok = u64::from(a.count[i]) <= per_pixel
+            && a.hits[i] <= a.count[i]
+            && a.albedo[i].iter().all(|v| (0.0..=k).contains(v))
+            && a.normal[i].iter().all(|v| (-k..=k).contains(v))
+            && (0.0..=h * max).contains(&a.depth[i]);
+        if !ok {
+            return Err(format!(
+                "pixel {i}'s AOV sums (albedo {:?}, normal {:?}, depth {}, {} hits of {} samples) \
+                 are not what {per_pixel} samples can give",
+                a.albedo[i], a.normal[i], a.depth[i], a.hits[i], a.count[i]
+            ));
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -292,6 +292,7 @@ impl Scheduler {
             frame,
             range: None,
             adaptive_scale: None,
+            aovs: s.aovs.list(),
             // An adaptive job's decisions follow its merged sums; taking results back would
             // need them made again from the start, which is not built: such jobs are not
             // audited (docs/farm.md).

@@ -618,8 +618,22 @@ mod tests {
         t.count[2] = 7;
         t.nonfinite = 9;
         let bytes = encode_sums(&t);
-        assert_eq!(decode_sums(&bytes, rect), Ok(t));
+        assert_eq!(decode_sums(&bytes, rect), Ok(t.clone()));
         assert!(decode_sums(&bytes[1..], rect).is_err());
+        // With AOV sums, each array distinct so that a swapped one shows.
+        let mut a = tessera_render::film::AovSums::zeros(6);
+        for i in 0..6 {
+            let f = i as f64;
+            a.albedo[i] = [f, f + 0.25, f + 0.5];
+            a.normal[i] = [-f, 0.125, f * 3.0];
+            a.depth[i] = 100.0 + f;
+            a.hits[i] = i as u32;
+            a.count[i] = 10 + i as u32;
+        }
+        t.aov = Some(a);
+        let bytes = encode_sums(&t);
+        assert_eq!(decode_sums(&bytes, rect), Ok(t));
+        assert!(decode_sums(&bytes[..bytes.len() - 1], rect).is_err());
     }
 
     #[test]

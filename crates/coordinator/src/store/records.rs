@@ -113,6 +113,10 @@ pub struct JobRecord {
     /// gone past their pilots; JSON writes an f64 so that it reads back to the same bits.
     #[serde(default)]
     pub adaptive_scale: Option<f64>,
+    /// The AOVs the job renders beside the beauty, as [`tessera_render::Aovs::list`] writes
+    /// them (empty: none, as in records written before AOVs).
+    #[serde(default)]
+    pub aovs: String,
 }
 
 /// A frame-range job, as each of its frames records it.

@@ -3,13 +3,19 @@
 
 use std::ops::Range;
 
+use tessera_render::film::AovSums;
 use tessera_render::{PixelRect, TileSums};
 
+/// Bytes a pixel's AOV sums add: albedo and normal (6 f64), depth (f64), hits and count (2 u32).
+const AOV_BYTES: usize = 64;
+
 /// Serialises partial sums: sample range, non-finite count, then the f64 and u32 arrays,
-/// little-endian. The rectangle is the job's business and is not stored.
+/// little-endian, and the AOVs' arrays after them when there are any (the length tells). The
+/// rectangle is the job's business and is not stored.
 pub fn encode_sums(t: &TileSums) -> Vec<u8> {
     let n = t.sum.len();
-    let mut out = Vec::with_capacity(20 + n * 52);
+    let aov = if t.aov.is_some() { AOV_BYTES } else { 0 };
+    let mut out = Vec::with_capacity(20 + n * (52 + aov));
     out.extend_from_slice(&t.samples.start.to_le_bytes());
     out.extend_from_slice(&t.samples.end.to_le_bytes());
     out.extend_from_slice(&t.nonfinite.to_le_bytes());
@@ -22,19 +28,34 @@ pub fn encode_sums(t: &TileSums) -> Vec<u8> {
     for c in &t.count {
         out.extend_from_slice(&c.to_le_bytes());
     }
+    if let Some(a) = &t.aov {
+        for v in a.albedo.iter().chain(&a.normal) {
+            for c in v {
+                out.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+        for d in &a.depth {
+            out.extend_from_slice(&d.to_le_bytes());
+        }
+        for c in a.hits.iter().chain(&a.count) {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+    }
     out
 }
 
 /// Inverse of [`encode_sums`] for a tile of rectangle `rect`.
 pub fn decode_sums(bytes: &[u8], rect: PixelRect) -> Result<TileSums, String> {
     let n = rect.area();
-    if bytes.len() != 20 + n * 52 {
+    let with_aov = bytes.len() == 20 + n * (52 + AOV_BYTES);
+    if bytes.len() != 20 + n * 52 && !with_aov {
         return Err(format!(
-            "{} bytes where a {}×{} tile needs {}",
+            "{} bytes where a {}×{} tile needs {} ({} with AOVs)",
             bytes.len(),
             rect.width,
             rect.height,
-            20 + n * 52
+            20 + n * 52,
+            20 + n * (52 + AOV_BYTES)
         ));
     }
     let u32_at =
@@ -63,7 +84,20 @@ pub fn decode_sums(bytes: &[u8], rect: PixelRect) -> Result<TileSums, String> {
         sum_sq,
         count,
         nonfinite: u64_at(8),
-        // Jobs have no AOVs yet (the farm renders none), so the store keeps none.
-        aov: None,
+        aov: with_aov.then(|| {
+            let base = 20 + 52 * n;
+            let g = |i: usize| f64::from_bits(u64_at(base + 8 * i));
+            let triple = |at: usize| {
+                (0..n).map(move |p| [g(at + 3 * p), g(at + 3 * p + 1), g(at + 3 * p + 2)])
+            };
+            let ints = base + 56 * n;
+            AovSums {
+                albedo: triple(0).collect(),
+                normal: triple(3 * n).collect(),
+                depth: (0..n).map(|p| g(6 * n + p)).collect(),
+                hits: (0..n).map(|p| u32_at(ints + 4 * p)).collect(),
+                count: (0..n).map(|p| u32_at(ints + 4 * (n + p))).collect(),
+            }
+        }),
     })
 }

@@ -2,7 +2,9 @@
 
 use std::path::{Path, PathBuf};
 
-use exr::prelude::{read_first_rgba_layer_from_file, AttributeValue, ReadChannels, ReadLayers, Text};
+use exr::prelude::{
+    read_first_rgba_layer_from_file, AttributeValue, ReadChannels, ReadLayers, Text,
+};
 
 use crate::film::Image;
 use crate::util::files::{self, Access, Place};
@@ -160,10 +162,7 @@ pub fn read_exr_channel(path: &Path, name: &str) -> Result<Vec<f32>, OutputError
     let channels = &image.layer_data.channel_data.list;
     let channel = channels.iter().find(|c| c.name.eq(name)).ok_or_else(|| {
         let names: Vec<String> = channels.iter().map(|c| c.name.to_string()).collect();
-        exr_error(format!(
-            "no channel {name:?} (it has {})",
-            names.join(", ")
-        ))
+        exr_error(format!("no channel {name:?} (it has {})", names.join(", ")))
     })?;
     Ok(channel.sample_data.values_as_f32().collect())
 }

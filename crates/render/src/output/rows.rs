@@ -260,9 +260,10 @@ impl<I: Iterator<Item = S>, S: Borrow<Image>> Rows<I, S> {
                 ));
                 return;
             }
-            let planes = s.aov.as_ref().filter(|a| {
-                a.albedo.len() == n && a.normal.len() == n && a.depth.len() == n
-            });
+            let planes = s
+                .aov
+                .as_ref()
+                .filter(|a| a.albedo.len() == n && a.normal.len() == n && a.depth.len() == n);
             if self.aov && planes.is_none() {
                 self.problem = Some(format!(
                     "a strip of rows {}.. has no AOV planes for the file's AOV channels",

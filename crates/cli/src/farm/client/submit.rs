@@ -269,7 +269,7 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
 /// The samples a finished job took, as `tessera render` says them: "N spp", or for an
 /// adaptive job the average per pixel with its target and cap.
 fn spp_said(s: &pb::JobStatus) -> String {
-    let settings = s.settings.unwrap_or_default();
+    let settings = s.settings.clone().unwrap_or_default();
     if settings.noise_target > 0.0 {
         let pixels = (f64::from(s.width) * f64::from(s.height)).max(1.0);
         format!(
