@@ -176,7 +176,7 @@ impl Workers for Service {
                 let now = Instant::now();
                 let w = core.touch_worker(&cred, now)?;
                 if decoded.is_none() && core.defer_result() {
-                    // Before decoding: a deferred result costs the coordinator nothing, and the
+                    // Before its checks and merge, which a deferred result does not cost; the
                     // worker keeps it (its lease renewed by heartbeats) until the retry.
                     drop(core);
                     self.shared.request_checkpoint();
