@@ -249,13 +249,13 @@ impl TryFrom<pb::TileResult> for TileSums {
         let aov = if lens == [0; 5] {
             None
         } else if lens.map(|l| l as u64) == [3 * n, 3 * n, n, n, n] {
-            Some(AovSums {
+            Some(Box::new(AovSums {
                 albedo: triples(r.aov_albedo),
                 normal: triples(r.aov_normal),
                 depth: r.aov_depth,
                 hits: r.aov_hits,
                 count: r.aov_count,
-            })
+            }))
         } else {
             return Err(BadResult::AovLengths {
                 pixels: n,

@@ -126,7 +126,7 @@ pub fn render_tile(
         .sum();
     out.nonfinite = nonfinite;
     if settings.aovs.any() {
-        out.aov = Some(aov_sums(scene, settings, rect, &samples));
+        out.aov = Some(Box::new(aov_sums(scene, settings, rect, &samples)));
     }
     out
 }

@@ -630,7 +630,7 @@ mod tests {
             a.hits[i] = i as u32;
             a.count[i] = 10 + i as u32;
         }
-        t.aov = Some(a);
+        t.aov = Some(Box::new(a));
         let bytes = encode_sums(&t);
         assert_eq!(decode_sums(&bytes, rect), Ok(t));
         assert!(decode_sums(&bytes[..bytes.len() - 1], rect).is_err());

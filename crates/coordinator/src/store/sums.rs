@@ -91,13 +91,13 @@ pub fn decode_sums(bytes: &[u8], rect: PixelRect) -> Result<TileSums, String> {
                 (0..n).map(move |p| [g(at + 3 * p), g(at + 3 * p + 1), g(at + 3 * p + 2)])
             };
             let ints = base + 56 * n;
-            AovSums {
+            Box::new(AovSums {
                 albedo: triple(0).collect(),
                 normal: triple(3 * n).collect(),
                 depth: (0..n).map(|p| g(6 * n + p)).collect(),
                 hits: (0..n).map(|p| u32_at(ints + 4 * p)).collect(),
                 count: (0..n).map(|p| u32_at(ints + 4 * (n + p))).collect(),
-            }
+            })
         }),
     })
 }

@@ -78,8 +78,9 @@ pub struct TileSums {
     pub count: Vec<u32>,
     /// Non-finite samples that were counted and left out of the sums.
     pub nonfinite: u64,
-    /// The AOVs' sums, when the render asked for any ([`crate::settings::Aovs`]).
-    pub aov: Option<AovSums>,
+    /// The AOVs' sums, when the render asked for any ([`crate::settings::Aovs`]); boxed, so
+    /// that sums without them stay small where they are moved and kept.
+    pub aov: Option<Box<AovSums>>,
 }
 
 /// Why two partial sums cannot be merged.
@@ -219,7 +220,7 @@ impl TileSums {
         }
         tile.check_shape()?;
         if let (None, Some(_)) = (&self.aov, &tile.aov) {
-            self.aov = Some(AovSums::zeros(r.area()));
+            self.aov = Some(Box::new(AovSums::zeros(r.area())));
         }
         for row in 0..t.height {
             let src = (row * t.width) as usize;
@@ -289,7 +290,7 @@ impl TileSums {
             variance,
             count: self.count.clone(),
             nonfinite: self.nonfinite,
-            aov: self.aov.as_ref().map(AovSums::finalize),
+            aov: self.aov.as_ref().map(|a| a.finalize()),
         }
     }
 }
