@@ -161,6 +161,8 @@ fn replay(t: &TileSums, unit: &pb::WorkUnit) -> Result<pb::TileResult> {
         sum_sq: scaled(&t.sum_sq),
         count,
         nonfinite,
+        // The load test's jobs render no AOVs.
+        ..pb::TileResult::default()
     })
 }
 
