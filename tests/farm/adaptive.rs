@@ -19,13 +19,12 @@ async fn an_adaptive_job_gives_the_local_bits_across_a_coordinator_restart() {
     let mut client = coord.client().await;
     let job = client
         .submit_job(pb::SubmitJobRequest {
-            settings: Some(pb::RenderSettings::from(&settings)),
             tile_size: tile,
             channels: Some(pb::OutputChannels {
                 variance: false,
                 sample_count: true,
             }),
-            ..submit_request(&text, spp, batch)
+            ..submit_request_with(&text, &settings)
         })
         .await
         .expect("submit")

@@ -148,11 +148,16 @@ pub fn worker_with(url: &str, name: &str, client: ClientOptions) -> tokio::task:
 /// The request the tests submit: the scene at `spp` in batches of `batch`, seed 7, 16-pixel
 /// tiles.
 pub fn submit_request(text: &str, spp: u32, batch: u32) -> pb::SubmitJobRequest {
+    submit_request_with(text, &job_settings(spp, batch))
+}
+
+/// [`submit_request`] with these settings (a frame, AOVs, …).
+pub fn submit_request_with(text: &str, settings: &RenderSettings) -> pb::SubmitJobRequest {
     pb::SubmitJobRequest {
         scene_text: text.into(),
         scene_format: pb::SceneFormat::Toml as i32,
         scene_name: "cornell.toml".into(),
-        settings: Some(pb::RenderSettings::from(&job_settings(spp, batch))),
+        settings: Some(pb::RenderSettings::from(settings)),
         tile_size: 16,
         ..Default::default()
     }

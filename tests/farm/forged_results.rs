@@ -116,22 +116,11 @@ async fn forged_aov_sums_are_refused_and_leave_the_image_unaffected() {
     let url = coord.url();
     let text = scene_text(32);
     let settings = RenderSettings {
-        aovs: tessera_render::Aovs {
-            albedo: true,
-            normal: true,
-            depth: true,
-        },
+        aovs: tessera_render::Aovs::ALL,
         ..job_settings(8, 4)
     };
     let mut client = coord.client().await;
-    let job = submit_job(
-        &mut client,
-        pb::SubmitJobRequest {
-            settings: Some(pb::RenderSettings::from(&settings)),
-            ..submit_request(&text, 8, 4)
-        },
-    )
-    .await;
+    let job = submit_job(&mut client, submit_request_with(&text, &settings)).await;
     let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
     let mut forger = workers_client(&url);
     let id = register_as(&mut forger, "forger", "0", IMAGE_REVISION)

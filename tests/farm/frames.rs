@@ -20,14 +20,7 @@ async fn a_frame_job_gives_the_local_render_of_that_frame() {
             frame: Some(frame),
             ..job_settings(8, 4)
         };
-        let job = submit_job(
-            &mut client,
-            pb::SubmitJobRequest {
-                settings: Some(pb::RenderSettings::from(&settings)),
-                ..submit_request(&text, 8, 4)
-            },
-        )
-        .await;
+        let job = submit_job(&mut client, submit_request_with(&text, &settings)).await;
         let status = wait(&mut client, &job).await;
         assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
         assert_eq!(status.settings.and_then(|s| s.frame), Some(frame));

@@ -85,24 +85,13 @@ async fn aovs_rendered_by_the_farm_are_the_local_renders_bytes() {
         .map(|i| worker(&coord.url(), &format!("w{i}")))
         .collect();
     let text = scene_text(40);
-    let all = tessera_render::Aovs {
-        albedo: true,
-        normal: true,
-        depth: true,
-    };
+    let all = tessera_render::Aovs::ALL;
     let settings = RenderSettings {
         aovs: all,
         ..job_settings(8, 4)
     };
     let mut client = coord.client().await;
-    let job = submit_job(
-        &mut client,
-        pb::SubmitJobRequest {
-            settings: Some(pb::RenderSettings::from(&settings)),
-            ..submit_request(&text, 8, 4)
-        },
-    )
-    .await;
+    let job = submit_job(&mut client, submit_request_with(&text, &settings)).await;
     let status = wait(&mut client, &job).await;
     assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
     let farm = fetch(&mut client, &job).await;

@@ -30,7 +30,7 @@
 use glam::Vec3A;
 
 use crate::bsdf::{reflect, Bsdf};
-use crate::integrator::{dielectric, thin_dielectric, RenderSettings, Shading};
+use crate::integrator::{dielectric, thin_dielectric, Shading};
 use crate::scene::Scene;
 use crate::util::math::{offset_ray_origin, Ray};
 use crate::util::sampling::PixelSampler;
@@ -51,13 +51,7 @@ pub struct FirstHit {
 
 /// The AOVs of the camera sample of pixel (`x`, `y`) that `sampler` is at: its ray is the
 /// beauty's ([`crate::integrator::sample_pixel`]'s), and so is each smooth-glass choice.
-pub fn first_hit(
-    scene: &Scene,
-    _settings: &RenderSettings,
-    x: u32,
-    y: u32,
-    sampler: &PixelSampler,
-) -> FirstHit {
+pub fn first_hit(scene: &Scene, x: u32, y: u32, sampler: &PixelSampler) -> FirstHit {
     let [jx, jy, _, _] = sampler.get4(0);
     let mut ray = scene.camera.ray(x as f32 + jx, y as f32 + jy);
     let shading_normals = scene.has_shading_normals();

@@ -156,6 +156,13 @@ pub struct Aovs {
 }
 
 impl Aovs {
+    /// All three.
+    pub const ALL: Aovs = Aovs {
+        albedo: true,
+        normal: true,
+        depth: true,
+    };
+
     /// The names `--aov` takes, in the order the header lists them.
     pub const NAMES: [&'static str; 3] = ["albedo", "normal", "depth"];
 

@@ -152,7 +152,7 @@ fn aov_sums(
                 let mut b = AovBatch::default();
                 for index in samples.clone() {
                     sampler.set_index(index);
-                    b.add(first_hit(scene, settings, x, y, &sampler));
+                    b.add(first_hit(scene, x, y, &sampler));
                     if (index + 1) % batch == 0 || index + 1 == samples.end {
                         b.flush_into(&mut sums, col);
                     }

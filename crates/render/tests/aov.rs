@@ -6,18 +6,12 @@ mod common;
 use common::{load, render, scene};
 use tessera_render::{render_tile, Aovs, PixelRect, RenderSettings};
 
-const ALL: Aovs = Aovs {
-    albedo: true,
-    normal: true,
-    depth: true,
-};
-
 fn with_aovs(spp: u32, batch: u32) -> RenderSettings {
     RenderSettings {
         spp,
         batch,
         seed: 3,
-        aovs: ALL,
+        aovs: Aovs::ALL,
         ..RenderSettings::default()
     }
 }

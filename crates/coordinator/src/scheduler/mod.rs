@@ -484,8 +484,7 @@ impl Scheduler {
             .values_mut()
             .map(|job| {
                 let tiles: Vec<u32> = job.acc.keys().copied().collect();
-                let open = job.frame_bytes() > self.policy.evict_open_over;
-                job.evict(tiles, open)
+                evict_in(job, tiles, &self.policy)
             })
             .sum()
     }
@@ -500,11 +499,7 @@ impl Scheduler {
         }
         by_job
             .into_iter()
-            .filter_map(|(j, ts)| {
-                let job = self.jobs.get_mut(&JobId(j))?;
-                let open = job.frame_bytes() > self.policy.evict_open_over;
-                Some(job.evict(ts, open))
-            })
+            .filter_map(|(j, ts)| Some(evict_in(self.jobs.get_mut(&JobId(j))?, ts, &self.policy)))
             .sum()
     }
 
@@ -568,4 +563,11 @@ impl Scheduler {
         }
         ops
     }
+}
+
+/// [`Job::evict`] of `tiles` under `policy`: open tiles too for a job over
+/// [`Policy::evict_open_over`].
+fn evict_in(job: &mut Job, tiles: impl IntoIterator<Item = u32>, policy: &Policy) -> u64 {
+    let open = job.frame_bytes() > policy.evict_open_over;
+    job.evict(tiles, open)
 }

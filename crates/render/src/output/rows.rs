@@ -124,23 +124,23 @@ pub(super) fn write<S: Borrow<Image>>(
                     // A row the strips did not reach stays zero; the write then fails below.
                     if let Some(row) = rows.row(y) {
                         let at = |x: usize| row.1 + x0 + x;
-                        let _ = match plane {
-                            Plane::Rgb(c) => line.write_samples(|x| row.0.rgb[at(x)][c]),
-                            Plane::Variance(c) => line.write_samples(|x| row.0.variance[at(x)][c]),
-                            Plane::Samples => line.write_samples(|x| row.0.count[at(x)] as f32),
-                            // A strip without planes is refused when pulled (`reach`).
-                            Plane::Albedo(c) => match &row.0.aov {
-                                Some(a) => line.write_samples(|x| a.albedo[at(x)][c]),
-                                None => Ok(()),
-                            },
-                            Plane::Normal(c) => match &row.0.aov {
-                                Some(a) => line.write_samples(|x| a.normal[at(x)][c]),
-                                None => Ok(()),
-                            },
-                            Plane::Depth => match &row.0.aov {
-                                Some(a) => line.write_samples(|x| a.depth[at(x)]),
-                                None => Ok(()),
-                            },
+                        let _ = match (plane, &row.0.aov) {
+                            (Plane::Rgb(c), _) => line.write_samples(|x| row.0.rgb[at(x)][c]),
+                            (Plane::Variance(c), _) => {
+                                line.write_samples(|x| row.0.variance[at(x)][c])
+                            }
+                            (Plane::Samples, _) => {
+                                line.write_samples(|x| row.0.count[at(x)] as f32)
+                            }
+                            (Plane::Albedo(c), Some(a)) => {
+                                line.write_samples(|x| a.albedo[at(x)][c])
+                            }
+                            (Plane::Normal(c), Some(a)) => {
+                                line.write_samples(|x| a.normal[at(x)][c])
+                            }
+                            (Plane::Depth, Some(a)) => line.write_samples(|x| a.depth[at(x)]),
+                            // A strip without AOV planes is refused when pulled (`reach`).
+                            (_, None) => Ok(()),
                         };
                     }
                 })
@@ -423,11 +423,7 @@ mod tests {
             },
             ExrChannels {
                 samples: true,
-                aovs: crate::Aovs {
-                    albedo: true,
-                    normal: true,
-                    depth: true,
-                },
+                aovs: crate::Aovs::ALL,
                 ..ExrChannels::default()
             },
             ExrChannels {
