@@ -13,6 +13,10 @@ These scenes have exact Mitsuba counterparts, built here as dictionaries:
 - envmap-balls: scenes/envmap-balls.toml, three balls (`plastic`, `roughconductor` gold,
   `roughdielectric` glass, GGX alpha 0.09) on a ground square under `envmap` of
   scenes/textures/sky.exr (bench/make_sky.py), turned 30 degrees about +y;
+- materials: scenes/materials.toml, the material showcase: its two glTF (`pbr`) materials as
+  Mitsuba's `principled` under `normalmap` (the Disney model, not glTF's: the two render
+  different images, so each renderer is measured against its own reference), rough gold,
+  frosted glass and `roughplastic`, under the same sky;
 - mesh-million: bench/make_million.py's million triangles in the box, and
   mesh-million-analytic, the same with an analytic sphere in the mesh's place.
 All use a box filter and the unbiased path tracer (max_depth = -1).
@@ -54,8 +58,8 @@ import time
 import numpy as np
 
 
-SCENES = ("cornell-box", "glass-mirror", "mesh-glass", "metals-box", "envmap-balls", "mesh-million",
-          "mesh-million-analytic")
+SCENES = ("cornell-box", "glass-mirror", "mesh-glass", "metals-box", "envmap-balls", "materials",
+          "mesh-million", "mesh-million-analytic")
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 MESHES = os.path.join(HERE, "..", "scenes", "meshes")
@@ -148,9 +152,102 @@ def envmap_balls(mi):
     }
 
 
+def channel_png(src, channel, out):
+    """One channel of the PNG `src` as a grey 8-bit PNG `out` (Mitsuba's bitmap reads no single
+    channel of a packed image)."""
+    import struct
+    import zlib
+    if os.path.exists(out):
+        return out
+    data = open(src, "rb").read()
+    pos, idat, width = 8, b"", 0
+    while pos < len(data):
+        n, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        body = data[pos + 8:pos + 8 + n]
+        if kind == b"IHDR":
+            width, height, depth, color = struct.unpack(">IIBB", body[:10])
+            assert (depth, color) == (8, 2), "an 8-bit RGB PNG (textures/make_pbr.py's)"
+        elif kind == b"IDAT":
+            idat += body
+        pos += 12 + n
+    raw = zlib.decompress(idat)
+    stride = 1 + 3 * width
+    rows = [raw[y * stride + 1:(y + 1) * stride] for y in range(height)]
+    assert all(raw[y * stride] == 0 for y in range(height)), "unfiltered rows (make_pbr.py's)"
+    grey = b"".join(b"\0" + bytes(r[3 * x + channel] for x in range(width)) for r in rows)
+
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+    os.makedirs(os.path.dirname(out), exist_ok=True)
+    with open(out, "wb") as f:
+        f.write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+                + chunk(b"IDAT", zlib.compress(grey, 9)) + chunk(b"IEND", b""))
+    return out
+
+
+def materials(mi):
+    """scenes/materials.toml: the material showcase."""
+    T = mi.ScalarTransform4f
+    scenes = os.path.join(HERE, "..", "scenes")
+    tex = os.path.join(scenes, "textures")
+    cache = os.path.join(HERE, "..", "target", "bench-cache", "materials")
+    # glTF packs roughness in green and metallic in blue.
+    rough = channel_png(os.path.join(tex, "tiles-mr.png"), 1, os.path.join(cache, "roughness.png"))
+    metal = channel_png(os.path.join(tex, "tiles-mr.png"), 2, os.path.join(cache, "metallic.png"))
+
+    def rgb(v):
+        return {"type": "rgb", "value": v}
+
+    def bitmap(path, raw):
+        return {"type": "bitmap", "filename": path, "raw": raw, "filter_type": "bilinear"}
+
+    def pbr(base_color, metallic, normal_scale):
+        bsdf = {"type": "principled", "base_color": base_color, "metallic": metallic,
+                "roughness": bitmap(rough, True), "eta": 1.5}
+        # Mitsuba's normal map has no scale; the cube's 0.7 is left at 1.
+        del normal_scale
+        return {"type": "normalmap", "normalmap": bitmap(os.path.join(tex, "tiles-normal.png"), True),
+                "bsdf": bsdf}
+
+    def ball(center, radius, bsdf):
+        return {"type": "sphere", "center": center, "radius": radius, "bsdf": bsdf}
+
+    return {
+        "type": "scene",
+        "sensor": {"type": "perspective", "fov": 40.0,
+                   "to_world": T().look_at(origin=[0.0, 1.1, 4.2], target=[0.0, -0.5, 0.0],
+                                           up=[0.0, 1.0, 0.0]),
+                   "film": {"type": "hdrfilm"}},
+        "sky": {"type": "envmap", "filename": os.path.join(tex, "sky.exr"),
+                "to_world": T().rotate([0, 1, 0], 30.0)},
+        "ground": {"type": "rectangle",
+                   "to_world": T([[10, 0, 0, 0], [0, 0, 10, -1], [0, -10, 0, 0], [0, 0, 0, 1]]),
+                   "bsdf": {"type": "diffuse", "reflectance": rgb([0.45, 0.45, 0.45])}},
+        "pad": {"type": "obj", "filename": os.path.join(scenes, "meshes", "quad.obj"),
+                "to_world": T().translate([0, -0.995, 0]).rotate([1, 0, 0], -90).scale([1.6, 1.6, 1]),
+                "bsdf": pbr(rgb([0.8, 0.75, 0.7]), bitmap(metal, True), 1.0)},
+        "cube": {"type": "obj", "filename": os.path.join(scenes, "meshes", "textured-cube.obj"),
+                 "to_world": T().translate([0.0, -0.675, -0.55]).rotate([0, 1, 0], 30).scale(0.32),
+                 "bsdf": pbr(bitmap(os.path.join(tex, "checker.png"), False), 0.0, 0.7)},
+        "gold": ball([-1.0, -0.6, 0.15], 0.4,
+                     {"type": "roughconductor", "distribution": "ggx", "alpha": 0.35 ** 2,
+                      "eta": rgb([0.18299, 0.42108, 1.3734]), "k": rgb([3.4242, 2.3459, 1.7704])}),
+        "frosted": ball([1.0, -0.6, 0.15], 0.4,
+                        {"type": "roughdielectric", "distribution": "ggx", "alpha": 0.09,
+                         "int_ior": 1.5, "ext_ior": 1.0}),
+        "plastic": ball([0.0, -0.75, 0.75], 0.25,
+                        {"type": "roughplastic", "distribution": "ggx", "alpha": 0.0625,
+                         "int_ior": 1.5, "ext_ior": 1.0,
+                         "diffuse_reflectance": rgb([0.7, 0.12, 0.08])}),
+    }
+
+
 def scene_dict(mi, name, size):
     """The Mitsuba scene dictionary of `name` at `size`x`size` pixels."""
-    d = envmap_balls(mi) if name == "envmap-balls" else mi.cornell_box()
+    if name == "materials":
+        d = materials(mi)
+    else:
+        d = envmap_balls(mi) if name == "envmap-balls" else mi.cornell_box()
     if name == "glass-mirror":
         # scenes/glass-mirror.toml: the box, lit as before, with two balls for the cuboids.
         del d["small-box"], d["large-box"]
@@ -192,7 +289,7 @@ def scene_dict(mi, name, size):
         del d["small-box"], d["large-box"]
         d["sphere"] = {"type": "sphere", "center": [0, -0.5, 0], "radius": 0.45,
                        "bsdf": {"type": "ref", "id": "white"}}
-    elif name not in ("cornell-box", "envmap-balls"):
+    elif name not in ("cornell-box", "envmap-balls", "materials"):
         raise SystemExit(f"no Mitsuba counterpart for scene {name!r}; known: {SCENES}")
     d["sensor"]["film"].update(width=size, height=size, rfilter={"type": "box"})
     d["sensor"]["sampler"] = {"type": "independent", "sample_count": 4}

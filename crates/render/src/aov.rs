@@ -17,6 +17,7 @@
 //! | plastic | its diffuse base's albedo |
 //! | rough metal | its reflectance head-on, F(0°) |
 //! | rough glass | 1 |
+//! | pbr | its base colour (its texel, if textured); the normal is the normal map's |
 //! | nothing met (sky, or more than [`MAX_SPECULAR`] delta bounces) | 0 |
 //!
 //! Depth is the distance along the camera ray to the first surface it meets, mirror or not
@@ -30,7 +31,7 @@
 use glam::Vec3A;
 
 use crate::bsdf::{reflect, Bsdf};
-use crate::integrator::{dielectric, thin_dielectric, Shading};
+use crate::integrator::{dielectric, pbr_at, thin_dielectric, Shading};
 use crate::scene::Scene;
 use crate::util::math::{offset_ray_origin, Ray};
 use crate::util::sampling::PixelSampler;
@@ -90,6 +91,15 @@ pub fn first_hit(scene: &Scene, x: u32, y: u32, sampler: &PixelSampler) -> First
                 return surface(albedo);
             }
             Bsdf::Plastic(index) => return surface(scene.plastic(index).albedo()),
+            Bsdf::Pbr(index) => {
+                let (params, bent) =
+                    pbr_at(scene, scene.pbr(index), &ray, &hit, prim, &sp, &at, front);
+                return FirstHit {
+                    albedo: params.base_color,
+                    normal: bent.ns,
+                    depth: out.depth,
+                };
+            }
             Bsdf::RoughDielectric(_) => return surface(Vec3A::ONE),
             Bsdf::Conductor(ref m) if !m.is_smooth() => {
                 return surface(m.conductor().fresnel.eval(1.0))

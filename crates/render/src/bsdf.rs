@@ -1,19 +1,21 @@
 //! The BSDFs a material can have: Lambertian diffuse, a perfect mirror, a smooth
 //! dielectric with Fresnel reflection and refraction, rough or smooth metals ([`conductor`],
 //! on the GGX distribution of [`microfacet`]), rough glass ([`dielectric`]) and plastic
-//! ([`plastic`]). The integrators (scalar and lanes) ask
+//! ([`plastic`]), and glTF's metallic–roughness material ([`pbr`]). The integrators (scalar and lanes) ask
 //! these for directions and weights; every function does its arithmetic in one fixed order,
 //! since the renderer's bits depend on it.
 
 pub mod conductor;
 pub mod dielectric;
 pub mod microfacet;
+pub mod pbr;
 pub mod plastic;
 
 use glam::{Vec2, Vec3A};
 
 pub use conductor::{Conductor, Fresnel, Metal, Sampled};
 pub use dielectric::{DielectricSample, RoughDielectric};
+pub use pbr::{PbrBsdf, PbrMaterial, PbrParams, PbrSample};
 pub use plastic::{Plastic, PlasticSample};
 
 use crate::util::math::Frame;
@@ -38,6 +40,9 @@ pub enum Bsdf {
     /// A diffuse base under a clear coat, rough or smooth: the index of its [`Plastic`] in
     /// the scene's list (its tables are too large to keep in every material).
     Plastic(u32),
+    /// glTF's metallic–roughness material: the index of its [`PbrMaterial`] in the scene's
+    /// list (its parameters may vary over the surface).
+    Pbr(u32),
 }
 
 /// A direction from the Lambertian lobe about the unit normal `n`, drawn with pdf cos θ/π from

@@ -25,7 +25,8 @@ use crate::util::math::{exp_nonpositive, offset_ray_origin, Frame, Ray};
 use crate::util::sampling::{cosine_hemisphere_pdf, power_heuristic, PixelSampler};
 
 mod lobes;
-use lobes::{conductor, plastic};
+pub(crate) use lobes::pbr_at;
+use lobes::{conductor, pbr, plastic};
 
 /// The radiance estimate of one camera sample of pixel (`x`, `y`): the sample `sampler` (made
 /// for that pixel and the job's seed) is at.
@@ -130,7 +131,9 @@ fn trace(
             mat.bsdf,
             Bsdf::Dielectric(_) | Bsdf::RoughDielectric(_) | Bsdf::ThinDielectric(_)
         );
-        if !front && !mat.two_sided && !glass {
+        // A pbr surface decides at its vertex: where it transmits it has two sides.
+        let pbr_mat = matches!(mat.bsdf, Bsdf::Pbr(_));
+        if !front && !mat.two_sided && !glass && !pbr_mat {
             // The back of a one-sided surface absorbs everything.
             break;
         }
@@ -140,13 +143,15 @@ fn trace(
         // rough glass.
         let nee = light_sampling
             && match mat.bsdf {
-                Bsdf::Diffuse(_) | Bsdf::RoughDielectric(_) | Bsdf::Plastic(_) => true,
+                Bsdf::Diffuse(_) | Bsdf::RoughDielectric(_) | Bsdf::Plastic(_) | Bsdf::Pbr(_) => {
+                    true
+                }
                 Bsdf::Conductor(m) => !m.is_smooth(),
                 Bsdf::Mirror(_) | Bsdf::Dielectric(_) | Bsdf::ThinDielectric(_) => false,
             };
         // u_rr decides Russian roulette after this bounce; u_choice a glass's reflection or
         // refraction, or a plastic's lobe.
-        let chooses = glass || matches!(mat.bsdf, Bsdf::Plastic(_));
+        let chooses = glass || matches!(mat.bsdf, Bsdf::Plastic(_) | Bsdf::Pbr(_));
         let [u_select, u_choice, u_rr, _] = if (nee && scene.lights.lights.len() > 1)
             || chooses
             || depth + 1 >= settings.rr_depth
@@ -252,6 +257,32 @@ fn trace(
                     break;
                 };
                 path.specular = true;
+                next
+            }
+            Bsdf::Pbr(index) => {
+                let pm = scene.pbr(index);
+                let (params, at) = pbr_at(scene, pm, &ray, &hit, prim, &sp, &at, front);
+                let bsdf = crate::bsdf::PbrBsdf::new(params, &pm.coat);
+                if !front && !mat.two_sided && !bsdf.transmits() {
+                    break;
+                }
+                let light_u = nee.then_some((u_select, Vec2::new(lx, ly)));
+                let mut updated = path;
+                let next = pbr(
+                    scene,
+                    strategy,
+                    &mut updated,
+                    &bsdf,
+                    wo,
+                    &sp,
+                    &at,
+                    (Vec2::new(u0, u1), u_choice),
+                    light_u,
+                );
+                path = updated;
+                let Some(next) = next else {
+                    break;
+                };
                 next
             }
             Bsdf::Plastic(index) => {
@@ -550,27 +581,13 @@ fn rough_dielectric(
 ) -> Option<(Ray, bool)> {
     let frame = Frame::from_normal(at.ns);
     let o = frame.to_local(wo);
-    if let Some((u_select, u_point)) = light_u {
-        if let Some(ls) = sample_light(scene, strategy, sp.p, u_select, u_point) {
-            let cos = at.ns.dot(ls.wi);
-            let side = if cos > 0.0 { at.n } else { -at.n };
-            // The geometric normal must put the light on the side the shading one does.
-            let reachable = !at.shaded || at.n.dot(ls.wi) * side.dot(at.n) > 0.0;
-            if cos != 0.0 && reachable && ls.le != Vec3A::ZERO {
-                let p_out = offset_ray_origin(sp.p, sp.err, side);
-                let (shadow, t_max) = ls.shadow_ray(p_out);
-                if !scene.occluded(&shadow, t_max) {
-                    let i = frame.to_local(ls.wi);
-                    let f = rd.eval(o, i, eta);
-                    let w = if strategy == Strategy::Mis && !ls.delta {
-                        power_heuristic(ls.pdf, rd.pdf(o, i, eta))
-                    } else {
-                        1.0
-                    };
-                    path.l += path.beta * ls.le * (f * w / ls.pdf);
-                }
-            }
-        }
+    if let Some(u) = light_u {
+        let lobe = lobes::Lobe {
+            frame: &frame,
+            eval: |i| Vec3A::splat(rd.eval(o, i, eta)),
+            pdf: |i| rd.pdf(o, i, eta),
+        };
+        lobes::two_sided_light(scene, strategy, path, sp, at, u, lobe);
     }
     let s = rd.sample(o, eta, bsdf_u, u_choice)?;
     let wi = frame.to_world(s.wi);

@@ -433,6 +433,16 @@ impl Shape {
         }
     }
 
+    /// A mesh's texture coordinates and tangent frame at a hit ([`crate::mesh::MeshInstance::uv_frame`]);
+    /// `None` for every other shape.
+    #[inline]
+    pub fn uv_frame(&self, r: &Ray, part: u32) -> Option<crate::mesh::UvFrame> {
+        match self {
+            Shape::Mesh(m) => m.uv_frame(r, part),
+            _ => None,
+        }
+    }
+
     /// World-space bounds; infinite for planes (which the BVH keeps aside).
     pub fn bounds(&self) -> Aabb {
         match self {

@@ -73,6 +73,27 @@ impl Texture {
         })
     }
 
+    /// Decodes `bytes` as data rather than colour: a normal map, metallic or roughness image,
+    /// whose 8- and 16-bit codes are linear (glTF's rule for every texture but colours), with
+    /// the same limits as [`Texture::decode`]. Values are clamped to [0, 1].
+    pub fn decode_data(bytes: &[u8], format: ImageFormat, max_texels: u64) -> Result<Self, String> {
+        let (width, height, mut texels) = decode_with(bytes, format, max_texels, false)?;
+        for t in &mut texels {
+            *t = albedo((*t).into());
+        }
+        Ok(Self {
+            width,
+            height,
+            texels,
+        })
+    }
+
+    /// Whether every texel has equal channels: what a scalar parameter read from the whole
+    /// image (no channel named) needs.
+    pub fn is_grey(&self) -> bool {
+        self.texels.iter().all(|t| t.x == t.y && t.y == t.z)
+    }
+
     /// A texture of `width` × `height` linear texels, row 0 at the top (for tests).
     pub fn from_texels(width: usize, height: usize, texels: Vec<Vec3A>) -> Self {
         assert_eq!(texels.len(), width * height);
@@ -122,12 +143,22 @@ pub fn decode_linear(
     format: ImageFormat,
     max_texels: u64,
 ) -> Result<(usize, usize, Vec<Vec3A>), String> {
+    decode_with(bytes, format, max_texels, true)
+}
+
+/// [`decode_linear`], with the sRGB curve applied to 8- and 16-bit codes where `srgb`.
+fn decode_with(
+    bytes: &[u8],
+    format: ImageFormat,
+    max_texels: u64,
+    srgb: bool,
+) -> Result<(usize, usize, Vec<Vec3A>), String> {
     let (w, h) = probe(bytes, format)?;
     check_size(w, h, max_texels)?;
     let _reserved = DecodeBudget::global().reserve(decode_bytes(w, h))?;
     let (width, height, texels) = match format {
         ImageFormat::Png | ImageFormat::Jpeg | ImageFormat::Hdr => {
-            decode_8_16(bytes, format, max_texels)?
+            decode_8_16(bytes, format, max_texels, srgb)?
         }
         ImageFormat::Exr => decode_exr(bytes, max_texels)?,
     };
@@ -295,9 +326,14 @@ fn image_format(format: ImageFormat) -> image::ImageFormat {
     }
 }
 
-/// PNG and JPEG (8 or 16 bits, sRGB-encoded, decoded to linear) and Radiance .hdr (linear
-/// floats already).
-fn decode_8_16(bytes: &[u8], format: ImageFormat, max_texels: u64) -> Result<Decoded, String> {
+/// PNG and JPEG (8 or 16 bits, sRGB-encoded and decoded to linear where `srgb`, else linear
+/// codes) and Radiance .hdr (linear floats already).
+fn decode_8_16(
+    bytes: &[u8],
+    format: ImageFormat,
+    max_texels: u64,
+    srgb: bool,
+) -> Result<Decoded, String> {
     let format = image_format(format);
     let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format);
     let mut limits = image::Limits::default();
@@ -311,7 +347,10 @@ fn decode_8_16(bytes: &[u8], format: ImageFormat, max_texels: u64) -> Result<Dec
     // Every code's linear value, computed once per image rather than once per texel.
     let table = |max: u32| -> Vec<f32> {
         (0..=max)
-            .map(|c| srgb_to_linear(f64::from(c) / f64::from(max)) as f32)
+            .map(|c| {
+                let x = f64::from(c) / f64::from(max);
+                (if srgb { srgb_to_linear(x) } else { x }) as f32
+            })
             .collect()
     };
     // Straight from the decoder's buffer to the texels, with no RGB copy in between: grey is

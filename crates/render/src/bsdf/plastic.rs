@@ -78,14 +78,19 @@ impl Plastic {
     pub fn new(albedo: Vec3A, roughness: f32, eta: f32) -> Self {
         let distribution = TrowbridgeReitz::from_roughness(roughness);
         let transmittance = std::array::from_fn(|j| {
-            1.0 - coat_albedo(&distribution, j as f32 / (TABLE - 1) as f32, eta)
+            1.0 - coat_albedo(
+                &distribution,
+                j as f32 / (TABLE - 1) as f32,
+                eta,
+                QUADRATURE,
+            )
         });
         // F̄ = 2 ∫ R(μ, 1/η) μ dμ, by midpoints in μ.
         let n = 4 * TABLE;
         let mut inside = 0.0f64;
         for k in 0..n {
             let mu = (k as f32 + 0.5) / n as f32;
-            inside += f64::from(coat_albedo(&distribution, mu, 1.0 / eta) * mu);
+            inside += f64::from(coat_albedo(&distribution, mu, 1.0 / eta, QUADRATURE) * mu);
         }
         let f_bar = (2.0 * inside / n as f64) as f32;
         let diffuse_scale = 1.0 / ((1.0 - f_bar) * std::f32::consts::PI * eta * eta);
@@ -207,9 +212,9 @@ impl Plastic {
 }
 
 /// R(μ, η): the coat's reflection albedo at incidence cos θ = μ, ∫ F(o·m) G(o, i)/G1(o) over the
-/// visible normals by a midpoint rule (a reflection below the surface counts nothing); for a
-/// smooth coat, F(μ).
-fn coat_albedo(d: &TrowbridgeReitz, mu: f32, eta: f32) -> f32 {
+/// visible normals by a midpoint rule of `n` × `n` points (a reflection below the surface
+/// counts nothing); for a smooth coat, F(μ).
+pub(super) fn coat_albedo(d: &TrowbridgeReitz, mu: f32, eta: f32, n: usize) -> f32 {
     // Mitsuba's table starts at 10⁻⁶ too: at μ = 0 exactly the direction is undefined.
     let mu = mu.max(1e-6);
     if d.is_smooth() {
@@ -218,12 +223,9 @@ fn coat_albedo(d: &TrowbridgeReitz, mu: f32, eta: f32) -> f32 {
     let o = Vec3A::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu);
     let g1 = d.g1(o);
     let mut sum = 0.0f64;
-    for a in 0..QUADRATURE {
-        for b in 0..QUADRATURE {
-            let u = Vec2::new(
-                (a as f32 + 0.5) / QUADRATURE as f32,
-                (b as f32 + 0.5) / QUADRATURE as f32,
-            );
+    for a in 0..n {
+        for b in 0..n {
+            let u = Vec2::new((a as f32 + 0.5) / n as f32, (b as f32 + 0.5) / n as f32);
             let m = d.sample_visible(o, u);
             let i = reflect_about(o, m);
             if i.z > 0.0 {
@@ -232,7 +234,7 @@ fn coat_albedo(d: &TrowbridgeReitz, mu: f32, eta: f32) -> f32 {
             }
         }
     }
-    (sum / (QUADRATURE * QUADRATURE) as f64) as f32
+    (sum / (n * n) as f64) as f32
 }
 
 #[cfg(test)]

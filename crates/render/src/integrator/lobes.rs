@@ -1,12 +1,14 @@
-//! The glossy reflection vertices of [`super`]'s path tracer: rough or smooth metal and
-//! plastic, which share next-event estimation through a lobe ([`reflected_light`]) and the
-//! step to the next ray ([`follow`]).
+//! The glossy vertices of [`super`]'s path tracer: rough or smooth metal, plastic and glTF's
+//! `pbr` material, which share next-event estimation through a lobe ([`reflected_light`], or
+//! [`two_sided_light`] where light also passes through) and the step to the next ray
+//! ([`follow`]).
 
 use glam::{Vec2, Vec3A};
 
-use super::{visible_light, Path, Shading};
-use crate::bsdf::{reflect, Conductor, Plastic};
-use crate::interaction::SurfacePoint;
+use super::{sample_light, visible_light, Path, Shading};
+use crate::bsdf::{reflect, Conductor, PbrBsdf, PbrMaterial, PbrParams, Plastic};
+use crate::interaction::{Hit, SurfacePoint};
+use crate::primitive::Primitive;
 use crate::scene::Scene;
 use crate::settings::Strategy;
 use crate::util::math::{offset_ray_origin, Frame, Ray};
@@ -105,10 +107,10 @@ pub(super) fn plastic(
 
 /// A reflection lobe at a vertex, in its shading `frame`, for the path's outgoing direction:
 /// f·cos θi and the density of its sampler, both of the local direction i.
-struct Lobe<'a, E, P> {
-    frame: &'a Frame,
-    eval: E,
-    pdf: P,
+pub(super) struct Lobe<'a, E, P> {
+    pub(super) frame: &'a Frame,
+    pub(super) eval: E,
+    pub(super) pdf: P,
 }
 
 /// Next-event estimation through a reflection lobe (rough metal, plastic): a light sample
@@ -160,4 +162,132 @@ fn follow(
         return None;
     }
     Some(Ray::new(p_out, wi))
+}
+
+/// A `pbr` material's parameters at a hit, and the normals with its normal map applied (the
+/// shading normal bent, and marked as differing from the geometric one so that every side test
+/// runs). `front`: the path arrived on the front side.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub(crate) fn pbr_at(
+    scene: &Scene,
+    mat: &PbrMaterial,
+    ray: &Ray,
+    hit: &Hit,
+    prim: &Primitive,
+    sp: &SurfacePoint,
+    at: &Shading,
+    front: bool,
+) -> (PbrParams, Shading) {
+    let frame = if mat.is_textured() {
+        prim.shape.uv_frame(ray, hit.part)
+    } else {
+        None
+    };
+    let uv = frame.map_or(Vec2::ZERO, |f| f.uv);
+    let params = mat.params(&scene.textures, uv);
+    let mut shading = Shading {
+        n: at.n,
+        ns: at.ns,
+        shaded: at.shaded,
+    };
+    if let (Some(_), Some(frame)) = (mat.normal_map, frame) {
+        let bent = mat.bend(&scene.textures, &frame, sp.ns);
+        // A map that tips the normal under the geometric surface is ignored there: no
+        // direction above such a normal could leave the surface consistently.
+        if bent != sp.ns && bent.dot(sp.n) > 0.0 {
+            shading.ns = if front { bent } else { -bent };
+            shading.shaded = true;
+        }
+    }
+    (params, shading)
+}
+
+/// A `pbr` vertex (see [`crate::bsdf::pbr`]): direct light by next-event estimation (when
+/// `light_u` is given) through every lobe light sampling can find — from both sides where the
+/// surface transmits — weighed against the mixture's density under MIS, then a direction from
+/// the lobe `u.1` picks. A delta lobe's direction (smooth reflection, straight through) is a
+/// specular bounce. `None` ends the path.
+#[allow(clippy::too_many_arguments)]
+#[inline(never)]
+pub(super) fn pbr(
+    scene: &Scene,
+    strategy: Strategy,
+    path: &mut Path,
+    bsdf: &PbrBsdf<'_>,
+    wo: Vec3A,
+    sp: &SurfacePoint,
+    at: &Shading,
+    (bsdf_u, u_lobe): (Vec2, f32),
+    light_u: Option<(f32, Vec2)>,
+) -> Option<Ray> {
+    let frame = Frame::from_normal(at.ns);
+    let o = frame.to_local(wo);
+    if let Some(u) = light_u {
+        let lobe = Lobe {
+            frame: &frame,
+            eval: |i| bsdf.eval(o, i),
+            pdf: |i| bsdf.pdf(o, i),
+        };
+        if bsdf.transmits() && !bsdf.is_smooth() {
+            two_sided_light(scene, strategy, path, sp, at, u, lobe);
+        } else {
+            let p_out = offset_ray_origin(sp.p, sp.err, at.n);
+            reflected_light(scene, strategy, path, sp, at, p_out, u, lobe);
+        }
+    }
+    let s = bsdf.sample(o, bsdf_u, u_lobe)?;
+    let wi = frame.to_world(s.wi);
+    path.beta *= s.weight;
+    path.specular = s.delta;
+    path.prev_pdf = s.pdf;
+    let through = s.wi.z < 0.0;
+    let above = at.n.dot(wi) >= 0.0;
+    if at.shaded && above == through {
+        // The shading normal and the geometric one disagree about the side it leaves by.
+        return None;
+    }
+    let side = if above { at.n } else { -at.n };
+    Some(Ray::new(offset_ray_origin(sp.p, sp.err, side), wi))
+}
+
+/// Next-event estimation through a lobe that reflects and transmits (rough glass, a `pbr`
+/// surface that lets light through): a light sample on either side, its shadow ray leaving
+/// from that side, weighed by the power heuristic against the lobe's own density under MIS.
+#[inline(always)]
+pub(super) fn two_sided_light<E, P>(
+    scene: &Scene,
+    strategy: Strategy,
+    path: &mut Path,
+    sp: &SurfacePoint,
+    at: &Shading,
+    (u_select, u_point): (f32, Vec2),
+    lobe: Lobe<'_, E, P>,
+) where
+    E: Fn(Vec3A) -> Vec3A,
+    P: Fn(Vec3A) -> f32,
+{
+    let Some(ls) = sample_light(scene, strategy, sp.p, u_select, u_point) else {
+        return;
+    };
+    let cos = at.ns.dot(ls.wi);
+    let side = if cos > 0.0 { at.n } else { -at.n };
+    // The geometric normal must put the light on the side the shading one does.
+    let reachable = !at.shaded || at.n.dot(ls.wi) * side.dot(at.n) > 0.0;
+    if !(cos != 0.0 && reachable && ls.le != Vec3A::ZERO) {
+        return;
+    }
+    let p_out = offset_ray_origin(sp.p, sp.err, side);
+    let (shadow, t_max) = ls.shadow_ray(p_out);
+    if scene.occluded(&shadow, t_max) {
+        return;
+    }
+    let i = lobe.frame.to_local(ls.wi);
+    let f = (lobe.eval)(i);
+    let w = if strategy == Strategy::Mis && !ls.delta {
+        power_heuristic(ls.pdf, (lobe.pdf)(i))
+    } else {
+        1.0
+    };
+    path.l += path.beta * ls.le * (f * w / ls.pdf);
 }

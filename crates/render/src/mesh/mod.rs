@@ -202,6 +202,17 @@ impl TriMesh {
     }
 }
 
+/// Texture coordinates at a hit and how the surface moves with them.
+#[derive(Clone, Copy, Debug)]
+pub struct UvFrame {
+    /// (u, v), v up the image.
+    pub uv: Vec2,
+    /// ∂p/∂u, world space.
+    pub dpdu: Vec3A,
+    /// ∂p/∂v, world space.
+    pub dpdv: Vec3A,
+}
+
 /// A mesh placed in the scene: the shared mesh under this object's transform.
 #[derive(Clone, Debug)]
 pub struct MeshInstance {
@@ -272,6 +283,34 @@ impl MeshInstance {
         let b = triangle::intersect(lr.o, lr.d, p0, p1, p2, f32::INFINITY)
             .map_or([1.0 / 3.0; 3], |h| h.b);
         uv[0] * b[0] + uv[1] * b[1] + uv[2] * b[2]
+    }
+
+    /// The texture coordinates at a hit, with the world-space derivatives ∂p/∂u and ∂p/∂v of
+    /// the triangle's position: the tangent frame a normal map is given in. `None` without
+    /// texture coordinates in the file, or where the triangle's coordinates are degenerate (a
+    /// zero-area map, which gives no direction).
+    #[inline(never)]
+    pub fn uv_frame(&self, r: &Ray, part: u32) -> Option<UvFrame> {
+        let uv = self.mesh.uvs.get(part as usize)?;
+        let lr = self.xf.ray_to_object(r);
+        let [p0, p1, p2] = self.mesh.triangle(part);
+        let b = triangle::intersect(lr.o, lr.d, p0, p1, p2, f32::INFINITY)
+            .map_or([1.0 / 3.0; 3], |h| h.b);
+        let at = uv[0] * b[0] + uv[1] * b[1] + uv[2] * b[2];
+        // [p1 − p0, p2 − p0] = [∂p/∂u, ∂p/∂v] · [[du1, du2], [dv1, dv2]], inverted.
+        let (d1, d2) = (uv[1] - uv[0], uv[2] - uv[0]);
+        let det = d1.x * d2.y - d1.y * d2.x;
+        if !(det.abs() > 1e-20) {
+            return None;
+        }
+        let (e1, e2) = (p1 - p0, p2 - p0);
+        let dpdu = (e1 * d2.y - e2 * d1.y) / det;
+        let dpdv = (e2 * d1.x - e1 * d2.x) / det;
+        let (dpdu, dpdv) = (
+            self.xf.to_world.transform_vector3a(dpdu),
+            self.xf.to_world.transform_vector3a(dpdv),
+        );
+        (dpdu.is_finite() && dpdv.is_finite()).then_some(UvFrame { uv: at, dpdu, dpdv })
     }
 
     /// World-space bounds.

@@ -12,11 +12,12 @@ use super::check::{
     build_transform, finite, finite3, only, positive, required, root, similarity_scale, Invalid,
 };
 use super::lights::{environment, punctual_lights, reach};
-use super::materials::build_materials;
+use super::materials::{build_materials, BuiltMaterials};
 use super::{
     CameraModel, KeyPath, Limits, Material, ObjectDesc, Primitive, Scene, SceneFile, ShapeKind,
 };
 use crate::aggregate::Accel;
+use crate::bsdf::{Bsdf, PbrMaterial};
 use crate::camera::Camera;
 use crate::light::{Light, LightShape, Lights, MeshLight};
 use crate::mesh::load::{self, MeshFormat};
@@ -33,9 +34,9 @@ type MeshGroups = Vec<(Option<String>, Arc<TriMesh>)>;
 pub(super) struct SceneFiles {
     /// By file name: each material group's name and mesh.
     files: BTreeMap<String, MeshGroups>,
-    /// Textures by file name, as indices into `pending_textures` (and, once decoded, the
-    /// scene's texture list).
-    textures: BTreeMap<String, u32>,
+    /// Textures by file name and whether they are data (no sRGB curve), as indices into
+    /// `pending_textures` (and, once decoded, the scene's texture list).
+    textures: BTreeMap<(String, bool), u32>,
     /// Each texture's file read and its header checked, its pixels not yet decoded: decoding
     /// waits until every check that needs no pixels has passed ([`SceneFiles::decode_textures`]).
     pending_textures: Vec<PendingTexture>,
@@ -52,6 +53,21 @@ struct PendingTexture {
     path: KeyPath,
     format: ImageFormat,
     bytes: Vec<u8>,
+    /// Decoded without the sRGB curve.
+    data: bool,
+    /// Where the scene reads it as one scalar without naming a channel, so it must be grey.
+    grey: Option<KeyPath>,
+}
+
+/// What a material reads from a texture, which decides how it is decoded and checked.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum TextureUse {
+    /// A colour, sRGB-encoded in 8- and 16-bit files.
+    Color,
+    /// Data with linear codes (a normal map, or a scalar from a named channel).
+    Data,
+    /// A scalar from the whole image, which must then be grey.
+    Grey,
 }
 
 /// Most texels over a scene's textures.
@@ -82,26 +98,47 @@ impl SceneFiles {
         Ok(bytes)
     }
 
-    /// The texture of file `name`, read and decoded once.
+    /// The texture of file `name` for `usage`, read once and decoded once per kind (colour or
+    /// data).
     pub(super) fn texture(
         &mut self,
         name: &str,
         path: &KeyPath,
         limits: &Limits,
         assets: &dyn Assets,
+        usage: TextureUse,
     ) -> Result<u32, Invalid> {
-        if let Some(&i) = self.textures.get(name) {
+        let data = usage != TextureUse::Color;
+        let key = (name.to_string(), data);
+        if let Some(&i) = self.textures.get(&key) {
+            let t = &mut self.pending_textures[i as usize];
+            if usage == TextureUse::Grey && t.grey.is_none() {
+                t.grey = Some(path.clone());
+            }
             return Ok(i);
         }
-        let (format, bytes) = self.image_file(name, path, limits, assets, "a texture")?;
+        // The same file read as the other kind: its bytes again, decoded again (so its
+        // texels count twice), but read and hashed once.
+        let other = self.textures.get(&(name.to_string(), !data)).copied();
+        let (format, bytes) = match other {
+            Some(o) => {
+                let t = &self.pending_textures[o as usize];
+                let (format, bytes) = (t.format, t.bytes.clone());
+                self.count_texels(name, path, &bytes, format)?;
+                (format, bytes)
+            }
+            None => self.image_file(name, path, limits, assets, "a texture")?,
+        };
         let i = self.pending_textures.len() as u32;
         self.pending_textures.push(PendingTexture {
             name: name.to_string(),
             path: path.clone(),
             format,
             bytes,
+            data,
+            grey: (usage == TextureUse::Grey).then(|| path.clone()),
         });
-        self.textures.insert(name.to_string(), i);
+        self.textures.insert(key, i);
         Ok(i)
     }
 
@@ -125,8 +162,21 @@ impl SceneFiles {
             )
         })?;
         let bytes = self.read_file(name, path, limits, assets)?;
+        self.count_texels(name, path, &bytes, format)?;
+        Ok((format, bytes))
+    }
+
+    /// Reads image `name`'s size from its header and takes it from what is left of the
+    /// scene's texel limit.
+    fn count_texels(
+        &mut self,
+        name: &str,
+        path: &KeyPath,
+        bytes: &[u8],
+        format: ImageFormat,
+    ) -> Result<(), Invalid> {
         let fail = |m: String| (path.clone(), format!("{name}: {m}"));
-        let (w, h) = texture::probe(&bytes, format).map_err(fail)?;
+        let (w, h) = texture::probe(bytes, format).map_err(fail)?;
         let left = MAX_TEXELS - self.texels;
         if w.saturating_mul(h) > left {
             return Err(fail(format!(
@@ -135,7 +185,7 @@ impl SceneFiles {
             )));
         }
         self.texels += w * h;
-        Ok((format, bytes))
+        Ok(())
     }
 
     /// Decodes the textures, one at a time and each within the process's decode budget
@@ -145,9 +195,25 @@ impl SceneFiles {
         std::mem::take(&mut self.pending_textures)
             .into_iter()
             .map(|t| {
-                Texture::decode(&t.bytes, t.format, MAX_TEXELS)
-                    .map(Arc::new)
-                    .map_err(|m| (t.path, format!("{}: {m}", t.name)))
+                let decoded = if t.data {
+                    Texture::decode_data(&t.bytes, t.format, MAX_TEXELS)
+                } else {
+                    Texture::decode(&t.bytes, t.format, MAX_TEXELS)
+                };
+                let decoded = decoded.map_err(|m| (t.path, format!("{}: {m}", t.name)))?;
+                if let Some(path) = t.grey {
+                    if !decoded.is_grey() {
+                        return Err((
+                            path,
+                            format!(
+                                "{}: a colour image where one number is expected; name the \
+                                 channel to read, e.g. {{ texture = \"{}\", channel = \"g\" }}",
+                                t.name, t.name
+                            ),
+                        ));
+                    }
+                }
+                Ok(Arc::new(decoded))
             })
             .collect()
     }
@@ -202,8 +268,13 @@ pub(super) fn build(
     let camera = build_camera(desc, w, h)?;
     let mut files = SceneFiles::default();
     let environment = environment(desc, &mut files, limits, assets)?;
-    let (materials, absorption, plastics, names) =
-        build_materials(desc, &mut files, limits, assets)?;
+    let BuiltMaterials {
+        materials,
+        absorption,
+        plastics,
+        pbrs,
+        names,
+    } = build_materials(desc, &mut files, limits, assets)?;
     if desc.objects.len() > limits.max_objects {
         return Err((
             root("objects"),
@@ -226,7 +297,7 @@ pub(super) fn build(
             vec![(build_shape(o, &op, emits)?, material)]
         };
         for (shape, m) in &parts {
-            check_texture_coordinates(shape, &materials[*m as usize], o, &op)?;
+            check_texture_coordinates(shape, &materials[*m as usize], &pbrs, o, &op)?;
         }
         for (shape, material) in parts {
             let bounds = shape.bounds();
@@ -256,9 +327,11 @@ pub(super) fn build(
     let reach = reach(&prims);
     punctual_lights(desc, reach, &mut lights)?;
     let environment = environment.finish(reach, &mut lights)?;
+    // A normal map bends shading normals too.
     let shading_normals = prims
         .iter()
-        .any(|p| matches!(&p.shape, Shape::Mesh(m) if m.smooth && m.mesh.has_normals()));
+        .any(|p| matches!(&p.shape, Shape::Mesh(m) if m.smooth && m.mesh.has_normals()))
+        || pbrs.iter().any(|p| p.normal_map.is_some());
     let absorption = if absorption.iter().any(|a| *a != Vec3A::ZERO) {
         absorption
     } else {
@@ -280,6 +353,7 @@ pub(super) fn build(
         shading_normals,
         absorption,
         plastics,
+        pbrs,
     };
     Ok((scene, files.read))
 }
@@ -289,10 +363,12 @@ pub(super) fn build(
 fn check_texture_coordinates(
     shape: &Shape,
     mat: &Material,
+    pbrs: &[PbrMaterial],
     o: &ObjectDesc,
     op: &KeyPath,
 ) -> Result<(), Invalid> {
-    if mat.texture.is_none() {
+    let pbr_textured = matches!(mat.bsdf, Bsdf::Pbr(i) if pbrs[i as usize].is_textured());
+    if mat.texture.is_none() && !pbr_textured {
         return Ok(());
     }
     let why = match shape {

@@ -250,6 +250,8 @@ pub enum MaterialKind {
     Conductor,
     /// A diffuse base under a clear dielectric coat, rough or smooth.
     Plastic,
+    /// glTF 2.0's metallic–roughness material, each parameter a number or a texture.
+    Pbr,
 }
 
 /// Material description.
@@ -268,9 +270,17 @@ pub struct MaterialDesc {
     pub reflectance: Option<[f32; 3]>,
     /// Index of refraction, inside over outside (dielectric; plastic's coat, default 1.5).
     pub ior: Option<f32>,
-    /// Microfacet roughness in [0, 1] (conductor, dielectric, plastic; default 0, smooth); α =
-    /// roughness².
-    pub roughness: Option<f32>,
+    /// Microfacet roughness in [0, 1] (conductor, dielectric, plastic; default 0, smooth; pbr:
+    /// a number or a texture, default 1); α = roughness².
+    pub roughness: Option<ScalarDesc>,
+    /// Base colour (pbr; default white): a colour, or `{ texture = "file" }`.
+    pub base_color: Option<AlbedoDesc>,
+    /// Metallic in [0, 1] (pbr; default 1, glTF's): a number or a texture.
+    pub metallic: Option<ScalarDesc>,
+    /// Transmission in [0, 1] (pbr; default 0): a number or a texture.
+    pub transmission: Option<ScalarDesc>,
+    /// A tangent-space normal map (pbr), for meshes with texture coordinates.
+    pub normal_map: Option<NormalMapDesc>,
     /// A thin sheet rather than a solid (dielectric, smooth only): light reflects or passes
     /// straight through.
     pub thin: Option<bool>,
@@ -346,6 +356,96 @@ impl<'de> Deserialize<'de> for AlbedoDesc {
         }
         d.deserialize_any(Visitor)
     }
+}
+
+/// A scalar material parameter: a number, or a texture's channel times a factor.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ScalarDesc {
+    /// The value.
+    Value(f32),
+    /// An image file's channel (`r`, `g` or `b`; none: the image must be grey), times
+    /// `factor` (default 1).
+    Texture {
+        /// The file, relative to the scene file.
+        file: String,
+        /// 0, 1 or 2; `None` for a grey image.
+        channel: Option<u8>,
+        /// Multiplies the texel.
+        factor: f32,
+    },
+}
+
+impl<'de> Deserialize<'de> for ScalarDesc {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl<'de> serde::de::Visitor<'de> for Visitor {
+            type Value = ScalarDesc;
+
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str(
+                    "a number or a table { texture = \"file.png\", channel = \"g\", factor = 1.0 }",
+                )
+            }
+
+            fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<Self::Value, E> {
+                Ok(ScalarDesc::Value(v as f32))
+            }
+
+            fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<Self::Value, E> {
+                Ok(ScalarDesc::Value(v as f32))
+            }
+
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<Self::Value, E> {
+                Ok(ScalarDesc::Value(v as f32))
+            }
+
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> Result<Self::Value, A::Error> {
+                const KEYS: &[&str] = &["texture", "channel", "factor"];
+                let (mut file, mut channel, mut factor) = (None, None, 1.0f32);
+                while let Some(key) = map.next_key::<String>()? {
+                    match key.as_str() {
+                        "texture" => file = Some(map.next_value::<String>()?),
+                        "channel" => {
+                            let c = map.next_value::<String>()?;
+                            channel = Some(match c.as_str() {
+                                "r" | "R" => 0,
+                                "g" | "G" => 1,
+                                "b" | "B" => 2,
+                                _ => {
+                                    return Err(A::Error::invalid_value(
+                                        serde::de::Unexpected::Str(&c),
+                                        &"\"r\", \"g\" or \"b\"",
+                                    ))
+                                }
+                            });
+                        }
+                        "factor" => factor = map.next_value::<f32>()?,
+                        _ => return Err(A::Error::unknown_field(&key, KEYS)),
+                    }
+                }
+                let file = file.ok_or_else(|| A::Error::missing_field("texture"))?;
+                Ok(ScalarDesc::Texture {
+                    file,
+                    channel,
+                    factor,
+                })
+            }
+        }
+        d.deserialize_any(Visitor)
+    }
+}
+
+/// A tangent-space normal map.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NormalMapDesc {
+    /// The image file (read without the sRGB curve), relative to the scene file.
+    pub texture: String,
+    /// Scales the map's x and y (glTF's `scale`; default 1).
+    pub scale: Option<f32>,
 }
 
 /// Shape kinds.

@@ -1,27 +1,35 @@
 //! The `[materials]` table: each material validated and converted into its runtime BSDF
-//! (diffuse, mirror, glass of every kind, metals, plastic), with the errors naming the key at
-//! fault.
+//! (diffuse, mirror, glass of every kind, metals, plastic, glTF's pbr), with the errors naming
+//! the key at fault.
 
 use std::collections::BTreeMap;
 
 use glam::Vec3A;
 
 use super::assets::Assets;
-use super::build::SceneFiles;
+use super::build::{SceneFiles, TextureUse};
 use super::check::{color, finite3, only, positive, required, root, Invalid};
-use super::{AlbedoDesc, KeyPath, Limits, Material, MaterialDesc, MaterialKind, SceneFile};
+use super::{
+    AlbedoDesc, KeyPath, Limits, Material, MaterialDesc, MaterialKind, ScalarDesc, SceneFile,
+};
 use crate::bsdf::conductor::{metal, METALS};
 use crate::bsdf::microfacet::TrowbridgeReitz;
-use crate::bsdf::{Bsdf, Conductor, Fresnel, Metal, Plastic, RoughDielectric};
+use crate::bsdf::pbr::{CoatTable, NormalMap, ScalarParam};
+use crate::bsdf::{Bsdf, Conductor, Fresnel, Metal, PbrMaterial, Plastic, RoughDielectric};
 
-/// The materials, each one's absorption inside, the plastics they index, and each material's
-/// index by name.
-pub(super) type BuiltMaterials<'a> = (
-    Vec<Material>,
-    Vec<Vec3A>,
-    Vec<Plastic>,
-    BTreeMap<&'a str, u32>,
-);
+/// The materials and what is kept beside them.
+pub(super) struct BuiltMaterials<'a> {
+    /// In the order of `[materials]`.
+    pub(super) materials: Vec<Material>,
+    /// Each one's absorption inside.
+    pub(super) absorption: Vec<Vec3A>,
+    /// The plastics [`Bsdf::Plastic`] indexes.
+    pub(super) plastics: Vec<Plastic>,
+    /// The glTF materials [`Bsdf::Pbr`] indexes.
+    pub(super) pbrs: Vec<PbrMaterial>,
+    /// Each material's index by name.
+    pub(super) names: BTreeMap<&'a str, u32>,
+}
 
 /// The materials, and each one's index by name; textures are read through `files`.
 pub(super) fn build_materials<'a>(
@@ -33,6 +41,7 @@ pub(super) fn build_materials<'a>(
     let mut materials = Vec::with_capacity(desc.materials.len());
     let mut absorptions = Vec::with_capacity(desc.materials.len());
     let mut plastics = Vec::new();
+    let mut pbrs = Vec::new();
     let mut names = BTreeMap::new();
     for (name, m) in &desc.materials {
         let mp = root("materials").key(name);
@@ -47,6 +56,10 @@ pub(super) fn build_materials<'a>(
             ("f0", m.f0.is_some()),
             ("thin", m.thin.is_some()),
             ("absorption", m.absorption.is_some()),
+            ("base_color", m.base_color.is_some()),
+            ("metallic", m.metallic.is_some()),
+            ("transmission", m.transmission.is_some()),
+            ("normal_map", m.normal_map.is_some()),
         ];
         let mut texture = None;
         let bsdf = match m.kind {
@@ -57,7 +70,8 @@ pub(super) fn build_materials<'a>(
                     AlbedoDesc::Color(c) => Bsdf::Diffuse(color(*c, &mp.key("albedo"), true)?),
                     AlbedoDesc::Texture(file) => {
                         let path = mp.key("albedo").key("texture");
-                        texture = Some(files.texture(file, &path, limits, assets)?);
+                        texture =
+                            Some(files.texture(file, &path, limits, assets, TextureUse::Color)?);
                         // The texel replaces it at each hit; this is what NEE-free code
                         // paths and tests see.
                         Bsdf::Diffuse(Vec3A::splat(0.5))
@@ -104,10 +118,7 @@ pub(super) fn build_materials<'a>(
                                 .into(),
                         )),
                     };
-                let roughness = match m.roughness {
-                    None => 0.0,
-                    Some(r) => unit(r, &mp.key("roughness"))?,
-                };
+                let roughness = constant_roughness(m, &mp, kind)?;
                 let ior = positive(m.ior.unwrap_or(1.5), &mp.key("ior"))?;
                 if ior == 1.0 {
                     return Err((
@@ -117,6 +128,20 @@ pub(super) fn build_materials<'a>(
                 }
                 plastics.push(Plastic::new(albedo, roughness, ior));
                 Bsdf::Plastic(plastics.len() as u32 - 1)
+            }
+            MaterialKind::Pbr => {
+                let kind = "a pbr material";
+                let keys = [
+                    "base_color",
+                    "metallic",
+                    "roughness",
+                    "transmission",
+                    "ior",
+                    "normal_map",
+                ];
+                only(&mp, kind, &present, &keys)?;
+                pbrs.push(pbr(m, &mp, files, limits, assets)?);
+                Bsdf::Pbr(pbrs.len() as u32 - 1)
             }
         };
         let emission = match m.emission {
@@ -141,7 +166,101 @@ pub(super) fn build_materials<'a>(
             texture,
         });
     }
-    Ok((materials, absorptions, plastics, names))
+    Ok(BuiltMaterials {
+        materials,
+        absorption: absorptions,
+        plastics,
+        pbrs,
+        names,
+    })
+}
+
+/// A `pbr` material: glTF's defaults (white, metallic 1, roughness 1, no transmission, index
+/// 1.5), each parameter a number in [0, 1] or a texture.
+fn pbr(
+    m: &MaterialDesc,
+    mp: &KeyPath,
+    files: &mut SceneFiles,
+    limits: &Limits,
+    assets: &dyn Assets,
+) -> Result<PbrMaterial, Invalid> {
+    let (base_color, base_texture) = match &m.base_color {
+        None => (Vec3A::ONE, None),
+        Some(AlbedoDesc::Color(c)) => (color(*c, &mp.key("base_color"), true)?, None),
+        Some(AlbedoDesc::Texture(file)) => {
+            let path = mp.key("base_color").key("texture");
+            let t = files.texture(file, &path, limits, assets, TextureUse::Color)?;
+            (Vec3A::ONE, Some(t))
+        }
+    };
+    let mut scalar = |desc: &Option<ScalarDesc>, key: &str, default: f32| {
+        let path = mp.key(key);
+        match desc {
+            None => Ok(ScalarParam::constant(default)),
+            Some(ScalarDesc::Value(x)) => Ok(ScalarParam::constant(unit(*x, &path)?)),
+            Some(ScalarDesc::Texture {
+                file,
+                channel,
+                factor,
+            }) => {
+                let factor = unit(*factor, &path.key("factor"))?;
+                let usage = match channel {
+                    Some(_) => TextureUse::Data,
+                    None => TextureUse::Grey,
+                };
+                let path = path.key("texture");
+                let t = files.texture(file, &path, limits, assets, usage)?;
+                Ok::<_, Invalid>(ScalarParam {
+                    factor,
+                    texture: Some((t, channel.unwrap_or(0))),
+                })
+            }
+        }
+    };
+    let metallic = scalar(&m.metallic, "metallic", 1.0)?;
+    let roughness = scalar(&m.roughness, "roughness", 1.0)?;
+    let transmission = scalar(&m.transmission, "transmission", 0.0)?;
+    let ior = positive(m.ior.unwrap_or(1.5), &mp.key("ior"))?;
+    let normal_map = match &m.normal_map {
+        None => None,
+        Some(n) => {
+            let path = mp.key("normal_map");
+            let scale = n.scale.unwrap_or(1.0);
+            if !scale.is_finite() {
+                return Err((path.key("scale"), format!("must be finite, got {scale}")));
+            }
+            let texture = files.texture(
+                &n.texture,
+                &path.key("texture"),
+                limits,
+                assets,
+                TextureUse::Data,
+            )?;
+            Some(NormalMap { texture, scale })
+        }
+    };
+    Ok(PbrMaterial {
+        base_color,
+        base_texture,
+        metallic,
+        roughness,
+        transmission,
+        normal_map,
+        coat: CoatTable::shared(ior),
+    })
+}
+
+/// The roughness of a conductor, dielectric or plastic: a number in [0, 1], 0 (smooth) when
+/// not given; textures are for `pbr` materials.
+fn constant_roughness(m: &MaterialDesc, mp: &KeyPath, kind: &str) -> Result<f32, Invalid> {
+    match &m.roughness {
+        None => Ok(0.0),
+        Some(ScalarDesc::Value(r)) => unit(*r, &mp.key("roughness")),
+        Some(ScalarDesc::Texture { .. }) => Err((
+            mp.key("roughness"),
+            format!("{kind}'s roughness is a number: textures are for pbr materials"),
+        )),
+    }
 }
 
 /// Glass: smooth, rough, or a thin sheet (smooth only, and with no inside to absorb in).
@@ -150,10 +269,7 @@ pub(super) fn build_materials<'a>(
 fn dielectric(m: &MaterialDesc, mp: &KeyPath) -> Result<Bsdf, Invalid> {
     let ior = required(m.ior, mp, "a dielectric material", "ior")?;
     let ior = positive(ior, &mp.key("ior"))?;
-    let roughness = match m.roughness {
-        None => 0.0,
-        Some(r) => unit(r, &mp.key("roughness"))?,
-    };
+    let roughness = constant_roughness(m, mp, "a dielectric")?;
     let distribution = TrowbridgeReitz::from_roughness(roughness);
     if m.thin == Some(true) {
         if roughness > 0.0 {
@@ -179,10 +295,7 @@ fn dielectric(m: &MaterialDesc, mp: &KeyPath) -> Result<Bsdf, Invalid> {
 /// A conductor's distribution and Fresnel term: exactly one of `metal`, `eta` with `k`, or
 /// `f0`.
 fn conductor(m: &MaterialDesc, mp: &KeyPath) -> Result<Conductor, Invalid> {
-    let roughness = match m.roughness {
-        None => 0.0,
-        Some(r) => unit(r, &mp.key("roughness"))?,
-    };
+    let roughness = constant_roughness(m, mp, "a conductor")?;
     let given = [
         m.metal.is_some(),
         m.eta.is_some() || m.k.is_some(),

@@ -211,6 +211,8 @@ pub struct Scene {
     absorption: Vec<Vec3A>,
     /// The plastics that [`Bsdf::Plastic`] materials index.
     plastics: Vec<crate::bsdf::Plastic>,
+    /// The glTF materials that [`Bsdf::Pbr`] materials index.
+    pbrs: Vec<crate::bsdf::PbrMaterial>,
 }
 
 impl Scene {
@@ -337,6 +339,12 @@ impl Scene {
     #[inline]
     pub fn plastic(&self, index: u32) -> &crate::bsdf::Plastic {
         &self.plastics[index as usize]
+    }
+
+    /// The glTF material a [`Bsdf::Pbr`] material names by `index`.
+    #[inline]
+    pub fn pbr(&self, index: u32) -> &crate::bsdf::PbrMaterial {
+        &self.pbrs[index as usize]
     }
 
     /// The scene's ray queries.
