@@ -301,3 +301,26 @@ fn merged_sums_count_as_unstored_until_a_commit_and_results_wait_past_the_bound(
     );
     assert!(!core.defer_result());
 }
+
+/// A job that asks for AOVs keeps 64 more bytes a pixel (what the store writes for them), and
+/// its memory is counted at that size: the frame against `--evict-open-over`.
+#[test]
+fn a_job_with_aovs_counts_their_bytes() {
+    let plain = Job::new(record(false));
+    let with = Job::new(JobRecord {
+        aovs: "albedo,normal".into(),
+        ..record(false)
+    });
+    assert_eq!(plain.frame_bytes(), 16 * 16 * 52);
+    assert_eq!(with.frame_bytes(), 16 * 16 * (52 + 64));
+    let rect = with.tiles.get(0).expect("tile");
+    let mut sums = TileSums::empty(rect, 0);
+    sums.aov = Some(Box::new(tessera_render::film::AovSums::zeros(
+        rect.area() as usize
+    )));
+    assert_eq!(
+        encode_sums(&sums).len() as u64 - 20,
+        rect.area() as u64 * with.pixel_bytes(),
+        "the count is what the store writes"
+    );
+}

@@ -673,3 +673,40 @@ fn the_specifications_fresnel_mix_gains_energy_at_grazing_views() {
     assert!(mean <= 1.0 + 4.0 * se, "ours {mean} ± {se}");
     eprintln!("at 85°: the specification's {albedo:.3}, ours {mean:.3}");
 }
+
+/// The pbr lobes at grazing and degenerate inputs: cos θo of 0, 10⁻⁸ and 10⁻⁴, roughness 0,
+/// just over the mirror threshold and 1, index 1 and 2.4, a black base: every sample, value
+/// and density finite.
+#[test]
+fn pbr_grazing_and_extreme_inputs_stay_finite() {
+    let mut rng = HashRng::new(8);
+    for ior in [1.0f32, 1.5, 2.4] {
+        let coat = CoatTable::new(ior);
+        for r in [0.0f32, 0.032, 0.1, 1.0] {
+            for (m, t, c) in [
+                (0.0, 0.0, Vec3A::ONE),
+                (1.0, 0.0, Vec3A::new(1.0, 0.8, 0.3)),
+                (0.3, 1.0, Vec3A::ONE),
+                (0.0, 0.5, Vec3A::ZERO),
+            ] {
+                let b = PbrBsdf::new(pbr_params(r, m, t, c), &coat);
+                for z in [0.0f32, 1e-8, 1e-4, 1.0] {
+                    let o = Vec3A::new((1.0 - z * z).sqrt(), 0.0, z);
+                    for _ in 0..300 {
+                        let l = rng.next_f32();
+                        if let Some(s) = b.sample(o, u2(&mut rng), l) {
+                            assert!(s.weight.is_finite() && s.pdf.is_finite() && s.wi.is_finite());
+                            assert!(s.delta || s.pdf > 0.0);
+                        }
+                        let mut i =
+                            tessera_render::sampling::square_to_uniform_sphere(u2(&mut rng));
+                        if rng.next_f32() < 0.1 {
+                            i = Vec3A::new(i.x, i.y, 0.0).normalize_or(Vec3A::X);
+                        }
+                        assert!(b.eval(o, i).is_finite() && b.pdf(o, i).is_finite());
+                    }
+                }
+            }
+        }
+    }
+}

@@ -780,6 +780,52 @@ fn rough_glass_at_its_limits_stays_finite() {
     assert!(img.rgb.iter().flatten().all(|v| v.is_finite()));
 }
 
+/// glTF's material at its limits: smooth and roughness-1 metal and dielectric, index 1 (no
+/// coat) and 2.4, a transmitting sheet at 89.9°, a quad whose normal map tips the normal 80°
+/// (nearly under the surface), and a 10⁻³ light of radiance 10⁷: two million paths, none
+/// non-finite.
+#[test]
+fn pbr_at_its_limits_stays_finite() {
+    let quad = std::fs::read(common::repo_root().join("scenes/meshes/quad.obj")).expect("quad");
+    // A 2 × 2 normal map of one texel 80° from the normal, along u.
+    let (s, c) = (80f64.to_radians().sin(), 80f64.to_radians().cos());
+    let code = |x: f64| (127.5 * (1.0 + x)).round() as u8;
+    let mut png = Vec::new();
+    {
+        let mut e = png::Encoder::new(&mut png, 2, 2);
+        e.set_color(png::ColorType::Rgb);
+        e.set_depth(png::BitDepth::Eight);
+        let mut w = e.write_header().expect("header");
+        w.write_image_data(&[code(s), 128, code(c)].repeat(4))
+            .expect("data");
+    }
+    let text = "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 1.2, 4.5]\ntarget = [0, 0.5, 0]\nfov = 50\n\
+         [film]\nwidth = 100\nheight = 80\n\
+         [environment]\ntype = \"gradient\"\ntop = [0.5, 0.6, 1.0]\nbottom = [0.1, 0.1, 0.1]\n\
+         [materials.mirror]\ntype = \"pbr\"\nbase_color = [0.9, 0.8, 0.5]\nmetallic = 1\nroughness = 0\n\
+         [materials.glaze]\ntype = \"pbr\"\nbase_color = [0.2, 0.5, 0.8]\nmetallic = 0\nroughness = 0\nior = 2.4\n\
+         [materials.chalk]\ntype = \"pbr\"\nbase_color = [1, 1, 1]\nmetallic = 0\nroughness = 1\nior = 1\n\
+         [materials.rough-metal]\ntype = \"pbr\"\nbase_color = [1, 1, 1]\nroughness = 1\n\
+         [materials.sheet]\ntype = \"pbr\"\nbase_color = [1, 1, 1]\nmetallic = 0\nroughness = 0.3\ntransmission = 1\n\
+         [materials.bent]\ntype = \"pbr\"\nbase_color = [0.8, 0.8, 0.8]\nmetallic = 0.5\nroughness = 0.2\ntransmission = 0.5\nnormal_map = { texture = \"n.png\" }\n\
+         [materials.white]\ntype = \"diffuse\"\nalbedo = [0.8, 0.8, 0.8]\n\
+         [materials.tiny]\ntype = \"diffuse\"\nalbedo = [0, 0, 0]\nemission = [1e7, 1e7, 1e7]\n\
+         [[objects]]\nshape = \"plane\"\nmaterial = \"white\"\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"mirror\"\ncenter = [-1.5, 0.5, 0]\nradius = 0.5\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"glaze\"\ncenter = [-0.5, 0.5, 0]\nradius = 0.5\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"chalk\"\ncenter = [0.5, 0.5, 0]\nradius = 0.5\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"rough-metal\"\ncenter = [1.5, 0.5, 0]\nradius = 0.5\n\
+         [[objects]]\nshape = \"mesh\"\nfile = \"quad.obj\"\nmaterial = \"bent\"\ntransform = { scale = [0.6, 0.6, 1], translate = [0, 1.6, -0.5] }\n\
+         [[objects]]\nshape = \"sphere\"\nmaterial = \"tiny\"\ncenter = [0.5, 2.5, 1]\nradius = 0.001\n\
+         [[objects]]\nshape = \"rect\"\nmaterial = \"sheet\"\nsize = [8, 8]\ntransform = { rotate = { axis = [1, 0, 0], degrees = -89.9 }, translate = [0, 0.001, -3] }\n";
+    let sc = common::scene_with_files(text, &[("quad.obj", &quad), ("n.png", &png)]);
+    let img = render(&sc, &seeded(256, 5));
+    let paths = img.count.iter().map(|&c| c as u64).sum::<u64>() + img.nonfinite;
+    assert!(paths >= 2_000_000, "{paths}");
+    assert_eq!(img.nonfinite, 0, "non-finite samples over {paths} paths");
+    assert!(img.rgb.iter().flatten().all(|v| v.is_finite()));
+}
+
 // ---------------------------------------------------------------------------------------------
 // 6, 7. A tiny bright light, and grazing incidence
 // ---------------------------------------------------------------------------------------------

@@ -587,7 +587,7 @@ impl Job {
             acc.noise = noise;
             // Written at the next checkpoint, once however many merges come before it.
             if self.dirty.insert(unit.tile) {
-                self.dirty_bytes += rect.area() as u64 * 52;
+                self.dirty_bytes += rect.area() as u64 * self.pixel_bytes();
             }
         } else {
             ops.push(Op::PutPending(
@@ -654,6 +654,7 @@ impl Job {
                 continue;
             };
             let first = self.first_batches;
+            let pixel_bytes = self.pixel_bytes();
             let Some(acc) = self.acc.get_mut(&t) else {
                 continue;
             };
@@ -717,7 +718,7 @@ impl Job {
                 add_noise(&mut self.noise_total, noise, 1.0);
                 acc.noise = noise;
                 if self.dirty.insert(t) {
-                    self.dirty_bytes += rect.area() as u64 * 52;
+                    self.dirty_bytes += rect.area() as u64 * pixel_bytes;
                 }
                 acc.sums = total.map(Arc::new);
                 acc.next = next;

@@ -28,7 +28,7 @@ use std::sync::Arc;
 use tessera_render::{PixelRect, TileSums};
 
 use super::{Job, TileGrid, Unit};
-use crate::store::{encode_sums, JobPhase, Op};
+use crate::store::{encode_sums, JobPhase, Op, AOV_BYTES, PIXEL_BYTES};
 
 /// Longest edge of a dashboard preview, in pixels: larger frames are averaged down to it, so a
 /// preview of a huge frame costs what one of a large frame does. Here rather than with the
@@ -184,7 +184,7 @@ impl Job {
             if let Some(sums) = acc.sums.take() {
                 // The checkpoint's snapshot has been encoded: this is the last reference.
                 acc.thumb = Some(Thumb::of(&sums, step));
-                freed += sums.rect.area() as u64 * 52;
+                freed += sums.rect.area() as u64 * self.pixel_bytes();
             }
         }
         freed
@@ -193,7 +193,18 @@ impl Job {
     /// Bytes of this job's sums were every tile in memory: what
     /// [`Policy::evict_open_over`](crate::scheduler::Policy::evict_open_over) is compared with.
     pub fn frame_bytes(&self) -> u64 {
-        self.rec.width as u64 * self.rec.height as u64 * 52
+        self.rec.width as u64 * self.rec.height as u64 * self.pixel_bytes()
+    }
+
+    /// What a pixel's sums take as stored, which memory is counted in: the beauty's, and the
+    /// AOVs' where the job asks for them.
+    pub fn pixel_bytes(&self) -> u64 {
+        let aov = if self.rec.aovs.is_empty() {
+            0
+        } else {
+            AOV_BYTES
+        };
+        (PIXEL_BYTES + aov) as u64
     }
 
     /// Where `unit`'s result must read its tile back from the store before it merges: the

@@ -23,7 +23,7 @@ mod sums;
 
 pub use coalesce::Coalesced;
 pub use records::{AuditRecord, JobPhase, JobRecord, LoadedJob, Op, RangeRef, StoredScene};
-pub use sums::{decode_sums, encode_sums};
+pub use sums::{decode_sums, encode_sums, AOV_BYTES, PIXEL_BYTES};
 
 /// Scene hash → [`StoredScene`] (JSON).
 const SCENES: TableDefinition<&str, &[u8]> = TableDefinition::new("scenes");

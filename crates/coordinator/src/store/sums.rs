@@ -6,8 +6,10 @@ use std::ops::Range;
 use tessera_render::film::AovSums;
 use tessera_render::{PixelRect, TileSums};
 
+/// Bytes a pixel's sums take: sum and sum of squares (6 f64) and count (u32).
+pub const PIXEL_BYTES: usize = 52;
 /// Bytes a pixel's AOV sums add: albedo and normal (6 f64), depth (f64), hits and count (2 u32).
-const AOV_BYTES: usize = 64;
+pub const AOV_BYTES: usize = 64;
 
 /// Serialises partial sums: sample range, non-finite count, then the f64 and u32 arrays,
 /// little-endian, and the AOVs' arrays after them when there are any (the length tells). The
@@ -15,7 +17,7 @@ const AOV_BYTES: usize = 64;
 pub fn encode_sums(t: &TileSums) -> Vec<u8> {
     let n = t.sum.len();
     let aov = if t.aov.is_some() { AOV_BYTES } else { 0 };
-    let mut out = Vec::with_capacity(20 + n * (52 + aov));
+    let mut out = Vec::with_capacity(20 + n * (PIXEL_BYTES + aov));
     out.extend_from_slice(&t.samples.start.to_le_bytes());
     out.extend_from_slice(&t.samples.end.to_le_bytes());
     out.extend_from_slice(&t.nonfinite.to_le_bytes());
@@ -47,15 +49,15 @@ pub fn encode_sums(t: &TileSums) -> Vec<u8> {
 /// Inverse of [`encode_sums`] for a tile of rectangle `rect`.
 pub fn decode_sums(bytes: &[u8], rect: PixelRect) -> Result<TileSums, String> {
     let n = rect.area();
-    let with_aov = bytes.len() == 20 + n * (52 + AOV_BYTES);
-    if bytes.len() != 20 + n * 52 && !with_aov {
+    let with_aov = bytes.len() == 20 + n * (PIXEL_BYTES + AOV_BYTES);
+    if bytes.len() != 20 + n * PIXEL_BYTES && !with_aov {
         return Err(format!(
             "{} bytes where a {}×{} tile needs {} ({} with AOVs)",
             bytes.len(),
             rect.width,
             rect.height,
-            20 + n * 52,
-            20 + n * (52 + AOV_BYTES)
+            20 + n * PIXEL_BYTES,
+            20 + n * (PIXEL_BYTES + AOV_BYTES)
         ));
     }
     let u32_at =
@@ -85,7 +87,7 @@ pub fn decode_sums(bytes: &[u8], rect: PixelRect) -> Result<TileSums, String> {
         count,
         nonfinite: u64_at(8),
         aov: with_aov.then(|| {
-            let base = 20 + 52 * n;
+            let base = 20 + PIXEL_BYTES * n;
             let g = |i: usize| f64::from_bits(u64_at(base + 8 * i));
             let triple = |at: usize| {
                 (0..n).map(move |p| [g(at + 3 * p), g(at + 3 * p + 1), g(at + 3 * p + 2)])
