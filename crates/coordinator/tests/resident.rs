@@ -315,9 +315,7 @@ fn a_job_with_aovs_counts_their_bytes() {
     assert_eq!(with.frame_bytes(), 16 * 16 * (52 + 64));
     let rect = with.tiles.get(0).expect("tile");
     let mut sums = TileSums::empty(rect, 0);
-    sums.aov = Some(Box::new(tessera_render::film::AovSums::zeros(
-        rect.area() as usize
-    )));
+    sums.aov = Some(Box::new(tessera_render::film::AovSums::zeros(rect.area())));
     assert_eq!(
         encode_sums(&sums).len() as u64 - 20,
         rect.area() as u64 * with.pixel_bytes(),

@@ -260,20 +260,20 @@ fn trace(
                 next
             }
             Bsdf::Pbr(index) => {
-                let pm = scene.pbr(index);
-                let (params, at) = pbr_at(scene, pm, &ray, &hit, prim, &sp, &at, front);
-                let bsdf = crate::bsdf::PbrBsdf::new(params, &pm.coat);
-                if !front && !mat.two_sided && !bsdf.transmits() {
-                    break;
-                }
                 let light_u = nee.then_some((u_select, Vec2::new(lx, ly)));
                 let mut updated = path;
                 let next = pbr(
                     scene,
                     strategy,
                     &mut updated,
-                    &bsdf,
-                    wo,
+                    lobes::PbrHit {
+                        material: scene.pbr(index),
+                        ray: &ray,
+                        hit: &hit,
+                        prim,
+                        two_sided: mat.two_sided,
+                        front,
+                    },
                     &sp,
                     &at,
                     (Vec2::new(u0, u1), u_choice),

@@ -203,24 +203,45 @@ pub(crate) fn pbr_at(
     (params, shading)
 }
 
+/// What a `pbr` vertex needs to know of its hit beyond the surface point.
+pub(super) struct PbrHit<'a> {
+    pub(super) material: &'a PbrMaterial,
+    pub(super) ray: &'a Ray,
+    pub(super) hit: &'a Hit,
+    pub(super) prim: &'a Primitive,
+    pub(super) two_sided: bool,
+    /// The path arrived on the front side.
+    pub(super) front: bool,
+}
+
 /// A `pbr` vertex (see [`crate::bsdf::pbr`]): direct light by next-event estimation (when
 /// `light_u` is given) through every lobe light sampling can find — from both sides where the
 /// surface transmits — weighed against the mixture's density under MIS, then a direction from
 /// the lobe `u.1` picks. A delta lobe's direction (smooth reflection, straight through) is a
 /// specular bounce. `None` ends the path.
 #[allow(clippy::too_many_arguments)]
+// Out of line, with its parameters looked up here: the loop that other scenes run stays as
+// small as it was.
 #[inline(never)]
 pub(super) fn pbr(
     scene: &Scene,
     strategy: Strategy,
     path: &mut Path,
-    bsdf: &PbrBsdf<'_>,
-    wo: Vec3A,
+    h: PbrHit<'_>,
     sp: &SurfacePoint,
     at: &Shading,
     (bsdf_u, u_lobe): (Vec2, f32),
     light_u: Option<(f32, Vec2)>,
 ) -> Option<Ray> {
+    let (params, at) = pbr_at(scene, h.material, h.ray, h.hit, h.prim, sp, at, h.front);
+    let at = &at;
+    let bsdf = PbrBsdf::new(params, &h.material.coat);
+    if !h.front && !h.two_sided && !bsdf.transmits() {
+        // The back of a one-sided surface absorbs everything.
+        return None;
+    }
+    let bsdf = &bsdf;
+    let wo = -h.ray.d;
     let frame = Frame::from_normal(at.ns);
     let o = frame.to_local(wo);
     if let Some(u) = light_u {
