@@ -17,6 +17,8 @@ These scenes have exact Mitsuba counterparts, built here as dictionaries:
   Mitsuba's `principled` under `normalmap` (the Disney model, not glTF's: the two render
   different images, so each renderer is measured against its own reference), rough gold,
   frosted glass and `roughplastic`, under the same sky;
+- pbr-metals: scenes/pbr-metals.toml, two fully metallic `pbr` balls as `principled` with
+  metallic 1 (Schlick's Fresnel of F0 = base colour over GGX in both models) under the sky;
 - mesh-million: bench/make_million.py's million triangles in the box, and
   mesh-million-analytic, the same with an analytic sphere in the mesh's place.
 All use a box filter and the unbiased path tracer (max_depth = -1).
@@ -58,7 +60,7 @@ import time
 import numpy as np
 
 
-SCENES = ("cornell-box", "glass-mirror", "mesh-glass", "metals-box", "envmap-balls", "materials",
+SCENES = ("cornell-box", "glass-mirror", "mesh-glass", "metals-box", "envmap-balls", "materials", "pbr-metals",
           "mesh-million", "mesh-million-analytic")
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -242,10 +244,27 @@ def materials(mi):
     }
 
 
+def pbr_metals(mi):
+    """scenes/pbr-metals.toml: envmap-balls' camera, sky and ground, two principled metals."""
+    d = envmap_balls(mi)
+    for k in ("plastic", "gold", "frosted"):
+        del d[k]
+
+    def metal(center, color, roughness):
+        return {"type": "sphere", "center": center, "radius": 0.5,
+                "bsdf": {"type": "principled", "base_color": {"type": "rgb", "value": color},
+                         "metallic": 1.0, "roughness": roughness}}
+    d["brass"] = metal([-0.6, -0.5, 0.0], [0.9, 0.6, 0.3], 0.5)
+    d["steel"] = metal([0.6, -0.5, 0.0], [0.6, 0.62, 0.65], 0.25)
+    return d
+
+
 def scene_dict(mi, name, size):
     """The Mitsuba scene dictionary of `name` at `size`x`size` pixels."""
     if name == "materials":
         d = materials(mi)
+    elif name == "pbr-metals":
+        d = pbr_metals(mi)
     else:
         d = envmap_balls(mi) if name == "envmap-balls" else mi.cornell_box()
     if name == "glass-mirror":
@@ -289,7 +308,7 @@ def scene_dict(mi, name, size):
         del d["small-box"], d["large-box"]
         d["sphere"] = {"type": "sphere", "center": [0, -0.5, 0], "radius": 0.45,
                        "bsdf": {"type": "ref", "id": "white"}}
-    elif name not in ("cornell-box", "envmap-balls", "materials"):
+    elif name not in ("cornell-box", "envmap-balls", "materials", "pbr-metals"):
         raise SystemExit(f"no Mitsuba counterpart for scene {name!r}; known: {SCENES}")
     d["sensor"]["film"].update(width=size, height=size, rfilter={"type": "box"})
     d["sensor"]["sampler"] = {"type": "independent", "sample_count": 4}
