@@ -154,36 +154,13 @@ def envmap_balls(mi):
     }
 
 
-def channel_png(src, channel, out):
-    """One channel of the PNG `src` as a grey 8-bit PNG `out` (Mitsuba's bitmap reads no single
-    channel of a packed image)."""
-    import struct
-    import zlib
-    if os.path.exists(out):
-        return out
-    data = open(src, "rb").read()
-    pos, idat, width = 8, b"", 0
-    while pos < len(data):
-        n, kind = struct.unpack(">I4s", data[pos:pos + 8])
-        body = data[pos + 8:pos + 8 + n]
-        if kind == b"IHDR":
-            width, height, depth, color = struct.unpack(">IIBB", body[:10])
-            assert (depth, color) == (8, 2), "an 8-bit RGB PNG (textures/make_pbr.py's)"
-        elif kind == b"IDAT":
-            idat += body
-        pos += 12 + n
-    raw = zlib.decompress(idat)
-    stride = 1 + 3 * width
-    rows = [raw[y * stride + 1:(y + 1) * stride] for y in range(height)]
-    assert all(raw[y * stride] == 0 for y in range(height)), "unfiltered rows (make_pbr.py's)"
-    grey = b"".join(b"\0" + bytes(r[3 * x + channel] for x in range(width)) for r in rows)
-
-    def chunk(kind, body):
-        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
-    os.makedirs(os.path.dirname(out), exist_ok=True)
-    with open(out, "wb") as f:
-        f.write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
-                + chunk(b"IDAT", zlib.compress(grey, 9)) + chunk(b"IEND", b""))
+def channel_png(mi, src, channel, out):
+    """One channel of the 8-bit PNG `src` as a grey 8-bit PNG `out` (Mitsuba's bitmap reads no
+    single channel of a packed image)."""
+    if not os.path.exists(out):
+        os.makedirs(os.path.dirname(out), exist_ok=True)
+        texels = np.array(mi.Bitmap(src))
+        mi.Bitmap(np.ascontiguousarray(texels[..., channel:channel + 1])).write(out)
     return out
 
 
@@ -194,8 +171,8 @@ def materials(mi):
     tex = os.path.join(scenes, "textures")
     cache = os.path.join(HERE, "..", "target", "bench-cache", "materials")
     # glTF packs roughness in green and metallic in blue.
-    rough = channel_png(os.path.join(tex, "tiles-mr.png"), 1, os.path.join(cache, "roughness.png"))
-    metal = channel_png(os.path.join(tex, "tiles-mr.png"), 2, os.path.join(cache, "metallic.png"))
+    rough = channel_png(mi, os.path.join(tex, "tiles-mr.png"), 1, os.path.join(cache, "roughness.png"))
+    metal = channel_png(mi, os.path.join(tex, "tiles-mr.png"), 2, os.path.join(cache, "metallic.png"))
 
     def rgb(v):
         return {"type": "rgb", "value": v}

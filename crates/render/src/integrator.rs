@@ -369,6 +369,7 @@ fn transmittance(sigma: f32, t: f32) -> f32 {
 /// The normals at a vertex, on the side the path arrived from: the geometric one (offsets,
 /// and which side a direction leaves by) and the shading one (scattering), and whether they
 /// differ (a smooth mesh).
+#[derive(Clone, Copy)]
 pub(crate) struct Shading {
     pub(crate) n: Vec3A,
     pub(crate) ns: Vec3A,
@@ -599,16 +600,7 @@ fn rough_dielectric(
     }
     path.specular = false;
     path.prev_pdf = s.pdf;
-    let above = at.n.dot(wi) >= 0.0;
-    if at.shaded && above == s.refracted {
-        // The shading normal and the geometric one disagree about the side it leaves by.
-        return None;
-    }
-    let side = if above { at.n } else { -at.n };
-    Some((
-        Ray::new(offset_ray_origin(sp.p, sp.err, side), wi),
-        s.refracted,
-    ))
+    Some((lobes::leave(sp, at, wi, s.refracted)?, s.refracted))
 }
 
 /// A path's next ray off or through a thin sheet of glass of index `ior`: both faces at once,

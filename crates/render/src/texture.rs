@@ -62,22 +62,24 @@ impl Texture {
     /// before any pixel is decoded, so neither a small file that declares a huge image nor
     /// many parses at once can take more memory than the budget.
     pub fn decode(bytes: &[u8], format: ImageFormat, max_texels: u64) -> Result<Self, String> {
-        let (width, height, mut texels) = decode_linear(bytes, format, max_texels)?;
-        for t in &mut texels {
-            *t = albedo((*t).into());
-        }
-        Ok(Self {
-            width,
-            height,
-            texels,
-        })
+        Self::decode_clamped(bytes, format, max_texels, true)
     }
 
     /// Decodes `bytes` as data rather than colour: a normal map, metallic or roughness image,
     /// whose 8- and 16-bit codes are linear (glTF's rule for every texture but colours), with
     /// the same limits as [`Texture::decode`]. Values are clamped to [0, 1].
     pub fn decode_data(bytes: &[u8], format: ImageFormat, max_texels: u64) -> Result<Self, String> {
-        let (width, height, mut texels) = decode_with(bytes, format, max_texels, false)?;
+        Self::decode_clamped(bytes, format, max_texels, false)
+    }
+
+    /// Decodes (through the sRGB curve where `srgb`) and clamps every texel to [0, 1].
+    fn decode_clamped(
+        bytes: &[u8],
+        format: ImageFormat,
+        max_texels: u64,
+        srgb: bool,
+    ) -> Result<Self, String> {
+        let (width, height, mut texels) = decode_with(bytes, format, max_texels, srgb)?;
         for t in &mut texels {
             *t = albedo((*t).into());
         }

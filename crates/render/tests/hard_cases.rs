@@ -790,15 +790,7 @@ fn pbr_at_its_limits_stays_finite() {
     // A 2 × 2 normal map of one texel 80° from the normal, along u.
     let (s, c) = (80f64.to_radians().sin(), 80f64.to_radians().cos());
     let code = |x: f64| (127.5 * (1.0 + x)).round() as u8;
-    let mut png = Vec::new();
-    {
-        let mut e = png::Encoder::new(&mut png, 2, 2);
-        e.set_color(png::ColorType::Rgb);
-        e.set_depth(png::BitDepth::Eight);
-        let mut w = e.write_header().expect("header");
-        w.write_image_data(&[code(s), 128, code(c)].repeat(4))
-            .expect("data");
-    }
+    let png = common::png_rgb(2, 2, &[code(s), 128, code(c)].repeat(4));
     let text = "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 1.2, 4.5]\ntarget = [0, 0.5, 0]\nfov = 50\n\
          [film]\nwidth = 100\nheight = 80\n\
          [environment]\ntype = \"gradient\"\ntop = [0.5, 0.6, 1.0]\nbottom = [0.1, 0.1, 0.1]\n\

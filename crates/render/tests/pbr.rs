@@ -8,22 +8,9 @@ mod common;
 use common::{region_stats, render, scene, scene_with_files, try_scene_with_files};
 use tessera_render::RenderSettings;
 
-/// An 8-bit RGB PNG of `w` × `h` texels.
-fn png(w: u32, h: u32, rgb: &[u8]) -> Vec<u8> {
-    let mut out = Vec::new();
-    {
-        let mut e = png::Encoder::new(&mut out, w, h);
-        e.set_color(png::ColorType::Rgb);
-        e.set_depth(png::BitDepth::Eight);
-        let mut w = e.write_header().expect("header");
-        w.write_image_data(rgb).expect("data");
-    }
-    out
-}
-
 /// A 2 × 2 image of one colour.
 fn flat(rgb: [u8; 3]) -> Vec<u8> {
-    png(2, 2, &rgb.repeat(4))
+    common::png_rgb(2, 2, &rgb.repeat(4))
 }
 
 const SKY: [f64; 3] = [1.0, 0.5, 0.25];

@@ -121,11 +121,6 @@ impl CoatTable {
             .clone()
     }
 
-    /// The coat's index.
-    pub fn eta(&self) -> f32 {
-        self.eta
-    }
-
     /// (row, weight) for roughness `r` ∈ [0, 1]: rows `row` and `row + 1` blend by `weight`.
     #[inline]
     fn row(r: f32) -> (usize, f32) {
@@ -463,12 +458,6 @@ impl PbrMaterial {
             || self.roughness.texture.is_some()
             || self.transmission.texture.is_some()
             || self.normal_map.is_some()
-    }
-
-    /// Whether light can pass through anywhere on the surface.
-    pub fn may_transmit(&self) -> bool {
-        self.transmission.factor > 0.0
-            && (self.metallic.factor < 1.0 || self.metallic.texture.is_some())
     }
 
     /// The parameters at texture coordinates `uv`.

@@ -186,11 +186,7 @@ pub(crate) fn pbr_at(
     };
     let uv = frame.map_or(Vec2::ZERO, |f| f.uv);
     let params = mat.params(&scene.textures, uv);
-    let mut shading = Shading {
-        n: at.n,
-        ns: at.ns,
-        shaded: at.shaded,
-    };
+    let mut shading = *at;
     if let (Some(_), Some(frame)) = (mat.normal_map, frame) {
         let bent = mat.bend(&scene.textures, &frame, sp.ns);
         // A map that tips the normal under the geometric surface is ignored there: no
@@ -262,10 +258,16 @@ pub(super) fn pbr(
     path.beta *= s.weight;
     path.specular = s.delta;
     path.prev_pdf = s.pdf;
-    let through = s.wi.z < 0.0;
+    leave(sp, at, wi, s.wi.z < 0.0)
+}
+
+/// The ray leaving `sp` along `wi` (world space), `through` the surface or not as the shading
+/// frame says, from the geometric side it points to; `None` where the geometric normal
+/// disagrees about that side.
+#[inline(always)]
+pub(super) fn leave(sp: &SurfacePoint, at: &Shading, wi: Vec3A, through: bool) -> Option<Ray> {
     let above = at.n.dot(wi) >= 0.0;
     if at.shaded && above == through {
-        // The shading normal and the geometric one disagree about the side it leaves by.
         return None;
     }
     let side = if above { at.n } else { -at.n };

@@ -16,6 +16,19 @@ pub fn repo_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
+/// An 8-bit RGB PNG of `w` × `h` texels, row 0 at the top.
+pub fn png_rgb(w: u32, h: u32, rgb: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    {
+        let mut e = png::Encoder::new(&mut out, w, h);
+        e.set_color(png::ColorType::Rgb);
+        e.set_depth(png::BitDepth::Eight);
+        let mut w = e.write_header().expect("header");
+        w.write_image_data(rgb).expect("data");
+    }
+    out
+}
+
 pub fn load(name: &str) -> Scene {
     let path = repo_root().join("scenes").join(name);
     Scene::load(&path, &Limits::default()).unwrap_or_else(|e| panic!("{e}"))
