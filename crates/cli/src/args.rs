@@ -18,6 +18,64 @@ pub fn batch_range() -> clap::builder::RangedI64ValueParser<u32> {
     clap::value_parser!(u32).range(i64::from(*BATCH_RANGE.start())..=i64::from(*BATCH_RANGE.end()))
 }
 
+/// How a glTF file is rendered as a whole scene: the same flags for `tessera render` and
+/// `tessera submit`, which both turn them into the scene text the file stands for.
+#[derive(Debug, Clone, clap::Args)]
+pub struct GltfArgs {
+    /// A glTF scene's camera: its name, or its index in the file's `cameras` (default: the
+    /// first one a node places, or a framing of the whole scene when there is none).
+    #[arg(long, value_name = "NAME|INDEX")]
+    pub camera: Option<String>,
+    /// Light a glTF scene by this equirectangular HDR map (.exr or .hdr) instead of its
+    /// default (its own lights, or a uniform white sky when it has none).
+    #[arg(long, value_name = "FILE")]
+    pub environment: Option<std::path::PathBuf>,
+}
+
+impl GltfArgs {
+    /// The options for `scene`: refused for a scene that is not a glTF file, whose text
+    /// already says its camera and light.
+    pub fn options(&self, scene: &std::path::Path) -> Result<tessera_render::scene::GltfOptions> {
+        if !tessera_render::scene::is_gltf(scene) {
+            for (flag, given) in [
+                ("--camera", self.camera.is_some()),
+                ("--environment", self.environment.is_some()),
+            ] {
+                if given {
+                    bail!(
+                        "{flag} is for glTF scenes (.gltf, .glb); {} says its own in its text",
+                        scene.display()
+                    );
+                }
+            }
+        }
+        let environment = match &self.environment {
+            None => None,
+            Some(p) => {
+                if !p.is_file() {
+                    bail!("--environment {}: no such file", p.display());
+                }
+                // The scene names files relative to the glTF file's directory.
+                let dir = scene.parent().unwrap_or(std::path::Path::new(""));
+                let name = match p.strip_prefix(dir) {
+                    Ok(rel) if !dir.as_os_str().is_empty() => rel.to_path_buf(),
+                    _ if dir.as_os_str().is_empty() => p.clone(),
+                    _ => std::path::absolute(p)
+                        .with_context(|| format!("--environment {}", p.display()))?,
+                };
+                let name = name.to_str().with_context(|| {
+                    format!("--environment {}: the path is not UTF-8", p.display())
+                })?;
+                Some(name.to_string())
+            }
+        };
+        Ok(tessera_render::scene::GltfOptions {
+            camera: self.camera.clone(),
+            environment,
+        })
+    }
+}
+
 /// The settings that decide a render's bits: the same flags, defaults and ranges for `tessera
 /// render` and `tessera submit`, so that the two give the same image for the same command.
 #[derive(Debug, clap::Args)]

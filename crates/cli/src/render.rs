@@ -15,8 +15,10 @@ use crate::args::{check_extension, check_output_dir, tile_range, SettingsArgs};
 /// Arguments of `tessera render`.
 #[derive(Debug, clap::Args)]
 pub struct RenderArgs {
-    /// Scene file (TOML, or JSON by its .json extension).
+    /// Scene file: TOML, JSON (by its .json extension), or glTF 2.0 (.gltf, .glb).
     scene: PathBuf,
+    #[command(flatten)]
+    gltf: crate::args::GltfArgs,
     #[command(flatten)]
     settings: SettingsArgs,
     /// Output OpenEXR file.
@@ -107,7 +109,11 @@ pub fn run(args: RenderArgs) -> Result<()> {
         ..Limits::default()
     };
     let frame = args.settings.frame.unwrap_or(FIRST_FRAME);
-    let scene = Scene::load_at(&args.scene, &limits, frame)?;
+    let gltf = args.gltf.options(&args.scene)?;
+    let scene = Scene::load_with(&args.scene, &gltf, &limits, frame)?;
+    for w in &scene.warnings {
+        errln!("warning: {w}");
+    }
     let settings = RenderSettings {
         tracer: args.tracer.to_tracer(),
         ..args

@@ -4,7 +4,8 @@
 //!
 //! 8-bit and 16-bit images hold display-encoded (sRGB) values and are decoded to linear once,
 //! at load; EXR and .hdr files hold linear values already. Texels are clamped to [0, 1]: an albedo above
-//! 1 would create energy. Coordinates wrap (repeat), and v runs up the image, as in OBJ files.
+//! 1 would create energy. Coordinates wrap (repeat, unless a glTF sampler clamps or mirrors), and
+//! v runs up the image, as in OBJ files.
 
 use std::io::Cursor;
 
@@ -16,6 +17,49 @@ pub struct Texture {
     width: usize,
     height: usize,
     texels: Vec<Vec3A>,
+    /// How u and v behave outside [0, 1].
+    wrap: [Wrap; 2],
+}
+
+/// What a texture coordinate outside [0, 1] reads (glTF's sampler wrap modes).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Wrap {
+    /// The image tiles the plane (the default, and OBJ's).
+    #[default]
+    Repeat,
+    /// The edge texels extend outward.
+    Clamp,
+    /// The image tiles the plane, every other copy mirrored.
+    Mirror,
+}
+
+impl Wrap {
+    /// `t` brought into [0, 1]. In f64, so that large coordinates keep their fraction.
+    #[inline]
+    fn coord(self, t: f64) -> f64 {
+        match self {
+            Wrap::Repeat => t.rem_euclid(1.0),
+            Wrap::Clamp => t.clamp(0.0, 1.0),
+            Wrap::Mirror => {
+                let m = t.rem_euclid(2.0);
+                if m > 1.0 {
+                    2.0 - m
+                } else {
+                    m
+                }
+            }
+        }
+    }
+
+    /// Texel index `i` of a row or column of `n`.
+    #[inline]
+    fn texel(self, i: i64, n: usize) -> usize {
+        match self {
+            Wrap::Repeat => i.rem_euclid(n as i64) as usize,
+            // A filter tap past the edge reads the edge (mirroring at the edge reads it too).
+            Wrap::Clamp | Wrap::Mirror => i.clamp(0, n as i64 - 1) as usize,
+        }
+    }
 }
 
 /// Which decoder a file name calls for.
@@ -87,7 +131,14 @@ impl Texture {
             width,
             height,
             texels,
+            wrap: [Wrap::Repeat; 2],
         })
+    }
+
+    /// This texture with coordinates outside [0, 1] read as `wrap` says (u, then v).
+    pub fn with_wrap(mut self, wrap: [Wrap; 2]) -> Self {
+        self.wrap = wrap;
+        self
     }
 
     /// Whether every texel has equal channels: what a scalar parameter read from the whole
@@ -103,6 +154,7 @@ impl Texture {
             width,
             height,
             texels,
+            wrap: [Wrap::Repeat; 2],
         }
     }
 
@@ -112,8 +164,8 @@ impl Texture {
     }
 
     fn texel(&self, x: i64, y: i64) -> Vec3A {
-        let x = x.rem_euclid(self.width as i64) as usize;
-        let y = y.rem_euclid(self.height as i64) as usize;
+        let x = self.wrap[0].texel(x, self.width);
+        let y = self.wrap[1].texel(y, self.height);
         self.texels[y * self.width + x]
     }
 
@@ -124,8 +176,8 @@ impl Texture {
             return self.texel(0, 0);
         }
         // Wrap first, in f64, so that large coordinates keep their fraction.
-        let u = f64::from(uv.x).rem_euclid(1.0);
-        let v = f64::from(uv.y).rem_euclid(1.0);
+        let u = self.wrap[0].coord(f64::from(uv.x));
+        let v = self.wrap[1].coord(f64::from(uv.y));
         let x = u * self.width as f64 - 0.5;
         let y = (1.0 - v) * self.height as f64 - 0.5;
         let (x0, y0) = (x.floor(), y.floor());

@@ -115,12 +115,10 @@ fn camera_at(desc: &mut SceneFile, keys: &[CameraKeyDesc], frame: f64) -> Result
     let c = &mut desc.camera;
     let v3 = |x: Option<[f32; 3]>, y: Option<[f32; 3]>| x.zip(y).map(|(x, y)| lerp3(x, y, s));
     let v1 = |x: Option<f32>, y: Option<f32>| x.zip(y).map(|(x, y)| lerp1(x, y, s));
-    if let Some(eye) = v3(a.eye, b.eye) {
-        c.eye = eye;
-    }
+    c.eye = v3(a.eye, b.eye).or(c.eye);
     c.target = v3(a.target, b.target).or(c.target);
     c.up = v3(a.up, b.up).or(c.up);
-    c.fov = v1(a.fov, b.fov).unwrap_or(c.fov);
+    c.fov = v1(a.fov, b.fov).or(c.fov);
     c.pitch = v1(a.pitch, b.pitch).or(c.pitch);
     c.yaw = v1(a.yaw, b.yaw).or(c.yaw);
     Ok(())

@@ -11,6 +11,7 @@ use super::assets::{sha256_hex, Assets};
 use super::check::{
     build_transform, finite, finite3, only, positive, required, root, similarity_scale, Invalid,
 };
+use super::gltf::{GltfCamera, MaterialTables};
 use super::lights::{environment, punctual_lights, reach};
 use super::materials::{build_materials, BuiltMaterials};
 use super::{
@@ -23,7 +24,7 @@ use crate::light::{Light, LightShape, Lights, MeshLight};
 use crate::mesh::load::{self, MeshFormat};
 use crate::mesh::{MeshInstance, TriMesh};
 use crate::shape::{Shape, Transformed};
-use crate::texture::{self, ImageFormat, Texture};
+use crate::texture::{self, ImageFormat, Texture, Wrap};
 
 /// A mesh file's material groups: each one's name in the file, and its mesh.
 type MeshGroups = Vec<(Option<String>, Arc<TriMesh>)>;
@@ -34,9 +35,9 @@ type MeshGroups = Vec<(Option<String>, Arc<TriMesh>)>;
 pub(super) struct SceneFiles {
     /// By file name: each material group's name and mesh.
     files: BTreeMap<String, MeshGroups>,
-    /// Textures by file name and whether they are data (no sRGB curve), as indices into
-    /// `pending_textures` (and, once decoded, the scene's texture list).
-    textures: BTreeMap<(String, bool), u32>,
+    /// Textures by file name, whether they are data (no sRGB curve) and how they wrap, as
+    /// indices into `pending_textures` (and, once decoded, the scene's texture list).
+    textures: BTreeMap<(String, bool, [Wrap; 2]), u32>,
     /// Each texture's file read and its header checked, its pixels not yet decoded: decoding
     /// waits until every check that needs no pixels has passed ([`SceneFiles::decode_textures`]).
     pending_textures: Vec<PendingTexture>,
@@ -57,6 +58,8 @@ struct PendingTexture {
     data: bool,
     /// Where the scene reads it as one scalar without naming a channel, so it must be grey.
     grey: Option<KeyPath>,
+    /// How its coordinates wrap.
+    wrap: [Wrap; 2],
 }
 
 /// What a material reads from a texture, which decides how it is decoded and checked.
@@ -75,7 +78,7 @@ pub(super) const MAX_TEXELS: u64 = 1 << 28;
 
 impl SceneFiles {
     /// Reads `name` (counting it against the file limit) and records its hash.
-    fn read_file(
+    pub(super) fn read_file(
         &mut self,
         name: &str,
         path: &KeyPath,
@@ -108,8 +111,72 @@ impl SceneFiles {
         assets: &dyn Assets,
         usage: TextureUse,
     ) -> Result<u32, Invalid> {
+        self.texture_wrapped(name, path, limits, assets, usage, [Wrap::Repeat; 2])
+    }
+
+    /// [`SceneFiles::texture`] with coordinates outside [0, 1] read as `wrap` says.
+    pub(super) fn texture_wrapped(
+        &mut self,
+        name: &str,
+        path: &KeyPath,
+        limits: &Limits,
+        assets: &dyn Assets,
+        usage: TextureUse,
+        wrap: [Wrap; 2],
+    ) -> Result<u32, Invalid> {
+        self.add_texture(name, path, usage, wrap, |files| {
+            files.image_file(name, path, limits, assets, "a texture")
+        })
+    }
+
+    /// A texture whose encoded bytes are inside a file already read (a glTF file's embedded
+    /// image), known by `key`: read, hashed and counted with that file, so not again here.
+    pub(super) fn embedded_texture(
+        &mut self,
+        key: &str,
+        path: &KeyPath,
+        format: ImageFormat,
+        bytes: &[u8],
+        usage: TextureUse,
+        wrap: [Wrap; 2],
+    ) -> Result<u32, Invalid> {
+        self.add_texture(key, path, usage, wrap, |files| {
+            files.count_texels(key, path, bytes, format)?;
+            Ok((format, bytes.to_vec()))
+        })
+    }
+
+    /// Takes `n` triangles from what is left of the scene's limit.
+    pub(super) fn take_triangles(
+        &mut self,
+        n: usize,
+        limits: &Limits,
+        path: &KeyPath,
+    ) -> Result<(), Invalid> {
+        let left = limits.max_triangles - self.triangles;
+        if n > left {
+            return Err((
+                path.clone(),
+                format!(
+                    "{n} more triangles is above what is left of the scene's limit of {} ({left})",
+                    limits.max_triangles
+                ),
+            ));
+        }
+        self.triangles += n;
+        Ok(())
+    }
+
+    fn add_texture(
+        &mut self,
+        name: &str,
+        path: &KeyPath,
+        usage: TextureUse,
+        wrap: [Wrap; 2],
+        load: impl FnOnce(&mut Self) -> Result<(ImageFormat, Vec<u8>), Invalid>,
+    ) -> Result<u32, Invalid> {
         let data = usage != TextureUse::Color;
-        let key = (name.to_string(), data);
+        let key = (name.to_string(), data, wrap);
         if let Some(&i) = self.textures.get(&key) {
             let t = &mut self.pending_textures[i as usize];
             if usage == TextureUse::Grey && t.grey.is_none() {
@@ -117,17 +184,17 @@ impl SceneFiles {
             }
             return Ok(i);
         }
-        // The same file read as the other kind: its bytes again, decoded again (so its
-        // texels count twice), but read and hashed once.
-        let other = self.textures.get(&(name.to_string(), !data)).copied();
+        // The same file read as the other kind or wrapped another way: its bytes again,
+        // decoded again (so its texels count twice), but read and hashed once.
+        let other = self.pending_textures.iter().position(|t| t.name == name);
         let (format, bytes) = match other {
             Some(o) => {
-                let t = &self.pending_textures[o as usize];
+                let t = &self.pending_textures[o];
                 let (format, bytes) = (t.format, t.bytes.clone());
                 self.count_texels(name, path, &bytes, format)?;
                 (format, bytes)
             }
-            None => self.image_file(name, path, limits, assets, "a texture")?,
+            None => load(self)?,
         };
         let i = self.pending_textures.len() as u32;
         self.pending_textures.push(PendingTexture {
@@ -137,6 +204,7 @@ impl SceneFiles {
             bytes,
             data,
             grey: (usage == TextureUse::Grey).then(|| path.clone()),
+            wrap,
         });
         self.textures.insert(key, i);
         Ok(i)
@@ -200,7 +268,9 @@ impl SceneFiles {
                 } else {
                     Texture::decode(&t.bytes, t.format, MAX_TEXELS)
                 };
-                let decoded = decoded.map_err(|m| (t.path, format!("{}: {m}", t.name)))?;
+                let decoded = decoded
+                    .map_err(|m| (t.path, format!("{}: {m}", t.name)))?
+                    .with_wrap(t.wrap);
                 if let Some(path) = t.grey {
                     if !decoded.is_grey() {
                         return Err((
@@ -265,14 +335,18 @@ pub(super) fn build(
         ));
     }
     let (w, h) = film_size(desc, limits)?;
-    let camera = build_camera(desc, w, h)?;
+    // A glTF camera is placed by its file, read with the objects.
+    let camera = match desc.camera.model {
+        CameraModel::Gltf => None,
+        _ => Some(build_camera(desc, w, h)?),
+    };
     let mut files = SceneFiles::default();
     let environment = environment(desc, &mut files, limits, assets)?;
     let BuiltMaterials {
-        materials,
-        absorption,
+        mut materials,
+        mut absorption,
         plastics,
-        pbrs,
+        mut pbrs,
         names,
     } = build_materials(desc, &mut files, limits, assets)?;
     if desc.objects.len() > limits.max_objects {
@@ -287,14 +361,39 @@ pub(super) fn build(
     }
     let mut prims = Vec::with_capacity(desc.objects.len());
     let mut lights = Vec::new();
+    let (mut gltf_lights, mut cameras, mut warnings) = (Vec::new(), Vec::new(), Vec::new());
     for (i, o) in desc.objects.iter().enumerate() {
         let op = root("objects").index(i);
-        let material = material_index(&names, &o.material, &op.key("material"))?;
-        let parts = if o.shape == ShapeKind::Mesh {
-            build_mesh(o, &op, material, &names, &mut files, limits, assets)?
+        let parts = if o.shape == ShapeKind::Gltf {
+            let mut tables = MaterialTables {
+                materials: &mut materials,
+                absorption: &mut absorption,
+                pbrs: &mut pbrs,
+            };
+            let file = build_gltf(o, &op, &names, &mut tables, &mut files, limits, assets)?;
+            let name = o.file.clone().unwrap_or_default();
+            gltf_lights.extend(
+                file.lights
+                    .into_iter()
+                    .map(|l| (op.key("file"), name.clone(), l)),
+            );
+            cameras.extend(file.cameras.into_iter().map(|c| (op.key("file"), c)));
+            warnings.extend(file.warnings);
+            file.parts
         } else {
-            let emits = materials[material as usize].emission.max_element() > 0.0;
-            vec![(build_shape(o, &op, emits)?, material)]
+            let kind = if o.shape == ShapeKind::Mesh {
+                "a mesh"
+            } else {
+                "a shape"
+            };
+            let name = required(o.material.as_deref(), &op, kind, "material")?;
+            let material = material_index(&names, name, &op.key("material"))?;
+            if o.shape == ShapeKind::Mesh {
+                build_mesh(o, &op, material, &names, &mut files, limits, assets)?
+            } else {
+                let emits = materials[material as usize].emission.max_element() > 0.0;
+                vec![(build_shape(o, &op, emits)?, material)]
+            }
         };
         for (shape, m) in &parts {
             check_texture_coordinates(shape, &materials[*m as usize], &pbrs, o, &op)?;
@@ -326,6 +425,11 @@ pub(super) fn build(
     let accel = Accel::build(&prims);
     let reach = reach(&prims);
     punctual_lights(desc, reach, &mut lights)?;
+    super::lights::gltf_lights(&gltf_lights, reach, &mut lights)?;
+    let camera = match camera {
+        Some(c) => c,
+        None => gltf_camera(desc, &cameras, &prims, w, h)?,
+    };
     let environment = environment.finish(reach, &mut lights)?;
     // A normal map bends shading normals too.
     let shading_normals = prims
@@ -354,6 +458,7 @@ pub(super) fn build(
         absorption,
         plastics,
         pbrs,
+        warnings,
     };
     Ok((scene, files.read))
 }
@@ -398,6 +503,183 @@ fn material_index(names: &BTreeMap<&str, u32>, name: &str, path: &KeyPath) -> Re
             ),
         )
     })
+}
+
+/// A glTF object: its file's meshes, materials, lights and cameras, placed by its transform.
+fn build_gltf(
+    o: &ObjectDesc,
+    op: &KeyPath,
+    names: &BTreeMap<&str, u32>,
+    tables: &mut MaterialTables,
+    files: &mut SceneFiles,
+    limits: &Limits,
+    assets: &dyn Assets,
+) -> Result<super::gltf::Imported, Invalid> {
+    only(
+        op,
+        "a gltf object",
+        &shape_keys(o),
+        &["file", "materials_map"],
+    )?;
+    if o.material.is_some() {
+        return Err((
+            op.key("material"),
+            "a gltf object's materials are its file's; replace them by name with \
+             `materials_map = { \"file's name\" = \"scene's name\" }`"
+                .into(),
+        ));
+    }
+    let file = required(o.file.as_deref(), op, "a gltf object", "file")?;
+    let ext = file.rsplit_once('.').map(|(_, e)| e.to_ascii_lowercase());
+    if !matches!(ext.as_deref(), Some("gltf" | "glb")) {
+        return Err((
+            op.key("file"),
+            format!("`{file}`: a gltf object's file must be .gltf or .glb (by its extension)"),
+        ));
+    }
+    let xf = object_transform(o, op)?;
+    let mut overrides = BTreeMap::new();
+    for (from, to) in o.materials_map.iter().flatten() {
+        let path = op.key("materials_map").key(from);
+        overrides.insert(from.clone(), material_index(names, to, &path)?);
+    }
+    super::gltf::import(
+        file,
+        xf,
+        &overrides,
+        tables,
+        files,
+        limits,
+        assets,
+        &op.key("file"),
+    )
+}
+
+/// The camera of a `gltf` camera model: the glTF camera `[camera]` picks by name or by index
+/// in its file's `cameras` (by default the lowest index placed), or, with none in the scene,
+/// one that frames every finite object from the front (+z), a little above.
+fn gltf_camera(
+    desc: &SceneFile,
+    cameras: &[(KeyPath, GltfCamera)],
+    prims: &[Primitive],
+    w: u32,
+    h: u32,
+) -> Result<Camera, Invalid> {
+    let cp = root("camera");
+    let c = &desc.camera;
+    let present = [
+        ("eye", c.eye.is_some()),
+        ("target", c.target.is_some()),
+        ("up", c.up.is_some()),
+        ("pitch", c.pitch.is_some()),
+        ("yaw", c.yaw.is_some()),
+        ("fov", c.fov.is_some()),
+        ("name", c.name.is_some()),
+        ("index", c.index.is_some()),
+    ];
+    only(&cp, "a gltf camera", &present, &["name", "index"])?;
+    let listed = || {
+        let names: Vec<String> = cameras
+            .iter()
+            .map(|(_, g)| match &g.name {
+                Some(n) => format!("{} ({n:?})", g.index),
+                None => g.index.to_string(),
+            })
+            .collect();
+        if names.is_empty() {
+            "none".to_string()
+        } else {
+            names.join(", ")
+        }
+    };
+    let chosen = match (&c.name, c.index) {
+        (Some(_), Some(_)) => {
+            return Err((cp.clone(), "give `name` or `index`, not both".into()));
+        }
+        (Some(name), None) => Some(
+            cameras
+                .iter()
+                .find(|(_, g)| g.name.as_deref() == Some(name))
+                .ok_or_else(|| {
+                    (
+                        cp.key("name"),
+                        format!("no glTF camera is named {name:?} (cameras: {})", listed()),
+                    )
+                })?,
+        ),
+        (None, Some(i)) => Some(cameras.iter().find(|(_, g)| g.index == i).ok_or_else(|| {
+            (
+                cp.key("index"),
+                format!(
+                    "no glTF camera {i} is placed by a node (cameras: {})",
+                    listed()
+                ),
+            )
+        })?),
+        (None, None) => cameras.iter().min_by_key(|(_, g)| g.index),
+    };
+    let aspect = w as f32 / h as f32;
+    let camera = match chosen {
+        Some((path, g)) => {
+            let Some(yfov) = g.yfov else {
+                return Err((
+                    path.clone(),
+                    format!(
+                        "glTF camera {} is orthographic, which tessera does not render; pick a \
+                         perspective one (cameras: {})",
+                        g.index,
+                        listed()
+                    ),
+                ));
+            };
+            let fov = 2.0 * ((0.5 * yfov).tan() * aspect).atan();
+            if !(fov > 0.0 && fov < std::f32::consts::PI) {
+                return Err((
+                    path.clone(),
+                    format!("glTF camera {}: yfov {yfov} is out of range", g.index),
+                ));
+            }
+            Camera::look_at(g.eye, g.eye + g.forward, g.up, fov, w, h).ok_or_else(|| {
+                (
+                    path.clone(),
+                    format!(
+                        "glTF camera {}: its node's transform is degenerate",
+                        g.index
+                    ),
+                )
+            })?
+        }
+        None => {
+            let bounds = prims
+                .iter()
+                .filter(|p| !matches!(p.shape, Shape::Plane { .. }))
+                .fold(crate::util::math::Aabb::EMPTY, |b, p| {
+                    b.union(p.shape.bounds())
+                });
+            if !(bounds.min.cmple(bounds.max).all()) {
+                return Err((
+                    cp.clone(),
+                    "the scene has no camera and nothing to frame".into(),
+                ));
+            }
+            let centre = 0.5 * (bounds.min + bounds.max);
+            let radius = (0.5 * (bounds.max - bounds.min).length()).max(1e-3);
+            // The vertical field of view is 40°; the bounding sphere fits the narrower one.
+            let vfov = 40f32.to_radians();
+            let hfov = 2.0 * ((0.5 * vfov).tan() * aspect).atan();
+            let fit = vfov.min(hfov);
+            let distance = 1.05 * radius / (0.5 * fit).sin();
+            let dir = Vec3A::new(0.0, 15f32.to_radians().sin(), 15f32.to_radians().cos());
+            let eye = centre + distance * dir;
+            Camera::look_at(eye, centre, Vec3A::Y, hfov, w, h).ok_or_else(|| {
+                (
+                    cp.clone(),
+                    "the scene's bounds cannot be framed".to_string(),
+                )
+            })?
+        }
+    };
+    Ok(camera)
 }
 
 /// A mesh object: one shape per material group of its file, each with its material.
@@ -489,8 +771,20 @@ fn build_camera(desc: &SceneFile, w: u32, h: u32) -> Result<Camera, Invalid> {
     let fp = root("film");
     let cp = root("camera");
     let c = &desc.camera;
-    let eye = finite3(c.eye, &cp.key("eye"))?;
-    let fov = finite(c.fov, &cp.key("fov"))?;
+    let model = match c.model {
+        CameraModel::LookAt => "a look_at camera",
+        _ => "a pitch_yaw camera",
+    };
+    for (key, given) in [("name", c.name.is_some()), ("index", c.index.is_some())] {
+        if given {
+            return Err((
+                cp.key(key),
+                format!("{model} does not take `{key}` (a gltf camera does)"),
+            ));
+        }
+    }
+    let eye = finite3(required(c.eye, &cp, model, "eye")?, &cp.key("eye"))?;
+    let fov = finite(required(c.fov, &cp, model, "fov")?, &cp.key("fov"))?;
     if !(fov > 0.0 && fov < 180.0) {
         return Err((
             cp.key("fov"),
@@ -517,6 +811,7 @@ fn build_camera(desc: &SceneFile, w: u32, h: u32) -> Result<Camera, Invalid> {
                 )
             })?
         }
+        CameraModel::Gltf => unreachable!("a gltf camera is built by gltf_camera"),
         CameraModel::PitchYaw => {
             only(&cp, "a pitch_yaw camera", &present, &["pitch", "yaw"])?;
             if w < 2 {
@@ -570,7 +865,9 @@ fn build_shape(o: &ObjectDesc, op: &KeyPath, emits: bool) -> Result<Shape, Inval
     let xf = object_transform(o, op)?;
     let present = shape_keys(o);
     let shape = match o.shape {
-        ShapeKind::Mesh => unreachable!("meshes are built by build_mesh"),
+        ShapeKind::Mesh | ShapeKind::Gltf => {
+            unreachable!("files are built by build_mesh, build_gltf")
+        }
         ShapeKind::Sphere => {
             only(op, "a sphere", &present, &["center", "radius"])?;
             let c = finite3(o.center.unwrap_or([0.0; 3]), &op.key("center"))?;

@@ -137,16 +137,26 @@ pub(super) fn build_transform(t: &TransformDesc, path: &KeyPath) -> Result<Affin
         }
         m
     };
-    let lin = m.matrix3;
-    let det = lin.determinant();
-    let scale = lin.x_axis.length() * lin.y_axis.length() * lin.z_axis.length();
-    if !(det.abs() > 1e-6 * scale) || !det.is_finite() || scale == 0.0 {
+    if let Some(det) = degenerate(&m) {
         return Err((
             path.clone(),
             format!("transform is degenerate (determinant {det:e}): it flattens the shape"),
         ));
     }
     Ok(m)
+}
+
+/// The determinant of a map that flattens space (or is not finite), which no shape may be
+/// placed by; `None` for an invertible one.
+pub(super) fn degenerate(m: &Affine3A) -> Option<f32> {
+    let lin = m.matrix3;
+    let det = lin.determinant();
+    let scale = lin.x_axis.length() * lin.y_axis.length() * lin.z_axis.length();
+    let bad = !(det.abs() > 1e-6 * scale)
+        || !det.is_finite()
+        || scale == 0.0
+        || !m.translation.is_finite();
+    bad.then_some(det)
 }
 
 /// Whether the linear part is a rotation times a uniform scale; returns the scale.

@@ -118,6 +118,9 @@ pub enum CameraModel {
     /// The course notes' model: eye, pitch α, yaw β, and the horizontal field of view θ
     /// spanning the outermost pixel centres.
     PitchYaw,
+    /// A camera of the scene's glTF objects (`name` or `index` picks one; the first by
+    /// default), or, where they have none, one that frames the whole scene.
+    Gltf,
 }
 
 /// Camera description.
@@ -126,9 +129,9 @@ pub enum CameraModel {
 pub struct CameraDesc {
     /// Camera model.
     pub model: CameraModel,
-    /// Eye position.
-    #[serde(deserialize_with = "exactly_three")]
-    pub eye: [f32; 3],
+    /// Eye position (look_at, pitch_yaw).
+    #[serde(default, deserialize_with = "maybe_three")]
+    pub eye: Option<[f32; 3]>,
     /// Look-at target (look_at only).
     #[serde(default, deserialize_with = "maybe_three")]
     pub target: Option<[f32; 3]>,
@@ -139,8 +142,12 @@ pub struct CameraDesc {
     pub pitch: Option<f32>,
     /// Yaw β in degrees (pitch_yaw only; default 0).
     pub yaw: Option<f32>,
-    /// Horizontal field of view in degrees, in (0, 180).
-    pub fov: f32,
+    /// Horizontal field of view in degrees, in (0, 180) (look_at, pitch_yaw).
+    pub fov: Option<f32>,
+    /// The glTF camera of this name (gltf only).
+    pub name: Option<String>,
+    /// The glTF camera of this index in its file's `cameras` (gltf only).
+    pub index: Option<usize>,
 }
 
 /// Image size in pixels.
@@ -462,6 +469,8 @@ pub enum ShapeKind {
     Plane,
     /// Triangle mesh read from an OBJ or PLY `file`.
     Mesh,
+    /// Every mesh, material, light and camera of a glTF 2.0 `file` (`.gltf` or `.glb`).
+    Gltf,
 }
 
 /// One object: a shape, its material and an optional transform.
@@ -470,8 +479,8 @@ pub enum ShapeKind {
 pub struct ObjectDesc {
     /// Shape kind.
     pub shape: ShapeKind,
-    /// Material name, a key of `[materials]`.
-    pub material: String,
+    /// Material name, a key of `[materials]` (a glTF object's materials are its file's).
+    pub material: Option<String>,
     /// Sphere centre (default origin).
     #[serde(default, deserialize_with = "maybe_three")]
     pub center: Option<[f32; 3]>,
@@ -491,12 +500,14 @@ pub struct ObjectDesc {
     /// Plane front normal (default +y).
     #[serde(default, deserialize_with = "maybe_three")]
     pub normal: Option<[f32; 3]>,
-    /// Mesh file (OBJ or PLY), relative to the scene file.
+    /// Mesh file (OBJ, PLY, glTF), relative to the scene file.
     pub file: Option<String>,
     /// Whether a mesh shades with its file's vertex normals (default false: flat).
     pub smooth: Option<bool>,
-    /// A mesh's material for each of its file's material names (an OBJ's `usemtl`), by
-    /// scene material name; groups not listed use `material`.
+    /// A mesh's material for each of its file's material names (an OBJ's `usemtl`, a glTF
+    /// material's `name`), by scene material name; groups not listed use `material` (OBJ,
+    /// PLY) or their own (glTF). `materials_override` is another name for it.
+    #[serde(alias = "materials_override")]
     pub materials_map: Option<BTreeMap<String, String>>,
     /// Object-to-world transform.
     pub transform: Option<TransformDesc>,

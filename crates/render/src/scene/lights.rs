@@ -9,7 +9,10 @@ use glam::Vec3A;
 use super::assets::Assets;
 use super::build::{SceneFiles, MAX_TEXELS};
 use super::check::{color, finite, finite3, only, required, root, Invalid};
-use super::{Environment, EnvironmentKind, KeyPath, LightKind, Limits, Primitive, SceneFile};
+use super::gltf::GltfLight;
+use super::{
+    Environment, EnvironmentKind, KeyPath, LightDesc, LightKind, Limits, Primitive, SceneFile,
+};
 use crate::envmap::EnvMap;
 use crate::light::{Light, LightShape};
 use crate::texture::{self, ImageFormat};
@@ -32,7 +35,62 @@ pub(super) fn punctual_lights(
     lights: &mut Vec<Light>,
 ) -> Result<(), Invalid> {
     for (i, l) in desc.lights.iter().enumerate() {
-        let lp = root("lights").index(i);
+        lights.push(punctual(l, &root("lights").index(i), reach)?);
+    }
+    Ok(())
+}
+
+/// The lights of glTF files (`KHR_lights_punctual`), each placed in the world, with the key
+/// of the object whose file holds it: validated as `[[lights]]` are, and named in errors by
+/// the file and the light's index there. A light of zero intensity is left out, as glTF
+/// allows.
+pub(super) fn gltf_lights(
+    placed: &[(KeyPath, String, GltfLight)],
+    reach: f32,
+    lights: &mut Vec<Light>,
+) -> Result<(), Invalid> {
+    for (path, file, g) in placed {
+        if g.power.iter().all(|&p| p == 0.0) {
+            continue;
+        }
+        let (d, p) = (Some(g.direction.to_array()), Some(g.position.to_array()));
+        let mut l = LightDesc {
+            kind: g.kind,
+            position: None,
+            direction: None,
+            intensity: Some(g.power),
+            irradiance: None,
+            inner_angle: None,
+            outer_angle: None,
+            angle: None,
+        };
+        match g.kind {
+            LightKind::Point => l.position = p,
+            LightKind::Spot => {
+                (l.position, l.direction) = (p, d);
+                (l.inner_angle, l.outer_angle) = (Some(g.cone.0), Some(g.cone.1));
+            }
+            LightKind::Directional => {
+                (l.direction, l.irradiance, l.intensity) = (d, Some(g.power), None);
+            }
+        }
+        let light = punctual(&l, &root("lights").index(g.index), reach).map_err(|(at, m)| {
+            let at = at.to_string();
+            let key = at.strip_prefix("lights").unwrap_or(&at);
+            (
+                path.clone(),
+                format!("{file}: KHR_lights_punctual.lights{key}: {m}"),
+            )
+        })?;
+        lights.push(light);
+    }
+    Ok(())
+}
+
+/// One `[[lights]]` entry at `lp`.
+fn punctual(l: &LightDesc, lp: &KeyPath, reach: f32) -> Result<Light, Invalid> {
+    {
+        let lp = lp.clone();
         let present = [
             ("position", l.position.is_some()),
             ("direction", l.direction.is_some()),
@@ -144,13 +202,12 @@ pub(super) fn punctual_lights(
                 }
             }
         };
-        lights.push(Light {
+        Ok(Light {
             shape,
             radiance,
             two_sided: false,
-        });
+        })
     }
-    Ok(())
 }
 
 /// A sun of angular diameter `angle` degrees whose disk gives `irradiance` to a surface facing

@@ -11,6 +11,7 @@ mod build;
 mod check;
 mod format;
 mod frames;
+mod gltf;
 mod lights;
 mod locate;
 mod materials;
@@ -26,6 +27,7 @@ use glam::Vec3A;
 
 pub use format::*;
 pub use frames::{BadFrameRange, FrameRange};
+pub use gltf::{is_gltf, scene_text as gltf_scene_text, GltfOptions};
 pub use locate::{line_col, KeyPath, Seg};
 
 /// The frame a scene is built at when none is asked for: frames are numbered from 1, as farm
@@ -39,6 +41,7 @@ use crate::light::Lights;
 pub use crate::primitive::Primitive;
 use crate::shape::Hit;
 use crate::util::math::Ray;
+use assets::Assets as _;
 
 /// Which syntax a scene is written in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -213,6 +216,9 @@ pub struct Scene {
     plastics: Vec<crate::bsdf::Plastic>,
     /// The glTF materials that [`Bsdf::Pbr`] materials index.
     pbrs: Vec<crate::bsdf::PbrMaterial>,
+    /// What the scene's files ask for that is not rendered as they ask (a glTF file's alpha
+    /// blending, say), one line each, for the user to see.
+    pub warnings: Vec<String>,
 }
 
 impl Scene {
@@ -234,7 +240,69 @@ impl Scene {
 
     /// [`Scene::load`] at `frame` of the scene's `[animation]`.
     pub fn load_at(path: &Path, limits: &Limits, frame: u32) -> Result<Self, SceneError> {
+        Self::load_with(path, &GltfOptions::default(), limits, frame)
+    }
+
+    /// [`Scene::load_at`], rendering a glTF file as `gltf` says (its camera, its light).
+    pub fn load_with(
+        path: &Path,
+        gltf: &GltfOptions,
+        limits: &Limits,
+        frame: u32,
+    ) -> Result<Self, SceneError> {
+        let (text, format) = scene_source(path, gltf, limits)?;
+        let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
         let file = path.display().to_string();
+        let files = assets::DirAssets(dir);
+        let scene = Self::from_str_with(&text, format, &file, limits, frame, &files);
+        if !is_gltf(path) {
+            return scene;
+        }
+        // The text is generated, so its lines mean nothing to the user: the message alone
+        // names the place in the glTF file.
+        scene.map_err(|e| {
+            let name = path.file_name().map(|n| n.to_string_lossy().into_owned());
+            let message = name
+                .and_then(|n| {
+                    e.message
+                        .strip_prefix(&format!("{n}: "))
+                        .map(str::to_string)
+                })
+                .unwrap_or(e.message);
+            let message = match e.path.as_str() {
+                "" | "objects[0].file" | "objects[0]" => message,
+                p => format!("{p}: {message}"),
+            };
+            SceneError {
+                file: e.file,
+                line: 0,
+                column: 0,
+                path: String::new(),
+                message,
+            }
+        })
+    }
+}
+
+/// A scene file's text and syntax: the file's own, or for a glTF file the scene that renders
+/// it ([`gltf_scene_text`]), whose one object is the file.
+pub fn scene_source(
+    path: &Path,
+    gltf: &GltfOptions,
+    limits: &Limits,
+) -> Result<(String, Format), SceneError> {
+    let file = path.display().to_string();
+    if is_gltf(path) {
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let bytes = assets::DirAssets(path.parent().unwrap_or(Path::new("")).to_path_buf())
+            .read(&name, limits.max_asset_bytes)
+            .map_err(|m| at_start(&file, m))?;
+        return Ok((gltf_scene_text(&name, &bytes, gltf), Format::Toml));
+    }
+    {
         let meta = std::fs::metadata(path).map_err(|e| io_error(&file, e))?;
         if meta.len() > limits.max_bytes as u64 {
             return Err(at_start(
@@ -247,12 +315,11 @@ impl Scene {
             ));
         }
         let text = std::fs::read_to_string(path).map_err(|e| io_error(&file, e))?;
-        // The files a scene names are relative to the scene file.
-        let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
-        let files = assets::DirAssets(dir);
-        Self::from_str_with(&text, Format::from_path(path), &file, limits, frame, &files)
+        Ok((text, Format::from_path(path)))
     }
+}
 
+impl Scene {
     /// [`Scene::from_str`] at `frame` of the scene's `[animation]` (a scene without one is
     /// the same at every frame).
     pub fn from_str_at(

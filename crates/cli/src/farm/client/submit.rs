@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use tessera_proto::v1 as pb;
 use tessera_render::scene::assets::sha256_hex;
-use tessera_render::scene::{FrameRange, Limits, Scene, FIRST_FRAME};
+use tessera_render::scene::{scene_source, FrameRange, Limits, Scene, FIRST_FRAME};
 use tessera_render::DEFAULT_TILE;
 
 use super::{
@@ -18,8 +18,10 @@ use crate::farm::{runtime, CoordinatorUrl};
 /// Arguments of `tessera submit`.
 #[derive(Debug, clap::Args)]
 pub struct SubmitArgs {
-    /// Scene file (TOML, or JSON by its .json extension).
+    /// Scene file: TOML, JSON (by its .json extension), or glTF 2.0 (.gltf, .glb).
     scene: PathBuf,
+    #[command(flatten)]
+    gltf: crate::args::GltfArgs,
     #[command(flatten)]
     url: CoordinatorUrl,
     #[command(flatten)]
@@ -62,7 +64,10 @@ type SceneFile = (String, String, PathBuf);
 /// texture that is a directory: the cause, not "not among the files sent"). Only the limits a
 /// coordinator may raise (resolution, spp, sizes) are lifted for this check, so a scene within
 /// its coordinator's limits but above the defaults is still sent, for it to decide.
-fn scene_files(args: &SubmitArgs) -> Result<(Vec<SceneFile>, (u32, u32))> {
+fn scene_files(
+    args: &SubmitArgs,
+    gltf: &tessera_render::scene::GltfOptions,
+) -> Result<(Vec<SceneFile>, (u32, u32))> {
     let frame = args
         .frames
         .map_or(args.settings.frame.unwrap_or(FIRST_FRAME), |r| r.first);
@@ -74,7 +79,10 @@ fn scene_files(args: &SubmitArgs) -> Result<(Vec<SceneFile>, (u32, u32))> {
         max_asset_bytes: u64::MAX,
         ..Limits::default()
     };
-    let scene = Scene::load_at(&args.scene, &lifted, frame)?;
+    let scene = Scene::load_with(&args.scene, gltf, &lifted, frame)?;
+    for w in &scene.warnings {
+        errln!("warning: {w}");
+    }
     let dir = args.scene.parent().unwrap_or(Path::new("")).to_path_buf();
     let size = (scene.width, scene.height);
     let files = scene
@@ -157,13 +165,18 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
             check_output_dir(o)?;
         }
     }
-    let text = std::fs::read_to_string(&args.scene)
-        .with_context(|| format!("{}: cannot read the scene", args.scene.display()))?;
-    let json = args
-        .scene
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("json"));
-    let (files, (width, height)) = scene_files(&args)?;
+    let gltf = args.gltf.options(&args.scene)?;
+    // A glTF file is sent as the scene text it stands for, with the file among its assets.
+    let (text, format) = scene_source(
+        &args.scene,
+        &gltf,
+        &Limits {
+            max_asset_bytes: u64::MAX,
+            ..Limits::default()
+        },
+    )?;
+    let json = format == tessera_render::scene::Format::Json;
+    let (files, (width, height)) = scene_files(&args, &gltf)?;
     let url = args.url.coordinator.clone();
     runtime()?.block_on(async {
         let mut client = connect(&args.url).await?;

@@ -1,0 +1,392 @@
+//! glTF materials as the scene's: the metallic–roughness model is tessera's `pbr`
+//! ([`crate::bsdf::pbr`]) factor for factor and texture for texture, and a transmitting
+//! material with a volume (`KHR_materials_volume`) is the refracting `dielectric`, with
+//! Beer–Lambert absorption from its attenuation. What tessera does not model is named in one
+//! warning line per file and kind.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use glam::{Vec2, Vec3A};
+
+use super::super::assets::Assets;
+use super::super::build::{SceneFiles, TextureUse};
+use super::super::check::Invalid;
+use super::super::{KeyPath, Limits, Material};
+use super::{data, MaterialTables};
+use crate::bsdf::microfacet::TrowbridgeReitz;
+use crate::bsdf::pbr::{CoatTable, NormalMap, ScalarParam};
+use crate::bsdf::{Bsdf, PbrMaterial, RoughDielectric};
+use crate::texture::{ImageFormat, Wrap};
+
+/// An affine map of texture coordinates (`KHR_texture_transform`): u' = a·u + b·v + c,
+/// v' = d·u + e·v + f.
+pub(super) type UvMap = [f32; 6];
+
+/// The materials of one glTF file, converted as primitives first use them.
+pub(in crate::scene) struct GltfMaterials<'d> {
+    file: &'d str,
+    dir: &'d str,
+    buffers: &'d [Vec<u8>],
+    overrides: &'d BTreeMap<String, u32>,
+    /// By glTF material index (`None`: the default material), the scene's index.
+    built: BTreeMap<Option<usize>, u32>,
+    warnings: BTreeSet<String>,
+}
+
+impl<'d> GltfMaterials<'d> {
+    /// The materials of a document read from `file` in directory `dir`, with the scene's
+    /// replacements by material name.
+    pub(super) fn new(
+        file: &'d str,
+        dir: &'d str,
+        buffers: &'d [Vec<u8>],
+        overrides: &'d BTreeMap<String, u32>,
+    ) -> Self {
+        Self {
+            file,
+            dir,
+            buffers,
+            overrides,
+            built: BTreeMap::new(),
+            warnings: BTreeSet::new(),
+        }
+    }
+
+    /// What was read but is not rendered as the file asks.
+    pub(super) fn warnings(self) -> impl Iterator<Item = String> {
+        self.warnings.into_iter()
+    }
+
+    /// The texture coordinate set a material's textures read, and its transform: the base
+    /// colour's (else the first texture's), since a mesh carries one set. Textures that
+    /// disagree are warned about when the material is built.
+    pub(super) fn uv_map(&self, m: &gltf::Material) -> (u32, Option<UvMap>) {
+        match infos(m).into_iter().flatten().next() {
+            Some(info) => uv_of(&info),
+            None => (0, None),
+        }
+    }
+
+    /// The scene's index of `m`, built at its first use.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn index(
+        &mut self,
+        m: &gltf::Material,
+        tables: &mut MaterialTables,
+        files: &mut SceneFiles,
+        limits: &Limits,
+        assets: &dyn Assets,
+        path: &KeyPath,
+    ) -> Result<u32, Invalid> {
+        if let Some(&i) = self.built.get(&m.index()) {
+            return Ok(i);
+        }
+        if let Some(&i) = m.name().and_then(|n| self.overrides.get(n)) {
+            self.built.insert(m.index(), i);
+            return Ok(i);
+        }
+        let what = match m.index() {
+            Some(i) => format!("materials[{i}]"),
+            None => "the default material".into(),
+        };
+        let (material, absorption, pbr) = self
+            .convert(m, &what, files, limits, assets, path)
+            .map_err(|(p, e)| (p, format!("{what}: {e}")))?;
+        let mut material = material;
+        if let Some(p) = pbr {
+            tables.pbrs.push(p);
+            material.bsdf = Bsdf::Pbr(tables.pbrs.len() as u32 - 1);
+        }
+        let i = tables.materials.len() as u32;
+        tables.materials.push(material);
+        tables.absorption.push(absorption);
+        self.built.insert(m.index(), i);
+        Ok(i)
+    }
+
+    /// One material: the runtime material (its BSDF a placeholder where a pbr material is
+    /// returned beside it), its absorption inside, and the pbr material if it is one.
+    #[allow(clippy::too_many_arguments)]
+    fn convert(
+        &mut self,
+        m: &gltf::Material,
+        what: &str,
+        files: &mut SceneFiles,
+        limits: &Limits,
+        assets: &dyn Assets,
+        path: &KeyPath,
+    ) -> Result<(Material, Vec3A, Option<PbrMaterial>), Invalid> {
+        let fail = |msg: String| (path.clone(), msg);
+        let pbr = m.pbr_metallic_roughness();
+        let [r, g, b, _] = pbr.base_color_factor();
+        let base_color = Vec3A::new(unit(r), unit(g), unit(b));
+        let metallic = unit(pbr.metallic_factor());
+        let roughness = unit(pbr.roughness_factor());
+        let factors = [r, g, b, pbr.metallic_factor(), pbr.roughness_factor()];
+        if factors.iter().any(|x| !x.is_finite()) {
+            return Err(fail(format!("a factor is not finite: {factors:?}")));
+        }
+        let strength = m.emissive_strength().unwrap_or(1.0);
+        let emission = Vec3A::from_array(m.emissive_factor()) * strength;
+        if !emission.is_finite() || emission.min_element() < 0.0 {
+            return Err(fail(format!(
+                "emission {:?} × strength {strength} must be finite and not negative",
+                m.emissive_factor()
+            )));
+        }
+        if m.emissive_texture().is_some() {
+            self.warn("renders emission textures as their factor alone (one colour)");
+        }
+        match m.alpha_mode() {
+            gltf::material::AlphaMode::Opaque => {}
+            _ => self.warn("renders alpha MASK and BLEND materials opaque"),
+        }
+        let (set, map) = self.uv_map(m);
+        if infos(m)
+            .into_iter()
+            .flatten()
+            .any(|i| uv_of(&i) != (set, map))
+        {
+            self.warn("reads every texture of a material through its base colour's texture coordinates and transform");
+        }
+        let ior = match m.ior() {
+            Some(x) if x.is_finite() && x >= 1.0 => x,
+            None => 1.5,
+            Some(x) => {
+                self.warn(&format!(
+                    "reads an ior of {x} as 1.5 (it must be at least 1)"
+                ));
+                1.5
+            }
+        };
+        let transmission = m.transmission();
+        let factor = transmission
+            .as_ref()
+            .map_or(0.0, |t| unit(t.transmission_factor()));
+        let textured_tx = transmission
+            .as_ref()
+            .is_some_and(|t| t.transmission_texture().is_some());
+        // A material that transmits fully through a volume is glass: tessera's refracting
+        // dielectric, with the volume's attenuation as Beer–Lambert absorption.
+        if let Some(volume) = m.volume() {
+            if factor == 1.0 && !textured_tx && metallic == 0.0 && volume.thickness_factor() > 0.0 {
+                if pbr.base_color_texture().is_some() || base_color != Vec3A::ONE {
+                    self.warn(
+                        "does not tint glass by its base colour (only its volume's attenuation)",
+                    );
+                }
+                let distribution = TrowbridgeReitz::from_roughness(roughness);
+                let bsdf = if distribution.is_smooth() || ior == 1.0 {
+                    Bsdf::Dielectric(ior)
+                } else {
+                    Bsdf::RoughDielectric(RoughDielectric { distribution, ior })
+                };
+                let c = Vec3A::from_array(volume.attenuation_color());
+                let d = volume.attenuation_distance();
+                if !c.is_finite() || !(d > 0.0) {
+                    return Err(fail(format!(
+                        "KHR_materials_volume: attenuation colour {:?} and distance {d} must be finite and positive",
+                        c.to_array()
+                    )));
+                }
+                let sigma = if d.is_finite() {
+                    c.clamp(Vec3A::splat(1e-6), Vec3A::ONE)
+                        .to_array()
+                        .map(|x| -x.ln() / d)
+                } else {
+                    [0.0; 3]
+                };
+                let material = Material {
+                    bsdf,
+                    emission,
+                    two_sided: false,
+                    texture: None,
+                };
+                return Ok((material, Vec3A::from_array(sigma).max(Vec3A::ZERO), None));
+            }
+            self.warn("renders a volume that does not transmit fully, or is metallic or textured, as a thin wall");
+        }
+        let mut texture = |info: Option<gltf::texture::Info>, key: &str, usage: TextureUse| {
+            info.map(|i| {
+                self.texture(
+                    &i.texture(),
+                    &format!("{what}.{key}"),
+                    usage,
+                    files,
+                    limits,
+                    assets,
+                    path,
+                )
+            })
+            .transpose()
+        };
+        let base_texture = texture(
+            pbr.base_color_texture(),
+            "baseColorTexture",
+            TextureUse::Color,
+        )?;
+        let mr = texture(
+            pbr.metallic_roughness_texture(),
+            "metallicRoughnessTexture",
+            TextureUse::Data,
+        )?;
+        let tx = texture(
+            transmission.as_ref().and_then(|t| t.transmission_texture()),
+            "transmissionTexture",
+            TextureUse::Data,
+        )?;
+        let normal_map = match m.normal_texture() {
+            Some(n) => {
+                let scale = n.scale();
+                if !scale.is_finite() {
+                    return Err(fail(format!(
+                        "normalTexture.scale must be finite, got {scale}"
+                    )));
+                }
+                let t = self.texture(
+                    &n.texture(),
+                    &format!("{what}.normalTexture"),
+                    TextureUse::Data,
+                    files,
+                    limits,
+                    assets,
+                    path,
+                )?;
+                Some(NormalMap { texture: t, scale })
+            }
+            None => None,
+        };
+        // glTF packs roughness in green and metalness in blue.
+        let param = |factor: f32, t: Option<u32>, channel: u8| ScalarParam {
+            factor,
+            texture: t.map(|t| (t, channel)),
+        };
+        let material = PbrMaterial {
+            base_color,
+            base_texture,
+            metallic: param(metallic, mr, 2),
+            roughness: param(roughness, mr, 1),
+            transmission: param(factor, tx, 0),
+            normal_map,
+            coat: CoatTable::shared(ior),
+        };
+        let runtime = Material {
+            bsdf: Bsdf::Pbr(u32::MAX),
+            emission,
+            two_sided: m.double_sided(),
+            texture: None,
+        };
+        Ok((runtime, Vec3A::ZERO, Some(material)))
+    }
+
+    /// A glTF texture's image, read once per use (colour or data) however many materials
+    /// name it.
+    #[allow(clippy::too_many_arguments)]
+    fn texture(
+        &mut self,
+        t: &gltf::Texture,
+        what: &str,
+        usage: TextureUse,
+        files: &mut SceneFiles,
+        limits: &Limits,
+        assets: &dyn Assets,
+        path: &KeyPath,
+    ) -> Result<u32, Invalid> {
+        let fail = |msg: String| (path.clone(), format!("{what}: {msg}"));
+        let image = t.source();
+        let wrap = |m: gltf::texture::WrappingMode| match m {
+            gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
+            gltf::texture::WrappingMode::ClampToEdge => Wrap::Clamp,
+            gltf::texture::WrappingMode::MirroredRepeat => Wrap::Mirror,
+        };
+        let sampler = t.sampler();
+        // tessera's v runs the other way, which wrapping does not see.
+        let wrap = [wrap(sampler.wrap_s()), wrap(sampler.wrap_t())];
+        let embedded = |mime: &str, bytes: &[u8], files: &mut SceneFiles| {
+            let format = match mime {
+                "image/png" => ImageFormat::Png,
+                "image/jpeg" => ImageFormat::Jpeg,
+                other => {
+                    return Err(fail(format!(
+                        "images[{}] is {other}; tessera reads PNG and JPEG images",
+                        image.index()
+                    )))
+                }
+            };
+            let key = format!("{}#images[{}]", self.file, image.index());
+            files.embedded_texture(&key, path, format, bytes, usage, wrap)
+        };
+        match image.source() {
+            gltf::image::Source::View { view, mime_type } => {
+                let bytes = self
+                    .buffers
+                    .get(view.buffer().index())
+                    .and_then(|b| b.get(view.offset()..view.offset().checked_add(view.length())?))
+                    .ok_or_else(|| {
+                        fail(format!(
+                            "images[{}]: buffer view {} runs past the end of its buffer",
+                            image.index(),
+                            view.index()
+                        ))
+                    })?;
+                embedded(mime_type, bytes, files)
+            }
+            gltf::image::Source::Uri { uri, mime_type } => match data::data_uri(uri) {
+                Some(r) => {
+                    let (mime, bytes) = r.map_err(fail)?;
+                    embedded(mime_type.unwrap_or(&mime), &bytes, files)
+                }
+                None => {
+                    let name = data::uri_file(self.dir, uri).map_err(fail)?;
+                    files
+                        .texture_wrapped(&name, path, limits, assets, usage, wrap)
+                        .map_err(|(p, m)| (p, format!("{what}: {m}")))
+                }
+            },
+        }
+    }
+
+    fn warn(&mut self, what: &str) {
+        self.warnings.insert(what.to_string());
+    }
+}
+
+/// A material's texture references, base colour first.
+fn infos<'a>(m: &gltf::Material<'a>) -> [Option<gltf::texture::Info<'a>>; 3] {
+    let pbr = m.pbr_metallic_roughness();
+    [
+        pbr.base_color_texture(),
+        pbr.metallic_roughness_texture(),
+        m.transmission().and_then(|t| t.transmission_texture()),
+    ]
+}
+
+/// The coordinate set and transform a texture reference reads through.
+fn uv_of(info: &gltf::texture::Info) -> (u32, Option<UvMap>) {
+    match info.texture_transform() {
+        None => (info.tex_coord(), None),
+        Some(t) => {
+            let [ox, oy] = t.offset();
+            let [sx, sy] = t.scale();
+            // In f64, rounded once: every worker must build the same coordinates.
+            let (s, c) = f64::from(t.rotation()).sin_cos();
+            let (s, c) = (s as f32, c as f32);
+            // The ratified extension: T · R · S with R = [[c, s], [−s, c]].
+            let map = [c * sx, s * sy, ox, -s * sx, c * sy, oy];
+            (t.tex_coord().unwrap_or(info.tex_coord()), Some(map))
+        }
+    }
+}
+
+/// Applies a [`UvMap`].
+pub(super) fn map_uv(m: &UvMap, uv: Vec2) -> Vec2 {
+    Vec2::new(
+        m[0] * uv.x + m[1] * uv.y + m[2],
+        m[3] * uv.x + m[4] * uv.y + m[5],
+    )
+}
+
+/// A factor clamped into [0, 1], as glTF's schema bounds it (NaN is caught by the caller).
+fn unit(x: f32) -> f32 {
+    x.clamp(0.0, 1.0)
+}

@@ -1,0 +1,536 @@
+//! glTF 2.0 files (`.gltf` with its buffers and images, or `.glb`) as scene objects: every
+//! mesh its node tree places, its metallic–roughness materials, its punctual lights and its
+//! cameras, in the scene's world.
+//!
+//! The JSON is parsed and its indices validated by the `gltf` crate; the bytes behind it are
+//! read here ([`data`]), because the file is untrusted and every offset in it must be checked
+//! against the bytes held. A glTF file is a scene object, so the scene's own machinery does the
+//! rest: its files are read through [`Assets`] (so a farm job reads the uploaded copies and its
+//! identity covers them), its textures decode once however many materials share them, and a
+//! mesh that several nodes use is one BVH placed several times.
+
+mod data;
+mod entry;
+mod material;
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use glam::{Affine3A, Mat4, Vec2, Vec3A};
+use gltf::json::validation::Validate as _;
+use gltf::mesh::Mode;
+
+use super::assets::Assets;
+use super::build::SceneFiles;
+use super::check::{degenerate, Invalid};
+use super::{KeyPath, Limits, Material};
+use crate::bsdf::PbrMaterial;
+use crate::interaction::Transformed;
+use crate::mesh::{MeshInstance, TriMesh};
+use crate::shape::Shape;
+
+pub use entry::{is_gltf, scene_text, GltfOptions};
+pub(super) use material::GltfMaterials;
+
+/// The extensions whose data tessera reads, which a file may therefore require.
+const READ: &[&str] = &[
+    "KHR_lights_punctual",
+    "KHR_materials_emissive_strength",
+    "KHR_materials_ior",
+    "KHR_materials_transmission",
+    "KHR_materials_volume",
+    "KHR_mesh_quantization",
+    "KHR_texture_transform",
+];
+
+/// Most nodes a file may hold: the node tree is walked once, so this bounds the walk.
+const MAX_NODES: usize = 1 << 20;
+
+/// A punctual light from `KHR_lights_punctual`, placed in the world.
+#[derive(Clone, Debug)]
+pub(super) struct GltfLight {
+    /// Which light of the file, for errors.
+    pub(super) index: usize,
+    /// Point, spot or directional.
+    pub(super) kind: super::LightKind,
+    /// Colour × intensity.
+    pub(super) power: [f32; 3],
+    /// Where it is.
+    pub(super) position: Vec3A,
+    /// Where it shines.
+    pub(super) direction: Vec3A,
+    /// Spot cone half-angles, degrees.
+    pub(super) cone: (f32, f32),
+}
+
+/// A camera the file places, in the world.
+#[derive(Clone, Debug)]
+pub(crate) struct GltfCamera {
+    /// Its index in the file's `cameras`.
+    pub(crate) index: usize,
+    /// Its name in the file, if any.
+    pub(crate) name: Option<String>,
+    /// Where it is.
+    pub(crate) eye: Vec3A,
+    /// Where it looks (its −z).
+    pub(crate) forward: Vec3A,
+    /// Its +y.
+    pub(crate) up: Vec3A,
+    /// Vertical field of view, radians; `None` for an orthographic camera.
+    pub(crate) yfov: Option<f32>,
+}
+
+/// What one glTF file adds to a scene.
+pub(super) struct Imported {
+    /// Mesh instances, each with its material's index in the scene.
+    pub(super) parts: Vec<(Shape, u32)>,
+    /// Punctual lights.
+    pub(super) lights: Vec<GltfLight>,
+    /// Cameras, in the order of the node tree.
+    pub(super) cameras: Vec<GltfCamera>,
+    /// Things read but not rendered as the file asks, one line each.
+    pub(super) warnings: Vec<String>,
+}
+
+/// Where the imported materials go: the scene's own tables, which they join.
+pub(super) struct MaterialTables<'a> {
+    /// The scene's materials.
+    pub(super) materials: &'a mut Vec<Material>,
+    /// Their absorption.
+    pub(super) absorption: &'a mut Vec<Vec3A>,
+    /// The glTF materials [`crate::bsdf::Bsdf::Pbr`] indexes.
+    pub(super) pbrs: &'a mut Vec<PbrMaterial>,
+}
+
+/// The directory part of a scene file name (`""` for none), which a glTF file's URIs are
+/// relative to.
+fn dir_of(name: &str) -> &str {
+    name.rsplit_once('/').map_or("", |(d, _)| d)
+}
+
+/// A parsed file: its document, its GLB's BIN chunk, and its warnings.
+pub(crate) type Parsed<'a> = (gltf::Document, Option<&'a [u8]>, Vec<String>);
+
+/// A primitive's mesh and whether it shades smooth; `None` for one without triangles.
+type Built = Option<(Arc<TriMesh>, bool)>;
+
+/// Parses `bytes` (a `.gltf` or `.glb`) and checks it: the JSON and its indices, and the
+/// extensions it requires.
+pub(crate) fn parse(bytes: &[u8]) -> Result<Parsed<'_>, String> {
+    let (json, bin) = if bytes.starts_with(b"glTF") {
+        data::split_glb(bytes)?
+    } else {
+        (bytes, None)
+    };
+    let root: gltf::json::Root = serde_json::from_slice(json).map_err(|e| {
+        // glTF 1.0 differs in shape, so its files fail to parse: say why rather than where.
+        let version = serde_json::from_slice::<serde_json::Value>(json)
+            .ok()
+            .and_then(|v| v["asset"]["version"].as_str().map(str::to_string));
+        match version {
+            Some(v) if !v.starts_with("2.") => {
+                format!("glTF {v}; tessera reads glTF 2.0 (convert it, e.g. with gltf-pipeline)")
+            }
+            _ => format!("not valid glTF 2.0 JSON: {e}"),
+        }
+    })?;
+    if !root.asset.version.starts_with("2.") {
+        return Err(format!(
+            "glTF {}; tessera reads glTF 2.0",
+            root.asset.version
+        ));
+    }
+    let mut warnings = Vec::new();
+    for ext in &root.extensions_required {
+        if READ.contains(&ext.as_str()) {
+            continue;
+        }
+        let hint = match ext.as_str() {
+            "KHR_draco_mesh_compression" | "EXT_meshopt_compression" => {
+                " (its meshes are compressed: decompress it first, e.g. `gltf-transform copy in.glb out.glb`)"
+            }
+            _ => "",
+        };
+        return Err(format!(
+            "requires the extension {ext}, which tessera does not read{hint}"
+        ));
+    }
+    for ext in &root.extensions_used {
+        if !READ.contains(&ext.as_str()) {
+            warnings.push(format!("ignores the optional extension {ext}"));
+        }
+    }
+    if root.nodes.len() > MAX_NODES {
+        return Err(format!(
+            "{} nodes, above the limit of {MAX_NODES}",
+            root.nodes.len()
+        ));
+    }
+    let mut first = None;
+    root.validate(&root, gltf::json::Path::new, &mut |path, error| {
+        let path = path().to_string();
+        // Required extensions were judged above, against what tessera reads.
+        if first.is_none() && !path.starts_with("extensionsRequired") {
+            first = Some(format!("{path}: {error}"));
+        }
+    });
+    if let Some(e) = first {
+        return Err(e);
+    }
+    Ok((
+        gltf::Document::from_json_without_validation(root),
+        bin,
+        warnings,
+    ))
+}
+
+/// Reads glTF file `name` (through `files`, so its hash joins the scene's) and everything it
+/// names, placed by `place`. `path` is where the scene names the file, for errors.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn import(
+    name: &str,
+    place: Affine3A,
+    overrides: &BTreeMap<String, u32>,
+    tables: &mut MaterialTables,
+    files: &mut SceneFiles,
+    limits: &Limits,
+    assets: &dyn Assets,
+    path: &KeyPath,
+) -> Result<Imported, Invalid> {
+    let fail = |m: String| (path.clone(), format!("{name}: {m}"));
+    let bytes = files.read_file(name, path, limits, assets)?;
+    let (doc, bin, mut warnings) = parse(&bytes).map_err(fail)?;
+    let bin = bin.map(<[u8]>::to_vec);
+    drop(bytes);
+    let dir = dir_of(name);
+    let buffers = buffers(&doc, bin, dir, files, limits, assets, path).map_err(fail)?;
+    for o in overrides.keys() {
+        if !doc.materials().any(|m| m.name() == Some(o.as_str())) {
+            let known: Vec<&str> = doc.materials().filter_map(|m| m.name()).collect();
+            return Err((
+                path.clone(),
+                format!(
+                    "{name}: materials_map names `{o}`, which the file has no material of \
+                     (it has: {})",
+                    if known.is_empty() {
+                        "none".into()
+                    } else {
+                        known.join(", ")
+                    }
+                ),
+            ));
+        }
+    }
+    let mut mats = GltfMaterials::new(name, dir, &buffers, overrides);
+    let mut meshes: BTreeMap<(usize, usize), Built> = BTreeMap::new();
+    let mut out = Imported {
+        parts: Vec::new(),
+        lights: Vec::new(),
+        cameras: Vec::new(),
+        warnings: Vec::new(),
+    };
+    let (mut skipped_modes, mut hidden) = (0usize, 0usize);
+    for (node, world) in walk(&doc, place).map_err(fail)? {
+        if let Some(camera) = node.camera() {
+            out.cameras.push(camera_at(&camera, &world));
+        }
+        if let Some(light) = node.light() {
+            out.lights.push(light_at(&light, &world));
+        }
+        let Some(mesh) = node.mesh() else { continue };
+        if degenerate(&world).is_some() {
+            hidden += 1;
+            continue;
+        }
+        let xf = Transformed::new(world);
+        for prim in mesh.primitives() {
+            if !matches!(
+                prim.mode(),
+                Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+            ) {
+                skipped_modes += 1;
+                continue;
+            }
+            let material = mats
+                .index(&prim.material(), tables, files, limits, assets, path)
+                .map_err(|(p, m)| (p, format!("{name}: {m}")))?;
+            let uv_map = mats.uv_map(&prim.material());
+            let key = (mesh.index(), prim.index());
+            if let std::collections::btree_map::Entry::Vacant(e) = meshes.entry(key) {
+                let what = format!("meshes[{}].primitives[{}]", mesh.index(), prim.index());
+                let built = triangles(&prim, &buffers, uv_map, &what, files, limits, path)
+                    .map_err(|(p, m)| (p, format!("{name}: {m}")))?;
+                e.insert(built);
+            }
+            if let Some(Some((mesh, smooth))) = meshes.get(&key) {
+                let instance = MeshInstance {
+                    mesh: Arc::clone(mesh),
+                    xf: xf.clone(),
+                    smooth: *smooth,
+                };
+                out.parts.push((Shape::Mesh(instance), material));
+            }
+        }
+    }
+    if skipped_modes > 0 {
+        warnings.push(format!(
+            "skips {skipped_modes} primitives of points or lines (only triangles are rendered)"
+        ));
+    }
+    if hidden > 0 {
+        warnings.push(format!(
+            "skips {hidden} mesh nodes whose transform flattens them (a scale of 0 hides them)"
+        ));
+    }
+    warnings.extend(mats.warnings());
+    out.warnings = warnings
+        .into_iter()
+        .map(|w| format!("{name}: {w}"))
+        .collect();
+    Ok(out)
+}
+
+/// Every buffer's bytes: the GLB's BIN chunk, a data URI, or a file beside the glTF file.
+fn buffers(
+    doc: &gltf::Document,
+    mut bin: Option<Vec<u8>>,
+    dir: &str,
+    files: &mut SceneFiles,
+    limits: &Limits,
+    assets: &dyn Assets,
+    path: &KeyPath,
+) -> Result<Vec<Vec<u8>>, String> {
+    doc.buffers()
+        .map(|b| {
+            let what = format!("buffers[{}]", b.index());
+            let bytes = match b.source() {
+                gltf::buffer::Source::Bin => bin
+                    .take()
+                    .ok_or_else(|| format!("{what}: the file has no BIN chunk for it"))?,
+                gltf::buffer::Source::Uri(uri) => match data::data_uri(uri) {
+                    Some(r) => r.map_err(|m| format!("{what}: {m}"))?.1,
+                    None => {
+                        let file = data::uri_file(dir, uri).map_err(|m| format!("{what}: {m}"))?;
+                        files
+                            .read_file(&file, path, limits, assets)
+                            .map_err(|(_, m)| format!("{what}: {m}"))?
+                    }
+                },
+            };
+            if bytes.len() < b.length() {
+                return Err(format!(
+                    "{what}: declares {} bytes, but holds {}",
+                    b.length(),
+                    bytes.len()
+                ));
+            }
+            Ok(bytes)
+        })
+        .collect()
+}
+
+/// The nodes of the scene the file shows (its `scene`, else its first, else every root node),
+/// each with its world transform. A node reached twice (a cycle, or a node with two parents)
+/// is an error: the graph must be a forest, and the walk then visits each node once.
+fn walk(doc: &gltf::Document, place: Affine3A) -> Result<Vec<(gltf::Node<'_>, Affine3A)>, String> {
+    let roots: Vec<gltf::Node> = match doc.default_scene().or_else(|| doc.scenes().next()) {
+        Some(s) => s.nodes().collect(),
+        None => {
+            let mut child = vec![false; doc.nodes().len()];
+            for n in doc.nodes() {
+                for c in n.children() {
+                    child[c.index()] = true;
+                }
+            }
+            doc.nodes().filter(|n| !child[n.index()]).collect()
+        }
+    };
+    let mut seen = vec![false; doc.nodes().len()];
+    let mut out = Vec::new();
+    let mut stack: Vec<(gltf::Node, Affine3A)> =
+        roots.into_iter().rev().map(|n| (n, place)).collect();
+    while let Some((node, parent)) = stack.pop() {
+        if std::mem::replace(&mut seen[node.index()], true) {
+            return Err(format!(
+                "nodes[{}] is reached twice: the node graph has a cycle or a node with two \
+                 parents",
+                node.index()
+            ));
+        }
+        let m = Mat4::from_cols_array_2d(&node.transform().matrix());
+        if !m.is_finite() || m.row(3) != glam::Vec4::W {
+            return Err(format!(
+                "nodes[{}]: its transform is not a finite affine map",
+                node.index()
+            ));
+        }
+        let world = parent * Affine3A::from_mat4(m);
+        let children: Vec<gltf::Node> = node.children().collect();
+        for c in children.into_iter().rev() {
+            stack.push((c, world));
+        }
+        out.push((node, world));
+    }
+    Ok(out)
+}
+
+/// A camera node, in the world.
+fn camera_at(camera: &gltf::Camera, world: &Affine3A) -> GltfCamera {
+    GltfCamera {
+        index: camera.index(),
+        name: camera.name().map(str::to_string),
+        eye: world.transform_point3a(Vec3A::ZERO),
+        forward: world.transform_vector3a(Vec3A::NEG_Z),
+        up: world.transform_vector3a(Vec3A::Y),
+        yfov: match camera.projection() {
+            gltf::camera::Projection::Perspective(p) => Some(p.yfov()),
+            gltf::camera::Projection::Orthographic(_) => None,
+        },
+    }
+}
+
+/// A light node, in the world.
+fn light_at(light: &gltf::khr_lights_punctual::Light, world: &Affine3A) -> GltfLight {
+    use gltf::khr_lights_punctual::Kind;
+    let (kind, cone) = match light.kind() {
+        Kind::Point => (super::LightKind::Point, (0.0, 0.0)),
+        Kind::Directional => (super::LightKind::Directional, (0.0, 0.0)),
+        Kind::Spot {
+            inner_cone_angle,
+            outer_cone_angle,
+        } => (
+            super::LightKind::Spot,
+            (inner_cone_angle.to_degrees(), outer_cone_angle.to_degrees()),
+        ),
+    };
+    let c = light.color();
+    let i = light.intensity();
+    GltfLight {
+        index: light.index(),
+        kind,
+        power: [c[0] * i, c[1] * i, c[2] * i],
+        position: world.transform_point3a(Vec3A::ZERO),
+        direction: world.transform_vector3a(Vec3A::NEG_Z),
+        cone,
+    }
+}
+
+/// A triangle primitive's mesh, de-indexed, with whether it has vertex normals; `None` for a
+/// primitive with no triangles.
+#[allow(clippy::too_many_arguments)]
+fn triangles(
+    prim: &gltf::Primitive,
+    buffers: &[Vec<u8>],
+    (uv_set, uv_map): (u32, Option<material::UvMap>),
+    what: &str,
+    files: &mut SceneFiles,
+    limits: &Limits,
+    path: &KeyPath,
+) -> Result<Built, Invalid> {
+    let fail = |m: String| (path.clone(), m);
+    let positions = prim
+        .get(&gltf::Semantic::Positions)
+        .ok_or_else(|| fail(format!("{what}: has no POSITION")))?;
+    let positions =
+        data::read_floats::<3>(buffers, &positions, &format!("{what}.POSITION")).map_err(fail)?;
+    if let Some(i) = positions
+        .iter()
+        .position(|p| !p.iter().all(|x| x.is_finite()))
+    {
+        return Err(fail(format!(
+            "{what}.POSITION: vertex {i} is not finite: {:?}",
+            positions[i]
+        )));
+    }
+    let n = positions.len();
+    let indices = match prim.indices() {
+        Some(a) => data::read_indices(buffers, &a, n, &format!("{what}.indices")).map_err(fail)?,
+        None => (0..n as u32).collect(),
+    };
+    let corners: Vec<[u32; 3]> = match prim.mode() {
+        Mode::Triangles => indices
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect(),
+        // Every other triangle of a strip is wound the other way, so its corners swap to keep
+        // the front side consistent.
+        Mode::TriangleStrip => indices
+            .windows(3)
+            .enumerate()
+            .map(|(i, w)| {
+                if i % 2 == 0 {
+                    [w[0], w[1], w[2]]
+                } else {
+                    [w[1], w[0], w[2]]
+                }
+            })
+            .collect(),
+        Mode::TriangleFan => match indices.split_first() {
+            Some((&hub, rest)) => rest.windows(2).map(|w| [hub, w[0], w[1]]).collect(),
+            None => Vec::new(),
+        },
+        _ => Vec::new(),
+    };
+    if corners.is_empty() {
+        return Ok(None);
+    }
+    files.take_triangles(corners.len(), limits, path)?;
+    let attr = |semantic: gltf::Semantic| prim.get(&semantic);
+    let normals = match attr(gltf::Semantic::Normals) {
+        Some(a) => {
+            let v = data::read_floats::<3>(buffers, &a, &format!("{what}.NORMAL")).map_err(fail)?;
+            if v.len() != n {
+                return Err(fail(format!(
+                    "{what}.NORMAL: {} normals for {n} positions",
+                    v.len()
+                )));
+            }
+            v
+        }
+        None => Vec::new(),
+    };
+    let uvs = match attr(gltf::Semantic::TexCoords(uv_set)) {
+        Some(a) => {
+            let label = format!("{what}.TEXCOORD_{uv_set}");
+            let v = data::read_floats::<2>(buffers, &a, &label).map_err(fail)?;
+            if v.len() != n {
+                return Err(fail(format!("{label}: {} for {n} positions", v.len())));
+            }
+            v
+        }
+        None => Vec::new(),
+    };
+    let p = |i: u32| Vec3A::from_array(positions[i as usize]);
+    let tris = corners.iter().map(|c| c.map(p)).collect();
+    let normals = if normals.is_empty() {
+        Vec::new()
+    } else {
+        let nv = |i: u32| {
+            let v = Vec3A::from_array(normals[i as usize]);
+            if v.is_finite() {
+                v
+            } else {
+                Vec3A::ZERO
+            }
+        };
+        corners.iter().map(|c| c.map(nv)).collect()
+    };
+    let uvs = if uvs.is_empty() {
+        Vec::new()
+    } else {
+        let uv = |i: u32| {
+            let v = Vec2::from_array(uvs[i as usize]);
+            let v = uv_map.as_ref().map_or(v, |m| material::map_uv(m, v));
+            // glTF's v runs down the image from its top row; tessera's, as in OBJ, up.
+            let v = Vec2::new(v.x, 1.0 - v.y);
+            if v.is_finite() {
+                v
+            } else {
+                Vec2::ZERO
+            }
+        };
+        corners.iter().map(|c| c.map(uv)).collect()
+    };
+    let smooth = !normals.is_empty();
+    Ok(Some((Arc::new(TriMesh::new(tris, normals, uvs)), smooth)))
+}

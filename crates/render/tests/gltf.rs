@@ -1,0 +1,650 @@
+//! glTF 2.0 files as scenes and as scene objects: what is read (node trees, instancing,
+//! quantized and sparse accessors, strips and fans, texture transforms and samplers, cameras,
+//! punctual lights, materials) and what is refused, each with one line naming the place.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use base64::Engine as _;
+use glam::Vec3A;
+use serde_json::{json, Value};
+use tessera_render::light::LightShape;
+use tessera_render::scene::assets::MemAssets;
+use tessera_render::scene::{gltf_scene_text, Format, GltfOptions, Limits, Scene};
+use tessera_render::shape::Shape;
+
+const SAMPLE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/gltf/sample.glb");
+
+/// A glTF document around one buffer, given as a data URI.
+fn doc(buffer: &[u8], mut body: Value) -> Value {
+    let uri = format!(
+        "data:application/octet-stream;base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(buffer)
+    );
+    body["asset"] = json!({"version": "2.0"});
+    body["buffers"] = json!([{"byteLength": buffer.len(), "uri": uri}]);
+    body
+}
+
+fn f32s(v: &[f32]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+/// One triangle mesh of `positions` (and `indices`, u16, after them in the buffer), one node.
+fn triangle_doc(positions: &[f32], indices: &[u16], extra: Value) -> Value {
+    let mut buf = f32s(positions);
+    let at = buf.len();
+    buf.extend(indices.iter().flat_map(|i| i.to_le_bytes()));
+    let n = positions.len() / 3;
+    let mut min = [f32::MAX; 3];
+    let mut max = [f32::MIN; 3];
+    for p in positions.chunks(3) {
+        for k in 0..3 {
+            min[k] = min[k].min(p[k]);
+            max[k] = max[k].max(p[k]);
+        }
+    }
+    let mut body = json!({
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": at},
+            {"buffer": 0, "byteOffset": at, "byteLength": indices.len() * 2},
+        ],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": n, "type": "VEC3", "min": min, "max": max},
+            {"bufferView": 1, "componentType": 5123, "count": indices.len(), "type": "SCALAR"},
+        ],
+    });
+    if let (Value::Object(b), Value::Object(e)) = (&mut body, extra) {
+        for (k, v) in e {
+            b.insert(k, v);
+        }
+    }
+    doc(&buf, body)
+}
+
+/// Loads `bytes` as the whole scene of a file named `name`, as `tessera render` does; the
+/// error is what it prints, without the directory.
+fn load_file(
+    name: &str,
+    bytes: &[u8],
+    opts: &GltfOptions,
+    limits: &Limits,
+) -> Result<Scene, String> {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join(name);
+    std::fs::write(&path, bytes).expect("write");
+    Scene::load_with(&path, opts, limits, 1).map_err(|e| {
+        let e = e.to_string();
+        e.strip_prefix(&format!("{}/", dir.path().display()))
+            .unwrap_or(&e)
+            .to_string()
+    })
+}
+
+/// Loads `gltf` as the whole scene of a file named `model.gltf`.
+fn load(gltf: &Value, opts: &GltfOptions) -> Result<Scene, String> {
+    let bytes = serde_json::to_vec(gltf).expect("json");
+    load_file("model.gltf", &bytes, opts, &Limits::default())
+}
+
+fn near(a: Vec3A, b: Vec3A) -> bool {
+    (a - b).length() < 1e-4 * (1.0 + b.length())
+}
+
+fn mesh_bounds(scene: &Scene) -> Vec<(Vec3A, Vec3A)> {
+    scene
+        .prims
+        .iter()
+        .map(|p| {
+            let b = p.shape.bounds();
+            (b.min, b.max)
+        })
+        .collect()
+}
+
+const QUAD: [f32; 12] = [0., 0., 0., 1., 0., 0., 1., 1., 0., 0., 1., 0.];
+
+#[test]
+fn the_sample_scene_reads_its_camera_lights_materials_and_instances() {
+    let scene = Scene::load(Path::new(SAMPLE), &Limits::default()).expect("sample.glb loads");
+    assert!(scene.warnings.is_empty(), "{:?}", scene.warnings);
+    // 16:9 from the camera's aspect ratio.
+    assert_eq!((scene.width, scene.height), (1280, 720));
+    // Floor, two placements of one gold ball, the glass ball and the box.
+    assert_eq!(scene.prims.len(), 5);
+    let meshes: Vec<_> = scene
+        .prims
+        .iter()
+        .filter_map(|p| match &p.shape {
+            Shape::Mesh(m) => Some(m.mesh.clone()),
+            _ => None,
+        })
+        .collect();
+    assert!(
+        std::sync::Arc::ptr_eq(&meshes[1], &meshes[2]),
+        "one BVH, placed twice"
+    );
+    assert!(!std::sync::Arc::ptr_eq(&meshes[1], &meshes[3]));
+    let kinds: Vec<&str> = scene
+        .lights
+        .lights
+        .iter()
+        .map(|l| match l.shape {
+            LightShape::Point { .. } => "point",
+            LightShape::Directional { .. } => "directional",
+            _ => "other",
+        })
+        .collect();
+    assert_eq!(kinds, ["directional", "point"]);
+    // The lamp node sits at (-2, 2.5, 2) and shines 12 × its colour.
+    let point = &scene.lights.lights[1];
+    assert!(
+        matches!(point.shape, LightShape::Point { position } if position == Vec3A::new(-2.0, 2.5, 2.0))
+    );
+    assert!(
+        near(point.radiance, Vec3A::new(12.0, 10.8, 9.6)),
+        "{}",
+        point.radiance
+    );
+    // The camera's node: at (0, 2.2, 6.2), looking down 18°.
+    let ray = scene.camera.ray(640.0, 360.0);
+    assert!(
+        (ray.o - Vec3A::new(0.0, 2.2, 6.2)).length() < 1e-5,
+        "{:?}",
+        ray.o
+    );
+    let down = (-ray.d.normalize().y).asin().to_degrees();
+    assert!((down - 18.0).abs() < 0.1, "{down}");
+    // The glass is refracting glass with its volume's attenuation.
+    assert!(scene.has_absorption());
+    // The file is one asset, and the scene's identity covers it.
+    assert_eq!(scene.files.len(), 1);
+    assert_eq!(scene.files[0].0, "sample.glb");
+}
+
+#[test]
+fn the_farm_builds_the_same_scene_from_the_text_and_the_uploaded_file() {
+    let local = Scene::load(Path::new(SAMPLE), &Limits::default()).expect("loads");
+    let bytes = std::fs::read(SAMPLE).expect("read");
+    let text = gltf_scene_text("sample.glb", &bytes, &GltfOptions::default());
+    let files = MemAssets(BTreeMap::from([("sample.glb".to_string(), bytes)]));
+    let farm = Scene::from_str_with(&text, Format::Toml, "job", &Limits::default(), 1, &files)
+        .expect("loads from memory");
+    assert_eq!(farm.hash, local.hash);
+    assert_eq!(mesh_bounds(&farm), mesh_bounds(&local));
+}
+
+#[test]
+fn node_trees_place_meshes_and_a_shared_mesh_is_one_bvh() {
+    let extra = json!({
+        "scenes": [{"nodes": [0]}],
+        "nodes": [
+            {"children": [1, 2], "translation": [10, 0, 0], "scale": [2, 2, 2]},
+            {"mesh": 0, "translation": [0, 0, 1]},
+            // A column-major matrix: a quarter turn about z, then up 5.
+            {"mesh": 0, "matrix": [0, 1, 0, 0, -1, 0, 0, 0, 0, 0, 1, 0, 0, 5, 0, 1]},
+        ],
+    });
+    let scene = load(
+        &triangle_doc(&QUAD, &[0, 1, 2, 0, 2, 3], extra),
+        &GltfOptions::default(),
+    )
+    .expect("ok");
+    let b = mesh_bounds(&scene);
+    assert_eq!(b.len(), 2);
+    assert!(
+        near(b[0].0, Vec3A::new(10.0, 0.0, 2.0)) && near(b[0].1, Vec3A::new(12.0, 2.0, 2.0)),
+        "{b:?}"
+    );
+    let (lo, hi) = b[1];
+    assert!(
+        near(lo, Vec3A::new(8.0, 10.0, 0.0)) && near(hi, Vec3A::new(10.0, 12.0, 0.0)),
+        "{lo} {hi}"
+    );
+    match (&scene.prims[0].shape, &scene.prims[1].shape) {
+        (Shape::Mesh(a), Shape::Mesh(b)) => assert!(std::sync::Arc::ptr_eq(&a.mesh, &b.mesh)),
+        _ => panic!("meshes"),
+    }
+}
+
+#[test]
+fn a_cycle_or_a_node_with_two_parents_is_refused_not_walked_forever() {
+    for nodes in [
+        json!([{"children": [1]}, {"children": [0], "mesh": 0}]),
+        json!([{"children": [2]}, {"children": [2]}, {"mesh": 0}]),
+    ] {
+        let extra = json!({"scenes": [{"nodes": [0, 1]}], "nodes": nodes});
+        let e = load(
+            &triangle_doc(&QUAD, &[0, 1, 2], extra),
+            &GltfOptions::default(),
+        )
+        .expect_err("refused");
+        assert!(e.contains("is reached twice"), "{e}");
+    }
+}
+
+#[test]
+fn quantized_and_sparse_positions_read_as_the_floats_they_stand_for() {
+    // KHR_mesh_quantization: i16 positions, normalized, scaled back by the node.
+    let q: [i16; 12] = [0, 0, 0, 32767, 0, 0, 32767, 32767, 0, 0, 32767, 0];
+    let mut buf: Vec<u8> = q.iter().flat_map(|x| x.to_le_bytes()).collect();
+    // Sparse: vertex 2 replaced by (2, 2, 0) in f32... of an i16 accessor, so as i16 codes.
+    let sparse_at = buf.len();
+    buf.extend(2u16.to_le_bytes());
+    buf.extend([0u8; 2]);
+    let values_at = buf.len();
+    for c in [16384i16, 16384, 0] {
+        buf.extend(c.to_le_bytes());
+    }
+    let gltf = doc(
+        &buf,
+        json!({
+            "extensionsUsed": ["KHR_mesh_quantization"],
+            "extensionsRequired": ["KHR_mesh_quantization"],
+            "scenes": [{"nodes": [0]}],
+            "nodes": [{"mesh": 0, "scale": [4, 4, 4]}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+            "bufferViews": [
+                {"buffer": 0, "byteOffset": 0, "byteLength": 24},
+                {"buffer": 0, "byteOffset": sparse_at, "byteLength": 2},
+                {"buffer": 0, "byteOffset": values_at, "byteLength": 6},
+            ],
+            "accessors": [{
+                "bufferView": 0, "componentType": 5122, "normalized": true, "count": 3,
+                "type": "VEC3", "min": [0, 0, 0], "max": [32767, 32767, 0],
+                "sparse": {"count": 1, "indices": {"bufferView": 1, "componentType": 5123},
+                           "values": {"bufferView": 2}},
+            }],
+        }),
+    );
+    let scene = load(&gltf, &GltfOptions::default()).expect("ok");
+    let (lo, hi) = mesh_bounds(&scene)[0];
+    assert!(near(lo, Vec3A::ZERO), "{lo}");
+    // (1, 0, 0) × 4 and the sparse (0.5, 0.5, 0) × 4.
+    assert!(near(hi, Vec3A::new(4.0, 2.0, 0.0)), "{hi}");
+}
+
+#[test]
+fn strips_and_fans_become_triangles_facing_one_way() {
+    // The quad's corners as a strip (0 1 3 2) and as a fan (0 1 2 3): two triangles each,
+    // both facing +z like the list's one.
+    for (mode, indices, count) in [
+        (5, [0, 1, 3, 2], 2),
+        (6, [0, 1, 2, 3], 2),
+        (4, [0, 1, 2, 3], 1),
+    ] {
+        let mut gltf = triangle_doc(&QUAD, &indices, json!({}));
+        gltf["meshes"][0]["primitives"][0]["mode"] = json!(mode);
+        let scene = load(&gltf, &GltfOptions::default()).expect("ok");
+        let Shape::Mesh(m) = &scene.prims[0].shape else {
+            panic!("a mesh")
+        };
+        assert_eq!(m.mesh.len(), count, "mode {mode}");
+        for (_, n, area) in m.world_triangles() {
+            assert!(
+                n.z > 0.0 && area > 0.0,
+                "mode {mode}: every triangle faces +z, got {n}"
+            );
+        }
+    }
+}
+
+#[test]
+fn points_and_lines_are_skipped_with_a_warning() {
+    let mut gltf = triangle_doc(&QUAD, &[0, 1, 2, 0, 2, 3], json!({}));
+    let prim = gltf["meshes"][0]["primitives"][0].clone();
+    let mut line = prim.clone();
+    line["mode"] = json!(1);
+    gltf["meshes"][0]["primitives"] = json!([prim, line]);
+    let scene = load(&gltf, &GltfOptions::default()).expect("ok");
+    assert_eq!(scene.prims.len(), 1);
+    assert!(
+        scene.warnings.iter().any(|w| w.contains("points or lines")),
+        "{:?}",
+        scene.warnings
+    );
+}
+
+#[test]
+fn bad_files_are_refused_with_one_line_naming_the_place() {
+    let good = triangle_doc(&QUAD, &[0, 1, 2], json!({}));
+    let cases: Vec<(Value, &str)> = vec![
+        (
+            {
+                let mut g = good.clone();
+                g["extensionsRequired"] = json!(["KHR_draco_mesh_compression"]);
+                g["extensionsUsed"] = json!(["KHR_draco_mesh_compression"]);
+                g
+            },
+            "decompress it first",
+        ),
+        (
+            {
+                let mut g = good.clone();
+                g["extensionsRequired"] = json!(["EXT_unheard_of"]);
+                g["extensionsUsed"] = json!(["EXT_unheard_of"]);
+                g
+            },
+            "requires the extension EXT_unheard_of",
+        ),
+        (
+            {
+                let mut g = good.clone();
+                g["accessors"][0]["count"] = json!(1000);
+                g
+            },
+            "run past the end of buffer view 0",
+        ),
+        (
+            {
+                let mut g = good.clone();
+                g["bufferViews"][0]["byteLength"] = json!(1 << 30);
+                g
+            },
+            "covers bytes",
+        ),
+        (
+            {
+                let mut g = good.clone();
+                g["meshes"][0]["primitives"][0]["indices"] = json!(7);
+                g
+            },
+            "indices",
+        ),
+        (
+            {
+                let mut g = good.clone();
+                g["nodes"][0]["scale"] = json!([1, 1, f32::MAX]);
+                g["nodes"][0]["translation"] = json!([0, 0, 0]);
+                g["nodes"][0]["rotation"] = json!([0, 0, 0, 1]);
+                g
+            },
+            "",
+        ),
+        (
+            triangle_doc(&QUAD, &[0, 1, 9], json!({})),
+            "index 9 is past the 4 vertices",
+        ),
+        (
+            {
+                // The bounds in the JSON are finite (JSON has no infinity); the data is not.
+                let mut g = triangle_doc(
+                    &[0., 0., 0., 1., 0., 0., f32::INFINITY, 1., 0.],
+                    &[0, 1, 2],
+                    json!({}),
+                );
+                g["accessors"][0]["max"] = json!([1, 1, 0]);
+                g
+            },
+            "POSITION: vertex 2 is not finite",
+        ),
+        (json!({"asset": {"version": "1.0"}}), "glTF 2.0"),
+        (
+            json!({"asset": {"version": "2.0"}, "buffers": [{"byteLength": 4, "uri": "gone.bin"}]}),
+            "buffers[0]: cannot read `gone.bin`",
+        ),
+    ];
+    for (gltf, want) in cases {
+        match load(&gltf, &GltfOptions::default()) {
+            Err(e) => {
+                assert!(e.contains(want), "{e}\n  should say {want:?}");
+                assert!(!e.contains('\n'), "one line: {e}");
+                assert!(e.starts_with("model.gltf: "), "{e}");
+            }
+            Ok(_) if want.is_empty() => {}
+            Ok(_) => panic!("loaded; should fail with {want:?}"),
+        }
+    }
+    // A GLB whose header lies.
+    let mut glb = b"glTF".to_vec();
+    glb.extend(2u32.to_le_bytes());
+    glb.extend(u32::MAX.to_le_bytes());
+    let e =
+        load_file("m.glb", &glb, &GltfOptions::default(), &Limits::default()).expect_err("refused");
+    assert!(e.starts_with("m.glb: the GLB header gives a length"), "{e}");
+}
+
+#[test]
+fn the_triangle_limit_counts_gltf_meshes() {
+    let gltf = triangle_doc(&QUAD, &[0, 1, 2, 0, 2, 3], json!({}));
+    let bytes = serde_json::to_vec(&gltf).expect("ok");
+    let limits = Limits {
+        max_triangles: 1,
+        ..Limits::default()
+    };
+    let e = load_file("model.gltf", &bytes, &GltfOptions::default(), &limits).expect_err("refused");
+    assert!(
+        e.contains("above what is left of the scene's limit of 1"),
+        "{e}"
+    );
+}
+
+#[test]
+fn cameras_are_picked_by_name_or_index_and_framed_without_one() {
+    let cams = json!({
+        "scenes": [{"nodes": [0, 1, 2, 3]}],
+        "nodes": [
+            {"mesh": 0},
+            {"camera": 1, "translation": [0, 0, 5]},
+            {"camera": 0, "translation": [0, 0, 9]},
+            {"camera": 2, "translation": [0, 0, 7]},
+        ],
+        "cameras": [
+            {"name": "far", "type": "perspective", "perspective": {"yfov": 0.5, "znear": 0.1, "aspectRatio": 2.0}},
+            {"name": "near", "type": "perspective", "perspective": {"yfov": 0.5, "znear": 0.1}},
+            {"name": "flat", "type": "orthographic", "orthographic": {"xmag": 1, "ymag": 1, "znear": 0.1, "zfar": 10}},
+        ],
+    });
+    let gltf = triangle_doc(&QUAD, &[0, 1, 2, 0, 2, 3], cams);
+    let eye = |s: &Scene| {
+        s.camera
+            .ray(0.5 * s.width as f32, 0.5 * s.height as f32)
+            .o
+            .z
+    };
+    // The lowest index by default, with its aspect ratio.
+    let s = load(&gltf, &GltfOptions::default()).expect("ok");
+    assert_eq!((eye(&s), s.width, s.height), (9.0, 1280, 640));
+    let by = |c: &str| {
+        load(
+            &gltf,
+            &GltfOptions {
+                camera: Some(c.into()),
+                environment: None,
+            },
+        )
+    };
+    assert_eq!(eye(&by("near").expect("ok")), 5.0);
+    assert_eq!(eye(&by("1").expect("ok")), 5.0);
+    let e = by("nowhere").expect_err("refused");
+    assert!(
+        e.contains("no glTF camera is named \"nowhere\"") && e.contains("1 (\"near\")"),
+        "{e}"
+    );
+    assert!(by("flat").expect_err("refused").contains("orthographic"));
+    // No camera: the quad is framed from +z, whole.
+    let plain = triangle_doc(&QUAD, &[0, 1, 2, 0, 2, 3], json!({}));
+    let s = load(&plain, &GltfOptions::default()).expect("ok");
+    assert_eq!((s.width, s.height), (1280, 720));
+    for (x, y) in [(0.0, 0.0), (1280.0, 720.0)] {
+        let r = s.camera.ray(x, y);
+        let t = -r.o.z / r.d.z;
+        let p = r.o + t * r.d;
+        assert!(
+            !(0.0..=1.0).contains(&p.x) || !(0.0..=1.0).contains(&p.y),
+            "corner ray {p} inside the quad"
+        );
+    }
+    let mid = s.camera.ray(640.0, 360.0);
+    assert!(
+        s.intersect(&mid, f32::INFINITY).is_some(),
+        "the middle ray sees the quad"
+    );
+}
+
+#[test]
+fn an_unlit_file_gets_a_white_sky_and_a_lit_one_its_own_light() {
+    let plain = triangle_doc(&QUAD, &[0, 1, 2], json!({}));
+    let s = load(&plain, &GltfOptions::default()).expect("ok");
+    assert!(s.environment.is_some() && s.lights.lights.is_empty());
+    let lit = triangle_doc(
+        &QUAD,
+        &[0, 1, 2],
+        json!({
+            "extensionsUsed": ["KHR_lights_punctual"],
+            "scenes": [{"nodes": [0, 1]}],
+            "nodes": [{"mesh": 0}, {"extensions": {"KHR_lights_punctual": {"light": 0}},
+                                    "translation": [0, 0, 2], "rotation": [std::f32::consts::FRAC_1_SQRT_2, 0, 0, std::f32::consts::FRAC_1_SQRT_2]}],
+            "extensions": {"KHR_lights_punctual": {"lights": [
+                {"type": "spot", "intensity": 3, "color": [1, 0.5, 0.25],
+                 "spot": {"innerConeAngle": 0.2, "outerConeAngle": 0.4}}]}},
+        }),
+    );
+    let s = load(&lit, &GltfOptions::default()).expect("ok");
+    assert!(s.environment.is_none());
+    let l = &s.lights.lights[0];
+    assert_eq!(l.radiance, Vec3A::new(3.0, 1.5, 0.75));
+    match l.shape {
+        // A quarter turn about +x takes the light's −z to +y.
+        LightShape::Spot { position, axis, .. } => {
+            assert_eq!(position, Vec3A::new(0.0, 0.0, 2.0));
+            assert!((axis - Vec3A::Y).length() < 1e-5, "{axis}");
+        }
+        _ => panic!("a spot"),
+    }
+    // A cone whose outer angle is not past its inner one is refused, naming the light.
+    let mut bad = lit.clone();
+    bad["extensions"]["KHR_lights_punctual"]["lights"][0]["spot"]["outerConeAngle"] = json!(0.1);
+    let e = load(&bad, &GltfOptions::default()).expect_err("refused");
+    assert!(
+        e.contains("KHR_lights_punctual.lights[0].outer_angle"),
+        "{e}"
+    );
+}
+
+#[test]
+fn texture_transforms_and_samplers_shape_the_coordinates() {
+    // One texel row: a 4 × 1 PNG, two black then two white; the quad's u runs 0..1.
+    let png = common_png(
+        &[[0, 0, 0], [0, 0, 0], [255, 255, 255], [255, 255, 255]],
+        4,
+        1,
+    );
+    let mut buf = f32s(&QUAD);
+    let uv_at = buf.len();
+    buf.extend(f32s(&[0., 1., 1., 1., 1., 0., 0., 0.]));
+    let idx_at = buf.len();
+    buf.extend([0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()));
+    let img_at = buf.len();
+    buf.extend(&png);
+    let make = |transform: Value, wrap: u32| {
+        doc(
+            &buf,
+            json!({
+                "extensionsUsed": ["KHR_texture_transform"],
+                "scenes": [{"nodes": [0]}],
+                "nodes": [{"mesh": 0}],
+                "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": 0}]}],
+                "materials": [{"pbrMetallicRoughness": {"metallicFactor": 0, "baseColorTexture": {"index": 0, "extensions": {"KHR_texture_transform": transform}}}}],
+                "textures": [{"source": 0, "sampler": 0}],
+                "samplers": [{"wrapS": wrap, "wrapT": wrap}],
+                "images": [{"bufferView": 3, "mimeType": "image/png"}],
+                "bufferViews": [
+                    {"buffer": 0, "byteOffset": 0, "byteLength": 48},
+                    {"buffer": 0, "byteOffset": uv_at, "byteLength": 32},
+                    {"buffer": 0, "byteOffset": idx_at, "byteLength": 12},
+                    {"buffer": 0, "byteOffset": img_at, "byteLength": png.len()},
+                ],
+                "accessors": [
+                    {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
+                    {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
+                    {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"},
+                ],
+            }),
+        )
+    };
+    // The base colour seen at quad point x (y = 0.5), through the scene's texture.
+    let seen = |gltf: &Value, x: f32| {
+        let s = load(gltf, &GltfOptions::default()).expect("ok");
+        let Shape::Mesh(m) = &s.prims[0].shape else {
+            panic!()
+        };
+        let ray = tessera_render::util::math::Ray::new(Vec3A::new(x, 0.5, 1.0), Vec3A::NEG_Z);
+        let (_, tri) = m.intersect(&ray, f32::INFINITY).expect("hit");
+        let frame = m.uv_frame(&ray, tri).expect("uvs");
+        s.textures[0].lookup(frame.uv).x
+    };
+    const REPEAT: u32 = 10497;
+    const CLAMP: u32 = 33071;
+    // Untransformed: dark at the left, bright at the right.
+    let plain = make(json!({}), REPEAT);
+    assert!(seen(&plain, 0.3) < 0.01 && seen(&plain, 0.8) > 0.99);
+    // Offset by half a texture: swapped, when repeating.
+    let shifted = make(json!({"offset": [0.5, 0]}), REPEAT);
+    assert!(seen(&shifted, 0.3) > 0.99 && seen(&shifted, 0.8) < 0.01);
+    // Clamped, the shifted right half reads the edge texel: bright.
+    let clamped = make(json!({"offset": [0.5, 0]}), CLAMP);
+    assert!(seen(&clamped, 0.8) > 0.99);
+    // A half turn about the origin takes u to −u: repeating, the left is bright.
+    let turned = make(json!({"rotation": std::f32::consts::PI}), REPEAT);
+    assert!(seen(&turned, 0.3) > 0.99, "{}", seen(&turned, 0.3));
+}
+
+fn common_png(texels: &[[u8; 3]], w: u32, h: u32) -> Vec<u8> {
+    let mut out = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut out, w, h);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut wr = enc.write_header().expect("png header");
+        let data: Vec<u8> = texels.iter().flatten().copied().collect();
+        wr.write_image_data(&data).expect("png data");
+    }
+    out
+}
+
+#[test]
+fn materials_map_replaces_a_file_material_by_name() {
+    let gltf = triangle_doc(
+        &QUAD,
+        &[0, 1, 2],
+        json!({
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]}],
+            "materials": [{"name": "paint"}],
+        }),
+    );
+    let bytes = serde_json::to_vec(&gltf).expect("ok");
+    let scene = |map: &str| {
+        let text = format!(
+            "version = 1\n[camera]\nmodel = \"gltf\"\n[film]\nwidth = 8\nheight = 8\n\
+             [materials.red]\ntype = \"diffuse\"\nalbedo = [0.8, 0.1, 0.1]\n\
+             [[objects]]\nshape = \"gltf\"\nfile = \"m.gltf\"\n{map}"
+        );
+        let files = MemAssets(BTreeMap::from([("m.gltf".to_string(), bytes.clone())]));
+        Scene::from_str_with(&text, Format::Toml, "s.toml", &Limits::default(), 1, &files)
+    };
+    let s = scene("materials_override = { paint = \"red\" }").expect("ok");
+    assert_eq!(s.prims[0].material, 0, "the scene's `red`");
+    let e = scene("materials_map = { paint = \"blue\" }")
+        .expect_err("refused")
+        .to_string();
+    assert!(e.contains("material `blue` is not defined"), "{e}");
+    let e = scene("materials_map = { chrome = \"red\" }")
+        .expect_err("refused")
+        .to_string();
+    assert!(
+        e.contains("has no material of") && e.contains("it has: paint"),
+        "{e}"
+    );
+    let e = scene("material = \"red\"")
+        .expect_err("refused")
+        .to_string();
+    assert!(
+        e.contains("objects[0].material") && e.contains("materials_map"),
+        "{e}"
+    );
+}
