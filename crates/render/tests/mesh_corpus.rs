@@ -68,3 +68,102 @@ fn every_corpus_mesh_loads_or_is_refused_in_one_line() {
         "most of the corpus is valid: {loaded} loaded, {refused} refused"
     );
 }
+
+/// glTF files (`.gltf`, `.glb`) under `dir`.
+fn gltf_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            gltf_files(&p, out);
+        } else if tessera_render::scene::is_gltf(&p) {
+            out.push(p);
+        }
+    }
+}
+
+/// Every glTF file of the corpus, as `tessera render FILE` reads it: either it builds and a
+/// few samples of a block of it render to finite sums, or it is refused with one line naming
+/// the file. The corpus's deliberately broken files (cycles, indices out of range, a missing
+/// buffer, schema failures, wrong types, infinities, Draco) must be refused, its Khronos
+/// samples must render, and glTF 1.0 files are refused as such.
+#[test]
+fn every_corpus_gltf_renders_or_is_refused_in_one_line() {
+    use tessera_render::scene::{Limits, Scene};
+    use tessera_render::{render_tile, PixelRect, RenderSettings};
+    let mut files = Vec::new();
+    gltf_files(Path::new(CORPUS), &mut files);
+    files.sort();
+    assert!(
+        files.len() >= 40,
+        "{CORPUS} holds {} glTF files: install Debian's assimp-testmodels (.ci/install-test-corpus.sh)",
+        files.len()
+    );
+    let broken = [
+        "IncorrectVertexArrays",
+        "IndexOutOfRange",
+        "MissingBin",
+        "RecursiveNodes",
+        "SchemaFailures",
+        "wrongTypes",
+        "BoxWithInfinites",
+        "/draco/",
+        "/glTF/",
+    ];
+    let good = [
+        "glTF2/2CylinderEngine-glTF-Binary",
+        "glTF2/BoxTextured-glTF/",
+        "glTF2/BoxTextured-glTF-Binary",
+        "glTF2/BoxTextured-glTF-Embedded",
+        "glTF2/cameras/",
+        "glTF2/textureTransform/",
+        "glTF2/glTF-Sample-Models/AnimatedMorphCube",
+    ];
+    let settings = RenderSettings {
+        spp: 2,
+        batch: 2,
+        ..RenderSettings::default()
+    };
+    let (mut rendered, mut refused) = (0, 0);
+    for path in &files {
+        let name = path.to_string_lossy().to_string();
+        match Scene::load(path, &Limits::default()) {
+            Ok(scene) => {
+                assert!(
+                    !broken.iter().any(|b| name.contains(b)),
+                    "{name}: a broken file loaded"
+                );
+                let rect = PixelRect {
+                    x0: scene.width / 2 - 16,
+                    y0: scene.height / 2 - 16,
+                    width: 32,
+                    height: 32,
+                };
+                let sums = render_tile(&scene, &settings, rect, 0..2);
+                assert!(sums.sum.iter().flatten().all(|x| x.is_finite()), "{name}");
+                println!("rendered {name} ({} objects)", scene.prims.len());
+                rendered += 1;
+            }
+            Err(e) => {
+                let line = e.to_string();
+                assert!(!line.contains('\n'), "{name}: a multi-line error: {line:?}");
+                assert!(
+                    line.starts_with(&name),
+                    "{name}: the error does not name it: {line}"
+                );
+                assert!(
+                    !good.iter().any(|g| name.contains(g)),
+                    "{name}: a good file was refused: {line}"
+                );
+                if name.contains("/glTF/") {
+                    assert!(line.contains("glTF 2.0"), "{line}");
+                }
+                println!("refused {line}");
+                refused += 1;
+            }
+        }
+    }
+    println!("{rendered} rendered, {refused} refused of {}", files.len());
+}

@@ -659,7 +659,7 @@ fn gltf_camera(
             if !(bounds.min.cmple(bounds.max).all()) {
                 return Err((
                     cp.clone(),
-                    "the scene has no camera and nothing to frame".into(),
+                    "the scene has no camera and no surface to frame (a glTF file's points and lines are not rendered)".into(),
                 ));
             }
             let centre = 0.5 * (bounds.min + bounds.max);

@@ -339,14 +339,18 @@ mod tests {
         let mut glb = b"glTF".to_vec();
         glb.extend(2u32.to_le_bytes());
         glb.extend(1000u32.to_le_bytes());
-        assert!(split_glb(&glb).expect_err("refused").contains("length of 1000"));
+        assert!(split_glb(&glb)
+            .expect_err("refused")
+            .contains("length of 1000"));
         let mut glb = b"glTF".to_vec();
         glb.extend(2u32.to_le_bytes());
         glb.extend(24u32.to_le_bytes());
         glb.extend(u32::MAX.to_le_bytes());
         glb.extend(b"JSON");
         glb.extend(b"{}  ");
-        assert!(split_glb(&glb).expect_err("refused").contains("past the end"));
+        assert!(split_glb(&glb)
+            .expect_err("refused")
+            .contains("past the end"));
         // A length below the header's own size.
         let mut glb = b"glTF".to_vec();
         glb.extend(2u32.to_le_bytes());
@@ -366,7 +370,10 @@ mod tests {
         assert!(data_uri("data:text/plain,hello").expect("ok").is_err());
         assert!(data_uri("data:x;base64,!!!").expect("ok").is_err());
         assert!(data_uri("model.bin").is_none());
-        assert_eq!(uri_file("cars", "my%20car.bin").expect("ok"), "cars/my car.bin");
+        assert_eq!(
+            uri_file("cars", "my%20car.bin").expect("ok"),
+            "cars/my car.bin"
+        );
         assert_eq!(uri_file("", "a.png").expect("ok"), "a.png");
         assert!(uri_file("", "https://example.com/a.bin").is_err());
         assert!(uri_file("", "/etc/passwd").is_err());
