@@ -19,6 +19,10 @@ These scenes have exact Mitsuba counterparts, built here as dictionaries:
   frosted glass and `roughplastic`, under the same sky;
 - pbr-metals: scenes/pbr-metals.toml, two fully metallic `pbr` balls as `principled` with
   metallic 1 (Schlick's Fresnel of F0 = base colour over GGX in both models) under the sky;
+- gltf-metals, gltf-glass: scenes/gltf-metals.toml and gltf-glass.toml, glTF files converted
+  by bench/gltf_mitsuba.py (full metals as `principled`, one textured; volume glass as
+  `dielectric` and `roughdielectric` with an absorbing interior, under `volpath`), their
+  ground replaced by a diffuse one as the TOML scenes do, under the same sky;
 - mesh-million: bench/make_million.py's million triangles in the box, and
   mesh-million-analytic, the same with an analytic sphere in the mesh's place.
 All use a box filter and the unbiased path tracer (max_depth = -1).
@@ -61,7 +65,7 @@ import numpy as np
 
 
 SCENES = ("cornell-box", "glass-mirror", "mesh-glass", "metals-box", "envmap-balls", "materials", "pbr-metals",
-          "mesh-million", "mesh-million-analytic")
+          "gltf-metals", "gltf-glass", "mesh-million", "mesh-million-analytic")
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 MESHES = os.path.join(HERE, "..", "scenes", "meshes")
@@ -236,9 +240,26 @@ def pbr_metals(mi):
     return d
 
 
+def gltf_scene(mi, name):
+    """scenes/gltf-metals.toml or gltf-glass.toml: the glTF file converted, under the sky."""
+    import gltf_mitsuba
+    T = mi.ScalarTransform4f
+    d = {"type": "scene",
+         "sky": {"type": "envmap", "to_world": T().rotate([0, 1, 0], 30.0),
+                 "filename": os.path.join(HERE, "..", "scenes", "textures", "sky.exr")}}
+    stem = name.split("-", 1)[1]
+    out = os.path.join(HERE, "..", "target", "bench-cache", name)
+    ground = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5, 0.5, 0.5]}}
+    d.update(gltf_mitsuba.convert(mi, os.path.join(HERE, "..", "scenes", "gltf", stem + ".glb"),
+                                  out, overrides={"ground": ground}))
+    return d
+
+
 def scene_dict(mi, name, size):
     """The Mitsuba scene dictionary of `name` at `size`x`size` pixels."""
-    if name == "materials":
+    if name in ("gltf-metals", "gltf-glass"):
+        d = gltf_scene(mi, name)
+    elif name == "materials":
         d = materials(mi)
     elif name == "pbr-metals":
         d = pbr_metals(mi)
@@ -285,11 +306,13 @@ def scene_dict(mi, name, size):
         del d["small-box"], d["large-box"]
         d["sphere"] = {"type": "sphere", "center": [0, -0.5, 0], "radius": 0.45,
                        "bsdf": {"type": "ref", "id": "white"}}
-    elif name not in ("cornell-box", "envmap-balls", "materials", "pbr-metals"):
+    elif name not in ("cornell-box", "envmap-balls", "materials", "pbr-metals", "gltf-metals",
+                      "gltf-glass"):
         raise SystemExit(f"no Mitsuba counterpart for scene {name!r}; known: {SCENES}")
     d["sensor"]["film"].update(width=size, height=size, rfilter={"type": "box"})
     d["sensor"]["sampler"] = {"type": "independent", "sample_count": 4}
-    d["integrator"] = {"type": "path", "max_depth": -1}
+    # Glass that absorbs inside needs the volumetric path tracer (without media, the same).
+    d["integrator"] = {"type": "volpath" if name == "gltf-glass" else "path", "max_depth": -1}
     return d
 
 

@@ -8,109 +8,13 @@ are scenes/textures/*.png. Standard library only.
 
     python3 scenes/gltf/make_sample.py
 """
-import json
 import math
 import os
-import struct
+
+from gltf_writer import Glb, box, floor, sphere
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-TEXTURES = os.path.join(HERE, "..", "textures")
-
-buf = bytearray()
-views = []
-accessors = []
-
-
-def pad4():
-    while len(buf) % 4:
-        buf.append(0)
-
-
-def view(data, target=None):
-    pad4()
-    v = {"buffer": 0, "byteOffset": len(buf), "byteLength": len(data)}
-    if target:
-        v["target"] = target
-    buf.extend(data)
-    views.append(v)
-    return len(views) - 1
-
-
-def floats(rows, kind):
-    flat = [x for r in rows for x in r]
-    v = view(struct.pack("<%df" % len(flat), *flat), 34962)
-    n = len(rows[0])
-    acc = {"bufferView": v, "componentType": 5126, "count": len(rows), "type": kind}
-    if kind == "VEC3":
-        acc["min"] = [min(r[i] for r in rows) for i in range(n)]
-        acc["max"] = [max(r[i] for r in rows) for i in range(n)]
-    accessors.append(acc)
-    return len(accessors) - 1
-
-
-def indices(idx):
-    v = view(struct.pack("<%dH" % len(idx), *idx), 34963)
-    accessors.append({"bufferView": v, "componentType": 5123, "count": len(idx), "type": "SCALAR"})
-    return len(accessors) - 1
-
-
-def mesh(p, n, uv, idx, material):
-    attrs = {"POSITION": floats(p, "VEC3"), "NORMAL": floats(n, "VEC3")}
-    if uv:
-        attrs["TEXCOORD_0"] = floats(uv, "VEC2")
-    return {"primitives": [{"attributes": attrs, "indices": indices(idx), "material": material}]}
-
-
-def sphere(r, slices=32, stacks=16):
-    p, n, uv, idx = [], [], [], []
-    for i in range(stacks + 1):
-        th = math.pi * i / stacks
-        for j in range(slices + 1):
-            ph = 2 * math.pi * j / slices
-            d = (math.sin(th) * math.cos(ph), math.cos(th), -math.sin(th) * math.sin(ph))
-            p.append([r * c for c in d])
-            n.append(list(d))
-            uv.append([j / slices, i / stacks])
-    for i in range(stacks):
-        for j in range(slices):
-            a = i * (slices + 1) + j
-            b = a + slices + 1
-            idx += [a, b, a + 1, a + 1, b, b + 1]
-    return p, n, uv, idx
-
-
-def box(h):
-    p, n, idx = [], [], []
-    for axis in range(3):
-        for s in (-1, 1):
-            nn = [0, 0, 0]
-            nn[axis] = s
-            u = [0, 0, 0]
-            u[(axis + 1) % 3] = 1
-            v = [0, 0, 0]
-            v[(axis + 2) % 3] = 1
-            base = len(p)
-            for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
-                p.append([h * (nn[k] + a * u[k] + b * v[k]) for k in range(3)])
-                n.append(nn)
-            quad = [base, base + 1, base + 2, base, base + 2, base + 3]
-            if s < 0:
-                quad = [base, base + 2, base + 1, base, base + 3, base + 2]
-            idx += quad
-    return p, n, None, idx
-
-
-def image(name):
-    with open(os.path.join(TEXTURES, name), "rb") as f:
-        return {"bufferView": view(f.read()), "mimeType": "image/png", "name": name}
-
-
-floor = (
-    [[-3, 0, -3], [3, 0, -3], [3, 0, 3], [-3, 0, 3]],
-    [[0, 1, 0]] * 4,
-    [[0, 0], [1, 0], [1, 1], [0, 1]],
-    [0, 2, 1, 0, 3, 2],
-)
+g = Glb()
 repeat = {"KHR_texture_transform": {"scale": [3, 3]}}
 materials = [
     {
@@ -152,12 +56,12 @@ materials = [
     },
 ]
 meshes = [
-    mesh(*floor, 0),
-    mesh(*sphere(0.6), 1),
-    mesh(*sphere(0.6), 2),
-    mesh(*box(0.45), 3),
+    g.mesh(*floor(3), 0),
+    g.mesh(*sphere(0.6), 1),
+    g.mesh(*sphere(0.6), 2),
+    g.mesh(*box(0.45), 3),
 ]
-images = [image("checker.png"), image("tiles-mr.png"), image("tiles-normal.png")]
+images = [g.image("checker.png"), g.image("tiles-mr.png"), g.image("tiles-normal.png")]
 textures = [{"source": i} for i in range(3)]
 c, s = math.cos(math.radians(30)), math.sin(math.radians(30))
 nodes = [
@@ -174,7 +78,6 @@ nodes = [
      "rotation": [-0.3535534, 0.3535534, 0.1464466, 0.8535534]},
     {"name": "lamp", "extensions": {"KHR_lights_punctual": {"light": 1}}, "translation": [-2, 2.5, 2]},
 ]
-pad4()
 doc = {
     "asset": {"version": "2.0", "generator": "tessera scenes/gltf/make_sample.py"},
     "extensionsUsed": [
@@ -198,17 +101,6 @@ doc = {
         {"type": "directional", "color": [1.0, 0.95, 0.85], "intensity": 2.5},
         {"type": "point", "color": [1.0, 0.9, 0.8], "intensity": 12.0},
     ]}},
-    "bufferViews": views,
-    "accessors": accessors,
-    "buffers": [{"byteLength": len(buf)}],
 }
 del doc["samplers"]
-js = json.dumps(doc, separators=(",", ":")).encode()
-js += b" " * (-len(js) % 4)
-out = bytearray(b"glTF")
-out += struct.pack("<II", 2, 12 + 8 + len(js) + 8 + len(buf))
-out += struct.pack("<I", len(js)) + b"JSON" + js
-out += struct.pack("<I", len(buf)) + b"BIN\0" + buf
-with open(os.path.join(HERE, "sample.glb"), "wb") as f:
-    f.write(out)
-print("sample.glb: %d bytes" % len(out))
+g.write(os.path.join(HERE, "sample.glb"), doc)
