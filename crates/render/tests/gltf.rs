@@ -382,6 +382,30 @@ fn bad_files_are_refused_with_one_line_naming_the_place() {
             },
             "POSITION: vertex 2 is not finite",
         ),
+        // Found by the gltf_load fuzz target: the gltf crate unwraps both (its validation
+        // does not check them), so they are read from the JSON.
+        (
+            {
+                let mut g = good.clone();
+                g["meshes"][0]["primitives"][0]["material"] = json!(0);
+                g["materials"] =
+                    json!([{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]);
+                g["textures"] = json!([{"source": 0}]);
+                g["images"] = json!([{"name": "nothing"}]);
+                g
+            },
+            "images[0] has neither a bufferView nor a uri",
+        ),
+        (
+            {
+                let mut g = good.clone();
+                g["nodes"] = json!([{"mesh": 0}, {"camera": 0}]);
+                g["scenes"] = json!([{"nodes": [0, 1]}]);
+                g["cameras"] = json!([{"type": "perspective", "orthographic": {"xmag": 1, "ymag": 1, "znear": 0.1, "zfar": 9}}]);
+                g
+            },
+            "cameras[0]: its type's values",
+        ),
         (json!({"asset": {"version": "1.0"}}), "glTF 2.0"),
         (
             json!({"asset": {"version": "2.0"}, "buffers": [{"byteLength": 4, "uri": "gone.bin"}]}),

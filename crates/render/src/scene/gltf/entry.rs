@@ -50,12 +50,11 @@ pub fn scene_text(name: &str, bytes: &[u8], opts: &GltfOptions) -> String {
                 .or_else(|| c.parse::<usize>().ok()),
             None => placed.iter().min().copied(),
         };
-        if let Some(cam) = chosen.and_then(|i| doc.cameras().nth(i)) {
-            if let gltf::camera::Projection::Perspective(p) = cam.projection() {
-                aspect = p
-                    .aspect_ratio()
-                    .filter(|a| a.is_finite() && *a > 0.01 && *a < 100.0);
-            }
+        // From the JSON: `Camera::projection` may panic on a camera the build refuses.
+        if let Some(p) = chosen.and_then(|i| doc.as_json().cameras.get(i)?.perspective.as_ref()) {
+            aspect = p
+                .aspect_ratio
+                .filter(|a| a.is_finite() && *a > 0.01 && *a < 100.0);
         }
     }
     if let Some(c) = &opts.camera {

@@ -26,6 +26,7 @@ pub(super) type UvMap = [f32; 6];
 pub(in crate::scene) struct GltfMaterials<'d> {
     file: &'d str,
     dir: &'d str,
+    root: &'d gltf::json::Root,
     buffers: &'d [Vec<u8>],
     overrides: &'d BTreeMap<String, u32>,
     /// By glTF material index (`None`: the default material), the scene's index.
@@ -39,12 +40,14 @@ impl<'d> GltfMaterials<'d> {
     pub(super) fn new(
         file: &'d str,
         dir: &'d str,
+        root: &'d gltf::json::Root,
         buffers: &'d [Vec<u8>],
         overrides: &'d BTreeMap<String, u32>,
     ) -> Self {
         Self {
             file,
             dir,
+            root,
             buffers,
             overrides,
             built: BTreeMap::new(),
@@ -316,22 +319,37 @@ impl<'d> GltfMaterials<'d> {
             let key = format!("{}#images[{}]", self.file, image.index());
             files.embedded_texture(&key, path, format, bytes, usage, wrap)
         };
-        match image.source() {
-            gltf::image::Source::View { view, mime_type } => {
-                let bytes = self
-                    .buffers
-                    .get(view.buffer().index())
-                    .and_then(|b| b.get(view.offset()..view.offset().checked_add(view.length())?))
+        // From the JSON: the crate's `Image::source` unwraps what its validation does not check
+        // (an image with neither a view nor a URI, a view without a MIME type).
+        let json = &self.root.images[image.index()];
+        let mime_type = json.mime_type.as_ref().map(|m| m.0.as_str());
+        match (&json.buffer_view, &json.uri) {
+            (Some(view), _) => {
+                let view = &self.root.buffer_views[view.value()];
+                let offset = view.byte_offset.map_or(0, |o| o.0);
+                let bytes = usize::try_from(offset)
+                    .ok()
+                    .zip(usize::try_from(view.byte_length.0).ok())
+                    .and_then(|(o, n)| {
+                        self.buffers
+                            .get(view.buffer.value())?
+                            .get(o..o.checked_add(n)?)
+                    })
                     .ok_or_else(|| {
                         fail(format!(
-                            "images[{}]: buffer view {} runs past the end of its buffer",
-                            image.index(),
-                            view.index()
+                            "images[{}]: its buffer view runs past the end of its buffer",
+                            image.index()
                         ))
                     })?;
-                embedded(mime_type, bytes, files)
+                let mime = mime_type.ok_or_else(|| {
+                    fail(format!(
+                        "images[{}]: an image in a buffer view needs a mimeType",
+                        image.index()
+                    ))
+                })?;
+                embedded(mime, bytes, files)
             }
-            gltf::image::Source::Uri { uri, mime_type } => match data::data_uri(uri) {
+            (None, Some(uri)) => match data::data_uri(uri) {
                 Some(r) => {
                     let (mime, bytes) = r.map_err(fail)?;
                     embedded(mime_type.unwrap_or(&mime), &bytes, files)
@@ -343,6 +361,10 @@ impl<'d> GltfMaterials<'d> {
                         .map_err(|(p, m)| (p, format!("{what}: {m}")))
                 }
             },
+            (None, None) => Err(fail(format!(
+                "images[{}] has neither a bufferView nor a uri",
+                image.index()
+            ))),
         }
     }
 

@@ -221,7 +221,7 @@ pub(super) fn import(
             ));
         }
     }
-    let mut mats = GltfMaterials::new(name, dir, &buffers, overrides);
+    let mut mats = GltfMaterials::new(name, dir, doc.as_json(), &buffers, overrides);
     let mut meshes: BTreeMap<(usize, usize), Built> = BTreeMap::new();
     let mut out = Imported {
         parts: Vec::new(),
@@ -232,7 +232,8 @@ pub(super) fn import(
     let (mut skipped_modes, mut hidden) = (0usize, 0usize);
     for (node, world) in walk(&doc, place).map_err(fail)? {
         if let Some(camera) = node.camera() {
-            out.cameras.push(camera_at(&camera, &world));
+            out.cameras
+                .push(camera_at(&doc, &camera, &world).map_err(fail)?);
         }
         if let Some(light) = node.light() {
             out.lights.push(light_at(&light, &world));
@@ -375,18 +376,36 @@ fn walk(doc: &gltf::Document, place: Affine3A) -> Result<Vec<(gltf::Node<'_>, Af
 }
 
 /// A camera node, in the world.
-fn camera_at(camera: &gltf::Camera, world: &Affine3A) -> GltfCamera {
-    GltfCamera {
+fn camera_at(
+    doc: &gltf::Document,
+    camera: &gltf::Camera,
+    world: &Affine3A,
+) -> Result<GltfCamera, String> {
+    // The crate's `Camera::projection` unwraps the values of the camera's type, which its
+    // validation does not check are there.
+    let json = &doc.as_json().cameras[camera.index()];
+    let perspective = match json.type_ {
+        gltf::json::validation::Checked::Valid(gltf::json::camera::Type::Perspective) => true,
+        _ => false,
+    };
+    if perspective && json.perspective.is_none() || !perspective && json.orthographic.is_none() {
+        return Err(format!(
+            "cameras[{}]: its type's values (`perspective` or `orthographic`) are missing",
+            camera.index()
+        ));
+    }
+    Ok(GltfCamera {
         index: camera.index(),
         name: camera.name().map(str::to_string),
         eye: world.transform_point3a(Vec3A::ZERO),
         forward: world.transform_vector3a(Vec3A::NEG_Z),
         up: world.transform_vector3a(Vec3A::Y),
-        yfov: match camera.projection() {
-            gltf::camera::Projection::Perspective(p) => Some(p.yfov()),
-            gltf::camera::Projection::Orthographic(_) => None,
-        },
-    }
+        yfov: json
+            .perspective
+            .as_ref()
+            .filter(|_| perspective)
+            .map(|p| p.yfov),
+    })
 }
 
 /// A light node, in the world.
