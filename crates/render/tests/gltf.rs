@@ -406,6 +406,11 @@ fn bad_files_are_refused_with_one_line_naming_the_place() {
             },
             "cameras[0]: its type's values",
         ),
+        ({
+            let mut g = good.clone();
+            g["meshes"][0]["primitives"][0]["attributes"]["POSITION"] = json!(9);
+            g
+        }, "accessor 9 does not exist"),
         (json!({"asset": {"version": "1.0"}}), "glTF 2.0"),
         (
             json!({"asset": {"version": "2.0"}, "buffers": [{"byteLength": 4, "uri": "gone.bin"}]}),

@@ -166,6 +166,22 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<Parsed<'_>, String> {
             root.nodes.len()
         ));
     }
+    // gltf-json's own validation indexes `accessors` by a primitive's POSITION before it
+    // checks the index (found by the gltf_load fuzz target), so that one is checked first.
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            for (semantic, index) in &prim.attributes {
+                if index.value() >= root.accessors.len() {
+                    return Err(format!(
+                        "meshes[{m}].primitives[{p}].attributes[{semantic:?}]: accessor {} does \
+                         not exist ({} accessors)",
+                        index.value(),
+                        root.accessors.len()
+                    ));
+                }
+            }
+        }
+    }
     let mut first = None;
     root.validate(&root, gltf::json::Path::new, &mut |path, error| {
         let path = path().to_string();

@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# The two glTF scenes (scenes/gltf-metals.toml: textured metals; scenes/gltf-glass.toml: volume
+# glass, smooth and rough) against Mitsuba 3 reading the same files (bench/gltf_mitsuba.py),
+# measured point by point in one run (docs/benchmarks/gltf-speed.{md,csv,svg}). The two models
+# agree on these scenes (tests/reference.rs checks every 32² region within 0.5%), so both
+# renderers are measured against one reference: Mitsuba's at --reference-spp, cached in
+# target/bench-cache.
+# Usage: bench/gltf-speed.sh [--max-spp N] [--seeds K] [--reference-spp R]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+max_spp=256
+seeds=2
+reference_spp=8192
+. bench/peer-env.sh
+[ "$have_python" = 1 ] || { echo "gltf-speed needs python3 for Mitsuba 3" >&2; exit 1; }
+[ -n "$llvm" ] || { echo "gltf-speed needs Debian's libllvm19 for Mitsuba's llvm_ad_rgb" >&2; exit 1; }
+refs=()
+serve_refs=
+for scene in gltf-metals gltf-glass; do
+    ref=target/bench-cache/mitsuba-$scene-256-$reference_spp.exr
+    if [ ! -s "$ref" ]; then
+        target/bench-venv/bin/python bench/mitsuba_peer.py --variants llvm_ad_rgb \
+            --make-reference "$scene=$ref.tmp.exr" --reference-spp "$reference_spp"
+        mv "$ref.tmp.exr" "$ref"
+    fi
+    refs+=(--scene "scenes/$scene.toml" --reference "$scene=$ref")
+    serve_refs="$serve_refs --reference $scene=$ref"
+done
+target/release/tessera bench "${refs[@]}" --max-spp "$max_spp" --seeds "$seeds" --name gltf-speed \
+    --peer-command "target/bench-venv/bin/python bench/mitsuba_peer.py --serve --variants llvm_ad_rgb \
+$serve_refs --max-spp $max_spp"
