@@ -7,6 +7,9 @@
 //! (x right, y down, (0, 0) the top-left corner) maps to the direction
 //! `t + (x − W/2)·sx·b + (H/2 − y)·sy·v`, so sampling x, y uniformly over a pixel's square is
 //! the box filter: the pixel value is the mean radiance over its square.
+//!
+//! An orthographic camera (glTF's) moves the ray's origin over the film instead, by the same
+//! basis scaled to the film's size in world units, and keeps its direction.
 
 use glam::Vec3A;
 
@@ -21,6 +24,8 @@ pub struct Camera {
     up: Vec3A,
     width: f32,
     height: f32,
+    /// Parallel rays from points of the film (`right` and `up` are then world lengths).
+    orthographic: bool,
 }
 
 /// The camera's trigonometry in f64, rounded once to f32. The f32 library functions are chosen
@@ -54,6 +59,7 @@ impl Camera {
             up: v * q,
             width: width as f32,
             height: height as f32,
+            orthographic: false,
         }
     }
 
@@ -78,12 +84,46 @@ impl Camera {
             up: v * s,
             width: width as f32,
             height: height as f32,
+            orthographic: false,
+        })
+    }
+
+    /// An orthographic camera at `eye` looking along `forward`, whose film spans `xmag` and
+    /// `ymag` world units either side of its centre (glTF's half-widths): parallel rays from
+    /// the film's points. Returns `None` for a degenerate basis or a non-positive size.
+    pub fn orthographic(
+        eye: Vec3A,
+        forward: Vec3A,
+        up: Vec3A,
+        (xmag, ymag): (f32, f32),
+        width: u32,
+        height: u32,
+    ) -> Option<Self> {
+        let t = forward.try_normalize()?;
+        let b = t.cross(up).try_normalize()?;
+        let v = b.cross(t);
+        let ok = |m: f32| m.is_finite() && m > 0.0;
+        if !ok(xmag) || !ok(ymag) {
+            return None;
+        }
+        Some(Self {
+            eye,
+            forward: t,
+            right: b * (2.0 * xmag / width as f32),
+            up: v * (2.0 * ymag / height as f32),
+            width: width as f32,
+            height: height as f32,
+            orthographic: true,
         })
     }
 
     /// Primary ray through film point (x, y).
     #[inline]
     pub fn ray(&self, x: f32, y: f32) -> Ray {
+        if self.orthographic {
+            let film = self.right * (x - 0.5 * self.width) + self.up * (0.5 * self.height - y);
+            return Ray::new(self.eye + film, self.forward);
+        }
         let d =
             self.forward + self.right * (x - 0.5 * self.width) + self.up * (0.5 * self.height - y);
         Ray::new(self.eye, d.normalize())
@@ -109,6 +149,32 @@ mod tests {
         );
         // Row 0 is the top: its rays point up.
         assert!(c.ray(2.5, 0.5).d.y > 0.0);
+    }
+
+    #[test]
+    fn orthographic_rays_are_parallel_and_span_the_magnification() {
+        let c = Camera::orthographic(
+            Vec3A::new(0.0, 0.0, 5.0),
+            -Vec3A::Z,
+            Vec3A::Y,
+            (2.0, 1.0),
+            200,
+            100,
+        )
+        .expect("a camera");
+        let (tl, br) = (c.ray(0.0, 0.0), c.ray(200.0, 100.0));
+        assert_eq!((tl.d, br.d), (-Vec3A::Z, -Vec3A::Z));
+        assert!(
+            (tl.o - Vec3A::new(-2.0, 1.0, 5.0)).length() < 1e-6,
+            "{}",
+            tl.o
+        );
+        assert!(
+            (br.o - Vec3A::new(2.0, -1.0, 5.0)).length() < 1e-6,
+            "{}",
+            br.o
+        );
+        assert!(Camera::orthographic(Vec3A::ZERO, -Vec3A::Z, Vec3A::Y, (0.0, 1.0), 2, 2).is_none());
     }
 
     #[test]

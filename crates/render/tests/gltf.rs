@@ -406,11 +406,14 @@ fn bad_files_are_refused_with_one_line_naming_the_place() {
             },
             "cameras[0]: its type's values",
         ),
-        ({
-            let mut g = good.clone();
-            g["meshes"][0]["primitives"][0]["attributes"]["POSITION"] = json!(9);
-            g
-        }, "accessor 9 does not exist"),
+        (
+            {
+                let mut g = good.clone();
+                g["meshes"][0]["primitives"][0]["attributes"]["POSITION"] = json!(9);
+                g
+            },
+            "accessor 9 does not exist",
+        ),
         (json!({"asset": {"version": "1.0"}}), "glTF 2.0"),
         (
             json!({"asset": {"version": "2.0"}, "buffers": [{"byteLength": 4, "uri": "gone.bin"}]}),
@@ -494,7 +497,18 @@ fn cameras_are_picked_by_name_or_index_and_framed_without_one() {
         e.contains("no glTF camera is named \"nowhere\"") && e.contains("1 (\"near\")"),
         "{e}"
     );
-    assert!(by("flat").expect_err("refused").contains("orthographic"));
+    // Orthographic: parallel rays along the node's −z, the film 2·ymag high (1280 × 1280 for
+    // xmag = ymag = 1).
+    let flat = by("flat").expect("ok");
+    assert_eq!((flat.width, flat.height), (1280, 1280));
+    let (a, b) = (flat.camera.ray(0.0, 0.0), flat.camera.ray(1280.0, 1280.0));
+    assert_eq!((a.d, b.d), (Vec3A::NEG_Z, Vec3A::NEG_Z));
+    assert!(
+        near(a.o, Vec3A::new(-1.0, 1.0, 7.0)) && near(b.o, Vec3A::new(1.0, -1.0, 7.0)),
+        "{} {}",
+        a.o,
+        b.o
+    );
     // No camera: the quad is framed from +z, whole.
     let plain = triangle_doc(&QUAD, &[0, 1, 2, 0, 2, 3], json!({}));
     let s = load(&plain, &GltfOptions::default()).expect("ok");

@@ -622,15 +622,20 @@ fn gltf_camera(
     let camera = match chosen {
         Some((path, g)) => {
             let Some(yfov) = g.yfov else {
-                return Err((
-                    path.clone(),
-                    format!(
-                        "glTF camera {} is orthographic, which tessera does not render; pick a \
-                         perspective one (cameras: {})",
-                        g.index,
-                        listed()
-                    ),
-                ));
+                // The film keeps its pixels square: the magnification that fits the film's
+                // aspect ratio to the camera's height (glTF's xmag is a hint).
+                let (_, ymag) = g.mag;
+                return Camera::orthographic(g.eye, g.forward, g.up, (ymag * aspect, ymag), w, h)
+                    .ok_or_else(|| {
+                        (
+                            path.clone(),
+                            format!(
+                                "glTF camera {}: an orthographic camera needs a positive ymag \
+                                 and a non-degenerate node transform",
+                                g.index
+                            ),
+                        )
+                    });
             };
             let fov = 2.0 * ((0.5 * yfov).tan() * aspect).atan();
             if !(fov > 0.0 && fov < std::f32::consts::PI) {

@@ -51,10 +51,13 @@ pub fn scene_text(name: &str, bytes: &[u8], opts: &GltfOptions) -> String {
             None => placed.iter().min().copied(),
         };
         // From the JSON: `Camera::projection` may panic on a camera the build refuses.
-        if let Some(p) = chosen.and_then(|i| doc.as_json().cameras.get(i)?.perspective.as_ref()) {
-            aspect = p
-                .aspect_ratio
-                .filter(|a| a.is_finite() && *a > 0.01 && *a < 100.0);
+        if let Some(c) = chosen.and_then(|i| doc.as_json().cameras.get(i)) {
+            aspect = match (&c.perspective, &c.orthographic) {
+                (Some(p), _) => p.aspect_ratio,
+                (None, Some(o)) => Some(o.xmag / o.ymag),
+                (None, None) => None,
+            }
+            .filter(|a| a.is_finite() && *a > 0.01 && *a < 100.0);
         }
     }
     if let Some(c) = &opts.camera {

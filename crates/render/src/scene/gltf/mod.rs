@@ -78,6 +78,8 @@ pub(crate) struct GltfCamera {
     pub(crate) up: Vec3A,
     /// Vertical field of view, radians; `None` for an orthographic camera.
     pub(crate) yfov: Option<f32>,
+    /// An orthographic camera's half-width and half-height in world units.
+    pub(crate) mag: (f32, f32),
 }
 
 /// What one glTF file adds to a scene.
@@ -421,6 +423,10 @@ fn camera_at(
             .as_ref()
             .filter(|_| perspective)
             .map(|p| p.yfov),
+        mag: json
+            .orthographic
+            .as_ref()
+            .map_or((0.0, 0.0), |o| (o.xmag.abs(), o.ymag.abs())),
     })
 }
 
