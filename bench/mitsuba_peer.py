@@ -349,7 +349,8 @@ def make_reference(mi, a):
         acc = img if acc is None else acc + img
     mean = (acc / passes)[..., :3].astype(np.float32)
     write_rgb(mi, mean, out,
-              f"independent reference: Mitsuba 3 {variant}, path integrator, "
+              f"independent reference: Mitsuba 3 {variant}, "
+              f"{scene_dict(mi, name, 8)['integrator']['type']} integrator, "
               f"{passes * a.pass_spp} spp ({passes} passes of {a.pass_spp}, seeds from 1000000)")
     dt = time.perf_counter() - t
     print(f"{name}: {passes * a.pass_spp} spp with {variant} in {dt:.1f} s -> {out}",
