@@ -94,7 +94,7 @@ fn glb(g: &Grid) -> Vec<u8> {
         &base[..],
         &mr[..],
     ] {
-        while bin.len() % 4 != 0 {
+        while !bin.len().is_multiple_of(4) {
             bin.push(0);
         }
         views.push(
@@ -126,10 +126,10 @@ fn glb(g: &Grid) -> Vec<u8> {
         "buffers": [{"byteLength": bin.len()}],
     });
     let mut js = serde_json::to_vec(&json).expect("json");
-    while js.len() % 4 != 0 {
+    while !js.len().is_multiple_of(4) {
         js.push(b' ');
     }
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     let mut out = b"glTF".to_vec();

@@ -116,6 +116,42 @@ impl Texture {
         Self::decode_clamped(bytes, format, max_texels, false)
     }
 
+    /// Decodes the alpha channel of a PNG or JPEG image into every channel (1 where the image
+    /// has none), with the same limits as [`Texture::decode`]: what a glTF material's alpha
+    /// mask reads.
+    pub fn decode_alpha(
+        bytes: &[u8],
+        format: ImageFormat,
+        max_texels: u64,
+    ) -> Result<Self, String> {
+        if !matches!(format, ImageFormat::Png | ImageFormat::Jpeg) {
+            return Err("alpha is read from PNG and JPEG images only".into());
+        }
+        let (w, h) = probe(bytes, format)?;
+        check_size(w, h, max_texels)?;
+        let _reserved = DecodeBudget::global().reserve(decode_bytes(w, h))?;
+        let mut reader = image::ImageReader::with_format(Cursor::new(bytes), image_format(format));
+        let mut limits = image::Limits::default();
+        limits.max_alloc = Some(max_texels.saturating_mul(16));
+        reader.limits(limits);
+        let img = reader
+            .decode()
+            .map_err(|e| format!("not a readable image: {e}"))?;
+        let (width, height) = (img.width() as usize, img.height() as usize);
+        let texels = img
+            .to_luma_alpha32f()
+            .as_raw()
+            .chunks_exact(2)
+            .map(|p| Vec3A::splat(p[1].clamp(0.0, 1.0)))
+            .collect();
+        Ok(Self {
+            width,
+            height,
+            texels,
+            wrap: [Wrap::Repeat; 2],
+        })
+    }
+
     /// Decodes (through the sRGB curve where `srgb`) and clamps every texel to [0, 1].
     fn decode_clamped(
         bytes: &[u8],

@@ -691,3 +691,117 @@ fn materials_map_replaces_a_file_material_by_name() {
         "{e}"
     );
 }
+
+/// A front quad of `material` (z = 1) over a back quad (z = 0), both x, y in [0, 1].
+fn two_quads(material: Value, png: &[u8]) -> Value {
+    let mut buf = f32s(&QUAD);
+    let uv_at = buf.len();
+    buf.extend(f32s(&[0., 1., 1., 1., 1., 0., 0., 0.]));
+    let idx_at = buf.len();
+    buf.extend([0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()));
+    let img_at = buf.len();
+    buf.extend(png);
+    let prim = |m: u32| json!({"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": m});
+    doc(
+        &buf,
+        json!({
+            "scenes": [{"nodes": [0, 1]}],
+            "nodes": [{"mesh": 0, "translation": [0, 0, 1]}, {"mesh": 1}],
+            "meshes": [{"primitives": [prim(0)]}, {"primitives": [prim(1)]}],
+            "materials": [material, {"name": "back"}],
+            "textures": [{"source": 0, "sampler": 0}],
+            "samplers": [{"wrapS": 33071, "wrapT": 33071}],
+            "images": [{"bufferView": 3, "mimeType": "image/png"}],
+            "bufferViews": [
+                {"buffer": 0, "byteOffset": 0, "byteLength": 48},
+                {"buffer": 0, "byteOffset": uv_at, "byteLength": 32},
+                {"buffer": 0, "byteOffset": idx_at, "byteLength": 12},
+                {"buffer": 0, "byteOffset": img_at, "byteLength": png.len()},
+            ],
+            "accessors": [
+                {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
+                {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
+                {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"},
+            ],
+        }),
+    )
+}
+
+fn rgba_png(texels: &[[u8; 4]], w: u32, h: u32) -> Vec<u8> {
+    let mut out = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut out, w, h);
+        enc.set_color(png::ColorType::Rgba);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut wr = enc.write_header().expect("png header");
+        let data: Vec<u8> = texels.iter().flatten().copied().collect();
+        wr.write_image_data(&data).expect("png data");
+    }
+    out
+}
+
+#[test]
+fn alpha_masked_surfaces_are_passed_through_by_every_ray() {
+    // Four texels across u: alpha 0, 0, 1, 1 (the colour is white throughout).
+    let png = rgba_png(
+        &[
+            [255, 255, 255, 0],
+            [255, 255, 255, 0],
+            [255, 255, 255, 255],
+            [255, 255, 255, 255],
+        ],
+        4,
+        1,
+    );
+    let mask =
+        json!({"alphaMode": "MASK", "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}});
+    let s = load(&two_quads(mask, &png), &GltfOptions::default()).expect("ok");
+    assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+    let down = |x: f32| tessera_render::util::math::Ray::new(Vec3A::new(x, 0.5, 3.0), Vec3A::NEG_Z);
+    // Through the cut-out half to the back quad (z = 0, t = 3); on the kept half, the front
+    // quad (t = 2), with its t along the original ray either way.
+    let cut = s
+        .intersect(&down(0.2), f32::INFINITY)
+        .expect("the back quad");
+    assert!((cut.t - 3.0).abs() < 1e-5 && cut.prim == 1, "{cut:?}");
+    let kept = s
+        .intersect(&down(0.8), f32::INFINITY)
+        .expect("the front quad");
+    assert!((kept.t - 2.0).abs() < 1e-5 && kept.prim == 0, "{kept:?}");
+    // Shadow rays: blocked by the kept half only (stopping short of the back quad).
+    assert!(!s.occluded(&down(0.2), 2.5));
+    assert!(s.occluded(&down(0.8), 2.5));
+    // The same file opaque: the front quad everywhere.
+    let opaque = json!({"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}});
+    let s = load(&two_quads(opaque, &png), &GltfOptions::default()).expect("ok");
+    assert_eq!(s.intersect(&down(0.2), f32::INFINITY).expect("hit").prim, 0);
+}
+
+#[test]
+fn alpha_blended_surfaces_are_met_with_their_alpha_as_probability_and_the_same_bits() {
+    let png = rgba_png(&[[255, 255, 255, 255]], 1, 1);
+    let blend = json!({"alphaMode": "BLEND", "pbrMetallicRoughness": {
+        "baseColorFactor": [1, 1, 1, 0.25], "baseColorTexture": {"index": 0}}});
+    let s = load(&two_quads(blend, &png), &GltfOptions::default()).expect("ok");
+    let n = 20_000;
+    let mut front = 0;
+    let mut rng = tessera_render::sampling::HashRng::new(9);
+    for _ in 0..n {
+        let (x, y) = (rng.next_f32(), rng.next_f32());
+        let ray = tessera_render::util::math::Ray::new(Vec3A::new(x, y, 3.0), Vec3A::NEG_Z);
+        let hit = s.intersect(&ray, f32::INFINITY).expect("one of the quads");
+        // The same ray meets the same surface every time.
+        assert_eq!(
+            s.intersect(&ray, f32::INFINITY).expect("hit").prim,
+            hit.prim
+        );
+        front += usize::from(hit.prim == 0);
+    }
+    // Binomial(20000, 0.25): standard deviation 61; 5σ either side.
+    let want = n as f64 * 0.25;
+    eprintln!("{front} of {n} rays met the blended quad");
+    assert!(
+        (front as f64 - want).abs() < 5.0 * (want * 0.75).sqrt(),
+        "{front} of {n}"
+    );
+}

@@ -35,9 +35,9 @@ type MeshGroups = Vec<(Option<String>, Arc<TriMesh>)>;
 pub(super) struct SceneFiles {
     /// By file name: each material group's name and mesh.
     files: BTreeMap<String, MeshGroups>,
-    /// Textures by file name, whether they are data (no sRGB curve) and how they wrap, as
-    /// indices into `pending_textures` (and, once decoded, the scene's texture list).
-    textures: BTreeMap<(String, bool, [Wrap; 2]), u32>,
+    /// Textures by file name, how they are decoded and how they wrap, as indices into
+    /// `pending_textures` (and, once decoded, the scene's texture list).
+    textures: BTreeMap<(String, Decode, [Wrap; 2]), u32>,
     /// Each texture's file read and its header checked, its pixels not yet decoded: decoding
     /// waits until every check that needs no pixels has passed ([`SceneFiles::decode_textures`]).
     pending_textures: Vec<PendingTexture>,
@@ -54,8 +54,8 @@ struct PendingTexture {
     path: KeyPath,
     format: ImageFormat,
     bytes: Vec<u8>,
-    /// Decoded without the sRGB curve.
-    data: bool,
+    /// Which values are read from it.
+    decode: Decode,
     /// Where the scene reads it as one scalar without naming a channel, so it must be grey.
     grey: Option<KeyPath>,
     /// How its coordinates wrap.
@@ -71,6 +71,19 @@ pub(super) enum TextureUse {
     Data,
     /// A scalar from the whole image, which must then be grey.
     Grey,
+    /// The image's alpha channel (a glTF material's alpha mask).
+    Alpha,
+}
+
+/// How a texture's file is decoded: one decoded copy per kind.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+enum Decode {
+    /// Through the sRGB curve.
+    Color,
+    /// Linear codes.
+    Data,
+    /// The alpha channel, linear.
+    Alpha,
 }
 
 /// Most texels over a scene's textures.
@@ -175,8 +188,12 @@ impl SceneFiles {
         wrap: [Wrap; 2],
         load: impl FnOnce(&mut Self) -> Result<(ImageFormat, Vec<u8>), Invalid>,
     ) -> Result<u32, Invalid> {
-        let data = usage != TextureUse::Color;
-        let key = (name.to_string(), data, wrap);
+        let decode = match usage {
+            TextureUse::Color => Decode::Color,
+            TextureUse::Data | TextureUse::Grey => Decode::Data,
+            TextureUse::Alpha => Decode::Alpha,
+        };
+        let key = (name.to_string(), decode, wrap);
         if let Some(&i) = self.textures.get(&key) {
             let t = &mut self.pending_textures[i as usize];
             if usage == TextureUse::Grey && t.grey.is_none() {
@@ -202,7 +219,7 @@ impl SceneFiles {
             path: path.clone(),
             format,
             bytes,
-            data,
+            decode,
             grey: (usage == TextureUse::Grey).then(|| path.clone()),
             wrap,
         });
@@ -263,10 +280,10 @@ impl SceneFiles {
         std::mem::take(&mut self.pending_textures)
             .into_iter()
             .map(|t| {
-                let decoded = if t.data {
-                    Texture::decode_data(&t.bytes, t.format, MAX_TEXELS)
-                } else {
-                    Texture::decode(&t.bytes, t.format, MAX_TEXELS)
+                let decoded = match t.decode {
+                    Decode::Color => Texture::decode(&t.bytes, t.format, MAX_TEXELS),
+                    Decode::Data => Texture::decode_data(&t.bytes, t.format, MAX_TEXELS),
+                    Decode::Alpha => Texture::decode_alpha(&t.bytes, t.format, MAX_TEXELS),
                 };
                 let decoded = decoded
                     .map_err(|m| (t.path, format!("{}: {m}", t.name)))?
@@ -362,6 +379,7 @@ pub(super) fn build(
     let mut prims = Vec::with_capacity(desc.objects.len());
     let mut lights = Vec::new();
     let (mut gltf_lights, mut cameras, mut warnings) = (Vec::new(), Vec::new(), Vec::new());
+    let mut alpha_tests = Vec::new();
     for (i, o) in desc.objects.iter().enumerate() {
         let op = root("objects").index(i);
         let parts = if o.shape == ShapeKind::Gltf {
@@ -369,6 +387,7 @@ pub(super) fn build(
                 materials: &mut materials,
                 absorption: &mut absorption,
                 pbrs: &mut pbrs,
+                alpha: &mut alpha_tests,
             };
             let file = build_gltf(o, &op, &names, &mut tables, &mut files, limits, assets)?;
             let name = o.file.clone().unwrap_or_default();
@@ -441,6 +460,13 @@ pub(super) fn build(
     } else {
         Vec::new()
     };
+    let mut alpha = Vec::new();
+    if !alpha_tests.is_empty() {
+        alpha = vec![None; materials.len()];
+        for (i, a) in alpha_tests {
+            alpha[i as usize] = Some(a);
+        }
+    }
     let scene = Scene {
         camera,
         width: w,
@@ -458,6 +484,7 @@ pub(super) fn build(
         absorption,
         plastics,
         pbrs,
+        alpha,
         warnings,
     };
     Ok((scene, files.read))

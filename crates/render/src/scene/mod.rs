@@ -5,6 +5,7 @@
 //! path, whether it comes from the parser (syntax, unknown key, wrong type) or from validation
 //! (a NaN radius, a missing material, a degenerate transform, a limit).
 
+mod alpha;
 mod animate;
 pub mod assets;
 mod build;
@@ -25,6 +26,7 @@ use std::path::Path;
 
 use glam::Vec3A;
 
+pub use alpha::AlphaTest;
 pub use format::*;
 pub use frames::{BadFrameRange, FrameRange};
 pub use gltf::{is_gltf, scene_text as gltf_scene_text, GltfOptions};
@@ -216,6 +218,9 @@ pub struct Scene {
     plastics: Vec<crate::bsdf::Plastic>,
     /// The glTF materials that [`Bsdf::Pbr`] materials index.
     pbrs: Vec<crate::bsdf::PbrMaterial>,
+    /// Each material's alpha test, by material index; empty when no material has one, which
+    /// is every scene but glTF files with `MASK` or `BLEND` materials.
+    alpha: Vec<Option<AlphaTest>>,
     /// What the scene's files ask for that is not rendered as they ask (a glTF file's alpha
     /// blending, say), one line each, for the user to see.
     pub warnings: Vec<String>,
@@ -363,13 +368,21 @@ impl Scene {
     /// Closest hit along `ray` with t in (0, t_max).
     #[inline]
     pub fn intersect(&self, ray: &Ray, t_max: f32) -> Option<Hit> {
-        self.accel.intersect(&self.prims, ray, t_max)
+        let hit = self.accel.intersect(&self.prims, ray, t_max);
+        if self.alpha.is_empty() {
+            return hit;
+        }
+        self.alpha_tested(ray, t_max, hit?)
     }
 
     /// Whether anything blocks `ray` for t in (0, t_max).
     #[inline]
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
-        self.accel.occluded(&self.prims, ray, t_max)
+        if self.alpha.is_empty() {
+            return self.accel.occluded(&self.prims, ray, t_max);
+        }
+        // Any surface may be cut out where the ray meets it: the closest kept one decides.
+        self.intersect(ray, t_max).is_some()
     }
 
     /// Whether the whole scene is one BVH leaf with nothing unbounded: the scenes whose

@@ -11,7 +11,7 @@ use glam::{Vec2, Vec3A};
 use super::super::assets::Assets;
 use super::super::build::{SceneFiles, TextureUse};
 use super::super::check::Invalid;
-use super::super::{KeyPath, Limits, Material};
+use super::super::{AlphaTest, KeyPath, Limits, Material};
 use super::{data, MaterialTables};
 use crate::bsdf::microfacet::TrowbridgeReitz;
 use crate::bsdf::pbr::{CoatTable, NormalMap, ScalarParam};
@@ -95,6 +95,9 @@ impl<'d> GltfMaterials<'d> {
         let (material, absorption, pbr) = self
             .convert(m, &what, files, limits, assets, path)
             .map_err(|(p, e)| (p, format!("{what}: {e}")))?;
+        let alpha = self
+            .alpha(m, &what, files, limits, assets, path)
+            .map_err(|(p, e)| (p, format!("{what}: {e}")))?;
         let mut material = material;
         if let Some(p) = pbr {
             tables.pbrs.push(p);
@@ -103,6 +106,9 @@ impl<'d> GltfMaterials<'d> {
         let i = tables.materials.len() as u32;
         tables.materials.push(material);
         tables.absorption.push(absorption);
+        if let Some(a) = alpha {
+            tables.alpha.push((i, a));
+        }
         self.built.insert(m.index(), i);
         Ok(i)
     }
@@ -139,10 +145,6 @@ impl<'d> GltfMaterials<'d> {
         }
         if m.emissive_texture().is_some() {
             self.warn("renders emission textures as their factor alone (one colour)");
-        }
-        match m.alpha_mode() {
-            gltf::material::AlphaMode::Opaque => {}
-            _ => self.warn("renders alpha MASK and BLEND materials opaque"),
         }
         let (set, map) = self.uv_map(m);
         if infos(m)
@@ -280,6 +282,51 @@ impl<'d> GltfMaterials<'d> {
             texture: None,
         };
         Ok((runtime, Vec3A::ZERO, Some(material)))
+    }
+
+    /// A `MASK` or `BLEND` material's alpha test: the base colour factor's alpha times its
+    /// texture's alpha channel; `None` for an opaque material, or one whose alpha is 1
+    /// everywhere.
+    #[allow(clippy::too_many_arguments)]
+    fn alpha(
+        &mut self,
+        m: &gltf::Material,
+        what: &str,
+        files: &mut SceneFiles,
+        limits: &Limits,
+        assets: &dyn Assets,
+        path: &KeyPath,
+    ) -> Result<Option<AlphaTest>, Invalid> {
+        let cutoff = match m.alpha_mode() {
+            gltf::material::AlphaMode::Opaque => return Ok(None),
+            gltf::material::AlphaMode::Mask => Some(m.alpha_cutoff().unwrap_or(0.5)),
+            gltf::material::AlphaMode::Blend => None,
+        };
+        let factor = m.pbr_metallic_roughness().base_color_factor()[3];
+        if !factor.is_finite() || cutoff.is_some_and(|c| !c.is_finite()) {
+            return Err((
+                path.clone(),
+                "its alpha factor or cutoff is not finite".into(),
+            ));
+        }
+        let texture = match m.pbr_metallic_roughness().base_color_texture() {
+            Some(info) => Some(self.texture(
+                &info.texture(),
+                &format!("{what}.baseColorTexture"),
+                TextureUse::Alpha,
+                files,
+                limits,
+                assets,
+                path,
+            )?),
+            None if factor >= 1.0 => return Ok(None),
+            None => None,
+        };
+        Ok(Some(AlphaTest {
+            factor: factor.clamp(0.0, 1.0),
+            texture,
+            cutoff,
+        }))
     }
 
     /// A glTF texture's image, read once per use (colour or data) however many materials

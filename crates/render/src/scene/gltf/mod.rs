@@ -102,6 +102,8 @@ pub(super) struct MaterialTables<'a> {
     pub(super) absorption: &'a mut Vec<Vec3A>,
     /// The glTF materials [`crate::bsdf::Bsdf::Pbr`] indexes.
     pub(super) pbrs: &'a mut Vec<PbrMaterial>,
+    /// The alpha tests of `MASK` and `BLEND` materials, by material index.
+    pub(super) alpha: &'a mut Vec<(u32, super::AlphaTest)>,
 }
 
 /// The directory part of a scene file name (`""` for none), which a glTF file's URIs are
@@ -402,10 +404,10 @@ fn camera_at(
     // The crate's `Camera::projection` unwraps the values of the camera's type, which its
     // validation does not check are there.
     let json = &doc.as_json().cameras[camera.index()];
-    let perspective = match json.type_ {
-        gltf::json::validation::Checked::Valid(gltf::json::camera::Type::Perspective) => true,
-        _ => false,
-    };
+    let perspective = matches!(
+        json.type_,
+        gltf::json::validation::Checked::Valid(gltf::json::camera::Type::Perspective)
+    );
     if perspective && json.perspective.is_none() || !perspective && json.orthographic.is_none() {
         return Err(format!(
             "cameras[{}]: its type's values (`perspective` or `orthographic`) are missing",
