@@ -7,8 +7,8 @@ use std::sync::Arc;
 use glam::Vec3A;
 
 use super::assets::Assets;
-use super::build::{SceneFiles, MAX_TEXELS};
 use super::check::{color, finite, finite3, only, required, root, Invalid};
+use super::files::{SceneFiles, MAX_TEXELS};
 use super::gltf::GltfLight;
 use super::{
     Environment, EnvironmentKind, KeyPath, LightDesc, LightKind, Limits, Primitive, SceneFile,

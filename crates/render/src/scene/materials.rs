@@ -7,8 +7,8 @@ use std::collections::BTreeMap;
 use glam::Vec3A;
 
 use super::assets::Assets;
-use super::build::{SceneFiles, TextureUse};
 use super::check::{color, finite3, only, positive, required, root, Invalid};
+use super::files::{SceneFiles, TextureUse};
 use super::{
     AlbedoDesc, KeyPath, Limits, Material, MaterialDesc, MaterialKind, ScalarDesc, SceneFile,
 };

@@ -10,6 +10,7 @@ mod animate;
 pub mod assets;
 mod build;
 mod check;
+mod files;
 mod format;
 mod frames;
 mod gltf;

@@ -9,8 +9,8 @@ use std::collections::{BTreeMap, BTreeSet};
 use glam::{Vec2, Vec3A};
 
 use super::super::assets::Assets;
-use super::super::build::{SceneFiles, TextureUse};
 use super::super::check::Invalid;
+use super::super::files::{SceneFiles, TextureUse};
 use super::super::{AlphaTest, KeyPath, Limits, Material};
 use super::{data, MaterialTables};
 use crate::bsdf::microfacet::TrowbridgeReitz;

@@ -21,8 +21,8 @@ use gltf::json::validation::Validate as _;
 use gltf::mesh::Mode;
 
 use super::assets::Assets;
-use super::build::SceneFiles;
 use super::check::{degenerate, Invalid};
+use super::files::SceneFiles;
 use super::{KeyPath, Limits, Material};
 use crate::bsdf::PbrMaterial;
 use crate::interaction::Transformed;
