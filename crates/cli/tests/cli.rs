@@ -601,3 +601,59 @@ fn render_writes_the_aovs_it_is_asked_for_and_names_one_it_does_not_know() {
     ]);
     assert_clean_failure(&bad, &["--aov", "\"mist\""]);
 }
+
+/// A glTF file is a scene: `--camera` picks its camera by name, `--environment` lights it by
+/// an HDR map (named relative to the working directory, as a user types it), and both flags
+/// are refused for a TOML scene, whose text says its own camera and light; a broken glTF file
+/// is refused in one line naming it.
+#[test]
+fn gltf_files_render_with_their_camera_and_an_environment() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("g.exr");
+    let out = out.to_str().expect("utf8");
+    let sample = repo("scenes/gltf/sample.glb");
+    let sky = repo("scenes/textures/sky.exr");
+    let r = tessera(&[
+        "render",
+        &sample,
+        "--spp",
+        "1",
+        "--output",
+        out,
+        "--camera",
+        "main",
+        "--environment",
+        &sky,
+        "--threads",
+        "2",
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let img = read_exr_rgb(Path::new(out)).expect("valid EXR");
+    assert_eq!((img.width, img.height), (1280, 720));
+    let r = tessera(&[
+        "render", &sample, "--spp", "1", "--output", out, "--camera", "nowhere",
+    ]);
+    assert_clean_failure(
+        &r,
+        &[
+            "sample.glb: camera.name: no glTF camera is named \"nowhere\"",
+            "main",
+        ],
+    );
+    let toml = repo("scenes/cornell-box.toml");
+    let r = tessera(&[
+        "render", &toml, "--spp", "1", "--output", out, "--camera", "main",
+    ]);
+    assert_clean_failure(&r, &["--camera is for glTF scenes"]);
+    let bad = dir.path().join("bad.glb");
+    std::fs::write(&bad, b"glTF\x02\0\0\0\xff\xff\xff\xff").expect("write");
+    let r = tessera(&[
+        "render",
+        bad.to_str().expect("utf8"),
+        "--spp",
+        "1",
+        "--output",
+        out,
+    ]);
+    assert_clean_failure(&r, &["bad.glb: the GLB header gives a length"]);
+}
