@@ -182,8 +182,13 @@ fn reference(
     ))
 }
 
-/// For each distinct mesh of `scene`, a report line with the time its BVH takes to build (built
-/// again from its triangles, as the loader builds it, on `pool`).
+/// Fewest triangles a mesh needs for its BVH build time to be reported: below this the time is
+/// the thread pool's start-up, and "seconds per million" of it means nothing.
+const MIN_TIMED_TRIANGLES: usize = 10_000;
+
+/// For each distinct mesh of `scene` of at least [`MIN_TIMED_TRIANGLES`], a report line with the
+/// time its BVH takes to build (built again from its triangles, as the loader builds it, on
+/// `pool`).
 fn mesh_builds(
     name: &str,
     scene: &Scene,
@@ -200,6 +205,9 @@ fn mesh_builds(
             continue;
         }
         seen.push(std::sync::Arc::as_ptr(&m.mesh));
+        if m.mesh.len() < MIN_TIMED_TRIANGLES {
+            continue;
+        }
         let tris: Vec<_> = m.mesh.triangles().collect();
         let n = tris.len();
         let start = Instant::now();
