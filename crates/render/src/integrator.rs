@@ -118,7 +118,11 @@ fn trace(
 
         if prim.light != u32::MAX {
             let li = (prim.light + hit.part * prim.light_stride) as usize;
-            let le = scene.lights.lights[li].emitted(sp.n, wo);
+            let light = &scene.lights.lights[li];
+            let mut le = light.emitted(sp.n, wo);
+            if let Some(t) = &light.texture {
+                le *= t.texture.lookup(prim.shape.uv(&ray, hit.part));
+            }
             if le != Vec3A::ZERO {
                 add_emitted(&mut path, scene, strategy, li, le, &sp);
             }

@@ -153,6 +153,32 @@ pub struct Light {
     pub radiance: Vec3A,
     /// Whether both sides emit.
     pub two_sided: bool,
+    /// A mesh light's emission texture (glTF's `emissiveTexture`), which scales `radiance`
+    /// point by point; `None` for every other light.
+    pub texture: Option<Arc<EmissionTexture>>,
+}
+
+/// An emission texture on a mesh light: the texture, each light triangle's texture
+/// coordinates (in the order of [`MeshLight`]'s triangles), and the texture's mean, which
+/// scales the light's share of light samples.
+#[derive(Debug)]
+pub struct EmissionTexture {
+    /// The texture (sRGB-decoded colour).
+    pub texture: Arc<crate::texture::Texture>,
+    /// Texture coordinates of each light triangle's corners.
+    pub uvs: Vec<[glam::Vec2; 3]>,
+    /// The mean texel.
+    pub mean: Vec3A,
+}
+
+impl EmissionTexture {
+    /// The texel at the point of mesh light `m` that light-sample numbers `u` pick.
+    #[inline]
+    fn at_sample(&self, m: &MeshLight, u: Vec2) -> Vec3A {
+        let (i, b) = m.pick(u);
+        let [a, c, d] = self.uvs.get(i).copied().unwrap_or_default();
+        self.texture.lookup(a * b[0] + c * b[1] + d * b[2])
+    }
 }
 
 /// A sampled point on a light.
@@ -203,7 +229,11 @@ pub struct Lights {
 
 impl Light {
     fn power_weight(&self) -> f32 {
-        let sum = self.radiance.x + self.radiance.y + self.radiance.z;
+        let radiance = match &self.texture {
+            Some(t) => self.radiance * t.mean,
+            None => self.radiance,
+        };
+        let sum = radiance.x + radiance.y + radiance.z;
         let area = match &self.shape {
             LightShape::Quad(q) => q.area,
             LightShape::Sphere { radius, .. } => 4.0 * PI * radius * radius,
@@ -566,7 +596,10 @@ impl Lights {
         if !positive_finite(pdf) {
             return None;
         }
-        let le = light.emitted(n, -wi);
+        let mut le = light.emitted(n, -wi);
+        if let (Some(t), LightShape::Mesh(m)) = (&light.texture, &light.shape) {
+            le *= t.at_sample(m, u);
+        }
         let towards = if n.dot(-wi) >= 0.0 { n } else { -n };
         Some(LightSample {
             p: offset_ray_origin(x, light.point_error(x, u), towards),

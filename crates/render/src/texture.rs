@@ -194,6 +194,14 @@ impl Texture {
         }
     }
 
+    /// The mean texel (in f64, rounded once).
+    pub fn mean(&self) -> Vec3A {
+        let sum = self.texels.iter().fold(glam::DVec3::ZERO, |s, t| {
+            s + glam::DVec3::new(t.x.into(), t.y.into(), t.z.into())
+        });
+        (sum / self.texels.len().max(1) as f64).as_vec3().into()
+    }
+
     /// Size in texels.
     pub fn size(&self) -> (usize, usize) {
         (self.width, self.height)

@@ -805,3 +805,113 @@ fn alpha_blended_surfaces_are_met_with_their_alpha_as_probability_and_the_same_b
         "{front} of {n}"
     );
 }
+
+/// A glTF emitter (the quad, double-sided, `emissiveFactor` 2 × `emissiveTexture`) placed
+/// facing down at y = 1 over a diffuse floor, seen from the side, as a TOML scene.
+fn emitter_scene(png: &[u8]) -> Scene {
+    let mut buf = f32s(&QUAD);
+    let uv_at = buf.len();
+    buf.extend(f32s(&[0., 1., 1., 1., 1., 0., 0., 0.]));
+    let idx_at = buf.len();
+    buf.extend([0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()));
+    let img_at = buf.len();
+    buf.extend(png);
+    let gltf = doc(
+        &buf,
+        json!({
+            "scenes": [{"nodes": [0]}],
+            "nodes": [{"mesh": 0}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": 0}]}],
+            "materials": [{"doubleSided": true, "emissiveFactor": [2, 2, 2], "emissiveTexture": {"index": 0},
+                           "pbrMetallicRoughness": {"baseColorFactor": [0, 0, 0, 1], "metallicFactor": 0}}],
+            "textures": [{"source": 0, "sampler": 0}],
+            "samplers": [{"wrapS": 33071, "wrapT": 33071}],
+            "images": [{"bufferView": 3, "mimeType": "image/png"}],
+            "bufferViews": [
+                {"buffer": 0, "byteOffset": 0, "byteLength": 48},
+                {"buffer": 0, "byteOffset": uv_at, "byteLength": 32},
+                {"buffer": 0, "byteOffset": idx_at, "byteLength": 12},
+                {"buffer": 0, "byteOffset": img_at, "byteLength": png.len()},
+            ],
+            "accessors": [
+                {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
+                {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
+                {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"},
+            ],
+        }),
+    );
+    let text = "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0.5, 0.5, 3]\n\
+                target = [0.5, 0, 0.5]\nfov = 50\n[film]\nwidth = 24\nheight = 24\n\
+                [materials.floor]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n\
+                [[objects]]\nshape = \"plane\"\nmaterial = \"floor\"\n\
+                [[objects]]\nshape = \"gltf\"\nfile = \"lamp.gltf\"\n\
+                transform = { rotate = { axis = [1, 0, 0], degrees = 90 }, translate = [0, 1, 0] }\n";
+    let files = MemAssets(BTreeMap::from([(
+        "lamp.gltf".to_string(),
+        serde_json::to_vec(&gltf).expect("json"),
+    )]));
+    Scene::from_str_with(
+        text,
+        Format::Toml,
+        "lamp.toml",
+        &Limits::default(),
+        1,
+        &files,
+    )
+    .expect("loads")
+}
+
+/// The image mean of `scene` under `strategy` at `spp`, with its standard error.
+fn image_mean(scene: &Scene, strategy: tessera_render::Strategy, spp: u32) -> (f64, f64) {
+    use tessera_render::{render_tile, PixelRect, RenderSettings};
+    let settings = RenderSettings {
+        spp,
+        batch: spp,
+        seed: 5,
+        strategy,
+        ..RenderSettings::default()
+    };
+    let rect = PixelRect {
+        x0: 0,
+        y0: 0,
+        width: scene.width,
+        height: scene.height,
+    };
+    let t = render_tile(scene, &settings, rect, 0..spp);
+    let n = t.count.len() as f64;
+    let (mut mean, mut var) = (0.0, 0.0);
+    for ((s, q), &c) in t.sum.iter().zip(&t.sum_sq).zip(&t.count) {
+        let c = f64::from(c);
+        let m = s.iter().sum::<f64>() / (3.0 * c);
+        let m2 = q.iter().sum::<f64>() / (3.0 * c);
+        mean += m / n;
+        var += (m2 - m * m).max(0.0) / c / (n * n);
+    }
+    (mean, var.sqrt())
+}
+
+#[test]
+fn emission_textures_light_the_same_under_every_strategy_and_scale_a_uniform_light() {
+    use tessera_render::Strategy;
+    // Half the lamp emits (texels black, black, white, white across u).
+    let half = emitter_scene(&common_png(&[[0; 3], [0; 3], [255; 3], [255; 3]], 4, 1));
+    assert!(half.warnings.is_empty(), "{:?}", half.warnings);
+    assert!(half.lights.lights.iter().any(|l| l.texture.is_some()));
+    let (mis, se_mis) = image_mean(&half, Strategy::Mis, 256);
+    for s in [Strategy::Nee, Strategy::Bsdf] {
+        let (m, se) = image_mean(&half, s, 256);
+        let z = (m - mis) / se_mis.hypot(se);
+        assert!(z.abs() < 4.5, "{s:?}: {m} against MIS {mis}, z = {z:.2}");
+    }
+    // A uniform texel c is a light of c times the factor: all white gives twice the half-lit
+    // floor's light, give or take where the dark half stood.
+    let white = emitter_scene(&common_png(&[[255; 3]], 1, 1));
+    let (w, se_w) = image_mean(&white, Strategy::Mis, 256);
+    let dark = emitter_scene(&common_png(&[[0; 3]], 1, 1));
+    let (d, _) = image_mean(&dark, Strategy::Mis, 16);
+    assert_eq!(d, 0.0, "a black emission texture emits nothing");
+    assert!(
+        w > mis * 1.3 && w < mis * 2.7,
+        "white {w} ± {se_w} against half {mis}"
+    );
+}

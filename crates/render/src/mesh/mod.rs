@@ -319,6 +319,15 @@ impl MeshInstance {
         transformed_box(&self.xf.to_world, b.min, b.max)
     }
 
+    /// Each triangle's texture coordinates in the order of [`MeshInstance::world_triangles`]
+    /// (a mesh light's), or zeros where the file gives none.
+    pub fn light_uvs(&self) -> Vec<[Vec2; 3]> {
+        self.mesh
+            .slots()
+            .map(|i| self.mesh.uvs.get(i as usize).copied().unwrap_or_default())
+            .collect()
+    }
+
     /// The triangles in world space with their front normals and areas, for area lights.
     pub fn world_triangles(&self) -> Vec<([Vec3A; 3], Vec3A, f32)> {
         self.mesh

@@ -70,6 +70,9 @@ pub(super) fn build(
     let mut lights = Vec::new();
     let (mut gltf_lights, mut cameras, mut warnings) = (Vec::new(), Vec::new(), Vec::new());
     let mut alpha_tests = Vec::new();
+    // glTF materials' emission textures (material, texture), and the mesh lights that take
+    // them once the textures are decoded (light, texture, the light triangles' coordinates).
+    let (mut emissive, mut textured_lights) = (Vec::new(), Vec::new());
     for (i, o) in desc.objects.iter().enumerate() {
         let op = root("objects").index(i);
         let parts = if o.shape == ShapeKind::Gltf {
@@ -78,6 +81,7 @@ pub(super) fn build(
                 absorption: &mut absorption,
                 pbrs: &mut pbrs,
                 alpha: &mut alpha_tests,
+                emissive: &mut emissive,
             };
             let file = build_gltf(o, &op, &names, &mut tables, &mut files, limits, assets)?;
             let name = o.file.clone().unwrap_or_default();
@@ -121,6 +125,13 @@ pub(super) fn build(
             } else {
                 u32::MAX
             };
+            if let (Some(&(_, t)), Shape::Mesh(m)) =
+                (emissive.iter().find(|(e, _)| *e == material), &shape)
+            {
+                if light != u32::MAX {
+                    textured_lights.push((light, t, m.light_uvs()));
+                }
+            }
             let light_stride = u32::from(matches!(shape, Shape::Cuboid { .. }));
             prims.push(Primitive {
                 shape,
@@ -131,6 +142,15 @@ pub(super) fn build(
         }
     }
     let textures = files.decode_textures()?;
+    for (light, t, uvs) in textured_lights {
+        let texture = Arc::clone(&textures[t as usize]);
+        let mean = texture.mean();
+        lights[light as usize].texture = Some(Arc::new(crate::light::EmissionTexture {
+            texture,
+            uvs,
+            mean,
+        }));
+    }
     let accel = Accel::build(&prims);
     let reach = reach(&prims);
     punctual_lights(desc, reach, &mut lights)?;
@@ -678,6 +698,7 @@ fn add_lights(shape: &Shape, mat: &Material, lights: &mut Vec<Light>) -> u32 {
             shape: s,
             radiance: mat.emission,
             two_sided: mat.two_sided,
+            texture: None,
         })
     };
     match &shape {

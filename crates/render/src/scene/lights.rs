@@ -206,6 +206,7 @@ fn punctual(l: &LightDesc, lp: &KeyPath, reach: f32) -> Result<Light, Invalid> {
             shape,
             radiance,
             two_sided: false,
+            texture: None,
         })
     }
 }
@@ -342,6 +343,7 @@ impl PendingEnvironment {
             },
             radiance: Vec3A::ZERO,
             two_sided: false,
+            texture: None,
         });
         Ok(Some(Environment::Map { map, light }))
     }

@@ -104,6 +104,21 @@ impl<'d> GltfMaterials<'d> {
             material.bsdf = Bsdf::Pbr(tables.pbrs.len() as u32 - 1);
         }
         let i = tables.materials.len() as u32;
+        if let Some(info) = m
+            .emissive_texture()
+            .filter(|_| material.emission != Vec3A::ZERO)
+        {
+            let t = self.texture(
+                &info.texture(),
+                &format!("{what}.emissiveTexture"),
+                TextureUse::Color,
+                files,
+                limits,
+                assets,
+                path,
+            )?;
+            tables.emissive.push((i, t));
+        }
         tables.materials.push(material);
         tables.absorption.push(absorption);
         if let Some(a) = alpha {
@@ -142,9 +157,6 @@ impl<'d> GltfMaterials<'d> {
                 "emission {:?} × strength {strength} must be finite and not negative",
                 m.emissive_factor()
             )));
-        }
-        if m.emissive_texture().is_some() {
-            self.warn("renders emission textures as their factor alone (one colour)");
         }
         let (set, map) = self.uv_map(m);
         if infos(m)

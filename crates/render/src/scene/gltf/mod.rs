@@ -104,6 +104,8 @@ pub(super) struct MaterialTables<'a> {
     pub(super) pbrs: &'a mut Vec<PbrMaterial>,
     /// The alpha tests of `MASK` and `BLEND` materials, by material index.
     pub(super) alpha: &'a mut Vec<(u32, super::AlphaTest)>,
+    /// Emission textures, as (material index, texture index).
+    pub(super) emissive: &'a mut Vec<(u32, u32)>,
 }
 
 /// The directory part of a scene file name (`""` for none), which a glTF file's URIs are
