@@ -130,13 +130,7 @@ impl Texture {
         let (w, h) = probe(bytes, format)?;
         check_size(w, h, max_texels)?;
         let _reserved = DecodeBudget::global().reserve(decode_bytes(w, h))?;
-        let mut reader = image::ImageReader::with_format(Cursor::new(bytes), image_format(format));
-        let mut limits = image::Limits::default();
-        limits.max_alloc = Some(max_texels.saturating_mul(16));
-        reader.limits(limits);
-        let img = reader
-            .decode()
-            .map_err(|e| format!("not a readable image: {e}"))?;
+        let img = decode_image(bytes, format, max_texels)?;
         let (width, height) = (img.width() as usize, img.height() as usize);
         let texels = img
             .to_luma_alpha32f()
@@ -424,6 +418,22 @@ fn image_format(format: ImageFormat) -> image::ImageFormat {
     }
 }
 
+/// A PNG, JPEG or .hdr file decoded by the `image` crate, its allocations capped by
+/// `max_texels`.
+fn decode_image(
+    bytes: &[u8],
+    format: ImageFormat,
+    max_texels: u64,
+) -> Result<image::DynamicImage, String> {
+    let mut reader = image::ImageReader::with_format(Cursor::new(bytes), image_format(format));
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(max_texels.saturating_mul(16));
+    reader.limits(limits);
+    reader
+        .decode()
+        .map_err(|e| format!("not a readable image: {e}"))
+}
+
 /// PNG and JPEG (8 or 16 bits, sRGB-encoded and decoded to linear where `srgb`, else linear
 /// codes) and Radiance .hdr (linear floats already).
 fn decode_8_16(
@@ -432,14 +442,7 @@ fn decode_8_16(
     max_texels: u64,
     srgb: bool,
 ) -> Result<Decoded, String> {
-    let format = image_format(format);
-    let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format);
-    let mut limits = image::Limits::default();
-    limits.max_alloc = Some(max_texels.saturating_mul(16));
-    reader.limits(limits);
-    let img = reader
-        .decode()
-        .map_err(|e| format!("not a readable image: {e}"))?;
+    let img = decode_image(bytes, format, max_texels)?;
     let (w, h) = (img.width(), img.height());
     check_size(u64::from(w), u64::from(h), max_texels)?;
     // Every code's linear value, computed once per image rather than once per texel.

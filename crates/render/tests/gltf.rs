@@ -5,6 +5,8 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
+mod common;
+
 use base64::Engine as _;
 use glam::Vec3A;
 use serde_json::{json, Value};
@@ -63,6 +65,32 @@ fn triangle_doc(positions: &[f32], indices: &[u16], extra: Value) -> Value {
             b.insert(k, v);
         }
     }
+    doc(&buf, body)
+}
+
+/// A document whose buffer holds the quad (accessors 0 to 2: positions, texture coordinates
+/// with v = 0 at the top of the image, indices) and `png` (image 0), around `body`, which
+/// gives the scene, meshes, materials, textures and samplers.
+fn textured_quad_doc(png: &[u8], mut body: Value) -> Value {
+    let mut buf = f32s(&QUAD);
+    let uv_at = buf.len();
+    buf.extend(f32s(&[0., 1., 1., 1., 1., 0., 0., 0.]));
+    let idx_at = buf.len();
+    buf.extend([0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()));
+    let img_at = buf.len();
+    buf.extend(png);
+    body["images"] = json!([{"bufferView": 3, "mimeType": "image/png"}]);
+    body["bufferViews"] = json!([
+        {"buffer": 0, "byteOffset": 0, "byteLength": 48},
+        {"buffer": 0, "byteOffset": uv_at, "byteLength": 32},
+        {"buffer": 0, "byteOffset": idx_at, "byteLength": 12},
+        {"buffer": 0, "byteOffset": img_at, "byteLength": png.len()},
+    ]);
+    body["accessors"] = json!([
+        {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
+        {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
+        {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"},
+    ]);
     doc(&buf, body)
 }
 
@@ -572,21 +600,10 @@ fn an_unlit_file_gets_a_white_sky_and_a_lit_one_its_own_light() {
 #[test]
 fn texture_transforms_and_samplers_shape_the_coordinates() {
     // One texel row: a 4 × 1 PNG, two black then two white; the quad's u runs 0..1.
-    let png = common_png(
-        &[[0, 0, 0], [0, 0, 0], [255, 255, 255], [255, 255, 255]],
-        4,
-        1,
-    );
-    let mut buf = f32s(&QUAD);
-    let uv_at = buf.len();
-    buf.extend(f32s(&[0., 1., 1., 1., 1., 0., 0., 0.]));
-    let idx_at = buf.len();
-    buf.extend([0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()));
-    let img_at = buf.len();
-    buf.extend(&png);
+    let png = common::png_rgb(4, 1, &[[0u8; 3], [0; 3], [255; 3], [255; 3]].concat());
     let make = |transform: Value, wrap: u32| {
-        doc(
-            &buf,
+        textured_quad_doc(
+            &png,
             json!({
                 "extensionsUsed": ["KHR_texture_transform"],
                 "scenes": [{"nodes": [0]}],
@@ -595,18 +612,6 @@ fn texture_transforms_and_samplers_shape_the_coordinates() {
                 "materials": [{"pbrMetallicRoughness": {"metallicFactor": 0, "baseColorTexture": {"index": 0, "extensions": {"KHR_texture_transform": transform}}}}],
                 "textures": [{"source": 0, "sampler": 0}],
                 "samplers": [{"wrapS": wrap, "wrapT": wrap}],
-                "images": [{"bufferView": 3, "mimeType": "image/png"}],
-                "bufferViews": [
-                    {"buffer": 0, "byteOffset": 0, "byteLength": 48},
-                    {"buffer": 0, "byteOffset": uv_at, "byteLength": 32},
-                    {"buffer": 0, "byteOffset": idx_at, "byteLength": 12},
-                    {"buffer": 0, "byteOffset": img_at, "byteLength": png.len()},
-                ],
-                "accessors": [
-                    {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
-                    {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
-                    {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"},
-                ],
             }),
         )
     };
@@ -635,19 +640,6 @@ fn texture_transforms_and_samplers_shape_the_coordinates() {
     // A half turn about the origin takes u to −u: repeating, the left is bright.
     let turned = make(json!({"rotation": std::f32::consts::PI}), REPEAT);
     assert!(seen(&turned, 0.3) > 0.99, "{}", seen(&turned, 0.3));
-}
-
-fn common_png(texels: &[[u8; 3]], w: u32, h: u32) -> Vec<u8> {
-    let mut out = Vec::new();
-    {
-        let mut enc = png::Encoder::new(&mut out, w, h);
-        enc.set_color(png::ColorType::Rgb);
-        enc.set_depth(png::BitDepth::Eight);
-        let mut wr = enc.write_header().expect("png header");
-        let data: Vec<u8> = texels.iter().flatten().copied().collect();
-        wr.write_image_data(&data).expect("png data");
-    }
-    out
 }
 
 #[test]
@@ -694,16 +686,9 @@ fn materials_map_replaces_a_file_material_by_name() {
 
 /// A front quad of `material` (z = 1) over a back quad (z = 0), both x, y in [0, 1].
 fn two_quads(material: Value, png: &[u8]) -> Value {
-    let mut buf = f32s(&QUAD);
-    let uv_at = buf.len();
-    buf.extend(f32s(&[0., 1., 1., 1., 1., 0., 0., 0.]));
-    let idx_at = buf.len();
-    buf.extend([0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()));
-    let img_at = buf.len();
-    buf.extend(png);
     let prim = |m: u32| json!({"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": m});
-    doc(
-        &buf,
+    textured_quad_doc(
+        png,
         json!({
             "scenes": [{"nodes": [0, 1]}],
             "nodes": [{"mesh": 0, "translation": [0, 0, 1]}, {"mesh": 1}],
@@ -711,47 +696,23 @@ fn two_quads(material: Value, png: &[u8]) -> Value {
             "materials": [material, {"name": "back"}],
             "textures": [{"source": 0, "sampler": 0}],
             "samplers": [{"wrapS": 33071, "wrapT": 33071}],
-            "images": [{"bufferView": 3, "mimeType": "image/png"}],
-            "bufferViews": [
-                {"buffer": 0, "byteOffset": 0, "byteLength": 48},
-                {"buffer": 0, "byteOffset": uv_at, "byteLength": 32},
-                {"buffer": 0, "byteOffset": idx_at, "byteLength": 12},
-                {"buffer": 0, "byteOffset": img_at, "byteLength": png.len()},
-            ],
-            "accessors": [
-                {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
-                {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
-                {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"},
-            ],
         }),
     )
-}
-
-fn rgba_png(texels: &[[u8; 4]], w: u32, h: u32) -> Vec<u8> {
-    let mut out = Vec::new();
-    {
-        let mut enc = png::Encoder::new(&mut out, w, h);
-        enc.set_color(png::ColorType::Rgba);
-        enc.set_depth(png::BitDepth::Eight);
-        let mut wr = enc.write_header().expect("png header");
-        let data: Vec<u8> = texels.iter().flatten().copied().collect();
-        wr.write_image_data(&data).expect("png data");
-    }
-    out
 }
 
 #[test]
 fn alpha_masked_surfaces_are_passed_through_by_every_ray() {
     // Four texels across u: alpha 0, 0, 1, 1 (the colour is white throughout).
-    let png = rgba_png(
-        &[
-            [255, 255, 255, 0],
-            [255, 255, 255, 0],
-            [255, 255, 255, 255],
-            [255, 255, 255, 255],
-        ],
+    let png = common::png_rgba(
         4,
         1,
+        &[
+            [255u8, 255, 255, 0],
+            [255, 255, 255, 0],
+            [255, 255, 255, 255],
+            [255, 255, 255, 255],
+        ]
+        .concat(),
     );
     let mask =
         json!({"alphaMode": "MASK", "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}});
@@ -779,7 +740,7 @@ fn alpha_masked_surfaces_are_passed_through_by_every_ray() {
 
 #[test]
 fn alpha_blended_surfaces_are_met_with_their_alpha_as_probability_and_the_same_bits() {
-    let png = rgba_png(&[[255, 255, 255, 255]], 1, 1);
+    let png = common::png_rgba(1, 1, &[255, 255, 255, 255]);
     let blend = json!({"alphaMode": "BLEND", "pbrMetallicRoughness": {
         "baseColorFactor": [1, 1, 1, 0.25], "baseColorTexture": {"index": 0}}});
     let s = load(&two_quads(blend, &png), &GltfOptions::default()).expect("ok");
@@ -809,15 +770,8 @@ fn alpha_blended_surfaces_are_met_with_their_alpha_as_probability_and_the_same_b
 /// A glTF emitter (the quad, double-sided, `emissiveFactor` 2 × `emissiveTexture`) placed
 /// facing down at y = 1 over a diffuse floor, seen from the side, as a TOML scene.
 fn emitter_scene(png: &[u8]) -> Scene {
-    let mut buf = f32s(&QUAD);
-    let uv_at = buf.len();
-    buf.extend(f32s(&[0., 1., 1., 1., 1., 0., 0., 0.]));
-    let idx_at = buf.len();
-    buf.extend([0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()));
-    let img_at = buf.len();
-    buf.extend(png);
-    let gltf = doc(
-        &buf,
+    let gltf = textured_quad_doc(
+        png,
         json!({
             "scenes": [{"nodes": [0]}],
             "nodes": [{"mesh": 0}],
@@ -826,18 +780,6 @@ fn emitter_scene(png: &[u8]) -> Scene {
                            "pbrMetallicRoughness": {"baseColorFactor": [0, 0, 0, 1], "metallicFactor": 0}}],
             "textures": [{"source": 0, "sampler": 0}],
             "samplers": [{"wrapS": 33071, "wrapT": 33071}],
-            "images": [{"bufferView": 3, "mimeType": "image/png"}],
-            "bufferViews": [
-                {"buffer": 0, "byteOffset": 0, "byteLength": 48},
-                {"buffer": 0, "byteOffset": uv_at, "byteLength": 32},
-                {"buffer": 0, "byteOffset": idx_at, "byteLength": 12},
-                {"buffer": 0, "byteOffset": img_at, "byteLength": png.len()},
-            ],
-            "accessors": [
-                {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
-                {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
-                {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"},
-            ],
         }),
     );
     let text = "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0.5, 0.5, 3]\n\
@@ -894,7 +836,11 @@ fn image_mean(scene: &Scene, strategy: tessera_render::Strategy, spp: u32) -> (f
 fn emission_textures_light_the_same_under_every_strategy_and_scale_a_uniform_light() {
     use tessera_render::Strategy;
     // Half the lamp emits (texels black, black, white, white across u).
-    let half = emitter_scene(&common_png(&[[0; 3], [0; 3], [255; 3], [255; 3]], 4, 1));
+    let half = emitter_scene(&common::png_rgb(
+        4,
+        1,
+        &[[0u8; 3], [0; 3], [255; 3], [255; 3]].concat(),
+    ));
     assert!(half.warnings.is_empty(), "{:?}", half.warnings);
     assert!(half.lights.lights.iter().any(|l| l.texture.is_some()));
     let (mis, se_mis) = image_mean(&half, Strategy::Mis, 256);
@@ -905,9 +851,9 @@ fn emission_textures_light_the_same_under_every_strategy_and_scale_a_uniform_lig
     }
     // A uniform texel c is a light of c times the factor: all white gives twice the half-lit
     // floor's light, give or take where the dark half stood.
-    let white = emitter_scene(&common_png(&[[255; 3]], 1, 1));
+    let white = emitter_scene(&common::png_rgb(1, 1, &[255; 3]));
     let (w, se_w) = image_mean(&white, Strategy::Mis, 256);
-    let dark = emitter_scene(&common_png(&[[0; 3]], 1, 1));
+    let dark = emitter_scene(&common::png_rgb(1, 1, &[0; 3]));
     let (d, _) = image_mean(&dark, Strategy::Mis, 16);
     assert_eq!(d, 0.0, "a black emission texture emits nothing");
     assert!(

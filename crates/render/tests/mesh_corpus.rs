@@ -9,18 +9,27 @@ use tessera_render::mesh::load::{load, MeshFormat};
 
 const CORPUS: &str = "/usr/share/assimp/models";
 
-fn mesh_files(dir: &Path, out: &mut Vec<PathBuf>) {
+/// The files under `dir`, at any depth, that `keep` keeps.
+fn files_under(dir: &Path, keep: &dyn Fn(&Path) -> bool, out: &mut Vec<PathBuf>) {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return;
     };
     for e in entries.flatten() {
         let p = e.path();
         if p.is_dir() {
-            mesh_files(&p, out);
-        } else if MeshFormat::from_name(&p.to_string_lossy()).is_some() {
+            files_under(&p, keep, out);
+        } else if keep(&p) {
             out.push(p);
         }
     }
+}
+
+fn mesh_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    files_under(
+        dir,
+        &|p| MeshFormat::from_name(&p.to_string_lossy()).is_some(),
+        out,
+    );
 }
 
 #[test]
@@ -71,17 +80,7 @@ fn every_corpus_mesh_loads_or_is_refused_in_one_line() {
 
 /// glTF files (`.gltf`, `.glb`) under `dir`.
 fn gltf_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for e in entries.flatten() {
-        let p = e.path();
-        if p.is_dir() {
-            gltf_files(&p, out);
-        } else if tessera_render::scene::is_gltf(&p) {
-            out.push(p);
-        }
-    }
+    files_under(dir, &tessera_render::scene::is_gltf, out);
 }
 
 /// Every glTF file of the corpus, as `tessera render FILE` reads it: either it builds and a

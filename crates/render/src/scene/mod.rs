@@ -44,7 +44,6 @@ use crate::light::Lights;
 pub use crate::primitive::Primitive;
 use crate::shape::Hit;
 use crate::util::math::Ray;
-use assets::Assets as _;
 
 /// Which syntax a scene is written in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -303,26 +302,23 @@ pub fn scene_source(
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
-        let bytes = assets::DirAssets(path.parent().unwrap_or(Path::new("")).to_path_buf())
-            .read(&name, limits.max_asset_bytes)
-            .map_err(|m| at_start(&file, m))?;
-        return Ok((gltf_scene_text(&name, &bytes, gltf), Format::Toml));
+        // The text needs the JSON only: a .glb's buffers are read once, by the build.
+        let json = gltf::json_part(path, limits.max_asset_bytes).map_err(|m| at_start(&file, m))?;
+        return Ok((gltf_scene_text(&name, &json, gltf), Format::Toml));
     }
-    {
-        let meta = std::fs::metadata(path).map_err(|e| io_error(&file, e))?;
-        if meta.len() > limits.max_bytes as u64 {
-            return Err(at_start(
-                &file,
-                format!(
-                    "scene is {} bytes, above the limit of {}",
-                    meta.len(),
-                    limits.max_bytes
-                ),
-            ));
-        }
-        let text = std::fs::read_to_string(path).map_err(|e| io_error(&file, e))?;
-        Ok((text, Format::from_path(path)))
+    let meta = std::fs::metadata(path).map_err(|e| io_error(&file, e))?;
+    if meta.len() > limits.max_bytes as u64 {
+        return Err(at_start(
+            &file,
+            format!(
+                "scene is {} bytes, above the limit of {}",
+                meta.len(),
+                limits.max_bytes
+            ),
+        ));
     }
+    let text = std::fs::read_to_string(path).map_err(|e| io_error(&file, e))?;
+    Ok((text, Format::from_path(path)))
 }
 
 impl Scene {

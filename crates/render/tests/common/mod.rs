@@ -18,13 +18,22 @@ pub fn repo_root() -> PathBuf {
 
 /// An 8-bit RGB PNG of `w` × `h` texels, row 0 at the top.
 pub fn png_rgb(w: u32, h: u32, rgb: &[u8]) -> Vec<u8> {
+    png_8bit(w, h, png::ColorType::Rgb, rgb)
+}
+
+/// An 8-bit RGBA PNG of `w` × `h` texels, row 0 at the top.
+pub fn png_rgba(w: u32, h: u32, rgba: &[u8]) -> Vec<u8> {
+    png_8bit(w, h, png::ColorType::Rgba, rgba)
+}
+
+fn png_8bit(w: u32, h: u32, color: png::ColorType, data: &[u8]) -> Vec<u8> {
     let mut out = Vec::new();
     {
         let mut e = png::Encoder::new(&mut out, w, h);
-        e.set_color(png::ColorType::Rgb);
+        e.set_color(color);
         e.set_depth(png::BitDepth::Eight);
         let mut w = e.write_header().expect("header");
-        w.write_image_data(rgb).expect("data");
+        w.write_image_data(data).expect("data");
     }
     out
 }

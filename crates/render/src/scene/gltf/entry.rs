@@ -27,8 +27,35 @@ pub fn is_gltf(path: &Path) -> bool {
         .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"))
 }
 
+/// What [`scene_text`] reads of the glTF file at `path`: a .glb's JSON chunk alone, so that
+/// its buffers, which may be gigabytes, are read once (by the build), or the whole file
+/// otherwise (a .gltf is its JSON; a .glb whose header does not hold together is left for the
+/// build to refuse). At most `max_bytes`.
+pub fn json_part(path: &Path, max_bytes: u64) -> Result<Vec<u8>, String> {
+    use std::io::Read as _;
+    let name = path.file_name().unwrap_or_default().to_string_lossy();
+    let fail = |e: std::io::Error| format!("cannot read `{name}`: {e}");
+    let mut f = std::fs::File::open(path).map_err(fail)?;
+    let len = f.metadata().map_err(fail)?.len();
+    let mut head = [0u8; 20];
+    if len >= 20 && f.read_exact(&mut head).is_ok() && head.starts_with(b"glTF") {
+        let json = u64::from(u32::from_le_bytes([head[12], head[13], head[14], head[15]]));
+        if &head[16..20] == b"JSON" && json <= len - 20 && json <= max_bytes {
+            let mut out = vec![0; json as usize];
+            f.read_exact(&mut out).map_err(fail)?;
+            return Ok(out);
+        }
+    }
+    if len > max_bytes {
+        return Err(format!(
+            "`{name}` is {len} bytes, above the limit of {max_bytes}"
+        ));
+    }
+    std::fs::read(path).map_err(fail)
+}
+
 /// The TOML scene that renders glTF file `name` (a name relative to the scene's directory,
-/// whose content is `bytes`) as a whole scene: from its first camera, or `opts.camera`, or an
+/// whose content, or for a .glb whose JSON chunk, is `bytes`) as a whole scene: from its first camera, or `opts.camera`, or an
 /// automatic framing without one; lit by its own lights, or by a uniform white sky when it has
 /// neither punctual lights nor emissive materials (or by `opts.environment`). A file that
 /// does not parse still gets a text: building it reports what is wrong.

@@ -29,7 +29,7 @@ use crate::interaction::Transformed;
 use crate::mesh::{MeshInstance, TriMesh};
 use crate::shape::Shape;
 
-pub use entry::{is_gltf, scene_text, GltfOptions};
+pub use entry::{is_gltf, json_part, scene_text, GltfOptions};
 pub(super) use material::GltfMaterials;
 
 /// The extensions whose data tessera reads, which a file may therefore require.
