@@ -2,7 +2,8 @@
 //! against loading the same triangles from a binary PLY file, the mesh path measured before
 //! glTF: `cargo bench -p tessera-render --bench gltf_load`. The file is generated here, in
 //! memory: a bumpy sphere of 2 × 1024² triangles with normals and texture coordinates, an
-//! embedded 1024² base-colour PNG and a 512² metallic–roughness PNG (about 60 MB as a .glb).
+//! embedded 1024² base-colour PNG and a 512² metallic–roughness PNG (about 60 MB as a .glb),
+//! and once more with a 512² normal map, whose tangents the load computes.
 //! The issue's goal is at most 1 s per million triangles on a 2-core machine.
 
 #![allow(missing_docs)] // criterion_group! generates an undocumented function
@@ -71,8 +72,9 @@ fn bytes<T: bytemuck::Pod>(v: &[T]) -> &[u8] {
     bytemuck::cast_slice(v)
 }
 
-/// The grid as a .glb with its two textures embedded.
-fn glb(g: &Grid) -> Vec<u8> {
+/// The grid as a .glb with its two textures embedded, and with `normal_map` a third: a
+/// normal map, whose tangents the load computes (MikkTSpace), as the file gives none.
+fn glb(g: &Grid, normal_map: bool) -> Vec<u8> {
     let base = png(1024, |x, y| {
         let c = ((x / 64 + y / 64) % 2) as u8;
         [60 + 150 * c, 90 + (x % 97) as u8, 160 - (y % 89) as u8]
@@ -84,16 +86,35 @@ fn glb(g: &Grid) -> Vec<u8> {
             if (x / 32 + y / 32) % 2 == 0 { 255 } else { 0 },
         ]
     });
-    let mut bin = Vec::new();
-    let mut views = Vec::new();
-    for part in [
+    let bumps = png(512, |x, y| {
+        let tilt = |t: u32| (128.0 + 60.0 * (t as f32 * 0.2).sin()) as u8;
+        [tilt(x), tilt(y), 230]
+    });
+    let mut parts = vec![
         bytes(&g.positions),
         bytes(&g.normals),
         bytes(&g.uvs),
         bytes(&g.indices),
         &base[..],
         &mr[..],
-    ] {
+    ];
+    let mut material = serde_json::json!({"pbrMetallicRoughness": {
+        "baseColorTexture": {"index": 0}, "metallicRoughnessTexture": {"index": 1}}});
+    let mut images = vec![
+        serde_json::json!({"bufferView": 4, "mimeType": "image/png"}),
+        serde_json::json!({"bufferView": 5, "mimeType": "image/png"}),
+    ];
+    if normal_map {
+        parts.push(&bumps[..]);
+        material["normalTexture"] = serde_json::json!({"index": 2});
+        images.push(serde_json::json!({"bufferView": 6, "mimeType": "image/png"}));
+    }
+    let textures: Vec<_> = (0..images.len())
+        .map(|i| serde_json::json!({"source": i}))
+        .collect();
+    let mut bin = Vec::new();
+    let mut views = Vec::new();
+    for part in parts {
         while !bin.len().is_multiple_of(4) {
             bin.push(0);
         }
@@ -111,10 +132,9 @@ fn glb(g: &Grid) -> Vec<u8> {
         "cameras": [{"type": "perspective", "perspective": {"yfov": 0.7, "znear": 0.1}}],
         "meshes": [{"primitives": [{
             "attributes": {"POSITION": 0, "NORMAL": 1, "TEXCOORD_0": 2}, "indices": 3, "material": 0}]}],
-        "materials": [{"pbrMetallicRoughness": {
-            "baseColorTexture": {"index": 0}, "metallicRoughnessTexture": {"index": 1}}}],
-        "textures": [{"source": 0}, {"source": 1}],
-        "images": [{"bufferView": 4, "mimeType": "image/png"}, {"bufferView": 5, "mimeType": "image/png"}],
+        "materials": [material],
+        "textures": textures,
+        "images": images,
         "accessors": [
             {"bufferView": 0, "componentType": 5126, "count": n, "type": "VEC3",
              "min": [-1.1, -1.1, -1.1], "max": [1.1, 1.1, 1.1]},
@@ -170,11 +190,15 @@ fn ply(g: &Grid) -> Vec<u8> {
 fn load(c: &mut Criterion) {
     let g = grid();
     let triangles = (g.indices.len() / 3) as u64;
-    let glb = glb(&g);
     let ply = ply(&g);
     let limits = Limits::default();
-    let gltf_text = gltf_scene_text("big.glb", &glb, &GltfOptions::default());
-    let gltf_files = MemAssets(BTreeMap::from([("big.glb".to_string(), glb)]));
+    let [(gltf_text, gltf_files), (bumpy_text, bumpy_files)] = [false, true].map(|normal_map| {
+        let glb = glb(&g, normal_map);
+        (
+            gltf_scene_text("big.glb", &glb, &GltfOptions::default()),
+            MemAssets(BTreeMap::from([("big.glb".to_string(), glb)])),
+        )
+    });
     let ply_text = "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 0, 4]\ntarget = [0, 0, 0]\n\
                     fov = 40\n[film]\nwidth = 1280\nheight = 720\n[materials.m]\ntype = \"diffuse\"\n\
                     albedo = [0.5, 0.5, 0.5]\n[[objects]]\nshape = \"mesh\"\nfile = \"big.ply\"\n\
@@ -186,6 +210,12 @@ fn load(c: &mut Criterion) {
     group.bench_function("glb_with_textures", |b| {
         b.iter(|| {
             Scene::from_str_with(&gltf_text, Format::Toml, "big", &limits, 1, &gltf_files)
+                .expect("glb loads")
+        })
+    });
+    group.bench_function("glb_with_textures_and_normal_map", |b| {
+        b.iter(|| {
+            Scene::from_str_with(&bumpy_text, Format::Toml, "big", &limits, 1, &bumpy_files)
                 .expect("glb loads")
         })
     });

@@ -861,3 +861,84 @@ fn emission_textures_light_the_same_under_every_strategy_and_scale_a_uniform_lig
         "white {w} ± {se_w} against half {mis}"
     );
 }
+
+/// `gltf` with a second buffer holding `tangents` (one VEC4 per quad corner) as accessor 3.
+fn with_tangents(mut gltf: Value, tangents: &[[f32; 4]; 4]) -> Value {
+    let bytes = f32s(tangents.as_flattened());
+    let uri = format!(
+        "data:application/octet-stream;base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(&bytes)
+    );
+    let push = |v: &mut Value, item: Value| v.as_array_mut().expect("array").push(item);
+    push(
+        &mut gltf["buffers"],
+        json!({"byteLength": bytes.len(), "uri": uri}),
+    );
+    push(
+        &mut gltf["bufferViews"],
+        json!({"buffer": 1, "byteLength": bytes.len()}),
+    );
+    push(
+        &mut gltf["accessors"],
+        json!({"bufferView": 4, "componentType": 5126, "count": 4, "type": "VEC4"}),
+    );
+    gltf
+}
+
+#[test]
+fn normal_maps_read_in_the_files_tangents_or_mikktspaces_and_mirroring_keeps_them_up_the_image() {
+    // One texel tilting the normal 45° towards the bitangent (green): up the image.
+    let png = common::png_rgb(1, 1, &[128, 218, 218]);
+    let quad = |node: Value, tangent: bool| {
+        let mut attributes = json!({"POSITION": 0, "TEXCOORD_0": 1});
+        if tangent {
+            attributes["TANGENT"] = json!(3);
+        }
+        textured_quad_doc(
+            &png,
+            json!({
+                "scenes": [{"nodes": [0]}],
+                "nodes": [node],
+                "meshes": [{"primitives": [{"attributes": attributes, "indices": 2, "material": 0}]}],
+                "materials": [{"pbrMetallicRoughness": {}, "normalTexture": {"index": 0}}],
+                "textures": [{"source": 0}],
+            }),
+        )
+    };
+    // The bent normal at the quad's centre, seen from +z.
+    let bent = |gltf: &Value| {
+        let s = load(gltf, &GltfOptions::default()).expect("loads");
+        let Shape::Mesh(m) = &s.prims[0].shape else {
+            panic!()
+        };
+        let x = m.xf.to_world.transform_point3a(Vec3A::new(0.4, 0.6, 0.0));
+        let ray = tessera_render::util::math::Ray::new(x + Vec3A::Z, Vec3A::NEG_Z);
+        let (_, tri) = m.intersect(&ray, f32::INFINITY).expect("hit");
+        let frame = m.uv_frame(&ray, tri).expect("uvs");
+        let tessera_render::bsdf::Bsdf::Pbr(i) = s.materials[0].bsdf else {
+            panic!()
+        };
+        s.pbr(i).bend(&s.textures, &frame, Vec3A::Z)
+    };
+    let tilted = |toward: Vec3A| (toward + Vec3A::Z).normalize();
+    // Within the texel's 8-bit rounding (128 is 0.004 off zero).
+    let near = |a: Vec3A, b: Vec3A| (a - b).length() < 1e-2;
+    let plain = json!({"mesh": 0});
+    // MikkTSpace's frame on a flat quad is the triangle's: green tilts up the image, +y.
+    let b = bent(&quad(plain.clone(), false));
+    assert!(near(b, tilted(Vec3A::Y)), "{b}");
+    // The file's tangents win: tangent +y, so the bitangent n × t is −x, and w = −1 turns it
+    // to +x.
+    let rotated = with_tangents(quad(plain.clone(), true), &[[0.0, 1.0, 0.0, -1.0]; 4]);
+    assert!(near(bent(&rotated), tilted(Vec3A::X)), "{}", bent(&rotated));
+    // A mirroring node (x → −x): the image's up is still +y, for given and computed tangents.
+    let mirror = json!({"mesh": 0, "scale": [-1.0, 1.0, 1.0]});
+    let given = with_tangents(quad(mirror.clone(), true), &[[1.0, 0.0, 0.0, 1.0]; 4]);
+    assert!(near(bent(&given), tilted(Vec3A::Y)), "{}", bent(&given));
+    assert!(near(bent(&quad(mirror, false)), tilted(Vec3A::Y)));
+    // A TANGENT accessor of the wrong length is refused by name.
+    let mut short = with_tangents(quad(plain, true), &[[1.0, 0.0, 0.0, 1.0]; 4]);
+    short["accessors"][3]["count"] = json!(3);
+    let e = load(&short, &GltfOptions::default()).expect_err("refused");
+    assert!(e.contains("TANGENT: 3 for 4 positions"), "{e}");
+}

@@ -480,21 +480,36 @@ impl PbrMaterial {
     /// The shading normal `ns` bent by the normal map at `frame`, or `ns` itself where the
     /// frame is degenerate or the map's normal is not a direction.
     ///
-    /// The map's texel t gives n = (2t − 1) scaled by (s, s, 1) in the frame (T, B, ns), with T
-    /// the part of ∂p/∂u across ns and B = ns × T, turned to point along ∂p/∂v: the green
-    /// channel points up the image, as in glTF and OpenGL.
+    /// The map's texel t gives n = (2t − 1) scaled by (s, s, 1) in the frame (T, B, ns). Where
+    /// the mesh has vertex tangents (glTF's, given or MikkTSpace's), T is the interpolated
+    /// tangent's part across ns and B = ns × T · w, glTF's rule, so a map baked against those
+    /// tangents reads back as baked, smooth across triangles and mirrored halves alike. Without
+    /// them T is the part of the triangle's ∂p/∂u across ns and B = ns × T, turned to point
+    /// along ∂p/∂v (Mitsuba's `normalmap` frame). Either way the green channel points up the
+    /// image, as in glTF and OpenGL.
     pub fn bend(&self, textures: &[Arc<Texture>], frame: &UvFrame, ns: Vec3A) -> Vec3A {
         let Some(map) = self.normal_map else {
             return ns;
         };
         let t = textures[map.texture as usize].lookup(frame.uv) * 2.0 - Vec3A::ONE;
-        let Some(tangent) = (frame.dpdu - ns * ns.dot(frame.dpdu)).try_normalize() else {
-            return ns;
+        let across = |v: Vec3A| (v - ns * ns.dot(v)).try_normalize();
+        let vertex = frame
+            .tangent
+            .and_then(|t4| Some((across(Vec3A::from(t4.truncate()))?, t4.w)));
+        let (tangent, bitangent) = match vertex {
+            Some((tangent, w)) => (tangent, ns.cross(tangent) * w),
+            None => {
+                let Some(tangent) = across(frame.dpdu) else {
+                    return ns;
+                };
+                let bitangent = ns.cross(tangent);
+                if bitangent.dot(frame.dpdv) < 0.0 {
+                    (tangent, -bitangent)
+                } else {
+                    (tangent, bitangent)
+                }
+            }
         };
-        let mut bitangent = ns.cross(tangent);
-        if bitangent.dot(frame.dpdv) < 0.0 {
-            bitangent = -bitangent;
-        }
         (tangent * (t.x * map.scale) + bitangent * (t.y * map.scale) + ns * t.z)
             .try_normalize()
             .unwrap_or(ns)

@@ -11,7 +11,7 @@ pub mod triangle;
 
 use std::sync::Arc;
 
-use glam::{Vec2, Vec3A};
+use glam::{Vec2, Vec3A, Vec4};
 
 use crate::accel::bvh::Bvh;
 use crate::accel::bvh8::Bvh8;
@@ -35,6 +35,9 @@ pub struct TriMesh {
     normals: Vec<[Vec3A; 3]>,
     /// Texture coordinates by slot; empty when the file has none.
     uvs: Vec<[Vec2; 3]>,
+    /// Vertex tangents by slot (xyz, and w = ±1 the bitangent's sign, as glTF gives them);
+    /// empty unless a normal map needs them, so that other meshes carry none.
+    tangents: Vec<[Vec4; 3]>,
     len: usize,
     bvh: Bvh8,
     bounds: Aabb,
@@ -44,8 +47,21 @@ impl TriMesh {
     /// Builds the mesh and its BVH from triangles (as vertex positions) and, optionally, their
     /// vertex normals and texture coordinates (each empty, or one entry per triangle).
     pub fn new(tris: Vec<[Vec3A; 3]>, normals: Vec<[Vec3A; 3]>, uvs: Vec<[Vec2; 3]>) -> Self {
+        Self::with_tangents(tris, normals, uvs, Vec::new())
+    }
+
+    /// [`TriMesh::new`] with vertex tangents too (empty, or one entry per triangle): the frame
+    /// a normal map is read in, where the file gives or implies one (glTF's TANGENT, or
+    /// MikkTSpace's).
+    pub fn with_tangents(
+        tris: Vec<[Vec3A; 3]>,
+        normals: Vec<[Vec3A; 3]>,
+        uvs: Vec<[Vec2; 3]>,
+        tangents: Vec<[Vec4; 3]>,
+    ) -> Self {
         debug_assert!(normals.is_empty() || normals.len() == tris.len());
         debug_assert!(uvs.is_empty() || uvs.len() == tris.len());
+        debug_assert!(tangents.is_empty() || tangents.len() == tris.len());
         let bounds: Vec<Aabb> = tris
             .iter()
             .map(|t| Aabb::EMPTY.grow(t[0]).grow(t[1]).grow(t[2]))
@@ -84,6 +100,7 @@ impl TriMesh {
         Self {
             normals: by_slot(&slots, normals),
             uvs: by_slot(&slots, uvs),
+            tangents: by_slot(&slots, tangents),
             groups: PagedArray::new(groups),
             group_len,
             len: tris.len(),
@@ -211,6 +228,9 @@ pub struct UvFrame {
     pub dpdu: Vec3A,
     /// ∂p/∂v, world space.
     pub dpdv: Vec3A,
+    /// The interpolated vertex tangent in world space (xyz) with the bitangent's sign (w), where
+    /// the mesh has tangents: the bitangent is then ns × xyz · w, glTF's rule.
+    pub tangent: Option<Vec4>,
 }
 
 /// A mesh placed in the scene: the shared mesh under this object's transform.
@@ -310,7 +330,26 @@ impl MeshInstance {
             self.xf.to_world.transform_vector3a(dpdu),
             self.xf.to_world.transform_vector3a(dpdv),
         );
-        (dpdu.is_finite() && dpdv.is_finite()).then_some(UvFrame { uv: at, dpdu, dpdv })
+        let tangent = self.mesh.tangents.get(part as usize).and_then(|t| {
+            let t = t[0] * b[0] + t[1] * b[1] + t[2] * b[2];
+            let xyz = self
+                .xf
+                .to_world
+                .transform_vector3a(Vec3A::from(t.truncate()));
+            // A mirroring transform turns n × t the other way from the bitangent it carries.
+            let w = if (t.w < 0.0) != (self.xf.to_world.matrix3.determinant() < 0.0) {
+                -1.0
+            } else {
+                1.0
+            };
+            (xyz.is_finite() && xyz.length_squared() > 0.0).then(|| xyz.extend(w))
+        });
+        (dpdu.is_finite() && dpdv.is_finite()).then_some(UvFrame {
+            uv: at,
+            dpdu,
+            dpdv,
+            tangent,
+        })
     }
 
     /// World-space bounds.
