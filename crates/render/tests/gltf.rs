@@ -862,6 +862,58 @@ fn emission_textures_light_the_same_under_every_strategy_and_scale_a_uniform_lig
     );
 }
 
+#[test]
+fn a_toml_meshs_emission_texture_lights_as_the_gltf_one_does() {
+    use tessera_render::Strategy;
+    // Black at both ends, so that repeating (TOML's default) and clamping (the glTF lamp's
+    // sampler) filter the same.
+    let png = common::png_rgb(4, 1, &[[0u8; 3], [255; 3], [255; 3], [0; 3]].concat());
+    let gltf = emitter_scene(&png);
+    // The same lamp: the quad with the same coordinates (v up: glTF's flipped), the same
+    // black pbr surface, the same emission.
+    let obj = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n\
+               f 1/1 2/2 3/3\nf 1/1 3/3 4/4\n";
+    let text = |shape: &str| {
+        format!(
+            "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0.5, 0.5, 3]\n\
+             target = [0.5, 0, 0.5]\nfov = 50\n[film]\nwidth = 24\nheight = 24\n\
+             [materials.floor]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n\
+             [materials.lamp]\ntype = \"pbr\"\nbase_color = [0, 0, 0]\nmetallic = 0\n\
+             emission = [2, 2, 2]\nemission_texture = \"band.png\"\ntwo_sided = true\n\
+             [[objects]]\nshape = \"plane\"\nmaterial = \"floor\"\n\
+             [[objects]]\n{shape}\nmaterial = \"lamp\"\n\
+             transform = {{ rotate = {{ axis = [1, 0, 0], degrees = 90 }}, translate = [0, 1, 0] }}\n"
+        )
+    };
+    let files = MemAssets(BTreeMap::from([
+        ("lamp.obj".to_string(), obj.as_bytes().to_vec()),
+        ("band.png".to_string(), png.clone()),
+    ]));
+    let load = |shape: &str| {
+        Scene::from_str_with(
+            &text(shape),
+            Format::Toml,
+            "lamp.toml",
+            &Limits::default(),
+            1,
+            &files,
+        )
+    };
+    let toml = load("shape = \"mesh\"\nfile = \"lamp.obj\"").expect("loads");
+    assert!(toml.lights.lights.iter().any(|l| l.texture.is_some()));
+    let (g, se_g) = image_mean(&gltf, Strategy::Mis, 256);
+    for s in [Strategy::Mis, Strategy::Nee, Strategy::Bsdf] {
+        let (t, se_t) = image_mean(&toml, s, 256);
+        let z = (t - g) / se_t.hypot(se_g);
+        assert!(z.abs() < 4.5, "{s:?}: TOML {t} against glTF {g}, z = {z:.2}");
+    }
+    // Without texture coordinates there is nothing to look the texture up at.
+    let e = load("shape = \"sphere\"\ncenter = [0, 0, 0]\nradius = 0.5")
+        .expect_err("refused")
+        .to_string();
+    assert!(e.contains("needs a mesh with texture coordinates"), "{e}");
+}
+
 /// `gltf` with a second buffer holding `tangents` (one VEC4 per quad corner) as accessor 3.
 fn with_tangents(mut gltf: Value, tangents: &[[f32; 4]; 4]) -> Value {
     let bytes = f32s(tangents.as_flattened());

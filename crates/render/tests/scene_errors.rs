@@ -328,6 +328,12 @@ fn plastic_errors_name_the_key() {
         "a plastic's albedo is a colour",
     );
     check(
+        &plastic("albedo = [0.5, 0.5, 0.5]\nemission_texture = \"glow.png\"\n"),
+        16,
+        "materials.p.emission_texture",
+        "an emission texture scales `emission`: give the radiance it scales",
+    );
+    check(
         &plastic("albedo = [0.5, 0.5, 0.5]\nmetal = \"gold\"\n"),
         16,
         "materials.p.metal",

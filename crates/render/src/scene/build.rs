@@ -55,6 +55,7 @@ pub(super) fn build(
         plastics,
         mut pbrs,
         names,
+        mut emissive,
     } = build_materials(desc, &mut files, limits, assets)?;
     if desc.objects.len() > limits.max_objects {
         return Err((
@@ -70,9 +71,10 @@ pub(super) fn build(
     let mut lights = Vec::new();
     let (mut gltf_lights, mut cameras, mut warnings) = (Vec::new(), Vec::new(), Vec::new());
     let mut alpha_tests = Vec::new();
-    // glTF materials' emission textures (material, texture), and the mesh lights that take
-    // them once the textures are decoded (light, texture, the light triangles' coordinates).
-    let (mut emissive, mut textured_lights) = (Vec::new(), Vec::new());
+    // Emission textures (material, texture), the scene's and then glTF materials', and the
+    // mesh lights that take them once the textures are decoded (light, texture, the light
+    // triangles' coordinates).
+    let mut textured_lights = Vec::new();
     for (i, o) in desc.objects.iter().enumerate() {
         let op = root("objects").index(i);
         let parts = if o.shape == ShapeKind::Gltf {
@@ -109,7 +111,15 @@ pub(super) fn build(
             }
         };
         for (shape, m) in &parts {
-            check_texture_coordinates(shape, &materials[*m as usize], &pbrs, o, &op)?;
+            let emits_texture = emissive.iter().any(|(e, _)| e == m);
+            check_texture_coordinates(
+                shape,
+                &materials[*m as usize],
+                &pbrs,
+                emits_texture,
+                o,
+                &op,
+            )?;
         }
         for (shape, material) in parts {
             let bounds = shape.bounds();
@@ -206,11 +216,12 @@ fn check_texture_coordinates(
     shape: &Shape,
     mat: &Material,
     pbrs: &[PbrMaterial],
+    emits_texture: bool,
     o: &ObjectDesc,
     op: &KeyPath,
 ) -> Result<(), Invalid> {
     let pbr_textured = matches!(mat.bsdf, Bsdf::Pbr(i) if pbrs[i as usize].is_textured());
-    if mat.texture.is_none() && !pbr_textured {
+    if mat.texture.is_none() && !pbr_textured && !emits_texture {
         return Ok(());
     }
     let why = match shape {

@@ -308,6 +308,9 @@ pub struct MaterialDesc {
     /// Emitted radiance; makes every object with this material an area light.
     #[serde(default, deserialize_with = "maybe_three")]
     pub emission: Option<[f32; 3]>,
+    /// An image (sRGB-decoded) that scales `emission` point by point, on meshes with texture
+    /// coordinates: glTF's `emissiveTexture`.
+    pub emission_texture: Option<String>,
     /// Whether the back side reflects and emits like the front (default false: the back of a
     /// diffuse or mirror surface is black and emits nothing).
     pub two_sided: Option<bool>,

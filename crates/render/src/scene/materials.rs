@@ -29,6 +29,8 @@ pub(super) struct BuiltMaterials<'a> {
     pub(super) pbrs: Vec<PbrMaterial>,
     /// Each material's index by name.
     pub(super) names: BTreeMap<&'a str, u32>,
+    /// Emission textures, as (material index, texture index).
+    pub(super) emissive: Vec<(u32, u32)>,
 }
 
 /// The materials, and each one's index by name; textures are read through `files`.
@@ -43,6 +45,7 @@ pub(super) fn build_materials<'a>(
     let mut plastics = Vec::new();
     let mut pbrs = Vec::new();
     let mut names = BTreeMap::new();
+    let mut emissive = Vec::new();
     for (name, m) in &desc.materials {
         let mp = root("materials").key(name);
         let present = [
@@ -148,6 +151,19 @@ pub(super) fn build_materials<'a>(
             Some(e) => color(e, &mp.key("emission"), false)?,
             None => Vec3A::ZERO,
         };
+        if let Some(file) = &m.emission_texture {
+            let path = mp.key("emission_texture");
+            if emission.max_element() <= 0.0 {
+                return Err((
+                    path,
+                    "an emission texture scales `emission`: give the radiance it scales, e.g. \
+                     emission = [1, 1, 1]"
+                        .into(),
+                ));
+            }
+            let t = files.texture(file, &path, limits, assets, TextureUse::Color)?;
+            emissive.push((materials.len() as u32, t));
+        }
         if m.two_sided.is_some() && m.kind == MaterialKind::Dielectric && m.emission.is_none() {
             return Err((
                 mp.key("two_sided"),
@@ -172,6 +188,7 @@ pub(super) fn build_materials<'a>(
         plastics,
         pbrs,
         names,
+        emissive,
     })
 }
 
