@@ -76,9 +76,13 @@ def accessor(doc, buffers, index):
     size = dtype.itemsize * width
     stride = stride or size
     count = a["count"]
-    rows = np.empty((count, width), dtype=dtype)
-    for i in range(count):
-        rows[i] = np.frombuffer(raw, dtype=dtype, count=width, offset=offset + i * stride)
+    if stride == size:
+        rows = np.frombuffer(raw, dtype=dtype, count=count * width, offset=offset)
+        rows = rows.reshape(count, width).copy()
+    else:
+        rows = np.empty((count, width), dtype=dtype)
+        for i in range(count):
+            rows[i] = np.frombuffer(raw, dtype=dtype, count=width, offset=offset + i * stride)
     if a.get("normalized"):
         raise SystemExit(f"accessor {index}: normalized integers are not converted")
     return rows

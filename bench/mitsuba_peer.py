@@ -22,7 +22,9 @@ These scenes have exact Mitsuba counterparts, built here as dictionaries:
 - gltf-metals, gltf-glass: scenes/gltf-metals.toml and gltf-glass.toml, glTF files converted
   by bench/gltf_mitsuba.py (full metals as `principled`, one textured; volume glass as
   `dielectric` and `roughdielectric` with an absorbing interior, under `volpath`), their
-  ground replaced by a diffuse one as the TOML scenes do, under the same sky;
+  ground replaced by a diffuse one as the TOML scenes do, under the same sky; gltf-big:
+  bench/make_big_gltf.py's 2-million-triangle textured metal ball in gltf-metals' place
+  (target/bench-cache/gltf-big, made by bench/gltf-speed.sh);
 - mesh-million: bench/make_million.py's million triangles in the box, and
   mesh-million-analytic, the same with an analytic sphere in the mesh's place.
 All use a box filter and the unbiased path tracer (max_depth = -1).
@@ -65,7 +67,7 @@ import numpy as np
 
 
 SCENES = ("cornell-box", "glass-mirror", "mesh-glass", "metals-box", "envmap-balls", "materials", "pbr-metals",
-          "gltf-metals", "gltf-glass", "mesh-million", "mesh-million-analytic")
+          "gltf-metals", "gltf-glass", "gltf-big", "mesh-million", "mesh-million-analytic")
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 MESHES = os.path.join(HERE, "..", "scenes", "meshes")
@@ -241,7 +243,8 @@ def pbr_metals(mi):
 
 
 def gltf_scene(mi, name):
-    """scenes/gltf-metals.toml or gltf-glass.toml: the glTF file converted, under the sky."""
+    """scenes/gltf-metals.toml, gltf-glass.toml or gltf-big.toml: the glTF file converted,
+    under the sky."""
     import gltf_mitsuba
     T = mi.ScalarTransform4f
     d = {"type": "scene",
@@ -249,15 +252,17 @@ def gltf_scene(mi, name):
                  "filename": os.path.join(HERE, "..", "scenes", "textures", "sky.exr")}}
     stem = name.split("-", 1)[1]
     out = os.path.join(HERE, "..", "target", "bench-cache", name)
+    # gltf-big's file is bench/make_big_gltf.py's, made by bench/gltf-speed.sh.
+    glb = (os.path.join(out, "big.glb") if name == "gltf-big"
+           else os.path.join(HERE, "..", "scenes", "gltf", stem + ".glb"))
     ground = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5, 0.5, 0.5]}}
-    d.update(gltf_mitsuba.convert(mi, os.path.join(HERE, "..", "scenes", "gltf", stem + ".glb"),
-                                  out, overrides={"ground": ground}))
+    d.update(gltf_mitsuba.convert(mi, glb, out, overrides={"ground": ground}))
     return d
 
 
 def scene_dict(mi, name, size):
     """The Mitsuba scene dictionary of `name` at `size`x`size` pixels."""
-    if name in ("gltf-metals", "gltf-glass"):
+    if name in ("gltf-metals", "gltf-glass", "gltf-big"):
         d = gltf_scene(mi, name)
     elif name == "materials":
         d = materials(mi)
@@ -307,7 +312,7 @@ def scene_dict(mi, name, size):
         d["sphere"] = {"type": "sphere", "center": [0, -0.5, 0], "radius": 0.45,
                        "bsdf": {"type": "ref", "id": "white"}}
     elif name not in ("cornell-box", "envmap-balls", "materials", "pbr-metals", "gltf-metals",
-                      "gltf-glass"):
+                      "gltf-glass", "gltf-big"):
         raise SystemExit(f"no Mitsuba counterpart for scene {name!r}; known: {SCENES}")
     d["sensor"]["film"].update(width=size, height=size, rfilter={"type": "box"})
     d["sensor"]["sampler"] = {"type": "independent", "sample_count": 4}

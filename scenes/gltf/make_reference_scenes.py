@@ -101,5 +101,6 @@ def glass():
     g.write(os.path.join(HERE, "glass.glb"), doc)
 
 
-metals()
-glass()
+if __name__ == "__main__":
+    metals()
+    glass()
