@@ -16,6 +16,7 @@ mod connections;
 mod dashboard;
 mod forged_results;
 mod frames;
+mod output_checks;
 mod output_names;
 mod parses;
 mod priorities;

@@ -187,5 +187,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
         image.nonfinite,
         args.output.display()
     );
+    // The checks the farm flags in `tessera status`, as warnings here.
+    for (_, line) in image.checks().failed() {
+        errln!("warning: {line}");
+    }
     Ok(())
 }

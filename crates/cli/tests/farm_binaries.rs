@@ -695,3 +695,72 @@ fn submit_wait_and_render_report_an_adaptive_job_alike() {
         "{submitted} / {rendered}"
     );
 }
+
+/// A frame that comes out black is delivered as rendered, but `submit --wait` warns,
+/// `tessera status` flags it in the list and names the check in the job's detail, and `tessera
+/// render` warns alike.
+#[test]
+fn a_black_frame_is_delivered_and_flagged_by_submit_status_and_render() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, url) = coordinator(&dir.path().join("data"));
+    let _w = worker(&url, "w");
+    // The Cornell box with its light switched off.
+    let text = std::fs::read_to_string(repo("scenes/cornell-box.toml")).expect("scene");
+    let dark = text
+        .replace("emission = [18.387, 13.9873, 6.75357]\n", "")
+        .replace("width = 256", "width = 24")
+        .replace("height = 256", "height = 24");
+    assert_ne!(dark, text);
+    let scene = common::write(dir.path(), "dark.toml", &dark);
+    let fetched = dir.path().join("fetched.exr");
+    let out = tessera(
+        &[
+            "submit",
+            &scene,
+            "--spp",
+            "4",
+            "--wait",
+            "--output",
+            fetched.to_str().expect("utf-8"),
+        ],
+        &url,
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains(": the image is entirely black: no light reached the camera"),
+        "{stderr}"
+    );
+    let list = tessera(&["status"], &url);
+    let list = String::from_utf8_lossy(&list.stdout);
+    let line = list
+        .lines()
+        .find(|l| l.contains("[flagged: black]"))
+        .unwrap_or_else(|| panic!("no flagged job in:\n{list}"));
+    let job = line.split_whitespace().next().expect("job id");
+    let detail = tessera(&["status", job], &url);
+    let detail = String::from_utf8_lossy(&detail.stdout);
+    assert!(
+        detail.contains("  check      black: the image is entirely black"),
+        "{detail}"
+    );
+    let local = dir.path().join("local.exr");
+    let rendered = common::tessera(&[
+        "render",
+        &scene,
+        "--spp",
+        "4",
+        "--output",
+        local.to_str().expect("utf-8"),
+    ]);
+    let said = String::from_utf8_lossy(&rendered.stderr);
+    assert!(rendered.status.success(), "{said}");
+    assert!(
+        said.contains("warning: the image is entirely black"),
+        "{said}"
+    );
+    assert!(
+        std::fs::read(&fetched).expect("fetched") == std::fs::read(&local).expect("local"),
+        "the farm's black frame is tessera render's"
+    );
+}

@@ -88,8 +88,7 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
             return Err(e.into());
         }
         written?;
-        let noise = noise.noise();
-        Ok(noise)
+        Ok((noise.noise(), noise.black()))
     })
     .await
     .map_err(FinishError::from)
@@ -97,7 +96,7 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
     let rx = {
         let mut scheduler = shared.scheduler();
         let ops = match &written {
-            Ok(noise) => scheduler.written(id, *noise, now_ms()),
+            Ok((noise, black)) => scheduler.written(id, *noise, *black, now_ms()),
             Err(e) => scheduler.end_job(
                 id,
                 JobPhase::Failed,

@@ -205,6 +205,49 @@ pub struct FrameView {
     pub output: String,
     /// Why it failed, or empty.
     pub error: String,
+    /// The checks its finished image failed.
+    pub checks: Vec<CheckView>,
+}
+
+/// A check a finished image failed ([`tessera_render::OutputChecks`]).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct CheckView {
+    /// Stable code (`black`, `nonfinite`).
+    pub code: String,
+    /// One line for people.
+    pub message: String,
+}
+
+impl CheckView {
+    /// The checks `checks` failed, each message after `prefix`.
+    pub fn failed(checks: &tessera_render::OutputChecks, prefix: &str) -> Vec<Self> {
+        checks
+            .failed()
+            .into_iter()
+            .map(|(code, message)| CheckView {
+                code: code.to_string(),
+                message: format!("{prefix}{message}"),
+            })
+            .collect()
+    }
+}
+
+impl From<&CheckView> for pb::OutputCheck {
+    fn from(c: &CheckView) -> Self {
+        pb::OutputCheck {
+            code: c.code.clone(),
+            message: c.message.clone(),
+        }
+    }
+}
+
+impl From<&pb::OutputCheck> for CheckView {
+    fn from(c: &pb::OutputCheck) -> Self {
+        CheckView {
+            code: c.code.clone(),
+            message: c.message.clone(),
+        }
+    }
 }
 
 /// A job, or a frame-range job folded into one, as `tessera status` and the dashboard show it.
@@ -263,6 +306,8 @@ pub struct JobView {
     pub frame_range: Option<FrameRange>,
     /// A range's frames, each with its own state.
     pub frames: Vec<FrameView>,
+    /// The checks the finished image failed (a range's: every frame's, named).
+    pub checks: Vec<CheckView>,
 }
 
 impl From<&JobView> for pb::JobStatus {
@@ -302,6 +347,7 @@ impl From<&JobView> for pb::JobStatus {
                     units_total: f.units_total,
                     output_name: f.output.clone(),
                     error: f.error.clone(),
+                    checks: f.checks.iter().map(pb::OutputCheck::from).collect(),
                 })
                 .collect(),
             frame_range: v.frame_range.map(|r| pb::FrameRange {
@@ -310,6 +356,7 @@ impl From<&JobView> for pb::JobStatus {
                 step: r.step,
             }),
             range_job_id: v.range_job_id.map(|r| r.to_string()).unwrap_or_default(),
+            checks: v.checks.iter().map(pb::OutputCheck::from).collect(),
         }
     }
 }
@@ -365,9 +412,11 @@ impl TryFrom<&pb::JobStatus> for JobView {
                         units_total: f.units_total,
                         output: f.output_name.clone(),
                         error: f.error.clone(),
+                        checks: f.checks.iter().map(CheckView::from).collect(),
                     })
                 })
                 .collect::<Result<_, BadView>>()?,
+            checks: s.checks.iter().map(CheckView::from).collect(),
         })
     }
 }
@@ -545,6 +594,10 @@ mod tests {
                 units_total: 5,
                 output_name: "shot.0004.exr".into(),
                 error: String::new(),
+                checks: vec![pb::OutputCheck {
+                    code: "black".into(),
+                    message: "the image is entirely black".into(),
+                }],
             }],
             frame_range: Some(pb::FrameRange {
                 first: 4,
@@ -552,6 +605,10 @@ mod tests {
                 step: 4,
             }),
             range_job_id: String::new(),
+            checks: vec![pb::OutputCheck {
+                code: "black".into(),
+                message: "frame 4: the image is entirely black".into(),
+            }],
         }
     }
 
@@ -568,6 +625,11 @@ mod tests {
         assert_eq!(json["state"], "running");
         assert_eq!(json["strategy"], "nee");
         assert_eq!(json["frames"][0]["job_id"], "job-000008");
+        assert_eq!(json["frames"][0]["checks"][0]["code"], "black");
+        assert_eq!(
+            json["checks"][0]["message"],
+            "frame 4: the image is entirely black"
+        );
         assert_eq!(json["finished_unix_ms"], serde_json::Value::Null);
         // Figures that do not exist yet are null, not a sentinel.
         let fresh = pb::JobStatus {

@@ -60,8 +60,8 @@ pub mod wide;
 
 pub use adaptive::Adaptive;
 pub use film::{
-    assemble_frame, assemble_image, assemble_render, Image, MergeError, NoiseSum, PixelRect,
-    Strips, TileSums,
+    assemble_frame, assemble_image, assemble_render, Image, MergeError, NoiseSum, OutputChecks,
+    PixelRect, Strips, TileSums,
 };
 pub use settings::{
     unit_batch, Aovs, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_TILE,

@@ -905,7 +905,10 @@ fn a_toml_meshs_emission_texture_lights_as_the_gltf_one_does() {
     for s in [Strategy::Mis, Strategy::Nee, Strategy::Bsdf] {
         let (t, se_t) = image_mean(&toml, s, 256);
         let z = (t - g) / se_t.hypot(se_g);
-        assert!(z.abs() < 4.5, "{s:?}: TOML {t} against glTF {g}, z = {z:.2}");
+        assert!(
+            z.abs() < 4.5,
+            "{s:?}: TOML {t} against glTF {g}, z = {z:.2}"
+        );
     }
     // Without texture coordinates there is nothing to look the texture up at.
     let e = load("shape = \"sphere\"\ncenter = [0, 0, 0]\nradius = 0.5")

@@ -293,6 +293,7 @@ impl Scheduler {
             range: None,
             adaptive_scale: None,
             aovs: s.aovs.list(),
+            checks: Default::default(),
             // An adaptive job's decisions follow its merged sums; taking results back would
             // need them made again from the start, which is not built: such jobs are not
             // audited (docs/farm.md).

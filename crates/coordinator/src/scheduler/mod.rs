@@ -411,11 +411,17 @@ impl Scheduler {
         )
     }
 
-    /// Records that job `id`'s EXR is written, with the noise of the finished image, and ends
-    /// it as done; returns the store changes.
-    pub fn written(&mut self, id: JobId, noise: (f64, f64), now_ms: i64) -> Vec<Op> {
+    /// Records that job `id`'s EXR is written, with the noise of the finished image and whether
+    /// it is black (its checks, [`tessera_render::OutputChecks`]), and ends it as done; returns
+    /// the store changes.
+    pub fn written(&mut self, id: JobId, noise: (f64, f64), black: bool, now_ms: i64) -> Vec<Op> {
         if let Some(job) = self.jobs.get_mut(&id) {
             job.image_noise = Some(noise);
+            // Every unit is merged, so the count of dropped samples is the image's.
+            job.rec.checks = tessera_render::OutputChecks {
+                black,
+                nonfinite: job.nonfinite,
+            };
         }
         self.end_job(id, JobPhase::Done, String::new(), now_ms)
     }

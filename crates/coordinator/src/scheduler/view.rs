@@ -5,7 +5,7 @@
 use std::time::Instant;
 
 use tessera_proto::ids::JobId;
-use tessera_proto::view::{FrameView, JobState, SettingsView, WorkerState};
+use tessera_proto::view::{CheckView, FrameView, JobState, SettingsView, WorkerState};
 pub use tessera_proto::view::{JobView, WorkerView};
 
 use super::{Scheduler, Worker};
@@ -142,13 +142,16 @@ impl Scheduler {
             eta_seconds: eta,
             noise_rms: sampled.then_some(noise_rms),
             noise_relative: sampled.then_some(noise_relative),
-            nonfinite_samples: job.nonfinite,
+            // A done job's count is kept in its record, since its sums (which count them) are
+            // gone after a restart.
+            nonfinite_samples: job.nonfinite.max(rec.checks.nonfinite),
             output: rec.output_name.clone(),
             submitted_unix_ms: rec.submitted_ms,
             finished_unix_ms: (rec.phase != JobPhase::Active).then_some(rec.finished_ms),
             range_job_id: rec.range.map(|r| JobId(r.id)),
             frame_range: None,
             frames: Vec::new(),
+            checks: CheckView::failed(&rec.checks, ""),
         }
     }
 
@@ -235,6 +238,17 @@ impl Scheduler {
             },
             range_job_id: None,
             frame_range: Some(range.frames),
+            // Every flagged frame's checks, named, so that one flagged frame of 240 is seen.
+            checks: frames
+                .iter()
+                .flat_map(|f| {
+                    let frame = f.settings.frame.unwrap_or_default();
+                    f.checks.iter().map(move |c| CheckView {
+                        code: c.code.clone(),
+                        message: format!("frame {frame}: {}", c.message),
+                    })
+                })
+                .collect(),
             frames: frames
                 .into_iter()
                 .map(|f| FrameView {
@@ -245,6 +259,7 @@ impl Scheduler {
                     units_total: f.units_total,
                     output: f.output,
                     error: f.error,
+                    checks: f.checks,
                 })
                 .collect(),
         })

@@ -117,6 +117,10 @@ pub struct JobRecord {
     /// them (empty: none, as in records written before AOVs).
     #[serde(default)]
     pub aovs: String,
+    /// What the finished image was flagged for, set when its EXR is written (none in records
+    /// written before the checks, and while the job is active).
+    #[serde(default)]
+    pub checks: tessera_render::OutputChecks,
 }
 
 /// A frame-range job, as each of its frames records it.

@@ -322,16 +322,74 @@ impl Image {
         sum.add(self);
         sum.noise()
     }
+
+    /// What the finished image is flagged for ([`OutputChecks`]).
+    pub fn checks(&self) -> OutputChecks {
+        let mut sum = NoiseSum::default();
+        sum.add(self);
+        OutputChecks {
+            black: sum.black(),
+            nonfinite: self.nonfinite,
+        }
+    }
+}
+
+/// What a finished image is flagged for, as render farms check their frames (Royal Render's
+/// "job checking"): the image is delivered as rendered, but a frame that is entirely black (no
+/// light reached the camera: a missing light, a camera inside an object) or that left out
+/// non-finite samples (NaN or infinite radiance, which the merge drops) is not delivered
+/// silently. Stored with a farm job's record, so it survives restarts.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct OutputChecks {
+    /// No pixel has a channel above zero.
+    #[serde(default)]
+    pub black: bool,
+    /// Samples left out for being non-finite.
+    #[serde(default)]
+    pub nonfinite: u64,
+}
+
+impl OutputChecks {
+    /// Stable code of the black check.
+    pub const BLACK: &'static str = "black";
+    /// Stable code of the non-finite check.
+    pub const NONFINITE: &'static str = "nonfinite";
+
+    /// The checks the image failed, as (stable code, one line for people); empty when it
+    /// passed them all.
+    pub fn failed(&self) -> Vec<(&'static str, String)> {
+        let mut out = Vec::new();
+        if self.black {
+            out.push((
+                Self::BLACK,
+                "the image is entirely black: no light reached the camera (check the lights, \
+                 the environment and where the camera is)"
+                    .to_string(),
+            ));
+        }
+        if self.nonfinite > 0 {
+            out.push((
+                Self::NONFINITE,
+                format!(
+                    "{} non-finite samples (NaN or infinite) were left out of the image",
+                    self.nonfinite
+                ),
+            ));
+        }
+        out
+    }
 }
 
 /// [`Image::noise`] of an image taken a strip of rows at a time: the same bits as the whole
 /// image's, when the strips are added top to bottom, since each total is a running sum over
-/// the pixels in row-major order either way.
+/// the pixels in row-major order either way. It also notes whether any pixel is lit, for
+/// [`OutputChecks`].
 #[derive(Clone, Copy, Debug, Default)]
 pub struct NoiseSum {
     var: f64,
     mean: f64,
     pixels: usize,
+    lit: bool,
 }
 
 impl NoiseSum {
@@ -343,7 +401,13 @@ impl NoiseSum {
         for c in &strip.rgb {
             self.mean += (c[0] + c[1] + c[2]) as f64 / 3.0;
         }
+        self.lit |= strip.rgb.iter().any(|c| c.iter().any(|&x| x > 0.0));
         self.pixels += strip.rgb.len();
+    }
+
+    /// Whether every pixel added so far is black: no channel of any pixel above zero.
+    pub fn black(&self) -> bool {
+        self.pixels > 0 && !self.lit
     }
 
     /// The noise of the pixels added so far, as [`Image::noise`] gives it.
@@ -402,4 +466,59 @@ fn assemble(
         insert(&mut frame, t)?;
     }
     Ok(frame)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn image(rgb: Vec<[f32; 3]>, nonfinite: u64) -> Image {
+        let n = rgb.len();
+        Image {
+            width: n as u32,
+            height: 1,
+            rgb,
+            variance: vec![[0.0; 3]; n],
+            count: vec![4; n],
+            nonfinite,
+            aov: None,
+        }
+    }
+
+    #[test]
+    fn a_black_image_and_dropped_samples_are_flagged_and_a_lit_pixel_is_not_black() {
+        let black = image(vec![[0.0; 3]; 6], 0);
+        assert_eq!(
+            black.checks(),
+            OutputChecks {
+                black: true,
+                nonfinite: 0
+            }
+        );
+        let codes: Vec<&str> = black.checks().failed().iter().map(|c| c.0).collect();
+        assert_eq!(codes, [OutputChecks::BLACK]);
+        // One channel of one pixel lit is not black; negative values (which no render
+        // makes) are not light either.
+        let mut rgb = vec![[0.0, -1.0, 0.0]; 6];
+        assert!(image(rgb.clone(), 0).checks().black);
+        rgb[5][2] = 1e-30;
+        let lit = image(rgb, 3);
+        assert!(!lit.checks().black);
+        let failed = lit.checks().failed();
+        assert_eq!(failed.len(), 1);
+        assert_eq!(failed[0].0, OutputChecks::NONFINITE);
+        assert!(
+            failed[0].1.starts_with("3 non-finite samples"),
+            "{}",
+            failed[0].1
+        );
+        // Strip by strip, as the farm writes a frame: lit once any strip is.
+        let mut sum = NoiseSum::default();
+        assert!(!sum.black(), "nothing added is not a black image");
+        sum.add(&black);
+        assert!(sum.black());
+        sum.add(&lit);
+        assert!(!sum.black());
+        assert!(image(vec![[0.5; 3]], 0).checks().failed().is_empty());
+    }
 }

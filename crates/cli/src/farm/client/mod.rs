@@ -178,10 +178,16 @@ async fn follow(client: &mut Client, url: &str, job: &str) -> Result<pb::JobStat
     done(job, follow_to_end(client, url, job).await?)
 }
 
-/// `s` if its job is done, else an error that says how it ended.
+/// `s` if its job is done (with a warning for each check its image failed), else an error
+/// that says how it ended.
 fn done(job: &str, s: pb::JobStatus) -> Result<pb::JobStatus> {
     match pb::JobState::try_from(s.state) {
-        Ok(pb::JobState::Done) => Ok(s),
+        Ok(pb::JobState::Done) => {
+            for c in &s.checks {
+                errln!("warning: {job}: {}", crate::printable(&c.message));
+            }
+            Ok(s)
+        }
         Ok(pb::JobState::Failed) => bail!("{job} failed: {}", s.error),
         _ => bail!("{job} ended {}", job_state_name(s.state)),
     }

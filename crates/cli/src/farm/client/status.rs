@@ -107,6 +107,13 @@ fn print_job(v: &JobView) -> std::io::Result<()> {
         _ => outln!("  noise      – (no sample merged)"),
     }
     outln!("  output     {}", v.output);
+    for c in &v.checks {
+        outln!(
+            "  check      {}: {}",
+            printable(&c.code),
+            printable(&c.message)
+        );
+    }
     if let Some(r) = v.frame_range {
         let count = |st: JobState| v.frames.iter().filter(|f| f.state == st).count();
         outln!(
@@ -190,8 +197,17 @@ pub fn status(args: StatusArgs) -> Result<()> {
             "ETA"
         );
         for v in jobs {
+            // A finished image's failed checks, after the scene: flagged where it is listed.
+            let mut codes: Vec<&str> = v.checks.iter().map(|c| c.code.as_str()).collect();
+            codes.sort_unstable();
+            codes.dedup();
+            let flagged = if codes.is_empty() {
+                String::new()
+            } else {
+                format!("  [flagged: {}]", printable(&codes.join(", ")))
+            };
             outln!(
-                "{:<12} {:<10} {:>8} {:>6.1}% {:>10} {:>8}  {}",
+                "{:<12} {:<10} {:>8} {:>6.1}% {:>10} {:>8}  {}{flagged}",
                 v.job_id.to_string(),
                 v.state.name(),
                 v.priority,

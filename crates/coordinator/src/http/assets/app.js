@@ -55,11 +55,17 @@ async function cancel(id) {
 
 // ---- job list
 
+// A finished image's failed checks (black, non-finite samples), as a mark whose title says them.
+function flag(checks) {
+  if (!checks || checks.length === 0) return "";
+  return el("span", { class: "flag", title: checks.map((c) => c.message).join("\n") }, " flagged: " + [...new Set(checks.map((c) => c.code))].join(", "));
+}
+
 function jobsView(jobs) {
   const rows = jobs.map((j) => el("tr", { "data-job": j.job_id },
     el("td", {}, el("a", { href: `/jobs/${j.job_id}` }, j.job_id)),
     el("td", { class: "scene", title: j.scene }, j.scene),
-    el("td", {}, stateTag(j.state)),
+    el("td", {}, stateTag(j.state), flag(j.checks)),
     el("td", {}, bar(j.samples_done, j.samples_total)),
     el("td", { class: "num" }, `${fmt.count(j.samples_done)} / ${fmt.count(j.samples_total)}`),
     el("td", { class: "num" }, fmt.msps(j.samples_per_second)),
@@ -141,6 +147,7 @@ function jobView(j) {
     ["Output", j.output],
   ];
   if (j.error) stats.push(["Error", el("span", { class: "error" }, j.error)]);
+  if (j.checks.length > 0) stats.push(["Checks", el("ul", { class: "checks", id: "checks" }, ...j.checks.map((c) => el("li", { class: "flag", "data-code": c.code }, c.message)))]);
   const side = [el("dl", { class: "stats", id: "stats" }, ...stats.flatMap(([k, v]) => [el("dt", {}, k), el("dd", { id: "stat-" + k.toLowerCase().replace(/\W/g, "") }, v)]))];
   const actions = el("p", { class: "controls" });
   if (live(j.state)) actions.append(el("button", { class: "danger", onclick: () => cancel(j.job_id) }, "Cancel"));
@@ -151,7 +158,7 @@ function jobView(j) {
       el("thead", {}, el("tr", {}, el("th", {}, "Frame"), el("th", {}, "State"), el("th", {}, "Units"), el("th", {}, ""))),
       el("tbody", {}, ...j.frames.map((f) => el("tr", {},
         el("td", {}, el("a", { href: `/jobs/${f.job_id}` }, f.frame)),
-        el("td", {}, stateTag(f.state)),
+        el("td", {}, stateTag(f.state), flag(f.checks)),
         el("td", { class: "num" }, `${f.units_done}/${f.units_total}`),
         el("td", {}, f.state === "done" ? el("a", { href: `/api/jobs/${j.job_id}/output.exr?frame=${f.frame}`, download: f.output }, "EXR") : ""))))));
     return [el("h1", {}, `${j.job_id} `, el("span", { class: "muted" }, `${j.scene}, ${j.frames.length} frames`)), el("div", { class: "job" }, el("div", {}, el("p", { class: "muted" }, "A frame range: open a frame for its preview.")), el("div", {}, ...side))];
