@@ -2,6 +2,7 @@
 #![allow(dead_code, missing_docs)]
 
 pub mod chi2;
+pub mod gltf;
 
 use std::path::PathBuf;
 
