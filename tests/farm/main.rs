@@ -6,6 +6,7 @@
 mod common;
 
 mod adaptive;
+mod after;
 mod assets;
 mod audit;
 mod auth;

@@ -764,3 +764,52 @@ fn a_black_frame_is_delivered_and_flagged_by_submit_status_and_render() {
         "the farm's black frame is tessera render's"
     );
 }
+
+/// `submit --after` with the real binaries: a job after another shows what it waits for, fails
+/// with the reason when that one is cancelled, and one after a job the coordinator does not
+/// know is refused in one line.
+#[test]
+fn a_job_submitted_after_a_cancelled_one_fails_saying_why() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, url) = coordinator(&dir.path().join("data"));
+    let scene = repo("scenes/spheres.toml");
+    let submit = |extra: &[&str]| {
+        let mut args = vec!["submit", scene.as_str(), "--spp", "4"];
+        args.extend_from_slice(extra);
+        tessera(&args, &url)
+    };
+    let id = |out: &Output| {
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let text = String::from_utf8_lossy(&out.stdout).to_string();
+        text.split_whitespace()
+            .find(|w| w.starts_with("job-"))
+            .unwrap_or_else(|| panic!("no job id in {text}"))
+            .trim_end_matches(|c: char| !c.is_ascii_digit())
+            .to_string()
+    };
+    // No worker: the first job stays queued.
+    let first = id(&submit(&[]));
+    let then = id(&submit(&["--after", &first]));
+    let detail = tessera(&["status", &then], &url);
+    let detail = String::from_utf8_lossy(&detail.stdout);
+    assert!(
+        detail.contains(&format!("  after      {first} (starts when it is done)")),
+        "{detail}"
+    );
+    let cancelled = tessera(&["cancel", &first], &url);
+    assert!(cancelled.status.success());
+    let detail = tessera(&["status", &then], &url);
+    let detail = String::from_utf8_lossy(&detail.stdout);
+    assert!(detail.contains("  state      failed"), "{detail}");
+    assert!(
+        detail.contains(&format!(
+            "the job it waits for (--after) ended: {first} was cancelled"
+        )),
+        "{detail}"
+    );
+    one_line_failure(&submit(&["--after", "job-000999"]), "no such job");
+}

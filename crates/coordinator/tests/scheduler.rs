@@ -523,6 +523,7 @@ fn admission(name: Option<&str>, frames: Option<&str>) -> Admission {
         variance: false,
         sample_count: false,
         frames: frames.map(|f| f.parse::<FrameRange>().expect("range")),
+        after: None,
     }
 }
 

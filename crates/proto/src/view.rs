@@ -308,6 +308,8 @@ pub struct JobView {
     pub frames: Vec<FrameView>,
     /// The checks the finished image failed (a range's: every frame's, named).
     pub checks: Vec<CheckView>,
+    /// The job it starts after (`submit --after`), if any.
+    pub after: Option<JobId>,
 }
 
 impl From<&JobView> for pb::JobStatus {
@@ -357,6 +359,7 @@ impl From<&JobView> for pb::JobStatus {
             }),
             range_job_id: v.range_job_id.map(|r| r.to_string()).unwrap_or_default(),
             checks: v.checks.iter().map(pb::OutputCheck::from).collect(),
+            after: v.after.map(|a| a.to_string()).unwrap_or_default(),
         }
     }
 }
@@ -417,6 +420,10 @@ impl TryFrom<&pb::JobStatus> for JobView {
                 })
                 .collect::<Result<_, BadView>>()?,
             checks: s.checks.iter().map(CheckView::from).collect(),
+            after: match s.after.as_str() {
+                "" => None,
+                a => Some(a.parse()?),
+            },
         })
     }
 }
@@ -609,6 +616,7 @@ mod tests {
                 code: "black".into(),
                 message: "frame 4: the image is entirely black".into(),
             }],
+            after: "job-000003".into(),
         }
     }
 

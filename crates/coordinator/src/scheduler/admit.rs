@@ -41,6 +41,8 @@ pub struct Admission {
     /// The frames of a frame-range job (`settings.frame` is then each frame's own); `None`
     /// for a job of one frame.
     pub frames: Option<FrameRange>,
+    /// The job this one starts after, if any.
+    pub after: Option<JobId>,
 }
 
 /// Bounds admission enforces.
@@ -243,6 +245,9 @@ impl Scheduler {
                 limits.max_active_jobs
             )));
         }
+        if let Some(after) = a.after {
+            self.check_dependency(after)?;
+        }
         if let Some(r) = a.frames {
             if r.len() > limits.max_frames_per_job {
                 return Err(Refusal::Exhausted(format!(
@@ -294,6 +299,7 @@ impl Scheduler {
             adaptive_scale: None,
             aovs: s.aovs.list(),
             checks: Default::default(),
+            after: a.after.map(|j| j.0),
             // An adaptive job's decisions follow its merged sums; taking results back would
             // need them made again from the start, which is not built: such jobs are not
             // audited (docs/farm.md).

@@ -19,6 +19,7 @@
 //! scheduler only checks that an id is one it issued, in this boot, to this caller.
 
 mod admit;
+mod after;
 mod audit;
 mod leases;
 mod pick;
@@ -538,7 +539,8 @@ impl Scheduler {
         back
     }
 
-    /// Ends a job (done, cancelled or failed): frees its units, leases and sums.
+    /// Ends a job (done, cancelled or failed): frees its units, leases and sums; a job that
+    /// fails or is cancelled fails the jobs that wait for it ([`Scheduler::end_dependents`]).
     pub fn end_job(&mut self, id: JobId, phase: JobPhase, error: String, now_ms: i64) -> Vec<Op> {
         let Some(job) = self.jobs.get_mut(&id) else {
             return Vec::new();
@@ -566,6 +568,9 @@ impl Scheduler {
         let hash = job.rec.scene_hash.clone();
         if !self.scene_is_live(&hash) {
             ops.push(Op::DropScene(hash));
+        }
+        if matches!(phase, JobPhase::Failed | JobPhase::Cancelled) {
+            ops.extend(self.end_dependents(id, now_ms));
         }
         ops
     }

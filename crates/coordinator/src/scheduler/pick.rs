@@ -162,6 +162,9 @@ impl Scheduler {
         let slow = self.policy.lease_time;
         for speculate in [false, true] {
             for id in self.schedule_order(true) {
+                if self.waits(id) {
+                    continue;
+                }
                 while out.len() < max {
                     let Some(job) = self.jobs.get_mut(&id) else {
                         break;

@@ -152,6 +152,7 @@ impl Scheduler {
             frame_range: None,
             frames: Vec::new(),
             checks: CheckView::failed(&rec.checks, ""),
+            after: rec.after.map(JobId),
         }
     }
 
@@ -238,6 +239,7 @@ impl Scheduler {
             },
             range_job_id: None,
             frame_range: Some(range.frames),
+            after: first.after,
             // Every flagged frame's checks, named, so that one flagged frame of 240 is seen.
             checks: frames
                 .iter()

@@ -34,6 +34,13 @@ impl Jobs for Service {
         let limits = config.limits.clone();
         let settings = settings_from_wire(req.settings.as_ref())
             .map_err(|e| Status::invalid_argument(e.to_string()))?;
+        let after = match req.after.as_str() {
+            "" => None,
+            a => Some(
+                job_id(a)
+                    .map_err(|e| Status::invalid_argument(format!("after: {}", e.message())))?,
+            ),
+        };
         let Checked {
             settings,
             tile_size,
@@ -114,6 +121,7 @@ impl Jobs for Service {
             variance: req.channels.as_ref().is_some_and(|c| c.variance),
             sample_count: req.channels.as_ref().is_some_and(|c| c.sample_count),
             frames,
+            after,
         };
         let bounds = AdmissionLimits {
             max_active_jobs: config.max_active_jobs,

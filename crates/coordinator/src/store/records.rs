@@ -121,6 +121,10 @@ pub struct JobRecord {
     /// written before the checks, and while the job is active).
     #[serde(default)]
     pub checks: tessera_render::OutputChecks,
+    /// The job (or frame-range job) this one starts after (`submit --after`); `None` for none,
+    /// as in records written before dependencies.
+    #[serde(default)]
+    pub after: Option<u64>,
 }
 
 /// A frame-range job, as each of its frames records it.

@@ -85,6 +85,14 @@ fn print_job(v: &JobView) -> std::io::Result<()> {
         );
     }
     outln!("  priority   {}", v.priority);
+    if let Some(a) = v.after {
+        let waiting = if v.state == JobState::Queued {
+            " (starts when it is done)"
+        } else {
+            ""
+        };
+        outln!("  after      {a}{waiting}");
+    }
     outln!(
         "  progress   {}/{} units ({} leased), {}/{} samples",
         v.units_done,

@@ -35,6 +35,10 @@ pub struct SubmitArgs {
     /// File name of the EXR in the coordinator's output directory (default: JOB.exr).
     #[arg(long)]
     name: Option<String>,
+    /// Start only when this job (a frame-range job: all its frames) is done; fail, with the
+    /// reason, if it fails or is cancelled.
+    #[arg(long, value_name = "JOB")]
+    after: Option<String>,
     /// Add variance-of-the-mean channels to the EXR.
     #[arg(long)]
     variance: bool,
@@ -213,6 +217,7 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
                 last: r.last,
                 step: r.step,
             }),
+            after: args.after.clone().unwrap_or_default(),
         };
         // The coordinator deletes files no active job has used for a while; one it held when
         // `upload` asked may be gone by the submission. Uploading again and resubmitting

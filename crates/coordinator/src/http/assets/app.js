@@ -146,6 +146,7 @@ function jobView(j) {
     ["Priority", j.priority],
     ["Output", j.output],
   ];
+  if (j.after) stats.push(["After", el("span", {}, el("a", { href: `/jobs/${j.after}` }, j.after), j.state === "queued" ? " (starts when it is done)" : "")]);
   if (j.error) stats.push(["Error", el("span", { class: "error" }, j.error)]);
   if (j.checks.length > 0) stats.push(["Checks", el("ul", { class: "checks", id: "checks" }, ...j.checks.map((c) => el("li", { class: "flag", "data-code": c.code }, c.message)))]);
   const side = [el("dl", { class: "stats", id: "stats" }, ...stats.flatMap(([k, v]) => [el("dt", {}, k), el("dd", { id: "stat-" + k.toLowerCase().replace(/\W/g, "") }, v)]))];

@@ -1,0 +1,155 @@
+//! Jobs that start after another (`submit --after`): a job waits, taking no lease, until the
+//! job it names (every frame of a range) is done, and fails with the reason when that one fails
+//! or is cancelled, down a chain of them; a dependency on an unknown or ended job is refused.
+
+use std::time::{Duration, Instant};
+
+use tessera_coordinator::error::Refusal;
+use tessera_coordinator::names::OutputNames;
+use tessera_coordinator::scheduler::{Admission, AdmissionLimits, Policy, Scheduler};
+use tessera_coordinator::store::{JobPhase, Op, StoredScene};
+use tessera_proto::ids::JobId;
+use tessera_render::scene::FrameRange;
+use tessera_render::RenderSettings;
+
+/// An 8×8 job in 4-pixel tiles at 4 spp in batches of 2, of `frames` (or one), after `after`.
+fn admission(frames: Option<&str>, after: Option<JobId>) -> Admission {
+    Admission {
+        scene_hash: "h".into(),
+        scene: StoredScene {
+            text: String::new(),
+            json: false,
+            name: "s".into(),
+            assets: Vec::new(),
+        },
+        width: 8,
+        height: 8,
+        settings: RenderSettings {
+            spp: 4,
+            batch: 2,
+            ..RenderSettings::default()
+        },
+        tile_size: 4,
+        output_name: None,
+        priority: 0,
+        variance: false,
+        sample_count: false,
+        frames: frames.map(|f| f.parse::<FrameRange>().expect("range")),
+        after,
+    }
+}
+
+const LIMITS: AdmissionLimits = AdmissionLimits {
+    max_active_jobs: 100,
+    max_units_per_job: 100,
+    max_frames_per_job: 100,
+};
+
+/// The jobs whose units a worker gets when it asks for everything.
+fn leased(core: &mut Scheduler, w: u64, now: Instant) -> Vec<JobId> {
+    let mut jobs: Vec<JobId> = core.lease(w, 1000, now).iter().map(|g| g.job).collect();
+    jobs.dedup();
+    jobs
+}
+
+#[test]
+fn a_job_after_another_waits_for_it_and_a_chain_fails_when_it_is_cancelled() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let names = OutputNames::new(dir.path());
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(5)));
+    let (a, _) = core
+        .admit(admission(None, None), LIMITS, &names, 1)
+        .expect("a");
+    let (b, _) = core
+        .admit(admission(None, Some(a)), LIMITS, &names, 1)
+        .expect("b");
+    let (c, _) = core
+        .admit(admission(None, Some(b)), LIMITS, &names, 1)
+        .expect("c");
+    assert_eq!(core.job(b).expect("b").rec.after, Some(a.0));
+    let now = Instant::now();
+    let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+    assert_eq!(
+        leased(&mut core, w, now),
+        [a],
+        "only the first job's units go out"
+    );
+    core.end_job(a, JobPhase::Done, String::new(), 2);
+    assert_eq!(
+        leased(&mut core, w, now),
+        [b],
+        "b starts once a is done; c still waits"
+    );
+    // b cancelled: c, waiting for it, fails in the same store changes, saying why.
+    let ops = core.end_job(b, JobPhase::Cancelled, String::new(), 3);
+    let failed = |id: JobId| {
+        ops.iter()
+            .any(|o| matches!(o, Op::PutJob(r) if r.id == id.0 && r.phase == JobPhase::Failed))
+    };
+    assert!(failed(c), "{ops:?}");
+    let c = core.job(c).expect("c");
+    assert_eq!(c.rec.phase, JobPhase::Failed);
+    assert!(
+        c.rec.error.contains(&format!("{b} was cancelled")),
+        "{}",
+        c.rec.error
+    );
+    assert!(leased(&mut core, w, now).is_empty());
+    // A job that could never start is refused, and so is one after a job nobody knows.
+    match core.admit(admission(None, Some(b)), LIMITS, &names, 4) {
+        Err(Refusal::Precondition(m)) => assert!(m.contains("was cancelled"), "{m}"),
+        other => panic!("{other:?}"),
+    }
+    match core.admit(admission(None, Some(JobId(999))), LIMITS, &names, 4) {
+        Err(Refusal::NotFound(m)) => assert!(m.contains("--after job-000999"), "{m}"),
+        other => panic!("{other:?}"),
+    }
+    // After a job that is done already, a job starts at once.
+    let (d, _) = core
+        .admit(admission(None, Some(a)), LIMITS, &names, 5)
+        .expect("d");
+    assert_eq!(leased(&mut core, w, now), [d]);
+}
+
+#[test]
+fn a_job_after_a_frame_range_waits_for_every_frame_and_fails_with_any() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let names = OutputNames::new(dir.path());
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(5)));
+    let (range, _) = core
+        .admit(admission(Some("1-2"), None), LIMITS, &names, 1)
+        .expect("r");
+    let frames = core.members(range);
+    assert_eq!(frames.len(), 2);
+    let (after, _) = core
+        .admit(admission(None, Some(range)), LIMITS, &names, 1)
+        .expect("j");
+    let now = Instant::now();
+    let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+    core.end_job(frames[0], JobPhase::Done, String::new(), 2);
+    assert_eq!(
+        leased(&mut core, w, now),
+        [frames[1]],
+        "one frame is not the range"
+    );
+    core.end_job(frames[1], JobPhase::Done, String::new(), 3);
+    assert_eq!(leased(&mut core, w, now), [after]);
+    // A second range whose frame fails fails the job after it, naming the range.
+    let (range, _) = core
+        .admit(admission(Some("1-2"), None), LIMITS, &names, 4)
+        .expect("r2");
+    let (after, _) = core
+        .admit(admission(None, Some(range)), LIMITS, &names, 4)
+        .expect("j2");
+    let frame = core.members(range)[1];
+    core.end_job(frame, JobPhase::Failed, "the scene broke".into(), 5);
+    let job = core.job(after).expect("job");
+    assert_eq!(job.rec.phase, JobPhase::Failed);
+    assert!(
+        job.rec
+            .error
+            .contains(&format!("{range} failed: the scene broke")),
+        "{}",
+        job.rec.error
+    );
+}
