@@ -17,7 +17,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "scenes", "gltf"))
 from gltf_writer import Glb  # noqa: E402
-from make_reference_scenes import common, png_rgb  # noqa: E402
+from make_reference_scenes import metals_doc  # noqa: E402
 
 N = 1024  # quads per side of the (rings x segments) grid: 2·N² triangles
 
@@ -52,21 +52,15 @@ def bumpy_ball(g, radius):
 def main(out):
     os.makedirs(out, exist_ok=True)
     g = Glb()
-    mr = png_rgb(16, 16, lambda x, y: (0, 64 if (x // 4 + y // 4) % 2 else 166, 255))
-    base = g.image("checker.png")
-    mr_image = {"bufferView": g.view(mr), "mimeType": "image/png", "name": "metals-mr.png"}
-    doc = common(g, [
-        {"name": "checker-metal", "pbrMetallicRoughness": {
-            "baseColorTexture": {"index": 0}, "metallicRoughnessTexture": {"index": 1}}},
-        {"name": "unused", "pbrMetallicRoughness": {}},
-    ])
+    doc = metals_doc(g)
     ball, triangles = bumpy_ball(g, 0.7)
-    # common()'s two balls give way to the one bumpy ball, centred between them.
+    # metals.glb's two balls give way to the one bumpy ball in the textured metal (material
+    # 1), centred between them; the small balls' meshes stay in the buffer, unplaced.
     doc["meshes"][1] = ball
+    # The plain ball's copper is placed nowhere now: an empty material keeps its index.
+    doc["materials"][2] = {"name": "unused", "pbrMetallicRoughness": {}}
     doc["nodes"][3].update(name="ball", translation=[0, -0.3, 0.1])
     doc["scenes"][0]["nodes"] = [0, 1, 2, 3]
-    doc.update(images=[base, mr_image], textures=[{"source": 0}, {"source": 1}],
-               extensionsUsed=["KHR_lights_punctual"])
     g.write(os.path.join(out, "big.glb"), doc)
     shutil.copy(os.path.join(HERE, "..", "scenes", "textures", "sky.exr"), out)
     with open(os.path.join(HERE, "..", "scenes", "gltf-metals.toml")) as f:

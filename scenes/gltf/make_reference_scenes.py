@@ -64,8 +64,9 @@ def common(g, materials):
     }
 
 
-def metals():
-    g = Glb()
+def metals_doc(g):
+    """metals.glb's document, its images and meshes in `g` (bench/make_big_gltf.py builds on
+    it)."""
     # Roughness (green) 0.25 or 0.65 by 4 x 4 tiles; metalness (blue) 1 everywhere.
     mr = png_rgb(16, 16, lambda x, y: (0, 64 if (x // 4 + y // 4) % 2 else 166, 255))
     base = g.image("checker.png")
@@ -79,7 +80,12 @@ def metals():
     ])
     doc.update(images=[base, mr_image], textures=[{"source": 0}, {"source": 1}],
                extensionsUsed=["KHR_lights_punctual"])
-    g.write(os.path.join(HERE, "metals.glb"), doc)
+    return doc
+
+
+def metals():
+    g = Glb()
+    g.write(os.path.join(HERE, "metals.glb"), metals_doc(g))
 
 
 def glass():

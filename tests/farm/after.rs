@@ -38,9 +38,7 @@ async fn a_job_after_another_waits_for_it_across_a_restart() {
         assert_eq!(e.code(), code, "{after}: {e:?}");
         assert!(e.message().contains("after"), "{e:?}");
     }
-    let addr = coord.addr;
-    coord.stop().await;
-    let coord = Coordinator::restart_at(addr, &data, lease).await;
+    let coord = coord.restarted(&data, lease).await;
     let url = coord.url();
     let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
     let settings = job_settings(4, 4);

@@ -108,6 +108,13 @@ impl Coordinator {
         }
     }
 
+    /// Stops this coordinator and starts another on its address and data directory.
+    pub async fn restarted(self, data: &Path, lease: Duration) -> Self {
+        let addr = self.addr;
+        self.stop().await;
+        Self::restart_at(addr, data, lease).await
+    }
+
     fn config(data: &Path, lease: Duration, edit: impl FnOnce(&mut Config)) -> Config {
         let mut config = Config::new(data);
         config.lease_timeout = lease;

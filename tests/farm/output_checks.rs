@@ -53,9 +53,7 @@ async fn a_black_frame_is_delivered_flagged_and_still_flagged_after_a_restart() 
         .collect();
     assert_eq!(flagged, [dark.as_str()]);
     w.abort();
-    let addr = coord.addr;
-    coord.stop().await;
-    let coord = Coordinator::restart_at(addr, &data, lease).await;
+    let coord = coord.restarted(&data, lease).await;
     let mut client = coord.client().await;
     assert_eq!(codes(&job_status(&mut client, &dark).await), ["black"]);
     assert!(job_status(&mut client, &lit).await.checks.is_empty());
@@ -94,14 +92,7 @@ async fn dropped_non_finite_samples_flag_the_frame() {
             r.nonfinite += 1;
             dropped += 1;
             let ok = hand
-                .submit_result(pb::SubmitResultRequest {
-                    worker_id: id.clone(),
-                    lease_id: u.lease_id.clone(),
-                    job_id: u.job_id.clone(),
-                    tile_index: u.tile_index,
-                    batch_index: u.batch_index,
-                    result: Some(r),
-                })
+                .submit_result(result_for(&id, &u, r))
                 .await
                 .expect("a result that reports its dropped sample is accepted")
                 .into_inner();
@@ -118,9 +109,7 @@ async fn dropped_non_finite_samples_flag_the_frame() {
         assert!(s.checks[0].message.starts_with(&want), "{:?}", s.checks);
     };
     check(&s);
-    let addr = coord.addr;
-    coord.stop().await;
-    let coord = Coordinator::restart_at(addr, &data, lease).await;
+    let coord = coord.restarted(&data, lease).await;
     let mut client = coord.client().await;
     let s = job_status(&mut client, &job).await;
     check(&s);

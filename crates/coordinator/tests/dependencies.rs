@@ -4,39 +4,17 @@
 
 use std::time::{Duration, Instant};
 
+mod common;
+
 use tessera_coordinator::error::Refusal;
 use tessera_coordinator::names::OutputNames;
 use tessera_coordinator::scheduler::{Admission, AdmissionLimits, Policy, Scheduler};
-use tessera_coordinator::store::{JobPhase, Op, StoredScene};
+use tessera_coordinator::store::{JobPhase, Op};
 use tessera_proto::ids::JobId;
-use tessera_render::scene::FrameRange;
-use tessera_render::RenderSettings;
 
-/// An 8×8 job in 4-pixel tiles at 4 spp in batches of 2, of `frames` (or one), after `after`.
+/// An 8×8 job of `frames` (or one), after `after`.
 fn admission(frames: Option<&str>, after: Option<JobId>) -> Admission {
-    Admission {
-        scene_hash: "h".into(),
-        scene: StoredScene {
-            text: String::new(),
-            json: false,
-            name: "s".into(),
-            assets: Vec::new(),
-        },
-        width: 8,
-        height: 8,
-        settings: RenderSettings {
-            spp: 4,
-            batch: 2,
-            ..RenderSettings::default()
-        },
-        tile_size: 4,
-        output_name: None,
-        priority: 0,
-        variance: false,
-        sample_count: false,
-        frames: frames.map(|f| f.parse::<FrameRange>().expect("range")),
-        after,
-    }
+    common::admission(None, frames, after)
 }
 
 const LIMITS: AdmissionLimits = AdmissionLimits {

@@ -4,14 +4,15 @@
 
 use std::time::{Duration, Instant};
 
+mod common;
+
 use tessera_coordinator::error::Refusal;
 use tessera_coordinator::job::{Job, Unit};
 use tessera_coordinator::names::OutputNames;
 use tessera_coordinator::scheduler::{Admission, AdmissionLimits, Merged, Policy, Scheduler};
-use tessera_coordinator::store::{JobPhase, JobRecord, Op, StoredScene};
+use tessera_coordinator::store::{JobPhase, JobRecord, Op};
 use tessera_proto::ids::{JobId, LeaseId, WorkerCredential, WorkerId};
-use tessera_render::scene::FrameRange;
-use tessera_render::{RenderSettings, Strategy, TileSums};
+use tessera_render::{Strategy, TileSums};
 
 const JOB: JobId = JobId(1);
 
@@ -502,29 +503,7 @@ fn a_unit_a_worker_cannot_render_fails_its_job_once_with_the_reason() {
 /// An 8×8 job in 4-pixel tiles at 4 spp in batches of 2 (8 units a frame), named `name` (or
 /// not), of the frames `frames` (or one).
 fn admission(name: Option<&str>, frames: Option<&str>) -> Admission {
-    Admission {
-        scene_hash: "h".into(),
-        scene: StoredScene {
-            text: String::new(),
-            json: false,
-            name: "s".into(),
-            assets: Vec::new(),
-        },
-        width: 8,
-        height: 8,
-        settings: RenderSettings {
-            spp: 4,
-            batch: 2,
-            ..RenderSettings::default()
-        },
-        tile_size: 4,
-        output_name: name.map(Into::into),
-        priority: 0,
-        variance: false,
-        sample_count: false,
-        frames: frames.map(|f| f.parse::<FrameRange>().expect("range")),
-        after: None,
-    }
+    common::admission(name, frames, None)
 }
 
 #[test]
