@@ -95,6 +95,7 @@ fn submit_request(output_name: String, frames: Option<pb::FrameRange>) -> pb::Su
         channels: None,
         frames,
         assets: Vec::new(),
+        after: String::new(),
     }
 }
 
@@ -306,8 +307,18 @@ fuzz_target!(|data: &[u8]| {
                         3 => range(5, 1, 1),
                         _ => range(1, 2, 0),
                     };
+                    // A dependency on the main job, on one that may not exist, or malformed.
+                    let after = match arg / 20 % 4 {
+                        0 => String::new(),
+                        1 => main.clone(),
+                        2 => format!("job-{:06}", arg % 7),
+                        _ => "job-".into(),
+                    };
                     let _ = svc
-                        .submit_job(Request::new(submit_request(name, frames)))
+                        .submit_job(Request::new(pb::SubmitJobRequest {
+                            after,
+                            ..submit_request(name, frames)
+                        }))
                         .await;
                 }
                 9 => {
@@ -316,6 +327,18 @@ fuzz_target!(|data: &[u8]| {
                     } else {
                         format!("job-{:06}", arg % 5 + 2)
                     };
+                    if arg & 0x10 != 0 {
+                        // Pause, resume or reprioritise: the main job's bits do not depend on
+                        // it, only whether it finishes (a paused main job is left unchecked).
+                        let _ = svc
+                            .update_job(Request::new(pb::UpdateJobRequest {
+                                job_id: job,
+                                paused: (arg & 0x20 != 0).then_some(arg & 0x40 != 0),
+                                priority: (arg & 0x80 != 0).then_some(i32::from(arg) - 200),
+                            }))
+                            .await;
+                        continue;
+                    }
                     if job == main {
                         tainted = true;
                     }

@@ -52,6 +52,15 @@ async fn a_token_is_required_on_every_service() {
             .expect_err("list without the token");
         assert_eq!(e.code(), tonic::Code::Unauthenticated);
         let e = client
+            .update_job(pb::UpdateJobRequest {
+                job_id: "job-000001".into(),
+                paused: Some(true),
+                priority: None,
+            })
+            .await
+            .expect_err("pause without the token");
+        assert_eq!(e.code(), tonic::Code::Unauthenticated);
+        let e = client
             .get_asset_status(pb::GetAssetStatusRequest {
                 sha256: "a".repeat(64),
             })

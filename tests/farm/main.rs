@@ -14,6 +14,7 @@ mod bad_submissions;
 mod bound_ids;
 mod checkpoints;
 mod connections;
+mod control;
 mod dashboard;
 mod forged_results;
 mod frames;

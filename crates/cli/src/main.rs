@@ -3,7 +3,7 @@
 //! `tessera render` renders a scene locally, on every core, with no network (the default
 //! way to use tessera). The farm commands run a coordinator (`tessera coordinator`) and
 //! workers (`tessera worker`) and talk to a coordinator (`submit`, `status`, `cancel`,
-//! `workers`, `fetch`); see the README.
+//! `pause`, `resume`, `priority`, `workers`, `fetch`); see the README.
 
 use std::process::ExitCode;
 
@@ -66,6 +66,12 @@ enum Command {
     Status(farm::StatusArgs),
     /// Cancel a job.
     Cancel(farm::CancelArgs),
+    /// Pause a job: its leased units finish, nothing new is leased until `tessera resume`.
+    Pause(farm::PauseArgs),
+    /// Resume a paused job.
+    Resume(farm::PauseArgs),
+    /// Change a queued or running job's priority (higher runs first).
+    Priority(farm::PriorityArgs),
     /// List the workers a coordinator has seen.
     Workers(farm::WorkersArgs),
     /// Download a finished job's EXR.
@@ -138,6 +144,9 @@ fn main() -> ExitCode {
         Command::Submit(args) => farm::submit(args),
         Command::Status(args) => farm::status(args),
         Command::Cancel(args) => farm::cancel(args),
+        Command::Pause(args) => farm::pause(args, true),
+        Command::Resume(args) => farm::pause(args, false),
+        Command::Priority(args) => farm::priority(args),
         Command::Workers(args) => farm::workers(args),
         Command::Fetch(args) => farm::fetch(args),
         Command::Completions { shell } => {

@@ -813,3 +813,55 @@ fn a_job_submitted_after_a_cancelled_one_fails_saying_why() {
     );
     one_line_failure(&submit(&["--after", "job-000999"]), "no such job");
 }
+
+/// `tessera pause`, `resume` and `priority` with the real binaries: each says what it did,
+/// `tessera status` shows it (the detail and the list), and a job that has ended is refused in
+/// one line.
+#[test]
+fn pause_resume_and_priority_change_a_queued_job_and_status_shows_it() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, url) = coordinator(&dir.path().join("data"));
+    let out = tessera(
+        &["submit", &repo("scenes/spheres.toml"), "--spp", "4"],
+        &url,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+    let job = stdout
+        .split_whitespace()
+        .find(|w| w.starts_with("job-"))
+        .expect("job id")
+        .trim_end_matches(|c: char| !c.is_ascii_digit())
+        .to_string();
+    let run = |args: &[&str]| {
+        let out = tessera(args, &url);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).to_string()
+    };
+    assert!(run(&["pause", &job]).contains(&format!("{job} paused")));
+    let detail = run(&["status", &job]);
+    assert!(
+        detail.contains("(paused: `tessera resume` to go on)"),
+        "{detail}"
+    );
+    let list = run(&["status"]);
+    assert!(
+        list.lines()
+            .any(|l| l.starts_with(&job) && l.contains(" paused ")),
+        "{list}"
+    );
+    assert!(run(&["priority", &job, "-3"]).contains(&format!("{job} priority -3")));
+    assert!(run(&["status", &job]).contains("  priority   -3"));
+    assert!(run(&["resume", &job]).contains(&format!("{job} resumed")));
+    assert!(!run(&["status", &job]).contains("paused"));
+    run(&["cancel", &job]);
+    one_line_failure(&tessera(&["pause", &job], &url), "has ended");
+}

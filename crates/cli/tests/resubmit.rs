@@ -60,6 +60,9 @@ impl Jobs for CollectBeforeSubmit {
     async fn cancel_job(&self, req: Request<pb::CancelJobRequest>) -> R<pb::CancelJobResponse> {
         self.farm.service().cancel_job(req).await
     }
+    async fn update_job(&self, req: Request<pb::UpdateJobRequest>) -> R<pb::JobStatus> {
+        self.farm.service().update_job(req).await
+    }
     async fn list_jobs(&self, req: Request<pb::ListJobsRequest>) -> R<pb::ListJobsResponse> {
         self.farm.service().list_jobs(req).await
     }

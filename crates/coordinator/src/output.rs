@@ -116,4 +116,7 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
         (_, Err(e)) => error!("{id}: recording completion: {e}"),
     }
     shared.bump_changed();
+    // A job that waited for this one (`--after`) may start now: wake workers that are
+    // long-polling for units.
+    shared.bump_work();
 }

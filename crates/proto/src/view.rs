@@ -310,6 +310,8 @@ pub struct JobView {
     pub checks: Vec<CheckView>,
     /// The job it starts after (`submit --after`), if any.
     pub after: Option<JobId>,
+    /// Paused: leased nothing new until resumed.
+    pub paused: bool,
 }
 
 impl From<&JobView> for pb::JobStatus {
@@ -360,6 +362,7 @@ impl From<&JobView> for pb::JobStatus {
             range_job_id: v.range_job_id.map(|r| r.to_string()).unwrap_or_default(),
             checks: v.checks.iter().map(pb::OutputCheck::from).collect(),
             after: v.after.map(|a| a.to_string()).unwrap_or_default(),
+            paused: v.paused,
         }
     }
 }
@@ -424,6 +427,7 @@ impl TryFrom<&pb::JobStatus> for JobView {
                 "" => None,
                 a => Some(a.parse()?),
             },
+            paused: s.paused,
         })
     }
 }
@@ -617,6 +621,7 @@ mod tests {
                 message: "frame 4: the image is entirely black".into(),
             }],
             after: "job-000003".into(),
+            paused: true,
         }
     }
 

@@ -300,6 +300,7 @@ impl Scheduler {
             aovs: s.aovs.list(),
             checks: Default::default(),
             after: a.after.map(|j| j.0),
+            paused: false,
             // An adaptive job's decisions follow its merged sums; taking results back would
             // need them made again from the start, which is not built: such jobs are not
             // audited (docs/farm.md).

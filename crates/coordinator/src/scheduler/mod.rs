@@ -21,6 +21,7 @@
 mod admit;
 mod after;
 mod audit;
+mod control;
 mod leases;
 mod pick;
 mod view;

@@ -162,7 +162,7 @@ impl Scheduler {
         let slow = self.policy.lease_time;
         for speculate in [false, true] {
             for id in self.schedule_order(true) {
-                if self.waits(id) {
+                if self.held(id) {
                     continue;
                 }
                 while out.len() < max {

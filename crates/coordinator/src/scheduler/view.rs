@@ -153,6 +153,7 @@ impl Scheduler {
             frames: Vec::new(),
             checks: CheckView::failed(&rec.checks, ""),
             after: rec.after.map(JobId),
+            paused: rec.paused && rec.phase == JobPhase::Active,
         }
     }
 
@@ -240,6 +241,7 @@ impl Scheduler {
             range_job_id: None,
             frame_range: Some(range.frames),
             after: first.after,
+            paused: frames.iter().any(|f| f.paused),
             // Every flagged frame's checks, named, so that one flagged frame of 240 is seen.
             checks: frames
                 .iter()

@@ -228,6 +228,38 @@ impl Jobs for Service {
         }))
     }
 
+    async fn update_job(
+        &self,
+        request: Request<pb::UpdateJobRequest>,
+    ) -> Result<Response<pb::JobStatus>, Status> {
+        let req = request.into_inner();
+        let id = job_id(&req.job_id)?;
+        let rx = {
+            let mut core = self.shared.scheduler();
+            let ops = core.update(id, req.paused, req.priority)?;
+            self.shared.queue_write(ops)
+        };
+        durable(rx).await.map_err(internal)?;
+        match (req.paused, req.priority) {
+            (Some(true), _) => info!("{id} paused"),
+            (Some(false), _) => info!("{id} resumed"),
+            _ => {}
+        }
+        if let Some(p) = req.priority {
+            info!("{id} priority {p}");
+        }
+        self.shared.bump_changed();
+        if req.paused == Some(false) {
+            // A resumed job's units wait for workers that may be long-polling already.
+            self.shared.bump_work();
+        }
+        let core = self.shared.scheduler();
+        let v = core
+            .job_view(id, Instant::now())
+            .ok_or_else(|| Status::not_found(format!("unknown job {id}")))?;
+        Ok(Response::new(pb::JobStatus::from(&v)))
+    }
+
     async fn list_jobs(
         &self,
         _request: Request<pb::ListJobsRequest>,

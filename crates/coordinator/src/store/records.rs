@@ -125,6 +125,10 @@ pub struct JobRecord {
     /// as in records written before dependencies.
     #[serde(default)]
     pub after: Option<u64>,
+    /// Paused (`tessera pause`): leased nothing new until resumed (false in records written
+    /// before pausing).
+    #[serde(default)]
+    pub paused: bool,
 }
 
 /// A frame-range job, as each of its frames records it.

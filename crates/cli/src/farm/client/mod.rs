@@ -3,6 +3,7 @@
 //! What they share is here: the connection, one-line errors, following a job with a progress
 //! bar, and downloading its EXR.
 
+mod control;
 mod fetch;
 mod status;
 mod submit;
@@ -21,6 +22,7 @@ use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
 use tonic::Code;
 
+pub use control::{pause, priority, PauseArgs, PriorityArgs};
 pub use fetch::{fetch, FetchArgs};
 pub use status::{cancel, status, workers, CancelArgs, StatusArgs, WorkersArgs};
 pub use submit::{submit, SubmitArgs};

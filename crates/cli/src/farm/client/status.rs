@@ -54,7 +54,14 @@ fn job_view(s: &pb::JobStatus) -> Result<JobView> {
 fn print_job(v: &JobView) -> std::io::Result<()> {
     let settings = &v.settings;
     outln!("{}", v.job_id);
-    outln!("  state      {}", v.state.name());
+    if v.paused {
+        outln!(
+            "  state      {} (paused: `tessera resume` to go on)",
+            v.state.name()
+        );
+    } else {
+        outln!("  state      {}", v.state.name());
+    }
     if !v.error.is_empty() {
         outln!("  error      {}", printable(&v.error));
     }
@@ -217,7 +224,7 @@ pub fn status(args: StatusArgs) -> Result<()> {
             outln!(
                 "{:<12} {:<10} {:>8} {:>6.1}% {:>10} {:>8}  {}{flagged}",
                 v.job_id.to_string(),
-                v.state.name(),
+                if v.paused { "paused" } else { v.state.name() },
                 v.priority,
                 100.0 * v.units_done as f64 / v.units_total.max(1) as f64,
                 v.units_total,

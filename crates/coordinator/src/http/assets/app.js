@@ -65,7 +65,7 @@ function jobsView(jobs) {
   const rows = jobs.map((j) => el("tr", { "data-job": j.job_id },
     el("td", {}, el("a", { href: `/jobs/${j.job_id}` }, j.job_id)),
     el("td", { class: "scene", title: j.scene }, j.scene),
-    el("td", {}, stateTag(j.state), flag(j.checks)),
+    el("td", {}, stateTag(j.paused ? "paused" : j.state), flag(j.checks)),
     el("td", {}, bar(j.samples_done, j.samples_total)),
     el("td", { class: "num" }, `${fmt.count(j.samples_done)} / ${fmt.count(j.samples_total)}`),
     el("td", { class: "num" }, fmt.msps(j.samples_per_second)),
@@ -135,7 +135,7 @@ function updatePreview(j) {
 
 function jobView(j) {
   const stats = [
-    ["State", stateTag(j.state)],
+    ["State", stateTag(j.paused ? "paused" : j.state)],
     ["Progress", bar(j.samples_done, j.samples_total)],
     ["Units", `${fmt.count(j.units_done)} / ${fmt.count(j.units_total)} (${j.units_leased} leased)`],
     ["Samples", `${fmt.count(j.samples_done)} / ${fmt.count(j.samples_total)}`],
