@@ -36,6 +36,21 @@ fn one_line_failure(out: &Output, needle: &str) {
     assert!(stderr.contains(needle), "missing {needle:?} in: {stderr}");
 }
 
+/// The job id a successful `tessera submit` printed.
+fn submitted(out: &Output) -> String {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    text.split_whitespace()
+        .find(|w| w.starts_with("job-"))
+        .unwrap_or_else(|| panic!("no job id in {text}"))
+        .trim_end_matches(|c: char| !c.is_ascii_digit())
+        .to_string()
+}
+
 /// Waits until `f` holds, polling ([`wait_for_blocking`]).
 fn wait_for(what: &str, mut f: impl FnMut() -> bool) {
     wait_for_blocking(what, || f().then_some(()));
@@ -778,22 +793,9 @@ fn a_job_submitted_after_a_cancelled_one_fails_saying_why() {
         args.extend_from_slice(extra);
         tessera(&args, &url)
     };
-    let id = |out: &Output| {
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let text = String::from_utf8_lossy(&out.stdout).to_string();
-        text.split_whitespace()
-            .find(|w| w.starts_with("job-"))
-            .unwrap_or_else(|| panic!("no job id in {text}"))
-            .trim_end_matches(|c: char| !c.is_ascii_digit())
-            .to_string()
-    };
     // No worker: the first job stays queued.
-    let first = id(&submit(&[]));
-    let then = id(&submit(&["--after", &first]));
+    let first = submitted(&submit(&[]));
+    let then = submitted(&submit(&["--after", &first]));
     let detail = tessera(&["status", &then], &url);
     let detail = String::from_utf8_lossy(&detail.stdout);
     assert!(
@@ -821,22 +823,10 @@ fn a_job_submitted_after_a_cancelled_one_fails_saying_why() {
 fn pause_resume_and_priority_change_a_queued_job_and_status_shows_it() {
     let dir = tempfile::tempdir().expect("tmp");
     let (_coord, url) = coordinator(&dir.path().join("data"));
-    let out = tessera(
+    let job = submitted(&tessera(
         &["submit", &repo("scenes/spheres.toml"), "--spp", "4"],
         &url,
-    );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let stdout = String::from_utf8_lossy(&out.stdout).to_string();
-    let job = stdout
-        .split_whitespace()
-        .find(|w| w.starts_with("job-"))
-        .expect("job id")
-        .trim_end_matches(|c: char| !c.is_ascii_digit())
-        .to_string();
+    ));
     let run = |args: &[&str]| {
         let out = tessera(args, &url);
         assert!(
