@@ -93,8 +93,9 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
     .await
     .map_err(FinishError::from)
     .and_then(|r| r);
-    let rx = {
+    let (rx, releases) = {
         let mut scheduler = shared.scheduler();
+        let releases = scheduler.has_dependents(id);
         let ops = match &written {
             Ok((noise, black)) => scheduler.written(id, *noise, *black, now_ms()),
             Err(e) => scheduler.end_job(
@@ -104,7 +105,7 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
                 now_ms(),
             ),
         };
-        shared.queue_write(ops)
+        (shared.queue_write(ops), releases)
     };
     match (&written, durable(rx).await) {
         (Ok(_), Ok(())) => info!(
@@ -116,7 +117,9 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
         (_, Err(e)) => error!("{id}: recording completion: {e}"),
     }
     shared.bump_changed();
-    // A job that waited for this one (`--after`) may start now: wake workers that are
-    // long-polling for units.
-    shared.bump_work();
+    if releases {
+        // A job that waited for this one (`--after`) may start now: wake workers that are
+        // long-polling for units.
+        shared.bump_work();
+    }
 }

@@ -18,6 +18,9 @@ pub struct Transformed {
     pub normal_matrix: Mat3A,
     /// Whether the map is the identity, so the ray needs no transform.
     pub identity: bool,
+    /// Whether the map mirrors (a negative determinant), which turns n × t against the
+    /// bitangent a tangent frame carries.
+    pub mirrors: bool,
 }
 
 impl Transformed {
@@ -26,11 +29,13 @@ impl Transformed {
         let to_object = to_world.inverse();
         let normal_matrix = to_object.matrix3.transpose();
         let identity = to_world == Affine3A::IDENTITY;
+        let mirrors = to_world.matrix3.determinant() < 0.0;
         Self {
             to_world,
             to_object,
             normal_matrix,
             identity,
+            mirrors,
         }
     }
 

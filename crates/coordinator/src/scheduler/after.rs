@@ -79,25 +79,35 @@ impl Scheduler {
     /// cancelled, or a frame of a range that did), and those that wait for them in turn;
     /// returns the store changes.
     pub(super) fn end_dependents(&mut self, ended: JobId, now_ms: i64) -> Vec<Op> {
-        let range = self
-            .jobs
-            .get(&ended)
-            .and_then(|j| j.rec.range)
-            .map(|r| JobId(r.id));
-        let dependents: Vec<(JobId, JobId)> = self
-            .jobs
-            .iter()
-            .filter(|(_, j)| j.rec.phase == JobPhase::Active)
-            .filter_map(|(&id, j)| Some((id, JobId(j.rec.after?))))
-            .filter(|&(_, after)| after == ended || Some(after) == range)
-            .collect();
         let mut ops = Vec::new();
-        for (id, after) in dependents {
+        for (id, after) in self.dependents(ended) {
             if let Dependency::Ended(why) = self.dependency(after) {
                 let why = format!("the job it waits for (--after) ended: {why}");
                 ops.extend(self.end_job(id, JobPhase::Failed, why, now_ms));
             }
         }
         ops
+    }
+
+    /// Whether an active job waits for job `id` (or for the range it is a frame of): when `id`
+    /// ends, workers waiting for units are to be woken.
+    pub fn has_dependents(&self, id: JobId) -> bool {
+        !self.dependents(id).is_empty()
+    }
+
+    /// The active jobs that wait for job `id` or for the range it is a frame of, each with the
+    /// id it names.
+    fn dependents(&self, id: JobId) -> Vec<(JobId, JobId)> {
+        let range = self
+            .jobs
+            .get(&id)
+            .and_then(|j| j.rec.range)
+            .map(|r| JobId(r.id));
+        self.jobs
+            .iter()
+            .filter(|(_, j)| j.rec.phase == JobPhase::Active)
+            .filter_map(|(&dependent, j)| Some((dependent, JobId(j.rec.after?))))
+            .filter(|&(_, after)| after == id || Some(after) == range)
+            .collect()
     }
 }

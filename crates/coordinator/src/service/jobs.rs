@@ -240,10 +240,8 @@ impl Jobs for Service {
             self.shared.queue_write(ops)
         };
         durable(rx).await.map_err(internal)?;
-        match (req.paused, req.priority) {
-            (Some(true), _) => info!("{id} paused"),
-            (Some(false), _) => info!("{id} resumed"),
-            _ => {}
+        if let Some(p) = req.paused {
+            info!("{id} {}", if p { "paused" } else { "resumed" });
         }
         if let Some(p) = req.priority {
             info!("{id} priority {p}");

@@ -325,13 +325,16 @@ impl Image {
 
     /// What the finished image is flagged for ([`OutputChecks`]).
     pub fn checks(&self) -> OutputChecks {
-        let mut sum = NoiseSum::default();
-        sum.add(self);
         OutputChecks {
-            black: sum.black(),
+            black: !self.rgb.is_empty() && !any_lit(&self.rgb),
             nonfinite: self.nonfinite,
         }
     }
+}
+
+/// Whether any pixel has a channel above zero (negative values are not light).
+fn any_lit(rgb: &[[f32; 3]]) -> bool {
+    rgb.iter().any(|c| c.iter().any(|&x| x > 0.0))
 }
 
 /// What a finished image is flagged for, as render farms check their frames (Royal Render's
@@ -401,7 +404,7 @@ impl NoiseSum {
         for c in &strip.rgb {
             self.mean += (c[0] + c[1] + c[2]) as f64 / 3.0;
         }
-        self.lit |= strip.rgb.iter().any(|c| c.iter().any(|&x| x > 0.0));
+        self.lit |= any_lit(&strip.rgb);
         self.pixels += strip.rgb.len();
     }
 

@@ -337,7 +337,7 @@ impl MeshInstance {
                 .to_world
                 .transform_vector3a(Vec3A::from(t.truncate()));
             // A mirroring transform turns n × t the other way from the bitangent it carries.
-            let w = if (t.w < 0.0) != (self.xf.to_world.matrix3.determinant() < 0.0) {
+            let w = if (t.w < 0.0) != self.xf.mirrors {
                 -1.0
             } else {
                 1.0

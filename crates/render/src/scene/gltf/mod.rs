@@ -287,14 +287,9 @@ pub(super) fn import(
             let key = (mesh.index(), prim.index());
             if let std::collections::btree_map::Entry::Vacant(e) = meshes.entry(key) {
                 let what = format!("meshes[{}].primitives[{}]", mesh.index(), prim.index());
-                let built = Primitive {
-                    prim: &prim,
-                    buffers: &buffers,
-                    uv: uv_map,
-                    tangents,
-                    what: &what,
-                }
-                .triangles(files, limits, path)
+                let built = triangles(
+                    &prim, &buffers, uv_map, tangents, &what, files, limits, path,
+                )
                 .map_err(|(p, m)| (p, format!("{name}: {m}")))?;
                 e.insert(built);
             }
@@ -473,155 +468,149 @@ fn light_at(light: &gltf::khr_lights_punctual::Light, world: &Affine3A) -> GltfL
     }
 }
 
-/// A triangle primitive to read, with how: its texture coordinates' set and transform, and
-/// whether its material's normal map needs tangents.
-struct Primitive<'a, 'g> {
-    prim: &'a gltf::Primitive<'g>,
-    buffers: &'a [Vec<u8>],
-    uv: (u32, Option<material::UvMap>),
-    tangents: bool,
-    what: &'a str,
+/// A primitive's per-vertex attribute `semantic` (labelled `label` in errors, its count in
+/// `unit`s): `None` where the primitive has none, else one value per position of `n`.
+fn attribute<const N: usize>(
+    prim: &gltf::Primitive,
+    buffers: &[Vec<u8>],
+    semantic: gltf::Semantic,
+    (label, unit): (&str, &str),
+    n: usize,
+) -> Result<Option<Vec<[f32; N]>>, String> {
+    let Some(a) = prim.get(&semantic) else {
+        return Ok(None);
+    };
+    let v = data::read_floats::<N>(buffers, &a, label)?;
+    if v.len() != n {
+        return Err(format!("{label}: {} {unit}for {n} positions", v.len()));
+    }
+    Ok(Some(v))
 }
 
-impl Primitive<'_, '_> {
-    /// The primitive's mesh, de-indexed, with whether it has vertex normals; `None` for a
-    /// primitive with no triangles.
-    fn triangles(
-        &self,
-        files: &mut SceneFiles,
-        limits: &Limits,
-        path: &KeyPath,
-    ) -> Result<Built, Invalid> {
-        let Self {
-            prim,
-            buffers,
-            uv: (uv_set, uv_map),
-            what,
-            ..
-        } = *self;
-        let fail = |m: String| (path.clone(), m);
-        let positions = prim
-            .get(&gltf::Semantic::Positions)
-            .ok_or_else(|| fail(format!("{what}: has no POSITION")))?;
-        let positions = data::read_floats::<3>(buffers, &positions, &format!("{what}.POSITION"))
-            .map_err(fail)?;
-        if let Some(i) = positions
-            .iter()
-            .position(|p| !p.iter().all(|x| x.is_finite()))
-        {
-            return Err(fail(format!(
-                "{what}.POSITION: vertex {i} is not finite: {:?}",
-                positions[i]
-            )));
-        }
-        let n = positions.len();
-        let indices = match prim.indices() {
-            Some(a) => {
-                data::read_indices(buffers, &a, n, &format!("{what}.indices")).map_err(fail)?
-            }
-            None => (0..n as u32).collect(),
-        };
-        let corners: Vec<[u32; 3]> = match prim.mode() {
-            Mode::Triangles => indices
-                .chunks_exact(3)
-                .map(|c| [c[0], c[1], c[2]])
-                .collect(),
-            // Every other triangle of a strip is wound the other way, so its corners swap to keep
-            // the front side consistent.
-            Mode::TriangleStrip => indices
-                .windows(3)
-                .enumerate()
-                .map(|(i, w)| {
-                    if i % 2 == 0 {
-                        [w[0], w[1], w[2]]
-                    } else {
-                        [w[1], w[0], w[2]]
-                    }
-                })
-                .collect(),
-            Mode::TriangleFan => match indices.split_first() {
-                Some((&hub, rest)) => rest.windows(2).map(|w| [hub, w[0], w[1]]).collect(),
-                None => Vec::new(),
-            },
-            _ => Vec::new(),
-        };
-        if corners.is_empty() {
-            return Ok(None);
-        }
-        files.take_triangles(corners.len(), limits, path)?;
-        let attr = |semantic: gltf::Semantic| prim.get(&semantic);
-        let normals = match attr(gltf::Semantic::Normals) {
-            Some(a) => {
-                let v =
-                    data::read_floats::<3>(buffers, &a, &format!("{what}.NORMAL")).map_err(fail)?;
-                if v.len() != n {
-                    return Err(fail(format!(
-                        "{what}.NORMAL: {} normals for {n} positions",
-                        v.len()
-                    )));
-                }
-                v
-            }
-            None => Vec::new(),
-        };
-        let uvs = match attr(gltf::Semantic::TexCoords(uv_set)) {
-            Some(a) => {
-                let label = format!("{what}.TEXCOORD_{uv_set}");
-                let v = data::read_floats::<2>(buffers, &a, &label).map_err(fail)?;
-                if v.len() != n {
-                    return Err(fail(format!("{label}: {} for {n} positions", v.len())));
-                }
-                v
-            }
-            None => Vec::new(),
-        };
-        let p = |i: u32| Vec3A::from_array(positions[i as usize]);
-        let tris: Vec<[Vec3A; 3]> = corners.iter().map(|c| c.map(p)).collect();
-        let normals = if normals.is_empty() {
-            Vec::new()
-        } else {
-            let nv = |i: u32| {
-                let v = Vec3A::from_array(normals[i as usize]);
-                if v.is_finite() {
-                    v
-                } else {
-                    Vec3A::ZERO
-                }
-            };
-            corners.iter().map(|c| c.map(nv)).collect()
-        };
-        let uvs = if uvs.is_empty() {
-            Vec::new()
-        } else {
-            let uv = |i: u32| {
-                let v = Vec2::from_array(uvs[i as usize]);
-                let v = uv_map.as_ref().map_or(v, |m| material::map_uv(m, v));
-                // glTF's v runs down the image from its top row; tessera's, as in OBJ, up.
-                let v = Vec2::new(v.x, 1.0 - v.y);
-                if v.is_finite() {
-                    v
-                } else {
-                    Vec2::ZERO
-                }
-            };
-            corners.iter().map(|c| c.map(uv)).collect()
-        };
-        let tangents = if !self.tangents || uvs.is_empty() {
-            Vec::new()
-        } else if let Some(a) = attr(gltf::Semantic::Tangents) {
-            let label = format!("{what}.TANGENT");
-            let v = data::read_floats::<4>(buffers, &a, &label).map_err(fail)?;
-            if v.len() != n {
-                return Err(fail(format!("{label}: {} for {n} positions", v.len())));
-            }
-            tangents::given(&v, &corners)
-        } else {
-            tangents::mikktspace(&tris, &normals, &uvs)
-        };
-        let smooth = !normals.is_empty();
-        Ok(Some((
-            Arc::new(TriMesh::with_tangents(tris, normals, uvs, tangents)),
-            smooth,
-        )))
+/// A triangle primitive's mesh, de-indexed, with whether it has vertex normals; `None` for a
+/// primitive with no triangles. `tangents`: its material's normal map needs them.
+#[allow(clippy::too_many_arguments)]
+fn triangles(
+    prim: &gltf::Primitive,
+    buffers: &[Vec<u8>],
+    (uv_set, uv_map): (u32, Option<material::UvMap>),
+    tangents: bool,
+    what: &str,
+    files: &mut SceneFiles,
+    limits: &Limits,
+    path: &KeyPath,
+) -> Result<Built, Invalid> {
+    let fail = |m: String| (path.clone(), m);
+    let positions = prim
+        .get(&gltf::Semantic::Positions)
+        .ok_or_else(|| fail(format!("{what}: has no POSITION")))?;
+    let positions =
+        data::read_floats::<3>(buffers, &positions, &format!("{what}.POSITION")).map_err(fail)?;
+    if let Some(i) = positions
+        .iter()
+        .position(|p| !p.iter().all(|x| x.is_finite()))
+    {
+        return Err(fail(format!(
+            "{what}.POSITION: vertex {i} is not finite: {:?}",
+            positions[i]
+        )));
     }
+    let n = positions.len();
+    let indices = match prim.indices() {
+        Some(a) => data::read_indices(buffers, &a, n, &format!("{what}.indices")).map_err(fail)?,
+        None => (0..n as u32).collect(),
+    };
+    let corners: Vec<[u32; 3]> = match prim.mode() {
+        Mode::Triangles => indices
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect(),
+        // Every other triangle of a strip is wound the other way, so its corners swap to keep
+        // the front side consistent.
+        Mode::TriangleStrip => indices
+            .windows(3)
+            .enumerate()
+            .map(|(i, w)| {
+                if i % 2 == 0 {
+                    [w[0], w[1], w[2]]
+                } else {
+                    [w[1], w[0], w[2]]
+                }
+            })
+            .collect(),
+        Mode::TriangleFan => match indices.split_first() {
+            Some((&hub, rest)) => rest.windows(2).map(|w| [hub, w[0], w[1]]).collect(),
+            None => Vec::new(),
+        },
+        _ => Vec::new(),
+    };
+    if corners.is_empty() {
+        return Ok(None);
+    }
+    files.take_triangles(corners.len(), limits, path)?;
+    let normals = attribute::<3>(
+        prim,
+        buffers,
+        gltf::Semantic::Normals,
+        (&format!("{what}.NORMAL"), "normals "),
+        n,
+    )
+    .map_err(fail)?
+    .unwrap_or_default();
+    let uvs = attribute::<2>(
+        prim,
+        buffers,
+        gltf::Semantic::TexCoords(uv_set),
+        (&format!("{what}.TEXCOORD_{uv_set}"), ""),
+        n,
+    )
+    .map_err(fail)?
+    .unwrap_or_default();
+    let p = |i: u32| Vec3A::from_array(positions[i as usize]);
+    let tris: Vec<[Vec3A; 3]> = corners.iter().map(|c| c.map(p)).collect();
+    let normals = if normals.is_empty() {
+        Vec::new()
+    } else {
+        let nv = |i: u32| {
+            let v = Vec3A::from_array(normals[i as usize]);
+            if v.is_finite() {
+                v
+            } else {
+                Vec3A::ZERO
+            }
+        };
+        corners.iter().map(|c| c.map(nv)).collect()
+    };
+    let uvs = if uvs.is_empty() {
+        Vec::new()
+    } else {
+        let uv = |i: u32| {
+            let v = Vec2::from_array(uvs[i as usize]);
+            let v = uv_map.as_ref().map_or(v, |m| material::map_uv(m, v));
+            // glTF's v runs down the image from its top row; tessera's, as in OBJ, up.
+            let v = Vec2::new(v.x, 1.0 - v.y);
+            if v.is_finite() {
+                v
+            } else {
+                Vec2::ZERO
+            }
+        };
+        corners.iter().map(|c| c.map(uv)).collect()
+    };
+    let tangents = if !tangents || uvs.is_empty() {
+        Vec::new()
+    } else {
+        let label = format!("{what}.TANGENT");
+        match attribute::<4>(prim, buffers, gltf::Semantic::Tangents, (&label, ""), n)
+            .map_err(fail)?
+        {
+            Some(v) => tangents::given(&v, &corners),
+            None => tangents::mikktspace(&tris, &normals, &uvs),
+        }
+    };
+    let smooth = !normals.is_empty();
+    Ok(Some((
+        Arc::new(TriMesh::with_tangents(tris, normals, uvs, tangents)),
+        smooth,
+    )))
 }
