@@ -106,6 +106,7 @@ fuzz_target!(|data: &[u8]| {
                 cores: 1,
                 version: "0".into(),
                 image_revision: IMAGE_REVISION,
+                ..Default::default()
             }))
             .await
             .expect("register")

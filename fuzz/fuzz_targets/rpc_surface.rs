@@ -96,6 +96,9 @@ fn submit_request(output_name: String, frames: Option<pb::FrameRange>) -> pb::Su
         frames,
         assets: Vec::new(),
         after: String::new(),
+        require: Vec::new(),
+        min_memory_bytes: 0,
+        progressive: false,
     }
 }
 
@@ -179,6 +182,21 @@ fuzz_target!(|data: &[u8]| {
                             } else {
                                 IMAGE_REVISION
                             },
+                            // Tags and features well formed, malformed, or too many; memory
+                            // none, some, or the most a u64 says.
+                            tags: match arg / 8 % 4 {
+                                0 => Vec::new(),
+                                1 => vec!["pool=fast".into(), "big-mem".into()],
+                                2 => vec!["a b".into()],
+                                _ => (0..40).map(|i| format!("t{i}")).collect(),
+                            },
+                            cpu_features: if arg & 0x20 != 0 {
+                                vec!["avx2".into()]
+                            } else {
+                                Vec::new()
+                            },
+                            memory_bytes: [0, 8 << 30, u64::MAX][usize::from(arg / 64 % 3)],
+                            draining: arg & 0x40 != 0 && arg & 0x80 != 0,
                         }))
                         .await;
                     if let Ok(r) = r {
@@ -205,6 +223,24 @@ fuzz_target!(|data: &[u8]| {
                     let f = &fakes[pick(fakes.len())];
                     let mut ids: Vec<String> = f.units.iter().map(|u| u.lease_id.clone()).collect();
                     ids.push(format!("L1-{arg}"));
+                    // Log lines about its own units, a forged lease, or too many at once.
+                    let n = if arg % 7 == 0 { 40 } else { usize::from(arg % 4) };
+                    let lines = ids
+                        .iter()
+                        .cycle()
+                        .take(n)
+                        .map(|l| pb::WorkerLogLine {
+                            lease_id: l.clone(),
+                            level: i32::from(arg % 5),
+                            message: "x\u{1b}[2J".repeat(usize::from(arg)),
+                        })
+                        .collect();
+                    let _ = svc
+                        .report_log(Request::new(pb::ReportLogRequest {
+                            worker_id: f.id.clone(),
+                            lines,
+                        }))
+                        .await;
                     let _ = svc
                         .heartbeat(Request::new(pb::HeartbeatRequest {
                             worker_id: f.id.clone(),
@@ -314,9 +350,17 @@ fuzz_target!(|data: &[u8]| {
                         2 => format!("job-{:06}", arg % 7),
                         _ => "job-".into(),
                     };
+                    let require = match arg / 80 % 3 {
+                        0 => Vec::new(),
+                        1 => vec!["big-mem".into(), "cpu:avx2".into()],
+                        _ => vec!["=".into()],
+                    };
                     let _ = svc
                         .submit_job(Request::new(pb::SubmitJobRequest {
                             after,
+                            progressive: arg & 1 == 1,
+                            require,
+                            min_memory_bytes: u64::from(arg % 3) << 32,
                             ..submit_request(name, frames)
                         }))
                         .await;
@@ -347,6 +391,18 @@ fuzz_target!(|data: &[u8]| {
                         .await;
                 }
                 10 => {
+                    if let Ok(l) = svc
+                        .get_logs(Request::new(pb::GetLogsRequest {
+                            job_id: format!("job-{:06}", arg % 4),
+                            frame: (arg & 0x40 != 0).then_some(u32::from(arg % 4)),
+                            after: u64::from(arg / 8),
+                        }))
+                        .await
+                    {
+                        let l = l.into_inner();
+                        assert!(l.entries.len() <= 200 * 3, "{}", l.entries.len());
+                        assert!(l.entries.iter().all(|e| e.message.chars().count() <= 500));
+                    }
                     if let Ok(s) = svc
                         .get_job(Request::new(pb::GetJobRequest {
                             job_id: format!("job-{:06}", arg % 4),
@@ -373,6 +429,19 @@ fuzz_target!(|data: &[u8]| {
                         .list_jobs(Request::new(pb::ListJobsRequest {}))
                         .await
                         .expect("list jobs");
+                    if arg % 5 == 0 {
+                        // Drain one by name or public id, or one that does not exist. A
+                        // drained worker leases nothing more; the main job may then stay
+                        // unfinished, and is not checked.
+                        let who = match (fakes.get(pick(fakes.len())), arg % 3) {
+                            (Some(f), 0) => f.id.split('.').next().unwrap_or_default().into(),
+                            (Some(_), 1) => "abcdef\u{1b}[2J".into(),
+                            _ => "nobody".to_string(),
+                        };
+                        let _ = svc
+                            .drain_worker(Request::new(pb::DrainWorkerRequest { worker: who }))
+                            .await;
+                    }
                 }
                 12 => {
                     let file = FILES[usize::from(arg % 2)];

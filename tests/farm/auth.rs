@@ -61,6 +61,13 @@ async fn a_token_is_required_on_every_service() {
             .expect_err("pause without the token");
         assert_eq!(e.code(), tonic::Code::Unauthenticated);
         let e = client
+            .drain_worker(pb::DrainWorkerRequest {
+                worker: "render-01".into(),
+            })
+            .await
+            .expect_err("drain without the token");
+        assert_eq!(e.code(), tonic::Code::Unauthenticated);
+        let e = client
             .get_asset_status(pb::GetAssetStatusRequest {
                 sha256: "a".repeat(64),
             })

@@ -357,6 +357,7 @@ pub async fn register_as(
             cores: 1,
             version: version.into(),
             image_revision: revision,
+            ..Default::default()
         })
         .await?;
     Ok(r.into_inner().worker_id)

@@ -14,10 +14,12 @@ const ROUTES: &[(&str, &str)] = &[
     ("GET", "/api/jobs"),
     ("GET", "/api/jobs/JOB"),
     ("POST", "/api/jobs/JOB/cancel"),
+    ("GET", "/api/jobs/JOB/logs"),
     ("GET", "/api/jobs/JOB/preview.png"),
     ("GET", "/api/jobs/JOB/preview.png?view=noise&exposure=2"),
     ("GET", "/api/jobs/JOB/output.exr"),
     ("GET", "/api/workers"),
+    ("POST", "/api/workers/w1-99/drain"),
     ("GET", "/metrics"),
     ("POST", "/logout"),
     ("GET", "/no/such/page"),
@@ -129,7 +131,7 @@ async fn every_page_and_endpoint_needs_the_token() {
             let path = route.replace("JOB", &job);
             let r = http(addr, method, &path, &[auth], "").await;
             let want = match *route {
-                "/no/such/page" | "/api/jobs/job-999999" => 404,
+                "/no/such/page" | "/api/jobs/job-999999" | "/api/workers/w1-99/drain" => 404,
                 // Queued, nothing merged: the EXR is not ready; the preview is black.
                 "/api/jobs/JOB/output.exr" => 409,
                 _ => 200,

@@ -236,3 +236,68 @@ pub fn check_extension(flag: &str, out: &std::path::Path, ext: &str) -> Result<(
     }
     Ok(())
 }
+
+/// clap's parser for a memory size: bytes, or a number with K, M, G or T (binary units, so
+/// `16G` is 16 GiB; a trailing `iB` or `B` is allowed).
+pub fn memory_size(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let t = t
+        .strip_suffix("iB")
+        .or_else(|| t.strip_suffix('B'))
+        .unwrap_or(t);
+    let (digits, shift) = match t.char_indices().last() {
+        Some((i, c)) if c.is_ascii_alphabetic() => {
+            let shift = match c.to_ascii_uppercase() {
+                'K' => 10,
+                'M' => 20,
+                'G' => 30,
+                'T' => 40,
+                _ => return Err(format!("{s:?}: unknown unit {c:?} (use K, M, G or T)")),
+            };
+            (&t[..i], shift)
+        }
+        _ => (t, 0),
+    };
+    let n: f64 = digits
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not a size (e.g. 16G, 512M or a number of bytes)"))?;
+    let bytes = n * (1u64 << shift) as f64;
+    if !(bytes.is_finite() && bytes >= 0.0 && bytes < 2f64.powi(63)) {
+        return Err(format!("{s:?} is not a size between 0 and 8 EiB"));
+    }
+    Ok(bytes.round() as u64)
+}
+
+/// clap's parser for a worker tag or a job requirement ([`tessera_proto::tags`]).
+pub fn tag(s: &str) -> Result<String, String> {
+    tessera_proto::tags::check_tag(s)?;
+    Ok(s.to_string())
+}
+
+#[cfg(test)]
+mod size_tests {
+    use super::memory_size;
+
+    #[test]
+    fn sizes_read_in_binary_units() {
+        assert_eq!(memory_size("16G"), Ok(16 << 30));
+        assert_eq!(memory_size("16GiB"), Ok(16 << 30));
+        assert_eq!(memory_size("512M"), Ok(512 << 20));
+        assert_eq!(memory_size("1.5g"), Ok(3 << 29));
+        assert_eq!(memory_size("4096"), Ok(4096));
+        assert!(memory_size("16X")
+            .expect_err("16X")
+            .contains("unknown unit 'X'"));
+        assert!(memory_size("1.2.3G")
+            .expect_err("1.2.3G")
+            .contains("not a size"));
+        assert!(memory_size("lots")
+            .expect_err("lots")
+            .contains("unknown unit"));
+        assert!(memory_size("-1G").expect_err("-1G").contains("between 0"));
+        assert!(memory_size("1e30T")
+            .expect_err("1e30T")
+            .contains("between 0"));
+    }
+}

@@ -3,7 +3,7 @@
 //! `tessera render` renders a scene locally, on every core, with no network (the default
 //! way to use tessera). The farm commands run a coordinator (`tessera coordinator`) and
 //! workers (`tessera worker`) and talk to a coordinator (`submit`, `status`, `cancel`,
-//! `pause`, `resume`, `priority`, `workers`, `fetch`); see the README.
+//! `pause`, `resume`, `priority`, `logs`, `workers`, `fetch`); see the README.
 
 use std::process::ExitCode;
 
@@ -72,6 +72,8 @@ enum Command {
     Resume(farm::PauseArgs),
     /// Change a queued or running job's priority (higher runs first).
     Priority(farm::PriorityArgs),
+    /// Print the warnings and errors workers reported about a job's units.
+    Logs(farm::LogsArgs),
     /// List the workers a coordinator has seen.
     Workers(farm::WorkersArgs),
     /// Download a finished job's EXR.
@@ -147,6 +149,7 @@ fn main() -> ExitCode {
         Command::Pause(args) => farm::pause(args, true),
         Command::Resume(args) => farm::pause(args, false),
         Command::Priority(args) => farm::priority(args),
+        Command::Logs(args) => farm::logs(args),
         Command::Workers(args) => farm::workers(args),
         Command::Fetch(args) => farm::fetch(args),
         Command::Completions { shell } => {

@@ -9,32 +9,15 @@ mod common;
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
 
-use common::{repo, start_coordinator, tessera_at, worker, Proc, BIN};
+use common::{
+    coordinator, one_line_failure, repo, start_coordinator, tessera_at, worker, Proc, BIN,
+};
 
 fn tessera(args: &[&str], url: &str) -> Output {
     tessera_at(args, url)
 }
 
 use std::time::Duration;
-
-/// Starts a coordinator on port 0 and returns it with its URL.
-fn coordinator(data: &Path) -> (Proc, String) {
-    let (proc, addr) = start_coordinator(
-        "127.0.0.1:0",
-        data,
-        &["--lease-timeout", "5"],
-        Stdio::null(),
-    );
-    (proc, format!("http://{addr}"))
-}
-
-fn one_line_failure(out: &Output, needle: &str) {
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "should fail: {stderr}");
-    assert!(!stderr.contains("panicked"), "panic: {stderr}");
-    assert_eq!(stderr.trim().lines().count(), 1, "not one line: {stderr}");
-    assert!(stderr.contains(needle), "missing {needle:?} in: {stderr}");
-}
 
 /// The job id a successful `tessera submit` printed.
 fn submitted(out: &Output) -> String {
@@ -487,7 +470,7 @@ fn an_auditing_coordinator_checks_every_unit_and_keeps_the_bits() {
         .map(|l| {
             let cols: Vec<&str> = l.split_whitespace().collect();
             assert_eq!(cols.last(), Some(&"127.0.0.1"), "HOST column: {l}");
-            cols[cols.len() - 3].parse::<u64>().expect("AUDITS column")
+            cols[cols.len() - 5].parse::<u64>().expect("AUDITS column")
         })
         .sum::<u64>();
     assert!(

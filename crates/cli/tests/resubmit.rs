@@ -72,6 +72,15 @@ impl Jobs for CollectBeforeSubmit {
     ) -> R<pb::ListWorkersResponse> {
         self.farm.service().list_workers(req).await
     }
+    async fn get_logs(&self, req: Request<pb::GetLogsRequest>) -> R<pb::GetLogsResponse> {
+        self.farm.service().get_logs(req).await
+    }
+    async fn drain_worker(
+        &self,
+        req: Request<pb::DrainWorkerRequest>,
+    ) -> R<pb::DrainWorkerResponse> {
+        self.farm.service().drain_worker(req).await
+    }
     type FetchResultStream = <tessera_coordinator::Service as Jobs>::FetchResultStream;
     async fn fetch_result(
         &self,

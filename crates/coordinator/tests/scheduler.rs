@@ -669,6 +669,7 @@ fn an_adaptive_job_past_its_pilots_without_a_kept_scale_fails_at_restore_and_oth
             record: rec,
             tiles,
             pending: Vec::new(),
+            log: None,
         }
     };
     let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(5)));

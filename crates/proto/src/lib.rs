@@ -13,6 +13,7 @@ pub mod v1 {
 pub mod client;
 pub mod convert;
 pub mod ids;
+pub mod tags;
 pub mod view;
 
 /// The largest gRPC message the coordinator and its workers accept by default (a scene of up

@@ -312,6 +312,14 @@ pub struct JobView {
     pub after: Option<JobId>,
     /// Paused: leased nothing new until resumed.
     pub paused: bool,
+    /// Tags a worker needs for it (`submit --require`).
+    pub require: Vec<String>,
+    /// Memory a worker needs for it, in bytes (0: any).
+    pub min_memory_bytes: u64,
+    /// Why it has work to hand out and no connected worker can take it.
+    pub waiting: Option<String>,
+    /// A frame range leased progressively (`submit --progressive`).
+    pub progressive: bool,
 }
 
 impl From<&JobView> for pb::JobStatus {
@@ -362,6 +370,10 @@ impl From<&JobView> for pb::JobStatus {
             range_job_id: v.range_job_id.map(|r| r.to_string()).unwrap_or_default(),
             checks: v.checks.iter().map(pb::OutputCheck::from).collect(),
             after: v.after.map(|a| a.to_string()).unwrap_or_default(),
+            require: v.require.clone(),
+            min_memory_bytes: v.min_memory_bytes,
+            waiting: v.waiting.clone().unwrap_or_default(),
+            progressive: v.progressive,
             paused: v.paused,
         }
     }
@@ -428,6 +440,10 @@ impl TryFrom<&pb::JobStatus> for JobView {
                 a => Some(a.parse()?),
             },
             paused: s.paused,
+            require: s.require.clone(),
+            min_memory_bytes: s.min_memory_bytes,
+            waiting: (!s.waiting.is_empty()).then(|| s.waiting.clone()),
+            progressive: s.progressive,
         })
     }
 }
@@ -442,6 +458,8 @@ pub enum WorkerState {
     Quarantined,
     /// An audit's copies of a unit it rendered disagree, until the referee decides.
     Suspect,
+    /// Alive and drained: finishing the units it holds, then leaving.
+    Draining,
     /// Called within a lease time.
     Alive,
     /// Said goodbye, or silent for longer than a lease.
@@ -450,13 +468,21 @@ pub enum WorkerState {
 
 impl WorkerState {
     /// The most serious of what is true of a worker.
-    pub fn of(convicted: bool, quarantined: bool, suspect: bool, alive: bool) -> Self {
+    pub fn of(
+        convicted: bool,
+        quarantined: bool,
+        suspect: bool,
+        draining: bool,
+        alive: bool,
+    ) -> Self {
         if convicted {
             WorkerState::Convicted
         } else if quarantined {
             WorkerState::Quarantined
         } else if suspect {
             WorkerState::Suspect
+        } else if alive && draining {
+            WorkerState::Draining
         } else if alive {
             WorkerState::Alive
         } else {
@@ -470,6 +496,7 @@ impl WorkerState {
             WorkerState::Convicted => "convicted",
             WorkerState::Quarantined => "quarantined",
             WorkerState::Suspect => "suspect",
+            WorkerState::Draining => "draining",
             WorkerState::Alive => "alive",
             WorkerState::Gone => "gone",
         }
@@ -510,6 +537,12 @@ pub struct WorkerView {
     pub convicted: Option<String>,
     /// Seconds since its last call.
     pub last_seen_seconds_ago: f64,
+    /// Memory it reported, in bytes (0: unknown).
+    pub memory_bytes: u64,
+    /// CPU features it reported.
+    pub cpu_features: Vec<String>,
+    /// Its operator tags.
+    pub tags: Vec<String>,
 }
 
 impl From<&WorkerView> for pb::WorkerInfo {
@@ -531,6 +564,10 @@ impl From<&WorkerView> for pb::WorkerInfo {
             suspect: v.state == WorkerState::Suspect,
             host: v.host.clone().unwrap_or_default(),
             samples_per_second: v.samples_per_second,
+            memory_bytes: v.memory_bytes,
+            cpu_features: v.cpu_features.clone(),
+            tags: v.tags.clone(),
+            draining: v.state == WorkerState::Draining,
         }
     }
 }
@@ -539,7 +576,13 @@ impl TryFrom<&pb::WorkerInfo> for WorkerView {
     type Error = BadView;
 
     fn try_from(w: &pb::WorkerInfo) -> Result<Self, BadView> {
-        let state = WorkerState::of(!w.convicted.is_empty(), w.quarantined, w.suspect, w.alive);
+        let state = WorkerState::of(
+            !w.convicted.is_empty(),
+            w.quarantined,
+            w.suspect,
+            w.draining,
+            w.alive,
+        );
         Ok(WorkerView {
             worker_id: w.worker_id.parse()?,
             name: w.name.clone(),
@@ -556,6 +599,9 @@ impl TryFrom<&pb::WorkerInfo> for WorkerView {
             audits_passed: w.audits_passed,
             convicted: (!w.convicted.is_empty()).then(|| w.convicted.clone()),
             last_seen_seconds_ago: w.last_seen_ms_ago as f64 / 1000.0,
+            memory_bytes: w.memory_bytes,
+            cpu_features: w.cpu_features.clone(),
+            tags: w.tags.clone(),
         })
     }
 }
@@ -622,6 +668,10 @@ mod tests {
             }],
             after: "job-000003".into(),
             paused: true,
+            require: vec!["pool=fast".into(), "cpu:avx2".into()],
+            min_memory_bytes: 16 << 30,
+            waiting: "no worker has tag pool=fast".into(),
+            progressive: true,
         }
     }
 
@@ -702,10 +752,31 @@ mod tests {
             suspect: true,
             host: "10.0.0.5".into(),
             samples_per_second: 5.5,
+            memory_bytes: 64 << 30,
+            cpu_features: vec!["avx2".into()],
+            tags: vec!["pool=fast".into()],
+            draining: false,
         };
         let v = WorkerView::try_from(&wire).expect("a view");
         assert_eq!(v.state, WorkerState::Suspect);
         assert_eq!(pb::WorkerInfo::from(&v), wire);
+        // Draining shows for a live worker that nothing worse is true of.
+        let draining = pb::WorkerInfo {
+            suspect: false,
+            draining: true,
+            ..wire.clone()
+        };
+        let d = WorkerView::try_from(&draining).expect("a view");
+        assert_eq!(d.state, WorkerState::Draining);
+        assert_eq!(pb::WorkerInfo::from(&d), draining);
+        let gone = pb::WorkerInfo {
+            alive: false,
+            ..draining
+        };
+        assert_eq!(
+            WorkerView::try_from(&gone).expect("view").state,
+            WorkerState::Gone
+        );
         let json = serde_json::to_value(&v).expect("JSON");
         assert_eq!(json["state"], "suspect");
         assert_eq!(json["convicted"], serde_json::Value::Null);

@@ -28,6 +28,11 @@ pub struct Config {
     /// Most bytes the cache keeps: after each new file, the least recently used others are
     /// deleted until it fits (a file a scene needs is fetched again if it was deleted).
     pub cache_bytes: u64,
+    /// Operator tags (`--tag`), which jobs' `--require` match (see [`tessera_proto::tags`]).
+    pub tags: Vec<String>,
+    /// Memory to report, in bytes (default: what the machine, or its container's limit,
+    /// allows).
+    pub memory_bytes: Option<u64>,
 }
 
 impl Config {
@@ -43,6 +48,8 @@ impl Config {
             client: ClientOptions::default(),
             cache_dir: std::env::temp_dir().join("tessera-assets"),
             cache_bytes: DEFAULT_CACHE_BYTES,
+            tags: Vec::new(),
+            memory_bytes: None,
         }
     }
 }

@@ -25,6 +25,7 @@
 
 mod cache;
 mod config;
+mod memory;
 mod pipeline;
 
 use std::collections::{HashMap, HashSet};
@@ -72,6 +73,17 @@ struct Ctx {
     /// forgot this worker register it once, not once each.
     registering: tokio::sync::Mutex<()>,
     stop: watch::Receiver<bool>,
+    /// Starts the shutdown: a signal, or the coordinator's drain.
+    stop_tx: watch::Sender<bool>,
+    /// Drained by the coordinator: said when registering again, so that a coordinator that
+    /// restarted meanwhile leases nothing more to this worker.
+    draining: std::sync::atomic::AtomicBool,
+    /// Lines about units for the coordinator, sent with the next heartbeat (at most
+    /// [`MAX_QUEUED_LOG_LINES`]; the oldest go first).
+    log_lines: Mutex<std::collections::VecDeque<pb::WorkerLogLine>>,
+    /// What it tells the coordinator it has.
+    memory_bytes: u64,
+    cpu_features: Vec<String>,
     /// Why the coordinator refused this worker for good, if it did.
     refused: Mutex<Option<String>>,
 }
@@ -79,6 +91,12 @@ struct Ctx {
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
+
+/// Log lines a worker keeps queued for the coordinator.
+const MAX_QUEUED_LOG_LINES: usize = 64;
+
+/// Log lines in one call (the coordinator takes at most 32).
+const LOG_LINES_PER_CALL: usize = 32;
 
 /// Errors worth retrying: the coordinator is down, restarting or overloaded.
 fn transient(s: &Status) -> bool {
@@ -98,6 +116,18 @@ impl Ctx {
 
     fn stopping(&self) -> bool {
         *self.stop.borrow()
+    }
+
+    /// The coordinator drained this worker: stop as on SIGTERM (finish what is rendering,
+    /// hand back what is not started, say goodbye, exit).
+    fn drain(&self) {
+        if !self.draining.swap(true, Ordering::Relaxed) {
+            info!(
+                "drained by the coordinator: finishing the units in hand, then leaving ({} held)",
+                lock(&self.held).len()
+            );
+        }
+        let _ = self.stop_tx.send(true);
     }
 
     /// Sleeps for a backoff step; false if shutdown began meanwhile.
@@ -136,6 +166,10 @@ impl Ctx {
                 cores: self.cores,
                 version: env!("CARGO_PKG_VERSION").into(),
                 image_revision: tessera_render::IMAGE_REVISION,
+                memory_bytes: self.memory_bytes,
+                cpu_features: self.cpu_features.clone(),
+                tags: self.config.tags.clone(),
+                draining: self.draining.load(Ordering::Relaxed),
             };
             match self.client.clone().register(req).await {
                 Ok(r) => {
@@ -173,6 +207,38 @@ impl Ctx {
         }
     }
 
+    /// Queues a line about the unit of `lease` for the coordinator (`tessera logs`).
+    fn log(&self, lease: &str, level: pb::LogLevel, message: String) {
+        let mut q = lock(&self.log_lines);
+        if q.len() >= MAX_QUEUED_LOG_LINES {
+            q.pop_front();
+        }
+        q.push_back(pb::WorkerLogLine {
+            lease_id: lease.to_string(),
+            level: level as i32,
+            message,
+        });
+    }
+
+    /// Sends the queued lines (best effort: a line lost to a network error is only a line).
+    async fn send_logs(&self) {
+        let lines: Vec<pb::WorkerLogLine> = {
+            let mut q = lock(&self.log_lines);
+            let n = q.len().min(LOG_LINES_PER_CALL);
+            q.drain(..n).collect()
+        };
+        if lines.is_empty() {
+            return;
+        }
+        let req = pb::ReportLogRequest {
+            worker_id: self.id(),
+            lines,
+        };
+        if let Err(e) = self.client.clone().report_log(req).await {
+            debug!("sending log lines: {}", e.message());
+        }
+    }
+
     async fn release(&self, leases: Vec<String>, goodbye: bool) {
         self.hand_back(leases, goodbye, String::new()).await;
     }
@@ -183,6 +249,8 @@ impl Ctx {
         if leases.is_empty() && !goodbye {
             return;
         }
+        // The lines about these units go first, while their leases are still this worker's.
+        self.send_logs().await;
         for l in &leases {
             lock(&self.held).remove(l);
         }
@@ -220,7 +288,13 @@ pub async fn run(
             .max_encoding_message_size(config.max_message_bytes);
     let pool = render_pool(config.threads)?;
     let (stop_tx, stop) = watch::channel(false);
+    let memory_bytes = config.memory_bytes.unwrap_or_else(memory::available);
     let ctx = Arc::new(Ctx {
+        memory_bytes,
+        cpu_features: tessera_proto::tags::cpu_features(),
+        draining: std::sync::atomic::AtomicBool::new(false),
+        log_lines: Mutex::new(std::collections::VecDeque::new()),
+        stop_tx,
         client,
         cores: pool.current_num_threads() as u32,
         pool,
@@ -236,11 +310,10 @@ pub async fn run(
         stop,
         refused: Mutex::new(None),
     });
-    let stop_tx = Arc::new(stop_tx);
-    let signal_tx = stop_tx.clone();
+    let signal = ctx.clone();
     let _signal = Task::spawn(async move {
         shutdown.await;
-        let _ = signal_tx.send(true);
+        let _ = signal.stop_tx.send(true);
     });
     if !ctx.register().await {
         let refused = lock(&ctx.refused).take();
@@ -262,7 +335,7 @@ pub async fn run(
         _ = fetch.join() => true,
     };
     if refused {
-        let _ = stop_tx.send(true);
+        let _ = ctx.stop_tx.send(true);
     } else {
         fetch.join().await;
     }

@@ -82,15 +82,27 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
             // for the shutdown to hand back at once.
             let late = tokio::time::timeout(LEASE_WAIT + Duration::from_secs(1), call).await;
             if let Ok(Ok(r)) = late {
-                let units = r.into_inner().units;
-                lock(&ctx.held).extend(units.into_iter().map(|u| u.lease_id));
+                let units: Vec<String> = r
+                    .into_inner()
+                    .units
+                    .into_iter()
+                    .map(|u| u.lease_id)
+                    .collect();
+                // Handed back at once: the units go to other workers now, not when the ones
+                // rendering here are done.
+                lock(&ctx.held).extend(units.iter().cloned());
+                ctx.release(units, false).await;
             }
             return;
         };
         let units = match resp {
             Ok(r) => {
                 attempt = 0;
-                r.into_inner().units
+                let r = r.into_inner();
+                if r.drain {
+                    ctx.drain();
+                }
+                r.units
             }
             Err(e) if tessera_proto::reason::is_unknown_worker(&e) => {
                 warn!("{}", e.message());
@@ -130,6 +142,11 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
                         "unit {} of {}: scene {}: {e}; handing it back",
                         unit.lease_id, unit.job_id, unit.scene_hash
                     );
+                    ctx.log(
+                        &unit.lease_id,
+                        pb::LogLevel::Warn,
+                        format!("scene unavailable here: {e}; handed back"),
+                    );
                     ctx.release(vec![unit.lease_id], false).await;
                     continue;
                 }
@@ -137,6 +154,11 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
                     warn!(
                         "unit {} of {}: this worker cannot render it: {e}",
                         unit.lease_id, unit.job_id
+                    );
+                    ctx.log(
+                        &unit.lease_id,
+                        pb::LogLevel::Error,
+                        format!("this worker cannot render it: {e}"),
                     );
                     ctx.hand_back(vec![unit.lease_id], false, e).await;
                     continue;
@@ -150,7 +172,9 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
                 settings,
                 _slot: s,
             };
-            if tx.send(ready).await.is_err() {
+            if let Err(unsent) = tx.send(ready).await {
+                // The renderer stopped taking units (shutdown): this one goes back at once.
+                ctx.release(vec![unsent.0.unit.lease_id], false).await;
                 return;
             }
         }
@@ -181,11 +205,19 @@ async fn renderer(ctx: Arc<Ctx>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::Unboun
     let mut stop = ctx.stop.clone();
     let mut running: tokio::task::JoinSet<Done> = tokio::task::JoinSet::new();
     let mut open = true;
+    let mut stopped = false;
     while open || !running.is_empty() {
+        if std::mem::take(&mut stopped) {
+            hand_back_queued(&ctx, &mut rx).await;
+        }
         tokio::select! {
             biased;
-            // Shutdown: take no new unit, but finish the ones started.
-            _ = stop.wait_for(|s| *s), if open => open = false,
+            // Shutdown: take no new unit and hand back the queued ones at once, so that they
+            // wait for no one; finish the ones started.
+            _ = stop.wait_for(|s| *s), if open => {
+                open = false;
+                stopped = true;
+            }
             Some(done) = running.join_next(), if !running.is_empty() => match done {
                 Ok(done) => {
                     let _ = tx.send(done);
@@ -215,6 +247,16 @@ async fn renderer(ctx: Arc<Ctx>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::Unboun
                         ready.unit.batch_index,
                         started.elapsed().as_secs_f64()
                     );
+                    if sums.nonfinite > 0 {
+                        work.log(
+                            &ready.unit.lease_id,
+                            pb::LogLevel::Warn,
+                            format!(
+                                "{} non-finite samples (NaN or infinite) were left out of the sums",
+                                sums.nonfinite
+                            ),
+                        );
+                    }
                     Done {
                         unit: ready.unit,
                         sums,
@@ -224,7 +266,11 @@ async fn renderer(ctx: Arc<Ctx>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::Unboun
             }
         }
     }
-    // Shutting down: hand back what is queued and not started.
+    hand_back_queued(&ctx, &mut rx).await;
+}
+
+/// Closes the renderer's queue and hands back the units in it, which no render has started.
+async fn hand_back_queued(ctx: &Ctx, rx: &mut mpsc::Receiver<Ready>) {
     rx.close();
     let mut back = Vec::new();
     while let Ok(r) = rx.try_recv() {
@@ -294,6 +340,11 @@ async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
                         done.unit.batch_index,
                         e.message()
                     );
+                    ctx.log(
+                        &done.unit.lease_id,
+                        pb::LogLevel::Error,
+                        format!("its result was refused: {}", e.message()),
+                    );
                     break;
                 }
             }
@@ -307,6 +358,7 @@ async fn heartbeat(ctx: Arc<Ctx>) {
     loop {
         let every = Duration::from_millis(ctx.heartbeat_ms.load(Ordering::Relaxed));
         tokio::time::sleep(every).await;
+        ctx.send_logs().await;
         let lease_ids: Vec<String> = lock(&ctx.held).iter().cloned().collect();
         let req = pb::HeartbeatRequest {
             worker_id: ctx.id(),
@@ -314,7 +366,11 @@ async fn heartbeat(ctx: Arc<Ctx>) {
         };
         match ctx.client.clone().heartbeat(req).await {
             Ok(r) => {
-                let revoked = r.into_inner().revoked;
+                let r = r.into_inner();
+                if r.drain {
+                    ctx.drain();
+                }
+                let revoked = r.revoked;
                 if !revoked.is_empty() {
                     debug!("{} lease(s) revoked", revoked.len());
                     let mut held = lock(&ctx.held);

@@ -341,6 +341,7 @@ pub(super) async fn simulated_worker(
             cores: 1,
             version: env!("CARGO_PKG_VERSION").into(),
             image_revision: tessera_render::IMAGE_REVISION,
+            ..Default::default()
         })
         .await?
         .into_inner()

@@ -13,8 +13,8 @@ use tessera_proto::client::{ClientOptions, ClientTls};
 use tessera_proto::{parse_token, Secret};
 
 pub use client::{
-    cancel, fetch, pause, priority, status, submit, workers, CancelArgs, FetchArgs, PauseArgs,
-    PriorityArgs, StatusArgs, SubmitArgs, WorkersArgs,
+    cancel, fetch, logs, pause, priority, status, submit, workers, CancelArgs, FetchArgs, LogsArgs,
+    PauseArgs, PriorityArgs, StatusArgs, SubmitArgs, WorkersArgs,
 };
 pub use servers::{coordinator, worker, CoordinatorArgs, WorkerArgs};
 

@@ -130,6 +130,14 @@ pub struct WorkerArgs {
     /// unit whose texture needs more is handed back as one this worker cannot render).
     #[arg(long, env = "TESSERA_TEXTURE_DECODE_BYTES", default_value_t = tessera_render::texture::DEFAULT_DECODE_BUDGET)]
     texture_decode_bytes: u64,
+    /// A tag jobs can require (`submit --require`), repeatable: NAME or NAME=VALUE, e.g.
+    /// `--tag pool=fast --tag big-mem`.
+    #[arg(long = "tag", value_name = "TAG", value_parser = crate::args::tag)]
+    tags: Vec<String>,
+    /// Memory to report to the coordinator, e.g. 16G (default: the machine's, or its
+    /// container's limit if lower).
+    #[arg(long, env = "TESSERA_WORKER_MEMORY", value_name = "SIZE", value_parser = crate::args::memory_size)]
+    memory: Option<u64>,
 }
 
 /// Runs `tessera coordinator`.
@@ -248,6 +256,10 @@ pub fn worker(args: WorkerArgs) -> Result<()> {
     config.client = options;
     config.threads = args.threads.map(|t| t as usize);
     config.cache_bytes = args.cache_bytes;
+    tessera_proto::tags::check_tags("--tag", &args.tags, tessera_proto::tags::MAX_TAGS)
+        .map_err(anyhow::Error::msg)?;
+    config.tags = args.tags;
+    config.memory_bytes = args.memory;
     if let Some(dir) = args.cache_dir {
         config.cache_dir = dir;
     }

@@ -67,6 +67,20 @@ pub fn start_coordinator(
 
 /// A `tessera worker` process with one render thread.
 pub fn worker(url: &str, name: &str) -> Proc {
+    worker_with_stderr(url, name, &[], Stdio::null())
+}
+
+/// A `tessera worker` with one render thread, `extra` flags, and its log in the file `log`.
+pub fn worker_with(url: &str, name: &str, extra: &[&str], log: &std::path::Path) -> Proc {
+    worker_with_stderr(
+        url,
+        name,
+        extra,
+        Stdio::from(std::fs::File::create(log).expect("log")),
+    )
+}
+
+fn worker_with_stderr(url: &str, name: &str, extra: &[&str], stderr: Stdio) -> Proc {
     Proc(
         Command::new(BIN)
             .args([
@@ -78,11 +92,33 @@ pub fn worker(url: &str, name: &str) -> Proc {
                 "--name",
                 name,
             ])
+            .args(extra)
             .stdout(Stdio::null())
-            .stderr(Stdio::null())
+            .stderr(stderr)
             .spawn()
             .expect("start worker"),
     )
+}
+
+/// A coordinator on port 0 with 5-second leases, and its URL.
+pub fn coordinator(data: &std::path::Path) -> (Proc, String) {
+    let (proc, addr) = start_coordinator(
+        "127.0.0.1:0",
+        data,
+        &["--lease-timeout", "5"],
+        Stdio::null(),
+    );
+    (proc, format!("http://{addr}"))
+}
+
+/// Asserts that a command failed with one line on stderr that contains `needle`, and no
+/// panic.
+pub fn one_line_failure(out: &Output, needle: &str) {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "should fail: {stderr}");
+    assert!(!stderr.contains("panicked"), "panic: {stderr}");
+    assert_eq!(stderr.trim().lines().count(), 1, "not one line: {stderr}");
+    assert!(stderr.contains(needle), "missing {needle:?} in: {stderr}");
 }
 
 /// Runs a client command against the coordinator at `url`.

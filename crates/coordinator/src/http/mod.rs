@@ -157,9 +157,11 @@ fn router(app: App) -> Router {
         .route("/api/jobs", get(list_jobs))
         .route("/api/jobs/{id}", get(job))
         .route("/api/jobs/{id}/cancel", post(cancel))
+        .route("/api/jobs/{id}/logs", get(logs))
         .route("/api/jobs/{id}/preview.png", get(preview_png))
         .route("/api/jobs/{id}/output.exr", get(output_exr))
         .route("/api/workers", get(list_workers))
+        .route("/api/workers/{id}/drain", post(drain))
         .route("/metrics", get(metrics))
         .route("/login", post(login))
         .route("/logout", post(logout))
@@ -424,6 +426,61 @@ async fn cancel(State(app): State<App>, Path(id): Path<String>) -> Response {
     let req = RpcRequest::new(pb::CancelJobRequest { job_id: id });
     match app.svc.cancel_job(req).await {
         Ok(r) => Json(json!({ "state": job_state_name(r.get_ref().state) })).into_response(),
+        Err(s) => refused(s),
+    }
+}
+
+/// A job's log as JSON: `{"entries": [...], "dropped": N, "ended": bool}`, the fields of
+/// `GetLogsResponse` (the level as a word).
+async fn logs(State(app): State<App>, Path(id): Path<String>) -> Response {
+    let req = RpcRequest::new(pb::GetLogsRequest {
+        job_id: id,
+        frame: None,
+        after: 0,
+    });
+    match app.svc.get_logs(req).await {
+        Ok(r) => {
+            let r = r.into_inner();
+            let entries: Vec<serde_json::Value> = r
+                .entries
+                .iter()
+                .map(|e| {
+                    json!({
+                        "seq": e.seq,
+                        "unix_ms": e.unix_ms,
+                        "worker_id": e.worker_id,
+                        "worker_name": e.worker_name,
+                        "job_id": e.job_id,
+                        "frame": e.frame,
+                        "tile": e.tile_index,
+                        "batch": e.batch_index,
+                        "level": match pb::LogLevel::try_from(e.level) {
+                            Ok(pb::LogLevel::Info) => "info",
+                            Ok(pb::LogLevel::Error) => "error",
+                            _ => "warn",
+                        },
+                        "message": e.message,
+                    })
+                })
+                .collect();
+            Json(json!({ "entries": entries, "dropped": r.dropped, "ended": r.ended }))
+                .into_response()
+        }
+        Err(s) => refused(s),
+    }
+}
+
+async fn drain(State(app): State<App>, Path(id): Path<String>) -> Response {
+    // By public id only: a name could drain several, which a button on one row must not.
+    if id.parse::<tessera_proto::ids::WorkerId>().is_err() {
+        return refused(tonic::Status::invalid_argument(format!(
+            "{:?} is not a worker id",
+            crate::error::truncate(&id)
+        )));
+    }
+    let req = RpcRequest::new(pb::DrainWorkerRequest { worker: id });
+    match app.svc.drain_worker(req).await {
+        Ok(r) => Json(json!({ "drained": r.get_ref().drained })).into_response(),
         Err(s) => refused(s),
     }
 }

@@ -43,6 +43,13 @@ pub struct Admission {
     pub frames: Option<FrameRange>,
     /// The job this one starts after, if any.
     pub after: Option<JobId>,
+    /// Tags a worker needs for it (checked by the caller with [`tessera_proto::tags`]).
+    pub require: Vec<String>,
+    /// Least memory a worker needs for it, in bytes.
+    pub min_memory: u64,
+    /// Lease a range's frames progressively (checked by the caller: only with frames, and
+    /// not adaptive).
+    pub progressive: bool,
 }
 
 /// Bounds admission enforces.
@@ -152,8 +159,11 @@ impl Scheduler {
         let mut to_finish = Vec::new();
         let mut ops = Vec::new();
         let mut failing = Vec::new();
-        for loaded in loaded {
+        for mut loaded in loaded {
             let id = JobId(loaded.record.id);
+            if let Some(log) = loaded.log.take() {
+                self.restore_log(id, &log);
+            }
             let scale = loaded.record.adaptive_scale;
             let mut job = Job::restore(loaded).map_err(|e| format!("{id}: {e}"))?;
             if job.rec.adaptive_scale != scale {
@@ -300,6 +310,9 @@ impl Scheduler {
             aovs: s.aovs.list(),
             checks: Default::default(),
             after: a.after.map(|j| j.0),
+            require: a.require.clone(),
+            min_memory: a.min_memory,
+            progressive: a.progressive && a.frames.is_some(),
             paused: false,
             // An adaptive job's decisions follow its merged sums; taking results back would
             // need them made again from the start, which is not built: such jobs are not

@@ -6,6 +6,8 @@
 //! - [`pick`]: the next unit for a worker, speculation past slow holders, requeueing.
 //! - [`leases`]: leases, their deadlines, heartbeats and hand-backs.
 //! - [`workers`]: registration, credentials, hosts and quarantine.
+//! - [`logs`]: workers' lines about units, kept with their jobs, bounded.
+//! - [`fit`]: workers' capabilities against jobs' requirements, and draining.
 //! - [`audit`]: units rendered twice, the referee, and convictions.
 //! - [`admit`]: admission of new jobs and restore at start-up.
 //! - [`view`]: the read model the API and the dashboard both answer from.
@@ -22,7 +24,9 @@ mod admit;
 mod after;
 mod audit;
 mod control;
+mod fit;
 mod leases;
+mod logs;
 mod pick;
 mod view;
 mod workers;
@@ -44,7 +48,9 @@ use crate::store::{JobPhase, JobRecord, Op};
 use audit::audit_excludes;
 
 pub use admit::{Admission, AdmissionLimits, Asked, Checked};
+pub use fit::Capabilities;
 pub use leases::Lease;
+pub use logs::{JobLines, JobLog, LogLine, Reported, MAX_LINES_PER_CALL};
 pub use view::{JobView, WorkerView};
 pub use workers::Worker;
 
@@ -165,6 +171,10 @@ pub struct Scheduler {
     /// ([`Scheduler::evict`]): with the tiles dirty since, what memory holds that only a
     /// commit can let go ([`Scheduler::unstored_bytes`]).
     storing_bytes: u64,
+    /// Workers' lines about each job's units ([`logs`]).
+    logs: BTreeMap<JobId, logs::JobLog>,
+    /// The last log line's sequence number.
+    log_seq: u64,
 }
 
 impl Scheduler {
@@ -187,6 +197,8 @@ impl Scheduler {
             counters: Counters::default(),
             checkpoint_asked: false,
             storing_bytes: 0,
+            logs: BTreeMap::new(),
+            log_seq: 0,
         }
     }
 

@@ -68,7 +68,16 @@ fn speculative_unit(
 /// batches in batch-major order (all tiles' batch 0, then batch 1, …), so the image converges
 /// evenly and few results wait out of order; then, with a noise target, the batches that
 /// tiles' noise decisions released, lowest first.
-fn next_unit(job: &mut Job, w: u64, host: &str, leases: &HashMap<u64, Lease>) -> Option<Unit> {
+///
+/// `max_batch` holds the cursor back at that batch (a progressive range's frames wait for each
+/// other); units put back and released ones are not held.
+fn next_unit(
+    job: &mut Job,
+    w: u64,
+    host: &str,
+    leases: &HashMap<u64, Lease>,
+    max_batch: u32,
+) -> Option<Unit> {
     // An audited unit goes to a worker on a host that has not rendered it: those set aside
     // wait at the front for the next worker.
     let mut aside = Vec::new();
@@ -95,6 +104,9 @@ fn next_unit(job: &mut Job, w: u64, host: &str, leases: &HashMap<u64, Lease>) ->
             tile: (job.cursor % n_tiles) as u32,
             batch: (job.cursor / n_tiles) as u32,
         };
+        if u.batch > max_batch {
+            break;
+        }
         job.cursor += 1;
         if !job.is_done(u) && !has_active_lease(job, u, leases) {
             return Some(u);
@@ -124,6 +136,19 @@ pub(super) fn requeue(jobs: &mut BTreeMap<JobId, Job>, lease: &mut Lease) -> boo
 }
 
 impl Scheduler {
+    /// The batch a progressive range's frames may hand out up to: the lowest batch any of its
+    /// live frames' cursors is still on, so that no frame starts batch b + 1 before every frame
+    /// has handed out its batch b.
+    fn progressive_level(&self, range: JobId) -> u32 {
+        self.members(range)
+            .iter()
+            .filter_map(|m| self.jobs.get(m))
+            .filter(|j| j.is_live() && j.cursor < j.units_first())
+            .map(|j| (j.cursor / (j.tiles.len() as u64).max(1)) as u32)
+            .min()
+            .unwrap_or(u32::MAX)
+    }
+
     /// Jobs in scheduling order: priority (high first), then submission order; only those
     /// still taking leases if `live_only` (finished jobs accumulate, and leasing runs often).
     pub fn schedule_order(&self, live_only: bool) -> Vec<JobId> {
@@ -142,9 +167,13 @@ impl Scheduler {
     pub fn lease(&mut self, w: u64, max: usize, now: Instant) -> Vec<Granted> {
         self.expire(now);
         let mut out = Vec::new();
-        if self.workers.get(&w).is_some_and(|x| x.quarantined) {
+        let Some(worker) = self.workers.get(&w) else {
+            return out;
+        };
+        if worker.quarantined || worker.draining {
             return out;
         }
+        let caps = worker.caps.clone();
         // A worker in a dispute keeps working: the coordinator's own render settles the dispute
         // (the referee), and a conviction takes back whatever it gave live jobs meanwhile.
         let host = self
@@ -160,11 +189,24 @@ impl Scheduler {
                 .saturating_sub(self.leases_of(w)),
         );
         let slow = self.policy.lease_time;
+        // Each progressive range's batch, read once a call: a level that rises during the
+        // call is seen by the next one.
+        let mut levels: HashMap<u64, u32> = HashMap::new();
         for speculate in [false, true] {
             for id in self.schedule_order(true) {
-                if self.held(id) {
+                if self.held(id) || !self.jobs.get(&id).is_some_and(|j| caps.fits(&j.rec)) {
                     continue;
                 }
+                let max_batch = match self
+                    .jobs
+                    .get(&id)
+                    .and_then(|j| j.rec.range.filter(|_| j.rec.progressive))
+                {
+                    Some(r) => *levels
+                        .entry(r.id)
+                        .or_insert_with(|| self.progressive_level(JobId(r.id))),
+                    None => u32::MAX,
+                };
                 while out.len() < max {
                     let Some(job) = self.jobs.get_mut(&id) else {
                         break;
@@ -175,7 +217,7 @@ impl Scheduler {
                     let next = if speculate {
                         speculative_unit(job, w, &host, &self.leases, now, slow)
                     } else {
-                        next_unit(job, w, &host, &self.leases)
+                        next_unit(job, w, &host, &self.leases, max_batch)
                     };
                     let Some(unit) = next else {
                         break;

@@ -52,6 +52,7 @@ impl Scheduler {
                         w.convicted.is_some(),
                         w.quarantined,
                         !w.disputes.is_empty(),
+                        w.draining,
                         alive,
                     ),
                     alive,
@@ -63,6 +64,9 @@ impl Scheduler {
                     audits_passed: w.audits_passed,
                     convicted: w.convicted.clone(),
                     last_seen_seconds_ago: now.duration_since(w.last_seen).as_secs_f64(),
+                    memory_bytes: w.caps.memory_bytes,
+                    cpu_features: w.caps.cpu_features.clone(),
+                    tags: w.caps.tags.clone(),
                 }
             })
             .collect()
@@ -154,6 +158,12 @@ impl Scheduler {
             checks: CheckView::failed(&rec.checks, ""),
             after: rec.after.map(JobId),
             paused: rec.paused && rec.phase == JobPhase::Active,
+            require: rec.require.clone(),
+            min_memory_bytes: rec.min_memory,
+            progressive: rec.progressive,
+            waiting: (job.is_live() && !self.held(job.id()))
+                .then(|| self.waiting(rec, now))
+                .flatten(),
         }
     }
 
@@ -242,6 +252,10 @@ impl Scheduler {
             frame_range: Some(range.frames),
             after: first.after,
             paused: frames.iter().any(|f| f.paused),
+            require: first.require.clone(),
+            min_memory_bytes: first.min_memory_bytes,
+            progressive: first.progressive,
+            waiting: frames.iter().find_map(|f| f.waiting.clone()),
             // Every flagged frame's checks, named, so that one flagged frame of 240 is seen.
             checks: frames
                 .iter()

@@ -7,6 +7,7 @@ use std::time::{Duration, Instant};
 
 use tessera_proto::ids::{JobId, WorkerCredential, WorkerId};
 
+use super::fit::Capabilities;
 use super::pick::requeue;
 use super::Scheduler;
 use crate::error::Refusal;
@@ -50,6 +51,12 @@ pub struct Worker {
     pub host: String,
     /// Its merged samples over the last seconds.
     pub rate: Rate,
+    /// What it reported having, for jobs' requirements.
+    pub caps: Capabilities,
+    /// Drained: it is leased nothing more, and leaves once its units are in.
+    pub draining: bool,
+    /// Its allowance of log lines.
+    pub log_bucket: super::logs::LogBucket,
 }
 
 impl Worker {
@@ -152,6 +159,9 @@ impl Scheduler {
                 jobs: BTreeSet::new(),
                 host: String::new(),
                 rate: Rate::default(),
+                caps: Capabilities::default(),
+                draining: false,
+                log_bucket: Default::default(),
             },
         );
         n

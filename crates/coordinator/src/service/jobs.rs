@@ -18,10 +18,14 @@ use tracing::info;
 use super::{asset_status, internal, job_id, Service, Stream_};
 use crate::assets::{check_hash, JobAssets};
 use crate::error::truncate;
+
+/// Most log lines one GetLogs answer carries.
+const MAX_LOG_ENTRIES: usize = 1000;
 use crate::names::OutputNames;
 use crate::scheduler::{Admission, AdmissionLimits, Asked, Checked};
 use crate::shared::{durable, now_ms};
 use crate::store::StoredScene;
+use tessera_proto::tags::{check_tags, MAX_REQUIREMENTS};
 
 #[tonic::async_trait]
 impl Jobs for Service {
@@ -34,6 +38,19 @@ impl Jobs for Service {
         let limits = config.limits.clone();
         let settings = settings_from_wire(req.settings.as_ref())
             .map_err(|e| Status::invalid_argument(e.to_string()))?;
+        if req.progressive && req.frames.is_none() {
+            return Err(Status::invalid_argument(
+                "progressive: only a frame range (--frames) is leased progressively",
+            ));
+        }
+        if req.progressive && settings.adaptive.is_some() {
+            return Err(Status::invalid_argument(
+                "progressive: an adaptive job (a noise target) decides its own batches; it \
+                 cannot also be leased progressively",
+            ));
+        }
+        check_tags("requirement", &req.require, MAX_REQUIREMENTS)
+            .map_err(|e| Status::invalid_argument(format!("require: {e}")))?;
         let after = match req.after.as_str() {
             "" => None,
             a => Some(
@@ -122,6 +139,9 @@ impl Jobs for Service {
             sample_count: req.channels.as_ref().is_some_and(|c| c.sample_count),
             frames,
             after,
+            require: req.require,
+            min_memory: req.min_memory_bytes,
+            progressive: req.progressive,
         };
         let bounds = AdmissionLimits {
             max_active_jobs: config.max_active_jobs,
@@ -284,6 +304,63 @@ impl Jobs for Service {
             .map(pb::WorkerInfo::from)
             .collect();
         Ok(Response::new(pb::ListWorkersResponse { workers }))
+    }
+
+    async fn get_logs(
+        &self,
+        request: Request<pb::GetLogsRequest>,
+    ) -> Result<Response<pb::GetLogsResponse>, Status> {
+        let req = request.into_inner();
+        let id = job_id(&req.job_id)?;
+        let (mut lines, dropped, ended) = self.shared.scheduler().logs(id, req.frame, req.after)?;
+        // A page at a time: a caller asks again after the last line's number.
+        lines.truncate(MAX_LOG_ENTRIES);
+        let entries = lines
+            .into_iter()
+            .map(|(job, frame, l)| pb::LogEntry {
+                seq: l.seq,
+                unix_ms: l.unix_ms,
+                worker_id: l.worker_id,
+                worker_name: l.worker_name,
+                job_id: job.to_string(),
+                frame,
+                tile_index: l.tile,
+                batch_index: l.batch,
+                level: match l.level.as_str() {
+                    "info" => pb::LogLevel::Info,
+                    "error" => pb::LogLevel::Error,
+                    _ => pb::LogLevel::Warn,
+                } as i32,
+                message: l.message,
+            })
+            .collect();
+        Ok(Response::new(pb::GetLogsResponse {
+            entries,
+            dropped,
+            ended,
+        }))
+    }
+
+    async fn drain_worker(
+        &self,
+        request: Request<pb::DrainWorkerRequest>,
+    ) -> Result<Response<pb::DrainWorkerResponse>, Status> {
+        let req = request.into_inner();
+        if req.worker.is_empty() || req.worker.len() > tessera_proto::MAX_ID_LEN * 4 {
+            return Err(Status::invalid_argument(
+                "worker: give a worker's name or public id (tessera workers lists them)",
+            ));
+        }
+        let drained = self.shared.scheduler().drain(&req.worker, Instant::now())?;
+        for id in &drained {
+            info!("worker {id} draining");
+        }
+        // A drained worker long-polling for work hears it now, not when its poll times out.
+        self.shared.bump_work();
+        self.shared.bump_changed();
+        Ok(Response::new(pb::DrainWorkerResponse {
+            drained: drained.iter().map(ToString::to_string).collect(),
+        }))
     }
 
     type FetchResultStream = Stream_<pb::ResultChunk>;

@@ -19,8 +19,10 @@ use crate::assets::CHUNK_BYTES;
 use crate::error::truncate;
 use crate::job::Unit;
 use crate::output::finish_job;
-use crate::scheduler::Merged;
+use crate::scheduler::{Capabilities, Merged, Reported, MAX_LINES_PER_CALL};
 use crate::shared::{durable, now_ms};
+use tessera_proto::ids::BadId;
+use tessera_proto::tags::{check_tags, MAX_CPU_FEATURES, MAX_TAGS};
 
 /// 128 bits from the operating system's random source, as hex: a worker's secret.
 fn new_secret() -> Result<String, Status> {
@@ -51,6 +53,10 @@ impl Workers for Service {
                 req.image_revision
             )));
         }
+        let bad = |what: &str, e: String| Status::invalid_argument(format!("{what}: {e}"));
+        check_tags("tag", &req.tags, MAX_TAGS).map_err(|e| bad("tags", e))?;
+        check_tags("CPU feature", &req.cpu_features, MAX_CPU_FEATURES)
+            .map_err(|e| bad("cpu_features", e))?;
         let lease = self.shared.config.lease_timeout;
         let secret = new_secret()?;
         let mut core = self.shared.scheduler();
@@ -63,14 +69,27 @@ impl Workers for Service {
             Instant::now(),
         );
         core.set_host(n, host);
+        core.set_capabilities(
+            n,
+            Capabilities {
+                memory_bytes: req.memory_bytes,
+                cpu_features: req.cpu_features,
+                tags: req.tags.clone(),
+            },
+        );
+        if req.draining {
+            core.set_draining(n);
+        }
         let credential = core
             .worker_credential(n)
             .ok_or_else(|| Status::internal("a registered worker vanished"))?;
         info!(
-            "worker {} ({}, {} cores) registered",
+            "worker {} ({}, {} cores{}{}) registered",
             credential.id,
             truncate(&req.name).escape_debug(),
-            req.cores
+            req.cores,
+            if req.tags.is_empty() { "" } else { ", tags " },
+            req.tags.join(" ")
         );
         Ok(Response::new(pb::RegisterResponse {
             worker_id: credential.to_string(),
@@ -90,13 +109,14 @@ impl Workers for Service {
         let mut work = self.shared.work.subscribe();
         loop {
             work.borrow_and_update();
-            let units = {
+            let (units, drain) = {
                 let mut core = self.shared.scheduler();
                 let now = Instant::now();
                 let w = core.touch_worker(&cred, now)?;
+                let drain = core.draining(w);
                 let granted = core.lease(w, max, now);
                 let lease_ms = core.policy().lease_time.as_millis() as u32;
-                granted
+                let units = granted
                     .into_iter()
                     .filter_map(|g| {
                         let job = core.job(g.job)?;
@@ -115,11 +135,12 @@ impl Workers for Service {
                             lease_ms,
                         })
                     })
-                    .collect::<Vec<_>>()
+                    .collect::<Vec<_>>();
+                (units, drain)
             };
-            if !units.is_empty() {
+            if !units.is_empty() || drain {
                 self.shared.bump_changed();
-                return Ok(Response::new(pb::LeaseResponse { units }));
+                return Ok(Response::new(pb::LeaseResponse { units, drain }));
             }
             let now = Instant::now();
             if now >= deadline
@@ -127,9 +148,61 @@ impl Workers for Service {
                     .await
                     .is_err()
             {
-                return Ok(Response::new(pb::LeaseResponse { units: Vec::new() }));
+                return Ok(Response::new(pb::LeaseResponse {
+                    units: Vec::new(),
+                    drain: false,
+                }));
             }
         }
+    }
+
+    async fn report_log(
+        &self,
+        request: Request<pb::ReportLogRequest>,
+    ) -> Result<Response<pb::ReportLogResponse>, Status> {
+        let req = request.into_inner();
+        let cred = credential(&req.worker_id)?;
+        if req.lines.len() > MAX_LINES_PER_CALL {
+            return Err(Status::invalid_argument(format!(
+                "{} log lines in one call; at most {MAX_LINES_PER_CALL}",
+                req.lines.len()
+            )));
+        }
+        let lines = req
+            .lines
+            .into_iter()
+            .enumerate()
+            .map(|(i, l)| {
+                let lease: LeaseId = l.lease_id.parse().map_err(|e: BadId| {
+                    Status::invalid_argument(format!("log line {}: {e}", i + 1))
+                })?;
+                let level = match pb::LogLevel::try_from(l.level) {
+                    Ok(pb::LogLevel::Info) => "info",
+                    Ok(pb::LogLevel::Error) => "error",
+                    _ => "warn",
+                };
+                Ok(Reported {
+                    lease,
+                    level,
+                    message: l.message,
+                })
+            })
+            .collect::<Result<Vec<_>, Status>>()?;
+        let (kept, dropped) = {
+            let mut core = self.shared.scheduler();
+            let now = Instant::now();
+            let w = core.touch_worker(&cred, now)?;
+            let (kept, dropped, ops) = core.report_log(w, lines, now, now_ms());
+            if !ops.is_empty() {
+                // Kept with the next checkpoint: a line is worth less than a commit of its own.
+                self.shared.queue_checkpointed(ops);
+            }
+            (kept, dropped)
+        };
+        if kept > 0 {
+            self.shared.bump_changed();
+        }
+        Ok(Response::new(pb::ReportLogResponse { kept, dropped }))
     }
 
     async fn heartbeat(
@@ -144,6 +217,7 @@ impl Workers for Service {
         let w = core.touch_worker(&cred, now)?;
         revoked.extend(core.heartbeat(w, &ids, now).iter().map(LeaseId::to_string));
         Ok(Response::new(pb::HeartbeatResponse {
+            drain: core.draining(w),
             revoked,
             lease_ms: core.policy().lease_time.as_millis() as u32,
         }))

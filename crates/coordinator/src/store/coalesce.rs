@@ -21,6 +21,7 @@ enum Key {
     Tile(u64, u32),
     Pending(u64, u32, u32),
     Unit(u64, u32, u32),
+    Log(u64),
 }
 
 impl Key {
@@ -30,6 +31,7 @@ impl Key {
             Op::PutTile(j, t, _) | Op::DelTile(j, t) => Some(Key::Tile(*j, *t)),
             Op::PutPending(j, t, b, _) | Op::DelPending(j, t, b) => Some(Key::Pending(*j, *t, *b)),
             Op::PutUnit(j, t, b, _, _) => Some(Key::Unit(*j, *t, *b)),
+            Op::PutLog(j, _) => Some(Key::Log(*j)),
             Op::PutScene(..) | Op::PutAudit(_) | Op::DropSums(_) | Op::DropScene(_) => None,
         }
     }
@@ -37,7 +39,7 @@ impl Key {
     fn job_sums(&self) -> Option<u64> {
         match self {
             Key::Tile(j, _) | Key::Pending(j, _, _) | Key::Unit(j, _, _) => Some(*j),
-            Key::Job(_) => None,
+            Key::Job(_) | Key::Log(_) => None,
         }
     }
 }

@@ -18,6 +18,7 @@ use redb::{Database, ReadableDatabase, ReadableTable, TableDefinition};
 use tessera_render::{PixelRect, TileSums};
 
 mod coalesce;
+mod migrate;
 mod records;
 mod sums;
 
@@ -40,6 +41,8 @@ const UNITS: TableDefinition<(u64, u32, u32), &[u8]> = TableDefinition::new("uni
 const AUDITS: TableDefinition<(u64, u64), &[u8]> = TableDefinition::new("audits");
 /// Counters.
 const META: TableDefinition<&str, u64> = TableDefinition::new("meta");
+/// job id → its workers' log lines (`tessera logs`), JSON, bounded.
+const LOGS: TableDefinition<u64, &[u8]> = TableDefinition::new("logs");
 
 /// The layout of stored values: 2 = each value followed by the CRC-32 of its key and bytes.
 /// Stores of layout 1 (no checksums) are sealed in place when first opened.
@@ -133,6 +136,12 @@ fn unseal<'a>(
 
 fn job_key(id: u64) -> [u8; 8] {
     id.to_le_bytes()
+}
+
+fn log_key(job: u64) -> [u8; 9] {
+    let mut k = [b'l'; 9];
+    k[1..].copy_from_slice(&job.to_le_bytes());
+    k
 }
 
 fn tile_key(job: u64, tile: u32) -> [u8; 12] {
@@ -256,6 +265,7 @@ impl Store {
             let mut pending = tx.open_table(PENDING).map_err(dberr)?;
             tx.open_table(UNITS).map_err(dberr)?;
             tx.open_table(AUDITS).map_err(dberr)?;
+            tx.open_table(LOGS).map_err(dberr)?;
             let mut meta = tx.open_table(META).map_err(dberr)?;
             let format = meta.get("format").map_err(dberr)?.map(|g| g.value());
             match format {
@@ -268,49 +278,7 @@ impl Store {
                 }
                 None => {
                     // Layout 1: the same values without checksums. Seal each in place.
-                    let all: Vec<(String, Vec<u8>)> = scenes
-                        .iter()
-                        .map_err(dberr)?
-                        .map(|r| r.map(|(k, v)| (k.value().to_string(), v.value().to_vec())))
-                        .collect::<Result<_, _>>()
-                        .map_err(dberr)?;
-                    for (k, v) in all {
-                        scenes
-                            .insert(k.as_str(), seal(k.as_bytes(), &v).as_slice())
-                            .map_err(dberr)?;
-                    }
-                    let all: Vec<(u64, Vec<u8>)> = jobs
-                        .iter()
-                        .map_err(dberr)?
-                        .map(|r| r.map(|(k, v)| (k.value(), v.value().to_vec())))
-                        .collect::<Result<_, _>>()
-                        .map_err(dberr)?;
-                    for (k, v) in all {
-                        jobs.insert(k, seal(&job_key(k), &v).as_slice())
-                            .map_err(dberr)?;
-                    }
-                    let all: Vec<((u64, u32), Vec<u8>)> = tiles
-                        .iter()
-                        .map_err(dberr)?
-                        .map(|r| r.map(|(k, v)| (k.value(), v.value().to_vec())))
-                        .collect::<Result<_, _>>()
-                        .map_err(dberr)?;
-                    for ((j, t), v) in all {
-                        tiles
-                            .insert((j, t), seal(&tile_key(j, t), &v).as_slice())
-                            .map_err(dberr)?;
-                    }
-                    let all: Vec<((u64, u32, u32), Vec<u8>)> = pending
-                        .iter()
-                        .map_err(dberr)?
-                        .map(|r| r.map(|(k, v)| (k.value(), v.value().to_vec())))
-                        .collect::<Result<_, _>>()
-                        .map_err(dberr)?;
-                    for ((j, t, b), v) in all {
-                        pending
-                            .insert((j, t, b), seal(&pending_key(j, t, b), &v).as_slice())
-                            .map_err(dberr)?;
-                    }
+                    migrate::seal_layout_1(&mut scenes, &mut jobs, &mut tiles, &mut pending)?;
                     meta.insert("format", FORMAT).map_err(dberr)?;
                 }
             }
@@ -348,6 +316,7 @@ impl Store {
         let jobs = tx.open_table(JOBS).map_err(dberr)?;
         let tiles = tx.open_table(TILES).map_err(dberr)?;
         let pending = tx.open_table(PENDING).map_err(dberr)?;
+        let logs = tx.open_table(LOGS).map_err(dberr)?;
         let mut out = Vec::new();
         for row in jobs.iter().map_err(dberr)? {
             let (k, v) = row.map_err(dberr)?;
@@ -365,10 +334,18 @@ impl Store {
                     why: format!("the record says it is job {}", record.id),
                 });
             }
+            // A damaged log costs the log alone, not the start: it is only ever read by people.
+            let log = logs.get(id).map_err(dberr)?.and_then(|v| {
+                unseal(|| format!("job {id} log"), &log_key(id), v.value())
+                    .map_err(|e| tracing::warn!("{e}; its log is left out"))
+                    .ok()
+                    .map(<[u8]>::to_vec)
+            });
             let mut job = LoadedJob {
                 record,
                 tiles: Vec::new(),
                 pending: Vec::new(),
+                log,
             };
             for row in tiles.range((id, 0)..=(id, u32::MAX)).map_err(dberr)? {
                 let (k, v) = row.map_err(dberr)?;
@@ -509,6 +486,7 @@ impl Store {
             let mut pending = tx.open_table(PENDING).map_err(dberr)?;
             let mut units = tx.open_table(UNITS).map_err(dberr)?;
             let mut audits = tx.open_table(AUDITS).map_err(dberr)?;
+            let mut logs = tx.open_table(LOGS).map_err(dberr)?;
             for op in ops {
                 match op {
                     Op::PutScene(hash, scene) => {
@@ -574,6 +552,10 @@ impl Store {
                                 (r.epoch, r.n),
                                 seal(&audit_key(r.epoch, r.n), &bytes).as_slice(),
                             )
+                            .map_err(dberr)?;
+                    }
+                    Op::PutLog(job, bytes) => {
+                        logs.insert(*job, seal(&log_key(*job), bytes).as_slice())
                             .map_err(dberr)?;
                     }
                     Op::DropScene(hash) => {

@@ -125,6 +125,17 @@ pub struct JobRecord {
     /// as in records written before dependencies.
     #[serde(default)]
     pub after: Option<u64>,
+    /// Tags a worker must have to take its units (`submit --require`; see
+    /// [`tessera_proto::tags`]); empty for none, as in records written before requirements.
+    #[serde(default)]
+    pub require: Vec<String>,
+    /// Least memory, in bytes, a worker must report to take its units (0: any).
+    #[serde(default)]
+    pub min_memory: u64,
+    /// A frame of a range leased progressively (`submit --progressive`): it hands out a batch
+    /// only once every frame of its range has handed out the batches before it.
+    #[serde(default)]
+    pub progressive: bool,
     /// Paused (`tessera pause`): leased nothing new until resumed (false in records written
     /// before pausing).
     #[serde(default)]
@@ -152,6 +163,9 @@ fn lenient_pair<'de, D: serde::Deserializer<'de>>(d: D) -> Result<(f64, f64), D:
 
 /// One change to the store; a list of them is committed as one transaction.
 #[derive(Debug)]
+// A record is a few hundred bytes and the ops live only from a change to its commit; boxing
+// would allocate for every record written to save memory on a list that is short-lived.
+#[allow(clippy::large_enum_variant)]
 pub enum Op {
     /// Store a scene if its hash is new.
     PutScene(String, StoredScene),
@@ -173,6 +187,8 @@ pub enum Op {
     DropSums(u64),
     /// Forget a scene no live job uses (the job that used it has ended).
     DropScene(String),
+    /// Write a job's log (its workers' lines, JSON; table `logs`).
+    PutLog(u64, Vec<u8>),
 }
 
 impl Op {
@@ -190,9 +206,10 @@ impl Op {
     pub fn payload_len(&self) -> u64 {
         match self {
             Op::PutScene(_, scene) => scene.text.len() as u64,
-            Op::PutTile(_, _, b) | Op::PutPending(_, _, _, b) | Op::PutUnit(_, _, _, _, b) => {
-                b.len() as u64
-            }
+            Op::PutTile(_, _, b)
+            | Op::PutPending(_, _, _, b)
+            | Op::PutUnit(_, _, _, _, b)
+            | Op::PutLog(_, b) => b.len() as u64,
             // Records are a few hundred bytes of JSON: counted as their fixed overhead only.
             Op::PutJob(_) | Op::PutAudit(_) => 256,
             Op::DelPending(..) | Op::DelTile(..) | Op::DropSums(_) | Op::DropScene(_) => 0,
@@ -232,4 +249,6 @@ pub struct LoadedJob {
     pub tiles: Vec<(u32, Vec<u8>)>,
     /// ((tile, batch), sums) waiting for their turn.
     pub pending: Vec<((u32, u32), Vec<u8>)>,
+    /// Its log as stored (JSON), if it has one.
+    pub log: Option<Vec<u8>>,
 }

@@ -32,5 +32,8 @@ pub fn admission(name: Option<&str>, frames: Option<&str>, after: Option<JobId>)
         sample_count: false,
         frames: frames.map(|f| f.parse::<FrameRange>().expect("range")),
         after,
+        require: Vec::new(),
+        min_memory: 0,
+        progressive: false,
     }
 }

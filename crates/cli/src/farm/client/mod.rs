@@ -5,6 +5,7 @@
 
 mod control;
 mod fetch;
+mod logs;
 mod status;
 mod submit;
 
@@ -24,6 +25,7 @@ use tonic::Code;
 
 pub use control::{pause, priority, PauseArgs, PriorityArgs};
 pub use fetch::{fetch, FetchArgs};
+pub use logs::{logs, LogsArgs};
 pub use status::{cancel, status, workers, CancelArgs, StatusArgs, WorkersArgs};
 pub use submit::{submit, SubmitArgs};
 
@@ -162,7 +164,19 @@ impl IdleFarm {
             .workers
             .iter()
             .any(|w| w.alive && !w.quarantined);
-        if live {
+        if live && !s.waiting.is_empty() {
+            // Workers are there, and none can take it: its requirements say why.
+            if !self.warned {
+                self.warned = true;
+                bar.suspend(|| {
+                    errln!(
+                        "{} is waiting: {} (still waiting)",
+                        s.job_id,
+                        crate::printable(&s.waiting)
+                    )
+                });
+            }
+        } else if live {
             self.warned = false;
         } else if !self.warned {
             self.warned = true;

@@ -39,8 +39,12 @@ pub struct WorkersArgs {
     #[command(flatten)]
     url: CoordinatorUrl,
     /// Print a JSON array for scripts, not the table.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "drain")]
     json: bool,
+    /// Drain the live workers of this name (or this worker id) instead of listing: each
+    /// finishes the units it holds, hands back those not started, and exits.
+    #[arg(long, value_name = "NAME|ID")]
+    drain: Option<String>,
 }
 
 /// A job's status as its view ([`JobView`]): what the table, the detail and `--json` print.
@@ -100,6 +104,19 @@ fn print_job(v: &JobView) -> std::io::Result<()> {
         };
         outln!("  after      {a}{waiting}");
     }
+    if !v.require.is_empty() || v.min_memory_bytes > 0 {
+        let mut needs = v.require.clone();
+        if v.min_memory_bytes > 0 {
+            needs.push(format!(
+                "{} of memory",
+                tessera_proto::tags::memory_words(v.min_memory_bytes)
+            ));
+        }
+        outln!("  requires   {}", printable(&needs.join(", ")));
+    }
+    if let Some(w) = &v.waiting {
+        outln!("  waiting    {}", printable(w));
+    }
     outln!(
         "  progress   {}/{} units ({} leased), {}/{} samples",
         v.units_done,
@@ -128,6 +145,9 @@ fn print_job(v: &JobView) -> std::io::Result<()> {
             printable(&c.code),
             printable(&c.message)
         );
+    }
+    if v.progressive {
+        outln!("  order      progressive: every frame's first batch before any frame's second");
     }
     if let Some(r) = v.frame_range {
         let count = |st: JobState| v.frames.iter().filter(|f| f.state == st).count();
@@ -221,8 +241,12 @@ pub fn status(args: StatusArgs) -> Result<()> {
             } else {
                 format!("  [flagged: {}]", printable(&codes.join(", ")))
             };
+            let waiting = match &v.waiting {
+                Some(w) => format!("  [waiting: {}]", printable(w)),
+                None => String::new(),
+            };
             outln!(
-                "{:<12} {:<10} {:>8} {:>6.1}% {:>10} {:>8}  {}{flagged}",
+                "{:<12} {:<10} {:>8} {:>6.1}% {:>10} {:>8}  {}{flagged}{waiting}",
                 v.job_id.to_string(),
                 if v.paused { "paused" } else { v.state.name() },
                 v.priority,
@@ -266,6 +290,21 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
     let url = args.url.coordinator.clone();
     runtime()?.block_on(async {
         let mut client = connect(&args.url).await?;
+        if let Some(who) = &args.drain {
+            let drained = client
+                .drain_worker(pb::DrainWorkerRequest {
+                    worker: who.clone(),
+                })
+                .await
+                .map_err(|e| rpc_error(&url, &format!("draining {who}"), e))?
+                .into_inner()
+                .drained;
+            outln!(
+                "draining {}: each finishes the units it holds, hands back the rest, and exits",
+                printable(&drained.join(", "))
+            );
+            return Ok(());
+        }
         let workers = client
             .list_workers(pb::ListWorkersRequest {})
             .await
@@ -282,7 +321,7 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
             return Ok(());
         }
         outln!(
-            "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>6} {:>9}  HOST",
+            "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>6} {:>9} {:>9} {:<16} HOST",
             "WORKER",
             "NAME",
             "CORES",
@@ -292,11 +331,13 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
             "SAMPLES",
             "BAD",
             "AUDITS",
-            "SEEN"
+            "SEEN",
+            "MEMORY",
+            "TAGS"
         );
         for w in &workers {
             outln!(
-                "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>6} {:>8.1}s  {}",
+                "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>6} {:>8.1}s {:>9} {:<16} {}",
                 w.worker_id,
                 printable(&w.name),
                 w.cores,
@@ -307,6 +348,16 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
                 w.bad_results,
                 w.audits_passed,
                 w.last_seen_seconds_ago,
+                if w.memory_bytes == 0 {
+                    "-".to_string()
+                } else {
+                    tessera_proto::tags::memory_words(w.memory_bytes).replace(' ', "")
+                },
+                if w.tags.is_empty() {
+                    "-".to_string()
+                } else {
+                    printable(&w.tags.join(","))
+                },
                 w.host.as_deref().map_or("-".to_string(), printable)
             );
         }

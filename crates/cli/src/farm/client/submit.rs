@@ -39,6 +39,17 @@ pub struct SubmitArgs {
     /// reason, if it fails or is cancelled.
     #[arg(long, value_name = "JOB")]
     after: Option<String>,
+    /// Lease its units only to workers with this tag (repeatable): NAME matches a worker's
+    /// NAME or NAME=anything, NAME=VALUE only that, cpu:FEATURE a CPU feature (cpu:avx2).
+    #[arg(long = "require", value_name = "TAG", value_parser = crate::args::tag)]
+    require: Vec<String>,
+    /// Lease its units only to workers with at least this much memory (e.g. 16G).
+    #[arg(long, value_name = "SIZE", value_parser = crate::args::memory_size)]
+    min_memory: Option<u64>,
+    /// With --frames: every frame's first batch of samples before any frame's second, and so
+    /// on (the whole shot to look at early); each frame's EXR is the same bits as without.
+    #[arg(long, requires = "frames", conflicts_with = "noise_target")]
+    progressive: bool,
     /// Add variance-of-the-mean channels to the EXR.
     #[arg(long)]
     variance: bool,
@@ -218,6 +229,9 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
                 step: r.step,
             }),
             after: args.after.clone().unwrap_or_default(),
+            require: args.require.clone(),
+            min_memory_bytes: args.min_memory.unwrap_or(0),
+            progressive: args.progressive,
         };
         // The coordinator deletes files no active job has used for a while; one it held when
         // `upload` asked may be gone by the submission. Uploading again and resubmitting

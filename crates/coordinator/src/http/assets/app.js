@@ -35,6 +35,7 @@ const fmt = {
     return (s / 3600).toFixed(1) + " h";
   },
   count: (n) => n.toLocaleString("en-US"),
+  gib: (b) => (b % 2 ** 30 === 0 ? b / 2 ** 30 : (b / 2 ** 30).toFixed(1)) + " GiB",
   ago: (ms) => (ms < 1000 ? "now" : ms < 60000 ? Math.round(ms / 1000) + " s ago" : Math.round(ms / 60000) + " min ago"),
 };
 
@@ -46,6 +47,12 @@ function bar(done, total) {
 function stateTag(s) { return el("span", { class: "state " + s }, s); }
 
 function live(s) { return s === "queued" || s === "running"; }
+
+async function drain(w) {
+  if (!confirm(`Drain ${w.name} (${w.worker_id})? It finishes the units it holds, hands back the rest, and exits.`)) return;
+  try { await api(`/api/workers/${w.worker_id}/drain`, { method: "POST" }); } catch (e) { alert(e.message); }
+  refresh();
+}
 
 async function cancel(id) {
   if (!confirm(`Cancel ${id}?`)) return;
@@ -65,7 +72,7 @@ function jobsView(jobs) {
   const rows = jobs.map((j) => el("tr", { "data-job": j.job_id },
     el("td", {}, el("a", { href: `/jobs/${j.job_id}` }, j.job_id)),
     el("td", { class: "scene", title: j.scene }, j.scene),
-    el("td", {}, stateTag(j.paused ? "paused" : j.state), flag(j.checks)),
+    el("td", {}, stateTag(j.paused ? "paused" : j.state), flag(j.checks), j.waiting ? el("div", { class: "muted waiting" }, "waiting: " + j.waiting) : ""),
     el("td", {}, bar(j.samples_done, j.samples_total)),
     el("td", { class: "num" }, `${fmt.count(j.samples_done)} / ${fmt.count(j.samples_total)}`),
     el("td", { class: "num" }, fmt.msps(j.samples_per_second)),
@@ -147,6 +154,8 @@ function jobView(j) {
     ["Output", j.output],
   ];
   if (j.after) stats.push(["After", el("span", {}, el("a", { href: `/jobs/${j.after}` }, j.after), j.state === "queued" ? " (starts when it is done)" : "")]);
+  if (j.require.length > 0 || j.min_memory_bytes > 0) stats.push(["Requires", [...j.require, ...(j.min_memory_bytes > 0 ? [fmt.gib(j.min_memory_bytes) + " of memory"] : [])].join(", ")]);
+  if (j.waiting) stats.push(["Waiting", el("span", { class: "flag" }, j.waiting)]);
   if (j.error) stats.push(["Error", el("span", { class: "error" }, j.error)]);
   if (j.checks.length > 0) stats.push(["Checks", el("ul", { class: "checks", id: "checks" }, ...j.checks.map((c) => el("li", { class: "flag", "data-code": c.code }, c.message)))]);
   const side = [el("dl", { class: "stats", id: "stats" }, ...stats.flatMap(([k, v]) => [el("dt", {}, k), el("dd", { id: "stat-" + k.toLowerCase().replace(/\W/g, "") }, v)]))];
@@ -154,6 +163,8 @@ function jobView(j) {
   if (live(j.state)) actions.append(el("button", { class: "danger", onclick: () => cancel(j.job_id) }, "Cancel"));
   if (j.state === "done" && j.frames.length === 0) actions.append(el("a", { id: "download", href: `/api/jobs/${j.job_id}/output.exr`, download: j.output }, "Download EXR"));
   side.push(actions);
+  side.push(el("div", { id: "logs" }, el("h2", {}, "Worker log"), el("pre", { id: "log-lines", class: "log" }, "…")));
+  loadLogs(j.job_id);
   if (j.frames.length > 0) {
     side.push(el("table", { id: "frames" },
       el("thead", {}, el("tr", {}, el("th", {}, "Frame"), el("th", {}, "State"), el("th", {}, "Units"), el("th", {}, ""))),
@@ -187,6 +198,18 @@ function jobView(j) {
   return [el("h1", {}, `${j.job_id} `, el("span", { class: "muted" }, j.scene)), el("div", { class: "job" }, box, el("div", {}, ...side))];
 }
 
+// The job's worker log (warnings and errors about its units), loaded with each refresh.
+async function loadLogs(id) {
+  try {
+    const r = await api(`/api/jobs/${id}/logs`);
+    const pre = document.getElementById("log-lines");
+    if (!pre) return;
+    const lines = r.entries.map((e) => `${new Date(e.unix_ms).toISOString()} ${e.job_id}${e.frame != null ? " frame " + e.frame : ""} tile ${e.tile} batch ${e.batch} ${e.worker_id} (${e.worker_name}): ${e.level}: ${e.message}`);
+    if (r.dropped > 0) lines.unshift(`(${r.dropped} lines not kept)`);
+    pre.textContent = lines.length > 0 ? lines.join("\n") : "No warnings or errors from workers.";
+  } catch (_) { /* the next refresh tries again */ }
+}
+
 // ---- workers
 
 function workersView(ws) {
@@ -194,6 +217,8 @@ function workersView(ws) {
     el("td", {}, w.name, el("div", { class: "muted" }, w.worker_id)),
     el("td", {}, w.host || "–"),
     el("td", { class: "num" }, w.cores),
+    el("td", { class: "num" }, w.memory_bytes > 0 ? fmt.gib(w.memory_bytes) : "–"),
+    el("td", { class: "tags" }, w.tags.join(" ") || "–"),
     el("td", {}, stateTag(w.state), w.convicted ? el("div", { class: "error" }, w.convicted) : ""),
     el("td", { class: "num" }, w.leases),
     el("td", { class: "num" }, fmt.count(w.units_done)),
@@ -201,12 +226,13 @@ function workersView(ws) {
     el("td", { class: "num" }, w.bad_results),
     el("td", { class: "num" }, w.audits_passed),
     el("td", {}, fmt.ago(1000 * w.last_seen_seconds_ago)),
+    el("td", {}, w.state === "alive" || w.state === "suspect" ? el("button", { onclick: () => drain(w) }, "Drain") : ""),
   ));
   return [
     el("h1", {}, "Workers ", el("span", { class: "muted" }, `(${ws.filter((w) => w.state === "alive").length} alive)`)),
     ws.length === 0 ? el("p", { class: "muted" }, "No workers yet: tessera worker --coordinator URL") :
     el("table", { id: "workers" },
-      el("thead", {}, el("tr", {}, ...["Worker", "Host", "Threads", "State", "Leases", "Units done", "Msamples/s", "Bad results", "Audits passed", "Last heartbeat"].map((h, i) => el("th", { class: [2, 4, 5, 6, 7, 8].includes(i) ? "num" : "" }, h)))),
+      el("thead", {}, el("tr", {}, ...["Worker", "Host", "Threads", "Memory", "Tags", "State", "Leases", "Units done", "Msamples/s", "Bad results", "Audits passed", "Last heartbeat", ""].map((h, i) => el("th", { class: [2, 3, 6, 7, 8, 9, 10].includes(i) ? "num" : "" }, h)))),
       el("tbody", {}, ...rows)),
   ];
 }

@@ -1,0 +1,360 @@
+//! Running a farm the way studios do, with the real binaries: worker tags against jobs'
+//! requirements (`tessera worker --tag`, `submit --require / --min-memory`), and draining
+//! (`tessera workers --drain`, SIGTERM) without losing merged work or changing the bits.
+
+use std::process::Command;
+
+use tessera_testkit::wait_for_blocking;
+
+mod common;
+
+use common::{coordinator, one_line_failure, repo, tessera_at, worker, worker_with, BIN};
+
+/// Runs a client command that must succeed; returns its stdout.
+fn ok(args: &[&str], url: &str) -> String {
+    let out = tessera_at(args, url);
+    assert!(
+        out.status.success(),
+        "tessera {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).to_string()
+}
+
+fn wait_for(what: &str, mut f: impl FnMut() -> bool) {
+    wait_for_blocking(what, || f().then_some(()));
+}
+
+/// The row of `tessera workers` for the worker named `name`, split into columns.
+fn worker_row(url: &str, name: &str) -> Vec<String> {
+    let table = ok(&["workers"], url);
+    table
+        .lines()
+        .map(|l| l.split_whitespace().map(String::from).collect::<Vec<_>>())
+        .find(|cols| cols.get(1).map(String::as_str) == Some(name))
+        .unwrap_or_else(|| panic!("{name} not in {table}"))
+}
+
+/// "12/576 units (3 leased)" of `tessera status JOB`: (done, total, leased).
+fn progress(job: &str, url: &str) -> (u64, u64, u64) {
+    let text = ok(&["status", job], url);
+    let line = text
+        .lines()
+        .find(|l| l.trim_start().starts_with("progress"))
+        .unwrap_or_else(|| panic!("no progress in {text}"));
+    let mut words = line.split_whitespace().skip(1);
+    let (done, total) = words
+        .next()
+        .and_then(|w| w.split_once('/'))
+        .expect("done/total");
+    let leased = words.nth(1).expect("leased").trim_start_matches('(');
+    (
+        done.parse().expect("done"),
+        total.parse().expect("total"),
+        leased.parse().expect("leased"),
+    )
+}
+
+fn job_of(submit_stdout: &str) -> String {
+    submit_stdout
+        .split_whitespace()
+        .find(|w| w.starts_with("job-"))
+        .unwrap_or_else(|| panic!("no job id in {submit_stdout}"))
+        .trim_end_matches(|c: char| !c.is_ascii_digit())
+        .to_string()
+}
+
+#[test]
+fn a_job_that_requires_a_tag_waits_saying_so_and_runs_only_on_workers_that_have_it() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, url) = coordinator(&dir.path().join("data"));
+    let _plain = worker(&url, "plain");
+    wait_for("plain to register", || {
+        ok(&["workers"], &url).contains("plain")
+    });
+    let scene = repo("scenes/spheres.toml");
+    let job = job_of(&ok(
+        &[
+            "submit",
+            &scene,
+            "--spp",
+            "4",
+            "--require",
+            "big-mem",
+            "--require",
+            "pool",
+            "--min-memory",
+            "1G",
+        ],
+        &url,
+    ));
+    wait_for("the waiting reason", || {
+        ok(&["status", &job], &url).contains("  waiting    no worker has tag big-mem")
+    });
+    let detail = ok(&["status", &job], &url);
+    assert!(
+        detail.contains("  requires   big-mem, pool, 1 GiB of memory"),
+        "{detail}"
+    );
+    let list = ok(&["status"], &url);
+    assert!(
+        list.lines()
+            .any(|l| l.starts_with(&job) && l.contains("[waiting: no worker has tag big-mem]")),
+        "{list}"
+    );
+    // Tagged, but with too little memory: the reason moves on to memory.
+    let _small = worker_with(
+        &url,
+        "small",
+        &["--tag", "big-mem", "--tag", "pool=fast", "--memory", "512M"],
+        &dir.path().join("small.log"),
+    );
+    wait_for("the memory reason", || {
+        ok(&["status", &job], &url).contains(
+            "no worker with big-mem, pool has 1 GiB of memory (the most any has is 0.5 GiB)",
+        )
+    });
+    let _strong = worker_with(
+        &url,
+        "strong",
+        &["--tag", "big-mem", "--tag", "pool=fast", "--memory", "2G"],
+        &dir.path().join("strong.log"),
+    );
+    wait_for("the job to finish", || {
+        ok(&["status", &job], &url).contains("  state      done")
+    });
+    let strong = worker_row(&url, "strong");
+    assert_eq!(strong[10], "2GiB", "MEMORY column: {strong:?}");
+    assert_eq!(strong[11], "big-mem,pool=fast", "TAGS column: {strong:?}");
+    assert_ne!(strong[5], "0", "strong rendered the job: {strong:?}");
+    for other in ["plain", "small"] {
+        let row = worker_row(&url, other);
+        assert_eq!(
+            row[5], "0",
+            "{other} rendered units it does not fit: {row:?}"
+        );
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&ok(&["status", &job, "--json"], &url)).expect("JSON");
+    assert_eq!(json["require"], serde_json::json!(["big-mem", "pool"]));
+    assert_eq!(json["min_memory_bytes"], 1u64 << 30);
+
+    // Malformed tags and sizes are refused before anything starts, in one line.
+    let bad = Command::new(BIN)
+        .args(["worker", "--coordinator", &url, "--tag", "big mem"])
+        .output()
+        .expect("worker");
+    let stderr = String::from_utf8_lossy(&bad.stderr);
+    assert!(
+        !bad.status.success() && stderr.contains("' ' in its name"),
+        "{stderr}"
+    );
+    for (args, needle) in [
+        (
+            ["--require", "pool="],
+            "'--require <TAG>': tag \"pool=\" has an empty value",
+        ),
+        (
+            ["--min-memory", "16X"],
+            "'--min-memory <SIZE>': \"16X\": unknown unit 'X'",
+        ),
+    ] {
+        let out = tessera_at(&[&["submit", scene.as_str()][..], &args].concat(), &url);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && stderr.contains(needle), "{stderr}");
+    }
+}
+
+#[test]
+fn a_drained_and_a_terminated_worker_finish_their_units_and_lose_nothing() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, url) = coordinator(&dir.path().join("data"));
+    let log1 = dir.path().join("d1.log");
+    let mut d1 = worker_with(&url, "d1", &[], &log1);
+    let mut d2 = worker_with(&url, "d2", &[], &dir.path().join("d2.log"));
+    // Many small units, so that both workers are mid-job when they are told to go.
+    let scene = repo("scenes/cornell-box.toml");
+    let settings = [
+        "--spp",
+        "16",
+        "--batch",
+        "4",
+        "--seed",
+        "5",
+        "--tile-size",
+        "32",
+    ];
+    let mut submit = vec!["submit", scene.as_str()];
+    submit.extend(settings);
+    let job = job_of(&ok(&submit, &url));
+    wait_for("both workers to merge a unit", || {
+        worker_row(&url, "d1")[5] != "0" && worker_row(&url, "d2")[5] != "0"
+    });
+
+    // Drained by name: it finishes what it holds and exits cleanly.
+    let said = ok(&["workers", "--drain", "d1"], &url);
+    assert!(said.starts_with("draining w"), "{said}");
+    let mut status = None;
+    wait_for("d1 to leave", || {
+        status = d1.0.try_wait().expect("wait");
+        status.is_some()
+    });
+    assert!(status.is_some_and(|s| s.success()), "d1 exit {status:?}");
+    let logged = std::fs::read_to_string(&log1).expect("log");
+    assert!(logged.contains("drained by the coordinator"), "{logged}");
+    assert_eq!(worker_row(&url, "d1")[3], "gone");
+    let (done_then, total, _) = progress(&job, &url);
+    assert!(
+        done_then < total,
+        "the job must still have work: {done_then}/{total}"
+    );
+
+    // SIGTERM on the other: the same, as Kubernetes stops a pod.
+    let pid = d2.0.id().to_string();
+    assert!(Command::new("kill")
+        .args(["-TERM", &pid])
+        .status()
+        .expect("kill")
+        .success());
+    let mut status = None;
+    wait_for("d2 to leave", || {
+        status = d2.0.try_wait().expect("wait");
+        status.is_some()
+    });
+    assert!(status.is_some_and(|s| s.success()), "d2 exit {status:?}");
+    // Nothing is left leased to the workers that left (no lease waits out its timeout), and
+    // nothing merged is lost.
+    let (done, _, leased) = progress(&job, &url);
+    assert_eq!(leased, 0, "units left leased to workers that left");
+    assert!(done >= done_then);
+    // A drain of nobody is refused in one line.
+    one_line_failure(&tessera_at(&["workers", "--drain", "d9"], &url), "d9");
+
+    let _d3 = worker(&url, "d3");
+    let farm = dir.path().join("farm.exr");
+    ok(
+        &[
+            "fetch",
+            &job,
+            "--wait",
+            "--output",
+            farm.to_str().expect("utf8"),
+        ],
+        &url,
+    );
+    let local = dir.path().join("local.exr");
+    let mut render = vec![
+        "render",
+        scene.as_str(),
+        "--output",
+        local.to_str().expect("utf8"),
+    ];
+    render.extend(settings);
+    ok(&render, &url);
+    assert!(
+        std::fs::read(&farm).expect("farm") == std::fs::read(&local).expect("local"),
+        "the EXR after a drain and a SIGTERM differs from tessera render's"
+    );
+}
+
+#[test]
+fn a_workers_warning_about_a_unit_is_in_tessera_logs() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, url) = coordinator(&dir.path().join("data"));
+    // A worker that may spend one byte on textures cannot render a textured scene: it says so
+    // about the unit, and hands it back with the reason.
+    let _w = worker_with(
+        &url,
+        "tiny",
+        &["--texture-decode-bytes", "1"],
+        &dir.path().join("tiny.log"),
+    );
+    let job = job_of(&ok(
+        &["submit", &repo("scenes/textured.toml"), "--spp", "2"],
+        &url,
+    ));
+    wait_for("the job to end", || {
+        ok(&["status", &job], &url).contains("  state      failed")
+    });
+    // --follow returns once the job has ended, with every line.
+    let text = ok(&["logs", &job, "--follow"], &url);
+    let first = text
+        .lines()
+        .next()
+        .unwrap_or_else(|| panic!("no lines: {text}"));
+    assert!(
+        first.contains(&format!(" {job} tile "))
+            && first.contains("(tiny): error: this worker cannot render it"),
+        "{text}"
+    );
+    one_line_failure(
+        &tessera_at(&["logs", "job-000999"], &url),
+        "unknown job job-000999",
+    );
+}
+
+#[test]
+fn a_progressive_range_gives_the_same_frames_as_one_leased_frame_by_frame() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, url) = coordinator(&dir.path().join("data"));
+    let _a = worker(&url, "a");
+    let _b = worker(&url, "b");
+    let scene = repo("scenes/cornell-animated.toml");
+    let job = [
+        scene.as_str(),
+        "--frames",
+        "1-3",
+        "--spp",
+        "8",
+        "--batch",
+        "2",
+        "--tile-size",
+        "64",
+    ];
+    let run = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let output_name = format!("{name}.exr");
+        let mut args = vec!["submit", "--wait", "--name", &output_name, "--output"];
+        let out_arg = out.to_str().expect("utf8").to_string();
+        args.push(&out_arg);
+        args.extend(job);
+        args.extend(extra);
+        let said = ok(&args, &url);
+        (out, said)
+    };
+    let (progressive, said) = run("progressive", &["--progressive"]);
+    let id = job_of(&said);
+    assert!(
+        ok(&["status", &id], &url).contains("  order      progressive"),
+        "status does not say progressive"
+    );
+    let (plain, _) = run("plain", &[]);
+    for frame in 1..=3 {
+        let name = |run: &str| format!("{run}.{frame:04}.exr");
+        assert!(
+            std::fs::read(progressive.join(name("progressive"))).expect("progressive")
+                == std::fs::read(plain.join(name("plain"))).expect("plain"),
+            "frame {frame}: progressive leasing changed the bits"
+        );
+    }
+    // Progressive is for frame ranges, and not for adaptive jobs.
+    for bad in [
+        vec!["submit", scene.as_str(), "--progressive"],
+        vec![
+            "submit",
+            scene.as_str(),
+            "--frames",
+            "1-2",
+            "--progressive",
+            "--noise-target",
+            "0.1",
+        ],
+    ] {
+        let out = tessera_at(&bad, &url);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && stderr.contains("--progressive"),
+            "{stderr}"
+        );
+    }
+}
