@@ -72,7 +72,7 @@ function jobsView(jobs) {
   const rows = jobs.map((j) => el("tr", { "data-job": j.job_id },
     el("td", {}, el("a", { href: `/jobs/${j.job_id}` }, j.job_id)),
     el("td", { class: "scene", title: j.scene }, j.scene),
-    el("td", {}, stateTag(j.paused ? "paused" : j.state), flag(j.checks), j.waiting ? el("div", { class: "muted waiting" }, "waiting: " + j.waiting) : ""),
+    el("td", {}, stateTag(j.paused ? "paused" : j.state), flag(j.checks), j.waiting ? el("span", { class: "flag waiting", title: "waiting: " + j.waiting }, " waiting") : ""),
     el("td", {}, bar(j.samples_done, j.samples_total)),
     el("td", { class: "num" }, `${fmt.count(j.samples_done)} / ${fmt.count(j.samples_total)}`),
     el("td", { class: "num" }, fmt.msps(j.samples_per_second)),
