@@ -1,4 +1,6 @@
-//! A unit no worker can render fails its job once, with the reason.
+//! A unit the only worker cannot render: it fails there three times (the unit comes back to it,
+//! as nobody else is there), the worker is blocklisted for the job, and the job fails once, with
+//! the reason.
 
 use crate::common::*;
 

@@ -33,6 +33,10 @@ pub struct Config {
     pub tls: Option<ServerTls>,
     /// Refused results after which a worker is quarantined (no more leases or results).
     pub quarantine_after: u64,
+    /// Failures of one job's units on one worker after which it is blocklisted for the job.
+    pub blocklist_after: u32,
+    /// Failures after which a frame fails, with every reason.
+    pub fail_frame_after: u32,
     /// Most leases one worker registration may hold at once.
     pub max_leases_per_worker: usize,
     /// Most live worker registrations from one host (the address it registers from).
@@ -91,6 +95,13 @@ pub const DEFAULT_MAX_SCENE_BYTES: usize = 32 << 20;
 /// Refused results after which a worker is quarantined, unless configured.
 pub const DEFAULT_QUARANTINE_AFTER: u64 = 5;
 
+/// Failures of one job's units on one worker after which the worker is blocklisted for the job
+/// (Flamenco's default).
+pub const DEFAULT_BLOCKLIST_AFTER: u32 = 3;
+
+/// Failures after which a frame fails.
+pub const DEFAULT_FAIL_FRAME_AFTER: u32 = 5;
+
 /// Most leases one worker registration may hold, unless configured.
 pub const DEFAULT_MAX_LEASES_PER_WORKER: usize = 8;
 
@@ -141,6 +152,8 @@ impl Config {
             token: None,
             tls: None,
             quarantine_after: DEFAULT_QUARANTINE_AFTER,
+            blocklist_after: DEFAULT_BLOCKLIST_AFTER,
+            fail_frame_after: DEFAULT_FAIL_FRAME_AFTER,
             max_leases_per_worker: DEFAULT_MAX_LEASES_PER_WORKER,
             max_workers_per_host: DEFAULT_MAX_WORKERS_PER_HOST,
             audit: 0.0,

@@ -87,6 +87,8 @@ impl Shared {
                 },
                 evict_open_over: config.evict_open_over,
                 max_unstored_bytes: config.max_unstored_bytes.max(1),
+                blocklist_after: config.blocklist_after.max(1),
+                fail_frame_after: config.fail_frame_after.max(1),
             },
         );
         let mut seed = [0u8; 8];

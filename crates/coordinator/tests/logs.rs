@@ -6,22 +6,13 @@ use std::time::{Duration, Instant};
 mod common;
 
 use tessera_coordinator::names::OutputNames;
-use tessera_coordinator::scheduler::{AdmissionLimits, Policy, Reported, Scheduler};
-
-const LIMITS: AdmissionLimits = AdmissionLimits {
-    max_active_jobs: 10,
-    max_units_per_job: 100,
-    max_frames_per_job: 10,
-};
+use tessera_coordinator::scheduler::Reported;
 
 #[test]
 fn a_job_keeps_its_last_lines_and_a_worker_its_rate() {
     let dir = tempfile::tempdir().expect("tempdir");
     let names = OutputNames::new(dir.path());
-    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(5)));
-    let (job, _) = core
-        .admit(common::admission(None, None, None), LIMITS, &names, 1)
-        .expect("job");
+    let (mut core, job) = common::one_job(&names);
     let t0 = Instant::now();
     let w = core.register("w".into(), 1, "v".into(), "s".into(), t0);
     let unit = core.lease(w, 1, t0).remove(0);

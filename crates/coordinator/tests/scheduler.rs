@@ -359,7 +359,7 @@ fn ids_are_bound_to_the_registration_that_got_them() {
     let name = g.lease;
     assert_eq!(core.heartbeat(thief, &[name], now), vec![name]);
     assert_eq!(core.release(thief, &[name]), 0);
-    assert!(core.cannot_render(thief, &[name], "no", 1).is_empty());
+    assert!(core.cannot_render(thief, &[name], "no", now, 1).is_empty());
     assert!(core.job(JOB).expect("job").is_live());
 }
 
@@ -471,15 +471,28 @@ fn any_number_of_hoarders_cannot_keep_a_unit_from_an_honest_worker() {
     assert!(core.job(JOB).expect("job").finishing);
 }
 
+/// A lone worker that cannot render a unit fails it three times (the unit comes back to it,
+/// as nobody else is there), is blocklisted, and the job fails with the reason, once.
 #[test]
-fn a_unit_a_worker_cannot_render_fails_its_job_once_with_the_reason() {
+fn a_unit_a_lone_worker_cannot_render_fails_its_job_with_the_reason() {
     let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(5)));
     core.insert_job(Job::new(record(4, 2)));
     let now = Instant::now();
     let w = core.register("small".into(), 1, "v".into(), "s".into(), now);
-    let g = core.lease(w, 1, now).remove(0);
-    let name = g.lease;
-    let ops = core.cannot_render(w, &[name], "scene.toml: film.width 20000 is above 16384", 5);
+    let mut ops = Vec::new();
+    let mut last = None;
+    for _ in 0..3 {
+        let g = core.lease(w, 1, now).remove(0);
+        ops = core.cannot_render(
+            w,
+            &[g.lease],
+            "scene.toml: film.width 20000 is above 16384",
+            now,
+            5,
+        );
+        core.release(w, &[g.lease]);
+        last = Some(g.lease);
+    }
     assert!(ops
         .iter()
         .any(|o| matches!(o, Op::PutJob(r) if r.phase == JobPhase::Failed)));
@@ -495,9 +508,10 @@ fn a_unit_a_worker_cannot_render_fails_its_job_once_with_the_reason() {
         "{}",
         job.rec.error
     );
-    // The unit is not handed out again.
+    // The unit is not handed out again, and a late refusal changes nothing.
     assert!(core.lease(w, 8, now).is_empty());
-    assert!(core.cannot_render(w, &[name], "again", 6).is_empty());
+    let last = last.expect("a lease");
+    assert!(core.cannot_render(w, &[last], "again", now, 6).is_empty());
 }
 
 /// An 8×8 job in 4-pixel tiles at 4 spp in batches of 2 (8 units a frame), named `name` (or

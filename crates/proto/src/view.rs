@@ -320,6 +320,10 @@ pub struct JobView {
     pub waiting: Option<String>,
     /// A frame range leased progressively (`submit --progressive`).
     pub progressive: bool,
+    /// Units that failed on workers (each went to another worker).
+    pub failures: u32,
+    /// Workers blocklisted for it after failing its units, by name.
+    pub blocklist: Vec<String>,
 }
 
 impl From<&JobView> for pb::JobStatus {
@@ -374,6 +378,8 @@ impl From<&JobView> for pb::JobStatus {
             min_memory_bytes: v.min_memory_bytes,
             waiting: v.waiting.clone().unwrap_or_default(),
             progressive: v.progressive,
+            failures: v.failures,
+            blocklist: v.blocklist.clone(),
             paused: v.paused,
         }
     }
@@ -444,6 +450,8 @@ impl TryFrom<&pb::JobStatus> for JobView {
             min_memory_bytes: s.min_memory_bytes,
             waiting: (!s.waiting.is_empty()).then(|| s.waiting.clone()),
             progressive: s.progressive,
+            failures: s.failures,
+            blocklist: s.blocklist.clone(),
         })
     }
 }
@@ -672,6 +680,8 @@ mod tests {
             min_memory_bytes: 16 << 30,
             waiting: "no worker has tag pool=fast".into(),
             progressive: true,
+            failures: 2,
+            blocklist: vec!["render-07".into()],
         }
     }
 

@@ -83,6 +83,14 @@ pub struct CoordinatorArgs {
     /// Invalid results after which a worker is quarantined.
     #[arg(long, default_value_t = config::DEFAULT_QUARANTINE_AFTER, value_parser = clap::value_parser!(u64).range(1..))]
     quarantine_after: u64,
+    /// Failures of one job's units on one worker after which that worker is blocklisted for
+    /// the job (it takes other jobs as before).
+    #[arg(long, default_value_t = config::DEFAULT_BLOCKLIST_AFTER, value_parser = clap::value_parser!(u32).range(1..=100))]
+    blocklist_after: u32,
+    /// Failures after which a frame fails, with every reason (it fails sooner when every
+    /// connected worker that fits it is blocklisted).
+    #[arg(long, default_value_t = config::DEFAULT_FAIL_FRAME_AFTER, value_parser = clap::value_parser!(u32).range(1..=100))]
+    fail_frame_after: u32,
     /// Most units one worker may hold at once (a stock worker holds at most 3).
     #[arg(long, default_value_t = config::DEFAULT_MAX_LEASES_PER_WORKER as u32, value_parser = clap::value_parser!(u32).range(1..=4096))]
     max_leases_per_worker: u32,
@@ -187,6 +195,8 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
         .max_message_bytes
         .max(args.max_scene_bytes + (1 << 20));
     config.quarantine_after = args.quarantine_after;
+    config.blocklist_after = args.blocklist_after;
+    config.fail_frame_after = args.fail_frame_after;
     config.max_leases_per_worker = args.max_leases_per_worker as usize;
     config.max_connections = args.max_connections as usize;
     config.max_workers_per_host = args.max_workers_per_host as usize;

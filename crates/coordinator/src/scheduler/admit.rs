@@ -313,6 +313,8 @@ impl Scheduler {
             require: a.require.clone(),
             min_memory: a.min_memory,
             progressive: a.progressive && a.frames.is_some(),
+            failures: Vec::new(),
+            blocklist: Vec::new(),
             paused: false,
             // An adaptive job's decisions follow its merged sums; taking results back would
             // need them made again from the start, which is not built: such jobs are not

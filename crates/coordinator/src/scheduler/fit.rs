@@ -101,6 +101,16 @@ impl Scheduler {
         if able.is_empty() {
             return Some("no worker is connected".into());
         }
+        let able: Vec<&super::Worker> = able
+            .into_iter()
+            .filter(|w| !rec.blocklist.contains(&w.name))
+            .collect();
+        if able.is_empty() {
+            return Some(format!(
+                "every connected worker is blocklisted for it after failing its units ({})",
+                rec.blocklist.join(", ")
+            ));
+        }
         if able.iter().any(|w| w.caps.fits(rec)) {
             return None;
         }

@@ -14,7 +14,6 @@ use super::pick::requeue;
 use super::Scheduler;
 use crate::error::Refusal;
 use crate::job::{Job, Unit};
-use crate::store::{JobPhase, Op};
 
 /// A lease: a unit lent to a worker until `deadline`.
 #[derive(Debug)]
@@ -110,38 +109,6 @@ impl Scheduler {
             }
         }
         released
-    }
-
-    /// Fails the jobs of the leases that worker `w` says it can never render, with its
-    /// reason; returns the store changes. Handing such a unit out again would only send it
-    /// back and forth (with its scene) for ever.
-    pub fn cannot_render(&mut self, w: u64, ids: &[LeaseId], reason: &str, now_ms: i64) -> Vec<Op> {
-        let who = format!(
-            "worker {} ({})",
-            self.worker_id(w),
-            self.workers
-                .get(&w)
-                .map(|x| x.name.escape_debug().to_string())
-                .unwrap_or_default()
-        );
-        let reason: String = reason.chars().take(500).collect();
-        let mut ops = Vec::new();
-        for &id in ids {
-            let lease = self.held_by(w, id).and_then(|n| self.leases.get(&n));
-            let Some((job, unit)) = lease.filter(|l| l.active).map(|l| (l.job, l.unit)) else {
-                continue;
-            };
-            if !self.jobs.get(&job).is_some_and(|j| j.is_live()) {
-                continue;
-            }
-            let why = format!(
-                "{who} cannot render tile {} batch {}: {reason}",
-                unit.tile, unit.batch
-            );
-            tracing::warn!("{job}: {why}");
-            ops.extend(self.end_job(job, JobPhase::Failed, why, now_ms));
-        }
-        ops
     }
 
     /// Takes back worker `w`'s live leases: their units go to the front of their queues.

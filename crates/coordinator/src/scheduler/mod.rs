@@ -7,6 +7,7 @@
 //! - [`leases`]: leases, their deadlines, heartbeats and hand-backs.
 //! - [`workers`]: registration, credentials, hosts and quarantine.
 //! - [`logs`]: workers' lines about units, kept with their jobs, bounded.
+//! - [`failures`]: units that fail on workers, blocklists, frames that fail.
 //! - [`fit`]: workers' capabilities against jobs' requirements, and draining.
 //! - [`audit`]: units rendered twice, the referee, and convictions.
 //! - [`admit`]: admission of new jobs and restore at start-up.
@@ -24,6 +25,7 @@ mod admit;
 mod after;
 mod audit;
 mod control;
+mod failures;
 mod fit;
 mod leases;
 mod logs;
@@ -38,8 +40,9 @@ use tessera_proto::ids::{JobId, LeaseId};
 use tessera_render::{PixelRect, RenderSettings, TileSums};
 
 use crate::config::{
-    DEFAULT_EVICT_OPEN_OVER, DEFAULT_MAX_LEASES_PER_WORKER, DEFAULT_MAX_UNSTORED_BYTES,
-    DEFAULT_MAX_WORKERS_PER_HOST, DEFAULT_QUARANTINE_AFTER,
+    DEFAULT_BLOCKLIST_AFTER, DEFAULT_EVICT_OPEN_OVER, DEFAULT_FAIL_FRAME_AFTER,
+    DEFAULT_MAX_LEASES_PER_WORKER, DEFAULT_MAX_UNSTORED_BYTES, DEFAULT_MAX_WORKERS_PER_HOST,
+    DEFAULT_QUARANTINE_AFTER,
 };
 use crate::error::Refusal;
 use crate::job::{FrameTile, Job, Snapshot, Source, Unit, MAX_DIRTY_BYTES};
@@ -109,6 +112,10 @@ pub struct Policy {
     /// results are deferred (the worker is told to retry) until a checkpoint commits: the
     /// bound on that memory when results arrive faster than the store takes them.
     pub max_unstored_bytes: u64,
+    /// Failures of one job's units on one worker after which it is blocklisted for that job.
+    pub blocklist_after: u32,
+    /// Failures after which a frame fails.
+    pub fail_frame_after: u32,
 }
 
 impl Policy {
@@ -122,6 +129,8 @@ impl Policy {
             audit: 0.0,
             evict_open_over: DEFAULT_EVICT_OPEN_OVER,
             max_unstored_bytes: DEFAULT_MAX_UNSTORED_BYTES,
+            blocklist_after: DEFAULT_BLOCKLIST_AFTER,
+            fail_frame_after: DEFAULT_FAIL_FRAME_AFTER,
         }
     }
 }

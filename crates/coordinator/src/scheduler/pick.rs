@@ -194,7 +194,12 @@ impl Scheduler {
         let mut levels: HashMap<u64, u32> = HashMap::new();
         for speculate in [false, true] {
             for id in self.schedule_order(true) {
-                if self.held(id) || !self.jobs.get(&id).is_some_and(|j| caps.fits(&j.rec)) {
+                if self.held(id)
+                    || !self
+                        .jobs
+                        .get(&id)
+                        .is_some_and(|j| caps.fits(&j.rec) && !self.blocklisted(j, w))
+                {
                     continue;
                 }
                 let max_batch = match self

@@ -161,6 +161,8 @@ impl Scheduler {
             require: rec.require.clone(),
             min_memory_bytes: rec.min_memory,
             progressive: rec.progressive,
+            failures: rec.failures.len() as u32,
+            blocklist: rec.blocklist.clone(),
             waiting: (job.is_live() && !self.held(job.id()))
                 .then(|| self.waiting(rec, now))
                 .flatten(),
@@ -255,6 +257,14 @@ impl Scheduler {
             require: first.require.clone(),
             min_memory_bytes: first.min_memory_bytes,
             progressive: first.progressive,
+            failures: frames.iter().map(|f| f.failures).sum(),
+            blocklist: {
+                let mut names: Vec<String> =
+                    frames.iter().flat_map(|f| f.blocklist.clone()).collect();
+                names.sort();
+                names.dedup();
+                names
+            },
             waiting: frames.iter().find_map(|f| f.waiting.clone()),
             // Every flagged frame's checks, named, so that one flagged frame of 240 is seen.
             checks: frames

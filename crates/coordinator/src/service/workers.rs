@@ -358,7 +358,7 @@ impl Workers for Service {
             let failed = if req.cannot_render.is_empty() {
                 None
             } else {
-                let ops = core.cannot_render(w, &ids, &req.cannot_render, now_ms());
+                let ops = core.cannot_render(w, &ids, &req.cannot_render, Instant::now(), now_ms());
                 Some(self.shared.queue_write(ops))
             };
             let n = core.release(w, &ids);

@@ -23,7 +23,9 @@ mod records;
 mod sums;
 
 pub use coalesce::Coalesced;
-pub use records::{AuditRecord, JobPhase, JobRecord, LoadedJob, Op, RangeRef, StoredScene};
+pub use records::{
+    AuditRecord, JobPhase, JobRecord, LoadedJob, Op, RangeRef, StoredScene, UnitFailure,
+};
 pub use sums::{decode_sums, encode_sums, AOV_BYTES, PIXEL_BYTES};
 
 /// Scene hash → [`StoredScene`] (JSON).
@@ -258,33 +260,58 @@ impl Store {
     /// up to [`FORMAT`].
     fn prepare(&self) -> Result<(), StoreError> {
         let tx = self.db()?.begin_write().map_err(dberr)?;
-        {
-            let mut scenes = tx.open_table(SCENES).map_err(dberr)?;
-            let mut jobs = tx.open_table(JOBS).map_err(dberr)?;
-            let mut tiles = tx.open_table(TILES).map_err(dberr)?;
-            let mut pending = tx.open_table(PENDING).map_err(dberr)?;
-            tx.open_table(UNITS).map_err(dberr)?;
-            tx.open_table(AUDITS).map_err(dberr)?;
-            tx.open_table(LOGS).map_err(dberr)?;
-            let mut meta = tx.open_table(META).map_err(dberr)?;
-            let format = meta.get("format").map_err(dberr)?.map(|g| g.value());
-            match format {
-                Some(FORMAT) => {}
-                Some(f) => {
-                    return Err(StoreError::Corrupt {
-                        what: "format".into(),
-                        why: format!("layout {f}, and this coordinator reads layout {FORMAT}"),
-                    })
-                }
-                None => {
-                    // Layout 1: the same values without checksums. Seal each in place.
-                    migrate::seal_layout_1(&mut scenes, &mut jobs, &mut tiles, &mut pending)?;
-                    meta.insert("format", FORMAT).map_err(dberr)?;
-                }
+        // redb can panic on a damaged file, and its write transaction's drop can panic too: run
+        // during the unwinding of the first panic, that would abort the process. So the first
+        // panic is caught here, and the transaction is leaked rather than dropped.
+        match catch_unwind(AssertUnwindSafe(|| Self::prepare_in(&tx))) {
+            Ok(Ok(())) => {
+                tx.commit().map_err(dberr)?;
+                Ok(())
+            }
+            Ok(Err(e)) => Err(e),
+            Err(p) => {
+                std::mem::forget(tx);
+                std::panic::resume_unwind(p)
             }
         }
-        tx.commit().map_err(dberr)?;
-        Ok(())
+    }
+
+    fn prepare_in(tx: &redb::WriteTransaction) -> Result<(), StoreError> {
+        // One table open at a time: a table dropped while a panic unwinds locks a mutex that
+        // panic poisoned, which aborts.
+        tx.open_table(SCENES).map_err(dberr)?;
+        tx.open_table(JOBS).map_err(dberr)?;
+        tx.open_table(TILES).map_err(dberr)?;
+        tx.open_table(PENDING).map_err(dberr)?;
+        tx.open_table(UNITS).map_err(dberr)?;
+        tx.open_table(AUDITS).map_err(dberr)?;
+        let format = tx
+            .open_table(META)
+            .map_err(dberr)?
+            .get("format")
+            .map_err(dberr)?
+            .map(|g| g.value());
+        match format {
+            Some(FORMAT) => Ok(()),
+            Some(f) => Err(StoreError::Corrupt {
+                what: "format".into(),
+                why: format!("layout {f}, and this coordinator reads layout {FORMAT}"),
+            }),
+            None => {
+                // Layout 1: the same values without checksums. Seal each in place.
+                migrate::seal_layout_1(
+                    &mut tx.open_table(SCENES).map_err(dberr)?,
+                    &mut tx.open_table(JOBS).map_err(dberr)?,
+                    &mut tx.open_table(TILES).map_err(dberr)?,
+                    &mut tx.open_table(PENDING).map_err(dberr)?,
+                )?;
+                tx.open_table(META)
+                    .map_err(dberr)?
+                    .insert("format", FORMAT)
+                    .map_err(dberr)?;
+                Ok(())
+            }
+        }
     }
 
     /// Increments and returns the boot counter, which makes lease and worker ids unique across
@@ -316,7 +343,12 @@ impl Store {
         let jobs = tx.open_table(JOBS).map_err(dberr)?;
         let tiles = tx.open_table(TILES).map_err(dberr)?;
         let pending = tx.open_table(PENDING).map_err(dberr)?;
-        let logs = tx.open_table(LOGS).map_err(dberr)?;
+        // Made by the first log written (a store with none has the layout it had before logs).
+        let logs = match tx.open_table(LOGS) {
+            Ok(t) => Some(t),
+            Err(redb::TableError::TableDoesNotExist(_)) => None,
+            Err(e) => return Err(dberr(e)),
+        };
         let mut out = Vec::new();
         for row in jobs.iter().map_err(dberr)? {
             let (k, v) = row.map_err(dberr)?;
@@ -335,7 +367,11 @@ impl Store {
                 });
             }
             // A damaged log costs the log alone, not the start: it is only ever read by people.
-            let log = logs.get(id).map_err(dberr)?.and_then(|v| {
+            let stored = match &logs {
+                Some(t) => t.get(id).map_err(dberr)?,
+                None => None,
+            };
+            let log = stored.and_then(|v| {
                 unseal(|| format!("job {id} log"), &log_key(id), v.value())
                     .map_err(|e| tracing::warn!("{e}; its log is left out"))
                     .ok()

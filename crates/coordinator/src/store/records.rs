@@ -132,6 +132,12 @@ pub struct JobRecord {
     /// Least memory, in bytes, a worker must report to take its units (0: any).
     #[serde(default)]
     pub min_memory: u64,
+    /// Units that failed on workers (`ReleaseLeases.cannot_render`), at most the frame's limit.
+    #[serde(default)]
+    pub failures: Vec<UnitFailure>,
+    /// Names of the workers blocklisted for it after failing its units.
+    #[serde(default)]
+    pub blocklist: Vec<String>,
     /// A frame of a range leased progressively (`submit --progressive`): it hands out a batch
     /// only once every frame of its range has handed out the batches before it.
     #[serde(default)]
@@ -140,6 +146,23 @@ pub struct JobRecord {
     /// before pausing).
     #[serde(default)]
     pub paused: bool,
+}
+
+/// One unit that failed on one worker (`scheduler/failures.rs`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct UnitFailure {
+    /// The worker's name (what a blocklist holds).
+    pub worker: String,
+    /// Its public id at the time.
+    pub worker_id: String,
+    /// The unit's tile.
+    pub tile: u32,
+    /// The unit's batch.
+    pub batch: u32,
+    /// Why, as the worker said it.
+    pub reason: String,
+    /// When, Unix milliseconds.
+    pub unix_ms: i64,
 }
 
 /// A frame-range job, as each of its frames records it.

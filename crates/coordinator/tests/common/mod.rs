@@ -37,3 +37,24 @@ pub fn admission(name: Option<&str>, frames: Option<&str>, after: Option<JobId>)
         progressive: false,
     }
 }
+
+/// Admission bounds no test here comes near.
+pub const LIMITS: tessera_coordinator::scheduler::AdmissionLimits =
+    tessera_coordinator::scheduler::AdmissionLimits {
+        max_active_jobs: 10,
+        max_units_per_job: 100,
+        max_frames_per_job: 10,
+    };
+
+/// A scheduler of boot 1 with 5-second leases and one job of [`admission`] admitted, its
+/// output named from `names`.
+pub fn one_job(
+    names: &tessera_coordinator::names::OutputNames,
+) -> (tessera_coordinator::scheduler::Scheduler, JobId) {
+    use tessera_coordinator::scheduler::{Policy, Scheduler};
+    let mut core = Scheduler::new(1, Policy::new(std::time::Duration::from_secs(5)));
+    let (job, _) = core
+        .admit(admission(None, None, None), LIMITS, names, 1)
+        .expect("job");
+    (core, job)
+}

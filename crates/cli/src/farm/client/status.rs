@@ -114,6 +114,17 @@ fn print_job(v: &JobView) -> std::io::Result<()> {
         }
         outln!("  requires   {}", printable(&needs.join(", ")));
     }
+    if v.failures > 0 {
+        let blocked = if v.blocklist.is_empty() {
+            String::new()
+        } else {
+            format!("; blocklisted: {}", printable(&v.blocklist.join(", ")))
+        };
+        outln!(
+            "  failures   {} unit(s) failed on workers and went to others{blocked}",
+            v.failures
+        );
+    }
     if let Some(w) = &v.waiting {
         outln!("  waiting    {}", printable(w));
     }

@@ -1,0 +1,212 @@
+//! Units that fail on a worker, handled as render farms handle them (Flamenco's rules).
+//!
+//! A worker that cannot render a unit says so, with the reason (`ReleaseLeases.cannot_render`:
+//! its scene does not load there, breaks the worker's limits, a texture does not fit its
+//! decode budget). The unit goes back to the queue for another worker, and the failure is kept
+//! in the frame's record. After [`Policy::blocklist_after`](super::Policy) failures of one
+//! job's units on one worker (by name, so that a worker that restarts is the same one), that
+//! worker is blocklisted for that job alone: it takes other jobs as before. A frame fails, with
+//! every reason collected, after [`Policy::fail_frame_after`](super::Policy) failures, or as
+//! soon as every connected worker that fits it is blocklisted (nobody is left to try).
+//!
+//! A lease that lapses is not counted: a worker killed, preempted or cut off costs one unit's
+//! time and the unit goes out again at once, and counting it would blocklist healthy machines
+//! on a farm of preemptible ones (the chaos test kills a worker every few hundred
+//! milliseconds). Failures, blocklists and the frame's error are kept in the record, so a
+//! restart keeps them.
+
+use std::time::Instant;
+
+use tessera_proto::ids::{JobId, LeaseId};
+
+use super::Scheduler;
+use crate::job::{Job, Unit};
+use crate::store::{JobPhase, Op, UnitFailure};
+
+/// Characters of a failure's reason kept.
+const MAX_REASON_CHARS: usize = 300;
+
+/// The failures of a frame as one error: each distinct (worker, reason) once, with its count.
+fn summary(failures: &[UnitFailure], why_now: &str) -> String {
+    let mut seen: Vec<(&UnitFailure, usize)> = Vec::new();
+    for f in failures {
+        match seen
+            .iter_mut()
+            .find(|(g, _)| g.worker == f.worker && g.reason == f.reason)
+        {
+            Some((_, n)) => *n += 1,
+            None => seen.push((f, 1)),
+        }
+    }
+    let parts: Vec<String> = seen
+        .iter()
+        .map(|(f, n)| {
+            let times = if *n > 1 {
+                format!(", {n} times")
+            } else {
+                String::new()
+            };
+            format!(
+                "worker {} ({}){times}: cannot render tile {} batch {}: {}",
+                f.worker_id,
+                f.worker.escape_debug(),
+                f.tile,
+                f.batch,
+                f.reason
+            )
+        })
+        .collect();
+    format!(
+        "{} failures ({why_now}): {}",
+        failures.len(),
+        parts.join("; ")
+    )
+}
+
+impl Scheduler {
+    /// Worker `w` says it cannot render the units of `ids`, and why: each is a failure of its
+    /// job on that worker (the unit itself is put back by the release that follows); returns
+    /// the store changes.
+    pub fn cannot_render(
+        &mut self,
+        w: u64,
+        ids: &[LeaseId],
+        reason: &str,
+        now: Instant,
+        now_ms: i64,
+    ) -> Vec<Op> {
+        let reason: String = reason.chars().take(MAX_REASON_CHARS).collect();
+        let mut ops = Vec::new();
+        for &id in ids {
+            let lease = self.held_by(w, id).and_then(|n| self.leases.get(&n));
+            let Some((job, unit)) = lease.filter(|l| l.active).map(|l| (l.job, l.unit)) else {
+                continue;
+            };
+            ops.extend(self.unit_failed(job, w, unit, &reason, now, now_ms));
+        }
+        ops
+    }
+
+    /// Records that `unit` of job `id` failed on worker `w`: blocklists the worker for the job
+    /// at the limit, and fails the frame at its limit or when nobody is left to try.
+    fn unit_failed(
+        &mut self,
+        id: JobId,
+        w: u64,
+        unit: Unit,
+        reason: &str,
+        now: Instant,
+        now_ms: i64,
+    ) -> Vec<Op> {
+        let worker_id = self.worker_id(w).to_string();
+        let Some(name) = self.workers.get(&w).map(|x| x.name.clone()) else {
+            return Vec::new();
+        };
+        let (blocklist_after, fail_after) = (
+            self.policy.blocklist_after.max(1),
+            self.policy.fail_frame_after.max(1),
+        );
+        let Some(job) = self.jobs.get_mut(&id).filter(|j| j.is_live()) else {
+            return Vec::new();
+        };
+        tracing::warn!(
+            "{id}: worker {worker_id} ({}) cannot render tile {} batch {}: {reason}",
+            name.escape_debug(),
+            unit.tile,
+            unit.batch
+        );
+        job.rec.failures.push(UnitFailure {
+            worker: name.clone(),
+            worker_id,
+            tile: unit.tile,
+            batch: unit.batch,
+            reason: reason.to_string(),
+            unix_ms: now_ms,
+        });
+        let mine = job.rec.failures.iter().filter(|f| f.worker == name).count();
+        if mine >= blocklist_after as usize && !job.rec.blocklist.contains(&name) {
+            tracing::warn!(
+                "{id}: worker {} blocklisted for it after {mine} failures",
+                name.escape_debug()
+            );
+            job.rec.blocklist.push(name);
+        }
+        let why = if job.rec.failures.len() >= fail_after as usize {
+            Some(format!("the most a frame may have is {fail_after}"))
+        } else if self.nobody_left(id, now) {
+            Some("every connected worker that fits it is blocklisted".to_string())
+        } else {
+            None
+        };
+        match (why, self.jobs.get(&id)) {
+            (Some(why), Some(job)) => {
+                let error = summary(&job.rec.failures, &why);
+                self.end_job(id, JobPhase::Failed, error, now_ms)
+            }
+            (None, Some(job)) => vec![Op::PutJob(job.rec.clone())],
+            _ => Vec::new(),
+        }
+    }
+
+    /// Whether worker `w` is blocklisted for `job`.
+    pub(super) fn blocklisted(&self, job: &Job, w: u64) -> bool {
+        !job.rec.blocklist.is_empty()
+            && self
+                .workers
+                .get(&w)
+                .is_some_and(|x| job.rec.blocklist.contains(&x.name))
+    }
+
+    /// Whether some worker is connected that fits job `id` and every such worker is
+    /// blocklisted for it.
+    fn nobody_left(&self, id: JobId, now: Instant) -> bool {
+        let Some(job) = self.jobs.get(&id) else {
+            return false;
+        };
+        let lease_time = self.policy.lease_time;
+        let mut fitting = self.workers.iter().filter(|(_, w)| {
+            w.alive(now, lease_time)
+                && !w.draining
+                && !w.quarantined
+                && w.convicted.is_none()
+                && w.caps.fits(&job.rec)
+        });
+        let mut any = false;
+        let all_blocked = fitting.all(|(&n, _)| {
+            any = true;
+            self.blocklisted(job, n)
+        });
+        any && all_blocked
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn failure(worker: &str, reason: &str) -> UnitFailure {
+        UnitFailure {
+            worker: worker.into(),
+            worker_id: format!("w1-{}", worker.len()),
+            tile: 0,
+            batch: 1,
+            reason: reason.into(),
+            unix_ms: 0,
+        }
+    }
+
+    #[test]
+    fn a_frames_error_names_each_worker_and_reason_once_with_its_count() {
+        let f = [
+            failure("small", "too wide"),
+            failure("small", "too wide"),
+            failure("tiny", "no memory"),
+        ];
+        assert_eq!(
+            summary(&f, "the most a frame may have is 3"),
+            "3 failures (the most a frame may have is 3): worker w1-5 (small), 2 times: cannot \
+             render tile 0 batch 1: too wide; worker w1-4 (tiny): cannot render tile 0 batch \
+             1: no memory"
+        );
+    }
+}
