@@ -19,9 +19,12 @@
 //! between units, built scenes and the asset cache on disk (`cache.rs`, [`evict`]); the
 //! pipeline's tasks (`pipeline.rs`); and here the state they share, registration, and [`run`].
 //!
-//! On shutdown the worker stops leasing (taking the answer of a lease call already under way,
-//! so that no unit granted in it is lost), finishes and sends the unit it is rendering (units
-//! take seconds at most), hands queued units back, and says goodbye.
+//! On shutdown (Ctrl-C, SIGTERM, or the coordinator's drain, which a heartbeat or a lease call
+//! brings) the worker stops leasing, hands back at once the unit it had queued (and any granted
+//! in a lease call already under way), finishes and sends the units it is rendering (units take
+//! seconds at most), and says goodbye. It reports what it registers with: memory, CPU features
+//! and its operator's tags, which jobs' requirements match; and sends its warnings about units
+//! to the coordinator with its heartbeats (`tessera logs`).
 
 mod cache;
 mod config;
