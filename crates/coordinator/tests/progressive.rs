@@ -54,3 +54,32 @@ fn a_progressive_range_hands_out_every_frames_first_batch_before_any_second() {
     let frames: Vec<u64> = plain.iter().map(|&(f, _)| f).collect();
     assert!(frames.windows(2).all(|w| w[0] <= w[1]), "{plain:?}");
 }
+
+#[test]
+fn a_frame_paused_on_its_own_does_not_hold_back_a_progressive_range() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let names = OutputNames::new(dir.path());
+    let mut policy = Policy::new(Duration::from_secs(5));
+    policy.max_leases_per_worker = 1000;
+    let mut core = Scheduler::new(1, policy);
+    let a = Admission {
+        progressive: true,
+        ..common::admission(None, Some("1-2"), None)
+    };
+    let (range, _) = core.admit(a, LIMITS, &names, 1).expect("range");
+    let frames = core.members(range);
+    core.update(frames[0], Some(true), None)
+        .expect("pause frame 1");
+    let now = Instant::now();
+    let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
+    // Frame 2 hands out its batches (4 tiles each), one level a call; frame 1 nothing until
+    // resumed.
+    for batch in 0..2 {
+        let got = core.lease(w, 1000, now);
+        assert_eq!(got.len(), 4, "{got:?}");
+        assert!(got
+            .iter()
+            .all(|g| g.job == frames[1] && g.unit.batch == batch));
+    }
+    assert!(core.lease(w, 1000, now).is_empty());
+}

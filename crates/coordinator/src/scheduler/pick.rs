@@ -138,12 +138,13 @@ pub(super) fn requeue(jobs: &mut BTreeMap<JobId, Job>, lease: &mut Lease) -> boo
 impl Scheduler {
     /// The batch a progressive range's frames may hand out up to: the lowest batch any of its
     /// live frames' cursors is still on, so that no frame starts batch b + 1 before every frame
-    /// has handed out its batch b.
+    /// has handed out its batch b. A frame held back (paused on its own) does not hold back the
+    /// others.
     fn progressive_level(&self, range: JobId) -> u32 {
         self.members(range)
             .iter()
             .filter_map(|m| self.jobs.get(m))
-            .filter(|j| j.is_live() && j.cursor < j.units_first())
+            .filter(|j| j.is_live() && !self.held(j.id()) && j.cursor < j.units_first())
             .map(|j| (j.cursor / (j.tiles.len() as u64).max(1)) as u32)
             .min()
             .unwrap_or(u32::MAX)
