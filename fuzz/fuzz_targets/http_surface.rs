@@ -149,7 +149,7 @@ fuzz_target!(|data: &[u8]| {
                 _ => false,
             };
             let n = arg >> 4;
-            let (method, path, body) = match op % 10 {
+            let (method, path, body) = match op % 13 {
                 0 => ("GET", "/api/jobs".to_string(), Vec::new()),
                 1 => (
                     "GET",
@@ -209,13 +209,33 @@ fuzz_target!(|data: &[u8]| {
                     Vec::new(),
                 ),
                 8 => ("POST", "/logout".to_string(), Vec::new()),
+                // The pipelines' API: a submission, an upload and job control with whatever
+                // bodies and queries the bytes make.
+                9 => {
+                    let body = take(&mut bytes, n);
+                    ("POST", "/api/jobs".to_string(), body.into_bytes())
+                }
+                10 => {
+                    let body = take(&mut bytes, n);
+                    let total = u64::from(arg) * 3;
+                    let hash =
+                        ["0".repeat(64), "zz".into(), percent(&body)][n as usize % 3].clone();
+                    let path = format!("/api/assets/{hash}?offset={}&total={total}", arg % 7);
+                    ("PUT", path, body.into_bytes())
+                }
+                11 => {
+                    let verb = ["pause", "resume", "priority", "retry"][n as usize % 4];
+                    let body = take(&mut bytes, n);
+                    ("POST", format!("/api/jobs/{job}/{verb}"), body.into_bytes())
+                }
+                12 => ("GET", "/api/openapi.json".to_string(), Vec::new()),
                 _ => {
                     let raw = take(&mut bytes, n);
                     let method = if arg % 2 == 0 { "GET" } else { "POST" };
                     (method, format!("/{}", percent(&raw)), raw.into_bytes())
                 }
             };
-            if method == "POST" && !path.starts_with("/login") {
+            if method == "POST" && !path.starts_with("/login") && !path.starts_with("/api/") {
                 headers.push((
                     "content-type".into(),
                     "application/x-www-form-urlencoded".into(),

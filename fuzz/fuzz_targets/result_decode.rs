@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use libfuzzer_sys::fuzz_target;
 use prost::Message;
 use tessera_coordinator::job::{Job, Unit};
-use tessera_coordinator::scheduler::{Policy, Merged, Scheduler};
+use tessera_coordinator::scheduler::{Merged, Policy, Scheduler};
 use tessera_coordinator::store::{decode_sums, JobRecord};
 use tessera_proto::ids::JobId;
 use tessera_proto::v1 as pb;

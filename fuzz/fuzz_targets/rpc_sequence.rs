@@ -20,7 +20,7 @@ use std::time::{Duration, Instant};
 
 use libfuzzer_sys::fuzz_target;
 use tessera_coordinator::job::{Job, Unit};
-use tessera_coordinator::scheduler::{Policy, Merged, Scheduler};
+use tessera_coordinator::scheduler::{Merged, Policy, Scheduler};
 use tessera_coordinator::store::{JobPhase, JobRecord};
 use tessera_proto::ids::{JobId, LeaseId};
 use tessera_render::TileSums;
@@ -267,7 +267,7 @@ fuzz_target!(|data: &[u8]| {
                 let f = &mut fakes[i];
                 if let Some(i) = f.leases.iter().position(|l| l.1 == JobId(2)) {
                     let l = f.leases.remove(i);
-                    core.cannot_render(f.id, &[l.0], "too big", 1);
+                    core.cannot_render(f.id, &[l.0], "too big", now, 1);
                 }
             }
             8 => {

@@ -224,7 +224,11 @@ fuzz_target!(|data: &[u8]| {
                     let mut ids: Vec<String> = f.units.iter().map(|u| u.lease_id.clone()).collect();
                     ids.push(format!("L1-{arg}"));
                     // Log lines about its own units, a forged lease, or too many at once.
-                    let n = if arg % 7 == 0 { 40 } else { usize::from(arg % 4) };
+                    let n = if arg % 7 == 0 {
+                        40
+                    } else {
+                        usize::from(arg % 4)
+                    };
                     let lines = ids
                         .iter()
                         .cycle()
@@ -391,6 +395,20 @@ fuzz_target!(|data: &[u8]| {
                         .await;
                 }
                 10 => {
+                    if arg & 0x20 != 0 {
+                        // A retry puts a failed job back; the main job's bits are then still
+                        // its own, but its history is not the plain run's.
+                        let job = format!("job-{:06}", arg % 4);
+                        let retried = svc
+                            .retry_job(Request::new(pb::RetryJobRequest {
+                                job_id: job.clone(),
+                                frame: (arg & 0x40 != 0).then_some(u32::from(arg % 4)),
+                            }))
+                            .await;
+                        if retried.is_ok() && job == main {
+                            tainted = true;
+                        }
+                    }
                     if let Ok(l) = svc
                         .get_logs(Request::new(pb::GetLogsRequest {
                             job_id: format!("job-{:06}", arg % 4),

@@ -72,6 +72,8 @@ enum Command {
     Resume(farm::PauseArgs),
     /// Change a queued or running job's priority (higher runs first).
     Priority(farm::PriorityArgs),
+    /// Put a failed job's failed frames back in the queue.
+    Retry(farm::RetryArgs),
     /// Print the warnings and errors workers reported about a job's units.
     Logs(farm::LogsArgs),
     /// List the workers a coordinator has seen.
@@ -149,6 +151,7 @@ fn main() -> ExitCode {
         Command::Pause(args) => farm::pause(args, true),
         Command::Resume(args) => farm::pause(args, false),
         Command::Priority(args) => farm::priority(args),
+        Command::Retry(args) => farm::retry(args),
         Command::Logs(args) => farm::logs(args),
         Command::Workers(args) => farm::workers(args),
         Command::Fetch(args) => farm::fetch(args),

@@ -2,13 +2,19 @@
 //! with SIGKILL at random and restarted; the coordinator is killed with SIGKILL once, mid-job,
 //! and restarted on the same data directory and port. The job must finish with an EXR
 //! bit-identical to `tessera render`, and no lease may be left behind.
+//!
+//! A farm's day is in the mix too: two of the workers carry a tag that a second job requires,
+//! a third job is paused from the start and resumed only after the coordinator's restart (which
+//! must keep it paused), and one of the random events drains a worker instead of killing it
+//! (it must exit 0, and comes back as a supervisor would start it again). Every job's EXR must
+//! be `tessera render`'s.
 
 mod common;
 
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
 
-use common::{repo, start_coordinator, tessera_at, worker, Proc, BIN};
+use common::{repo, start_coordinator, tessera_at, Proc, BIN};
 
 fn tessera(args: &[&str], url: &str) -> Output {
     tessera_at(args, url)
@@ -50,6 +56,21 @@ fn progress(job: &str, url: &str) -> Option<(u64, u64, u64)> {
     ))
 }
 
+/// Waits up to `limit` for `p` to exit by itself; its exit status.
+fn wait_exit(p: &mut Proc, limit: Duration) -> std::process::ExitStatus {
+    let end = Instant::now() + limit;
+    loop {
+        if let Some(s) = p.0.try_wait().expect("try_wait") {
+            return s;
+        }
+        assert!(
+            Instant::now() < end,
+            "the process did not exit in {limit:?}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
 /// A small deterministic generator, so a failing run can be replayed from its seed.
 struct Rng(u64);
 
@@ -84,7 +105,13 @@ fn sigkilled_workers_and_coordinator_do_not_change_a_bit() {
     // supervised coordinator would, so that workers and clients keep their URL.
     let (mut coord, addr) = coordinator(&data, "127.0.0.1:0", &log);
     let url = format!("http://{addr}");
-    let mut workers: Vec<Proc> = (0..4).map(|i| worker(&url, &format!("w{i}"))).collect();
+    // w0 and w1 are in pool a, which the second job requires.
+    let start_worker = |i: usize| -> Proc {
+        let extra: &[&str] = if i < 2 { &["--tag", "pool=a"] } else { &[] };
+        let log = dir.path().join(format!("w{i}.log"));
+        common::worker_with(&url, &format!("w{i}"), extra, &log)
+    };
+    let mut workers: Vec<Proc> = (0..4).map(start_worker).collect();
     let started = Instant::now();
     let job = loop {
         let mut args = vec!["submit", scene.as_str(), "--tile-size", "16"];
@@ -99,6 +126,28 @@ fn sigkilled_workers_and_coordinator_do_not_change_a_bit() {
         );
         std::thread::sleep(Duration::from_millis(100));
     };
+    // The second job only pool a may render; the third waits paused until after the restart.
+    let small = ["--spp", "64", "--batch", "4"];
+    let submit_small = |extra: &[&str]| -> String {
+        let mut args = vec!["submit", scene.as_str()];
+        args.extend(small);
+        args.extend(extra);
+        let out = tessera(&args, &url);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).trim().to_string()
+    };
+    let pooled = submit_small(&["--seed", "3", "--require", "pool=a"]);
+    let paused = submit_small(&["--seed", "5"]);
+    let out = tessera(&["pause", &paused], &url);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     // A client following the job across the coordinator's death, as `--wait` users do.
     let farm_exr = dir.path().join("farm.exr");
     let follower = Command::new(BIN)
@@ -114,6 +163,7 @@ fn sigkilled_workers_and_coordinator_do_not_change_a_bit() {
     let mut rng = Rng(seed);
     let mut events = Vec::new();
     let mut coordinator_killed = false;
+    let mut drained = None;
     let deadline = Instant::now() + Duration::from_secs(240);
     let (mut last_done, mut total) = (0, u64::MAX);
     // When each progress was seen: what was merged a checkpoint interval (and a commit's
@@ -169,6 +219,17 @@ fn sigkilled_workers_and_coordinator_do_not_change_a_bit() {
                 "coordinator restarted with {resumed}/{total} units ({checkpointed} merged 2 s \
                  before the kill)"
             ));
+            // The pause survived the restart; now the third job may go.
+            let status =
+                String::from_utf8_lossy(&tessera(&["status", &paused], &url).stdout).to_string();
+            assert!(status.contains("paused"), "the pause was lost: {status}");
+            let out = tessera(&["resume", &paused], &url);
+            assert!(
+                out.status.success(),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            events.push(format!("{paused} resumed"));
             assert!(
                 checkpointed > 0,
                 "nothing was merged 2 s before the kill: the check below would be empty"
@@ -181,16 +242,35 @@ fn sigkilled_workers_and_coordinator_do_not_change_a_bit() {
             continue;
         }
         let i = (rng.next() % workers.len() as u64) as usize;
-        workers[i].kill9();
-        events.push(format!("worker w{i} SIGKILL at {last_done}/{total} units"));
+        if drained.is_none() && events.len() >= 6 {
+            // Drained instead: it finishes what it holds and exits 0 by itself.
+            let name = format!("w{i}");
+            let out = tessera(&["workers", "--drain", &name], &url);
+            assert!(
+                out.status.success(),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            let exit = wait_exit(&mut workers[i], Duration::from_secs(60));
+            assert!(exit.success(), "the drained worker w{i} exited with {exit}");
+            events.push(format!("worker w{i} drained at {last_done}/{total} units"));
+            drained = Some(i);
+        } else {
+            workers[i].kill9();
+            events.push(format!("worker w{i} SIGKILL at {last_done}/{total} units"));
+        }
         if !rng.next().is_multiple_of(4) {
             std::thread::sleep(Duration::from_millis(rng.next() % 300));
         }
-        workers[i] = worker(&url, &format!("w{i}"));
+        workers[i] = start_worker(i);
     }
     assert!(
         coordinator_killed,
         "the job finished before the coordinator could be killed"
+    );
+    assert!(
+        drained.is_some(),
+        "no worker was drained (events: {events:?})"
     );
     let follower = follower.wait_with_output().expect("fetch --wait");
     assert!(
@@ -217,6 +297,37 @@ fn sigkilled_workers_and_coordinator_do_not_change_a_bit() {
         std::fs::read(&farm_exr).expect("farm") == std::fs::read(&local).expect("local"),
         "the EXR after the chaos differs from tessera render's (events: {events:?})"
     );
+
+    // The pooled and the paused jobs: done, with tessera render's bits too.
+    for (job, seed) in [(&pooled, "3"), (&paused, "5")] {
+        let farm = dir.path().join(format!("{job}.exr"));
+        let out = tessera(
+            &["fetch", job, "--wait", "-o", farm.to_str().expect("utf8")],
+            &url,
+        );
+        assert!(
+            out.status.success(),
+            "{job}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let local = dir.path().join(format!("{job}-local.exr"));
+        let mut args = vec!["render", scene.as_str(), "--seed", seed, "--output"];
+        args.push(local.to_str().expect("utf8"));
+        args.extend(small);
+        let out = tessera(&args, &url);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(
+            std::fs::read(&farm).expect("farm") == std::fs::read(&local).expect("local"),
+            "{job}'s EXR after the chaos differs from tessera render's (events: {events:?})"
+        );
+    }
+    // Its requirement survived the restart with it.
+    let status = String::from_utf8_lossy(&tessera(&["status", &pooled], &url).stdout).to_string();
+    assert!(status.contains("requires   pool=a"), "{status}");
 
     // No lease left behind, on the job or on any worker.
     let (done, total, leased) = progress(&job, &url).expect("status");

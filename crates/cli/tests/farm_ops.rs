@@ -1,6 +1,7 @@
 //! Running a farm the way studios do, with the real binaries: worker tags against jobs'
 //! requirements (`tessera worker --tag`, `submit --require / --min-memory`), and draining
-//! (`tessera workers --drain`, SIGTERM) without losing merged work or changing the bits.
+//! (`tessera workers --drain`, SIGTERM) without losing merged work or changing the bits; logs,
+//! progressive ranges, and named tokens reread on SIGHUP.
 
 use std::process::Command;
 
@@ -357,4 +358,97 @@ fn a_progressive_range_gives_the_same_frames_as_one_leased_frame_by_frame() {
             "{stderr}"
         );
     }
+}
+
+/// Runs `tessera ARGS --token-file TOKEN` against `url`.
+fn as_user(args: &[&str], url: &str, token: &std::path::Path) -> std::process::Output {
+    Command::new(BIN)
+        .args(args)
+        .arg("--token-file")
+        .arg(token)
+        .env("TESSERA_COORDINATOR", url)
+        .output()
+        .expect("run tessera")
+}
+
+/// Writes a private file (a token file others can read earns a warning line).
+fn private(dir: &std::path::Path, name: &str, text: &str) -> std::path::PathBuf {
+    use std::os::unix::fs::PermissionsExt;
+    let p = dir.join(name);
+    std::fs::write(&p, text).expect("write");
+    std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o600)).expect("chmod");
+    p
+}
+
+#[test]
+fn named_tokens_record_who_submitted_and_sighup_rereads_the_file() {
+    const ALICE: &str = "alice-token-0123456789abcdef";
+    const BOB: &str = "bob-token-0123456789abcdef";
+    let dir = tempfile::tempdir().expect("tmp");
+    let tokens = private(dir.path(), "tokens", &format!("alice {ALICE}\nbob {BOB}\n"));
+    let alice = private(dir.path(), "alice.token", ALICE);
+    let bob = private(dir.path(), "bob.token", BOB);
+    let log = dir.path().join("coordinator.log");
+    let (coord, addr) = common::start_coordinator(
+        "127.0.0.1:0",
+        &dir.path().join("data"),
+        &["--tokens-file", tokens.to_str().expect("utf8")],
+        std::process::Stdio::from(std::fs::File::create(&log).expect("log")),
+    );
+    let url = format!("http://{addr}");
+    let out = as_user(
+        &["submit", &repo("scenes/cornell-box.toml"), "--spp", "1"],
+        &url,
+        &alice,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let job = String::from_utf8_lossy(&out.stdout).trim().to_string();
+    let status = as_user(&["status", &job], &url, &bob);
+    assert!(
+        String::from_utf8_lossy(&status.stdout).contains("submitter  alice"),
+        "{status:?}"
+    );
+    one_line_failure(
+        &as_user(&["cancel", &job], &url, &bob),
+        "only alice or an admin may cancel it",
+    );
+
+    // Bob's token withdrawn: after SIGHUP his calls are refused, Alice's still pass.
+    let pid = coord.0.id().to_string();
+    let hup = || {
+        let ok = Command::new("kill")
+            .args(["-HUP", &pid])
+            .status()
+            .expect("kill");
+        assert!(ok.success());
+    };
+    std::fs::write(&tokens, format!("alice {ALICE}\n")).expect("rewrite");
+    hup();
+    wait_for("bob's token to be withdrawn", || {
+        let out = as_user(&["status", &job], &url, &bob);
+        !out.status.success() && String::from_utf8_lossy(&out.stderr).contains("wrong token")
+    });
+    // A file that does not parse keeps the tokens there were, and the log says why.
+    std::fs::write(&tokens, "alice short\n").expect("rewrite");
+    hup();
+    wait_for("the bad file to be refused", || {
+        std::fs::read_to_string(&log)
+            .is_ok_and(|l| l.contains("alice's token") && l.contains("keeping the tokens"))
+    });
+    let out = as_user(&["cancel", &job], &url, &alice);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let log = std::fs::read_to_string(&log).expect("log");
+    assert!(
+        !log.contains(ALICE) && !log.contains(BOB),
+        "a token in the log: {log}"
+    );
+    drop(coord);
 }

@@ -75,6 +75,9 @@ impl Jobs for CollectBeforeSubmit {
     async fn get_logs(&self, req: Request<pb::GetLogsRequest>) -> R<pb::GetLogsResponse> {
         self.farm.service().get_logs(req).await
     }
+    async fn retry_job(&self, req: Request<pb::RetryJobRequest>) -> R<pb::RetryJobResponse> {
+        self.farm.service().retry_job(req).await
+    }
     async fn drain_worker(
         &self,
         req: Request<pb::DrainWorkerRequest>,

@@ -1,48 +1,254 @@
-//! The farm's token, as the gRPC interceptor and the dashboard both check it: one place that
-//! hashes and compares, so the two ports cannot accept different things.
+//! Who may call: the farm's tokens, as the gRPC interceptor and the dashboard both check them,
+//! in one place that hashes and compares, so the two ports cannot accept different things.
 //!
-//! Both sides of every comparison are hashed first, so neither the comparison's time nor its
-//! length depends on how much of the token matched.
+//! A coordinator has either one token (`--token-file`, `TESSERA_TOKEN`), whose holders act as
+//! one anonymous user who may do anything, or a tokens file (`--tokens-file`) that names a user
+//! for each token, reread when the coordinator gets SIGHUP ([`Tokens::reload`]):
+//!
+//! ```text
+//! # NAME   TOKEN                              [admin]
+//! alice    6f1d0c0e8a2b4d7f9e3c5a1b2d4f6e8a
+//! bob      0b9a8c7d6e5f4a3b2c1d0e9f8a7b6c5d
+//! ops      a1b2c3d4e5f6a7b8c9d0e1f2a3b4c5d6   admin
+//! farm     5e4d3c2b1a0f9e8d7c6b5a4f3e2d1c0b
+//! ```
+//!
+//! A job records the user who submitted it (fair share and the per-user cap count by it), and
+//! only that user or an `admin` may cancel, pause, resume, reprioritise or retry it. Workers
+//! use any token of the file (a `farm` line, say).
+//!
+//! Every comparison hashes both sides first and checks every token, so neither its time nor
+//! its length depends on how much of a token matched, or which one.
+
+use std::path::Path;
+use std::sync::{Arc, RwLock};
 
 use subtle::ConstantTimeEq;
-use tessera_proto::Secret;
+use tessera_proto::{parse_token, Secret};
 
-/// A configured token: its hash, and the dashboard's session value derived from it.
-pub(crate) struct Token {
+/// Most users a tokens file may name.
+pub const MAX_TOKENS: usize = 10_000;
+
+/// Most characters of a user name.
+pub const MAX_USER_CHARS: usize = 64;
+
+/// Who a call comes from, as the services see it (a request extension the token check sets).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Caller {
+    /// The user the token names; empty for the holder of a lone `--token-file` token.
+    pub user: String,
+    /// May act on every user's jobs.
+    pub admin: bool,
+}
+
+impl Caller {
+    /// Whether this caller may change job `job`, submitted by `submitter`: its own, or any
+    /// for an admin. The refusal names who may.
+    pub fn may_change(&self, job: &str, submitter: &str, verb: &str) -> Result<(), String> {
+        if self.admin || self.user == submitter {
+            return Ok(());
+        }
+        let owner = if submitter.is_empty() {
+            "an admin".to_string()
+        } else {
+            format!("{submitter} or an admin")
+        };
+        Err(format!(
+            "{job} was submitted by {}; only {owner} may {verb} it",
+            if submitter.is_empty() {
+                "nobody named (before named tokens)"
+            } else {
+                submitter
+            }
+        ))
+    }
+}
+
+/// One token and who it names.
+struct Named {
+    caller: Caller,
     hash: [u8; 32],
     session: String,
 }
 
-impl Token {
-    /// The token `secret`.
-    pub(crate) fn new(secret: &Secret) -> Self {
+impl Named {
+    fn new(caller: Caller, secret: &Secret) -> Self {
         Self {
+            caller,
             hash: sha256(secret.expose().as_bytes()),
             // Derived from the token, not the token itself: a cookie that leaks does not give
-            // away the farm's token (which the workers and clients use too), and every session
-            // ends when the token is changed.
+            // away the token (which the workers and clients use too), and every session ends
+            // when the token is changed.
             session: sha256(format!("tessera dashboard session\0{}", secret.expose()).as_bytes())
                 .iter()
                 .map(|b| format!("{b:02x}"))
                 .collect(),
         }
     }
+}
 
-    /// Whether `presented` is the token, compared in constant time.
-    pub(crate) fn matches(&self, presented: &str) -> bool {
-        bool::from(sha256(presented.as_bytes()).ct_eq(&self.hash))
+/// The tokens a coordinator accepts, shared by its ports; a clone sees a reload.
+#[derive(Clone)]
+pub struct Tokens {
+    set: Arc<RwLock<Arc<Vec<Named>>>>,
+}
+
+impl std::fmt::Debug for Tokens {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Tokens({} users)", self.users())
+    }
+}
+
+impl Tokens {
+    fn of(named: Vec<Named>) -> Self {
+        Self {
+            set: Arc::new(RwLock::new(Arc::new(named))),
+        }
     }
 
-    /// The value of a logged-in browser's session cookie.
-    pub(crate) fn session(&self) -> &str {
-        &self.session
+    fn current(&self) -> Arc<Vec<Named>> {
+        // A poisoned lock still holds a whole set: a reload swaps one Arc for another.
+        self.set.read().unwrap_or_else(|e| e.into_inner()).clone()
     }
 
-    /// Whether `cookie` is the session value, compared in constant time.
-    pub(crate) fn session_matches(&self, cookie: &str) -> bool {
-        cookie.len() == self.session.len()
-            && bool::from(cookie.as_bytes().ct_eq(self.session.as_bytes()))
+    /// The lone token `secret`: its holders are one anonymous user who may do anything.
+    pub fn one(secret: &Secret) -> Self {
+        let caller = Caller {
+            user: String::new(),
+            admin: true,
+        };
+        Self::of(vec![Named::new(caller, secret)])
     }
+
+    /// A tokens file's text (`NAME TOKEN [admin]` a line; `#` comments, blank lines), read
+    /// from `source` (for errors, which name the line and never print a token).
+    pub fn parse(text: &str, source: &str) -> Result<Self, String> {
+        let mut named: Vec<Named> = Vec::new();
+        for (i, line) in text.lines().enumerate() {
+            let at = format!("{source}:{}", i + 1);
+            let line = line.split('#').next().unwrap_or_default().trim();
+            if line.is_empty() {
+                continue;
+            }
+            let words: Vec<&str> = line.split_whitespace().collect();
+            let (user, token, admin) = match words[..] {
+                [u, t] => (u, t, false),
+                [u, t, "admin"] => (u, t, true),
+                [_, _, other] => {
+                    return Err(format!(
+                        "{at}: the third word may only be `admin`, not {:?}",
+                        crate::error::truncate(other)
+                    ))
+                }
+                _ => {
+                    return Err(format!(
+                        "{at}: expected `NAME TOKEN` or `NAME TOKEN admin`, got {} words",
+                        words.len()
+                    ))
+                }
+            };
+            check_user(user).map_err(|e| format!("{at}: {e}"))?;
+            let secret = parse_token(token).map_err(|e| format!("{at}: {user}'s token: {e}"))?;
+            let entry = Named::new(
+                Caller {
+                    user: user.to_string(),
+                    admin,
+                },
+                &secret,
+            );
+            if let Some(other) = named.iter().find(|n| n.hash == entry.hash) {
+                return Err(format!(
+                    "{at}: {user}'s token is also {}'s: a token must name one user",
+                    other.caller.user
+                ));
+            }
+            if named.len() == MAX_TOKENS {
+                return Err(format!("{at}: more than {MAX_TOKENS} tokens"));
+            }
+            named.push(entry);
+        }
+        if named.is_empty() {
+            return Err(format!(
+                "{source}: no tokens (a line is `NAME TOKEN`, or `NAME TOKEN admin`)"
+            ));
+        }
+        Ok(Self::of(named))
+    }
+
+    /// The tokens file at `path`.
+    pub fn load(path: &Path) -> Result<Self, String> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| format!("--tokens-file {}: {e}", path.display()))?;
+        Self::parse(&text, &path.display().to_string())
+    }
+
+    /// Reads the tokens file at `path` again and, if it is valid, accepts its tokens from now
+    /// on (calls under way finish as they are); if not, keeps the tokens it had. Returns the
+    /// number of tokens now accepted.
+    pub fn reload(&self, path: &Path) -> Result<usize, String> {
+        let fresh = Self::load(path)?.current();
+        let n = fresh.len();
+        *self.set.write().unwrap_or_else(|e| e.into_inner()) = fresh;
+        Ok(n)
+    }
+
+    /// How many tokens are accepted.
+    pub fn users(&self) -> usize {
+        self.current().len()
+    }
+
+    /// Who presents token `presented`, if anyone: every token is compared, in constant time.
+    pub(crate) fn caller(&self, presented: &str) -> Option<Caller> {
+        let hash = sha256(presented.as_bytes());
+        let set = self.current();
+        let mut found = None;
+        for n in set.iter() {
+            if bool::from(n.hash.ct_eq(&hash)) {
+                found = Some(n.caller.clone());
+            }
+        }
+        found
+    }
+
+    /// Who the dashboard session value `cookie` is of, if anyone.
+    pub(crate) fn session_caller(&self, cookie: &str) -> Option<Caller> {
+        let set = self.current();
+        let mut found = None;
+        for n in set.iter() {
+            if cookie.len() == n.session.len()
+                && bool::from(cookie.as_bytes().ct_eq(n.session.as_bytes()))
+            {
+                found = Some(n.caller.clone());
+            }
+        }
+        found
+    }
+
+    /// The session value for the holder of token `presented`, if it is one.
+    pub(crate) fn session_for(&self, presented: &str) -> Option<String> {
+        let hash = sha256(presented.as_bytes());
+        let set = self.current();
+        let mut found = None;
+        for n in set.iter() {
+            if bool::from(n.hash.ct_eq(&hash)) {
+                found = Some(n.session.clone());
+            }
+        }
+        found
+    }
+}
+
+/// Checks a user name: 1 to [`MAX_USER_CHARS`] of letters, digits and `._@-`, so that it
+/// prints as it is anywhere (a status line, a log, a metric label).
+fn check_user(user: &str) -> Result<(), String> {
+    let ok = |c: char| c.is_ascii_alphanumeric() || "._@-".contains(c);
+    if user.is_empty() || user.chars().count() > MAX_USER_CHARS || !user.chars().all(ok) {
+        return Err(format!(
+            "user name {:?}: 1 to {MAX_USER_CHARS} letters, digits, '.', '_', '@' or '-'",
+            crate::error::truncate(user)
+        ));
+    }
+    Ok(())
 }
 
 /// The token an `Authorization` header's value carries, if it is a bearer token.
@@ -59,15 +265,95 @@ fn sha256(b: &[u8]) -> [u8; 32] {
 mod tests {
     use super::*;
 
+    const A: &str = "aaaaaaaaaaaaaaaaaaaa";
+    const B: &str = "bbbbbbbbbbbbbbbbbbbb";
+
     #[test]
     fn only_the_token_matches_and_the_session_is_not_the_token() {
-        let t = Token::new(&Secret::new("s3cret".to_string()));
-        assert!(t.matches("s3cret"));
-        assert!(!t.matches("s3cre"));
-        assert!(!t.matches(""));
-        assert!(t.session_matches(t.session()));
-        assert!(!t.session_matches("s3cret"));
+        let t = Tokens::one(&Secret::new("s3cret-s3cret-s3cret".to_string()));
+        let anyone = Caller {
+            user: String::new(),
+            admin: true,
+        };
+        assert_eq!(t.caller("s3cret-s3cret-s3cret"), Some(anyone.clone()));
+        assert_eq!(t.caller("s3cret-s3cret-s3cre"), None);
+        assert_eq!(t.caller(""), None);
+        let session = t.session_for("s3cret-s3cret-s3cret").expect("session");
+        assert_eq!(t.session_caller(&session), Some(anyone));
+        assert_eq!(t.session_caller("s3cret-s3cret-s3cret"), None);
+        assert_eq!(t.session_for("nope"), None);
         assert_eq!(bearer("Bearer abc"), Some("abc"));
         assert_eq!(bearer("Basic abc"), None);
+    }
+
+    #[test]
+    fn a_tokens_file_names_each_holder_and_admins() {
+        let text = format!("# who\nalice {A}\n\n  ops {B} admin # the on-call\n");
+        let t = Tokens::parse(&text, "tokens").expect("parse");
+        assert_eq!(t.users(), 2);
+        let alice = t.caller(A).expect("alice");
+        assert_eq!((alice.user.as_str(), alice.admin), ("alice", false));
+        assert!(t.caller(B).expect("ops").admin);
+        assert!(alice.may_change("job-000001", "alice", "cancel").is_ok());
+        assert_eq!(
+            alice.may_change("job-000002", "bob", "cancel"),
+            Err("job-000002 was submitted by bob; only bob or an admin may cancel it".into())
+        );
+        assert!(t
+            .caller(B)
+            .expect("ops")
+            .may_change("j", "bob", "cancel")
+            .is_ok());
+        // Sessions are per token.
+        let s = t.session_for(A).expect("session");
+        assert_eq!(t.session_caller(&s).map(|c| c.user), Some("alice".into()));
+    }
+
+    #[test]
+    fn a_bad_tokens_file_is_refused_by_line_without_printing_a_token() {
+        for (text, wanted) in [
+            (
+                format!("alice {A}\nbob\n"),
+                "tokens:2: expected `NAME TOKEN`",
+            ),
+            (
+                format!("alice {A} root\n"),
+                "tokens:1: the third word may only be `admin`",
+            ),
+            ("alice short\n".to_string(), "tokens:1: alice's token:"),
+            (format!("al/ice {A}\n"), "tokens:1: user name \"al/ice\""),
+            (
+                format!("alice {A}\nbob {A}\n"),
+                "tokens:2: bob's token is also alice's",
+            ),
+            ("# nothing\n".to_string(), "tokens: no tokens"),
+        ] {
+            let e = Tokens::parse(&text, "tokens").expect_err(&text);
+            assert!(e.starts_with(wanted), "{e}");
+            assert!(!e.contains(A), "{e}");
+        }
+    }
+
+    #[test]
+    fn a_reload_swaps_the_tokens_and_a_bad_file_keeps_the_old_ones() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let path = dir.path().join("tokens");
+        std::fs::write(&path, format!("alice {A}\n")).expect("write");
+        let t = Tokens::load(&path).expect("load");
+        let seen_by_a_port = t.clone();
+        std::fs::write(&path, format!("bob {B}\n")).expect("write");
+        assert_eq!(t.reload(&path), Ok(1));
+        assert_eq!(
+            seen_by_a_port.caller(A),
+            None,
+            "alice's token was withdrawn"
+        );
+        assert_eq!(seen_by_a_port.caller(B).map(|c| c.user), Some("bob".into()));
+        std::fs::write(&path, "bob short\n").expect("write");
+        assert!(t.reload(&path).is_err());
+        assert!(
+            seen_by_a_port.caller(B).is_some(),
+            "a bad file keeps the old tokens"
+        );
     }
 }

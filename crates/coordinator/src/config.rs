@@ -4,6 +4,8 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use tessera_proto::Secret;
+
+use crate::auth::Tokens;
 use tessera_render::scene::Limits;
 
 /// Coordinator settings.
@@ -29,6 +31,11 @@ pub struct Config {
     pub max_frames_per_job: u64,
     /// When set, every RPC must carry `authorization: Bearer <token>`.
     pub token: Option<Secret>,
+    /// When set (instead of `token`), every RPC must carry one of these tokens, and a job
+    /// records the user its token names ([`crate::auth`]).
+    pub tokens: Option<Tokens>,
+    /// Most units the jobs of one user may have leased at once (0: no cap).
+    pub max_leases_per_user: usize,
     /// When set, serve TLS only.
     pub tls: Option<ServerTls>,
     /// Refused results after which a worker is quarantined (no more leases or results).
@@ -37,6 +44,11 @@ pub struct Config {
     pub blocklist_after: u32,
     /// Failures after which a frame fails, with every reason.
     pub fail_frame_after: u32,
+    /// Distinct machines on which one unit's lease may lapse (each worker died or stopped answering
+    /// while it held the unit) before its frame fails; 0: never.
+    pub fail_unit_after_lapses: u32,
+    /// How long a failed job's scene (and so its assets) is kept for `tessera retry`.
+    pub retry_window: Duration,
     /// Most leases one worker registration may hold at once.
     pub max_leases_per_worker: usize,
     /// Most live worker registrations from one host (the address it registers from).
@@ -102,6 +114,14 @@ pub const DEFAULT_BLOCKLIST_AFTER: u32 = 3;
 /// Failures after which a frame fails.
 pub const DEFAULT_FAIL_FRAME_AFTER: u32 = 5;
 
+/// Distinct machines one unit's lease may lapse on before its frame fails: a unit that crashes
+/// or stalls every worker that takes it stops after this many rather than going round the farm.
+pub const DEFAULT_FAIL_UNIT_AFTER_LAPSES: u32 = 3;
+
+/// How long a failed job stays retryable (its scene and assets kept), unless configured: three
+/// days, so that a frame that failed on Friday night can be retried on Monday.
+pub const DEFAULT_RETRY_WINDOW: Duration = Duration::from_secs(3 * 24 * 3600);
+
 /// Most leases one worker registration may hold, unless configured.
 pub const DEFAULT_MAX_LEASES_PER_WORKER: usize = 8;
 
@@ -150,10 +170,14 @@ impl Config {
             max_units_per_job: 1 << 24,
             max_frames_per_job: 10_000,
             token: None,
+            tokens: None,
+            max_leases_per_user: 0,
             tls: None,
             quarantine_after: DEFAULT_QUARANTINE_AFTER,
             blocklist_after: DEFAULT_BLOCKLIST_AFTER,
             fail_frame_after: DEFAULT_FAIL_FRAME_AFTER,
+            fail_unit_after_lapses: DEFAULT_FAIL_UNIT_AFTER_LAPSES,
+            retry_window: DEFAULT_RETRY_WINDOW,
             max_leases_per_worker: DEFAULT_MAX_LEASES_PER_WORKER,
             max_workers_per_host: DEFAULT_MAX_WORKERS_PER_HOST,
             audit: 0.0,
@@ -165,6 +189,13 @@ impl Config {
             evict_open_over: DEFAULT_EVICT_OPEN_OVER,
             max_unstored_bytes: DEFAULT_MAX_UNSTORED_BYTES,
         }
+    }
+
+    /// The tokens every call must carry one of, if any: the tokens file's, or the lone token.
+    pub fn auth(&self) -> Option<Tokens> {
+        self.tokens
+            .clone()
+            .or_else(|| self.token.as_ref().map(Tokens::one))
     }
 
     /// The directory finished EXRs go to.

@@ -20,7 +20,8 @@
 //! `shutdown` future completes.
 //!
 //! The crate, by concept, lowest first:
-//! - [`config`]: settings and fixed bounds; [`error`]: why it stops or refuses a call.
+//! - [`config`]: settings and fixed bounds; [`error`]: why it stops or refuses a call;
+//!   [`auth`]: the tokens and the users they name.
 //! - [`store`]: the redb store, checksummed; the only durable state.
 //! - [`job`]: a job's tiles, accumulators and the in-order merge.
 //! - [`scheduler`]: workers, leases, queues, speculation, quarantine and admission.
@@ -31,7 +32,6 @@
 //! - [`metrics`] (timings and the Prometheus text) and `http` (the dashboard and `/metrics`,
 //!   served when [`Listeners::http`] is given: `tessera coordinator --http ADDR`).
 
-mod auth;
 mod conn;
 mod http;
 mod referee;
@@ -39,6 +39,7 @@ mod service;
 mod shared;
 
 pub mod assets;
+pub mod auth;
 pub mod config;
 pub mod error;
 pub mod job;
@@ -49,6 +50,7 @@ pub mod scheduler;
 pub mod server;
 pub mod store;
 
+pub use auth::Tokens;
 pub use config::{Config, ServerTls, MAX_CONCURRENT_PARSES, MAX_STREAMS_PER_CONNECTION};
 pub use error::CoordinatorError;
 pub use server::{serve, serve_when_ready, InProcess, Listeners, Spawned};

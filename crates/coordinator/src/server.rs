@@ -8,11 +8,10 @@ use std::time::Duration;
 
 use tessera_proto::v1::jobs_server::JobsServer;
 use tessera_proto::v1::workers_server::WorkersServer;
-use tessera_proto::Secret;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Certificate, Identity, ServerTlsConfig};
 
-use crate::auth::{bearer, Token};
+use crate::auth::{bearer, Tokens};
 use crate::config::{Config, MAX_STREAMS_PER_CONNECTION};
 use crate::conn;
 use crate::error::CoordinatorError;
@@ -95,12 +94,7 @@ pub async fn serve_when_ready(
     let ticker = every(
         &shared,
         (lease_timeout / 8).clamp(Duration::from_millis(50), Duration::from_secs(1)),
-        |shared| async move {
-            if shared.scheduler().expire(std::time::Instant::now()) {
-                shared.bump_work();
-            }
-            crate::referee::spawn_pending(&shared);
-        },
+        |shared| async move { shared.tick() },
     );
     // Asset files no active job uses are deleted once their retention has passed, checked a
     // few times per retention period and at least once a minute.
@@ -108,6 +102,16 @@ pub async fn serve_when_ready(
         &shared,
         (retention / 4).clamp(Duration::from_secs(1), Duration::from_secs(60)),
         |shared| async move {
+            // Failed jobs past their retry window let their scenes go first, so that the
+            // files only those scenes named are collected with the rest.
+            let ops = shared.scheduler().sweep_failed(crate::shared::now_ms());
+            if !ops.is_empty() {
+                if let Err(e) = crate::shared::durable(shared.queue_write(ops)).await {
+                    tracing::warn!(
+                        "dropping the scenes of failed jobs past their retry window: {e}"
+                    );
+                }
+            }
             let r = tokio::task::spawn_blocking(move || shared.collect_assets()).await;
             if let Ok(Err(e)) = r {
                 tracing::warn!("asset collection: {e}");
@@ -115,9 +119,9 @@ pub async fn serve_when_ready(
         },
     );
     let svc = Service::new(shared.clone());
-    let open = shared.config.token.is_none();
-    let (incoming, gate) = conn::Limited::new(listener, max_connections, idle, open);
-    let auth = AuthCheck::new(shared.config.token.as_ref(), gate);
+    let tokens = shared.config.auth();
+    let (incoming, gate) = conn::Limited::new(listener, max_connections, idle, tokens.is_none());
+    let auth = AuthCheck { tokens, gate };
     // One shutdown for both servers: the caller's, or the gRPC server's failure.
     let (stop_tx, stop) = tokio::sync::watch::channel(false);
     let stop_tx = Arc::new(stop_tx);
@@ -320,15 +324,7 @@ impl InProcess {
 
     /// Lapses overdue leases, as the server's ticker does.
     pub fn expire(&self) {
-        if self
-            .service
-            .shared
-            .scheduler()
-            .expire(std::time::Instant::now())
-        {
-            self.service.shared.bump_work();
-        }
-        crate::referee::spawn_pending(&self.service.shared);
+        self.service.shared.tick();
     }
 
     /// The asset store.
@@ -352,44 +348,37 @@ impl InProcess {
     }
 }
 
-/// Checks the bearer token of every call ([`crate::auth`]). A call that passes proves its
-/// connection to the gate (`conn.rs`), which closes connections that never do.
+/// Checks the bearer token of every call ([`crate::auth`]) and tells the service who called
+/// (a [`Caller`](crate::auth::Caller) extension). A call that passes proves its connection to
+/// the gate (`conn.rs`), which closes connections that never do.
 #[derive(Clone)]
 struct AuthCheck {
-    token: Option<Arc<Token>>,
+    tokens: Option<Tokens>,
     gate: Arc<conn::Gate>,
 }
 
-impl AuthCheck {
-    fn new(token: Option<&Secret>, gate: Arc<conn::Gate>) -> Self {
-        Self {
-            token: token.map(|t| Arc::new(Token::new(t))),
-            gate,
+impl tonic::service::Interceptor for AuthCheck {
+    fn call(
+        &mut self,
+        mut request: tonic::Request<()>,
+    ) -> Result<tonic::Request<()>, tonic::Status> {
+        if let Some(tokens) = &self.tokens {
+            let presented = request
+                .metadata()
+                .get("authorization")
+                .and_then(|v| v.to_str().ok())
+                .and_then(bearer);
+            let Some(t) = presented else {
+                return Err(tonic::Status::unauthenticated(
+                    "this coordinator requires a token (--token-file or TESSERA_TOKEN)",
+                ));
+            };
+            let caller = tokens
+                .caller(t)
+                .ok_or_else(|| tonic::Status::unauthenticated("wrong token"))?;
+            request.extensions_mut().insert(caller);
         }
-    }
-
-    fn passed(&self, request: tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> {
         self.gate.prove(request.remote_addr());
         Ok(request)
-    }
-}
-
-impl tonic::service::Interceptor for AuthCheck {
-    fn call(&mut self, request: tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> {
-        let Some(token) = &self.token else {
-            return self.passed(request);
-        };
-        let presented = request
-            .metadata()
-            .get("authorization")
-            .and_then(|v| v.to_str().ok())
-            .and_then(bearer);
-        match presented {
-            None => Err(tonic::Status::unauthenticated(
-                "this coordinator requires a token (--token-file or TESSERA_TOKEN)",
-            )),
-            Some(t) if token.matches(t) => self.passed(request),
-            Some(_) => Err(tonic::Status::unauthenticated("wrong token")),
-        }
     }
 }

@@ -89,6 +89,9 @@ impl Shared {
                 max_unstored_bytes: config.max_unstored_bytes.max(1),
                 blocklist_after: config.blocklist_after.max(1),
                 fail_frame_after: config.fail_frame_after.max(1),
+                fail_unit_after_lapses: config.fail_unit_after_lapses,
+                retry_window: config.retry_window,
+                max_leases_per_user: config.max_leases_per_user,
             },
         );
         let mut seed = [0u8; 8];
@@ -159,6 +162,26 @@ impl Shared {
             now: false,
         });
         rx
+    }
+
+    /// What the server's ticker does: lapses overdue leases (waking workers for their units,
+    /// and committing a frame that a unit lapsing too often failed), and starts the referee's
+    /// pending renders.
+    pub(crate) fn tick(self: &Arc<Self>) {
+        let (any, ops) = {
+            let mut core = self.scheduler();
+            let any = core.expire(std::time::Instant::now());
+            (any, core.take_deferred())
+        };
+        if any {
+            self.bump_work();
+        }
+        if !ops.is_empty() {
+            // Not awaited: nothing answers a caller from here, and the next commit has it.
+            drop(self.queue_write(ops));
+            self.bump_changed();
+        }
+        crate::referee::spawn_pending(self);
     }
 
     /// Makes every change so far durable, the tiles merged since the last checkpoint with

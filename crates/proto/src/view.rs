@@ -17,7 +17,7 @@ use crate::ids::{BadId, JobId, WorkerId};
 use crate::v1 as pb;
 
 /// Where a job is in its life. A frame range's state is its frames' ([`JobState::of_range`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, utoipa::ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum JobState {
     /// Admitted; no unit leased yet.
@@ -126,7 +126,7 @@ impl TryFrom<i32> for JobState {
 }
 
 /// The settings of a job that people read: those on the wire.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct SettingsView {
     /// Samples per pixel (the cap, for an adaptive job).
     pub spp: u32,
@@ -135,12 +135,14 @@ pub struct SettingsView {
     /// Samples per batch.
     pub batch: u32,
     /// Direct-lighting strategy.
+    #[schema(value_type = String)]
     pub strategy: Strategy,
     /// The frame of a one-frame job that names one.
     pub frame: Option<u32>,
     /// The noise target of an adaptive job.
     pub noise_target: Option<f64>,
     /// The AOVs rendered beside the beauty.
+    #[schema(value_type = Object)]
     pub aovs: tessera_render::Aovs,
 }
 
@@ -189,11 +191,12 @@ impl TryFrom<&pb::RenderSettings> for SettingsView {
 }
 
 /// One frame of a frame-range job, as its range lists it.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct FrameView {
     /// The frame.
     pub frame: u32,
     /// The frame's own job.
+    #[schema(value_type = String)]
     pub job_id: JobId,
     /// Its state.
     pub state: JobState,
@@ -210,7 +213,7 @@ pub struct FrameView {
 }
 
 /// A check a finished image failed ([`tessera_render::OutputChecks`]).
-#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, utoipa::ToSchema)]
 pub struct CheckView {
     /// Stable code (`black`, `nonfinite`).
     pub code: String,
@@ -251,9 +254,10 @@ impl From<&pb::OutputCheck> for CheckView {
 }
 
 /// A job, or a frame-range job folded into one, as `tessera status` and the dashboard show it.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct JobView {
     /// The job's id (a range's own id for a range).
+    #[schema(value_type = String)]
     pub job_id: JobId,
     /// Its state.
     pub state: JobState,
@@ -301,14 +305,17 @@ pub struct JobView {
     /// When it ended, Unix milliseconds; `None` while it goes on.
     pub finished_unix_ms: Option<i64>,
     /// The range it is a frame of.
+    #[schema(value_type = Option<String>)]
     pub range_job_id: Option<JobId>,
     /// A range's frames.
+    #[schema(value_type = Option<Object>)]
     pub frame_range: Option<FrameRange>,
     /// A range's frames, each with its own state.
     pub frames: Vec<FrameView>,
     /// The checks the finished image failed (a range's: every frame's, named).
     pub checks: Vec<CheckView>,
     /// The job it starts after (`submit --after`), if any.
+    #[schema(value_type = Option<String>)]
     pub after: Option<JobId>,
     /// Paused: leased nothing new until resumed.
     pub paused: bool,
@@ -324,6 +331,12 @@ pub struct JobView {
     pub failures: u32,
     /// Workers blocklisted for it after failing its units, by name.
     pub blocklist: Vec<String>,
+    /// Times `tessera retry` put it back after it failed.
+    pub retries: u32,
+    /// Failed, with its scene still kept: `tessera retry` can put it back.
+    pub retryable: bool,
+    /// The user whose token submitted it; empty without named tokens.
+    pub submitter: String,
 }
 
 impl From<&JobView> for pb::JobStatus {
@@ -380,6 +393,9 @@ impl From<&JobView> for pb::JobStatus {
             progressive: v.progressive,
             failures: v.failures,
             blocklist: v.blocklist.clone(),
+            retries: v.retries,
+            retryable: v.retryable,
+            submitter: v.submitter.clone(),
             paused: v.paused,
         }
     }
@@ -452,12 +468,15 @@ impl TryFrom<&pb::JobStatus> for JobView {
             progressive: s.progressive,
             failures: s.failures,
             blocklist: s.blocklist.clone(),
+            retries: s.retries,
+            retryable: s.retryable,
+            submitter: s.submitter.clone(),
         })
     }
 }
 
 /// A worker's state in one word, the most serious first.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, utoipa::ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum WorkerState {
     /// Convicted by an audit: gets no more work, its results taken back.
@@ -512,9 +531,10 @@ impl WorkerState {
 }
 
 /// A worker, as `tessera workers` and the dashboard show it.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct WorkerView {
     /// Its public id.
+    #[schema(value_type = String)]
     pub worker_id: WorkerId,
     /// The name it gave.
     pub name: String,
@@ -682,6 +702,9 @@ mod tests {
             progressive: true,
             failures: 2,
             blocklist: vec!["render-07".into()],
+            retries: 1,
+            retryable: true,
+            submitter: "alice".into(),
         }
     }
 

@@ -13,8 +13,8 @@ use tessera_proto::client::{ClientOptions, ClientTls};
 use tessera_proto::{parse_token, Secret};
 
 pub use client::{
-    cancel, fetch, logs, pause, priority, status, submit, workers, CancelArgs, FetchArgs, LogsArgs,
-    PauseArgs, PriorityArgs, StatusArgs, SubmitArgs, WorkersArgs,
+    cancel, fetch, logs, pause, priority, retry, status, submit, workers, CancelArgs, FetchArgs,
+    LogsArgs, PauseArgs, PriorityArgs, RetryArgs, StatusArgs, SubmitArgs, WorkersArgs,
 };
 pub use servers::{coordinator, worker, CoordinatorArgs, WorkerArgs};
 
@@ -73,7 +73,7 @@ fn load_token(file: Option<&Path>) -> Result<Option<Secret>> {
 
 /// Warns when a token file can be read by others than its owner: whoever reads it can act as
 /// any client or worker of the farm.
-fn warn_if_others_can_read(path: &Path) {
+pub(super) fn warn_if_others_can_read(path: &Path) {
     #[cfg(unix)]
     {
         use std::os::unix::fs::PermissionsExt;

@@ -71,6 +71,15 @@ pub struct CoordinatorArgs {
     /// TESSERA_TOKEN environment variable, if set; without either, no token is required).
     #[arg(long)]
     token_file: Option<PathBuf>,
+    /// File of named tokens, `NAME TOKEN` a line (`NAME TOKEN admin` for one who may change
+    /// anyone's jobs), instead of one token: each job records its submitter, equal-priority
+    /// jobs share workers between users, and a user changes only their own jobs. Reread on
+    /// SIGHUP (docs/farm.md, "Users").
+    #[arg(long, conflicts_with = "token_file")]
+    tokens_file: Option<PathBuf>,
+    /// Most units one user's jobs may hold leased at once (0: no cap).
+    #[arg(long, default_value_t = 0)]
+    max_leases_per_user: u32,
     /// PEM certificate chain to serve TLS with (needs --tls-key).
     #[arg(long, requires = "tls_key")]
     tls_cert: Option<PathBuf>,
@@ -91,6 +100,15 @@ pub struct CoordinatorArgs {
     /// connected worker that fits it is blocklisted).
     #[arg(long, default_value_t = config::DEFAULT_FAIL_FRAME_AFTER, value_parser = clap::value_parser!(u32).range(1..=100))]
     fail_frame_after: u32,
+    /// Different machines one unit's lease may lapse on (each worker died or stopped answering
+    /// while it held the unit) before its frame fails: a unit that crashes whoever takes it
+    /// stops there instead of going round the farm; 0 never fails a frame for lapses.
+    #[arg(long, default_value_t = config::DEFAULT_FAIL_UNIT_AFTER_LAPSES, value_parser = clap::value_parser!(u32).range(0..=100))]
+    fail_unit_after_lapses: u32,
+    /// Seconds a failed job stays retryable (`tessera retry`): its scene and the files it
+    /// names are kept that long after it failed.
+    #[arg(long, default_value_t = config::DEFAULT_RETRY_WINDOW.as_secs_f64())]
+    retry_window: f64,
     /// Most units one worker may hold at once (a stock worker holds at most 3).
     #[arg(long, default_value_t = config::DEFAULT_MAX_LEASES_PER_WORKER as u32, value_parser = clap::value_parser!(u32).range(1..=4096))]
     max_leases_per_worker: u32,
@@ -169,6 +187,12 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
             args.asset_retention
         );
     }
+    if !(args.retry_window.is_finite() && (0.0..=1e9).contains(&args.retry_window)) {
+        bail!(
+            "--retry-window must be between 0 and 1e9 seconds, got {}",
+            args.retry_window
+        );
+    }
     if !(args.audit.is_finite() && (0.0..=1.0).contains(&args.audit)) {
         bail!(
             "--audit must be a fraction between 0 and 1, got {}",
@@ -197,10 +221,21 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
     config.quarantine_after = args.quarantine_after;
     config.blocklist_after = args.blocklist_after;
     config.fail_frame_after = args.fail_frame_after;
+    config.fail_unit_after_lapses = args.fail_unit_after_lapses;
+    config.retry_window = Duration::from_secs_f64(args.retry_window);
     config.max_leases_per_worker = args.max_leases_per_worker as usize;
     config.max_connections = args.max_connections as usize;
     config.max_workers_per_host = args.max_workers_per_host as usize;
-    config.token = load_token(args.token_file.as_deref())?;
+    config.max_leases_per_user = args.max_leases_per_user as usize;
+    if let Some(path) = &args.tokens_file {
+        if std::env::var_os("TESSERA_TOKEN").is_some_and(|v| !v.is_empty()) {
+            bail!("--tokens-file and TESSERA_TOKEN: give one (unset TESSERA_TOKEN)");
+        }
+        super::warn_if_others_can_read(path);
+        config.tokens = Some(tessera_coordinator::Tokens::load(path).map_err(anyhow::Error::msg)?);
+    } else {
+        config.token = load_token(args.token_file.as_deref())?;
+    }
     if let (Some(cert), Some(key)) = (&args.tls_cert, &args.tls_key) {
         config.tls = Some(ServerTls {
             cert_pem: read_file("--tls-cert", cert)?,
@@ -212,11 +247,12 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
                 .transpose()?,
         });
     }
-    let auth = match (&config.token, &config.tls) {
-        (Some(_), Some(_)) => "token and TLS",
-        (Some(_), None) => "token (no TLS: the token crosses the network in clear)",
-        (None, Some(_)) => "TLS, no token",
-        (None, None) => "none: anyone who can connect may submit, lease and fetch",
+    let tokens = config.tokens.clone();
+    let auth = match (config.auth().is_some(), &config.tls) {
+        (true, Some(_)) => "token and TLS",
+        (true, None) => "token (no TLS: the token crosses the network in clear)",
+        (false, Some(_)) => "TLS, no token",
+        (false, None) => "none: anyone who can connect may submit, lease and fetch",
     };
     runtime()?.block_on(async {
         let listener = tokio::net::TcpListener::bind(&args.listen)
@@ -252,9 +288,36 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
             grpc: listener,
             http,
         };
+        // Listening before `listening on` is printed, so that a SIGHUP sent once it is seen
+        // rereads the file rather than ending the process (SIGHUP's default).
+        #[cfg(unix)]
+        if let (Some(tokens), Some(path)) = (tokens, args.tokens_file.clone()) {
+            use tokio::signal::unix::{signal, SignalKind};
+            let hup = signal(SignalKind::hangup()).context("cannot listen for SIGHUP")?;
+            tokio::spawn(reload_on_sighup(hup, tokens, path));
+        }
+        #[cfg(not(unix))]
+        drop(tokens);
         tessera_coordinator::serve_when_ready(config, listeners, shutdown_signal(), ready).await?;
         Ok(())
     })
+}
+
+/// Rereads the tokens file at each SIGHUP: its tokens are accepted from then on (a user added,
+/// a leaked token withdrawn) without a restart; a file that does not parse keeps the tokens
+/// there were, and says why.
+#[cfg(unix)]
+async fn reload_on_sighup(
+    mut hup: tokio::signal::unix::Signal,
+    tokens: tessera_coordinator::Tokens,
+    path: PathBuf,
+) {
+    while hup.recv().await.is_some() {
+        match tokens.reload(&path) {
+            Ok(n) => tracing::info!("SIGHUP: {} reread, {n} token(s)", path.display()),
+            Err(e) => tracing::error!("SIGHUP: {e}; keeping the tokens there were"),
+        }
+    }
 }
 
 /// Runs `tessera worker`.

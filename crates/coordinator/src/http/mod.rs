@@ -10,6 +10,7 @@
 //! session cookie the login sets. With TLS configured it serves TLS only, with the same
 //! identity and client CA as the gRPC API.
 
+mod api;
 mod preview;
 
 use std::sync::Arc;
@@ -21,24 +22,20 @@ use axum::http::{header, HeaderMap, HeaderValue, Method, StatusCode};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
-use axum::{Form, Json, Router};
-use serde_json::json;
+use axum::{Form, Router};
 use tessera_proto::ids::JobId;
-use tessera_proto::v1 as pb;
-use tessera_proto::v1::jobs_server::Jobs;
-use tessera_proto::view::job_state_name;
 use tokio::net::TcpListener;
 use tokio::sync::watch;
 use tokio_rustls::rustls;
 use tokio_stream::StreamExt as _;
-use tonic::Request as RpcRequest;
 use tracing::debug;
 
-use crate::auth::{bearer, Token};
+use crate::auth::{bearer, Caller, Tokens};
 use crate::config::ServerTls;
 use crate::error::CoordinatorError;
-use crate::service::{job_id, Service};
+use crate::service::Service;
 use crate::store::FILE_NAME;
+use api::refused;
 
 use preview::{NoPreview, Previews, View};
 
@@ -60,35 +57,30 @@ struct App {
     auth: Arc<Auth>,
 }
 
-/// What a request must present when a token is configured: the token (as a bearer header)
-/// or the session value derived from it (as the cookie), both compared in constant time.
+/// What a request must present when tokens are configured: a token (as a bearer header) or
+/// the session value derived from one (as the cookie), compared in constant time.
 struct Auth {
-    token: Option<Token>,
+    tokens: Option<Tokens>,
     secure: bool,
 }
 
 impl Auth {
-    fn new(token: Option<&tessera_proto::Secret>, secure: bool) -> Self {
-        Self {
-            token: token.map(Token::new),
-            secure,
-        }
+    fn new(tokens: Option<Tokens>, secure: bool) -> Self {
+        Self { tokens, secure }
     }
 
-    fn token_ok(&self, presented: &str) -> bool {
-        self.token.as_ref().is_some_and(|t| t.matches(presented))
-    }
-
-    fn allows(&self, headers: &HeaderMap) -> bool {
-        let Some(token) = &self.token else {
-            return true;
+    /// Who sends a request with these headers: `None` if it must not pass; with no tokens
+    /// configured, anyone passes, as nobody in particular.
+    fn caller(&self, headers: &HeaderMap) -> Option<Option<Caller>> {
+        let Some(tokens) = &self.tokens else {
+            return Some(None);
         };
         let presented = headers
             .get(header::AUTHORIZATION)
             .and_then(|v| v.to_str().ok())
             .and_then(bearer);
-        if presented.is_some_and(|t| token.matches(t)) {
-            return true;
+        if let Some(c) = presented.and_then(|t| tokens.caller(t)) {
+            return Some(Some(c));
         }
         headers
             .get_all(header::COOKIE)
@@ -96,14 +88,15 @@ impl Auth {
             .filter_map(|v| v.to_str().ok())
             .flat_map(|v| v.split(';'))
             .filter_map(|kv| kv.trim().strip_prefix(COOKIE)?.strip_prefix('='))
-            .any(|v| token.session_matches(v))
+            .find_map(|v| tokens.session_caller(v))
+            .map(Some)
     }
 }
 
 /// The dashboard's routes over `svc`, as `serve` builds them for a plain-HTTP port.
 pub(crate) fn routes_for(svc: &Service) -> Router {
     router(App {
-        auth: Arc::new(Auth::new(svc.shared.config.token.as_ref(), false)),
+        auth: Arc::new(Auth::new(svc.shared.config.auth(), false)),
         previews: Arc::default(),
         svc: svc.clone(),
     })
@@ -154,14 +147,23 @@ fn router(app: App) -> Router {
         .route("/workers", get(page))
         .route("/static/app.js", get(app_js))
         .route("/static/style.css", get(style_css))
-        .route("/api/jobs", get(list_jobs))
-        .route("/api/jobs/{id}", get(job))
-        .route("/api/jobs/{id}/cancel", post(cancel))
-        .route("/api/jobs/{id}/logs", get(logs))
+        .route("/api/openapi.json", get(api::openapi))
+        .route("/api/jobs", get(api::list_jobs).post(api::submit))
+        .route("/api/jobs/{id}", get(api::job))
+        .route("/api/jobs/{id}/cancel", post(api::cancel))
+        .route("/api/jobs/{id}/pause", post(api::pause))
+        .route("/api/jobs/{id}/resume", post(api::resume))
+        .route("/api/jobs/{id}/priority", post(api::priority))
+        .route("/api/jobs/{id}/retry", post(api::retry))
+        .route("/api/jobs/{id}/logs", get(api::logs))
         .route("/api/jobs/{id}/preview.png", get(preview_png))
-        .route("/api/jobs/{id}/output.exr", get(output_exr))
-        .route("/api/workers", get(list_workers))
-        .route("/api/workers/{id}/drain", post(drain))
+        .route("/api/jobs/{id}/output.exr", get(api::output_exr))
+        .route("/api/workers", get(api::list_workers))
+        .route("/api/workers/{id}/drain", post(api::drain))
+        .route(
+            "/api/assets/{sha256}",
+            get(api::asset_status).put(api::upload_asset),
+        )
         .route("/metrics", get(metrics))
         .route("/login", post(login))
         .route("/logout", post(logout))
@@ -170,20 +172,26 @@ fn router(app: App) -> Router {
         .with_state(app)
 }
 
-/// Lets a request through if it carries the token (or is the login form's), else answers 401:
-/// the login page to a browser, a line of text to anything else.
+/// Lets a request through if it carries a token (or is the login form's), else answers 401:
+/// the login page to a browser, JSON to an API client, a line of text to anything else.
 async fn check(State(app): State<App>, req: Request, next: Next) -> Response {
-    if req.method() == Method::POST && cross_site(req.headers()) {
-        return (
-            StatusCode::FORBIDDEN,
-            "a request from another site may not change anything here\n",
-        )
-            .into_response();
+    let api = req.uri().path().starts_with("/api/");
+    let changes = !matches!(*req.method(), Method::GET | Method::HEAD);
+    if changes && cross_site(req.headers()) {
+        let message = "a request from another site may not change anything here";
+        if api {
+            return api::error(StatusCode::FORBIDDEN, "forbidden", message);
+        }
+        return (StatusCode::FORBIDDEN, format!("{message}\n")).into_response();
     }
     let open = req.method() == Method::POST && req.uri().path() == "/login";
-    if app.auth.allows(req.headers()) {
+    let mut req = req;
+    if let Some(caller) = app.auth.caller(req.headers()) {
         if let Some(trust) = req.extensions().get::<Arc<crate::conn::Trust>>() {
             trust.prove();
+        }
+        if let Some(c) = caller {
+            req.extensions_mut().insert(c);
         }
     } else if !open {
         let browser = req
@@ -191,7 +199,27 @@ async fn check(State(app): State<App>, req: Request, next: Next) -> Response {
             .get(header::ACCEPT)
             .and_then(|v| v.to_str().ok())
             .is_some_and(|a| a.contains("text/html"));
+        if api && !browser {
+            let mut r = api::error(
+                StatusCode::UNAUTHORIZED,
+                "unauthenticated",
+                "this coordinator requires a token: send Authorization: Bearer TOKEN",
+            );
+            r.headers_mut().insert(
+                header::WWW_AUTHENTICATE,
+                HeaderValue::from_static("Bearer realm=\"tessera\""),
+            );
+            return r;
+        }
         return unauthorized(browser, req.uri().path(), None);
+    }
+    // A submission and an upload bound their own bodies (the scene limit; the asset store's
+    // chunks), and only a caller with a token gets this far.
+    let path = req.uri().path();
+    let streams = (*req.method() == Method::POST && path == "/api/jobs")
+        || (*req.method() == Method::PUT && path.starts_with("/api/assets/"));
+    if streams {
+        return next.run(req).await;
     }
     match whole_body(req).await {
         Ok(req) => next.run(req).await,
@@ -223,8 +251,12 @@ fn cross_site(headers: &HeaderMap) -> bool {
     }
 }
 
-/// Most bytes of a request body: the login form's token and path are the largest anyone sends.
+/// Most bytes of a request body: the login form's token and path are the largest anyone sends
+/// (but for a submission and an upload, [`api`]).
 const MAX_BODY: usize = 4096;
+
+/// A submission's body, or the next piece of an upload, must arrive within this.
+const BODY_TIME: Duration = Duration::from_secs(60);
 
 /// Reads a request's whole body, at most [`MAX_BODY`] bytes within [`HANDSHAKE`], before any
 /// handler sees it: a body sent a byte at a time holds nothing for longer than that, and a
@@ -323,14 +355,14 @@ struct LoginForm {
 }
 
 async fn login(State(app): State<App>, Form(form): Form<LoginForm>) -> Response {
-    let Some(session) = app.auth.token.as_ref().map(Token::session) else {
+    let Some(tokens) = &app.auth.tokens else {
         return redirect(local_path(&form.next), None);
     };
-    if !app.auth.token_ok(&form.token) {
+    let Some(session) = tokens.session_for(&form.token) else {
         // Slows guessing down; a real token is far too long to guess anyway.
         tokio::time::sleep(Duration::from_millis(250)).await;
         return unauthorized(true, &form.next, Some("wrong token"));
-    }
+    };
     let secure = if app.auth.secure { "; Secure" } else { "" };
     let cookie =
         format!("{COOKIE}={session}; Path=/; HttpOnly; SameSite=Strict; Max-Age=2592000{secure}");
@@ -360,7 +392,7 @@ async fn not_found() -> Response {
 
 async fn page(State(app): State<App>) -> Response {
     // Logging out means something only where logging in does.
-    let logout = if app.auth.token.is_some() {
+    let logout = if app.auth.tokens.is_some() {
         "  <form method=\"post\" action=\"/logout\"><button class=\"link\">Log out</button></form>\n"
     } else {
         ""
@@ -397,107 +429,22 @@ async fn style_css() -> Response {
         .into_response()
 }
 
-/// A gRPC refusal as an HTTP answer with the same message.
-fn refused(s: tonic::Status) -> Response {
-    use tonic::Code;
-    let code = match s.code() {
-        Code::NotFound => StatusCode::NOT_FOUND,
-        Code::InvalidArgument => StatusCode::BAD_REQUEST,
-        Code::FailedPrecondition => StatusCode::CONFLICT,
-        Code::PermissionDenied | Code::Unauthenticated => StatusCode::FORBIDDEN,
-        _ => StatusCode::INTERNAL_SERVER_ERROR,
-    };
-    (code, Json(json!({ "error": s.message() }))).into_response()
-}
-
-async fn list_jobs(State(app): State<App>) -> Response {
-    let views = app.svc.shared.scheduler().job_views(Instant::now());
-    Json(views).into_response()
-}
-
-async fn job(State(app): State<App>, Path(id): Path<String>) -> Response {
-    match job_id(&id).and_then(|id| app.svc.job_view(id)) {
-        Ok(v) => Json(v).into_response(),
-        Err(s) => refused(s),
-    }
-}
-
-async fn cancel(State(app): State<App>, Path(id): Path<String>) -> Response {
-    let req = RpcRequest::new(pb::CancelJobRequest { job_id: id });
-    match app.svc.cancel_job(req).await {
-        Ok(r) => Json(json!({ "state": job_state_name(r.get_ref().state) })).into_response(),
-        Err(s) => refused(s),
-    }
-}
-
-/// A job's log as JSON: `{"entries": [...], "dropped": N, "ended": bool}`, the fields of
-/// `GetLogsResponse` (the level as a word).
-async fn logs(State(app): State<App>, Path(id): Path<String>) -> Response {
-    let req = RpcRequest::new(pb::GetLogsRequest {
-        job_id: id,
-        frame: None,
-        after: 0,
-    });
-    match app.svc.get_logs(req).await {
-        Ok(r) => {
-            let r = r.into_inner();
-            let entries: Vec<serde_json::Value> = r
-                .entries
-                .iter()
-                .map(|e| {
-                    json!({
-                        "seq": e.seq,
-                        "unix_ms": e.unix_ms,
-                        "worker_id": e.worker_id,
-                        "worker_name": e.worker_name,
-                        "job_id": e.job_id,
-                        "frame": e.frame,
-                        "tile": e.tile_index,
-                        "batch": e.batch_index,
-                        "level": match pb::LogLevel::try_from(e.level) {
-                            Ok(pb::LogLevel::Info) => "info",
-                            Ok(pb::LogLevel::Error) => "error",
-                            _ => "warn",
-                        },
-                        "message": e.message,
-                    })
-                })
-                .collect();
-            Json(json!({ "entries": entries, "dropped": r.dropped, "ended": r.ended }))
-                .into_response()
-        }
-        Err(s) => refused(s),
-    }
-}
-
-async fn drain(State(app): State<App>, Path(id): Path<String>) -> Response {
-    // By public id only: a name could drain several, which a button on one row must not.
-    if id.parse::<tessera_proto::ids::WorkerId>().is_err() {
-        return refused(tonic::Status::invalid_argument(format!(
-            "{:?} is not a worker id",
-            crate::error::truncate(&id)
-        )));
-    }
-    let req = RpcRequest::new(pb::DrainWorkerRequest { worker: id });
-    match app.svc.drain_worker(req).await {
-        Ok(r) => Json(json!({ "drained": r.get_ref().drained })).into_response(),
-        Err(s) => refused(s),
-    }
-}
-
-async fn list_workers(State(app): State<App>) -> Response {
-    let views = app.svc.shared.scheduler().worker_views(Instant::now());
-    Json(views).into_response()
-}
-
-#[derive(serde::Deserialize)]
+/// How to draw a preview.
+#[derive(serde::Deserialize, utoipa::IntoParams)]
 struct PreviewQuery {
+    /// Exposure in stops (0 by default).
     #[serde(default)]
     exposure: f32,
+    /// `color` (the default) or `noise` (each tile's relative noise).
     #[serde(default)]
     view: Option<String>,
 }
 
+/// A running or done job's image so far, tone-mapped, at most 1600 pixels on its longer side.
+#[utoipa::path(get, path = "/api/jobs/{id}/preview.png", params(("id" = String, Path), PreviewQuery), responses(
+    (status = 200, content_type = "image/png", description = "The preview"),
+    (status = 404, body = api::ApiError), (status = 409, body = api::ApiError, description = "a frame range, or a job whose sums are gone"),
+))]
 async fn preview_png(
     State(app): State<App>,
     Path(id): Path<String>,
@@ -538,33 +485,6 @@ async fn preview_png(
         Err(NoPreview::Gone(m)) => refused(tonic::Status::failed_precondition(m)),
         Err(NoPreview::Failed(m)) => refused(tonic::Status::internal(m)),
     }
-}
-
-#[derive(serde::Deserialize)]
-struct OutputQuery {
-    frame: Option<u32>,
-}
-
-async fn output_exr(
-    State(app): State<App>,
-    Path(id): Path<String>,
-    Query(q): Query<OutputQuery>,
-) -> Response {
-    let read = match job_id(&id) {
-        Ok(id) => app.svc.read_output(id, q.frame).await,
-        Err(s) => Err(s),
-    };
-    let (name, data) = match read {
-        Ok(r) => r,
-        Err(s) => return refused(s),
-    };
-    // Output names are checked at submission (no quotes, separators or control characters).
-    let disposition = format!("attachment; filename=\"{}\"", name.replace('"', ""));
-    let mut r = ([(header::CONTENT_TYPE, "image/x-exr")], Body::from(data)).into_response();
-    if let Ok(v) = HeaderValue::from_str(&disposition) {
-        r.headers_mut().insert(header::CONTENT_DISPOSITION, v);
-    }
-    r
 }
 
 async fn metrics(State(app): State<App>) -> Response {
@@ -657,7 +577,7 @@ async fn serve(
 ) {
     let config = &svc.shared.config;
     let app = App {
-        auth: Arc::new(Auth::new(config.token.as_ref(), tls.is_some())),
+        auth: Arc::new(Auth::new(config.auth(), tls.is_some())),
         previews: Arc::default(),
         svc: svc.clone(),
     };
@@ -672,7 +592,7 @@ async fn serve(
         listener,
         MAX_CONNECTIONS,
         config.idle_connection,
-        config.token.is_none(),
+        config.token.is_none() && config.tokens.is_none(),
     );
     let graceful = hyper_util::server::graceful::GracefulShutdown::new();
     loop {

@@ -132,6 +132,9 @@ pub struct Job {
     /// ([`tessera_render::Image::noise`]), set when the EXR is written: what a done job
     /// reports, so the farm and `render` print the same figure for the same bits.
     pub image_noise: Option<(f64, f64)>,
+    /// Failed, and its scene still kept for `tessera retry` (in memory: set when it fails, and
+    /// at a restart from the record's end time and the stored scenes).
+    pub retryable: bool,
 }
 
 /// Adds `sign` × `parts` to a job's running noise total.
@@ -180,6 +183,7 @@ impl Job {
             audits: HashMap::new(),
             final_tile_noise: None,
             image_noise: None,
+            retryable: false,
         }
     }
 

@@ -50,6 +50,8 @@ pub struct Admission {
     /// Lease a range's frames progressively (checked by the caller: only with frames, and
     /// not adaptive).
     pub progressive: bool,
+    /// The user whose token submitted it ([`crate::auth`]; empty without named tokens).
+    pub submitter: String,
 }
 
 /// Bounds admission enforces.
@@ -209,25 +211,28 @@ impl Scheduler {
             }
             self.jobs.insert(id, job);
         }
+        // A failed job stays retryable for the window, if its scene is still stored.
+        let window = self.policy.retry_window.as_millis() as i64;
+        let stored: std::collections::HashSet<&str> =
+            stored_scenes.iter().map(String::as_str).collect();
+        for job in self.jobs.values_mut() {
+            job.retryable = job.rec.phase == JobPhase::Failed
+                && job.rec.finished_ms.saturating_add(window) > now_ms
+                && stored.contains(job.rec.scene_hash.as_str());
+        }
         // Failed once every job is in, so that a scene another job still needs is kept.
         for (id, why) in failing {
             tracing::warn!("{id}: {why}");
             ops.extend(self.end_job(id, JobPhase::Failed, why, now_ms));
         }
-        // Scenes that no live job needs (left by a coordinator that kept them all) go.
+        // Scenes that no live or retryable job needs (left by a coordinator that kept them
+        // all, or whose retry window passed while it was down) go.
         for hash in stored_scenes {
-            if !self.scene_is_live(&hash) {
+            if !self.scene_is_kept(&hash) {
                 ops.push(Op::DropScene(hash));
             }
         }
         Ok((ops, to_finish))
-    }
-
-    /// Whether an active job renders the scene of this hash.
-    pub(super) fn scene_is_live(&self, hash: &str) -> bool {
-        self.jobs
-            .values()
-            .any(|j| j.rec.phase == JobPhase::Active && j.rec.scene_hash == hash)
     }
 
     /// Admits a job: checks the coordinator's bounds, gives it an id and an output name no
@@ -316,6 +321,8 @@ impl Scheduler {
             failures: Vec::new(),
             blocklist: Vec::new(),
             paused: false,
+            retries: 0,
+            submitter: a.submitter.clone(),
             // An adaptive job's decisions follow its merged sums; taking results back would
             // need them made again from the start, which is not built: such jobs are not
             // audited (docs/farm.md).

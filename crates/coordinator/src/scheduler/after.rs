@@ -5,6 +5,7 @@
 
 use tessera_proto::ids::JobId;
 
+use super::retry::DEPENDENCY_ENDED;
 use super::Scheduler;
 use crate::error::Refusal;
 use crate::store::{JobPhase, Op};
@@ -82,7 +83,7 @@ impl Scheduler {
         let mut ops = Vec::new();
         for (id, after) in self.dependents(ended) {
             if let Dependency::Ended(why) = self.dependency(after) {
-                let why = format!("the job it waits for (--after) ended: {why}");
+                let why = format!("{DEPENDENCY_ENDED}: {why}");
                 ops.extend(self.end_job(id, JobPhase::Failed, why, now_ms));
             }
         }

@@ -50,6 +50,15 @@ impl Scheduler {
         Ok(ops)
     }
 
+    /// Who submitted job `id` (a range: its first frame's submitter, which is every frame's);
+    /// `None` for an unknown job.
+    pub fn submitter(&self, id: JobId) -> Option<&str> {
+        self.members(id)
+            .iter()
+            .find_map(|m| self.jobs.get(m))
+            .map(|j| j.rec.submitter.as_str())
+    }
+
     /// Whether job `id` is held back from new leases: paused, or waiting for another job.
     pub(super) fn held(&self, id: JobId) -> bool {
         self.jobs.get(&id).is_some_and(|j| j.rec.paused) || self.waits(id)

@@ -9,11 +9,20 @@
 //! every reason collected, after [`Policy::fail_frame_after`](super::Policy) failures, or as
 //! soon as every connected worker that fits it is blocklisted (nobody is left to try).
 //!
-//! A lease that lapses is not counted: a worker killed, preempted or cut off costs one unit's
-//! time and the unit goes out again at once, and counting it would blocklist healthy machines
-//! on a farm of preemptible ones (the chaos test kills a worker every few hundred
-//! milliseconds). Failures, blocklists and the frame's error are kept in the record, so a
-//! restart keeps them.
+//! A lease that lapses is not counted against its worker: a worker killed, preempted or cut
+//! off costs one unit's time and the unit goes out again at once, and counting it would
+//! blocklist healthy machines on a farm of preemptible ones (the chaos test kills a worker
+//! every few hundred milliseconds). It is counted against its unit instead: a unit whose lease
+//! has lapsed on [`Policy::fail_unit_after_lapses`](super::Policy) different machines (3; the
+//! address a worker registered from, or its name where that is unknown) is one that crashes or
+//! stalls whoever takes it (a tile that runs a worker out of memory), and its frame fails at
+//! once rather than the unit going on round the farm killing workers. Random deaths almost
+//! never hit one unit on three machines: a unit is held for the moments it renders. Counting
+//! machines rather than names keeps one host (however many names it registers, hostile or
+//! not) from failing a frame by itself. Where a unit lapsed is kept in memory only, like the
+//! leases.
+//!
+//! Failures, blocklists and the frame's error are kept in the record, so a restart keeps them.
 
 use std::time::Instant;
 
@@ -146,6 +155,68 @@ impl Scheduler {
             (None, Some(job)) => vec![Op::PutJob(job.rec.clone())],
             _ => Vec::new(),
         }
+    }
+
+    /// The lease of `unit` of job `id` lapsed on worker `w`: at the limit of distinct workers,
+    /// the frame fails. Returns the store changes.
+    pub(super) fn unit_lapsed(&mut self, id: JobId, unit: Unit, w: u64) -> Vec<Op> {
+        let limit = self.policy.fail_unit_after_lapses;
+        let Some((name, host)) = self
+            .workers
+            .get(&w)
+            .map(|x| (x.name.clone(), x.host.clone()))
+        else {
+            return Vec::new();
+        };
+        if limit == 0 || !self.jobs.get(&id).is_some_and(|j| j.is_live()) {
+            return Vec::new();
+        }
+        // Machines, not names: one host registering many names (or a hostile one taking units
+        // to let them lapse) counts once, so it cannot fail a frame by itself. A worker whose
+        // address is unknown counts by its name.
+        let machine = if host.is_empty() { name.clone() } else { host };
+        let seen = self.lapses.entry((id, unit)).or_default();
+        if !seen.iter().any(|(m, _)| *m == machine) {
+            seen.push((machine, name.clone()));
+        }
+        if seen.len() < limit as usize {
+            return Vec::new();
+        }
+        let on: Vec<String> = seen
+            .iter()
+            .map(|(_, n)| n.escape_debug().to_string())
+            .collect();
+        let reason = format!(
+            "its lease lapsed on {} different machines (workers {}): each died or stopped \
+             answering while it held this unit",
+            on.len(),
+            on.join(", ")
+        );
+        let now_ms = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_millis() as i64);
+        let worker_id = self.worker_id(w).to_string();
+        let Some(job) = self.jobs.get_mut(&id) else {
+            return Vec::new();
+        };
+        tracing::warn!(
+            "{id}: tile {} batch {}: {reason}; the frame fails",
+            unit.tile,
+            unit.batch
+        );
+        job.rec.failures.push(UnitFailure {
+            worker: name,
+            worker_id,
+            tile: unit.tile,
+            batch: unit.batch,
+            reason,
+            unix_ms: now_ms,
+        });
+        let error = summary(
+            &job.rec.failures,
+            &format!("a unit lapsed on {limit} machines, the most one may"),
+        );
+        self.end_job(id, JobPhase::Failed, error, now_ms)
     }
 
     /// Whether worker `w` is blocklisted for `job`.

@@ -14,6 +14,7 @@ use super::pick::requeue;
 use super::Scheduler;
 use crate::error::Refusal;
 use crate::job::{Job, Unit};
+use crate::store::Op;
 
 /// A lease: a unit lent to a worker until `deadline`.
 #[derive(Debug)]
@@ -64,16 +65,30 @@ impl Scheduler {
     }
 
     /// Lapses overdue leases, putting their units back at the front of their job's queue.
-    /// Returns whether any unit became available.
+    /// Returns whether any unit became available (or a frame failed: its waiters wake too). A
+    /// unit that has now lapsed on too many workers fails its frame
+    /// ([`Scheduler::unit_lapsed`]); those store changes wait in [`Scheduler::take_deferred`].
     pub fn expire(&mut self, now: Instant) -> bool {
-        let mut any = false;
+        let mut lapsed = Vec::new();
         for lease in self.leases.values_mut() {
-            if lease.active && lease.deadline <= now {
-                any |= requeue(&mut self.jobs, lease);
+            if lease.active && lease.deadline <= now && requeue(&mut self.jobs, lease) {
+                lapsed.push((lease.job, lease.unit, lease.worker));
             }
+        }
+        let any = !lapsed.is_empty();
+        // In unit order, so that which lapse fails a frame does not depend on the map's order.
+        lapsed.sort_unstable_by_key(|&(job, unit, w)| (job, unit, w));
+        for (job, unit, w) in lapsed {
+            let ops = self.unit_lapsed(job, unit, w);
+            self.deferred.extend(ops);
         }
         self.referee_stale_holds(now);
         any
+    }
+
+    /// Store changes made while leasing or lapsing that are still to be committed.
+    pub fn take_deferred(&mut self) -> Vec<Op> {
+        std::mem::take(&mut self.deferred)
     }
 
     /// Renews worker `w`'s leases; returns those it should drop.

@@ -30,6 +30,8 @@ mod fit;
 mod leases;
 mod logs;
 mod pick;
+mod retry;
+mod share;
 mod view;
 mod workers;
 
@@ -41,8 +43,8 @@ use tessera_render::{PixelRect, RenderSettings, TileSums};
 
 use crate::config::{
     DEFAULT_BLOCKLIST_AFTER, DEFAULT_EVICT_OPEN_OVER, DEFAULT_FAIL_FRAME_AFTER,
-    DEFAULT_MAX_LEASES_PER_WORKER, DEFAULT_MAX_UNSTORED_BYTES, DEFAULT_MAX_WORKERS_PER_HOST,
-    DEFAULT_QUARANTINE_AFTER,
+    DEFAULT_FAIL_UNIT_AFTER_LAPSES, DEFAULT_MAX_LEASES_PER_WORKER, DEFAULT_MAX_UNSTORED_BYTES,
+    DEFAULT_MAX_WORKERS_PER_HOST, DEFAULT_QUARANTINE_AFTER, DEFAULT_RETRY_WINDOW,
 };
 use crate::error::Refusal;
 use crate::job::{FrameTile, Job, Snapshot, Source, Unit, MAX_DIRTY_BYTES};
@@ -116,6 +118,12 @@ pub struct Policy {
     pub blocklist_after: u32,
     /// Failures after which a frame fails.
     pub fail_frame_after: u32,
+    /// Distinct machines one unit's lease may lapse on before its frame fails; 0: never.
+    pub fail_unit_after_lapses: u32,
+    /// How long a failed job stays retryable: its scene is kept that long.
+    pub retry_window: Duration,
+    /// Most units one user's jobs may hold leased at once (0: no cap).
+    pub max_leases_per_user: usize,
 }
 
 impl Policy {
@@ -131,6 +139,9 @@ impl Policy {
             max_unstored_bytes: DEFAULT_MAX_UNSTORED_BYTES,
             blocklist_after: DEFAULT_BLOCKLIST_AFTER,
             fail_frame_after: DEFAULT_FAIL_FRAME_AFTER,
+            fail_unit_after_lapses: DEFAULT_FAIL_UNIT_AFTER_LAPSES,
+            retry_window: DEFAULT_RETRY_WINDOW,
+            max_leases_per_user: 0,
         }
     }
 }
@@ -184,6 +195,13 @@ pub struct Scheduler {
     logs: BTreeMap<JobId, logs::JobLog>,
     /// The last log line's sequence number.
     log_seq: u64,
+    /// The machines (a worker's host, or its name where that is unknown) and worker names each
+    /// unit's lease lapsed on, for live jobs (in memory only: a restart forgets them, as it
+    /// forgets leases).
+    lapses: HashMap<(JobId, Unit), Vec<(String, String)>>,
+    /// Store changes made where no caller takes them (a lapse that fails a frame, noticed
+    /// while leasing); the server's ticker commits them ([`Scheduler::take_deferred`]).
+    deferred: Vec<Op>,
 }
 
 impl Scheduler {
@@ -208,6 +226,8 @@ impl Scheduler {
             storing_bytes: 0,
             logs: BTreeMap::new(),
             log_seq: 0,
+            lapses: HashMap::new(),
+            deferred: Vec::new(),
         }
     }
 
@@ -584,11 +604,14 @@ impl Scheduler {
         for w in self.workers.values_mut() {
             w.disputes.retain(|(j, _)| *j != id);
         }
+        self.lapses.retain(|&(j, _), _| j != id);
+        // A failed job's scene is kept for `tessera retry` ([`retry`]).
+        job.retryable = phase == JobPhase::Failed && !self.policy.retry_window.is_zero();
         let mut ops = vec![Op::PutJob(job.rec.clone()), Op::DropSums(id.0)];
-        // A scene is kept while a live job needs it; without this every distinct scene ever
-        // submitted (cancelled ones too) would stay in the store for good.
+        // A scene is kept while a live or retryable job needs it; without this every distinct
+        // scene ever submitted (cancelled ones too) would stay in the store for good.
         let hash = job.rec.scene_hash.clone();
-        if !self.scene_is_live(&hash) {
+        if !self.scene_is_kept(&hash) {
             ops.push(Op::DropScene(hash));
         }
         if matches!(phase, JobPhase::Failed | JobPhase::Cancelled) {

@@ -193,9 +193,16 @@ impl Scheduler {
         // Each progressive range's batch, read once a call: a level that rises during the
         // call is seen by the next one.
         let mut levels: HashMap<u64, u32> = HashMap::new();
+        // Units each user holds, as fair share and the per-user cap count them
+        // (`scheduler/share.rs`), kept up to date as this call grants more.
+        let mut held = self.user_leases();
         for speculate in [false, true] {
-            for id in self.schedule_order(true) {
+            for id in self.fair_order(held.as_ref()) {
+                let Some(user) = self.jobs.get(&id).map(|j| j.rec.submitter.clone()) else {
+                    continue;
+                };
                 if self.held(id)
+                    || self.user_capped(held.as_ref(), &user)
                     || !self
                         .jobs
                         .get(&id)
@@ -213,7 +220,7 @@ impl Scheduler {
                         .or_insert_with(|| self.progressive_level(JobId(r.id))),
                     None => u32::MAX,
                 };
-                while out.len() < max {
+                while out.len() < max && !self.user_capped(held.as_ref(), &user) {
                     let Some(job) = self.jobs.get_mut(&id) else {
                         break;
                     };
@@ -248,6 +255,9 @@ impl Scheduler {
                         job: id,
                         unit,
                     });
+                    if let Some(h) = held.as_mut() {
+                        *h.entry(user.clone()).or_default() += 1;
+                    }
                 }
             }
         }

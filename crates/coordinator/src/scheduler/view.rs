@@ -163,6 +163,9 @@ impl Scheduler {
             progressive: rec.progressive,
             failures: rec.failures.len() as u32,
             blocklist: rec.blocklist.clone(),
+            retries: rec.retries,
+            retryable: job.retryable,
+            submitter: rec.submitter.clone(),
             waiting: (job.is_live() && !self.held(job.id()))
                 .then(|| self.waiting(rec, now))
                 .flatten(),
@@ -258,6 +261,9 @@ impl Scheduler {
             min_memory_bytes: first.min_memory_bytes,
             progressive: first.progressive,
             failures: frames.iter().map(|f| f.failures).sum(),
+            retries: frames.iter().map(|f| f.retries).sum(),
+            submitter: first.submitter.clone(),
+            retryable: frames.iter().any(|f| f.retryable),
             blocklist: {
                 let mut names: Vec<String> =
                     frames.iter().flat_map(|f| f.blocklist.clone()).collect();

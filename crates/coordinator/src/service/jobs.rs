@@ -15,7 +15,7 @@ use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status};
 use tracing::info;
 
-use super::{asset_status, internal, job_id, Service, Stream_};
+use super::{asset_status, caller, internal, job_id, may_change, Service, Stream_};
 use crate::assets::{check_hash, JobAssets};
 use crate::error::truncate;
 
@@ -33,6 +33,7 @@ impl Jobs for Service {
         &self,
         request: Request<pb::SubmitJobRequest>,
     ) -> Result<Response<pb::SubmitJobResponse>, Status> {
+        let caller = caller(&request);
         let req = request.into_inner();
         let config = &self.shared.config;
         let limits = config.limits.clone();
@@ -142,6 +143,7 @@ impl Jobs for Service {
             require: req.require,
             min_memory: req.min_memory_bytes,
             progressive: req.progressive,
+            submitter: caller.user.clone(),
         };
         let bounds = AdmissionLimits {
             max_active_jobs: config.max_active_jobs,
@@ -226,9 +228,11 @@ impl Jobs for Service {
         &self,
         request: Request<pb::CancelJobRequest>,
     ) -> Result<Response<pb::CancelJobResponse>, Status> {
+        let caller = caller(&request);
         let id = job_id(&request.into_inner().job_id)?;
         let rx = {
             let mut core = self.shared.scheduler();
+            may_change(&core, id, &caller, "cancel")?;
             // A frame-range job is cancelled as a whole: every frame still active.
             let Some(ops) = core.cancel(id, now_ms()) else {
                 let v = core
@@ -248,14 +252,44 @@ impl Jobs for Service {
         }))
     }
 
+    async fn retry_job(
+        &self,
+        request: Request<pb::RetryJobRequest>,
+    ) -> Result<Response<pb::RetryJobResponse>, Status> {
+        let caller = caller(&request);
+        let req = request.into_inner();
+        let id = job_id(&req.job_id)?;
+        let (ids, rx) = {
+            let mut core = self.shared.scheduler();
+            may_change(&core, id, &caller, "retry")?;
+            let (ids, ops) = core.retry(id, req.frame)?;
+            (ids, self.shared.queue_write(ops))
+        };
+        durable(rx).await.map_err(internal)?;
+        info!(
+            "{id} retried: {}",
+            ids.iter()
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        self.shared.bump_changed();
+        self.shared.bump_work();
+        Ok(Response::new(pb::RetryJobResponse {
+            job_ids: ids.iter().map(ToString::to_string).collect(),
+        }))
+    }
+
     async fn update_job(
         &self,
         request: Request<pb::UpdateJobRequest>,
     ) -> Result<Response<pb::JobStatus>, Status> {
+        let caller = caller(&request);
         let req = request.into_inner();
         let id = job_id(&req.job_id)?;
         let rx = {
             let mut core = self.shared.scheduler();
+            may_change(&core, id, &caller, "pause, resume or reprioritise")?;
             let ops = core.update(id, req.paused, req.priority)?;
             self.shared.queue_write(ops)
         };
@@ -345,6 +379,12 @@ impl Jobs for Service {
         &self,
         request: Request<pb::DrainWorkerRequest>,
     ) -> Result<Response<pb::DrainWorkerResponse>, Status> {
+        if !caller(&request).admin {
+            // Workers are the farm's, not one user's.
+            return Err(Status::permission_denied(
+                "only an admin (a tokens-file line ending in `admin`) may drain workers",
+            ));
+        }
         let req = request.into_inner();
         if req.worker.is_empty() || req.worker.len() > tessera_proto::MAX_ID_LEN * 4 {
             return Err(Status::invalid_argument(

@@ -23,6 +23,7 @@ use tokio_stream::Stream;
 use tonic::Status;
 
 use crate::assets::AssetError;
+use crate::auth::Caller;
 use crate::config::{MAX_CONCURRENT_PARSES, MAX_LEASES_PER_CALL};
 use crate::error::{truncate, CommitError};
 use crate::shared::Shared;
@@ -46,6 +47,35 @@ fn internal(e: CommitError) -> Status {
 pub(crate) fn job_id(s: &str) -> Result<JobId, Status> {
     s.parse()
         .map_err(|e: BadId| Status::invalid_argument(e.to_string()))
+}
+
+/// Who made a call: the user its token names, or, with no tokens configured, anyone, who may
+/// do anything (the farm is open).
+fn caller<T>(request: &tonic::Request<T>) -> Caller {
+    request
+        .extensions()
+        .get::<Caller>()
+        .cloned()
+        .unwrap_or(Caller {
+            user: String::new(),
+            admin: true,
+        })
+}
+
+/// Refuses `caller` changing job `id` (`verb` it) unless it is theirs or they are an admin;
+/// an unknown job passes, for the verb to answer NOT_FOUND.
+fn may_change(
+    core: &crate::scheduler::Scheduler,
+    id: JobId,
+    caller: &Caller,
+    verb: &str,
+) -> Result<(), Status> {
+    match core.submitter(id) {
+        Some(by) => caller
+            .may_change(&id.to_string(), by, verb)
+            .map_err(Status::permission_denied),
+        None => Ok(()),
+    }
 }
 
 /// The credential a worker call quotes. A malformed one is as unknown as a wrong one, and
@@ -161,7 +191,7 @@ impl Service {
 }
 
 /// The gRPC status for an asset store error.
-fn asset_status(e: AssetError) -> Status {
+pub(crate) fn asset_status(e: AssetError) -> Status {
     match e {
         AssetError::Invalid(m) => Status::invalid_argument(m),
         AssetError::Limit(m) => Status::resource_exhausted(m),

@@ -146,6 +146,14 @@ pub struct JobRecord {
     /// before pausing).
     #[serde(default)]
     pub paused: bool,
+    /// Times `tessera retry` put it back after it failed (0 in records written before retries).
+    #[serde(default)]
+    pub retries: u32,
+    /// The user whose token submitted it (empty: no named tokens, as in records written
+    /// before them): fair share and the per-user cap count by it, and only that user or an
+    /// admin may change the job.
+    #[serde(default)]
+    pub submitter: String,
 }
 
 /// One unit that failed on one worker (`scheduler/failures.rs`).

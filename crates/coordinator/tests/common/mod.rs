@@ -35,6 +35,7 @@ pub fn admission(name: Option<&str>, frames: Option<&str>, after: Option<JobId>)
         require: Vec::new(),
         min_memory: 0,
         progressive: false,
+        submitter: String::new(),
     }
 }
 

@@ -1,5 +1,6 @@
 //! `tessera pause`, `tessera resume` and `tessera priority`: a queued or running job's control,
-//! through the coordinator's `UpdateJob`.
+//! through the coordinator's `UpdateJob`; and `tessera retry`, a failed one's, through
+//! `RetryJob`.
 
 use anyhow::Result;
 use tessera_proto::v1 as pb;
@@ -24,6 +25,18 @@ pub struct PriorityArgs {
     /// The new priority: higher runs first.
     #[arg(allow_negative_numbers = true)]
     priority: i32,
+    #[command(flatten)]
+    url: CoordinatorUrl,
+}
+
+/// Arguments of `tessera retry`.
+#[derive(Debug, clap::Args)]
+pub struct RetryArgs {
+    /// Job id (a frame-range job's: every failed frame).
+    job: String,
+    /// Only this frame, for a frame-range job.
+    #[arg(long)]
+    frame: Option<u32>,
     #[command(flatten)]
     url: CoordinatorUrl,
 }
@@ -67,4 +80,24 @@ pub fn priority(args: PriorityArgs) -> Result<()> {
         priority: Some(args.priority),
     };
     update(&args.url, req, &done)
+}
+
+/// Runs `tessera retry`: prints each job put back, one a line.
+pub fn retry(args: RetryArgs) -> Result<()> {
+    let coordinator = args.url.coordinator.clone();
+    runtime()?.block_on(async {
+        let mut client = connect(&args.url).await?;
+        let r = client
+            .retry_job(pb::RetryJobRequest {
+                job_id: args.job.clone(),
+                frame: args.frame,
+            })
+            .await
+            .map_err(|e| rpc_error(&coordinator, &args.job, e))?
+            .into_inner();
+        for id in &r.job_ids {
+            outln!("{id} retried: back in the queue, rendering from the start");
+        }
+        Ok(())
+    })
 }

@@ -23,7 +23,7 @@ use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
 use tonic::Code;
 
-pub use control::{pause, priority, PauseArgs, PriorityArgs};
+pub use control::{pause, priority, retry, PauseArgs, PriorityArgs, RetryArgs};
 pub use fetch::{fetch, FetchArgs};
 pub use logs::{logs, LogsArgs};
 pub use status::{cancel, status, workers, CancelArgs, StatusArgs, WorkersArgs};

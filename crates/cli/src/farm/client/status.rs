@@ -96,6 +96,9 @@ fn print_job(v: &JobView) -> std::io::Result<()> {
         );
     }
     outln!("  priority   {}", v.priority);
+    if !v.submitter.is_empty() {
+        outln!("  submitter  {}", printable(&v.submitter));
+    }
     if let Some(a) = v.after {
         let waiting = if v.state == JobState::Queued {
             " (starts when it is done)"
@@ -123,6 +126,15 @@ fn print_job(v: &JobView) -> std::io::Result<()> {
         outln!(
             "  failures   {} unit(s) failed on workers and went to others{blocked}",
             v.failures
+        );
+    }
+    if v.retries > 0 {
+        outln!("  retried    {} time(s) (tessera retry)", v.retries);
+    }
+    if v.retryable {
+        outln!(
+            "  retry      tessera retry {} puts the failed frames back",
+            v.job_id
         );
     }
     if let Some(w) = &v.waiting {

@@ -60,6 +60,21 @@ async function cancel(id) {
   refresh();
 }
 
+async function retry(id, frame) {
+  const what = frame === undefined ? id : `${id} frame ${frame}`;
+  if (!confirm(`Retry ${what}? Its failed frames go back in the queue and render from the start.`)) return;
+  const q = frame === undefined ? "" : `?frame=${frame}`;
+  try { await api(`/api/jobs/${id}/retry${q}`, { method: "POST" }); } catch (e) { alert(e.message); }
+  refresh();
+}
+
+// The job list's and job page's action for a job: Cancel while it runs, Retry once it failed.
+function jobAction(j) {
+  if (live(j.state)) return el("button", { class: "danger", onclick: () => cancel(j.job_id) }, "Cancel");
+  if (j.retryable) return el("button", { class: "retry", onclick: () => retry(j.job_id) }, "Retry");
+  return "";
+}
+
 // ---- job list
 
 // A finished image's failed checks (black, non-finite samples), as a mark whose title says them.
@@ -79,7 +94,7 @@ function jobsView(jobs) {
     el("td", { class: "num" }, j.samples_done > 0 ? fmt.noise(j.noise_relative) : "–"),
     el("td", { class: "num" }, j.state === "done" ? "done" : fmt.eta(j.eta_seconds)),
     el("td", { class: "num" }, j.priority),
-    el("td", {}, live(j.state) ? el("button", { class: "danger", onclick: () => cancel(j.job_id) }, "Cancel") : ""),
+    el("td", {}, jobAction(j)),
   ));
   return [
     el("h1", {}, "Jobs ", el("span", { class: "muted" }, `(${jobs.length})`)),
@@ -153,14 +168,16 @@ function jobView(j) {
     ["Priority", j.priority],
     ["Output", j.output],
   ];
+  if (j.submitter) stats.push(["Submitter", j.submitter]);
   if (j.after) stats.push(["After", el("span", {}, el("a", { href: `/jobs/${j.after}` }, j.after), j.state === "queued" ? " (starts when it is done)" : "")]);
   if (j.require.length > 0 || j.min_memory_bytes > 0) stats.push(["Requires", [...j.require, ...(j.min_memory_bytes > 0 ? [fmt.gib(j.min_memory_bytes) + " of memory"] : [])].join(", ")]);
   if (j.waiting) stats.push(["Waiting", el("span", { class: "flag" }, j.waiting)]);
   if (j.error) stats.push(["Error", el("span", { class: "error" }, j.error)]);
+  if (j.retries > 0) stats.push(["Retried", `${j.retries} time(s)`]);
   if (j.checks.length > 0) stats.push(["Checks", el("ul", { class: "checks", id: "checks" }, ...j.checks.map((c) => el("li", { class: "flag", "data-code": c.code }, c.message)))]);
   const side = [el("dl", { class: "stats", id: "stats" }, ...stats.flatMap(([k, v]) => [el("dt", {}, k), el("dd", { id: "stat-" + k.toLowerCase().replace(/\W/g, "") }, v)]))];
   const actions = el("p", { class: "controls" });
-  if (live(j.state)) actions.append(el("button", { class: "danger", onclick: () => cancel(j.job_id) }, "Cancel"));
+  actions.append(jobAction(j));
   if (j.state === "done" && j.frames.length === 0) actions.append(el("a", { id: "download", href: `/api/jobs/${j.job_id}/output.exr`, download: j.output }, "Download EXR"));
   side.push(actions);
   side.push(el("div", { id: "logs" }, el("h2", {}, "Worker log"), el("pre", { id: "log-lines", class: "log" }, "…")));
@@ -172,7 +189,8 @@ function jobView(j) {
         el("td", {}, el("a", { href: `/jobs/${f.job_id}` }, f.frame)),
         el("td", {}, stateTag(f.state), flag(f.checks)),
         el("td", { class: "num" }, `${f.units_done}/${f.units_total}`),
-        el("td", {}, f.state === "done" ? el("a", { href: `/api/jobs/${j.job_id}/output.exr?frame=${f.frame}`, download: f.output }, "EXR") : ""))))));
+        el("td", {}, f.state === "done" ? el("a", { href: `/api/jobs/${j.job_id}/output.exr?frame=${f.frame}`, download: f.output }, "EXR")
+          : f.state === "failed" && j.retryable ? el("button", { class: "retry", onclick: () => retry(j.job_id, f.frame) }, "Retry") : ""))))));
     return [el("h1", {}, `${j.job_id} `, el("span", { class: "muted" }, `${j.scene}, ${j.frames.length} frames`)), el("div", { class: "job" }, el("div", {}, el("p", { class: "muted" }, "A frame range: open a frame for its preview.")), el("div", {}, ...side))];
   }
   let img = document.getElementById("preview");

@@ -1,0 +1,170 @@
+//! The HTTP API's pipeline script, run exactly as docs/farm.md shows it (its Python, with only
+//! the standard library), against the real `tessera coordinator --http` with a token and a real
+//! worker: the EXR it downloads must be `tessera render`'s bytes.
+
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Stdio};
+
+mod common;
+
+use common::{repo, worker_with, Proc, BIN};
+
+/// The first block of `lang` after the heading `heading` in docs/farm.md.
+fn block(heading: &str, lang: &str) -> String {
+    let doc = std::fs::read_to_string(repo("docs/farm.md")).expect("docs/farm.md");
+    let after = doc
+        .split_once(heading)
+        .unwrap_or_else(|| panic!("no {heading:?} in docs/farm.md"))
+        .1;
+    let start = format!("```{lang}\n");
+    let body = after.split_once(&start).expect("a code block").1;
+    body.split_once("\n```")
+        .expect("the block's end")
+        .0
+        .to_string()
+}
+
+#[test]
+fn the_documented_python_pipeline_submits_a_mesh_scene_and_gets_tessera_renders_bits() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let token = "pipeline-token-0123456789abcdef";
+    let token_file = dir.path().join("token");
+    std::fs::write(&token_file, token).expect("token");
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&token_file, std::fs::Permissions::from_mode(0o600))
+            .expect("chmod");
+    }
+    let mut child = Command::new(BIN)
+        .args([
+            "coordinator",
+            "--listen",
+            "127.0.0.1:0",
+            "--http",
+            "127.0.0.1:0",
+        ])
+        .arg("--data-dir")
+        .arg(dir.path().join("data"))
+        .arg("--token-file")
+        .arg(&token_file)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("coordinator");
+    let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
+    let mut next = || lines.next().expect("a line").expect("read");
+    let grpc = next();
+    let dash = next();
+    let coord = Proc(child);
+    let grpc = format!(
+        "http://{}",
+        grpc.strip_prefix("listening on ").expect("listening")
+    );
+    let dash = dash
+        .strip_prefix("dashboard on ")
+        .expect("dashboard")
+        .trim_end_matches('/')
+        .to_string();
+    let log = dir.path().join("worker.log");
+    let w = worker_with(
+        &grpc,
+        "py",
+        &["--token-file", token_file.to_str().expect("utf8")],
+        &log,
+    );
+
+    // The script and its command, as the docs give them; only the address is this run's.
+    let script = dir.path().join("pipeline.py");
+    std::fs::write(&script, block("### The HTTP API for pipelines", "python")).expect("script");
+    let command = block("Saved as `pipeline.py`", "sh");
+    let words: Vec<&str> = command.split_whitespace().collect();
+    assert_eq!(
+        words,
+        [
+            "python3",
+            "pipeline.py",
+            "http://127.0.0.1:7880",
+            "scenes/cornell-mesh.toml",
+            "16",
+            "mesh.exr"
+        ],
+        "docs/farm.md's command changed: {command}"
+    );
+    let out_exr = dir.path().join("mesh.exr");
+    let run = Command::new("python3")
+        .arg(&script)
+        .arg(&dash)
+        .args([words[3], words[4]])
+        .arg(&out_exr)
+        .current_dir(repo(""))
+        .env("TESSERA_TOKEN", token)
+        .output()
+        .expect("python3 (Debian's python3 package) runs the pipeline script");
+    assert!(
+        run.status.success(),
+        "the pipeline script failed: {}{}",
+        String::from_utf8_lossy(&run.stdout),
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let said = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        said.contains("submitted job-") && said.contains("wrote"),
+        "{said}"
+    );
+
+    let local = dir.path().join("local.exr");
+    let render = Command::new(BIN)
+        .args([
+            "render",
+            &repo("scenes/cornell-mesh.toml"),
+            "--spp",
+            "16",
+            "--output",
+        ])
+        .arg(&local)
+        .output()
+        .expect("render");
+    assert!(
+        render.status.success(),
+        "{}",
+        String::from_utf8_lossy(&render.stderr)
+    );
+    assert!(
+        std::fs::read(&out_exr).expect("the script's EXR") == std::fs::read(&local).expect("local"),
+        "the EXR the pipeline script downloaded differs from tessera render's"
+    );
+
+    // Run again: the mesh is held, so nothing is uploaded twice (the script asks first).
+    let again = Command::new("python3")
+        .arg(&script)
+        .arg(&dash)
+        .args([words[3], words[4]])
+        .arg(dir.path().join("again.exr"))
+        .current_dir(repo(""))
+        .env("TESSERA_TOKEN", token)
+        .output()
+        .expect("python3");
+    assert!(
+        again.status.success(),
+        "{}",
+        String::from_utf8_lossy(&again.stderr)
+    );
+    // Without the token, the API answers with its JSON error, which the script prints.
+    let refused = Command::new("python3")
+        .arg(&script)
+        .arg(&dash)
+        .args([words[3], words[4]])
+        .arg(dir.path().join("never.exr"))
+        .current_dir(repo(""))
+        .env_remove("TESSERA_TOKEN")
+        .output()
+        .expect("python3");
+    assert!(!refused.status.success());
+    assert!(
+        String::from_utf8_lossy(&refused.stderr).contains("unauthenticated"),
+        "{}",
+        String::from_utf8_lossy(&refused.stderr)
+    );
+    drop(w);
+    drop(coord);
+}

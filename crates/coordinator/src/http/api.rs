@@ -1,0 +1,846 @@
+//! The HTTP JSON API (docs/farm.md, "The HTTP API for pipelines"): what the `tessera` client
+//! commands do over gRPC, as JSON on the dashboard's port, behind the same token (a bearer
+//! header; the dashboard's session cookie too) and TLS. Each route that acts calls the gRPC
+//! service's own handler, so the two APIs check the same things and cannot disagree; the
+//! OpenAPI document at `/api/openapi.json` is generated from the annotations here (utoipa).
+//!
+//! Errors are JSON: `{"code": "not_found", "error": "unknown job job-000009"}`. The `code` is
+//! stable (the gRPC status's name in snake case; `unauthenticated`, `forbidden` and
+//! `payload_too_large` from the HTTP layer); the `error` is for people and may change.
+//!
+//! Bodies are bounded like everything else here: the dashboard's 4 KiB for most routes, the
+//! coordinator's scene limit for a submission, and the asset store's own checks for an upload,
+//! which arrives a mebibyte at a time.
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use axum::body::Body;
+use axum::extract::{Path, Query, State};
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::{Extension, Json};
+use serde::{Deserialize, Serialize};
+use tessera_proto::v1 as pb;
+use tessera_proto::v1::jobs_server::Jobs;
+use tessera_proto::view::{job_state_name, JobView, WorkerView};
+use tokio_stream::StreamExt as _;
+use tonic::Request as RpcRequest;
+use utoipa::{OpenApi, ToSchema};
+
+use super::App;
+use crate::auth::Caller;
+use crate::service::job_id;
+
+/// An error, as every route answers one.
+#[derive(Serialize, ToSchema)]
+pub(super) struct ApiError {
+    /// Stable: `not_found`, `invalid_argument`, `failed_precondition`, `permission_denied`,
+    /// `resource_exhausted`, `unauthenticated`, `forbidden`, `payload_too_large`, `internal`, …
+    code: &'static str,
+    /// For people; may change.
+    error: String,
+}
+
+/// An error answer with HTTP status `status` and stable code `code`.
+pub(super) fn error(
+    status: StatusCode,
+    code: &'static str,
+    message: impl Into<String>,
+) -> Response {
+    (
+        status,
+        Json(ApiError {
+            code,
+            error: message.into(),
+        }),
+    )
+        .into_response()
+}
+
+/// A gRPC refusal as an HTTP answer with the same message and a stable code.
+pub(super) fn refused(s: tonic::Status) -> Response {
+    use tonic::Code;
+    let (status, code) = match s.code() {
+        Code::NotFound => (StatusCode::NOT_FOUND, "not_found"),
+        Code::InvalidArgument => (StatusCode::BAD_REQUEST, "invalid_argument"),
+        Code::FailedPrecondition => (StatusCode::CONFLICT, "failed_precondition"),
+        Code::AlreadyExists => (StatusCode::CONFLICT, "already_exists"),
+        Code::PermissionDenied => (StatusCode::FORBIDDEN, "permission_denied"),
+        Code::Unauthenticated => (StatusCode::UNAUTHORIZED, "unauthenticated"),
+        Code::ResourceExhausted => (StatusCode::TOO_MANY_REQUESTS, "resource_exhausted"),
+        Code::Unavailable => (StatusCode::SERVICE_UNAVAILABLE, "unavailable"),
+        _ => (StatusCode::INTERNAL_SERVER_ERROR, "internal"),
+    };
+    error(status, code, s.message())
+}
+
+/// A gRPC request of `msg` from `caller`, as the token check found it.
+pub(super) fn as_caller<T>(msg: T, caller: Option<Extension<Caller>>) -> RpcRequest<T> {
+    let mut req = RpcRequest::new(msg);
+    if let Some(Extension(c)) = caller {
+        req.extensions_mut().insert(c);
+    }
+    req
+}
+
+/// The OpenAPI document of these routes.
+#[derive(OpenApi)]
+#[openapi(
+    info(
+        title = "tessera coordinator",
+        description = "Render jobs over HTTP: submit a scene (after uploading the files it \
+                       names), follow it, read its workers' log, pause, resume, reprioritise, \
+                       cancel or retry it, and download its EXR. Every route needs the farm's \
+                       token as `Authorization: Bearer TOKEN` when the coordinator has one."
+    ),
+    paths(
+        openapi, list_jobs, submit, job, cancel, pause, resume, priority, retry, logs,
+        output_exr, super::preview_png, list_workers, drain, asset_status, upload_asset
+    ),
+    components(schemas(
+        ApiError, SubmitBody, Submitted, PriorityBody, Retried, Cancelled, LogsReply, LogLine,
+        Held, Drained, JobView, WorkerView
+    )),
+    modifiers(&Bearer),
+    security(("bearer" = []))
+)]
+pub(super) struct Api;
+
+/// The bearer-token scheme every route uses.
+struct Bearer;
+
+impl utoipa::Modify for Bearer {
+    fn modify(&self, doc: &mut utoipa::openapi::OpenApi) {
+        use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
+        doc.components
+            .get_or_insert_with(Default::default)
+            .add_security_scheme(
+                "bearer",
+                SecurityScheme::Http(HttpBuilder::new().scheme(HttpAuthScheme::Bearer).build()),
+            );
+    }
+}
+
+/// This document.
+#[utoipa::path(get, path = "/api/openapi.json", responses((status = 200, description = "The OpenAPI 3.1 document of this API")))]
+pub(super) async fn openapi() -> Response {
+    Json(Api::openapi()).into_response()
+}
+
+/// Every job, in scheduling order (priority, then submission).
+#[utoipa::path(get, path = "/api/jobs", responses((status = 200, body = Vec<JobView>)))]
+pub(super) async fn list_jobs(State(app): State<App>) -> Response {
+    let views = app.svc.shared.scheduler().job_views(Instant::now());
+    Json(views).into_response()
+}
+
+/// A job to submit: what `tessera submit` sends.
+#[derive(Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub(super) struct SubmitBody {
+    /// The scene file's text.
+    scene: String,
+    /// `toml` (the default) or `json`.
+    #[serde(default)]
+    format: Option<String>,
+    /// A name for the scene in error messages (its file name).
+    #[serde(default)]
+    scene_name: String,
+    /// Samples per pixel.
+    spp: u32,
+    /// Seed (0 by default).
+    #[serde(default)]
+    seed: u64,
+    /// Samples per work unit (0: the coordinator's choice).
+    #[serde(default)]
+    batch: u32,
+    /// An adaptive job's noise target (0: every pixel takes `spp` samples).
+    #[serde(default)]
+    noise_target: f64,
+    /// AOVs for denoising, e.g. `albedo,normal,depth`.
+    #[serde(default)]
+    aovs: String,
+    /// One frame of the scene's animation.
+    #[serde(default)]
+    frame: Option<u32>,
+    /// A frame range, `A-B` or `A-B:STEP`: one job, one EXR per frame.
+    #[serde(default)]
+    frames: Option<String>,
+    /// With `frames`: every frame's first samples before any frame's next.
+    #[serde(default)]
+    progressive: bool,
+    /// Tile edge in pixels (0: the coordinator's default).
+    #[serde(default)]
+    tile_size: u32,
+    /// The EXR's file name (`NAME.exr`); the job id's by default.
+    #[serde(default)]
+    name: String,
+    /// Higher runs first.
+    #[serde(default)]
+    priority: i32,
+    /// Write per-pixel variance channels.
+    #[serde(default)]
+    variance: bool,
+    /// Write the sample-count channel.
+    #[serde(default)]
+    sample_count: bool,
+    /// The files the scene names, each uploaded first (`PUT /api/assets/{sha256}`): name as in
+    /// the scene → SHA-256.
+    #[serde(default)]
+    files: BTreeMap<String, String>,
+    /// A job this one starts after.
+    #[serde(default)]
+    after: String,
+    /// Tags a worker must have (`pool=fast`, `cpu:avx2`).
+    #[serde(default)]
+    require: Vec<String>,
+    /// Memory a worker must report, in bytes.
+    #[serde(default)]
+    min_memory_bytes: u64,
+}
+
+impl SubmitBody {
+    fn into_request(self) -> Result<pb::SubmitJobRequest, String> {
+        let scene_format = match self.format.as_deref() {
+            None | Some("toml") => pb::SceneFormat::Toml,
+            Some("json") => pb::SceneFormat::Json,
+            Some(f) => {
+                return Err(format!(
+                    "format {:?}: expected toml or json",
+                    crate::error::truncate(f)
+                ))
+            }
+        };
+        let frames = match &self.frames {
+            None => None,
+            Some(f) => {
+                let r: tessera_render::scene::FrameRange =
+                    f.parse().map_err(|e| format!("frames: {e}"))?;
+                Some(pb::FrameRange {
+                    first: r.first,
+                    last: r.last,
+                    step: r.step,
+                })
+            }
+        };
+        Ok(pb::SubmitJobRequest {
+            scene_text: self.scene,
+            scene_format: scene_format as i32,
+            scene_name: self.scene_name,
+            settings: Some(pb::RenderSettings {
+                spp: self.spp,
+                seed: self.seed,
+                batch: self.batch,
+                strategy: 0,
+                noise_target: self.noise_target,
+                frame: self.frame,
+                aovs: self.aovs,
+            }),
+            tile_size: self.tile_size,
+            output_name: self.name,
+            priority: self.priority,
+            channels: Some(pb::OutputChannels {
+                variance: self.variance,
+                sample_count: self.sample_count,
+            }),
+            frames,
+            assets: self
+                .files
+                .into_iter()
+                .map(|(name, sha256)| pb::AssetRef { name, sha256 })
+                .collect(),
+            after: self.after,
+            require: self.require,
+            min_memory_bytes: self.min_memory_bytes,
+            progressive: self.progressive,
+        })
+    }
+}
+
+/// A submitted job.
+#[derive(Serialize, ToSchema)]
+pub(super) struct Submitted {
+    /// Its id.
+    job_id: String,
+    /// Its scene's content hash.
+    scene_sha256: String,
+    /// Work units in all.
+    units: u64,
+    /// Frames (1 without a range).
+    frames: u32,
+}
+
+/// Submits a job; the scene is checked as `tessera submit`'s is, and refused with its
+/// `file:line:column` message.
+#[utoipa::path(post, path = "/api/jobs", request_body = SubmitBody, responses(
+    (status = 201, body = Submitted),
+    (status = 400, body = ApiError, description = "a bad scene or setting (`invalid_argument`)"),
+    (status = 409, body = ApiError, description = "a file not uploaded, or an `after` job that failed (`failed_precondition`)"),
+    (status = 413, body = ApiError, description = "a scene above the coordinator's limit"),
+    (status = 429, body = ApiError, description = "over a limit (`resource_exhausted`)"),
+))]
+pub(super) async fn submit(
+    State(app): State<App>,
+    caller: Option<Extension<Caller>>,
+    headers: axum::http::HeaderMap,
+    body: Body,
+) -> Response {
+    let limit = app.svc.shared.config.limits.max_bytes + (64 << 10);
+    let too_large = || {
+        error(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "payload_too_large",
+            format!(
+                "a submission may be at most {limit} bytes (the coordinator's --max-scene-bytes \
+                 and 64 KiB more)"
+            ),
+        )
+    };
+    // Refused before a byte is read when the client says how much it sends.
+    let declared = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    if declared.is_some_and(|n| n > limit as u64) {
+        return too_large();
+    }
+    let bytes =
+        match tokio::time::timeout(super::BODY_TIME, axum::body::to_bytes(body, limit)).await {
+            Ok(Ok(b)) => b,
+            Ok(Err(_)) => return too_large(),
+            Err(_) => {
+                return error(
+                    StatusCode::REQUEST_TIMEOUT,
+                    "timeout",
+                    "the submission did not arrive in time",
+                )
+            }
+        };
+    let body: SubmitBody = match serde_json::from_slice(&bytes) {
+        Ok(b) => b,
+        Err(e) => {
+            return error(
+                StatusCode::BAD_REQUEST,
+                "invalid_argument",
+                format!("body: {e}"),
+            )
+        }
+    };
+    let req = match body.into_request() {
+        Ok(r) => r,
+        Err(e) => return error(StatusCode::BAD_REQUEST, "invalid_argument", e),
+    };
+    match app.svc.submit_job(as_caller(req, caller)).await {
+        Ok(r) => {
+            let r = r.into_inner();
+            let out = Submitted {
+                job_id: r.job_id,
+                scene_sha256: r.scene_hash,
+                units: r.units,
+                frames: r.frames,
+            };
+            (StatusCode::CREATED, Json(out)).into_response()
+        }
+        Err(s) => refused(s),
+    }
+}
+
+/// One job (a frame range: the whole range, with each frame).
+#[utoipa::path(get, path = "/api/jobs/{id}", params(("id" = String, Path, description = "job id")), responses(
+    (status = 200, body = JobView), (status = 404, body = ApiError),
+))]
+pub(super) async fn job(State(app): State<App>, Path(id): Path<String>) -> Response {
+    match job_id(&id).and_then(|id| app.svc.job_view(id)) {
+        Ok(v) => Json(v).into_response(),
+        Err(s) => refused(s),
+    }
+}
+
+/// A job's state after a cancel.
+#[derive(Serialize, ToSchema)]
+pub(super) struct Cancelled {
+    /// `cancelled`, or the final state it already had.
+    state: &'static str,
+}
+
+/// Cancels a job (every frame of a range still active).
+#[utoipa::path(post, path = "/api/jobs/{id}/cancel", params(("id" = String, Path)), responses(
+    (status = 200, body = Cancelled), (status = 403, body = ApiError, description = "another user's job"), (status = 404, body = ApiError),
+))]
+pub(super) async fn cancel(
+    State(app): State<App>,
+    Path(id): Path<String>,
+    caller: Option<Extension<Caller>>,
+) -> Response {
+    let req = as_caller(pb::CancelJobRequest { job_id: id }, caller);
+    match app.svc.cancel_job(req).await {
+        Ok(r) => Json(Cancelled {
+            state: job_state_name(r.get_ref().state),
+        })
+        .into_response(),
+        Err(s) => refused(s),
+    }
+}
+
+async fn update(
+    app: &App,
+    id: String,
+    paused: Option<bool>,
+    priority: Option<i32>,
+    caller: Option<Extension<Caller>>,
+) -> Response {
+    let req = as_caller(
+        pb::UpdateJobRequest {
+            job_id: id.clone(),
+            paused,
+            priority,
+        },
+        caller,
+    );
+    match app.svc.update_job(req).await {
+        Ok(_) => match job_id(&id).and_then(|id| app.svc.job_view(id)) {
+            Ok(v) => Json(v).into_response(),
+            Err(s) => refused(s),
+        },
+        Err(s) => refused(s),
+    }
+}
+
+/// Pauses a queued or running job: its leased units finish, nothing new is leased.
+#[utoipa::path(post, path = "/api/jobs/{id}/pause", params(("id" = String, Path)), responses(
+    (status = 200, body = JobView), (status = 403, body = ApiError), (status = 404, body = ApiError), (status = 409, body = ApiError, description = "it has ended"),
+))]
+pub(super) async fn pause(
+    State(app): State<App>,
+    Path(id): Path<String>,
+    caller: Option<Extension<Caller>>,
+) -> Response {
+    update(&app, id, Some(true), None, caller).await
+}
+
+/// Resumes a paused job.
+#[utoipa::path(post, path = "/api/jobs/{id}/resume", params(("id" = String, Path)), responses(
+    (status = 200, body = JobView), (status = 403, body = ApiError), (status = 404, body = ApiError), (status = 409, body = ApiError),
+))]
+pub(super) async fn resume(
+    State(app): State<App>,
+    Path(id): Path<String>,
+    caller: Option<Extension<Caller>>,
+) -> Response {
+    update(&app, id, Some(false), None, caller).await
+}
+
+/// A new priority.
+#[derive(Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub(super) struct PriorityBody {
+    /// Higher runs first.
+    priority: i32,
+}
+
+/// Sets a queued or running job's priority.
+#[utoipa::path(post, path = "/api/jobs/{id}/priority", params(("id" = String, Path)), request_body = PriorityBody, responses(
+    (status = 200, body = JobView), (status = 400, body = ApiError), (status = 403, body = ApiError), (status = 404, body = ApiError), (status = 409, body = ApiError),
+))]
+pub(super) async fn priority(
+    State(app): State<App>,
+    Path(id): Path<String>,
+    caller: Option<Extension<Caller>>,
+    body: axum::body::Bytes,
+) -> Response {
+    match serde_json::from_slice::<PriorityBody>(&body) {
+        Ok(b) => update(&app, id, None, Some(b.priority), caller).await,
+        Err(e) => error(
+            StatusCode::BAD_REQUEST,
+            "invalid_argument",
+            format!("body: {e}"),
+        ),
+    }
+}
+
+/// The frame a route is about, for a frame-range job.
+#[derive(Deserialize, utoipa::IntoParams)]
+pub(super) struct FrameQuery {
+    /// The frame, for a frame-range job.
+    frame: Option<u32>,
+}
+
+/// The jobs a retry put back.
+#[derive(Serialize, ToSchema)]
+pub(super) struct Retried {
+    /// Their ids: the failed frames, and the jobs that waited for them.
+    retried: Vec<String>,
+}
+
+/// Puts a job's failed frames back in the queue (`tessera retry`), with the jobs that failed
+/// waiting for them.
+#[utoipa::path(post, path = "/api/jobs/{id}/retry", params(("id" = String, Path), FrameQuery), responses(
+    (status = 200, body = Retried), (status = 403, body = ApiError), (status = 404, body = ApiError),
+    (status = 409, body = ApiError, description = "no failed frame, or past the retry window"),
+))]
+pub(super) async fn retry(
+    State(app): State<App>,
+    Path(id): Path<String>,
+    Query(q): Query<FrameQuery>,
+    caller: Option<Extension<Caller>>,
+) -> Response {
+    let req = as_caller(
+        pb::RetryJobRequest {
+            job_id: id,
+            frame: q.frame,
+        },
+        caller,
+    );
+    match app.svc.retry_job(req).await {
+        Ok(r) => Json(Retried {
+            retried: r.into_inner().job_ids,
+        })
+        .into_response(),
+        Err(s) => refused(s),
+    }
+}
+
+/// What to read of a job's log.
+#[derive(Deserialize, utoipa::IntoParams)]
+pub(super) struct LogsQuery {
+    /// Only this frame's lines, for a frame-range job.
+    frame: Option<u32>,
+    /// Only lines after this sequence number (to follow).
+    #[serde(default)]
+    after: u64,
+}
+
+/// A line of a job's log.
+#[derive(Serialize, ToSchema)]
+pub(super) struct LogLine {
+    seq: u64,
+    unix_ms: i64,
+    worker_id: String,
+    worker_name: String,
+    job_id: String,
+    frame: Option<u32>,
+    tile: u32,
+    batch: u32,
+    /// `info`, `warn` or `error`.
+    level: &'static str,
+    message: String,
+}
+
+/// A job's log.
+#[derive(Serialize, ToSchema)]
+pub(super) struct LogsReply {
+    entries: Vec<LogLine>,
+    /// Lines dropped (rate, size, the job's cap).
+    dropped: u64,
+    /// The job has ended: no more lines will come.
+    ended: bool,
+}
+
+/// The warnings and errors workers reported about a job's units (`tessera logs`).
+#[utoipa::path(get, path = "/api/jobs/{id}/logs", params(("id" = String, Path), LogsQuery), responses(
+    (status = 200, body = LogsReply), (status = 404, body = ApiError),
+))]
+pub(super) async fn logs(
+    State(app): State<App>,
+    Path(id): Path<String>,
+    Query(q): Query<LogsQuery>,
+) -> Response {
+    let req = RpcRequest::new(pb::GetLogsRequest {
+        job_id: id,
+        frame: q.frame,
+        after: q.after,
+    });
+    match app.svc.get_logs(req).await {
+        Ok(r) => {
+            let r = r.into_inner();
+            let entries = r
+                .entries
+                .into_iter()
+                .map(|e| LogLine {
+                    level: match pb::LogLevel::try_from(e.level) {
+                        Ok(pb::LogLevel::Info) => "info",
+                        Ok(pb::LogLevel::Error) => "error",
+                        _ => "warn",
+                    },
+                    seq: e.seq,
+                    unix_ms: e.unix_ms,
+                    worker_id: e.worker_id,
+                    worker_name: e.worker_name,
+                    job_id: e.job_id,
+                    frame: e.frame,
+                    tile: e.tile_index,
+                    batch: e.batch_index,
+                    message: e.message,
+                })
+                .collect();
+            Json(LogsReply {
+                entries,
+                dropped: r.dropped,
+                ended: r.ended,
+            })
+            .into_response()
+        }
+        Err(s) => refused(s),
+    }
+}
+
+/// A done job's EXR (a frame range's: one frame's, with `frame`).
+#[utoipa::path(get, path = "/api/jobs/{id}/output.exr", params(("id" = String, Path), FrameQuery), responses(
+    (status = 200, content_type = "image/x-exr", description = "The EXR, byte for byte the file the coordinator wrote"),
+    (status = 404, body = ApiError), (status = 409, body = ApiError, description = "not done"),
+))]
+pub(super) async fn output_exr(
+    State(app): State<App>,
+    Path(id): Path<String>,
+    Query(q): Query<FrameQuery>,
+) -> Response {
+    let read = match job_id(&id) {
+        Ok(id) => app.svc.read_output(id, q.frame).await,
+        Err(s) => Err(s),
+    };
+    let (name, data) = match read {
+        Ok(r) => r,
+        Err(s) => return refused(s),
+    };
+    // Output names are checked at submission (no quotes, separators or control characters).
+    let disposition = format!("attachment; filename=\"{}\"", name.replace('"', ""));
+    let mut r = ([(header::CONTENT_TYPE, "image/x-exr")], Body::from(data)).into_response();
+    if let Ok(v) = HeaderValue::from_str(&disposition) {
+        r.headers_mut().insert(header::CONTENT_DISPOSITION, v);
+    }
+    r
+}
+
+/// Every worker the coordinator has seen.
+#[utoipa::path(get, path = "/api/workers", responses((status = 200, body = Vec<WorkerView>)))]
+pub(super) async fn list_workers(State(app): State<App>) -> Response {
+    let views = app.svc.shared.scheduler().worker_views(Instant::now());
+    Json(views).into_response()
+}
+
+/// The workers a drain reached.
+#[derive(Serialize, ToSchema)]
+pub(super) struct Drained {
+    /// Their public ids.
+    drained: Vec<String>,
+}
+
+/// Drains one worker, by public id: it finishes its units, hands back the rest, and exits.
+#[utoipa::path(post, path = "/api/workers/{id}/drain", params(("id" = String, Path, description = "public worker id, e.g. w1-3")), responses(
+    (status = 200, body = Drained), (status = 400, body = ApiError), (status = 403, body = ApiError, description = "not an admin"), (status = 404, body = ApiError),
+))]
+pub(super) async fn drain(
+    State(app): State<App>,
+    Path(id): Path<String>,
+    caller: Option<Extension<Caller>>,
+) -> Response {
+    // By public id only: a name could drain several, which a button on one row must not.
+    if id.parse::<tessera_proto::ids::WorkerId>().is_err() {
+        return refused(tonic::Status::invalid_argument(format!(
+            "{:?} is not a worker id",
+            crate::error::truncate(&id)
+        )));
+    }
+    let req = as_caller(pb::DrainWorkerRequest { worker: id }, caller);
+    match app.svc.drain_worker(req).await {
+        Ok(r) => Json(Drained {
+            drained: r.into_inner().drained,
+        })
+        .into_response(),
+        Err(s) => refused(s),
+    }
+}
+
+/// How much of a file the coordinator holds.
+#[derive(Serialize, ToSchema)]
+pub(super) struct Held {
+    /// Bytes held: the whole file once complete, else where an upload resumes.
+    received: u64,
+    /// The whole file is held and its hash checked.
+    complete: bool,
+}
+
+/// How much of the file of this SHA-256 the coordinator holds.
+#[utoipa::path(get, path = "/api/assets/{sha256}", params(("sha256" = String, Path, description = "64 lower-case hex digits")), responses(
+    (status = 200, body = Held), (status = 400, body = ApiError),
+))]
+pub(super) async fn asset_status(State(app): State<App>, Path(sha): Path<String>) -> Response {
+    let req = RpcRequest::new(pb::GetAssetStatusRequest { sha256: sha });
+    match app.svc.get_asset_status(req).await {
+        Ok(r) => {
+            let r = r.into_inner();
+            Json(Held {
+                received: r.received,
+                complete: r.complete,
+            })
+            .into_response()
+        }
+        Err(s) => refused(s),
+    }
+}
+
+/// Where an upload's bytes go.
+#[derive(Deserialize, utoipa::IntoParams)]
+pub(super) struct UploadQuery {
+    /// Where the body starts in the file: 0, or the `received` an interrupted upload reached.
+    #[serde(default)]
+    offset: u64,
+    /// The whole file's size in bytes.
+    total: u64,
+}
+
+/// Uploads a file a scene names (or the rest of one), addressed by its SHA-256; the hash is
+/// checked when the last byte arrives, and a mismatch throws the upload away.
+#[utoipa::path(put, path = "/api/assets/{sha256}", params(("sha256" = String, Path), UploadQuery),
+    request_body(content = Vec<u8>, content_type = "application/octet-stream"),
+    responses(
+        (status = 200, body = Held), (status = 400, body = ApiError, description = "a wrong offset or hash, or bytes past the size"),
+        (status = 429, body = ApiError, description = "above the store's limits"),
+))]
+pub(super) async fn upload_asset(
+    State(app): State<App>,
+    Path(sha): Path<String>,
+    Query(q): Query<UploadQuery>,
+    body: Body,
+) -> Response {
+    let mut stream = body.into_data_stream();
+    let mut offset = q.offset;
+    let mut pending: Vec<u8> = Vec::new();
+    let mut held = None;
+    loop {
+        let next = tokio::time::timeout(super::BODY_TIME, stream.next()).await;
+        let frame = match next {
+            Ok(Some(Ok(f))) => Some(f),
+            Ok(None) => None,
+            Ok(Some(Err(e))) => {
+                return error(
+                    StatusCode::BAD_REQUEST,
+                    "invalid_argument",
+                    format!("body: {e}"),
+                )
+            }
+            Err(_) => return error(StatusCode::REQUEST_TIMEOUT, "timeout", "the upload stalled"),
+        };
+        let end = frame.is_none();
+        if let Some(f) = frame {
+            pending.extend_from_slice(&f);
+        }
+        // A mebibyte at a time, as the gRPC upload's chunks; the last piece whatever is left.
+        while pending.len() >= crate::assets::CHUNK_BYTES || (end && !pending.is_empty()) {
+            let n = pending.len().min(crate::assets::CHUNK_BYTES);
+            let chunk: Vec<u8> = pending.drain(..n).collect();
+            let (assets, hash, at) = (app.svc.shared.assets.clone(), sha.clone(), offset);
+            let total = q.total;
+            let r =
+                tokio::task::spawn_blocking(move || assets.append(&hash, at, total, &chunk)).await;
+            match r {
+                Ok(Ok(h)) => {
+                    offset += n as u64;
+                    held = Some(h);
+                    if h.complete {
+                        break;
+                    }
+                }
+                Ok(Err(e)) => return refused(crate::service::asset_status(e)),
+                Err(e) => {
+                    return error(StatusCode::INTERNAL_SERVER_ERROR, "internal", e.to_string())
+                }
+            }
+        }
+        if end || held.is_some_and(|h| h.complete) {
+            break;
+        }
+    }
+    let held = match held {
+        Some(h) => h,
+        // An empty body changes nothing: it asks where the upload stands.
+        None => match app.svc.shared.assets.status(&sha) {
+            Ok(h) => h,
+            Err(e) => return refused(crate::service::asset_status(e)),
+        },
+    };
+    Json(Held {
+        received: held.received,
+        complete: held.complete,
+    })
+    .into_response()
+}
+
+/// The routes as the document lists them (method, path), for the test that it lists every one.
+#[cfg(test)]
+fn documented() -> Vec<(String, String)> {
+    let doc = Api::openapi();
+    let mut out = Vec::new();
+    for (path, item) in doc.paths.paths {
+        for (method, op) in [
+            ("GET", item.get.is_some()),
+            ("POST", item.post.is_some()),
+            ("PUT", item.put.is_some()),
+        ] {
+            if op {
+                out.push((method.to_string(), path.clone()));
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every `/api/` route the router serves is in the OpenAPI document, and the document
+    /// lists nothing else: read from the router's own source, so a route added without its
+    /// annotation fails here.
+    #[test]
+    fn the_document_lists_exactly_the_routes_served() {
+        let source = include_str!("mod.rs");
+        let mut served: Vec<(String, String)> = Vec::new();
+        for line in source.lines().map(str::trim) {
+            let Some(rest) = line.strip_prefix(".route(\"/api/") else {
+                continue;
+            };
+            let (path, handlers) = rest.split_once('"').expect("a quoted path");
+            for (method, call) in [("GET", "get("), ("POST", "post("), ("PUT", "put(")] {
+                if handlers.contains(call) {
+                    served.push((method.to_string(), format!("/api/{path}")));
+                }
+            }
+        }
+        let mut listed = documented();
+        served.sort();
+        listed.sort();
+        assert!(served.len() >= 16, "{served:?}");
+        assert_eq!(served, listed);
+    }
+
+    #[test]
+    fn a_submission_converts_to_the_grpc_request_and_bad_fields_are_named() {
+        let body: SubmitBody = serde_json::from_str(
+            r#"{"scene": "x", "spp": 16, "frames": "1-9:2", "files": {"m.obj": "ab"}, "format": "json"}"#,
+        )
+        .expect("body");
+        let req = body.into_request().expect("request");
+        assert_eq!(req.settings.expect("settings").spp, 16);
+        assert_eq!(
+            req.frames.map(|f| (f.first, f.last, f.step)),
+            Some((1, 9, 2))
+        );
+        assert_eq!(req.scene_format, pb::SceneFormat::Json as i32);
+        assert_eq!(req.assets[0].name, "m.obj");
+        let bad: SubmitBody =
+            serde_json::from_str(r#"{"scene": "x", "spp": 1, "frames": "9-1"}"#).expect("body");
+        assert!(bad
+            .into_request()
+            .expect_err("range")
+            .starts_with("frames: "));
+        let bad: SubmitBody =
+            serde_json::from_str(r#"{"scene": "x", "spp": 1, "format": "yaml"}"#).expect("body");
+        assert!(bad.into_request().expect_err("format").contains("yaml"));
+        let e = serde_json::from_str::<SubmitBody>(r#"{"scene": "x", "spp": 1, "sp": 2}"#)
+            .err()
+            .expect("unknown field");
+        assert!(e.to_string().contains("unknown field `sp`"), "{e}");
+    }
+}

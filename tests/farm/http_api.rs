@@ -1,0 +1,242 @@
+//! The HTTP JSON API (docs/farm.md, "The HTTP API for pipelines"): every route its OpenAPI
+//! document lists is served, a job goes from upload to EXR over HTTP alone with
+//! `tessera render`'s bits, and hostile bodies get JSON errors with stable codes.
+
+use std::collections::BTreeMap;
+
+use tessera_render::scene::assets::{sha256_hex, MemAssets};
+
+use crate::common::*;
+
+fn json(r: &Reply) -> serde_json::Value {
+    serde_json::from_slice(&r.body).unwrap_or_else(|e| panic!("not JSON ({e}): {}", r.text()))
+}
+
+/// Asserts an error answer: its HTTP status and its stable code.
+fn refused(r: &Reply, status: u16, code: &str) -> String {
+    assert_eq!(r.status, status, "{}", r.text());
+    let v = json(r);
+    assert_eq!(v["code"], code, "{v}");
+    v["error"].as_str().expect("a message").to_string()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn every_documented_route_is_served_and_a_job_goes_from_upload_to_exr() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (coord, addr) = dashboard_farm(dir.path()).await;
+    let doc = json(&get(addr, "/api/openapi.json").await);
+    assert_eq!(doc["info"]["title"], "tessera coordinator");
+    // Every documented route answers as a route (its own JSON error for a made-up id), never
+    // the fallback's "no such page".
+    let paths = doc["paths"].as_object().expect("paths");
+    assert!(paths.len() >= 14, "{paths:?}");
+    let sha = "0".repeat(64);
+    for (path, item) in paths {
+        for method in ["get", "post", "put"] {
+            if item.get(method).is_none() {
+                continue;
+            }
+            let p = path
+                .replace("{id}", "job-000099")
+                .replace("{sha256}", &sha)
+                .replace("/api/workers/job-000099", "/api/workers/w1-99");
+            let r = http(addr, &method.to_uppercase(), &p, &[], "").await;
+            assert!(
+                !r.text().contains("no such page"),
+                "{method} {path} is documented but not served"
+            );
+        }
+    }
+
+    // A mesh scene, its file uploaded in two pieces (the second resuming where the first
+    // stopped), submitted, rendered and downloaded over HTTP alone.
+    let mesh = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+    let mesh_sha = sha256_hex(mesh.as_bytes());
+    let at = |offset: usize| {
+        format!(
+            "/api/assets/{mesh_sha}?offset={offset}&total={}",
+            mesh.len()
+        )
+    };
+    let r = http(addr, "PUT", &at(0), &[], &mesh[..10]).await;
+    assert_eq!(json(&r)["received"], 10, "{}", r.text());
+    let msg = refused(
+        &http(addr, "PUT", &at(3), &[], &mesh[3..]).await,
+        400,
+        "invalid_argument",
+    );
+    assert!(msg.contains("resume from there"), "{msg}");
+    let r = http(addr, "PUT", &at(10), &[], &mesh[10..]).await;
+    assert_eq!(json(&r)["complete"], true, "{}", r.text());
+    let text = format!(
+        "{}\n[[objects]]\nshape = \"mesh\"\nfile = \"tri.obj\"\nmaterial = \"white\"\n",
+        scene_text(16)
+    );
+    let body = serde_json::json!({
+        "scene": text, "scene_name": "tri.toml", "spp": 4, "batch": 2, "seed": 7,
+        "files": { "tri.obj": mesh_sha },
+    })
+    .to_string();
+    let r = http(
+        addr,
+        "POST",
+        "/api/jobs",
+        &[("content-type", "application/json")],
+        &body,
+    )
+    .await;
+    assert_eq!(r.status, 201, "{}", r.text());
+    let job = json(&r)["job_id"].as_str().expect("id").to_string();
+    let w = worker(&coord.url(), "http");
+    let mut client = coord.client().await;
+    assert_eq!(
+        wait(&mut client, &job).await.state,
+        pb::JobState::Done as i32
+    );
+    let exr = http(addr, "GET", &format!("/api/jobs/{job}/output.exr"), &[], "").await;
+    assert_eq!(exr.status, 200);
+    assert_eq!(
+        exr.body,
+        fetch(&mut client, &job).await,
+        "the same file as FetchResult"
+    );
+    let files = MemAssets(BTreeMap::from([(
+        "tri.obj".to_string(),
+        mesh.as_bytes().to_vec(),
+    )]));
+    let local = local_exr_files(
+        &text,
+        &job_settings(4, 2),
+        ExrChannels::default(),
+        dir.path(),
+        &files,
+    );
+    assert!(exr.body == local, "the EXR differs from tessera render's");
+    // Control over HTTP: a finished job cannot be paused, and says so.
+    let r = http(addr, "POST", &format!("/api/jobs/{job}/pause"), &[], "").await;
+    refused(&r, 409, "failed_precondition");
+    w.abort();
+    coord.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn hostile_bodies_get_json_errors_with_stable_codes() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord =
+        Coordinator::start_with_dashboard(&dir.path().join("data"), Duration::from_secs(30), |c| {
+            c.limits.max_bytes = 1 << 20
+        })
+        .await;
+    let addr = coord.http.expect("dashboard");
+    let post = |body: String| async move { http(addr, "POST", "/api/jobs", &[], &body).await };
+    refused(&post("{not json".into()).await, 400, "invalid_argument");
+    let m = refused(
+        &post(r#"{"scene": "", "spp": 4, "colour": 1}"#.into()).await,
+        400,
+        "invalid_argument",
+    );
+    assert!(m.contains("unknown field `colour`"), "{m}");
+    let m = refused(
+        &post(r#"{"scene": "", "spp": "many"}"#.into()).await,
+        400,
+        "invalid_argument",
+    );
+    assert!(m.contains("spp") || m.contains("invalid type"), "{m}");
+    // A scene error names the place, as `tessera submit`'s does.
+    let bad = scene_text(16).replace("fov = ", "fov = 400 #");
+    let body = serde_json::json!({ "scene": bad, "scene_name": "bad.toml", "spp": 4 }).to_string();
+    let m = refused(&post(body).await, 400, "invalid_argument");
+    assert!(m.contains("bad.toml:") && m.contains("fov"), "{m}");
+    // A submission over the scene limit is refused without being read whole.
+    let huge = serde_json::json!({ "scene": "#".repeat(2 << 20), "spp": 1 }).to_string();
+    refused(&post(huge).await, 413, "payload_too_large");
+    // A file the scene names but nobody uploaded.
+    let text = format!(
+        "{}\n[[objects]]\nshape = \"mesh\"\nfile = \"m.obj\"\nmaterial = \"white\"\n",
+        scene_text(16)
+    );
+    let body = serde_json::json!({ "scene": text, "spp": 4, "files": {"m.obj": "ab".repeat(32)} })
+        .to_string();
+    refused(&post(body).await, 409, "failed_precondition");
+    // Uploads: a malformed hash, bytes past the declared size, content that is not the hash's.
+    let r = http(addr, "PUT", "/api/assets/xyz?total=3", &[], "abc").await;
+    refused(&r, 400, "invalid_argument");
+    let sha = "ab".repeat(32);
+    let r = http(
+        addr,
+        "PUT",
+        &format!("/api/assets/{sha}?total=2"),
+        &[],
+        "abc",
+    )
+    .await;
+    refused(&r, 400, "invalid_argument");
+    let r = http(
+        addr,
+        "PUT",
+        &format!("/api/assets/{sha}?total=3"),
+        &[],
+        "abc",
+    )
+    .await;
+    let m = refused(&r, 400, "invalid_argument");
+    assert!(m.contains("hash") || m.contains("SHA-256"), "{m}");
+    // A priority that is not a number; a job id that is not one.
+    let r = http(
+        addr,
+        "POST",
+        "/api/jobs/job-000001/priority",
+        &[],
+        r#"{"priority": "high"}"#,
+    )
+    .await;
+    refused(&r, 400, "invalid_argument");
+    refused(
+        &http(addr, "GET", "/api/jobs/yesterday", &[], "").await,
+        400,
+        "invalid_argument",
+    );
+    refused(
+        &http(addr, "POST", "/api/jobs/job-000042/retry", &[], "").await,
+        404,
+        "not_found",
+    );
+    // Another site's page may not submit or upload through a visitor's browser.
+    let r = http(
+        addr,
+        "PUT",
+        &format!("/api/assets/{sha}?total=3"),
+        &[("origin", "https://evil.example")],
+        "abc",
+    )
+    .await;
+    refused(&r, 403, "forbidden");
+    coord.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn with_a_token_the_api_answers_401_in_json_and_a_bearer_passes() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let token = Secret::new("api-token-0123456789abcdef");
+    let t = token.clone();
+    let coord =
+        Coordinator::start_with_dashboard(&dir.path().join("data"), Duration::from_secs(30), |c| {
+            c.token = Some(t)
+        })
+        .await;
+    let addr = coord.http.expect("dashboard");
+    let r = http(addr, "POST", "/api/jobs", &[], r#"{"scene": "", "spp": 1}"#).await;
+    refused(&r, 401, "unauthenticated");
+    assert!(r.header("www-authenticate").is_some());
+    let bearer = format!("Bearer {}", token.expose());
+    let r = http(
+        addr,
+        "GET",
+        "/api/jobs",
+        &[("authorization", bearer.as_str())],
+        "",
+    )
+    .await;
+    assert_eq!(r.status, 200, "{}", r.text());
+    coord.stop().await;
+}
