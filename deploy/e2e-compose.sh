@@ -7,6 +7,8 @@
 #   check the EXR is bit-identical to `tessera render`, that the dashboard wants the token and
 #   Prometheus (the monitoring profile) scrapes the coordinator's metrics with it, and that
 #   `down -v` leaves nothing.
+#
+#   deploy/e2e-compose.sh [--image-only]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PROJECT=tessera-e2e-$$
@@ -25,6 +27,13 @@ if ! docker image inspect rust:1-slim-bookworm >/dev/null 2>&1 || ! docker image
     || deploy/airgap-base-images.sh
 fi
 echo "== [$((SECONDS / 60))m$((SECONDS % 60))s] base images present"
+# `--image-only`: the base images and the compose file's image, nothing else (.ci/run builds it
+# in the background while the tests run, and this script then finds it built).
+if [[ ${1:-} == --image-only ]]; then
+  docker-compose -f deploy/docker-compose.yml build -q
+  echo "== [$((SECONDS / 60))m$((SECONDS % 60))s] the image is built"
+  exit 0
+fi
 cargo build --release -q -p tessera-cli
 T=$PWD/target/release/tessera
 

@@ -147,9 +147,28 @@ async fn hostile_bodies_get_json_errors_with_stable_codes() {
     let body = serde_json::json!({ "scene": bad, "scene_name": "bad.toml", "spp": 4 }).to_string();
     let m = refused(&post(body).await, 400, "invalid_argument");
     assert!(m.contains("bad.toml:") && m.contains("fov"), "{m}");
-    // A submission over the scene limit is refused without being read whole.
-    let huge = serde_json::json!({ "scene": "#".repeat(2 << 20), "spp": 1 }).to_string();
-    refused(&post(huge).await, 413, "payload_too_large");
+    // A submission over the scene limit is refused before its body is read: only the head is
+    // sent, declaring 3 MB, and the answer comes anyway.
+    {
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        let mut tcp = tokio::net::TcpStream::connect(addr).await.expect("connect");
+        let head = format!(
+            "POST /api/jobs HTTP/1.1\r\nhost: {addr}\r\ncontent-type: application/json\r\n\
+             content-length: 3000000\r\n\r\n"
+        );
+        tcp.write_all(head.as_bytes()).await.expect("head");
+        let mut answer = vec![0u8; 4096];
+        let n = tokio::time::timeout(Duration::from_secs(10), tcp.read(&mut answer))
+            .await
+            .expect("an answer before the body")
+            .expect("read");
+        let answer = String::from_utf8_lossy(&answer[..n]);
+        assert!(answer.starts_with("HTTP/1.1 413"), "{answer}");
+        assert!(
+            answer.contains("\"code\":\"payload_too_large\""),
+            "{answer}"
+        );
+    }
     // A file the scene names but nobody uploaded.
     let text = format!(
         "{}\n[[objects]]\nshape = \"mesh\"\nfile = \"m.obj\"\nmaterial = \"white\"\n",

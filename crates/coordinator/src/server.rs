@@ -94,7 +94,7 @@ pub async fn serve_when_ready(
     let ticker = every(
         &shared,
         (lease_timeout / 8).clamp(Duration::from_millis(50), Duration::from_secs(1)),
-        |shared| async move { shared.tick() },
+        |shared| async move { tick(&shared) },
     );
     // Asset files no active job uses are deleted once their retention has passed, checked a
     // few times per retention period and at least once a minute.
@@ -324,7 +324,7 @@ impl InProcess {
 
     /// Lapses overdue leases, as the server's ticker does.
     pub fn expire(&self) {
-        self.service.shared.tick();
+        tick(&self.service.shared);
     }
 
     /// The asset store.
@@ -346,6 +346,26 @@ impl InProcess {
         drop(self.service);
         let _ = self.writer.await;
     }
+}
+
+/// What the server's ticker does: lapses overdue leases (waking workers for their units, and
+/// committing a frame that a unit lapsing too often failed), and starts the referee's pending
+/// renders.
+fn tick(shared: &Arc<Shared>) {
+    let (any, ops) = {
+        let mut core = shared.scheduler();
+        let any = core.expire(std::time::Instant::now());
+        (any, core.take_deferred())
+    };
+    if any {
+        shared.bump_work();
+    }
+    if !ops.is_empty() {
+        // Not awaited: nothing answers a caller from here, and the next commit has it.
+        drop(shared.queue_write(ops));
+        shared.bump_changed();
+    }
+    crate::referee::spawn_pending(shared);
 }
 
 /// Checks the bearer token of every call ([`crate::auth`]) and tells the service who called

@@ -164,26 +164,6 @@ impl Shared {
         rx
     }
 
-    /// What the server's ticker does: lapses overdue leases (waking workers for their units,
-    /// and committing a frame that a unit lapsing too often failed), and starts the referee's
-    /// pending renders.
-    pub(crate) fn tick(self: &Arc<Self>) {
-        let (any, ops) = {
-            let mut core = self.scheduler();
-            let any = core.expire(std::time::Instant::now());
-            (any, core.take_deferred())
-        };
-        if any {
-            self.bump_work();
-        }
-        if !ops.is_empty() {
-            // Not awaited: nothing answers a caller from here, and the next commit has it.
-            drop(self.queue_write(ops));
-            self.bump_changed();
-        }
-        crate::referee::spawn_pending(self);
-    }
-
     /// Makes every change so far durable, the tiles merged since the last checkpoint with
     /// them: what a clean stop does last.
     pub(crate) async fn flush(&self) -> Result<(), CommitError> {

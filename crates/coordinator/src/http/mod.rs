@@ -11,6 +11,7 @@
 //! identity and client CA as the gRPC API.
 
 mod api;
+mod intake;
 mod preview;
 
 use std::sync::Arc;
@@ -148,7 +149,7 @@ fn router(app: App) -> Router {
         .route("/static/app.js", get(app_js))
         .route("/static/style.css", get(style_css))
         .route("/api/openapi.json", get(api::openapi))
-        .route("/api/jobs", get(api::list_jobs).post(api::submit))
+        .route("/api/jobs", get(api::list_jobs).post(intake::submit))
         .route("/api/jobs/{id}", get(api::job))
         .route("/api/jobs/{id}/cancel", post(api::cancel))
         .route("/api/jobs/{id}/pause", post(api::pause))
@@ -162,7 +163,7 @@ fn router(app: App) -> Router {
         .route("/api/workers/{id}/drain", post(api::drain))
         .route(
             "/api/assets/{sha256}",
-            get(api::asset_status).put(api::upload_asset),
+            get(intake::asset_status).put(intake::upload_asset),
         )
         .route("/metrics", get(metrics))
         .route("/login", post(login))
