@@ -271,7 +271,7 @@ fuzz_target!(|data: &[u8]| {
                     assert!(resp.starts_with(b"\x89PNG"), "{path}: not a PNG");
                 }
             }
-            if op % 10 == 4 && may && !cross && status < 400 {
+            if op % 13 == 4 && may && !cross && status < 400 {
                 legit_cancel = true;
             }
             let state = svc
