@@ -23,7 +23,7 @@ use serde_json::{json, Value};
 use tungstenite::stream::MaybeTlsStream;
 use tungstenite::{Message, WebSocket};
 
-use common::{repo, Proc, BIN};
+use common::{coordinator_with_dashboard, repo, Proc, BIN};
 use tessera_testkit::{wait_for_blocking as wait_for, PATIENCE};
 
 const TOKEN: &str = "browser-test-token-0123456789abcdef";
@@ -222,44 +222,6 @@ fn fetch_in_page(cdp: &mut Cdp, url_js: &str) -> Vec<u8> {
         .iter()
         .map(|b| b.as_u64().expect("byte") as u8)
         .collect()
-}
-
-/// Starts `tessera coordinator` on port 0 with its dashboard on port 0 and `extra` arguments;
-/// returns it with its gRPC URL and its dashboard's URL, read from the lines it prints once
-/// it is up (where it listens, then where its dashboard is).
-fn coordinator_with_dashboard(data: &Path, extra: &[&str]) -> (Proc, String, String) {
-    let mut child = Command::new(BIN)
-        .args([
-            "coordinator",
-            "--listen",
-            "127.0.0.1:0",
-            "--http",
-            "127.0.0.1:0",
-        ])
-        .args(extra)
-        .arg("--data-dir")
-        .arg(data)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("start coordinator");
-    let mut out = BufReader::new(child.stdout.take().expect("stdout"));
-    let coordinator = Proc(child);
-    let mut line = String::new();
-    out.read_line(&mut line).expect("listening line");
-    let grpc = format!(
-        "http://{}",
-        line.trim().strip_prefix("listening on ").expect(&line)
-    );
-    line.clear();
-    out.read_line(&mut line).expect("dashboard line");
-    let dash = line
-        .trim()
-        .strip_prefix("dashboard on ")
-        .unwrap_or_else(|| panic!("unexpected line {line:?}"))
-        .trim_end_matches('/')
-        .to_string();
-    (coordinator, grpc, dash)
 }
 
 #[test]

@@ -279,41 +279,12 @@ fn sigkilled_workers_and_coordinator_do_not_change_a_bit() {
         String::from_utf8_lossy(&follower.stderr)
     );
 
-    let local = dir.path().join("local.exr");
-    let mut args = vec![
-        "render",
-        scene.as_str(),
-        "--output",
-        local.to_str().expect("utf8"),
-    ];
-    args.extend(settings);
-    let out = tessera(&args, &url);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(
-        std::fs::read(&farm_exr).expect("farm") == std::fs::read(&local).expect("local"),
-        "the EXR after the chaos differs from tessera render's (events: {events:?})"
-    );
-
-    // The pooled and the paused jobs: done, with tessera render's bits too.
-    for (job, seed) in [(&pooled, "3"), (&paused, "5")] {
-        let farm = dir.path().join(format!("{job}.exr"));
-        let out = tessera(
-            &["fetch", job, "--wait", "-o", farm.to_str().expect("utf8")],
-            &url,
-        );
-        assert!(
-            out.status.success(),
-            "{job}: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+    // Each job's EXR must be `tessera render`'s with the same settings.
+    let same_as_render = |farm: &Path, settings: &[&str], job: &str| {
         let local = dir.path().join(format!("{job}-local.exr"));
-        let mut args = vec!["render", scene.as_str(), "--seed", seed, "--output"];
+        let mut args = vec!["render", scene.as_str(), "--output"];
         args.push(local.to_str().expect("utf8"));
-        args.extend(small);
+        args.extend(settings);
         let out = tessera(&args, &url);
         assert!(
             out.status.success(),
@@ -321,9 +292,32 @@ fn sigkilled_workers_and_coordinator_do_not_change_a_bit() {
             String::from_utf8_lossy(&out.stderr)
         );
         assert!(
-            std::fs::read(&farm).expect("farm") == std::fs::read(&local).expect("local"),
+            std::fs::read(farm).expect("farm") == std::fs::read(&local).expect("local"),
             "{job}'s EXR after the chaos differs from tessera render's (events: {events:?})"
         );
+    };
+    same_as_render(&farm_exr, &settings, &job);
+    // The pooled and the paused jobs: done, with tessera render's bits too.
+    for (small_job, seed) in [(&pooled, "3"), (&paused, "5")] {
+        let farm = dir.path().join(format!("{small_job}.exr"));
+        let out = tessera(
+            &[
+                "fetch",
+                small_job,
+                "--wait",
+                "-o",
+                farm.to_str().expect("utf8"),
+            ],
+            &url,
+        );
+        assert!(
+            out.status.success(),
+            "{small_job}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let mut settings = vec!["--seed", seed];
+        settings.extend(small);
+        same_as_render(&farm, &settings, small_job);
     }
     // Its requirement survived the restart with it.
     let status = String::from_utf8_lossy(&tessera(&["status", &pooled], &url).stdout).to_string();

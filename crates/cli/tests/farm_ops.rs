@@ -371,23 +371,14 @@ fn as_user(args: &[&str], url: &str, token: &std::path::Path) -> std::process::O
         .expect("run tessera")
 }
 
-/// Writes a private file (a token file others can read earns a warning line).
-fn private(dir: &std::path::Path, name: &str, text: &str) -> std::path::PathBuf {
-    use std::os::unix::fs::PermissionsExt;
-    let p = dir.join(name);
-    std::fs::write(&p, text).expect("write");
-    std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o600)).expect("chmod");
-    p
-}
-
 #[test]
 fn named_tokens_record_who_submitted_and_sighup_rereads_the_file() {
     const ALICE: &str = "alice-token-0123456789abcdef";
     const BOB: &str = "bob-token-0123456789abcdef";
     let dir = tempfile::tempdir().expect("tmp");
-    let tokens = private(dir.path(), "tokens", &format!("alice {ALICE}\nbob {BOB}\n"));
-    let alice = private(dir.path(), "alice.token", ALICE);
-    let bob = private(dir.path(), "bob.token", BOB);
+    let tokens = common::private_file(dir.path(), "tokens", &format!("alice {ALICE}\nbob {BOB}\n"));
+    let alice = common::private_file(dir.path(), "alice.token", ALICE);
+    let bob = common::private_file(dir.path(), "bob.token", BOB);
     let log = dir.path().join("coordinator.log");
     let (coord, addr) = common::start_coordinator(
         "127.0.0.1:0",

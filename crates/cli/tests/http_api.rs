@@ -2,12 +2,11 @@
 //! the standard library), against the real `tessera coordinator --http` with a token and a real
 //! worker: the EXR it downloads must be `tessera render`'s bytes.
 
-use std::io::{BufRead, BufReader};
-use std::process::{Command, Stdio};
+use std::process::Command;
 
 mod common;
 
-use common::{repo, worker_with, Proc, BIN};
+use common::{repo, worker_with, BIN};
 
 /// The first block of `lang` after the heading `heading` in docs/farm.md.
 fn block(heading: &str, lang: &str) -> String {
@@ -28,50 +27,12 @@ fn block(heading: &str, lang: &str) -> String {
 fn the_documented_python_pipeline_submits_a_mesh_scene_and_gets_tessera_renders_bits() {
     let dir = tempfile::tempdir().expect("tmp");
     let token = "pipeline-token-0123456789abcdef";
-    let token_file = dir.path().join("token");
-    std::fs::write(&token_file, token).expect("token");
-    {
-        use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(&token_file, std::fs::Permissions::from_mode(0o600))
-            .expect("chmod");
-    }
-    let mut child = Command::new(BIN)
-        .args([
-            "coordinator",
-            "--listen",
-            "127.0.0.1:0",
-            "--http",
-            "127.0.0.1:0",
-        ])
-        .arg("--data-dir")
-        .arg(dir.path().join("data"))
-        .arg("--token-file")
-        .arg(&token_file)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("coordinator");
-    let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
-    let mut next = || lines.next().expect("a line").expect("read");
-    let grpc = next();
-    let dash = next();
-    let coord = Proc(child);
-    let grpc = format!(
-        "http://{}",
-        grpc.strip_prefix("listening on ").expect("listening")
-    );
-    let dash = dash
-        .strip_prefix("dashboard on ")
-        .expect("dashboard")
-        .trim_end_matches('/')
-        .to_string();
+    let token_file = common::private_file(dir.path(), "token", token);
+    let token_arg = token_file.to_str().expect("utf8");
+    let (coord, grpc, dash) =
+        common::coordinator_with_dashboard(&dir.path().join("data"), &["--token-file", token_arg]);
     let log = dir.path().join("worker.log");
-    let w = worker_with(
-        &grpc,
-        "py",
-        &["--token-file", token_file.to_str().expect("utf8")],
-        &log,
-    );
+    let w = worker_with(&grpc, "py", &["--token-file", token_arg], &log);
 
     // The script and its command, as the docs give them; only the address is this run's.
     let script = dir.path().join("pipeline.py");

@@ -152,3 +152,55 @@ pub fn assert_clean_failure(out: &Output, needles: &[&str]) {
         assert!(stderr.contains(n), "missing {n:?} in: {stderr}");
     }
 }
+
+/// Starts `tessera coordinator` on port 0 with its dashboard on port 0 and `extra` arguments;
+/// returns it with its gRPC URL and its dashboard's URL, read from the lines it prints once
+/// it is up (where it listens, then where its dashboard is).
+pub fn coordinator_with_dashboard(
+    data: &std::path::Path,
+    extra: &[&str],
+) -> (Proc, String, String) {
+    let mut child = Command::new(BIN)
+        .args([
+            "coordinator",
+            "--listen",
+            "127.0.0.1:0",
+            "--http",
+            "127.0.0.1:0",
+        ])
+        .args(extra)
+        .arg("--data-dir")
+        .arg(data)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start coordinator");
+    use std::io::{BufRead, BufReader};
+    let mut out = BufReader::new(child.stdout.take().expect("stdout"));
+    let coordinator = Proc(child);
+    let mut line = String::new();
+    out.read_line(&mut line).expect("listening line");
+    let grpc = format!(
+        "http://{}",
+        line.trim().strip_prefix("listening on ").expect(&line)
+    );
+    line.clear();
+    out.read_line(&mut line).expect("dashboard line");
+    let dash = line
+        .trim()
+        .strip_prefix("dashboard on ")
+        .unwrap_or_else(|| panic!("unexpected line {line:?}"))
+        .trim_end_matches('/')
+        .to_string();
+    (coordinator, grpc, dash)
+}
+
+/// Writes `text` to the private file `dir/name` (a token file others can read earns a warning
+/// line on stderr) and returns its path.
+pub fn private_file(dir: &std::path::Path, name: &str, text: &str) -> PathBuf {
+    use std::os::unix::fs::PermissionsExt;
+    let p = dir.join(name);
+    std::fs::write(&p, text).expect("write");
+    std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o600)).expect("chmod");
+    p
+}
