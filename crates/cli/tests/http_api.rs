@@ -51,16 +51,24 @@ fn the_documented_python_pipeline_submits_a_mesh_scene_and_gets_tessera_renders_
         ],
         "docs/farm.md's command changed: {command}"
     );
+    // The script as the command runs it, writing to `out`, with the token in the environment
+    // or without it.
+    let pipeline = |out: &std::path::Path, token: Option<&str>| {
+        let mut cmd = Command::new("python3");
+        cmd.arg(&script)
+            .arg(&dash)
+            .args([words[3], words[4]])
+            .arg(out)
+            .current_dir(repo(""))
+            .env_remove("TESSERA_TOKEN");
+        if let Some(t) = token {
+            cmd.env("TESSERA_TOKEN", t);
+        }
+        cmd.output()
+            .expect("python3 (Debian's python3 package) runs the pipeline script")
+    };
     let out_exr = dir.path().join("mesh.exr");
-    let run = Command::new("python3")
-        .arg(&script)
-        .arg(&dash)
-        .args([words[3], words[4]])
-        .arg(&out_exr)
-        .current_dir(repo(""))
-        .env("TESSERA_TOKEN", token)
-        .output()
-        .expect("python3 (Debian's python3 package) runs the pipeline script");
+    let run = pipeline(&out_exr, Some(token));
     assert!(
         run.status.success(),
         "the pipeline script failed: {}{}",
@@ -95,31 +103,15 @@ fn the_documented_python_pipeline_submits_a_mesh_scene_and_gets_tessera_renders_
         "the EXR the pipeline script downloaded differs from tessera render's"
     );
 
-    // Run again: the mesh is held, so nothing is uploaded twice (the script asks first).
-    let again = Command::new("python3")
-        .arg(&script)
-        .arg(&dash)
-        .args([words[3], words[4]])
-        .arg(dir.path().join("again.exr"))
-        .current_dir(repo(""))
-        .env("TESSERA_TOKEN", token)
-        .output()
-        .expect("python3");
+    // Run again, with the mesh already held (the script asks before it uploads).
+    let again = pipeline(&dir.path().join("again.exr"), Some(token));
     assert!(
         again.status.success(),
         "{}",
         String::from_utf8_lossy(&again.stderr)
     );
     // Without the token, the API answers with its JSON error, which the script prints.
-    let refused = Command::new("python3")
-        .arg(&script)
-        .arg(&dash)
-        .args([words[3], words[4]])
-        .arg(dir.path().join("never.exr"))
-        .current_dir(repo(""))
-        .env_remove("TESSERA_TOKEN")
-        .output()
-        .expect("python3");
+    let refused = pipeline(&dir.path().join("never.exr"), None);
     assert!(!refused.status.success());
     assert!(
         String::from_utf8_lossy(&refused.stderr).contains("unauthenticated"),

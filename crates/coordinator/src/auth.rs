@@ -42,6 +42,15 @@ pub struct Caller {
 }
 
 impl Caller {
+    /// The caller on a farm with one token, or none: nobody in particular, who may do
+    /// anything.
+    pub fn anyone() -> Self {
+        Self {
+            user: String::new(),
+            admin: true,
+        }
+    }
+
     /// Whether this caller may change job `job`, submitted by `submitter`: its own, or any
     /// for an admin. The refusal names who may.
     pub fn may_change(&self, job: &str, submitter: &str, verb: &str) -> Result<(), String> {
@@ -113,11 +122,7 @@ impl Tokens {
 
     /// The lone token `secret`: its holders are one anonymous user who may do anything.
     pub fn one(secret: &Secret) -> Self {
-        let caller = Caller {
-            user: String::new(),
-            admin: true,
-        };
-        Self::of(vec![Named::new(caller, secret)])
+        Self::of(vec![Named::new(Caller::anyone(), secret)])
     }
 
     /// A tokens file's text (`NAME TOKEN [admin]` a line; `#` comments, blank lines), read
@@ -197,44 +202,40 @@ impl Tokens {
         self.current().len()
     }
 
-    /// Who presents token `presented`, if anyone: every token is compared, in constant time.
-    pub(crate) fn caller(&self, presented: &str) -> Option<Caller> {
-        let hash = sha256(presented.as_bytes());
+    /// What `pick` takes from the entry `is` holds for, if any: every entry is tried, each
+    /// comparison in constant time, so the time taken does not tell which one matched.
+    fn find<T>(&self, is: impl Fn(&Named) -> bool, pick: impl Fn(&Named) -> T) -> Option<T> {
         let set = self.current();
         let mut found = None;
         for n in set.iter() {
-            if bool::from(n.hash.ct_eq(&hash)) {
-                found = Some(n.caller.clone());
+            if is(n) {
+                found = Some(pick(n));
             }
         }
         found
     }
 
+    /// Who presents token `presented`, if anyone.
+    pub(crate) fn caller(&self, presented: &str) -> Option<Caller> {
+        let hash = sha256(presented.as_bytes());
+        self.find(|n| bool::from(n.hash.ct_eq(&hash)), |n| n.caller.clone())
+    }
+
     /// Who the dashboard session value `cookie` is of, if anyone.
     pub(crate) fn session_caller(&self, cookie: &str) -> Option<Caller> {
-        let set = self.current();
-        let mut found = None;
-        for n in set.iter() {
-            if cookie.len() == n.session.len()
-                && bool::from(cookie.as_bytes().ct_eq(n.session.as_bytes()))
-            {
-                found = Some(n.caller.clone());
-            }
-        }
-        found
+        self.find(
+            |n| {
+                cookie.len() == n.session.len()
+                    && bool::from(cookie.as_bytes().ct_eq(n.session.as_bytes()))
+            },
+            |n| n.caller.clone(),
+        )
     }
 
     /// The session value for the holder of token `presented`, if it is one.
     pub(crate) fn session_for(&self, presented: &str) -> Option<String> {
         let hash = sha256(presented.as_bytes());
-        let set = self.current();
-        let mut found = None;
-        for n in set.iter() {
-            if bool::from(n.hash.ct_eq(&hash)) {
-                found = Some(n.session.clone());
-            }
-        }
-        found
+        self.find(|n| bool::from(n.hash.ct_eq(&hash)), |n| n.session.clone())
     }
 }
 
@@ -271,10 +272,7 @@ mod tests {
     #[test]
     fn only_the_token_matches_and_the_session_is_not_the_token() {
         let t = Tokens::one(&Secret::new("s3cret-s3cret-s3cret".to_string()));
-        let anyone = Caller {
-            user: String::new(),
-            admin: true,
-        };
+        let anyone = Caller::anyone();
         assert_eq!(t.caller("s3cret-s3cret-s3cret"), Some(anyone.clone()));
         assert_eq!(t.caller("s3cret-s3cret-s3cre"), None);
         assert_eq!(t.caller(""), None);

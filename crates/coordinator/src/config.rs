@@ -4,9 +4,9 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use tessera_proto::Secret;
+use tessera_render::scene::Limits;
 
 use crate::auth::Tokens;
-use tessera_render::scene::Limits;
 
 /// Coordinator settings.
 #[derive(Clone, Debug)]
@@ -44,8 +44,8 @@ pub struct Config {
     pub blocklist_after: u32,
     /// Failures after which a frame fails, with every reason.
     pub fail_frame_after: u32,
-    /// Distinct machines on which one unit's lease may lapse (each worker died or stopped answering
-    /// while it held the unit) before its frame fails; 0: never.
+    /// Distinct machines on which one unit's lease may lapse (each worker died or stopped
+    /// answering while it held the unit) before its frame fails; 0: never.
     pub fail_unit_after_lapses: u32,
     /// How long a failed job's scene (and so its assets) is kept for `tessera retry`.
     pub retry_window: Duration,
