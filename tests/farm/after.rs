@@ -78,7 +78,10 @@ async fn a_job_after_another_waits_for_it_across_a_restart() {
                 of_then += 1;
             } else {
                 assert_eq!(u.job_id, first, "a unit of an unknown job");
-                assert_eq!(of_then, 0, "the first job leased after the waiting one started");
+                assert_eq!(
+                    of_then, 0,
+                    "the first job leased after the waiting one started"
+                );
                 of_first += 1;
             }
             let r = honest_result(&scene, &settings, &u);
@@ -87,7 +90,10 @@ async fn a_job_after_another_waits_for_it_across_a_restart() {
                 .expect("merged");
         }
     }
-    assert!(of_first > 0 && of_then > 0, "{of_first} and {of_then} units");
+    assert!(
+        of_first > 0 && of_then > 0,
+        "{of_first} and {of_then} units"
+    );
     for job in [&first, &then] {
         let s = wait(&mut client, job).await;
         assert_eq!(s.state, pb::JobState::Done as i32, "{job}: {}", s.error);

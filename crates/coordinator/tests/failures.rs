@@ -1,6 +1,7 @@
 //! Units that fail on workers: each goes to another worker, a worker that fails a job's units
 //! three times is blocklisted for that job alone, and a frame fails with every reason after
-//! five failures, or once every connected worker that fits it is blocklisted. A unit whose
+//! five failures (one machine's counted at most three times, however many names it registers),
+//! or once every connected worker that fits it is blocklisted. A unit whose
 //! lease lapses on three different machines fails its frame; one machine alone, however many
 //! names it registers, cannot.
 
@@ -201,6 +202,39 @@ fn one_machine_letting_a_unit_lapse_under_many_names_does_not_fail_the_frame() {
     assert!(
         rec.error
             .contains("3 different machines (workers n0, m0, m1)"),
+        "{}",
+        rec.error
+    );
+}
+
+#[test]
+fn one_machine_reporting_failures_under_many_names_does_not_fail_the_frame() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let names = OutputNames::new(dir.path());
+    let (mut core, job) = common::one_job(&names);
+    let now = Instant::now();
+    // An honest worker elsewhere keeps "nobody left" from deciding.
+    let honest = core.register("honest".into(), 1, "v".into(), "h".into(), now);
+    core.set_host(honest, "10.0.0.1".into());
+    // One host says it cannot render under eight names, one failure each: its failures count
+    // three times (a blocklist's worth), below the frame's five.
+    for i in 0..8 {
+        let w = core.register(format!("n{i}"), 1, "v".into(), format!("s{i}"), now);
+        core.set_host(w, "10.0.0.9".into());
+        assert!(fail_one(&mut core, w, job, now));
+    }
+    let rec = &core.job(job).expect("job").rec;
+    assert_eq!(rec.phase, JobPhase::Active, "{}", rec.error);
+    assert_eq!(rec.failures.len(), 8, "each failure is still recorded");
+    // Failures on a second machine add to them: two more make five.
+    assert!(fail_one(&mut core, honest, job, now));
+    assert_eq!(core.job(job).expect("job").rec.phase, JobPhase::Active);
+    assert!(fail_one(&mut core, honest, job, now));
+    let rec = &core.job(job).expect("job").rec;
+    assert_eq!(rec.phase, JobPhase::Failed);
+    assert!(
+        rec.error
+            .starts_with("10 failures (the most a frame may have is 5)"),
         "{}",
         rec.error
     );

@@ -9,6 +9,13 @@
 //! every reason collected, after [`Policy::fail_frame_after`](super::Policy) failures, or as
 //! soon as every connected worker that fits it is blocklisted (nobody is left to try).
 //!
+//! Toward the frame's limit, one machine's failures count at most `blocklist_after` times,
+//! and always fewer than the limit (see [`counted_failures`]): a blocklist is kept by name, so
+//! a host registering a new name each time could otherwise report failures until the frame
+//! fails, and so fail anybody's job by itself. An honest machine is blocklisted at that many
+//! under its one name, so it loses nothing; a farm of one machine fails the frame when that
+//! machine is blocklisted and nobody is left.
+//!
 //! A lease that lapses is not counted against its worker: a worker killed, preempted or cut
 //! off costs one unit's time and the unit goes out again at once, and counting it would
 //! blocklist healthy machines on a farm of preemptible ones (the chaos test kills a worker
@@ -72,6 +79,21 @@ fn summary(failures: &[UnitFailure], why_now: &str) -> String {
     )
 }
 
+/// The failures that count toward a frame's limit of `fail_after`: each machine's at most
+/// `blocklist_after` times and at most `fail_after − 1` times, so that no one machine reaches
+/// the limit alone.
+fn counted_failures(failures: &[UnitFailure], blocklist_after: u32, fail_after: u32) -> usize {
+    let cap = blocklist_after.min(fail_after.saturating_sub(1)).max(1) as usize;
+    let mut per_machine: Vec<(&str, usize)> = Vec::new();
+    for f in failures {
+        match per_machine.iter_mut().find(|(m, _)| *m == f.machine()) {
+            Some((_, n)) => *n += 1,
+            None => per_machine.push((f.machine(), 1)),
+        }
+    }
+    per_machine.iter().map(|&(_, n)| n.min(cap)).sum()
+}
+
 impl Scheduler {
     /// Worker `w` says it cannot render the units of `ids`, and why: each is a failure of its
     /// job on that worker (the unit itself is put back by the release that follows); returns
@@ -108,9 +130,14 @@ impl Scheduler {
         now_ms: i64,
     ) -> Vec<Op> {
         let worker_id = self.worker_id(w).to_string();
-        let Some(name) = self.workers.get(&w).map(|x| x.name.clone()) else {
+        let Some((name, host)) = self
+            .workers
+            .get(&w)
+            .map(|x| (x.name.clone(), x.host.clone()))
+        else {
             return Vec::new();
         };
+        let machine = if host.is_empty() { name.clone() } else { host };
         let (blocklist_after, fail_after) = (
             self.policy.blocklist_after.max(1),
             self.policy.fail_frame_after.max(1),
@@ -131,6 +158,7 @@ impl Scheduler {
             batch: unit.batch,
             reason: reason.to_string(),
             unix_ms: now_ms,
+            machine,
         });
         let mine = job.rec.failures.iter().filter(|f| f.worker == name).count();
         if mine >= blocklist_after as usize && !job.rec.blocklist.contains(&name) {
@@ -140,7 +168,9 @@ impl Scheduler {
             );
             job.rec.blocklist.push(name);
         }
-        let why = if job.rec.failures.len() >= fail_after as usize {
+        let why = if counted_failures(&job.rec.failures, blocklist_after, fail_after)
+            >= fail_after as usize
+        {
             Some(format!("the most a frame may have is {fail_after}"))
         } else if self.nobody_left(id, now) {
             Some("every connected worker that fits it is blocklisted".to_string())
@@ -177,7 +207,7 @@ impl Scheduler {
         let machine = if host.is_empty() { name.clone() } else { host };
         let seen = self.lapses.entry((id, unit)).or_default();
         if !seen.iter().any(|(m, _)| *m == machine) {
-            seen.push((machine, name.clone()));
+            seen.push((machine.clone(), name.clone()));
         }
         if seen.len() < limit as usize {
             return Vec::new();
@@ -211,6 +241,7 @@ impl Scheduler {
             batch: unit.batch,
             reason,
             unix_ms: now_ms,
+            machine,
         });
         let error = summary(
             &job.rec.failures,
@@ -263,7 +294,35 @@ mod tests {
             batch: 1,
             reason: reason.into(),
             unix_ms: 0,
+            machine: String::new(),
         }
+    }
+
+    fn on(machine: &str, worker: &str) -> UnitFailure {
+        UnitFailure {
+            machine: machine.into(),
+            ..failure(worker, "no")
+        }
+    }
+
+    #[test]
+    fn one_machine_counts_toward_a_frames_limit_at_most_its_blocklist_and_below_the_limit() {
+        // One host under five names: three count (its blocklist limit), not five.
+        let hostile: Vec<_> = (0..5).map(|i| on("10.0.0.9", &format!("w{i}"))).collect();
+        assert_eq!(counted_failures(&hostile, 3, 5), 3);
+        // Below the limit however high the blocklist limit is.
+        assert_eq!(counted_failures(&hostile, 10, 5), 4);
+        // Two machines add up; a record without a machine counts by its worker's name.
+        let two = [
+            hostile.as_slice(),
+            &[on("10.0.0.7", "a"), on("10.0.0.7", "a")],
+        ]
+        .concat();
+        assert_eq!(counted_failures(&two, 3, 5), 5);
+        let old = [failure("a", "x"), failure("b", "x"), failure("b", "x")];
+        assert_eq!(counted_failures(&old, 3, 5), 3);
+        // A limit of one fails the frame at its first failure.
+        assert_eq!(counted_failures(&hostile[..1], 3, 1), 1);
     }
 
     #[test]

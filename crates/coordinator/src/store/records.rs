@@ -171,6 +171,21 @@ pub struct UnitFailure {
     pub reason: String,
     /// When, Unix milliseconds.
     pub unix_ms: i64,
+    /// The machine it failed on: the worker's registration address, or its name where that
+    /// is unknown (empty in records written before machines were kept: the name stands in).
+    #[serde(default)]
+    pub machine: String,
+}
+
+impl UnitFailure {
+    /// The machine the frame's failure limit counts it against.
+    pub fn machine(&self) -> &str {
+        if self.machine.is_empty() {
+            &self.worker
+        } else {
+            &self.machine
+        }
+    }
 }
 
 /// A frame-range job, as each of its frames records it.
