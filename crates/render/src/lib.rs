@@ -43,6 +43,7 @@ pub mod bsdf;
 pub mod camera;
 pub mod envmap;
 pub mod film;
+pub mod guide;
 pub mod integrator;
 pub mod interaction;
 pub mod light;

@@ -1,0 +1,622 @@
+//! A directional quadtree: a piecewise-constant density over the sphere of directions, finer
+//! where more energy arrives.
+//!
+//! Directions map to the unit square by the cylindrical (Lambert) projection, x = φ/2π and
+//! y = (1 + cos θ)/2, which preserves area: a region of area A covers 4πA steradians, so a
+//! density p over the square is p/4π per steradian everywhere, with no Jacobian to get wrong
+//! near the poles. Each node splits its square into four quadrants and holds the energy that
+//! arrived through each; a quadrant is a leaf or another node.
+//!
+//! The invariant that keeps guiding unbiased is that [`DirTree::sample`] draws a direction
+//! with exactly the density [`DirTree::pdf`] reports for it. Both descend the same quadrants
+//! and multiply the same factor per level, 4·(the quadrant's energy)/(the node's energy),
+//! with quadrants picked in sampling by those same shares (one uniform number per axis,
+//! reused by remapping), and a leaf sampled uniformly; a node with no energy (or a total
+//! that is not finite) counts as uniform in both. No quadrant of zero energy can be picked,
+//! so no sample lands where the pdf is zero.
+
+use std::f32::consts::PI;
+
+use glam::{Vec2, Vec3A};
+
+use crate::util::math::atan2;
+use crate::util::sampling::{sin_cos_turn, ONE_MINUS_EPSILON};
+
+/// The deepest a node may be (the root is at depth 1): a leaf there spans 2⁻²⁰ of the
+/// square's side, as in Müller et al.
+pub const MAX_DEPTH: u32 = 20;
+
+/// The most nodes a tree may have. Refinement at a share of 1% makes at most 100 nodes a
+/// level (see [`MIN_THRESHOLD`]); this bound is for decoding bytes from elsewhere.
+pub const MAX_NODES: usize = 1 << 16;
+
+/// The smallest share of the energy [`DirTree::refined`] splits a quadrant for.
+pub const MIN_THRESHOLD: f64 = 0.005;
+
+/// The child index of a quadrant that is a leaf (the root, node 0, is nobody's child).
+const LEAF: u32 = 0;
+
+/// Bytes before the nodes: magic, version, node count.
+const HEADER: usize = 9;
+/// Bytes a node takes: four child indices and four energies.
+const NODE_BYTES: usize = 4 * 4 + 4 * 8;
+const MAGIC: &[u8; 4] = b"TSGQ";
+const VERSION: u8 = 1;
+
+/// What is wrong with a guide's bytes, or with a merge of two guides.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum GuideError {
+    /// Not a directional guide, or another version of one.
+    #[error("not a directional guide (version {VERSION}): bad header")]
+    Header,
+    /// The node count is zero or above [`MAX_NODES`].
+    #[error("a directional guide has {0} nodes; it must have 1 to {MAX_NODES}")]
+    NodeCount(u64),
+    /// The length does not match the node count.
+    #[error("a directional guide of {nodes} nodes takes {expected} bytes, not {got}")]
+    Length {
+        /// Nodes the header gives.
+        nodes: usize,
+        /// Bytes they take.
+        expected: usize,
+        /// Bytes there were.
+        got: usize,
+    },
+    /// A child index that is not a later node, or a node that is the child of two.
+    #[error("node {node} quadrant {quadrant}: child {child} is not a node of its own")]
+    Child {
+        /// The parent.
+        node: usize,
+        /// The quadrant.
+        quadrant: usize,
+        /// The index it gives.
+        child: u32,
+    },
+    /// A node nobody points at.
+    #[error("node {0} is nobody's child")]
+    Orphan(usize),
+    /// A node deeper than [`MAX_DEPTH`].
+    #[error("node {0} is deeper than {MAX_DEPTH} levels")]
+    Depth(usize),
+    /// An energy that is negative or not finite, or a node whose total is not finite.
+    #[error("node {node} quadrant {quadrant}: energy {value} is not a finite non-negative sum")]
+    Energy {
+        /// The node.
+        node: usize,
+        /// The quadrant.
+        quadrant: usize,
+        /// The value.
+        value: f64,
+    },
+    /// A spatial guide's bounds that are not finite or enclose nothing.
+    #[error("a spatial guide's bounds are not a finite, non-empty box")]
+    Bounds,
+    /// A spatial leaf named by no leaf node, or by two, or a leaf node naming none.
+    #[error("spatial node or leaf {0} does not pair one leaf node with one leaf")]
+    Leaf(usize),
+    /// Two trees of different structure cannot be added.
+    #[error("the guides have different structures ({0} and {1} nodes, or other children)")]
+    Mismatch(usize, usize),
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Node {
+    /// The energy that arrived through each quadrant.
+    energy: [f64; 4],
+    /// Each quadrant's node, or [`LEAF`].
+    child: [u32; 4],
+}
+
+impl Node {
+    const EMPTY: Node = Node {
+        energy: [0.0; 4],
+        child: [LEAF; 4],
+    };
+
+    /// Each quadrant's share of the node's energy; a quarter each when it has none.
+    #[inline]
+    fn shares(&self) -> [f64; 4] {
+        let e = self.energy;
+        let total = e[0] + e[1] + e[2] + e[3];
+        if total > 0.0 && total.is_finite() {
+            e.map(|x| x / total)
+        } else {
+            [0.25; 4]
+        }
+    }
+}
+
+/// A point of the unit square, as a direction.
+pub fn from_square(p: Vec2) -> Vec3A {
+    let cos = (2.0 * p.y - 1.0).clamp(-1.0, 1.0);
+    let sin = ((1.0 - cos) * (1.0 + cos)).max(0.0).sqrt();
+    let (sin_phi, cos_phi) = sin_cos_turn(p.x);
+    Vec3A::new(sin * cos_phi, sin * sin_phi, cos)
+}
+
+/// A unit direction as a point of the unit square, each coordinate in [0, 1).
+pub fn to_square(d: Vec3A) -> Vec2 {
+    let x = atan2(d.y, d.x) * (0.5 / PI);
+    let x = if x < 0.0 { x + 1.0 } else { x };
+    let y = (d.z.clamp(-1.0, 1.0) + 1.0) * 0.5;
+    Vec2::new(
+        x.clamp(0.0, ONE_MINUS_EPSILON),
+        y.clamp(0.0, ONE_MINUS_EPSILON),
+    )
+}
+
+/// The quadrant of `p` (x to the right, y up: 0 1 below, 2 3 above), and `p` within it.
+#[inline]
+fn quadrant(p: [f64; 2]) -> (usize, [f64; 2]) {
+    let qx = usize::from(p[0] >= 0.5);
+    let qy = usize::from(p[1] >= 0.5);
+    // Exact: doubling, and subtracting 1 from a number in [1, 2).
+    (
+        qx + 2 * qy,
+        [2.0 * p[0] - qx as f64, 2.0 * p[1] - qy as f64],
+    )
+}
+
+/// `u` in [0, 1) past a choice with probability `p` of the lower side, stretched back over
+/// [0, 1) within the side it chose; returns (whether it chose the upper side, the new `u`).
+#[inline]
+fn choose(u: f64, p: f64) -> (bool, f64) {
+    let (upper, u) = if u < p {
+        (false, u / p)
+    } else {
+        (true, (u - p) / (1.0 - p))
+    };
+    (upper, u.clamp(0.0, 1.0 - f64::EPSILON / 2.0))
+}
+
+/// Checks that `children` (each node's children, 0 for none: the root is nobody's child)
+/// describe one tree rooted at node 0: every child a later node and nobody else's, every
+/// node reached from the root, none deeper than `max_depth`.
+pub(super) fn check_shape<const K: usize>(
+    children: &[[u32; K]],
+    max_depth: u32,
+) -> Result<(), GuideError> {
+    // Children come after their parents, so one pass in index order gives every node its
+    // depth from its parent's, and a node not yet reached when its turn comes is nobody's.
+    let count = children.len();
+    let mut depth = vec![0u32; count];
+    depth[0] = 1;
+    for (i, child) in children.iter().enumerate() {
+        if depth[i] == 0 {
+            return Err(GuideError::Orphan(i));
+        }
+        if depth[i] > max_depth {
+            return Err(GuideError::Depth(i));
+        }
+        for (q, &c) in child.iter().enumerate() {
+            if c == LEAF {
+                continue;
+            }
+            let bad = GuideError::Child {
+                node: i,
+                quadrant: q,
+                child: c,
+            };
+            let c = c as usize;
+            if c <= i || c >= count || depth[c] != 0 {
+                return Err(bad);
+            }
+            depth[c] = depth[i] + 1;
+        }
+    }
+    Ok(())
+}
+
+/// A directional distribution learned from energy arriving along directions.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DirTree {
+    /// Never empty: node 0 is the root.
+    nodes: Vec<Node>,
+}
+
+impl Default for DirTree {
+    fn default() -> Self {
+        Self::uniform()
+    }
+}
+
+impl DirTree {
+    /// One node and no energy: the uniform density over the sphere.
+    pub fn uniform() -> Self {
+        Self {
+            nodes: vec![Node::EMPTY],
+        }
+    }
+
+    /// How many nodes it has.
+    pub fn len(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// Never true: a tree has its root.
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+
+    /// Bytes it holds.
+    pub fn memory_bytes(&self) -> usize {
+        std::mem::size_of::<Self>() + self.nodes.capacity() * std::mem::size_of::<Node>()
+    }
+
+    /// The energy it has recorded.
+    pub fn total(&self) -> f64 {
+        self.nodes[0].energy.iter().sum()
+    }
+
+    /// Records `value` of energy arriving along `d` (unit): added to the quadrant it falls in
+    /// at every level. A value that is not positive and finite is left out.
+    pub fn record(&mut self, d: Vec3A, value: f64) {
+        if !(value > 0.0 && value.is_finite()) {
+            return;
+        }
+        let s = to_square(d);
+        let mut p = [s.x as f64, s.y as f64];
+        let mut n = 0;
+        loop {
+            let (q, inner) = quadrant(p);
+            self.nodes[n].energy[q] += value;
+            match self.nodes[n].child[q] {
+                LEAF => return,
+                c => (n, p) = (c as usize, inner),
+            }
+        }
+    }
+
+    /// A direction from two uniform numbers in [0, 1), with its density in solid angle.
+    pub fn sample(&self, u: Vec2) -> (Vec3A, f32) {
+        let (mut ux, mut uy) = (u.x as f64, u.y as f64);
+        let (mut origin, mut size, mut density) = ([0.0f64; 2], 1.0f64, 1.0f64);
+        let mut n = 0;
+        loop {
+            let node = &self.nodes[n];
+            let s = node.shares();
+            // The column by its share, then the row within the column by its part of it.
+            let (right, x) = choose(ux, s[0] + s[2]);
+            let qx = usize::from(right);
+            let column = s[qx] + s[qx + 2];
+            let below = if column > 0.0 { s[qx] / column } else { 0.5 };
+            let (up, y) = choose(uy, below);
+            let q = qx + 2 * usize::from(up);
+            (ux, uy) = (x, y);
+            density *= 4.0 * s[q];
+            size *= 0.5;
+            origin[0] += size * qx as f64;
+            origin[1] += size * usize::from(up) as f64;
+            match node.child[q] {
+                LEAF => break,
+                c => n = c as usize,
+            }
+        }
+        let p = Vec2::new(
+            (origin[0] + ux * size) as f32,
+            (origin[1] + uy * size) as f32,
+        );
+        (
+            from_square(p),
+            (density / (4.0 * std::f64::consts::PI)) as f32,
+        )
+    }
+
+    /// The density in solid angle with which [`DirTree::sample`] draws `d` (unit).
+    pub fn pdf(&self, d: Vec3A) -> f32 {
+        let s = to_square(d);
+        let mut p = [s.x as f64, s.y as f64];
+        let (mut n, mut density) = (0, 1.0f64);
+        loop {
+            let node = &self.nodes[n];
+            let (q, inner) = quadrant(p);
+            density *= 4.0 * node.shares()[q];
+            match node.child[q] {
+                LEAF => break,
+                c => (n, p) = (c as usize, inner),
+            }
+        }
+        (density / (4.0 * std::f64::consts::PI)) as f32
+    }
+
+    /// The structure to train next, with no energy: a quadrant holding more than `threshold`
+    /// of the energy (Müller's ρ, e.g. 0.01) becomes a node, down to [`MAX_DEPTH`]; a leaf
+    /// that does is taken to have spread its energy evenly over its quadrants. A pure
+    /// function of this tree's sums, so every machine refines a guide alike.
+    pub fn refined(&self, threshold: f64) -> DirTree {
+        // At most 1/ρ quadrants a level can hold more than ρ of the energy, so a tree has at
+        // most MAX_DEPTH/ρ nodes; ρ is kept at MIN_THRESHOLD or above to bound that.
+        let threshold = if threshold >= MIN_THRESHOLD {
+            threshold
+        } else if threshold > 0.0 {
+            MIN_THRESHOLD
+        } else {
+            1.0
+        };
+        let total = self.total();
+        let mut out = DirTree::uniform();
+        if !(total > 0.0 && total.is_finite()) {
+            return out;
+        }
+        // (the old node, or the energy of the old leaf it splits; the new node; its depth)
+        let mut stack: Vec<(Result<usize, f64>, usize, u32)> = vec![(Ok(0), 0, 1)];
+        while let Some((old, new, depth)) = stack.pop() {
+            for q in 0..4 {
+                let (energy, old_child) = match old {
+                    Ok(o) => {
+                        let node = &self.nodes[o];
+                        (
+                            node.energy[q],
+                            (node.child[q] != LEAF).then_some(node.child[q]),
+                        )
+                    }
+                    Err(e) => (e / 4.0, None),
+                };
+                if energy / total <= threshold || depth >= MAX_DEPTH || out.len() >= MAX_NODES {
+                    continue;
+                }
+                let child = out.nodes.len();
+                out.nodes.push(Node::EMPTY);
+                out.nodes[new].child[q] = child as u32;
+                let from = old_child.map_or(Err(energy), |c| Ok(c as usize));
+                stack.push((from, child, depth + 1));
+            }
+        }
+        out
+    }
+
+    /// Adds `other`'s energies to this tree's, quadrant by quadrant; the two must have the
+    /// same structure (both refined from one guide). Sums in f64 depend on their order, so
+    /// the caller fixes it (the farm adds units in unit order).
+    pub fn add(&mut self, other: &DirTree) -> Result<(), GuideError> {
+        let same = self.nodes.len() == other.nodes.len()
+            && self
+                .nodes
+                .iter()
+                .zip(&other.nodes)
+                .all(|(a, b)| a.child == b.child);
+        if !same {
+            return Err(GuideError::Mismatch(self.nodes.len(), other.nodes.len()));
+        }
+        for (a, b) in self.nodes.iter_mut().zip(&other.nodes) {
+            for q in 0..4 {
+                a.energy[q] += b.energy[q];
+            }
+        }
+        Ok(())
+    }
+
+    /// The tree as bytes, for the store and the wire: [`DirTree::decode`] reads them back to
+    /// the same tree, bit for bit.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(HEADER + self.nodes.len() * NODE_BYTES);
+        out.extend_from_slice(MAGIC);
+        out.push(VERSION);
+        out.extend_from_slice(&(self.nodes.len() as u32).to_le_bytes());
+        for n in &self.nodes {
+            for c in n.child {
+                out.extend_from_slice(&c.to_le_bytes());
+            }
+            for e in n.energy {
+                out.extend_from_slice(&e.to_le_bytes());
+            }
+        }
+        out
+    }
+
+    /// A tree from [`DirTree::encode`]'s bytes, refusing any that do not describe one: each
+    /// child a later node and nobody else's, every node reached from the root, no deeper than
+    /// [`MAX_DEPTH`], every energy finite and non-negative with finite totals.
+    pub fn decode(bytes: &[u8]) -> Result<Self, GuideError> {
+        if bytes.len() < HEADER || &bytes[..4] != MAGIC || bytes[4] != VERSION {
+            return Err(GuideError::Header);
+        }
+        let count = u32::from_le_bytes([bytes[5], bytes[6], bytes[7], bytes[8]]) as usize;
+        if count == 0 || count > MAX_NODES {
+            return Err(GuideError::NodeCount(count as u64));
+        }
+        let expected = HEADER + count * NODE_BYTES;
+        if bytes.len() != expected {
+            return Err(GuideError::Length {
+                nodes: count,
+                expected,
+                got: bytes.len(),
+            });
+        }
+        let word = |at: usize| -> [u8; 8] {
+            let mut w = [0u8; 8];
+            w.copy_from_slice(&bytes[at..at + 8]);
+            w
+        };
+        let mut nodes = Vec::with_capacity(count);
+        for i in 0..count {
+            let at = HEADER + i * NODE_BYTES;
+            let mut node = Node::EMPTY;
+            for q in 0..4 {
+                let c = &bytes[at + 4 * q..at + 4 * q + 4];
+                node.child[q] = u32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+                let e = f64::from_le_bytes(word(at + 16 + 8 * q));
+                if !(e >= 0.0 && e.is_finite()) {
+                    return Err(GuideError::Energy {
+                        node: i,
+                        quadrant: q,
+                        value: e,
+                    });
+                }
+                node.energy[q] = e;
+            }
+            let total: f64 = node.energy.iter().sum();
+            if !total.is_finite() {
+                return Err(GuideError::Energy {
+                    node: i,
+                    quadrant: 0,
+                    value: total,
+                });
+            }
+            nodes.push(node);
+        }
+        let children: Vec<[u32; 4]> = nodes.iter().map(|n| n.child).collect();
+        check_shape(&children, MAX_DEPTH)?;
+        Ok(Self { nodes })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::util::sampling::HashRng;
+
+    /// A tree trained on directions near +z and a little everywhere, refined `levels` times.
+    fn trained(levels: usize) -> DirTree {
+        let mut tree = DirTree::uniform();
+        for _ in 0..levels {
+            let mut next = tree.refined(0.01);
+            let mut rng = HashRng::new(7);
+            for _ in 0..20_000 {
+                let d = from_square(Vec2::new(rng.next_f32(), rng.next_f32()));
+                next.record(d, if d.z > 0.9 { 50.0 } else { 1.0 });
+            }
+            tree = next;
+        }
+        tree
+    }
+
+    #[test]
+    fn the_square_and_the_sphere_map_back_and_forth() {
+        let mut rng = HashRng::new(1);
+        for _ in 0..10_000 {
+            let p = Vec2::new(rng.next_f32(), rng.next_f32());
+            let d = from_square(p);
+            assert!((d.length() - 1.0).abs() < 1e-6, "{d}");
+            let back = to_square(d);
+            // x is meaningless at the poles.
+            let dx = (back.x - p.x).abs().min(1.0 - (back.x - p.x).abs());
+            assert!(dx < 1e-5 || p.y < 1e-3 || p.y > 0.999, "{p} {back}");
+            assert!((back.y - p.y).abs() < 1e-6, "{p} {back}");
+        }
+    }
+
+    #[test]
+    fn refinement_follows_the_energy_and_is_a_pure_function_of_it() {
+        let tree = trained(4);
+        assert!(tree.len() > 20, "{} nodes", tree.len());
+        assert_eq!(trained(4), tree);
+        // Directions near +z are where the nodes are: the density there is far above uniform.
+        let uniform = 1.0 / (4.0 * PI);
+        assert!(tree.pdf(Vec3A::Z) > 5.0 * uniform);
+        assert!(tree.pdf(-Vec3A::Z) < uniform);
+        // Nothing learned: nothing refined.
+        assert_eq!(DirTree::uniform().refined(0.01), DirTree::uniform());
+    }
+
+    #[test]
+    fn sample_and_pdf_agree_and_the_density_integrates_to_one() {
+        let tree = trained(4);
+        let mut rng = HashRng::new(3);
+        let mut differ = 0;
+        for _ in 0..20_000 {
+            let (d, pdf) = tree.sample(Vec2::new(rng.next_f32(), rng.next_f32()));
+            let again = tree.pdf(d);
+            assert!(pdf > 0.0 && again > 0.0, "{d}: {pdf} {again}");
+            // Equal, but for a direction rounded across a leaf's edge.
+            differ += usize::from((again / pdf - 1.0).abs() > 1e-5);
+        }
+        assert!(differ < 20, "{differ} of 20000 samples disagree with pdf");
+        // ∫ pdf dω by the midpoint rule over the square (4π steradians per unit area).
+        let n = 512;
+        let mut sum = 0.0f64;
+        for i in 0..n {
+            for j in 0..n {
+                let p = Vec2::new((i as f32 + 0.5) / n as f32, (j as f32 + 0.5) / n as f32);
+                sum += tree.pdf(from_square(p)) as f64;
+            }
+        }
+        let integral = sum * 4.0 * std::f64::consts::PI / (n * n) as f64;
+        assert!((integral - 1.0).abs() < 2e-3, "{integral}");
+    }
+
+    #[test]
+    fn a_tree_survives_its_bytes_bit_for_bit_and_added_trees_must_match() {
+        let tree = trained(3);
+        assert_eq!(DirTree::decode(&tree.encode()), Ok(tree.clone()));
+        let mut sum = tree.clone();
+        sum.add(&tree).expect("same structure");
+        assert_eq!(sum.total(), 2.0 * tree.total());
+        assert!(matches!(
+            sum.add(&DirTree::uniform()),
+            Err(GuideError::Mismatch(_, 1))
+        ));
+    }
+
+    #[test]
+    fn bad_bytes_are_refused_by_what_is_wrong() {
+        let good = trained(2).encode();
+        let node = |i: usize| HEADER + i * NODE_BYTES;
+        let mut cases: Vec<(Vec<u8>, &str)> = vec![
+            (b"nope".to_vec(), "bad header"),
+            (good[..good.len() - 1].to_vec(), "takes"),
+        ];
+        let mut zero = good.clone();
+        zero[5..9].copy_from_slice(&0u32.to_le_bytes());
+        cases.push((zero, "has 0 nodes"));
+        // The root pointing at itself, and a cycle back to it.
+        let mut own = good.clone();
+        own[node(0)..node(0) + 4].copy_from_slice(&0u32.to_le_bytes());
+        own[node(0) + 4..node(0) + 8].copy_from_slice(&0u32.to_le_bytes());
+        own[node(0) + 8..node(0) + 12].copy_from_slice(&0u32.to_le_bytes());
+        own[node(0) + 12..node(0) + 16].copy_from_slice(&0u32.to_le_bytes());
+        cases.push((own, "nobody's child"));
+        let mut past = good.clone();
+        past[node(0)..node(0) + 4].copy_from_slice(&u32::MAX.to_le_bytes());
+        cases.push((past, "is not a node of its own"));
+        let mut nan = good.clone();
+        nan[node(1) + 16..node(1) + 24].copy_from_slice(&f64::NAN.to_le_bytes());
+        cases.push((nan, "node 1 quadrant 0: energy NaN"));
+        let mut negative = good.clone();
+        negative[node(0) + 40..node(0) + 48].copy_from_slice(&(-1.0f64).to_le_bytes());
+        cases.push((negative, "node 0 quadrant 3: energy -1"));
+        let mut huge = good;
+        for q in 0..4 {
+            let at = node(0) + 16 + 8 * q;
+            huge[at..at + 8].copy_from_slice(&f64::MAX.to_le_bytes());
+        }
+        cases.push((huge, "energy inf"));
+        for (bytes, want) in cases {
+            let e = DirTree::decode(&bytes).expect_err(want).to_string();
+            assert!(e.contains(want), "{e} (wanted {want})");
+        }
+        // A chain one node too deep.
+        let mut chain = DirTree::uniform();
+        for i in 0..MAX_DEPTH as usize {
+            chain.nodes[i].child[0] = i as u32 + 1;
+            chain.nodes.push(Node::EMPTY);
+        }
+        let e = DirTree::decode(&chain.encode()).expect_err("too deep");
+        assert_eq!(e, GuideError::Depth(MAX_DEPTH as usize));
+        chain.nodes.pop();
+        chain.nodes[MAX_DEPTH as usize - 1].child[0] = LEAF;
+        assert!(DirTree::decode(&chain.encode()).is_ok());
+    }
+
+    #[test]
+    fn random_and_mangled_bytes_never_panic_and_what_decodes_samples_finite() {
+        let good = trained(2).encode();
+        let mut rng = HashRng::new(11);
+        for round in 0..3000 {
+            let mut bytes = good.clone();
+            if round % 2 == 0 {
+                for _ in 0..1 + round % 5 {
+                    let at = (rng.next_f32() * bytes.len() as f32) as usize % bytes.len();
+                    bytes[at] = (rng.next_f32() * 256.0) as u8;
+                }
+            } else {
+                bytes.truncate((rng.next_f32() * bytes.len() as f32) as usize);
+            }
+            if let Ok(tree) = DirTree::decode(&bytes) {
+                let (d, pdf) = tree.sample(Vec2::new(rng.next_f32(), rng.next_f32()));
+                assert!(d.is_finite() && pdf.is_finite() && pdf >= 0.0, "{d} {pdf}");
+                assert!(tree.pdf(d).is_finite());
+            }
+        }
+    }
+}

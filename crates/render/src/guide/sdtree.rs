@@ -1,0 +1,540 @@
+//! The spatial half of a guide: a binary tree over the scene's bounds whose leaves each hold a
+//! directional tree ([`DirTree`]), Müller et al.'s SD-tree.
+//!
+//! A node splits its box at the middle of one axis, the axes in turn by depth (x, y, z, x,
+//! …), so a node's box follows from its path and is never stored. A leaf counts the vertices
+//! recorded in it (an integer, so its sum does not depend on the order units are added in)
+//! and splits in the next epoch's structure once that count passes a threshold, each half
+//! taking a copy of its directional tree's refinement. The structure of the tree to train
+//! next is a pure function of the last one's counts and sums ([`SdTree::refined`]), so every
+//! machine derives the same one.
+
+use glam::Vec3A;
+
+use super::dirtree::{check_shape, DirTree, GuideError};
+
+/// The deepest a spatial node may be (the root is at depth 1).
+pub const MAX_SPATIAL_DEPTH: u32 = 48;
+
+/// The most spatial leaves a tree may have. With the directional trees' own bound (at most
+/// `MAX_DEPTH/ρ` nodes, 2000 at ρ = 1%, 96 KB) this bounds a guide's memory whatever its
+/// training data claim: the counts come from workers, and a forged one must not make the
+/// next guide huge.
+pub const MAX_SPATIAL_LEAVES: usize = 1 << 14;
+
+/// The most spatial nodes a tree may have: a full binary tree of [`MAX_SPATIAL_LEAVES`].
+pub const MAX_SPATIAL_NODES: usize = 2 * MAX_SPATIAL_LEAVES - 1;
+
+const MAGIC: &[u8; 4] = b"TSGS";
+const VERSION: u8 = 1;
+/// Magic, version, the bounds' six f32, node and leaf counts.
+const HEADER: usize = 4 + 1 + 24 + 4 + 4;
+/// A node's two children (0: it is a leaf) and its leaf index.
+const NODE_BYTES: usize = 12;
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct SNode {
+    /// The lower and upper halves' nodes; both 0 for a leaf (the root is nobody's child).
+    child: [u32; 2],
+    /// A leaf's index into the leaves.
+    leaf: u32,
+}
+
+impl SNode {
+    fn is_leaf(&self) -> bool {
+        self.child == [0, 0]
+    }
+}
+
+/// A spatial leaf: where its vertices' light came from, and how many it recorded.
+#[derive(Clone, Debug, PartialEq)]
+struct Leaf {
+    dir: DirTree,
+    count: u64,
+}
+
+/// A node of [`SdTree::refined`]'s output still to be filled in.
+struct Pending {
+    /// The node of the old tree it follows.
+    old: usize,
+    /// Its index in the new tree.
+    new: usize,
+    /// Its depth.
+    depth: u32,
+    /// For a node below a split old leaf: that leaf, and the count it is taken to have.
+    below: Option<(usize, u64)>,
+}
+
+/// A spatial-directional guide: for a point, the directional distribution learned there.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SdTree {
+    lo: Vec3A,
+    hi: Vec3A,
+    nodes: Vec<SNode>,
+    leaves: Vec<Leaf>,
+}
+
+impl SdTree {
+    /// One leaf over the box from `lo` to `hi`, with a uniform directional tree. A box that
+    /// is not finite or is empty along an axis is widened to something that is, so any
+    /// point has a leaf.
+    pub fn new(lo: Vec3A, hi: Vec3A) -> Self {
+        let (mut lo, mut hi) = (lo, hi);
+        if !(lo.is_finite() && hi.is_finite()) {
+            (lo, hi) = (Vec3A::splat(-1.0), Vec3A::splat(1.0));
+        }
+        for a in 0..3 {
+            if !(hi[a] > lo[a]) {
+                let m = 0.5 * (lo[a] + hi[a]);
+                let pad = m.abs().max(1.0) * 1e-3;
+                lo[a] = m - pad;
+                hi[a] = m + pad;
+            }
+        }
+        Self {
+            lo,
+            hi,
+            nodes: vec![SNode {
+                child: [0, 0],
+                leaf: 0,
+            }],
+            leaves: vec![Leaf {
+                dir: DirTree::uniform(),
+                count: 0,
+            }],
+        }
+    }
+
+    /// Spatial leaves.
+    pub fn leaves(&self) -> usize {
+        self.leaves.len()
+    }
+
+    /// Bytes it holds (nodes, leaves and their directional trees): what a worker pays.
+    pub fn memory_bytes(&self) -> usize {
+        std::mem::size_of::<Self>()
+            + self.nodes.len() * std::mem::size_of::<SNode>()
+            + self
+                .leaves
+                .iter()
+                .map(|l| std::mem::size_of::<Leaf>() + l.dir.memory_bytes())
+                .sum::<usize>()
+    }
+
+    /// The leaf whose box holds `p` (a point outside the bounds takes the nearest).
+    fn leaf_of(&self, p: Vec3A) -> usize {
+        let (mut lo, mut hi) = (self.lo, self.hi);
+        let (mut n, mut axis) = (0, 0);
+        loop {
+            let node = self.nodes[n];
+            if node.is_leaf() {
+                return node.leaf as usize;
+            }
+            let mid = 0.5 * (lo[axis] + hi[axis]);
+            if p[axis] < mid {
+                hi[axis] = mid;
+                n = node.child[0] as usize;
+            } else {
+                lo[axis] = mid;
+                n = node.child[1] as usize;
+            }
+            axis = (axis + 1) % 3;
+        }
+    }
+
+    /// The directional distribution learned at `p`.
+    pub fn at(&self, p: Vec3A) -> &DirTree {
+        &self.leaves[self.leaf_of(p)].dir
+    }
+
+    /// Records that `value` of energy arrived at `p` along `d` (unit), and counts the vertex.
+    pub fn record(&mut self, p: Vec3A, d: Vec3A, value: f64) {
+        let i = self.leaf_of(p);
+        let leaf = &mut self.leaves[i];
+        leaf.count += 1;
+        leaf.dir.record(d, value);
+    }
+
+    /// The structure to train next, with no energy and no counts: a leaf that counted more
+    /// than `split_after` vertices splits (its halves, taken to have half the count each,
+    /// split again while that is above it), each half with its directional tree refined at
+    /// `threshold` ([`DirTree::refined`]).
+    pub fn refined(&self, split_after: u64, threshold: f64) -> SdTree {
+        let mut out = SdTree {
+            lo: self.lo,
+            hi: self.hi,
+            nodes: Vec::with_capacity(self.nodes.len()),
+            leaves: Vec::with_capacity(self.leaves.len()),
+        };
+        out.nodes.push(SNode {
+            child: [0, 0],
+            leaf: 0,
+        });
+        let mut stack = vec![Pending {
+            old: 0,
+            new: 0,
+            depth: 1,
+            below: None,
+        }];
+        while let Some(Pending {
+            old,
+            new,
+            depth,
+            below,
+        }) = stack.pop()
+        {
+            let (leaf, count) = match below {
+                Some(b) => b,
+                None if !self.nodes[old].is_leaf() => {
+                    let child = self.add_inner(&mut out, new);
+                    for (k, &c) in self.nodes[old].child.iter().enumerate() {
+                        stack.push(Pending {
+                            old: c as usize,
+                            new: child[k],
+                            depth: depth + 1,
+                            below: None,
+                        });
+                    }
+                    continue;
+                }
+                None => {
+                    let l = self.nodes[old].leaf as usize;
+                    (l, self.leaves[l].count)
+                }
+            };
+            if count > split_after
+                && depth < MAX_SPATIAL_DEPTH
+                && out.nodes.len() + 2 <= MAX_SPATIAL_NODES
+            {
+                let child = self.add_inner(&mut out, new);
+                for c in child {
+                    stack.push(Pending {
+                        old,
+                        new: c,
+                        depth: depth + 1,
+                        below: Some((leaf, count / 2)),
+                    });
+                }
+            } else {
+                out.nodes[new].leaf = out.leaves.len() as u32;
+                out.leaves.push(Leaf {
+                    dir: self.leaves[leaf].dir.refined(threshold),
+                    count: 0,
+                });
+            }
+        }
+        out
+    }
+
+    /// Makes `new` an inner node of `out` with two fresh children; returns them.
+    fn add_inner(&self, out: &mut SdTree, new: usize) -> [usize; 2] {
+        let c = out.nodes.len();
+        for _ in 0..2 {
+            out.nodes.push(SNode {
+                child: [0, 0],
+                leaf: 0,
+            });
+        }
+        out.nodes[new].child = [c as u32, c as u32 + 1];
+        [c, c + 1]
+    }
+
+    /// Adds `other`'s counts and energies to this tree's, leaf by leaf; the two must have
+    /// the same structure. The caller fixes the order of additions (f64 sums depend on it).
+    pub fn add(&mut self, other: &SdTree) -> Result<(), GuideError> {
+        if self.nodes != other.nodes || self.leaves.len() != other.leaves.len() {
+            return Err(GuideError::Mismatch(self.nodes.len(), other.nodes.len()));
+        }
+        for (a, b) in self.leaves.iter_mut().zip(&other.leaves) {
+            a.dir.add(&b.dir)?;
+            a.count = a.count.saturating_add(b.count);
+        }
+        Ok(())
+    }
+
+    /// The tree as bytes; [`SdTree::decode`] reads them back to the same tree, bit for bit.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut out = Vec::new();
+        out.extend_from_slice(MAGIC);
+        out.push(VERSION);
+        for v in [self.lo, self.hi] {
+            for a in 0..3 {
+                out.extend_from_slice(&v[a].to_le_bytes());
+            }
+        }
+        out.extend_from_slice(&(self.nodes.len() as u32).to_le_bytes());
+        out.extend_from_slice(&(self.leaves.len() as u32).to_le_bytes());
+        for n in &self.nodes {
+            for x in [n.child[0], n.child[1], n.leaf] {
+                out.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        for l in &self.leaves {
+            out.extend_from_slice(&l.count.to_le_bytes());
+            let dir = l.dir.encode();
+            out.extend_from_slice(&(dir.len() as u32).to_le_bytes());
+            out.extend_from_slice(&dir);
+        }
+        out
+    }
+
+    /// A tree from [`SdTree::encode`]'s bytes, refusing any that do not describe one (the
+    /// directional trees as [`DirTree::decode`] refuses theirs; each child a later node and
+    /// nobody else's; each leaf named by one leaf node; bounds finite and not empty).
+    pub fn decode(bytes: &[u8]) -> Result<Self, GuideError> {
+        let mut r = Reader { bytes, at: 0 };
+        if r.take(4)? != MAGIC || r.take(1)? != [VERSION] {
+            return Err(GuideError::Header);
+        }
+        let mut b = [0f32; 6];
+        for x in &mut b {
+            *x = f32::from_le_bytes(r.array()?);
+        }
+        let (lo, hi) = (Vec3A::new(b[0], b[1], b[2]), Vec3A::new(b[3], b[4], b[5]));
+        if !(lo.is_finite() && hi.is_finite() && hi.cmpgt(lo).all()) {
+            return Err(GuideError::Bounds);
+        }
+        let count = u32::from_le_bytes(r.array()?) as usize;
+        let leaf_count = u32::from_le_bytes(r.array()?) as usize;
+        if count == 0 || count > MAX_SPATIAL_NODES || leaf_count == 0 || leaf_count > count {
+            return Err(GuideError::NodeCount(count as u64));
+        }
+        if bytes.len() < HEADER + count * NODE_BYTES {
+            return Err(GuideError::Length {
+                nodes: count,
+                expected: HEADER + count * NODE_BYTES,
+                got: bytes.len(),
+            });
+        }
+        let mut nodes = Vec::with_capacity(count);
+        for _ in 0..count {
+            let mut x = [0u32; 3];
+            for v in &mut x {
+                *v = u32::from_le_bytes(r.array()?);
+            }
+            nodes.push(SNode {
+                child: [x[0], x[1]],
+                leaf: x[2],
+            });
+        }
+        // A node is a leaf (no children) or has both: one child would send half its box
+        // back to the root.
+        let mut leaf_seen = vec![false; leaf_count];
+        for (i, n) in nodes.iter().enumerate() {
+            if n.is_leaf() {
+                match leaf_seen.get_mut(n.leaf as usize) {
+                    Some(seen) if !*seen => *seen = true,
+                    _ => return Err(GuideError::Leaf(i)),
+                }
+            } else if let Some(k) = n.child.iter().position(|&c| c == 0) {
+                return Err(GuideError::Child {
+                    node: i,
+                    quadrant: k,
+                    child: 0,
+                });
+            }
+        }
+        let children: Vec<[u32; 2]> = nodes.iter().map(|n| n.child).collect();
+        check_shape(&children, MAX_SPATIAL_DEPTH)?;
+        if let Some(missing) = leaf_seen.iter().position(|&s| !s) {
+            return Err(GuideError::Leaf(missing));
+        }
+        let mut leaves = Vec::with_capacity(leaf_count.min(bytes.len() / 8));
+        for _ in 0..leaf_count {
+            let count = u64::from_le_bytes(r.array()?);
+            let len = u32::from_le_bytes(r.array()?) as usize;
+            let dir = DirTree::decode(r.take(len)?)?;
+            leaves.push(Leaf { dir, count });
+        }
+        if r.at != bytes.len() {
+            return Err(GuideError::Length {
+                nodes: count,
+                expected: r.at,
+                got: bytes.len(),
+            });
+        }
+        Ok(Self {
+            lo,
+            hi,
+            nodes,
+            leaves,
+        })
+    }
+}
+
+/// Bytes read in order, each read refused past the end.
+struct Reader<'a> {
+    bytes: &'a [u8],
+    at: usize,
+}
+
+impl<'a> Reader<'a> {
+    fn take(&mut self, n: usize) -> Result<&'a [u8], GuideError> {
+        let end = self.at.checked_add(n).filter(|&e| e <= self.bytes.len());
+        let Some(end) = end else {
+            return Err(GuideError::Length {
+                nodes: 0,
+                expected: self.at.saturating_add(n),
+                got: self.bytes.len(),
+            });
+        };
+        let s = &self.bytes[self.at..end];
+        self.at = end;
+        Ok(s)
+    }
+
+    fn array<const N: usize>(&mut self) -> Result<[u8; N], GuideError> {
+        let mut a = [0u8; N];
+        a.copy_from_slice(self.take(N)?);
+        Ok(a)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::guide::{MAX_DEPTH, MIN_THRESHOLD};
+    use crate::util::sampling::HashRng;
+
+    /// A tree trained over the unit cube for `epochs` epochs: light from +z on the upper
+    /// half, from −x on the lower.
+    fn trained(epochs: usize) -> SdTree {
+        let mut guide = SdTree::new(Vec3A::ZERO, Vec3A::ONE);
+        for e in 0..epochs {
+            let mut next = guide.refined(500, 0.01);
+            let mut rng = HashRng::new(e as u64);
+            for _ in 0..20_000 {
+                let p = Vec3A::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+                let d = crate::sampling::square_to_uniform_sphere(glam::Vec2::new(
+                    rng.next_f32(),
+                    rng.next_f32(),
+                ));
+                let towards = if p.z > 0.5 { Vec3A::Z } else { -Vec3A::X };
+                next.record(p, d, if d.dot(towards) > 0.9 { 30.0 } else { 0.5 });
+            }
+            guide = next;
+        }
+        guide
+    }
+
+    #[test]
+    fn leaves_split_where_vertices_are_and_learn_their_own_light() {
+        let guide = trained(3);
+        assert!(guide.leaves() >= 8, "{} leaves", guide.leaves());
+        assert_eq!(trained(3), guide, "a pure function of its training");
+        let (up, low) = (Vec3A::new(0.5, 0.5, 0.9), Vec3A::new(0.5, 0.5, 0.1));
+        // Each leaf draws most directions from its own light (three quarters of the energy
+        // arriving there comes from the 5% of the sphere around it), where uniform draws 5%.
+        let share = |at: Vec3A, towards: Vec3A| {
+            let mut rng = HashRng::new(1);
+            let n = 4000;
+            let hits = (0..n)
+                .filter(|_| {
+                    let u = glam::Vec2::new(rng.next_f32(), rng.next_f32());
+                    guide.at(at).sample(u).0.dot(towards) > 0.9
+                })
+                .count();
+            hits as f64 / n as f64
+        };
+        assert!(share(up, Vec3A::Z) > 0.5, "{}", share(up, Vec3A::Z));
+        assert!(share(low, -Vec3A::X) > 0.5, "{}", share(low, -Vec3A::X));
+        assert!(share(up, -Vec3A::X) < 0.1, "{}", share(up, -Vec3A::X));
+        // Outside the bounds: the nearest leaf.
+        assert!(std::ptr::eq(
+            guide.at(Vec3A::new(0.5, 0.5, 7.0)),
+            guide.at(up)
+        ));
+        assert!(guide.memory_bytes() > guide.leaves() * 48);
+    }
+
+    #[test]
+    fn a_guide_survives_its_bytes_and_added_guides_must_match() {
+        let guide = trained(2);
+        assert_eq!(SdTree::decode(&guide.encode()), Ok(guide.clone()));
+        let mut sum = guide.clone();
+        sum.add(&guide).expect("same structure");
+        assert!(sum.add(&trained(3)).is_err());
+        assert!(SdTree::new(Vec3A::ZERO, Vec3A::ONE)
+            .add(&SdTree::new(Vec3A::ZERO, Vec3A::ONE))
+            .is_ok());
+    }
+
+    #[test]
+    fn a_forged_count_cannot_make_the_next_guide_huge() {
+        let mut g = SdTree::new(Vec3A::ZERO, Vec3A::ONE);
+        for i in 0..64 {
+            g.record(
+                Vec3A::splat(0.5),
+                crate::guide::from_square(glam::Vec2::new(i as f32 / 64.0, 0.3)),
+                1.0,
+            );
+        }
+        g.leaves[0].count = u64::MAX;
+        let next = g.refined(0, 1e-9);
+        assert_eq!(next.leaves(), MAX_SPATIAL_LEAVES);
+        assert!(next.at(Vec3A::splat(0.5)).len() <= (MAX_DEPTH as f64 / MIN_THRESHOLD) as usize);
+        assert!(
+            next.memory_bytes() < 256 << 20,
+            "{} bytes",
+            next.memory_bytes()
+        );
+        assert!(SdTree::decode(&next.encode()).is_ok());
+    }
+
+    #[test]
+    fn degenerate_bounds_still_hold_every_point() {
+        for (lo, hi) in [
+            (Vec3A::ZERO, Vec3A::new(1.0, 0.0, 1.0)),
+            (Vec3A::splat(f32::NAN), Vec3A::ONE),
+            (Vec3A::ONE, Vec3A::ZERO),
+        ] {
+            let mut g = SdTree::new(lo, hi);
+            g.record(Vec3A::new(3.0, -2.0, 0.5), Vec3A::Z, 1.0);
+            let g = g.refined(0, 0.01);
+            assert!(g.leaves() > 1);
+            assert!(SdTree::decode(&g.encode()).is_ok());
+        }
+    }
+
+    #[test]
+    fn mangled_bytes_are_refused_and_never_panic() {
+        let good = trained(2).encode();
+        // The root with one child: half its box would lead back to the root.
+        let mut one = good.clone();
+        one[HEADER + 4..HEADER + 8].copy_from_slice(&0u32.to_le_bytes());
+        assert_eq!(
+            SdTree::decode(&one),
+            Err(GuideError::Child {
+                node: 0,
+                quadrant: 1,
+                child: 0
+            })
+        );
+        assert!(SdTree::decode(&good[..good.len() - 1]).is_err());
+        let mut extra = good.clone();
+        extra.push(0);
+        assert!(SdTree::decode(&extra).is_err());
+        let mut rng = HashRng::new(9);
+        let mut refused = 0;
+        for round in 0..2000 {
+            let mut bytes = good.clone();
+            if round % 2 == 0 {
+                // Mostly the header and the spatial nodes, where the structure is.
+                let span = (HEADER + 64 * NODE_BYTES).min(bytes.len());
+                let at = (rng.next_f32() * span as f32) as usize % span;
+                bytes[at] ^= 1 << (round % 8);
+            } else {
+                bytes.truncate((rng.next_f32() * bytes.len() as f32) as usize);
+            }
+            match SdTree::decode(&bytes) {
+                Ok(g) => {
+                    let p = Vec3A::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+                    let (d, pdf) = g.at(p).sample(glam::Vec2::new(0.3, 0.7));
+                    assert!(d.is_finite() && pdf.is_finite());
+                }
+                Err(_) => refused += 1,
+            }
+        }
+        assert!(refused > 1000, "{refused} refused");
+    }
+}
