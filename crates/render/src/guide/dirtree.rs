@@ -49,11 +49,14 @@ pub enum GuideError {
     /// Not a directional guide, or another version of one.
     #[error("not a directional guide (version {VERSION}): bad header")]
     Header,
-    /// The node count is zero or above [`MAX_NODES`].
-    #[error("a directional guide has {0} nodes; it must have 1 to {MAX_NODES}")]
+    /// The node count is zero or above its bound.
+    #[error("a guide has {0} nodes, none or more than it may")]
     NodeCount(u64),
+    /// The bytes end inside a field.
+    #[error("a guide's bytes end at {0}, inside a field")]
+    Truncated(usize),
     /// The length does not match the node count.
-    #[error("a directional guide of {nodes} nodes takes {expected} bytes, not {got}")]
+    #[error("a guide of {nodes} nodes takes {expected} bytes, not {got}")]
     Length {
         /// Nodes the header gives.
         nodes: usize,

@@ -372,11 +372,7 @@ impl<'a> Reader<'a> {
     fn take(&mut self, n: usize) -> Result<&'a [u8], GuideError> {
         let end = self.at.checked_add(n).filter(|&e| e <= self.bytes.len());
         let Some(end) = end else {
-            return Err(GuideError::Length {
-                nodes: 0,
-                expected: self.at.saturating_add(n),
-                got: self.bytes.len(),
-            });
+            return Err(GuideError::Truncated(self.bytes.len()));
         };
         let s = &self.bytes[self.at..end];
         self.at = end;
