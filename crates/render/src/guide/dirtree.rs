@@ -341,28 +341,27 @@ impl DirTree {
         if !(total > 0.0 && total.is_finite()) {
             return out;
         }
-        // (the old node, or the energy of the old leaf it splits; the new node; its depth)
-        let mut stack: Vec<(Result<usize, f64>, usize, u32)> = vec![(Ok(0), 0, 1)];
-        while let Some((old, new, depth)) = stack.pop() {
-            for q in 0..4 {
-                let (energy, old_child) = match old {
-                    Ok(o) => {
-                        let node = &self.nodes[o];
-                        (
-                            node.energy[q],
-                            (node.child[q] != LEAF).then_some(node.child[q]),
-                        )
-                    }
-                    Err(e) => (e / 4.0, None),
-                };
-                if energy / total <= threshold || depth >= MAX_DEPTH || out.len() >= MAX_NODES {
+        // A quadrant's share of the whole is its node's share times its share of the node, as
+        // sampling reads it: so the shares of a level add up to one (and the bound above
+        // holds) even where a node's sums disagree with its parent's, as forged or corrupted
+        // ones may (the fuzzer found such a guide refining to 4^20 nodes).
+        // (the old node, or none below a split old leaf; the new node; its share; its depth)
+        let mut stack: Vec<(Option<usize>, usize, f64, u32)> = vec![(Some(0), 0, 1.0, 1)];
+        while let Some((old, new, share, depth)) = stack.pop() {
+            let shares = old.map_or([0.25; 4], |o| self.nodes[o].shares());
+            for (q, part) in shares.into_iter().enumerate() {
+                let quadrant = share * part;
+                if quadrant <= threshold || depth >= MAX_DEPTH || out.len() >= MAX_NODES {
                     continue;
                 }
                 let child = out.nodes.len();
                 out.nodes.push(Node::EMPTY);
                 out.nodes[new].child[q] = child as u32;
-                let from = old_child.map_or(Err(energy), |c| Ok(c as usize));
-                stack.push((from, child, depth + 1));
+                let below = old
+                    .map(|o| self.nodes[o].child[q])
+                    .filter(|&c| c != LEAF)
+                    .map(|c| c as usize);
+                stack.push((below, child, quadrant, depth + 1));
             }
         }
         out
@@ -536,6 +535,26 @@ mod tests {
         }
         let integral = sum * 4.0 * std::f64::consts::PI / (n * n) as f64;
         assert!((integral - 1.0).abs() < 2e-3, "{integral}");
+    }
+
+    #[test]
+    fn sums_that_disagree_between_levels_still_refine_within_the_bound() {
+        // The fuzzer's guide: a child whose energy dwarfs its parent's quadrant. Read as
+        // absolute shares, every quadrant below it would split to the deepest level.
+        let mut t = DirTree::uniform();
+        t.nodes[0].energy = [5.0, 1.0, 1.0, 3.0];
+        t.nodes[0].child[0] = 1;
+        t.nodes.push(Node {
+            energy: [1.0, 1e164, 2.0, 0.0],
+            child: [LEAF; 4],
+        });
+        let r = t.refined(0.01);
+        assert!(
+            r.len() <= (MAX_DEPTH as f64 / 0.01) as usize,
+            "{} nodes",
+            r.len()
+        );
+        assert!(r.len() > 2);
     }
 
     #[test]

@@ -21,4 +21,6 @@ mod sdtree;
 pub use dirtree::{
     from_square, to_square, DirTree, GuideError, MAX_DEPTH, MAX_NODES, MIN_THRESHOLD,
 };
-pub use sdtree::{SdTree, MAX_SPATIAL_DEPTH, MAX_SPATIAL_LEAVES, MAX_SPATIAL_NODES};
+pub use sdtree::{
+    SdTree, MAX_GUIDE_DIR_NODES, MAX_SPATIAL_DEPTH, MAX_SPATIAL_LEAVES, MAX_SPATIAL_NODES,
+};

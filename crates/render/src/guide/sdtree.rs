@@ -16,11 +16,17 @@ use super::dirtree::{check_shape, DirTree, GuideError};
 /// The deepest a spatial node may be (the root is at depth 1).
 pub const MAX_SPATIAL_DEPTH: u32 = 48;
 
-/// The most spatial leaves a tree may have. With the directional trees' own bound (at most
-/// `MAX_DEPTH/ρ` nodes, 2000 at ρ = 1%, 96 KB) this bounds a guide's memory whatever its
-/// training data claim: the counts come from workers, and a forged one must not make the
-/// next guide huge.
+/// The most spatial leaves a tree may have. With [`MAX_GUIDE_DIR_NODES`] this bounds a
+/// guide's memory whatever its training data claim: the counts come from workers, and a
+/// forged one must not make the next guide huge.
 pub const MAX_SPATIAL_LEAVES: usize = 1 << 14;
+
+/// The most directional nodes a guide's leaves may hold together (24 MiB of them): past it,
+/// [`SdTree::refined`] gives further leaves a uniform directional tree (one node each, so a
+/// guide holds at most this many and one per leaf). Without it the two
+/// bounds above multiply to gigabytes, which a forged count could claim (the fuzzer found
+/// this).
+pub const MAX_GUIDE_DIR_NODES: usize = 1 << 19;
 
 /// The most spatial nodes a tree may have: a full binary tree of [`MAX_SPATIAL_LEAVES`].
 pub const MAX_SPATIAL_NODES: usize = 2 * MAX_SPATIAL_LEAVES - 1;
@@ -170,6 +176,7 @@ impl SdTree {
             child: [0, 0],
             leaf: 0,
         });
+        let mut dir_nodes = 0;
         let mut stack = vec![Pending {
             old: 0,
             new: 0,
@@ -216,11 +223,16 @@ impl SdTree {
                     });
                 }
             } else {
+                let mut dir = DirTree::uniform();
+                if dir_nodes < MAX_GUIDE_DIR_NODES {
+                    dir = self.leaves[leaf].dir.refined(threshold);
+                    if dir_nodes + dir.len() > MAX_GUIDE_DIR_NODES {
+                        dir = DirTree::uniform();
+                    }
+                }
+                dir_nodes += dir.len();
                 out.nodes[new].leaf = out.leaves.len() as u32;
-                out.leaves.push(Leaf {
-                    dir: self.leaves[leaf].dir.refined(threshold),
-                    count: 0,
-                });
+                out.leaves.push(Leaf { dir, count: 0 });
             }
         }
         out
@@ -340,10 +352,15 @@ impl SdTree {
             return Err(GuideError::Leaf(missing));
         }
         let mut leaves = Vec::with_capacity(leaf_count.min(bytes.len() / 8));
+        let mut dir_nodes = 0;
         for _ in 0..leaf_count {
             let count = u64::from_le_bytes(r.array()?);
             let len = u32::from_le_bytes(r.array()?) as usize;
             let dir = DirTree::decode(r.take(len)?)?;
+            dir_nodes += dir.len();
+            if dir_nodes > MAX_GUIDE_DIR_NODES + leaf_count {
+                return Err(GuideError::NodeCount(dir_nodes as u64));
+            }
             leaves.push(Leaf { dir, count });
         }
         if r.at != bytes.len() {
@@ -468,9 +485,18 @@ mod tests {
         g.leaves[0].count = u64::MAX;
         let next = g.refined(0, 1e-9);
         assert_eq!(next.leaves(), MAX_SPATIAL_LEAVES);
+        // Each leaf's directional tree refines to 171 nodes, 2.8 million for all, were it
+        // not for the guide's budget: the leaves past it are uniform.
+        let dir_nodes: usize = next.leaves.iter().map(|l| l.dir.len()).sum();
+        assert!(
+            dir_nodes <= MAX_GUIDE_DIR_NODES + MAX_SPATIAL_LEAVES,
+            "{dir_nodes}"
+        );
+        assert_eq!(next.leaves[0].dir.len(), 171);
+        assert_eq!(next.leaves[MAX_SPATIAL_LEAVES - 1].dir.len(), 1);
         assert!(next.at(Vec3A::splat(0.5)).len() <= (MAX_DEPTH as f64 / MIN_THRESHOLD) as usize);
         assert!(
-            next.memory_bytes() < 256 << 20,
+            next.memory_bytes() < 40 << 20,
             "{} bytes",
             next.memory_bytes()
         );
