@@ -1,7 +1,8 @@
 //! Units that fail on workers: each goes to another worker, a worker that fails a job's units
 //! three times is blocklisted for that job alone, and a frame fails with every reason after
-//! five failures (one machine's counted at most three times, however many names it registers),
-//! or once every connected worker that fits it is blocklisted. A unit whose
+//! five failures (one machine's counted at most three times, however many names it registers,
+//! and the machine blocklisted at five), or once every connected worker that fits it is
+//! blocklisted. A unit whose
 //! lease lapses on three different machines fails its frame; one machine alone, however many
 //! names it registers, cannot.
 
@@ -216,16 +217,23 @@ fn one_machine_reporting_failures_under_many_names_does_not_fail_the_frame() {
     // An honest worker elsewhere keeps "nobody left" from deciding.
     let honest = core.register("honest".into(), 1, "v".into(), "h".into(), now);
     core.set_host(honest, "10.0.0.1".into());
-    // One host says it cannot render under eight names, one failure each: its failures count
-    // three times (a blocklist's worth), below the frame's five.
-    for i in 0..8 {
+    // One host says it cannot render under a new name each time: its failures count three
+    // times (a blocklist's worth), below the frame's five, and at five the host itself is
+    // blocklisted for the job, so a sixth name gets nothing of it and the record stops
+    // growing.
+    for i in 0..6 {
         let w = core.register(format!("n{i}"), 1, "v".into(), format!("s{i}"), now);
         core.set_host(w, "10.0.0.9".into());
-        assert!(fail_one(&mut core, w, job, now));
+        assert_eq!(fail_one(&mut core, w, job, now), i < 5, "name {i}");
     }
     let rec = &core.job(job).expect("job").rec;
     assert_eq!(rec.phase, JobPhase::Active, "{}", rec.error);
-    assert_eq!(rec.failures.len(), 8, "each failure is still recorded");
+    assert_eq!(rec.failures.len(), 5);
+    assert!(
+        rec.blocklist.contains(&"10.0.0.9".to_string()),
+        "{:?}",
+        rec.blocklist
+    );
     // Failures on a second machine add to them: two more make five.
     assert!(fail_one(&mut core, honest, job, now));
     assert_eq!(core.job(job).expect("job").rec.phase, JobPhase::Active);
@@ -234,7 +242,36 @@ fn one_machine_reporting_failures_under_many_names_does_not_fail_the_frame() {
     assert_eq!(rec.phase, JobPhase::Failed);
     assert!(
         rec.error
-            .starts_with("10 failures (the most a frame may have is 5)"),
+            .starts_with("7 failures (the most a frame may have is 5)"),
+        "{}",
+        rec.error
+    );
+}
+
+#[test]
+fn a_farm_of_one_machine_fails_the_frame_at_its_limit_whatever_its_workers_names() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let names = OutputNames::new(dir.path());
+    let (mut core, job) = common::one_job(&names);
+    let now = Instant::now();
+    // Three workers on one box, none of which can render the scene: two failures each would
+    // blocklist none of them, but the box's fifth failure blocklists the box, and nobody is
+    // left.
+    let ws: Vec<u64> = (0..3)
+        .map(|i| {
+            let w = core.register(format!("box{i}"), 1, "v".into(), format!("b{i}"), now);
+            core.set_host(w, "192.168.1.5".into());
+            w
+        })
+        .collect();
+    for (k, &w) in ws.iter().cycle().take(5).enumerate() {
+        assert!(fail_one(&mut core, w, job, now), "failure {k}");
+    }
+    let rec = &core.job(job).expect("job").rec;
+    assert_eq!(rec.phase, JobPhase::Failed);
+    assert!(
+        rec.error
+            .starts_with("5 failures (every connected worker that fits it is blocklisted)"),
         "{}",
         rec.error
     );

@@ -13,8 +13,11 @@
 //! and always fewer than the limit (see [`counted_failures`]): a blocklist is kept by name, so
 //! a host registering a new name each time could otherwise report failures until the frame
 //! fails, and so fail anybody's job by itself. An honest machine is blocklisted at that many
-//! under its one name, so it loses nothing; a farm of one machine fails the frame when that
-//! machine is blocklisted and nobody is left.
+//! under its one name, so it loses nothing. And once one machine has failed the frame's limit
+//! of units (under any names), the machine itself (its address) is blocklisted for the job,
+//! and nothing more it reports is recorded: so a host cycling through names cannot grow the
+//! record without end either, and a farm of one machine still fails the frame at the limit,
+//! as nobody is left.
 //!
 //! A lease that lapses is not counted against its worker: a worker killed, preempted or cut
 //! off costs one unit's time and the unit goes out again at once, and counting it would
@@ -35,7 +38,7 @@ use std::time::Instant;
 
 use tessera_proto::ids::{JobId, LeaseId};
 
-use super::Scheduler;
+use super::{Scheduler, Worker};
 use crate::job::{Job, Unit};
 use crate::store::{JobPhase, Op, UnitFailure};
 
@@ -94,6 +97,11 @@ fn counted_failures(failures: &[UnitFailure], blocklist_after: u32, fail_after: 
     per_machine.iter().map(|&(_, n)| n.min(cap)).sum()
 }
 
+/// Whether `w` is on `blocklist`: by its name, or by its machine's address.
+pub(super) fn on_blocklist(blocklist: &[String], w: &Worker) -> bool {
+    blocklist.contains(&w.name) || (!w.host.is_empty() && blocklist.contains(&w.host))
+}
+
 impl Scheduler {
     /// Worker `w` says it cannot render the units of `ids`, and why: each is a failure of its
     /// job on that worker (the unit itself is put back by the release that follows); returns
@@ -145,6 +153,24 @@ impl Scheduler {
         let Some(job) = self.jobs.get_mut(&id).filter(|j| j.is_live()) else {
             return Vec::new();
         };
+        let on_machine = job
+            .rec
+            .failures
+            .iter()
+            .filter(|f| f.machine() == machine)
+            .count();
+        if on_machine >= fail_after as usize {
+            // Units leased before the machine was blocklisted: they go back, unrecorded.
+            return Vec::new();
+        }
+        if on_machine + 1 >= fail_after as usize && !job.rec.blocklist.contains(&machine) {
+            tracing::warn!(
+                "{id}: machine {} blocklisted for it after {} failures under any name",
+                machine.escape_debug(),
+                on_machine + 1
+            );
+            job.rec.blocklist.push(machine.clone());
+        }
         tracing::warn!(
             "{id}: worker {worker_id} ({}) cannot render tile {} batch {}: {reason}",
             name.escape_debug(),
@@ -256,7 +282,7 @@ impl Scheduler {
             && self
                 .workers
                 .get(&w)
-                .is_some_and(|x| job.rec.blocklist.contains(&x.name))
+                .is_some_and(|x| on_blocklist(&job.rec.blocklist, x))
     }
 
     /// Whether some worker is connected that fits job `id` and every such worker is

@@ -103,7 +103,7 @@ impl Scheduler {
         }
         let able: Vec<&super::Worker> = able
             .into_iter()
-            .filter(|w| !rec.blocklist.contains(&w.name))
+            .filter(|w| !super::failures::on_blocklist(&rec.blocklist, w))
             .collect();
         if able.is_empty() {
             return Some(format!(
