@@ -99,7 +99,7 @@ fn counted_failures(failures: &[UnitFailure], blocklist_after: u32, fail_after: 
 
 /// Whether `w` is on `blocklist`: by its name, or by its machine's address.
 pub(super) fn on_blocklist(blocklist: &[String], w: &Worker) -> bool {
-    blocklist.contains(&w.name) || (!w.host.is_empty() && blocklist.contains(&w.host))
+    blocklist.iter().any(|b| *b == w.name || b == w.machine())
 }
 
 impl Scheduler {
@@ -138,14 +138,13 @@ impl Scheduler {
         now_ms: i64,
     ) -> Vec<Op> {
         let worker_id = self.worker_id(w).to_string();
-        let Some((name, host)) = self
+        let Some((name, machine)) = self
             .workers
             .get(&w)
-            .map(|x| (x.name.clone(), x.host.clone()))
+            .map(|x| (x.name.clone(), x.machine().to_string()))
         else {
             return Vec::new();
         };
-        let machine = if host.is_empty() { name.clone() } else { host };
         let (blocklist_after, fail_after) = (
             self.policy.blocklist_after.max(1),
             self.policy.fail_frame_after.max(1),
@@ -217,10 +216,10 @@ impl Scheduler {
     /// the frame fails. Returns the store changes.
     pub(super) fn unit_lapsed(&mut self, id: JobId, unit: Unit, w: u64) -> Vec<Op> {
         let limit = self.policy.fail_unit_after_lapses;
-        let Some((name, host)) = self
+        let Some((name, machine)) = self
             .workers
             .get(&w)
-            .map(|x| (x.name.clone(), x.host.clone()))
+            .map(|x| (x.name.clone(), x.machine().to_string()))
         else {
             return Vec::new();
         };
@@ -228,9 +227,7 @@ impl Scheduler {
             return Vec::new();
         }
         // Machines, not names: one host registering many names (or a hostile one taking units
-        // to let them lapse) counts once, so it cannot fail a frame by itself. A worker whose
-        // address is unknown counts by its name.
-        let machine = if host.is_empty() { name.clone() } else { host };
+        // to let them lapse) counts once, so it cannot fail a frame by itself.
         let seen = self.lapses.entry((id, unit)).or_default();
         if !seen.iter().any(|(m, _)| *m == machine) {
             seen.push((machine.clone(), name.clone()));

@@ -60,6 +60,16 @@ pub struct Worker {
 }
 
 impl Worker {
+    /// The machine it runs on, as failure and lapse limits count machines: the address it
+    /// registered from, or its name where that is unknown.
+    pub fn machine(&self) -> &str {
+        if self.host.is_empty() {
+            &self.name
+        } else {
+            &self.host
+        }
+    }
+
     /// Whether it counts as alive at `now`: it called within `lease_time` and has not said
     /// goodbye.
     pub fn alive(&self, now: Instant, lease_time: Duration) -> bool {

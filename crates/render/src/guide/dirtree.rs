@@ -367,17 +367,18 @@ impl DirTree {
         out
     }
 
+    /// Whether `other` has this tree's structure (the same nodes and children), so that
+    /// [`DirTree::add`] takes it.
+    pub fn same_shape(&self, other: &DirTree) -> bool {
+        self.nodes.len() == other.nodes.len()
+            && (self.nodes.iter().zip(&other.nodes)).all(|(a, b)| a.child == b.child)
+    }
+
     /// Adds `other`'s energies to this tree's, quadrant by quadrant; the two must have the
     /// same structure (both refined from one guide). Sums in f64 depend on their order, so
     /// the caller fixes it (the farm adds units in unit order).
     pub fn add(&mut self, other: &DirTree) -> Result<(), GuideError> {
-        let same = self.nodes.len() == other.nodes.len()
-            && self
-                .nodes
-                .iter()
-                .zip(&other.nodes)
-                .all(|(a, b)| a.child == b.child);
-        if !same {
+        if !self.same_shape(other) {
             return Err(GuideError::Mismatch(self.nodes.len(), other.nodes.len()));
         }
         for (a, b) in self.nodes.iter_mut().zip(&other.nodes) {
@@ -425,27 +426,22 @@ impl DirTree {
                 got: bytes.len(),
             });
         }
-        let word = |at: usize| -> [u8; 8] {
-            let mut w = [0u8; 8];
-            w.copy_from_slice(&bytes[at..at + 8]);
-            w
-        };
+        let mut r = Reader { bytes, at: HEADER };
         let mut nodes = Vec::with_capacity(count);
         for i in 0..count {
-            let at = HEADER + i * NODE_BYTES;
             let mut node = Node::EMPTY;
-            for q in 0..4 {
-                let c = &bytes[at + 4 * q..at + 4 * q + 4];
-                node.child[q] = u32::from_le_bytes([c[0], c[1], c[2], c[3]]);
-                let e = f64::from_le_bytes(word(at + 16 + 8 * q));
-                if !(e >= 0.0 && e.is_finite()) {
+            for c in &mut node.child {
+                *c = u32::from_le_bytes(r.array()?);
+            }
+            for (q, e) in node.energy.iter_mut().enumerate() {
+                *e = f64::from_le_bytes(r.array()?);
+                if !(*e >= 0.0 && e.is_finite()) {
                     return Err(GuideError::Energy {
                         node: i,
                         quadrant: q,
-                        value: e,
+                        value: *e,
                     });
                 }
-                node.energy[q] = e;
             }
             let total: f64 = node.energy.iter().sum();
             if !total.is_finite() {
@@ -460,6 +456,30 @@ impl DirTree {
         let children: Vec<[u32; 4]> = nodes.iter().map(|n| n.child).collect();
         check_shape(&children, MAX_DEPTH)?;
         Ok(Self { nodes })
+    }
+}
+
+/// Bytes read in order, each read refused past the end.
+pub(super) struct Reader<'a> {
+    pub(super) bytes: &'a [u8],
+    pub(super) at: usize,
+}
+
+impl<'a> Reader<'a> {
+    pub(super) fn take(&mut self, n: usize) -> Result<&'a [u8], GuideError> {
+        let end = self.at.checked_add(n).filter(|&e| e <= self.bytes.len());
+        let Some(end) = end else {
+            return Err(GuideError::Truncated(self.bytes.len()));
+        };
+        let s = &self.bytes[self.at..end];
+        self.at = end;
+        Ok(s)
+    }
+
+    pub(super) fn array<const N: usize>(&mut self) -> Result<[u8; N], GuideError> {
+        let mut a = [0u8; N];
+        a.copy_from_slice(self.take(N)?);
+        Ok(a)
     }
 }
 

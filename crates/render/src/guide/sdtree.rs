@@ -11,7 +11,7 @@
 
 use glam::Vec3A;
 
-use super::dirtree::{check_shape, DirTree, GuideError};
+use super::dirtree::{check_shape, DirTree, GuideError, Reader};
 
 /// The deepest a spatial node may be (the root is at depth 1).
 pub const MAX_SPATIAL_DEPTH: u32 = 48;
@@ -254,7 +254,11 @@ impl SdTree {
     /// Adds `other`'s counts and energies to this tree's, leaf by leaf; the two must have
     /// the same structure. The caller fixes the order of additions (f64 sums depend on it).
     pub fn add(&mut self, other: &SdTree) -> Result<(), GuideError> {
-        if self.nodes != other.nodes || self.leaves.len() != other.leaves.len() {
+        // Checked whole before anything is added, so a mismatch leaves this tree as it was.
+        let same = self.nodes == other.nodes
+            && self.leaves.len() == other.leaves.len()
+            && (self.leaves.iter().zip(&other.leaves)).all(|(a, b)| a.dir.same_shape(&b.dir));
+        if !same {
             return Err(GuideError::Mismatch(self.nodes.len(), other.nodes.len()));
         }
         for (a, b) in self.leaves.iter_mut().zip(&other.leaves) {
@@ -379,30 +383,6 @@ impl SdTree {
     }
 }
 
-/// Bytes read in order, each read refused past the end.
-struct Reader<'a> {
-    bytes: &'a [u8],
-    at: usize,
-}
-
-impl<'a> Reader<'a> {
-    fn take(&mut self, n: usize) -> Result<&'a [u8], GuideError> {
-        let end = self.at.checked_add(n).filter(|&e| e <= self.bytes.len());
-        let Some(end) = end else {
-            return Err(GuideError::Truncated(self.bytes.len()));
-        };
-        let s = &self.bytes[self.at..end];
-        self.at = end;
-        Ok(s)
-    }
-
-    fn array<const N: usize>(&mut self) -> Result<[u8; N], GuideError> {
-        let mut a = [0u8; N];
-        a.copy_from_slice(self.take(N)?);
-        Ok(a)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -501,6 +481,18 @@ mod tests {
             next.memory_bytes()
         );
         assert!(SdTree::decode(&next.encode()).is_ok());
+    }
+
+    #[test]
+    fn a_mismatch_in_a_later_leaf_leaves_the_sum_as_it_was() {
+        let guide = trained(2);
+        let mut other = guide.clone();
+        let last = other.leaves.len() - 1;
+        other.leaves[last].dir = DirTree::uniform();
+        assert!(!guide.leaves[last].dir.same_shape(&other.leaves[last].dir));
+        let mut sum = guide.clone();
+        assert!(sum.add(&other).is_err());
+        assert_eq!(sum, guide);
     }
 
     #[test]
