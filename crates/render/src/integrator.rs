@@ -24,7 +24,9 @@ pub use crate::settings::{
 use crate::util::math::{exp_nonpositive, offset_ray_origin, Frame, Ray};
 use crate::util::sampling::{cosine_hemisphere_pdf, power_heuristic, PixelSampler};
 
+mod guided;
 mod lobes;
+pub use guided::{GuidedPath, Guiding, NoGuide, ALPHA};
 pub(crate) use lobes::pbr_at;
 use lobes::{conductor, pbr, plastic};
 
@@ -37,9 +39,23 @@ pub fn sample_pixel(
     y: u32,
     sampler: &PixelSampler,
 ) -> Vec3A {
+    sample_pixel_with(scene, settings, x, y, sampler, &mut NoGuide)
+}
+
+/// [`sample_pixel`] with path guiding (`guiding`: the guide it samples from and the tree it
+/// trains; [`crate::guided`]).
+#[inline]
+pub fn sample_pixel_with<'a, G: Guiding<'a>>(
+    scene: &Scene,
+    settings: &RenderSettings,
+    x: u32,
+    y: u32,
+    sampler: &PixelSampler,
+    guiding: &mut G,
+) -> Vec3A {
     let [jx, jy, lx, ly] = sampler.get4(0);
     let ray = scene.camera.ray(x as f32 + jx, y as f32 + jy);
-    trace(scene, settings, ray, sampler, [lx, ly])
+    trace(scene, settings, ray, sampler, [lx, ly], guiding)
 }
 
 /// Radiance arriving at the camera along `ray`, for a path that starts at `ray` rather than at
@@ -51,7 +67,7 @@ pub fn radiance(
     sampler: &PixelSampler,
 ) -> Vec3A {
     let [_, _, lx, ly] = sampler.get4(0);
-    trace(scene, settings, ray, sampler, [lx, ly])
+    trace(scene, settings, ray, sampler, [lx, ly], &mut NoGuide)
 }
 
 /// [`radiance`], given the first vertex's light-sample point `light_uv` (group 0's last two
@@ -62,13 +78,15 @@ pub fn radiance(
 /// position and the light point of the first vertex (its direct light); group 1 + 2d is
 /// bounce d's direction and the light point of the vertex it reaches (one bounce of indirect
 /// light); group 2 + 2d holds bounce d's scalar choices (light selection, reflect or refract,
-/// Russian roulette), drawn only when one of them is needed.
-fn trace(
+/// Russian roulette; with guiding, a diffuse vertex's choice of the guide or the BSDF), drawn
+/// only when one of them is needed.
+fn trace<'a, G: Guiding<'a>>(
     scene: &Scene,
     settings: &RenderSettings,
     mut ray: Ray,
     sampler: &PixelSampler,
     mut light_uv: [f32; 2],
+    guiding: &mut G,
 ) -> Vec3A {
     // Only smooth meshes have shading normals; other scenes skip their side tests below
     // (a branch that always goes one way) rather than pay for them at every bounce.
@@ -99,15 +117,23 @@ fn trace(
             path.beta *= absorbed(path.medium, found.map_or(f32::INFINITY, |h| h.t));
         }
         let Some(hit) = found else {
+            let (before, mut sky) = (path.l, Vec3A::ZERO);
             match &scene.environment {
                 None => {}
                 Some(Environment::Map { map, light }) => {
                     add_environment(&mut path, scene, strategy, map, *light, ray.d);
                 }
-                Some(env) => path.l += path.beta * env.radiance(ray.d),
+                Some(env) => {
+                    sky = path.beta * env.radiance(ray.d);
+                    path.l += sky;
+                }
             }
             if !scene.lights.suns().is_empty() {
                 add_suns(&mut path, scene, strategy, ray.d);
+            }
+            if let Some(g) = guiding.path() {
+                // A constant sky is never light-sampled: it stays in the guide's training.
+                g.found_direct(strategy, path.specular, path.l - before - sky);
             }
             break;
         };
@@ -124,7 +150,11 @@ fn trace(
                 le *= t.texture.lookup(prim.shape.uv(&ray, hit.part));
             }
             if le != Vec3A::ZERO {
+                let before = path.l;
                 add_emitted(&mut path, scene, strategy, li, le, &sp);
+                if let Some(g) = guiding.path() {
+                    g.found_direct(strategy, path.specular, path.l - before);
+                }
             }
         }
         if scene.max_depth.is_some_and(|m| depth >= m) {
@@ -155,7 +185,9 @@ fn trace(
             };
         // u_rr decides Russian roulette after this bounce; u_choice a glass's reflection or
         // refraction, or a plastic's lobe.
-        let chooses = glass || matches!(mat.bsdf, Bsdf::Plastic(_) | Bsdf::Pbr(_));
+        let chooses = glass
+            || matches!(mat.bsdf, Bsdf::Plastic(_) | Bsdf::Pbr(_))
+            || guiding.path().is_some();
         let [u_select, u_choice, u_rr, _] = if (nee && scene.lights.lights.len() > 1)
             || chooses
             || depth + 1 >= settings.rr_depth
@@ -173,9 +205,28 @@ fn trace(
                 };
                 let light_u = nee.then_some((u_select, Vec2::new(lx, ly)));
                 let bsdf_u = Vec2::new(u0, u1);
-                let Some(next) = diffuse(
-                    scene, strategy, &mut path, albedo, &sp, &at, bsdf_u, light_u,
-                ) else {
+                let next = match guiding.path() {
+                    None => diffuse(
+                        scene, strategy, &mut path, albedo, &sp, &at, bsdf_u, light_u,
+                    ),
+                    Some(g) => {
+                        let mut updated = path;
+                        let next = guided::diffuse(
+                            scene,
+                            strategy,
+                            &mut updated,
+                            albedo,
+                            &sp,
+                            &at,
+                            (bsdf_u, u_choice),
+                            light_u,
+                            g,
+                        );
+                        path = updated;
+                        next
+                    }
+                };
+                let Some(next) = next else {
                     break;
                 };
                 next
@@ -320,6 +371,9 @@ fn trace(
             path.beta /= q;
         }
         ray = Ray::new(next.o, next.d.normalize());
+    }
+    if let Some(g) = guiding.path() {
+        g.finish(path.l);
     }
     path.l
 }

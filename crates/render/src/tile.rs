@@ -79,7 +79,6 @@ pub fn render_tile(
     let mut out = TileSums::empty(rect, samples.start);
     out.samples = samples.clone();
     let w = rect.width as usize;
-    let batch = settings.batch.max(1);
     // Scenes whose bounce the many-path tracer models take it: the same bits, and more
     // samples a second than the scalar trace (docs/renderer.md).
     let wide = match settings.tracer {
@@ -99,27 +98,16 @@ pub fn render_tile(
             if let Some(wide) = &wide {
                 return wide_row(wide, settings, (rect.x0, y), &samples, sum, sum_sq, count);
             }
-            for (col, ((s, sq), k)) in sum
+            for (col, sums) in sum
                 .iter_mut()
                 .zip(sum_sq.iter_mut())
                 .zip(count.iter_mut())
                 .enumerate()
             {
                 let x = rect.x0 + col as u32;
-                let mut sampler = PixelSampler::new(settings.seed, x, y, samples.start);
-                let mut i = samples.start;
-                while i < samples.end {
-                    let end = ((i / batch).saturating_add(1))
-                        .saturating_mul(batch)
-                        .min(samples.end);
-                    let mut b = BatchSums::default();
-                    for index in i..end {
-                        sampler.set_index(index);
-                        b.add(sample_pixel(scene, settings, x, y, &sampler));
-                    }
-                    b.flush_into(s, sq, k, &mut bad);
-                    i = end;
-                }
+                pixel_sums(settings, (x, y), &samples, sums, &mut bad, |sampler| {
+                    sample_pixel(scene, settings, x, y, sampler)
+                });
             }
             bad
         })
@@ -131,9 +119,38 @@ pub fn render_tile(
     out
 }
 
+/// One pixel's samples `samples` from `sample` (given the sampler set to each index in turn),
+/// summed batch by batch in index order into its sums (sum, sum of squares, count); `bad`
+/// counts the non-finite ones.
+#[inline]
+pub(crate) fn pixel_sums(
+    settings: &RenderSettings,
+    (x, y): (u32, u32),
+    samples: &Range<u32>,
+    ((s, sq), k): ((&mut [f64; 3], &mut [f64; 3]), &mut u32),
+    bad: &mut u64,
+    mut sample: impl FnMut(&PixelSampler) -> glam::Vec3A,
+) {
+    let batch = settings.batch.max(1);
+    let mut sampler = PixelSampler::new(settings.seed, x, y, samples.start);
+    let mut i = samples.start;
+    while i < samples.end {
+        let end = ((i / batch).saturating_add(1))
+            .saturating_mul(batch)
+            .min(samples.end);
+        let mut b = BatchSums::default();
+        for index in i..end {
+            sampler.set_index(index);
+            b.add(sample(&sampler));
+        }
+        b.flush_into(s, sq, k, bad);
+        i = end;
+    }
+}
+
 /// The AOVs' sums of `rect` over `samples` ([`crate::aov`]): their own pass over the tile,
 /// parallel over rows, each pixel's samples summed by batch in index order as the beauty's are.
-fn aov_sums(
+pub(crate) fn aov_sums(
     scene: &Scene,
     settings: &RenderSettings,
     rect: PixelRect,

@@ -18,7 +18,7 @@ use tessera_render::sampling::{
 };
 use tessera_render::scene::Scene;
 use tessera_render::shape::{slab, sphere_roots, Shape, Transformed};
-use tessera_render::{render_tile, Image, PixelRect, RenderSettings, TileSums};
+use tessera_render::{render_tile, PixelRect, RenderSettings, TileSums};
 
 fn seeded(spp: u32, seed: u64) -> RenderSettings {
     RenderSettings {
@@ -531,45 +531,13 @@ fn nested_scene(ior: Option<f64>) -> Scene {
     ))
 }
 
-/// Per-pixel z-test of two independent renders; returns (the fraction of pixel-channels with
-/// |z| > 4, the largest |z| over 4×4-pixel blocks).
-fn z_test(a: &Image, b: &Image) -> (f64, f64) {
-    assert_eq!((a.width, a.height), (b.width, b.height));
-    let mut outliers = 0usize;
-    for i in 0..a.rgb.len() {
-        for c in 0..3 {
-            let var = a.variance[i][c] as f64 + b.variance[i][c] as f64;
-            let diff = a.rgb[i][c] as f64 - b.rgb[i][c] as f64;
-            if diff.abs() > 4.0 * var.sqrt() + 1e-6 * a.rgb[i][c].abs() as f64 {
-                outliers += 1;
-            }
-        }
-    }
-    let mut worst = 0f64;
-    for by in 0..a.height / 4 {
-        for bx in 0..a.width / 4 {
-            let (ma, sa) = common::region_stats(a, bx * 4, by * 4, 4, 4);
-            let (mb, sb) = common::region_stats(b, bx * 4, by * 4, 4, 4);
-            for c in 0..3 {
-                let se = (sa[c] * sa[c] + sb[c] * sb[c]).sqrt();
-                if se > 0.0 {
-                    worst = worst.max((ma[c] - mb[c]).abs() / se);
-                } else {
-                    assert_eq!(ma[c], mb[c], "noise-free blocks must agree exactly");
-                }
-            }
-        }
-    }
-    (outliers as f64 / (3 * a.rgb.len()) as f64, worst)
-}
-
 #[test]
 fn sphere_inside_a_glass_sphere_4e5_larger_stays_visible() {
     let settings = |seed| seeded(64, seed);
     // Index-matched glass (η = 1) is invisible: the image must equal the bare sphere's.
     let bare = render(&nested_scene(None), &settings(1));
     let matched = render(&nested_scene(Some(1.0)), &settings(2));
-    let (frac, worst) = z_test(&bare, &matched);
+    let (frac, worst) = common::z_test(&bare, &matched);
     assert!(
         frac < 0.005 && worst < 5.0,
         "index-matched shell changed the image: {frac} {worst}"
@@ -979,7 +947,7 @@ fn cornell_box_is_invariant_to_scale_and_translation() {
     {
         let img = render(&cornell_scaled(k, t), &settings(20 + i as u64));
         assert_eq!(img.nonfinite, 0);
-        let (frac, worst) = z_test(&base, &img);
+        let (frac, worst) = common::z_test(&base, &img);
         eprintln!("scale {k}, translate {t}: {:.3}% of pixel-channels beyond 4σ, worst block z {worst:.2}", 100.0 * frac);
         assert!(
             frac < 0.003 && worst < 5.0,

@@ -14,6 +14,15 @@
 //! reused by remapping), and a leaf sampled uniformly; a node with no energy (or a total
 //! that is not finite) counts as uniform in both. No quadrant of zero energy can be picked,
 //! so no sample lands where the pdf is zero.
+//!
+//! Energies are sums of fixed-point numbers (u128 in units of 2⁻⁶⁴, each value recorded at
+//! most 2⁴⁰), added with saturation. Integer sums of non-negative numbers do not depend on
+//! their order, saturated or not, so the training of a guide can be split over threads,
+//! units and machines any way at all and merged in any order to the same bits: the farm needs
+//! no merge order for guides, and the local renderer none for its threads. The shares that
+//! sampling reads are computed from the sums once, by [`DirTree::freeze`] (which decoding
+//! does): f32 per quadrant, so a node fits a cache line and a pdf costs no integer
+//! conversions.
 
 use std::f32::consts::PI;
 
@@ -39,9 +48,25 @@ const LEAF: u32 = 0;
 /// Bytes before the nodes: magic, version, node count.
 const HEADER: usize = 9;
 /// Bytes a node takes: four child indices and four energies.
-const NODE_BYTES: usize = 4 * 4 + 4 * 8;
+const NODE_BYTES: usize = 4 * 4 + 4 * 16;
 const MAGIC: &[u8; 4] = b"TSGQ";
-const VERSION: u8 = 1;
+const VERSION: u8 = 2;
+
+/// Fixed-point units per unit of energy.
+const ENERGY_ONE: f64 = 18_446_744_073_709_551_616.0; // 2^64
+/// The most one record may add, in energy units: a bound on what one sample (or a forged
+/// one) can weigh, and so on how few records saturate a sum (2^24 of them at this bound).
+const MAX_RECORD: f64 = 1_099_511_627_776.0; // 2^40
+
+/// `value` in fixed point; what is not positive and finite is nothing.
+#[inline]
+fn quantize(value: f64) -> u128 {
+    if value > 0.0 && value.is_finite() {
+        (value.min(MAX_RECORD) * ENERGY_ONE) as u128
+    } else {
+        0
+    }
+}
 
 /// What is wrong with a guide's bytes, or with a merge of two guides.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -81,16 +106,6 @@ pub enum GuideError {
     /// A node deeper than [`MAX_DEPTH`].
     #[error("node {0} is deeper than {MAX_DEPTH} levels")]
     Depth(usize),
-    /// An energy that is negative or not finite, or a node whose total is not finite.
-    #[error("node {node} quadrant {quadrant}: energy {value} is not a finite non-negative sum")]
-    Energy {
-        /// The node.
-        node: usize,
-        /// The quadrant.
-        quadrant: usize,
-        /// The value.
-        value: f64,
-    },
     /// A spatial guide's bounds that are not finite or enclose nothing.
     #[error("a spatial guide's bounds are not a finite, non-empty box")]
     Bounds,
@@ -104,28 +119,58 @@ pub enum GuideError {
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Node {
-    /// The energy that arrived through each quadrant.
-    energy: [f64; 4],
+    /// The energy that arrived through each quadrant, in fixed point.
+    energy: [u128; 4],
     /// Each quadrant's node, or [`LEAF`].
     child: [u32; 4],
+    /// What sampling reads: each quadrant's share of the energy at the last
+    /// [`DirTree::freeze`].
+    share: [f32; 4],
+    /// What the density reads: 4 × the probability that sampling picks each quadrant
+    /// ([`Node::pick`]), from the same shares.
+    factor: [f32; 4],
 }
 
 impl Node {
     const EMPTY: Node = Node {
-        energy: [0.0; 4],
+        energy: [0; 4],
         child: [LEAF; 4],
+        share: [0.25; 4],
+        factor: [1.0; 4],
     };
 
     /// Each quadrant's share of the node's energy; a quarter each when it has none.
     #[inline]
     fn shares(&self) -> [f64; 4] {
-        let e = self.energy;
+        let e = self.energy.map(|x| x as f64);
         let total = e[0] + e[1] + e[2] + e[3];
-        if total > 0.0 && total.is_finite() {
+        if total > 0.0 {
             e.map(|x| x / total)
         } else {
             [0.25; 4]
         }
+    }
+
+    /// The probability that sampling picks quadrant `q`, and `u` past the choice, from the
+    /// frozen shares: the column by its share, then the row within the column by its part of
+    /// it. [`DirTree::pdf`] multiplies the same probabilities as [`DirTree::sample`] draws
+    /// by, computed by the same steps, so the two agree to the bit.
+    #[inline]
+    fn pick(&self, q: usize) -> f64 {
+        let s = self.share.map(f64::from);
+        let left = s[0] + s[2];
+        let qx = q & 1;
+        let column = s[qx] + s[qx + 2];
+        let below = if column > 0.0 { s[qx] / column } else { 0.5 };
+        // f32 shares may add up to a hair over one: [`choose`] then never takes the right
+        // column, which has probability 0, not a negative one.
+        let px = if qx == 0 {
+            left.min(1.0)
+        } else {
+            (1.0 - left).max(0.0)
+        };
+        let py = if q < 2 { below } else { 1.0 - below };
+        px * py
     }
 }
 
@@ -215,6 +260,8 @@ pub(super) fn check_shape<const K: usize>(
 pub struct DirTree {
     /// Never empty: node 0 is the root.
     nodes: Vec<Node>,
+    /// Whether it had energy at the last [`DirTree::freeze`].
+    trained: bool,
 }
 
 impl Default for DirTree {
@@ -228,6 +275,7 @@ impl DirTree {
     pub fn uniform() -> Self {
         Self {
             nodes: vec![Node::EMPTY],
+            trained: false,
         }
     }
 
@@ -248,13 +296,32 @@ impl DirTree {
 
     /// The energy it has recorded.
     pub fn total(&self) -> f64 {
-        self.nodes[0].energy.iter().sum()
+        self.nodes[0].energy.iter().map(|&e| e as f64).sum()
+    }
+
+    /// Computes the shares that [`DirTree::sample`] and [`DirTree::pdf`] read from the
+    /// energies recorded so far. Until it is called again, recording changes the sums but not
+    /// the distribution (which stays a distribution: sampling and its density read the same
+    /// shares, whatever they are).
+    pub fn freeze(&mut self) {
+        for n in &mut self.nodes {
+            n.share = n.shares().map(|s| s as f32);
+            n.factor = [0, 1, 2, 3].map(|q| (4.0 * n.pick(q)) as f32);
+        }
+        self.trained = self.total() > 0.0;
+    }
+
+    /// Whether it had learned anything at the last [`DirTree::freeze`]: where it had not, its
+    /// density is uniform, and a guide does better not to sample it at all.
+    pub fn is_trained(&self) -> bool {
+        self.trained
     }
 
     /// Records `value` of energy arriving along `d` (unit): added to the quadrant it falls in
     /// at every level. A value that is not positive and finite is left out.
     pub fn record(&mut self, d: Vec3A, value: f64) {
-        if !(value > 0.0 && value.is_finite()) {
+        let value = quantize(value);
+        if value == 0 {
             return;
         }
         let s = to_square(d);
@@ -262,7 +329,8 @@ impl DirTree {
         let mut n = 0;
         loop {
             let (q, inner) = quadrant(p);
-            self.nodes[n].energy[q] += value;
+            let e = &mut self.nodes[n].energy[q];
+            *e = e.saturating_add(value);
             match self.nodes[n].child[q] {
                 LEAF => return,
                 c => (n, p) = (c as usize, inner),
@@ -277,7 +345,7 @@ impl DirTree {
         let mut n = 0;
         loop {
             let node = &self.nodes[n];
-            let s = node.shares();
+            let s = node.share.map(f64::from);
             // The column by its share, then the row within the column by its part of it.
             let (right, x) = choose(ux, s[0] + s[2]);
             let qx = usize::from(right);
@@ -286,7 +354,7 @@ impl DirTree {
             let (up, y) = choose(uy, below);
             let q = qx + 2 * usize::from(up);
             (ux, uy) = (x, y);
-            density *= 4.0 * s[q];
+            density *= node.factor[q] as f64;
             size *= 0.5;
             origin[0] += size * qx as f64;
             origin[1] += size * usize::from(up) as f64;
@@ -313,7 +381,7 @@ impl DirTree {
         loop {
             let node = &self.nodes[n];
             let (q, inner) = quadrant(p);
-            density *= 4.0 * node.shares()[q];
+            density *= node.factor[q] as f64;
             match node.child[q] {
                 LEAF => break,
                 c => (n, p) = (c as usize, inner),
@@ -336,9 +404,8 @@ impl DirTree {
         } else {
             1.0
         };
-        let total = self.total();
         let mut out = DirTree::uniform();
-        if !(total > 0.0 && total.is_finite()) {
+        if !(self.total() > 0.0) {
             return out;
         }
         // A quadrant's share of the whole is its node's share times its share of the node, as
@@ -375,15 +442,15 @@ impl DirTree {
     }
 
     /// Adds `other`'s energies to this tree's, quadrant by quadrant; the two must have the
-    /// same structure (both refined from one guide). Sums in f64 depend on their order, so
-    /// the caller fixes it (the farm adds units in unit order).
+    /// same structure (both refined from one guide). The sums are integers, so the order of
+    /// additions cannot change a bit. The shares stay as they were until [`DirTree::freeze`].
     pub fn add(&mut self, other: &DirTree) -> Result<(), GuideError> {
         if !self.same_shape(other) {
             return Err(GuideError::Mismatch(self.nodes.len(), other.nodes.len()));
         }
         for (a, b) in self.nodes.iter_mut().zip(&other.nodes) {
             for q in 0..4 {
-                a.energy[q] += b.energy[q];
+                a.energy[q] = a.energy[q].saturating_add(b.energy[q]);
             }
         }
         Ok(())
@@ -409,7 +476,7 @@ impl DirTree {
 
     /// A tree from [`DirTree::encode`]'s bytes, refusing any that do not describe one: each
     /// child a later node and nobody else's, every node reached from the root, no deeper than
-    /// [`MAX_DEPTH`], every energy finite and non-negative with finite totals.
+    /// [`MAX_DEPTH`]. The tree comes back frozen ([`DirTree::freeze`]).
     pub fn decode(bytes: &[u8]) -> Result<Self, GuideError> {
         if bytes.len() < HEADER || &bytes[..4] != MAGIC || bytes[4] != VERSION {
             return Err(GuideError::Header);
@@ -428,34 +495,24 @@ impl DirTree {
         }
         let mut r = Reader { bytes, at: HEADER };
         let mut nodes = Vec::with_capacity(count);
-        for i in 0..count {
+        for _ in 0..count {
             let mut node = Node::EMPTY;
             for c in &mut node.child {
                 *c = u32::from_le_bytes(r.array()?);
             }
-            for (q, e) in node.energy.iter_mut().enumerate() {
-                *e = f64::from_le_bytes(r.array()?);
-                if !(*e >= 0.0 && e.is_finite()) {
-                    return Err(GuideError::Energy {
-                        node: i,
-                        quadrant: q,
-                        value: *e,
-                    });
-                }
-            }
-            let total: f64 = node.energy.iter().sum();
-            if !total.is_finite() {
-                return Err(GuideError::Energy {
-                    node: i,
-                    quadrant: 0,
-                    value: total,
-                });
+            for e in &mut node.energy {
+                *e = u128::from_le_bytes(r.array()?);
             }
             nodes.push(node);
         }
         let children: Vec<[u32; 4]> = nodes.iter().map(|n| n.child).collect();
         check_shape(&children, MAX_DEPTH)?;
-        Ok(Self { nodes })
+        let mut tree = Self {
+            nodes,
+            trained: false,
+        };
+        tree.freeze();
+        Ok(tree)
     }
 }
 
@@ -499,6 +556,7 @@ mod tests {
                 next.record(d, if d.z > 0.9 { 50.0 } else { 1.0 });
             }
             tree = next;
+            tree.freeze();
         }
         tree
     }
@@ -562,11 +620,11 @@ mod tests {
         // The fuzzer's guide: a child whose energy dwarfs its parent's quadrant. Read as
         // absolute shares, every quadrant below it would split to the deepest level.
         let mut t = DirTree::uniform();
-        t.nodes[0].energy = [5.0, 1.0, 1.0, 3.0];
+        t.nodes[0].energy = [5, 1, 1, 3];
         t.nodes[0].child[0] = 1;
         t.nodes.push(Node {
-            energy: [1.0, 1e164, 2.0, 0.0],
-            child: [LEAF; 4],
+            energy: [1, u128::MAX, 2, 0],
+            ..Node::EMPTY
         });
         let r = t.refined(0.01);
         assert!(
@@ -584,6 +642,15 @@ mod tests {
         let mut sum = tree.clone();
         sum.add(&tree).expect("same structure");
         assert_eq!(sum.total(), 2.0 * tree.total());
+        // Any energies decode, the largest too, and sample within the sphere.
+        let mut huge = tree.encode();
+        for q in 0..4 {
+            let at = HEADER + 16 + 16 * q;
+            huge[at..at + 16].copy_from_slice(&u128::MAX.to_le_bytes());
+        }
+        let huge = DirTree::decode(&huge).expect("any energies are sums");
+        let (d, pdf) = huge.sample(Vec2::new(0.3, 0.7));
+        assert!(d.is_finite() && pdf > 0.0 && (huge.pdf(d) / pdf - 1.0).abs() < 1e-6);
         assert!(matches!(
             sum.add(&DirTree::uniform()),
             Err(GuideError::Mismatch(_, 1))
@@ -611,18 +678,6 @@ mod tests {
         let mut past = good.clone();
         past[node(0)..node(0) + 4].copy_from_slice(&u32::MAX.to_le_bytes());
         cases.push((past, "is not a node of its own"));
-        let mut nan = good.clone();
-        nan[node(1) + 16..node(1) + 24].copy_from_slice(&f64::NAN.to_le_bytes());
-        cases.push((nan, "node 1 quadrant 0: energy NaN"));
-        let mut negative = good.clone();
-        negative[node(0) + 40..node(0) + 48].copy_from_slice(&(-1.0f64).to_le_bytes());
-        cases.push((negative, "node 0 quadrant 3: energy -1"));
-        let mut huge = good;
-        for q in 0..4 {
-            let at = node(0) + 16 + 8 * q;
-            huge[at..at + 8].copy_from_slice(&f64::MAX.to_le_bytes());
-        }
-        cases.push((huge, "energy inf"));
         for (bytes, want) in cases {
             let e = DirTree::decode(&bytes).expect_err(want).to_string();
             assert!(e.contains(want), "{e} (wanted {want})");

@@ -122,3 +122,35 @@ pub fn estimate(sc: &Scene, ray: Ray, strategy: Strategy, n: u32) -> (DVec3, DVe
     let var = (sq / n as f64 - mean * mean).max(DVec3::ZERO);
     (mean, (var / n as f64).map(f64::sqrt))
 }
+
+/// Per-pixel z-test of two independent renders; returns (the fraction of pixel-channels with
+/// |z| > 4, the largest |z| over 4×4-pixel blocks).
+pub fn z_test(a: &Image, b: &Image) -> (f64, f64) {
+    assert_eq!((a.width, a.height), (b.width, b.height));
+    let mut outliers = 0usize;
+    for i in 0..a.rgb.len() {
+        for c in 0..3 {
+            let var = a.variance[i][c] as f64 + b.variance[i][c] as f64;
+            let diff = a.rgb[i][c] as f64 - b.rgb[i][c] as f64;
+            if diff.abs() > 4.0 * var.sqrt() + 1e-6 * a.rgb[i][c].abs() as f64 {
+                outliers += 1;
+            }
+        }
+    }
+    let mut worst = 0f64;
+    for by in 0..a.height / 4 {
+        for bx in 0..a.width / 4 {
+            let (ma, sa) = region_stats(a, bx * 4, by * 4, 4, 4);
+            let (mb, sb) = region_stats(b, bx * 4, by * 4, 4, 4);
+            for c in 0..3 {
+                let se = (sa[c] * sa[c] + sb[c] * sb[c]).sqrt();
+                if se > 0.0 {
+                    worst = worst.max((ma[c] - mb[c]).abs() / se);
+                } else {
+                    assert_eq!(ma[c], mb[c], "noise-free blocks must agree exactly");
+                }
+            }
+        }
+    }
+    (outliers as f64 / (3 * a.rgb.len()) as f64, worst)
+}

@@ -1,0 +1,258 @@
+//! Guided rendering (issue #60): a frame rendered in epochs of doubling sample counts, each
+//! sampling directions from the guide ([`crate::guide::SdTree`]) that the epochs before it
+//! trained, and training the next.
+//!
+//! Epoch k renders sample indices [2^k − 1, 2^(k+1) − 1); the last epoch also takes the
+//! samples short of a whole further epoch, so it is never smaller than the one before. Epoch
+//! 0 samples no guide, and the last trains none. The structure each epoch trains is the last
+//! guide's refinement ([`crate::guide::SdTree::refined`]), a pure function of its sums.
+//!
+//! The image is the plain mean of every sample of every epoch. Each sample is unbiased
+//! whatever guide it drew from (see [`crate::integrator`]'s guided vertex), so the mean is
+//! too; weights computed from the epochs' own variances (Müller et al.'s later
+//! inverse-variance combination) would correlate the weights with what they weigh and bias the
+//! mean, if only slightly. A plain mean is also what the film already sums: the frame's sums
+//! are those of samples [0, spp), merged in index order, as any render's.
+//!
+//! Determinism. Within an epoch, each thread records into its own copy of the structure; the
+//! copies' sums are integers ([`crate::guide`]), so adding them gives the same guide whatever
+//! thread recorded what, and so the same bits on any number of threads.
+
+use std::ops::Range;
+use std::sync::Mutex;
+
+use rayon::prelude::*;
+
+use crate::film::{assemble_render, PixelRect, TileSums};
+use crate::guide::SdTree;
+use crate::integrator::{sample_pixel_with, GuidedPath, RenderSettings};
+use crate::scene::Scene;
+use crate::tile::{aov_sums, pixel_sums};
+use crate::util::math::Aabb;
+
+/// Müller et al.'s spatial split constant: a leaf splits once it counts more than
+/// c·√(2^k) vertices in epoch k.
+pub const SPLIT_C: f64 = 12_000.0;
+
+/// The share of a directional tree's energy a quadrant needs to be refined (Müller's ρ).
+pub const RHO: f64 = 0.01;
+
+/// The tile edge the guided renderer renders by (it cannot change a bit: pixels are
+/// independent, and guides' sums do not depend on order).
+const TILE: u32 = 32;
+
+/// One epoch of a guided render, as the render reports it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Epoch {
+    /// Its sample indices.
+    pub samples: Range<u32>,
+    /// Spatial leaves of the guide it sampled (0: none).
+    pub guide_leaves: usize,
+    /// Bytes that guide held.
+    pub guide_bytes: usize,
+}
+
+/// A guided render: the frame's sums and its epochs.
+pub struct GuidedFrame {
+    /// Sums of samples [0, spp) of every pixel.
+    pub sums: TileSums,
+    /// The epochs, in order.
+    pub epochs: Vec<Epoch>,
+    /// The last guide (which the last epoch sampled).
+    pub guide: Option<SdTree>,
+}
+
+/// The sample ranges of the epochs of a guided render of `spp` samples.
+pub fn epochs(spp: u32) -> Vec<Range<u32>> {
+    let mut out = Vec::new();
+    let mut start = 0u32;
+    let mut size = 1u32;
+    while start < spp {
+        let mut end = start.saturating_add(size).min(spp);
+        // Too few left for a whole epoch after this one: they join this one.
+        if spp - end < size.saturating_mul(2) {
+            end = spp;
+        }
+        out.push(start..end);
+        start = end;
+        size = size.saturating_mul(2);
+    }
+    out
+}
+
+/// The count above which a leaf splits in the structure epoch `k` trains.
+fn split_after(k: usize) -> u64 {
+    (SPLIT_C * 2f64.powf(k as f64 / 2.0)) as u64
+}
+
+/// The box holding every finite object of `scene` (planes are infinite).
+fn bounds(scene: &Scene) -> Aabb {
+    scene.prims.iter().fold(Aabb::EMPTY, |b, p| {
+        let o = p.shape.bounds();
+        if o.min.is_finite() && o.max.is_finite() {
+            Aabb {
+                min: b.min.min(o.min),
+                max: b.max.max(o.max),
+            }
+        } else {
+            b
+        }
+    })
+}
+
+/// Renders the whole frame with path guiding, calling `progress` with the number of samples
+/// finished after each tile of each epoch. `settings.adaptive` and `settings.tracer` are not
+/// read: a guided render takes every sample, one path at a time.
+pub fn render_frame_guided(
+    scene: &Scene,
+    settings: &RenderSettings,
+    progress: &(dyn Fn(u64) + Sync),
+) -> GuidedFrame {
+    let b = bounds(scene);
+    let tiles = PixelRect::tiles(scene.width, scene.height, TILE);
+    let mut acc: Vec<TileSums> = tiles.iter().map(|&r| TileSums::empty(r, 0)).collect();
+    let ranges = epochs(settings.spp);
+    let mut guide: Option<SdTree> = None;
+    let mut report = Vec::new();
+    for (k, samples) in ranges.iter().enumerate() {
+        let trains = k + 1 < ranges.len();
+        let structure = trains.then(|| match &guide {
+            None => SdTree::new(b.min, b.max),
+            Some(g) => g.refined(split_after(k), RHO),
+        });
+        let pool = copies(structure.as_ref());
+        report.push(Epoch {
+            samples: samples.clone(),
+            guide_leaves: guide.as_ref().map_or(0, SdTree::leaves),
+            guide_bytes: guide.as_ref().map_or(0, SdTree::memory_bytes),
+        });
+        acc.par_iter_mut().for_each(|acc| {
+            let part = guided_tile(scene, settings, acc.rect, samples, guide.as_ref(), &pool);
+            acc.merge(&part)
+                .expect("same rectangle, contiguous samples");
+            progress(acc.rect.area() as u64 * samples.len() as u64);
+        });
+        if let Some(next) = summed(pool) {
+            guide = Some(next);
+        }
+    }
+    let sums = assemble_render(settings, scene.width, scene.height, &acc)
+        .expect("tiles partition the frame and cover samples from 0");
+    GuidedFrame {
+        sums,
+        epochs: report,
+        guide,
+    }
+}
+
+/// Renders `rect` for sample indices `samples`, sampling directions from `guide` (none: the
+/// first epoch) and training a copy of `train` (none: the last epoch), which it returns
+/// frozen: what a farm's unit of a guided job is. Parallel over rows; the same bits on any
+/// number of threads.
+pub fn render_tile_guided(
+    scene: &Scene,
+    settings: &RenderSettings,
+    rect: PixelRect,
+    samples: Range<u32>,
+    guide: Option<&SdTree>,
+    train: Option<&SdTree>,
+) -> (TileSums, Option<SdTree>) {
+    let pool = copies(train);
+    let sums = guided_tile(scene, settings, rect, &samples, guide, &pool);
+    (sums, summed(pool))
+}
+
+/// One copy of `structure` for each thread of the current rayon pool.
+fn copies(structure: Option<&SdTree>) -> Vec<Mutex<SdTree>> {
+    structure
+        .map(|t| {
+            (0..rayon::current_num_threads())
+                .map(|_| Mutex::new(t.clone()))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// The threads' trees added up (in any order: their sums are integers), frozen.
+fn summed(pool: Vec<Mutex<SdTree>>) -> Option<SdTree> {
+    let mut trees = pool
+        .into_iter()
+        .map(|m| m.into_inner().unwrap_or_else(|e| e.into_inner()));
+    let mut sum = trees.next()?;
+    for t in trees {
+        sum.add(&t).expect("copies of one structure");
+    }
+    sum.freeze();
+    Some(sum)
+}
+
+/// Renders `rect` for `samples`, sampling `guide` and recording into the calling thread's
+/// tree of `pool` (none: nothing recorded). Parallel over rows; a row holds its thread's tree
+/// for as long as it runs, and no row waits on another's.
+fn guided_tile(
+    scene: &Scene,
+    settings: &RenderSettings,
+    rect: PixelRect,
+    samples: &Range<u32>,
+    guide: Option<&SdTree>,
+    pool: &[Mutex<SdTree>],
+) -> TileSums {
+    let mut out = TileSums::empty(rect, samples.start);
+    out.samples = samples.clone();
+    let w = rect.width as usize;
+    out.nonfinite = out
+        .sum
+        .par_chunks_mut(w)
+        .zip(out.sum_sq.par_chunks_mut(w))
+        .zip(out.count.par_chunks_mut(w))
+        .enumerate()
+        .map(|(row, ((sum, sum_sq), count))| {
+            let y = rect.y0 + row as u32;
+            let mut tree = (!pool.is_empty()).then(|| {
+                let i = rayon::current_thread_index().unwrap_or(0) % pool.len();
+                pool[i].lock().unwrap_or_else(|e| e.into_inner())
+            });
+            let mut path = GuidedPath::new(guide, tree.as_deref_mut());
+            let mut bad = 0u64;
+            for (col, sums) in sum
+                .iter_mut()
+                .zip(sum_sq.iter_mut())
+                .zip(count.iter_mut())
+                .enumerate()
+            {
+                let x = rect.x0 + col as u32;
+                pixel_sums(settings, (x, y), samples, sums, &mut bad, |sampler| {
+                    sample_pixel_with(scene, settings, x, y, sampler, &mut path)
+                });
+            }
+            bad
+        })
+        .sum();
+    if settings.aovs.any() {
+        out.aov = Some(Box::new(aov_sums(scene, settings, rect, samples)));
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn epochs_double_and_the_last_takes_the_rest() {
+        assert_eq!(epochs(1), vec![0..1]);
+        assert_eq!(epochs(2), vec![0..2]);
+        assert_eq!(epochs(4), vec![0..1, 1..4]);
+        assert_eq!(epochs(64), vec![0..1, 1..3, 3..7, 7..15, 15..31, 31..64]);
+        assert_eq!(epochs(0), Vec::<Range<u32>>::new());
+        for spp in 1..300 {
+            let e = epochs(spp);
+            assert_eq!(e[0].start, 0);
+            assert_eq!(e.last().map(|r| r.end), Some(spp));
+            for w in e.windows(2) {
+                assert_eq!(w[0].end, w[1].start);
+                assert!(w[1].len() >= w[0].len(), "{spp}: {e:?}");
+            }
+        }
+    }
+}

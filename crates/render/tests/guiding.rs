@@ -1,0 +1,180 @@
+//! Path guiding (issue #60) is unbiased and deterministic: guided renders agree with unguided
+//! ones within their noise on the hard cases guiding is for and on a furnace, a guide trained
+//! on garbage changes the noise and not the mean, and the same guided render gives the same
+//! bits on any number of threads.
+
+mod common;
+
+use glam::{Vec2, Vec3A};
+use tessera_render::guide::{from_square, SdTree};
+use tessera_render::guided::{render_frame_guided, render_tile_guided};
+use tessera_render::scene::Scene;
+use tessera_render::{assemble_render, Image, PixelRect, RenderSettings};
+
+fn settings(spp: u32, seed: u64) -> RenderSettings {
+    RenderSettings {
+        spp,
+        seed,
+        ..RenderSettings::default()
+    }
+}
+
+/// A bundled scene at `size`×`size` pixels.
+fn small(name: &str, size: u32) -> Scene {
+    let path = common::repo_root().join("scenes").join(name);
+    let text = std::fs::read_to_string(&path).expect("bundled scene");
+    let text: Vec<String> = text
+        .lines()
+        .map(|l| match l.split_once(" = ") {
+            Some(("width" | "height", _)) => format!("{} = {size}", &l[..l.find(' ').unwrap_or(0)]),
+            _ => l.to_string(),
+        })
+        .collect();
+    common::scene(&text.join("\n"))
+}
+
+fn guided(scene: &Scene, settings: &RenderSettings) -> Image {
+    render_frame_guided(scene, settings, &|_| {})
+        .sums
+        .finalize()
+}
+
+/// Guided and unguided renders of `scene` (different seeds) agree: few pixel-channels beyond
+/// 4σ, no 4×4 block beyond 6σ (the caustics' variance estimates are heavy-tailed at this
+/// spp, so the bound leaves them room; a bias of a few percent fails it).
+fn agree(name: &str, scene: &Scene, spp: u32) {
+    let plain = common::render(scene, &settings(spp, 1));
+    let with = guided(scene, &settings(spp, 2));
+    let (frac, worst) = common::z_test(&plain, &with);
+    assert!(frac < 0.01, "{name}: {frac} of pixel-channels beyond 4σ");
+    assert!(worst < 6.0, "{name}: a 4×4 block {worst:.2}σ apart");
+    let (m0, s0) = common::region_stats(&plain, 0, 0, plain.width, plain.height);
+    let (m1, s1) = common::region_stats(&with, 0, 0, with.width, with.height);
+    for c in 0..3 {
+        let z = (m0[c] - m1[c]).abs() / (s0[c] * s0[c] + s1[c] * s1[c]).sqrt().max(1e-12);
+        assert!(
+            z < 4.0,
+            "{name}: image means {} and {} are {z:.2}σ apart",
+            m0[c],
+            m1[c]
+        );
+    }
+}
+
+#[test]
+fn guided_renders_agree_with_unguided_ones_on_the_hard_cases() {
+    for name in ["caustic.toml", "glass-mirror.toml"] {
+        agree(name, &small(name, 48), 256);
+    }
+}
+
+#[test]
+fn a_guided_furnace_gives_its_analytic_radiance() {
+    // Le/(1 − ρ) everywhere: 0.5/(1 − 0.8) = 2.5.
+    let scene = common::scene(&common::closed_sphere([0.8; 3], [0.5; 3], 16, 16));
+    let img = guided(&scene, &settings(128, 3));
+    let (mean, se) = common::region_stats(&img, 0, 0, 16, 16);
+    for c in 0..3 {
+        assert!(
+            (mean[c] - 2.5).abs() < 4.0 * se[c] + 1e-4,
+            "channel {c}: {} ± {}",
+            mean[c],
+            se[c]
+        );
+    }
+}
+
+/// A guide that has learned that all light arrives from one quarter of the sphere's
+/// longitudes, and most from one small patch of it: nowhere near where it comes from in
+/// any test scene. One spatial leaf, so that every vertex samples the garbage.
+fn garbage() -> SdTree {
+    let mut garbage = SdTree::new(Vec3A::splat(-10.0), Vec3A::splat(10.0));
+    for _ in 0..3 {
+        let mut next = garbage.refined(u64::MAX, 0.01);
+        for i in 0..20_000 {
+            let u = Vec2::new(
+                (i % 97) as f32 / 97.0 * 0.25,
+                0.1 + (i % 89) as f32 / 89.0 * 0.8,
+            );
+            let u = if i % 4 == 0 {
+                u
+            } else {
+                u * 0.1 + Vec2::new(0.1, 0.5)
+            };
+            next.record(Vec3A::ZERO, from_square(u), 1.0);
+        }
+        next.freeze();
+        garbage = next;
+    }
+    garbage
+}
+
+/// `scene` rendered whole as one tile, sampling `guide` and training nothing.
+fn with_guide(scene: &Scene, s: &RenderSettings, guide: &SdTree) -> Image {
+    let rect = PixelRect {
+        x0: 0,
+        y0: 0,
+        width: scene.width,
+        height: scene.height,
+    };
+    let (sums, trained) = render_tile_guided(scene, s, rect, 0..s.spp, Some(guide), None);
+    assert!(trained.is_none());
+    frame_of(s, scene, sums)
+}
+
+fn frame_of(s: &RenderSettings, scene: &Scene, sums: tessera_render::TileSums) -> Image {
+    assemble_render(s, scene.width, scene.height, &[sums])
+        .expect("one tile, the frame")
+        .finalize()
+}
+
+#[test]
+fn a_guide_trained_on_garbage_stays_unbiased() {
+    let guide = garbage();
+    assert!(guide.at(Vec3A::ZERO).len() > 10, "the garbage was learned");
+    // The furnace: exactly Le/(1 − ρ).
+    let furnace = common::scene(&common::closed_sphere([0.8; 3], [0.5; 3], 16, 16));
+    let img = with_guide(&furnace, &settings(64, 4), &guide);
+    let (mean, se) = common::region_stats(&img, 0, 0, 16, 16);
+    for c in 0..3 {
+        assert!(
+            (mean[c] - 2.5).abs() < 4.0 * se[c] + 1e-4,
+            "{} ± {}",
+            mean[c],
+            se[c]
+        );
+    }
+    // The caustic, against an unguided render.
+    let scene = small("caustic.toml", 32);
+    let with = with_guide(&scene, &settings(512, 5), &guide);
+    let plain = common::render(&scene, &settings(512, 6));
+    let (frac, worst) = common::z_test(&plain, &with);
+    assert!(frac < 0.01, "{frac} of pixel-channels beyond 4σ");
+    assert!(worst < 6.0, "a 4×4 block {worst:.2}σ apart");
+}
+
+#[test]
+fn a_guided_render_is_the_same_bits_on_any_number_of_threads() {
+    let scene = small("glass-mirror.toml", 24);
+    let s = settings(16, 9);
+    let run = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool")
+            .install(|| render_frame_guided(&scene, &s, &|_| {}))
+    };
+    let one = run(1);
+    let three = run(3);
+    assert_eq!(one.epochs, three.epochs);
+    assert!(one.epochs.last().is_some_and(|e| e.guide_leaves > 0));
+    let bits = |f: &tessera_render::guided::GuidedFrame| {
+        f.sums
+            .sum
+            .iter()
+            .chain(&f.sums.sum_sq)
+            .flat_map(|v| v.map(f64::to_bits))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(bits(&one), bits(&three));
+}
