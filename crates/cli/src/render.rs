@@ -6,6 +6,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use indicatif::ProgressBar;
+use tessera_render::guided::render_frame_guided;
 use tessera_render::output::{render_metadata, write_exr, write_png_preview, ExrChannels, Preview};
 use tessera_render::scene::{Limits, Scene, FIRST_FRAME};
 use tessera_render::{render_frame, RenderSettings, Tracer, DEFAULT_TILE};
@@ -44,6 +45,13 @@ pub struct RenderArgs {
     /// Add a per-pixel sample-count channel (samples) to the EXR.
     #[arg(long)]
     sample_count: bool,
+
+    /// Path guiding: render in epochs of doubling sample counts, each sampling directions
+    /// from where the epochs before it found light (docs/renderer.md, "Path guiding"). For
+    /// light that next-event estimation cannot find: caustics, light through glass. Not with
+    /// --noise-target; one path at a time whatever --tracer says.
+    #[arg(long)]
+    guiding: bool,
 
     /// Which path tracer runs. Every choice gives the same bits; it is for timing the tracers
     /// against each other.
@@ -96,6 +104,11 @@ pub fn run(args: RenderArgs) -> Result<()> {
             args.max_spp
         );
     }
+    if args.guiding && args.settings.noise_target.is_some() {
+        bail!(
+            "--guiding takes every sample it is given; it cannot be combined with --noise-target"
+        );
+    }
     check_extension("--output", &args.output, "exr")?;
     if let Some(p) = &args.preview {
         check_extension("--preview", p, "png")?;
@@ -131,21 +144,38 @@ pub fn run(args: RenderArgs) -> Result<()> {
     bar.set_style(crate::progress_style("{percent:>3}% ETA {eta} {wide_msg}"));
     let done = AtomicU64::new(0);
     let start = Instant::now();
+    let progress = |n| {
+        let d = done.fetch_add(n, Ordering::Relaxed) + n;
+        bar.set_position(d);
+        let secs = start.elapsed().as_secs_f64();
+        if secs > 0.0 {
+            bar.set_message(format!("{:.2} Msamples/s", d as f64 / secs / 1e6));
+        }
+    };
+    let mut guide_note = String::new();
     let sums = pool.install(|| {
-        render_frame(&scene, &settings, &|n| {
-            let d = done.fetch_add(n, Ordering::Relaxed) + n;
-            bar.set_position(d);
-            let secs = start.elapsed().as_secs_f64();
-            if secs > 0.0 {
-                bar.set_message(format!("{:.2} Msamples/s", d as f64 / secs / 1e6));
-            }
-        })
+        if !args.guiding {
+            return render_frame(&scene, &settings, &progress);
+        }
+        let frame = render_frame_guided(&scene, &settings, &progress);
+        if let Some(last) = frame.epochs.last() {
+            guide_note = format!(
+                ", {} guided epochs (last guide: {} leaves, {:.1} MB)",
+                frame.epochs.len(),
+                last.guide_leaves,
+                last.guide_bytes as f64 / 1e6
+            );
+        }
+        frame.sums
     });
     let secs = start.elapsed().as_secs_f64();
     bar.finish_and_clear();
     let image = sums.finalize();
 
-    let meta = render_metadata(&scene.hash, &settings);
+    let mut meta = render_metadata(&scene.hash, &settings);
+    if args.guiding {
+        meta.push(("guiding".to_string(), "sd-tree".to_string()));
+    }
     let channels = ExrChannels {
         variance: args.variance,
         samples: args.sample_count,
@@ -173,7 +203,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         ),
     };
     outln!(
-        "rendered {}×{} at {spp} in {:.2} s on {}: {:.2} Msamples/s, noise σ≈{:.4} ({:.2}% of mean), {} non-finite samples dropped → {}",
+        "rendered {}×{} at {spp}{guide_note} in {:.2} s on {}: {:.2} Msamples/s, noise σ≈{:.4} ({:.2}% of mean), {} non-finite samples dropped → {}",
         scene.width,
         scene.height,
         secs,

@@ -15,6 +15,7 @@
 //! The parts: [`peer`] (CSV rows and the peer protocol), [`stats`], [`report`] and [`plot`].
 
 mod adaptive;
+mod guided;
 pub mod load;
 pub(crate) mod memory;
 mod peer;
@@ -85,6 +86,11 @@ pub struct BenchArgs {
     /// as the time each mode needs for the same relMSE (NAME-adaptive.md and .csv).
     #[arg(long)]
     adaptive: bool,
+    /// Also measure path guiding against unguided rendering: after each uniform point, the
+    /// same scene, spp and seed with `--guiding` (renderer `tessera-guided` in the report),
+    /// and the time each needs for the same relMSE (NAME-guiding.md).
+    #[arg(long)]
+    guiding: bool,
     /// Tile edge, in pixels, of the adaptive renders' noise decisions.
     #[arg(long, default_value_t = 32, value_parser = crate::args::tile_range())]
     adaptive_tile: u32,
@@ -334,6 +340,11 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 };
                 errln!("{}", row.to_csv());
                 rows.push(row);
+                if args.guiding {
+                    let row = guided::measure(&scene, name, &settings, &reference, &pool);
+                    errln!("{}", row.to_csv());
+                    rows.push(row);
+                }
                 if let Some(peer) = peer.as_mut() {
                     for row in peer.measure(name, spp, settings.seed)? {
                         errln!("{}", row.to_csv());
@@ -381,6 +392,20 @@ pub fn run(args: BenchArgs) -> Result<()> {
         )
     };
     std::fs::write(&md_path, md).with_context(|| format!("writing {}", md_path.display()))?;
+    if args.guiding {
+        let path = args.out.join(format!("{}-guiding.md", args.name));
+        let md = guided::report(&rows, &report::command())
+            + &format!(
+                "\nMachine: {}, {threads} threads. Data: the rows of [`{}`]({}).\n",
+                report::machine(clock_ghz),
+                csv_path.display(),
+                csv_path
+                    .file_name()
+                    .map_or_else(String::new, |f| f.to_string_lossy().into()),
+            );
+        std::fs::write(&path, md).with_context(|| format!("writing {}", path.display()))?;
+        outln!("wrote {}", path.display());
+    }
     if args.adaptive {
         let base = args.out.join(format!("{}-adaptive", args.name));
         let (cap, tile) = (args.max_spp, args.adaptive_tile);
