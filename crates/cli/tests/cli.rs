@@ -657,3 +657,49 @@ fn gltf_files_render_with_their_camera_and_an_environment() {
     ]);
     assert_clean_failure(&r, &["bad.glb: the GLB header gives a length"]);
 }
+
+/// #60: `render --guiding` renders in epochs, says so and in the EXR's header, and gives the
+/// same file bytes on one thread and two; it refuses --noise-target, naming both flags.
+#[test]
+fn guided_renders_say_so_and_are_the_same_bytes_on_any_threads() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let mut files = Vec::new();
+    for threads in ["1", "2"] {
+        let out = dir.path().join(format!("g{threads}.exr"));
+        let o = out.to_str().expect("utf8");
+        let r = tessera(&[
+            "render",
+            &repo("scenes/caustic.toml"),
+            "--spp",
+            "8",
+            "--guiding",
+            "--threads",
+            threads,
+            "--output",
+            o,
+        ]);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let stdout = String::from_utf8_lossy(&r.stdout);
+        assert!(
+            stdout.contains("at 8 spp, 3 guided epochs (last guide: "),
+            "{stdout}"
+        );
+        let meta = read_exr_metadata(&out).expect("metadata");
+        assert!(meta.iter().any(|x| x == "guiding=sd-tree"), "{meta:?}");
+        files.push(std::fs::read(&out).expect("exr"));
+    }
+    assert!(
+        files[0] == files[1],
+        "the same guided render differs by thread count"
+    );
+    let bad = tessera(&[
+        "render",
+        &repo("scenes/caustic.toml"),
+        "--guiding",
+        "--noise-target",
+        "0.1",
+        "--output",
+        "x.exr",
+    ]);
+    assert_clean_failure(&bad, &["--guiding", "--noise-target"]);
+}

@@ -97,8 +97,9 @@ pub struct CoordinatorArgs {
     #[arg(long, default_value_t = config::DEFAULT_BLOCKLIST_AFTER, value_parser = clap::value_parser!(u32).range(1..=100))]
     blocklist_after: u32,
     /// Failures after which a frame fails, with every reason; one machine's count at most
-    /// --blocklist-after times and fewer than this (it fails sooner when every connected
-    /// worker that fits it is blocklisted).
+    /// --blocklist-after times and fewer than this, and a machine that fails this many of a
+    /// job's units under any names is blocklisted for the job by address (the frame fails
+    /// sooner when every connected worker that fits it is blocklisted).
     #[arg(long, default_value_t = config::DEFAULT_FAIL_FRAME_AFTER, value_parser = clap::value_parser!(u32).range(1..=100))]
     fail_frame_after: u32,
     /// Different machines one unit's lease may lapse on (each worker died or stopped answering

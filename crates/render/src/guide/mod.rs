@@ -6,9 +6,10 @@
 //! spatial binary tree ([`SdTree`]) whose leaves each hold one. What sets this module's
 //! design is the farm: a guide is trained by many workers and merged by the coordinator, so
 //!
-//! - every statistic is an f64 sum, added in an order the caller fixes ([`DirTree::add`]),
-//!   and the structure of the next guide is a pure function of the last one's sums, so the
-//!   same training data give the same guide, bit for bit, on any number of machines;
+//! - every statistic is an integer sum (energies in fixed point), so training split over
+//!   threads, units and machines adds up to the same bits in any order ([`DirTree::add`]),
+//!   and the structure of the next guide is a pure function of the last one's sums: the same
+//!   training data give the same guide, bit for bit, on any number of machines;
 //! - a guide crosses the network as bytes, and [`DirTree::decode`] refuses any that do not
 //!   describe a well-formed tree (a hostile coordinator or a corrupted asset must not crash a
 //!   worker), before anything samples from it;

@@ -18,9 +18,10 @@
 //! Training. Each vertex keeps the throughput after it and what the path had gathered before
 //! its continuation; at the path's end the radiance that arrived along its direction is what
 //! was gathered since, divided by that throughput, channel by channel. The record is that
-//! radiance over the direction's density (Müller's L_i/p): its expectation over the sampled
-//! directions in a region of the sphere is the integral of L_i there, which is what the guide's
-//! energies estimate. Direct light found by next-event estimation is not recorded: light
+//! radiance times the cosine at the vertex over the direction's density, L_i·cos/p: its
+//! expectation over the sampled directions in a region of the sphere is the integral of
+//! L_i·cos there, so the guide learns the product a diffuse vertex would ideally sample
+//! (Müller's L_i/p learns L_i alone; L_i·cos measured less error, docs/renderer.md). Direct light found by next-event estimation is not recorded: light
 //! sampling already finds it, and guiding is for the light it cannot find.
 
 use glam::{Vec2, Vec3A};
@@ -73,6 +74,7 @@ impl<'a> Guiding<'a> for GuidedPath<'a> {
 struct Vertex {
     p: Vec3A,
     wi: Vec3A,
+    /// The direction's density over its cosine.
     pdf: f32,
     /// The path's throughput after the vertex.
     beta: Vec3A,
@@ -210,7 +212,7 @@ pub(super) fn diffuse(
     g.push(Vertex {
         p: sp.p,
         wi,
-        pdf,
+        pdf: pdf / cos,
         beta: path.beta,
         l: path.l,
     });
