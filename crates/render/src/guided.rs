@@ -27,7 +27,7 @@ use crate::film::{assemble_render, PixelRect, TileSums};
 use crate::guide::SdTree;
 use crate::integrator::{sample_pixel_with, GuidedPath, RenderSettings};
 use crate::scene::Scene;
-use crate::tile::{aov_sums, pixel_sums};
+use crate::tile::{aov_sums, scalar_row};
 use crate::util::math::Aabb;
 
 /// Müller et al.'s spatial split constant: a leaf splits once it counts more than
@@ -213,19 +213,13 @@ fn guided_tile(
                 pool[i].lock().unwrap_or_else(|e| e.into_inner())
             });
             let mut path = GuidedPath::new(guide, tree.as_deref_mut());
-            let mut bad = 0u64;
-            for (col, sums) in sum
-                .iter_mut()
-                .zip(sum_sq.iter_mut())
-                .zip(count.iter_mut())
-                .enumerate()
-            {
-                let x = rect.x0 + col as u32;
-                pixel_sums(settings, (x, y), samples, sums, &mut bad, |sampler| {
-                    sample_pixel_with(scene, settings, x, y, sampler, &mut path)
-                });
-            }
-            bad
+            scalar_row(
+                settings,
+                (rect.x0, y),
+                samples,
+                (sum, sum_sq, count),
+                |x, sampler| sample_pixel_with(scene, settings, x, y, sampler, &mut path),
+            )
         })
         .sum();
     if settings.aovs.any() {

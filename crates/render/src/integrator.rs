@@ -538,7 +538,8 @@ fn diffuse(
 ) -> Option<Ray> {
     let p_out = offset_ray_origin(sp.p, sp.err, at.n);
     if let Some(u) = light_u {
-        if let Some((le, f)) = direct_light(scene, strategy, sp, at, p_out, u) {
+        let cosine = |_: Vec3A, cos: f32| cosine_hemisphere_pdf(cos);
+        if let Some((le, f)) = direct_light(scene, strategy, sp, at, p_out, u, cosine) {
             path.l += path.beta * albedo * le * f;
         }
     }
@@ -553,7 +554,8 @@ fn diffuse(
 }
 
 /// Next-event estimation at a diffuse vertex: a point on a light, its shadow ray from
-/// `p_out`, and (under MIS) the power heuristic against BSDF sampling. Returns the light's
+/// `p_out`, and (under MIS) the power heuristic against BSDF sampling, whose density
+/// `bsdf_pdf` gives for a direction and its cosine (the cosine lobe's, or a guided mixture's). Returns the light's
 /// radiance and the factor cos·w/(π·pdf) the path's throughput and albedo scale it by, or
 /// `None` when the light adds nothing.
 #[inline(always)]
@@ -564,10 +566,11 @@ fn direct_light(
     at: &Shading,
     p_out: Vec3A,
     u: (f32, Vec2),
+    bsdf_pdf: impl Fn(Vec3A, f32) -> f32,
 ) -> Option<(Vec3A, f32)> {
     let (ls, cos) = visible_light(scene, strategy, sp, at, p_out, u)?;
     let w = if strategy == Strategy::Mis && !ls.delta {
-        power_heuristic(ls.pdf, cosine_hemisphere_pdf(cos))
+        power_heuristic(ls.pdf, bsdf_pdf(ls.wi, cos))
     } else {
         1.0
     };

@@ -94,22 +94,16 @@ pub fn render_tile(
         .enumerate()
         .map(|(row, ((sum, sum_sq), count))| {
             let y = rect.y0 + row as u32;
-            let mut bad = 0u64;
             if let Some(wide) = &wide {
                 return wide_row(wide, settings, (rect.x0, y), &samples, sum, sum_sq, count);
             }
-            for (col, sums) in sum
-                .iter_mut()
-                .zip(sum_sq.iter_mut())
-                .zip(count.iter_mut())
-                .enumerate()
-            {
-                let x = rect.x0 + col as u32;
-                pixel_sums(settings, (x, y), &samples, sums, &mut bad, |sampler| {
-                    sample_pixel(scene, settings, x, y, sampler)
-                });
-            }
-            bad
+            scalar_row(
+                settings,
+                (rect.x0, y),
+                &samples,
+                (sum, sum_sq, count),
+                |x, sampler| sample_pixel(scene, settings, x, y, sampler),
+            )
         })
         .sum();
     out.nonfinite = nonfinite;
@@ -119,11 +113,37 @@ pub fn render_tile(
     out
 }
 
+/// One row of pixels from column `x0`, one path at a time: each pixel's samples `samples`
+/// from `sample` (given the column and the sampler set to each index in turn) into its sums.
+/// Returns the non-finite samples.
+#[inline]
+pub(crate) fn scalar_row(
+    settings: &RenderSettings,
+    (x0, y): (u32, u32),
+    samples: &Range<u32>,
+    (sum, sum_sq, count): (&mut [[f64; 3]], &mut [[f64; 3]], &mut [u32]),
+    mut sample: impl FnMut(u32, &PixelSampler) -> glam::Vec3A,
+) -> u64 {
+    let mut bad = 0u64;
+    for (col, sums) in sum
+        .iter_mut()
+        .zip(sum_sq.iter_mut())
+        .zip(count.iter_mut())
+        .enumerate()
+    {
+        let x = x0 + col as u32;
+        pixel_sums(settings, (x, y), samples, sums, &mut bad, |sampler| {
+            sample(x, sampler)
+        });
+    }
+    bad
+}
+
 /// One pixel's samples `samples` from `sample` (given the sampler set to each index in turn),
 /// summed batch by batch in index order into its sums (sum, sum of squares, count); `bad`
 /// counts the non-finite ones.
 #[inline]
-pub(crate) fn pixel_sums(
+fn pixel_sums(
     settings: &RenderSettings,
     (x, y): (u32, u32),
     samples: &Range<u32>,

@@ -26,14 +26,14 @@
 
 use glam::{Vec2, Vec3A};
 
-use super::{visible_light, Path, Shading};
+use super::{direct_light, Path, Shading};
 use crate::bsdf::sample_diffuse;
 use crate::guide::{DirTree, SdTree};
 use crate::interaction::SurfacePoint;
 use crate::scene::Scene;
 use crate::settings::Strategy;
 use crate::util::math::{offset_ray_origin, Ray};
-use crate::util::sampling::{cosine_hemisphere_pdf, power_heuristic};
+use crate::util::sampling::cosine_hemisphere_pdf;
 
 /// The probability of sampling the guide where it learned something. Müller et al. fix ½;
 /// ¼ measured less error at equal time on every scene of `tessera bench --guiding` (see
@@ -170,13 +170,8 @@ pub(super) fn diffuse(
         None => cosine_hemisphere_pdf(cos),
     };
     if let Some(u) = light_u {
-        if let Some((ls, cos)) = visible_light(scene, strategy, sp, at, p_out, u) {
-            let w = if strategy == Strategy::Mis && !ls.delta {
-                power_heuristic(ls.pdf, mixture(ls.wi, cos))
-            } else {
-                1.0
-            };
-            path.l += path.beta * albedo * ls.le * (cos * std::f32::consts::FRAC_1_PI * w / ls.pdf);
+        if let Some((le, f)) = direct_light(scene, strategy, sp, at, p_out, u, mixture) {
+            path.l += path.beta * albedo * le * f;
         }
     }
     // Each technique's density at its own sample is the one it drew by; the other's is
