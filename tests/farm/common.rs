@@ -312,7 +312,12 @@ pub fn local_exr_files(
         files,
     )
     .expect("scene");
-    let image = render_frame(&scene, settings, &|_| {}).finalize();
+    let sums = if settings.guiding {
+        tessera_render::guided::render_frame_guided(&scene, settings, &|_| {}).sums
+    } else {
+        render_frame(&scene, settings, &|_| {})
+    };
+    let image = sums.finalize();
     let path = dir.join("local.exr");
     write_exr(
         &path,

@@ -19,6 +19,7 @@ mod dashboard;
 mod drain;
 mod forged_results;
 mod frames;
+mod guiding;
 mod http_api;
 mod logs;
 mod output_checks;

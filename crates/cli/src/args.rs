@@ -113,6 +113,13 @@ pub struct SettingsArgs {
     /// pixel's mean at its first non-specular surface. The beauty's bits do not change.
     #[arg(long, value_name = "LIST", value_parser = parse_aovs)]
     pub aov: Option<Aovs>,
+    /// Path guiding: render in epochs of doubling sample counts, each sampling directions
+    /// from where the epochs before it found light (docs/renderer.md, "Path guiding"). For
+    /// light that next-event estimation cannot find: caustics, light through glass. Part of
+    /// the render's identity; one path at a time whatever --tracer says. Not with
+    /// --noise-target or --frames.
+    #[arg(long)]
+    pub guiding: bool,
 }
 
 /// `--aov`'s list ([`Aovs::parse`]).
@@ -168,6 +175,7 @@ impl SettingsArgs {
                 .map(|noise_target| Adaptive { noise_target, tile }),
             frame: self.frame,
             aovs: self.aov.unwrap_or_default(),
+            guiding: self.guiding,
             ..RenderSettings::default()
         }
     }

@@ -46,13 +46,6 @@ pub struct RenderArgs {
     #[arg(long)]
     sample_count: bool,
 
-    /// Path guiding: render in epochs of doubling sample counts, each sampling directions
-    /// from where the epochs before it found light (docs/renderer.md, "Path guiding"). For
-    /// light that next-event estimation cannot find: caustics, light through glass. Not with
-    /// --noise-target; one path at a time whatever --tracer says.
-    #[arg(long)]
-    guiding: bool,
-
     /// Which path tracer runs. Every choice gives the same bits; it is for timing the tracers
     /// against each other.
     #[arg(long, value_enum, default_value_t = TracerArg::Auto)]
@@ -104,7 +97,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
             args.max_spp
         );
     }
-    if args.guiding && args.settings.noise_target.is_some() {
+    if args.settings.guiding && args.settings.noise_target.is_some() {
         bail!(
             "--guiding takes every sample it is given; it cannot be combined with --noise-target"
         );
@@ -154,7 +147,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     };
     let mut guide_note = String::new();
     let sums = pool.install(|| {
-        if !args.guiding {
+        if !settings.guiding {
             return render_frame(&scene, &settings, &progress);
         }
         let frame = render_frame_guided(&scene, &settings, &progress);
@@ -172,10 +165,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     bar.finish_and_clear();
     let image = sums.finalize();
 
-    let mut meta = render_metadata(&scene.hash, &settings);
-    if args.guiding {
-        meta.push(("guiding".to_string(), "sd-tree".to_string()));
-    }
+    let meta = render_metadata(&scene.hash, &settings);
     let channels = ExrChannels {
         variance: args.variance,
         samples: args.sample_count,

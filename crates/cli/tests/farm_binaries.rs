@@ -838,3 +838,50 @@ fn pause_resume_and_priority_change_a_queued_job_and_status_shows_it() {
     run(&["cancel", &job]);
     one_line_failure(&tessera(&["pause", &job], &url), "has ended");
 }
+
+/// `tessera submit --guiding --wait` on two worker processes fetches the bytes `tessera render
+/// --guiding` writes for the same flags (issue #60); with --noise-target or --frames it is
+/// refused before anything is sent, naming the flags.
+#[test]
+fn submit_guiding_matches_render_guiding() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, url) = coordinator(&dir.path().join("data"));
+    let _a = worker(&url, "a");
+    let _b = worker(&url, "b");
+    let scene = repo("scenes/caustic.toml");
+    let flags = ["--guiding", "--spp", "16", "--batch", "4", "--seed", "5"];
+    let farm = dir.path().join("farm.exr");
+    let mut args = vec!["submit", scene.as_str()];
+    args.extend(flags);
+    args.extend(["--wait", "--output", farm.to_str().expect("utf8")]);
+    let out = tessera(&args, &url);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let local = dir.path().join("local.exr");
+    let mut args = vec!["render", scene.as_str()];
+    args.extend(flags);
+    args.extend(["--output", local.to_str().expect("utf8")]);
+    let out = tessera(&args, &url);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        std::fs::read(&farm).expect("farm") == std::fs::read(&local).expect("local"),
+        "the farm's guided EXR differs from render's"
+    );
+    for (extra, says) in [
+        (["--noise-target", "0.05"], "--noise-target"),
+        (["--frames", "1-2"], "--frames"),
+    ] {
+        let mut args = vec!["submit", scene.as_str(), "--guiding", "--spp", "8"];
+        args.extend(extra);
+        let out = tessera(&args, &url);
+        one_line_failure(&out, says);
+        assert!(String::from_utf8_lossy(&out.stderr).contains("--guiding"));
+    }
+}

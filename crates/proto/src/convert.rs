@@ -69,6 +69,7 @@ impl From<&RenderSettings> for pb::RenderSettings {
             noise_target: s.adaptive.map_or(0.0, |a| a.noise_target),
             frame: s.frame,
             aovs: s.aovs.list(),
+            guiding: s.guiding,
         }
     }
 }
@@ -94,6 +95,10 @@ pub enum BadSettings {
     /// An AOV list naming something that is not one.
     #[error("aovs: {0}")]
     Aovs(String),
+    /// Path guiding with a noise target: adaptive sampling stops tiles at different batches,
+    /// and a guided epoch needs every tile's samples.
+    #[error("guiding cannot be combined with a noise target")]
+    GuidingAdaptive,
 }
 
 /// The renderer's settings from a message's: an unset strategy is MIS, as the protocol says,
@@ -114,6 +119,9 @@ impl TryFrom<&pb::RenderSettings> for RenderSettings {
         if batch != 0 && !BATCH_RANGE.contains(&batch) {
             return Err(BadSettings::Batch(batch));
         }
+        if s.guiding && s.noise_target != 0.0 {
+            return Err(BadSettings::GuidingAdaptive);
+        }
         Ok(RenderSettings {
             seed: s.seed,
             spp: s.spp,
@@ -126,6 +134,7 @@ impl TryFrom<&pb::RenderSettings> for RenderSettings {
             },
             frame: s.frame,
             aovs: Aovs::parse(&s.aovs).map_err(BadSettings::Aovs)?,
+            guiding: s.guiding,
             ..RenderSettings::default()
         })
     }
@@ -153,6 +162,8 @@ impl From<&TileSums> for pb::TileResult {
             aov_depth: t.aov.as_ref().map_or_else(Vec::new, |a| a.depth.clone()),
             aov_hits: t.aov.as_ref().map_or_else(Vec::new, |a| a.hits.clone()),
             aov_count: t.aov.as_ref().map_or_else(Vec::new, |a| a.count.clone()),
+            // A guided unit's worker sets it: sums alone do not carry training.
+            guide_train: Vec::new(),
         }
     }
 }

@@ -16,7 +16,11 @@
 //!
 //! Determinism. Within an epoch, each thread records into its own copy of the structure; the
 //! copies' sums are integers ([`crate::guide`]), so adding them gives the same guide whatever
-//! thread recorded what, and so the same bits on any number of threads.
+//! thread recorded what, and so the same bits on any number of threads. The same holds across
+//! machines: a farm's unit is one rectangle and one of [`units`]' sample ranges, rendered with
+//! [`render_tile_guided`] against [`structure`], and its trained tree added to the epoch's in
+//! any order. A pixel's sums fold those ranges in index order, here as on a farm, so a farm
+//! gives this renderer's bits.
 
 use std::ops::Range;
 use std::sync::Mutex;
@@ -29,6 +33,7 @@ use crate::integrator::{sample_pixel_with, GuidedPath, RenderSettings};
 use crate::scene::Scene;
 use crate::tile::{aov_sums, scalar_row};
 use crate::util::math::Aabb;
+use glam::Vec3A;
 
 /// Müller et al.'s spatial split constant: a leaf splits once it counts more than
 /// c·√(2^k) vertices in epoch k.
@@ -80,14 +85,50 @@ pub fn epochs(spp: u32) -> Vec<Range<u32>> {
     out
 }
 
+/// The sample ranges a guided render of `spp` samples in batches of `batch` is merged by:
+/// every epoch cut at each multiple of `batch` inside it. No range crosses an epoch (its samples
+/// draw from one guide) or a batch boundary (so none is larger than a batch). A farm's guided
+/// job has one unit per tile and range.
+pub fn units(spp: u32, batch: u32) -> Vec<Range<u32>> {
+    let batch = batch.max(1);
+    let mut out = Vec::new();
+    for e in epochs(spp) {
+        let mut s = e.start;
+        while s < e.end {
+            let end = (s / batch).saturating_add(1).saturating_mul(batch).min(e.end);
+            out.push(s..end);
+            s = end;
+        }
+    }
+    out
+}
+
+/// The epoch (index into [`epochs`]) that sample `index` of a guided render of `spp` samples
+/// belongs to; `None` past `spp`.
+pub fn epoch_of(spp: u32, index: u32) -> Option<usize> {
+    epochs(spp).iter().position(|e| e.contains(&index))
+}
+
 /// The count above which a leaf splits in the structure epoch `k` trains.
 fn split_after(k: usize) -> u64 {
     (SPLIT_C * 2f64.powf(k as f64 / 2.0)) as u64
 }
 
-/// The box holding every finite object of `scene` (planes are infinite).
-fn bounds(scene: &Scene) -> Aabb {
-    scene.prims.iter().fold(Aabb::EMPTY, |b, p| {
+/// The structure epoch `k` of a guided render records into: the empty tree over `bounds`
+/// ([`guide_bounds`] of the scene) for epoch 0, else the refinement of `guide`, the guide
+/// epoch `k` samples (trained by epoch k − 1). A pure function of its arguments, so every
+/// machine builds the same one.
+pub fn structure(bounds: [[f32; 3]; 2], k: usize, guide: Option<&SdTree>) -> SdTree {
+    match guide {
+        None => SdTree::new(Vec3A::from(bounds[0]), Vec3A::from(bounds[1])),
+        Some(g) => g.refined(split_after(k), RHO),
+    }
+}
+
+/// The box a guide of `scene` starts from: the one holding every finite object (planes are
+/// infinite).
+pub fn guide_bounds(scene: &Scene) -> [[f32; 3]; 2] {
+    let b = scene.prims.iter().fold(Aabb::EMPTY, |b, p| {
         let o = p.shape.bounds();
         if o.min.is_finite() && o.max.is_finite() {
             Aabb {
@@ -97,7 +138,8 @@ fn bounds(scene: &Scene) -> Aabb {
         } else {
             b
         }
-    })
+    });
+    [b.min.to_array(), b.max.to_array()]
 }
 
 /// Renders the whole frame with path guiding, calling `progress` with the number of samples
@@ -108,29 +150,35 @@ pub fn render_frame_guided(
     settings: &RenderSettings,
     progress: &(dyn Fn(u64) + Sync),
 ) -> GuidedFrame {
-    let b = bounds(scene);
     let tiles = PixelRect::tiles(scene.width, scene.height, TILE);
     let mut acc: Vec<TileSums> = tiles.iter().map(|&r| TileSums::empty(r, 0)).collect();
     let ranges = epochs(settings.spp);
+    let cuts = units(settings.spp, settings.batch);
+    let bounds = guide_bounds(scene);
     let mut guide: Option<SdTree> = None;
     let mut report = Vec::new();
     for (k, samples) in ranges.iter().enumerate() {
         let trains = k + 1 < ranges.len();
-        let structure = trains.then(|| match &guide {
-            None => SdTree::new(b.min, b.max),
-            Some(g) => g.refined(split_after(k), RHO),
-        });
-        let pool = copies(structure.as_ref());
+        let training = trains.then(|| structure(bounds, k, guide.as_ref()));
+        let pool = copies(training.as_ref());
         report.push(Epoch {
             samples: samples.clone(),
             guide_leaves: guide.as_ref().map_or(0, SdTree::leaves),
             guide_bytes: guide.as_ref().map_or(0, SdTree::memory_bytes),
         });
+        let mine: Vec<&Range<u32>> = cuts
+            .iter()
+            .filter(|r| samples.contains(&r.start))
+            .collect();
         acc.par_iter_mut().for_each(|acc| {
-            let part = guided_tile(scene, settings, acc.rect, samples, guide.as_ref(), &pool);
-            acc.merge(&part)
-                .expect("same rectangle, contiguous samples");
-            progress(acc.rect.area() as u64 * samples.len() as u64);
+            // Range by range, as a farm merges its units: a pixel's bits depend on where its
+            // sums were cut.
+            for r in &mine {
+                let part = guided_tile(scene, settings, acc.rect, r, guide.as_ref(), &pool);
+                acc.merge(&part)
+                    .expect("same rectangle, contiguous samples");
+                progress(acc.rect.area() as u64 * r.len() as u64);
+            }
         });
         if let Some(next) = summed(pool) {
             guide = Some(next);
@@ -231,6 +279,26 @@ fn guided_tile(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn units_cut_epochs_at_batches() {
+        assert_eq!(units(64, 16), vec![0..1, 1..3, 3..7, 7..15, 15..16, 16..31, 31..32, 32..48, 48..64]);
+        for (spp, batch) in [(1, 1), (7, 3), (100, 16), (257, 64), (40, 1000)] {
+            let u = units(spp, batch);
+            assert_eq!(u[0].start, 0);
+            assert_eq!(u.last().map(|r| r.end), Some(spp));
+            for w in u.windows(2) {
+                assert_eq!(w[0].end, w[1].start);
+            }
+            for r in &u {
+                assert!(r.len() as u32 <= batch, "{r:?}");
+                assert_eq!((r.start / batch), (r.end - 1) / batch, "{r:?} crosses a batch");
+                let k = epoch_of(spp, r.start);
+                assert_eq!(k, epoch_of(spp, r.end - 1), "{r:?} crosses an epoch");
+            }
+        }
+        assert_eq!(epoch_of(64, 64), None);
+    }
 
     #[test]
     fn epochs_double_and_the_last_takes_the_rest() {

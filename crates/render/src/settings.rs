@@ -138,6 +138,11 @@ pub struct RenderSettings {
     /// Extra images for denoising to render beside the beauty ([`Aovs`]); none by default. They
     /// come from a pass of their own, so the beauty has the same bits and speed without them.
     pub aovs: Aovs,
+    /// Path guiding ([`crate::guided`]): a render of these settings is
+    /// [`crate::guided::render_frame_guided`]'s, in epochs, and a farm's units are
+    /// [`crate::guided::units`]. Part of a job's identity when set. [`crate::render_frame`]
+    /// does not read it: callers choose the guided renderer by it.
+    pub guiding: bool,
 }
 
 /// Which auxiliary images (AOVs) a render writes beside the beauty, for a denoiser (Intel Open
@@ -217,6 +222,7 @@ impl Default for RenderSettings {
             adaptive: None,
             frame: None,
             aovs: Aovs::default(),
+            guiding: false,
         }
     }
 }

@@ -28,6 +28,7 @@
 
 mod cache;
 mod config;
+mod guides;
 mod memory;
 mod pipeline;
 
@@ -70,6 +71,8 @@ struct Ctx {
     /// Scenes this worker cannot render, by hash and frame, with the reason: fetched and
     /// refused once, not again for every unit.
     refused_scenes: Mutex<HashMap<SceneKey, String>>,
+    /// Guided units' guides and structures, built once each.
+    guides: Mutex<guides::Kept>,
     /// Texts of animated scenes, for building their other frames without fetching them again.
     texts: Mutex<Texts>,
     /// Held while registering, so that the tasks that all learn at once that the coordinator
@@ -308,6 +311,7 @@ pub async fn run(
         revoked: Mutex::new(HashSet::new()),
         scenes: Mutex::new(HashMap::new()),
         refused_scenes: Mutex::new(HashMap::new()),
+        guides: Mutex::new(guides::Kept::default()),
         texts: Mutex::new(Texts::default()),
         registering: tokio::sync::Mutex::new(()),
         stop,

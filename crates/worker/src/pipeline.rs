@@ -11,11 +11,13 @@ use std::time::Duration;
 use tessera_proto::convert::settings_from_wire;
 use tessera_proto::v1 as pb;
 use tessera_render::scene::Scene;
+use tessera_render::guided::render_tile_guided;
 use tessera_render::{render_tile, PixelRect, RenderSettings, TileSums};
 use tokio::sync::{mpsc, OwnedSemaphorePermit, Semaphore};
 use tracing::{debug, info, warn};
 
 use crate::cache::SceneError;
+use crate::guides::Guided;
 use crate::{lock, transient, Ctx};
 
 /// A leased unit, ready to render.
@@ -24,6 +26,8 @@ struct Ready {
     scene: Arc<Scene>,
     rect: PixelRect,
     settings: RenderSettings,
+    /// A guided unit's guide and structure.
+    guided: Option<Arc<Guided>>,
     _slot: OwnedSemaphorePermit,
 }
 
@@ -135,7 +139,17 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
                     .map_err(SceneError::Unrenderable),
                 Err(e) => Err(e),
             };
-            let (scene, (rect, settings)) = match prepared {
+            let prepared = match prepared {
+                Ok((scene, (rect, settings))) if settings.guiding => {
+                    match ctx.guided(&unit, &scene, &settings).await {
+                        Ok(g) => Ok((scene, (rect, settings), Some(g))),
+                        Err(e) => Err(e),
+                    }
+                }
+                Ok((scene, p)) => Ok((scene, p, None)),
+                Err(e) => Err(e),
+            };
+            let (scene, (rect, settings), guided) = match prepared {
                 Ok(p) => p,
                 Err(SceneError::Unavailable(e)) => {
                     warn!(
@@ -170,6 +184,7 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
                 scene,
                 rect,
                 settings,
+                guided,
                 _slot: s,
             };
             if let Err(unsent) = tx.send(ready).await {
@@ -187,6 +202,8 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
 struct Done {
     unit: pb::WorkUnit,
     sums: TileSums,
+    /// A guided unit's trained tree, encoded.
+    train: Vec<u8>,
     _slot: OwnedSemaphorePermit,
 }
 
@@ -237,8 +254,22 @@ async fn renderer(ctx: Arc<Ctx>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::Unboun
                 running.spawn_blocking(move || {
                     let samples = ready.unit.sample_start..ready.unit.sample_end;
                     let started = std::time::Instant::now();
-                    let sums = work.pool.install(|| {
-                        render_tile(&ready.scene, &ready.settings, ready.rect, samples)
+                    let (sums, train) = work.pool.install(|| match &ready.guided {
+                        Some(g) => {
+                            let (sums, trained) = render_tile_guided(
+                                &ready.scene,
+                                &ready.settings,
+                                ready.rect,
+                                samples,
+                                g.guide.as_ref(),
+                                g.train.as_ref(),
+                            );
+                            (sums, trained.map(|t| t.encode()).unwrap_or_default())
+                        }
+                        None => (
+                            render_tile(&ready.scene, &ready.settings, ready.rect, samples),
+                            Vec::new(),
+                        ),
                     });
                     debug!(
                         "{} tile {} batch {}: rendered in {:.3} s",
@@ -260,6 +291,7 @@ async fn renderer(ctx: Arc<Ctx>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::Unboun
                     Done {
                         unit: ready.unit,
                         sums,
+                        train,
                         _slot: ready._slot,
                     }
                 });
@@ -304,7 +336,10 @@ async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
                 batch_index: done.unit.batch_index,
                 // Made from the sums for each attempt: one copy of a large result in memory
                 // beside its encoding, not a message kept for retries and a clone to send.
-                result: Some(pb::TileResult::from(&done.sums)),
+                result: Some(pb::TileResult {
+                    guide_train: done.train.clone(),
+                    ..pb::TileResult::from(&done.sums)
+                }),
             };
             match ctx.client.clone().submit_result(req).await {
                 Ok(_) => {

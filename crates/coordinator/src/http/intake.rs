@@ -84,6 +84,9 @@ pub(super) struct SubmitBody {
     /// Memory a worker must report, in bytes.
     #[serde(default)]
     min_memory_bytes: u64,
+    /// Path guiding (not with a noise target or frames).
+    #[serde(default)]
+    guiding: bool,
 }
 
 impl SubmitBody {
@@ -122,6 +125,7 @@ impl SubmitBody {
                 noise_target: self.noise_target,
                 frame: self.frame,
                 aovs: self.aovs,
+                guiding: self.guiding,
             }),
             tile_size: self.tile_size,
             output_name: self.name,

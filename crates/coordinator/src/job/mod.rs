@@ -15,12 +15,15 @@ use tessera_render::{Adaptive, Aovs, RenderSettings, TileSums};
 use crate::error::Refusal;
 
 mod audit;
+mod guided;
 mod rate;
 mod resident;
+mod restore;
 mod tiles;
 
-use crate::store::{decode_sums, encode_sums, JobPhase, JobRecord, LoadedJob, Op};
+use crate::store::{encode_sums, JobPhase, JobRecord, Op};
 pub use audit::{same_bits, AuditHold, KeptUnits, Source, NOBODY};
+pub use guided::{Guide, Guiding};
 pub use rate::Rate;
 pub use resident::{preview_step, FrameTile, Snapshot, Thumb, MAX_DIRTY_BYTES, PREVIEW_EDGE};
 pub use tiles::{check_aov_sums, pixel_in_range, sums_in_range, TileGrid};
@@ -132,6 +135,8 @@ pub struct Job {
     /// ([`tessera_render::Image::noise`]), set when the EXR is written: what a done job
     /// reports, so the farm and `render` print the same figure for the same bits.
     pub image_noise: Option<(f64, f64)>,
+    /// A guided job's epochs and guides ([`Guiding`]).
+    pub guiding: Option<Guiding>,
     /// Failed, and its scene still kept for `tessera retry` (in memory: set when it fails, and
     /// at a restart from the record's end time and the stored scenes).
     pub retryable: bool,
@@ -152,7 +157,14 @@ impl Job {
     /// A job from its record, with the stored sums folded back in.
     pub fn new(rec: JobRecord) -> Self {
         let tiles = TileGrid::new(rec.width, rec.height, rec.tile_size);
-        let n_batches = rec.spp.div_ceil(rec.batch.max(1));
+        let guiding = rec
+            .guiding
+            .as_ref()
+            .map(|g| Guiding::new(rec.spp, rec.batch, g.bounds));
+        let n_batches = guiding.as_ref().map_or_else(
+            || rec.spp.div_ceil(rec.batch.max(1)),
+            |g| g.ranges().len() as u32,
+        );
         let first_batches = if rec.noise_target > 0.0 {
             min_batches(rec.batch).min(n_batches)
         } else {
@@ -183,95 +195,16 @@ impl Job {
             audits: HashMap::new(),
             final_tile_noise: None,
             image_noise: None,
+            guiding,
             retryable: false,
         }
     }
 
-    /// Rebuilds a job after a restart from what the store held.
-    pub fn restore(loaded: LoadedJob) -> Result<Self, String> {
-        let mut job = Self::new(loaded.record);
-        if job.rec.phase != JobPhase::Active {
-            return Ok(job);
+    /// Copies the guides' hashes into the record.
+    fn note_guides(&mut self) {
+        if let (Some(g), Some(r)) = (&self.guiding, &mut self.rec.guiding) {
+            r.guides = g.hashes();
         }
-        for (tile, bytes) in loaded.tiles {
-            let rect = job
-                .tiles
-                .get(tile)
-                .ok_or_else(|| format!("tile {tile} is outside the job"))?;
-            let sums = decode_sums(&bytes, rect).map_err(|e| format!("tile {tile}: {e}"))?;
-            let batches = sums.samples.end.div_ceil(job.rec.batch);
-            if sums.samples.start != 0
-                || job.batch_range(batches.saturating_sub(1)).end != sums.samples.end
-            {
-                return Err(format!(
-                    "tile {tile}: sums cover samples {:?}",
-                    sums.samples
-                ));
-            }
-            job.units_done += batches as u64;
-            job.samples_done += rect.area() as u64 * sums.samples.end as u64;
-            job.nonfinite += sums.nonfinite;
-            if batches > job.n_batches || !sums_in_range(&sums) {
-                return Err(format!(
-                    "tile {tile}: sums out of range for {} spp",
-                    job.rec.spp
-                ));
-            }
-            let audited = job.rec.audited;
-            let acc = job.acc.entry(tile).or_default();
-            acc.next = batches;
-            if audited {
-                acc.by = vec![Source::RESTORED; batches as usize];
-            }
-            acc.noise = sums.noise_parts();
-            add_noise(&mut job.noise_total, acc.noise, 1.0);
-            acc.sums = Some(Arc::new(sums));
-        }
-        for ((tile, batch), bytes) in loaded.pending {
-            let rect = job
-                .tiles
-                .get(tile)
-                .ok_or_else(|| format!("tile {tile} is outside the job"))?;
-            let sums = decode_sums(&bytes, rect).map_err(|e| format!("tile {tile}: {e}"))?;
-            if sums.samples != job.batch_range(batch) {
-                return Err(format!(
-                    "tile {tile} batch {batch}: samples {:?}",
-                    sums.samples
-                ));
-            }
-            job.units_done += 1;
-            job.samples_done += rect.area() as u64 * sums.samples.len() as u64;
-            job.nonfinite += sums.nonfinite;
-            let audited = job.rec.audited;
-            let acc = job.acc.entry(tile).or_default();
-            acc.pending.insert(batch, sums);
-            if audited {
-                acc.pending_by.insert(batch, Source::RESTORED);
-            }
-        }
-        // The decisions the merges made before the stop, made again from the same sums.
-        let decided: Vec<u32> = job
-            .acc
-            .iter()
-            .filter(|(_, a)| a.next >= job.first_batches)
-            .map(|(t, _)| *t)
-            .collect();
-        job.pilots_in = decided.len() as u64;
-        for &tile in &decided {
-            let next = job.acc[&tile].next;
-            job.units_planned += (next - job.first_batches) as u64;
-        }
-        if job.scale().is_some() {
-            for tile in decided {
-                job.decide(tile);
-            }
-        } else if job.pilots_in == job.tiles.len() as u64 && !job.past_pilot() {
-            // Every pilot was in at the stop, and the scale not yet kept: the sums are the
-            // pilots the scale is computed from.
-            job.fix_scale();
-        }
-        job.started = job.units_done > 0;
-        Ok(job)
     }
 
     /// The job's id.
@@ -385,6 +318,10 @@ impl Job {
 
     /// Sample indices of batch `b`.
     pub fn batch_range(&self, b: u32) -> Range<u32> {
+        if let Some(g) = &self.guiding {
+            let spp = self.rec.spp;
+            return g.ranges().get(b as usize).cloned().unwrap_or(spp..spp);
+        }
         let s = b.saturating_mul(self.rec.batch).min(self.rec.spp);
         s..s.saturating_add(self.rec.batch).min(self.rec.spp)
     }
@@ -403,6 +340,7 @@ impl Job {
             frame: self.rec.frame,
             // Written by admission from a list that parsed; a damaged record gives none.
             aovs: Aovs::parse(&self.rec.aovs).unwrap_or_default(),
+            guiding: self.guiding.is_some(),
             ..RenderSettings::default()
         }
     }
@@ -603,6 +541,15 @@ impl Job {
             acc.pending.insert(unit.batch, sums);
             if audited {
                 acc.pending_by.insert(unit.batch, by);
+            }
+        }
+        if let (true, Some(g)) = (advanced, &mut self.guiding) {
+            let after = self.acc[&unit.tile].next;
+            let done = g.advanced(id, before, after, self.tiles.len() as u64);
+            if !done.is_empty() {
+                ops.extend(done);
+                self.note_guides();
+                ops.push(Op::PutJob(self.rec.clone()));
             }
         }
         if advanced && self.acc[&unit.tile].next >= self.first_batches {

@@ -25,6 +25,7 @@
 
 use std::sync::Arc;
 
+use tessera_render::guide::SdTree;
 use tessera_render::{PixelRect, TileSums};
 
 use super::{Job, TileGrid, Unit};
@@ -95,23 +96,33 @@ impl Thumb {
 /// Dirty tiles' sums as they were at a checkpoint: (job, tile, sums), none for a tile whose
 /// sums an audit took back. Shared with the live accumulators until encoded.
 #[derive(Debug, Default)]
-pub struct Snapshot(pub Vec<(u64, u32, Option<Arc<TileSums>>)>);
+pub struct Snapshot(
+    pub Vec<(u64, u32, Option<Arc<TileSums>>)>,
+    /// Guided jobs' training trees as merged at the moment: (job, epoch, tree).
+    pub Vec<(u64, u32, Arc<SdTree>)>,
+);
 
 impl Snapshot {
     /// Adds another job's snapshot.
     pub fn extend(&mut self, other: Snapshot) {
         self.0.extend(other.0);
+        self.1.extend(other.1);
     }
 
-    /// The store changes: each tile's sums encoded, or its deletion. Made outside the
-    /// scheduler's lock.
+    /// The store changes: each tile's sums encoded, or its deletion, and each training tree
+    /// encoded. Made outside the scheduler's lock.
     pub fn ops(self) -> Vec<Op> {
+        let trees = self
+            .1
+            .into_iter()
+            .map(|(id, e, t)| Op::PutGuide(id, e, t.encode()));
         self.0
             .into_iter()
             .map(|(id, t, sums)| match sums {
                 Some(s) => Op::PutTile(id, t, encode_sums(&s)),
                 None => Op::DelTile(id, t),
             })
+            .chain(trees)
             .collect()
     }
 }
@@ -145,12 +156,18 @@ impl Job {
     pub fn checkpoint(&mut self) -> Snapshot {
         let id = self.rec.id;
         self.dirty_bytes = 0;
-        Snapshot(
-            std::mem::take(&mut self.dirty)
-                .into_iter()
-                .map(|t| (id, t, self.acc.get(&t).and_then(|a| a.sums.clone())))
-                .collect(),
-        )
+        let tiles = std::mem::take(&mut self.dirty)
+            .into_iter()
+            .map(|t| (id, t, self.acc.get(&t).and_then(|a| a.sums.clone())))
+            .collect();
+        let trees = self
+            .guiding
+            .as_mut()
+            .and_then(|g| g.take_dirty())
+            .map(|(e, t)| (id, e, t))
+            .into_iter()
+            .collect();
+        Snapshot(tiles, trees)
     }
 
     /// Whether tiles of this job may leave memory once stored (see the module's doc).

@@ -13,7 +13,7 @@ use super::Scheduler;
 use crate::error::Refusal;
 use crate::job::Job;
 use crate::names::{check_output_name, OutputNames};
-use crate::store::{JobPhase, JobRecord, LoadedJob, Op, RangeRef, StoredScene};
+use crate::store::{GuidingRecord, JobPhase, JobRecord, LoadedJob, Op, RangeRef, StoredScene};
 
 /// A job to admit: a parsed scene and checked settings.
 #[derive(Debug)]
@@ -50,6 +50,9 @@ pub struct Admission {
     /// Lease a range's frames progressively (checked by the caller: only with frames, and
     /// not adaptive).
     pub progressive: bool,
+    /// The box a guided job's guides start from
+    /// ([`tessera_render::guided::guide_bounds`] of its scene); not read for other jobs.
+    pub guide_bounds: [[f32; 3]; 2],
     /// The user whose token submitted it ([`crate::auth`]; empty without named tokens).
     pub submitter: String,
 }
@@ -126,6 +129,13 @@ impl Admission {
             a.tile = tile_size;
         }
         let frames = match frames {
+            // Each frame's guide starts from that frame's box, which admission, parsing the
+            // first frame only, does not know.
+            Some(_) if settings.guiding => {
+                return Err(Refusal::Invalid(
+                    "guiding renders one frame per job, not a frame range".into(),
+                ))
+            }
             Some(_) if settings.frame.is_some() => {
                 return Err(Refusal::Invalid(
                     "a job names either one frame or a frame range, not both".into(),
@@ -323,10 +333,16 @@ impl Scheduler {
             paused: false,
             retries: 0,
             submitter: a.submitter.clone(),
+            guiding: s.guiding.then(|| GuidingRecord {
+                bounds: a.guide_bounds,
+                guides: Vec::new(),
+            }),
             // An adaptive job's decisions follow its merged sums; taking results back would
             // need them made again from the start, which is not built: such jobs are not
             // audited (docs/farm.md).
-            audited: self.policy.audit > 0.0 && s.adaptive.is_none(),
+            // A guided job's later epochs sample what its earlier results trained: taking
+            // results back would need every epoch after them rendered again (not built).
+            audited: self.policy.audit > 0.0 && s.adaptive.is_none() && !s.guiding,
         };
         // The job's own count, so that admission and scheduling cannot disagree on it; a job
         // costs nothing per unit until its units render, so making it first is free. Every

@@ -204,6 +204,22 @@ pub struct Scheduler {
     deferred: Vec<Op>,
 }
 
+/// What a worker returns for one unit: its sums, and for a guided job's unit of a training
+/// epoch, the tree it recorded into.
+#[derive(Debug)]
+pub struct UnitResult {
+    /// The sums.
+    pub sums: TileSums,
+    /// What it trained.
+    pub train: Option<tessera_render::guide::SdTree>,
+}
+
+impl From<TileSums> for UnitResult {
+    fn from(sums: TileSums) -> Self {
+        Self { sums, train: None }
+    }
+}
+
 impl Scheduler {
     /// Empty state for boot `epoch`.
     pub fn new(epoch: u64, policy: Policy) -> Self {
@@ -285,6 +301,14 @@ impl Scheduler {
         self.workers.iter().map(|(&n, w)| (n, w))
     }
 
+    /// The encoding of a live guided job's guide named by SHA-256 `hash`, if one has it.
+    pub fn guide(&self, hash: &str) -> Option<std::sync::Arc<Vec<u8>>> {
+        self.jobs
+            .values()
+            .filter(|j| j.is_live())
+            .find_map(|j| j.guiding.as_ref()?.by_hash(hash))
+    }
+
     /// Leases live now.
     pub fn leases_live(&self) -> u64 {
         self.leases.values().filter(|l| l.active).count() as u64
@@ -303,11 +327,12 @@ impl Scheduler {
         lease: LeaseId,
         job_id: JobId,
         unit: Unit,
-        sums: TileSums,
+        result: impl Into<UnitResult>,
         now: Instant,
     ) -> Result<Merged, Refusal> {
-        let samples = sums.rect.area() as u64 * sums.samples.len() as u64;
-        let outcome = self.take_result(w, lease, job_id, unit, sums, now);
+        let result = result.into();
+        let samples = result.sums.rect.area() as u64 * result.sums.samples.len() as u64;
+        let outcome = self.take_result(w, lease, job_id, unit, result, now);
         let c = &mut self.counters;
         match &outcome {
             Ok(Merged::New { .. }) => {
@@ -336,9 +361,10 @@ impl Scheduler {
         lease: LeaseId,
         job_id: JobId,
         unit: Unit,
-        sums: TileSums,
+        result: UnitResult,
         now: Instant,
     ) -> Result<Merged, Refusal> {
+        let UnitResult { sums, train } = result;
         // The handlers refuse a quarantined worker's calls already (`touch_worker`); refused here
         // too, so that no path merges a result from a worker an audit convicted after its results
         // were taken back.
@@ -384,7 +410,12 @@ impl Scheduler {
                 )))
             }
         }
-        if let Err(e) = job.check_result(unit, &sums) {
+        let checked = job.check_result(unit, &sums).and_then(|()| match &job.guiding {
+            Some(g) => g.check(unit.batch, sums.rect.area() as u64, train.as_ref()),
+            None if train.is_some() => Err("the job is not guided, and the result has a training tree".into()),
+            None => Ok(()),
+        });
+        if let Err(e) = checked {
             self.count_bad_result(w);
             return Err(Refusal::Invalid(format!(
                 "{job_id} tile {} batch {}: {e}",
@@ -414,6 +445,11 @@ impl Scheduler {
         let Some(job) = self.jobs.get_mut(&job_id) else {
             return Ok(Merged::Discarded);
         };
+        // Guided jobs are not audited, so this is the result checked above; added once, as its
+        // sums are merged once.
+        if let (Some(g), Some(t)) = (&mut job.guiding, &train) {
+            g.add(t);
+        }
         self.serial += 1;
         let source = Source {
             worker: from,

@@ -70,7 +70,8 @@ fn speculative_unit(
 /// tiles' noise decisions released, lowest first.
 ///
 /// `max_batch` holds the cursor back at that batch (a progressive range's frames wait for each
-/// other); units put back and released ones are not held.
+/// other), and a guided job's cursor waits at the end of the epoch whose guide is not trained
+/// yet; units put back and released ones are not held.
 fn next_unit(
     job: &mut Job,
     w: u64,
@@ -99,12 +100,14 @@ fn next_unit(
         return found;
     }
     let n_tiles = (job.tiles.len() as u64).max(1);
+    // A guided job's next epoch waits for the guide its last one trains.
+    let released = job.guiding.as_ref().map_or(u32::MAX, |g| g.released());
     while job.cursor < job.units_first() {
         let u = Unit {
             tile: (job.cursor % n_tiles) as u32,
             batch: (job.cursor / n_tiles) as u32,
         };
-        if u.batch > max_batch {
+        if u.batch > max_batch || u.batch >= released {
             break;
         }
         job.cursor += 1;

@@ -143,6 +143,7 @@ impl Jobs for Service {
             require: req.require,
             min_memory: req.min_memory_bytes,
             progressive: req.progressive,
+            guide_bounds: tessera_render::guided::guide_bounds(&scene),
             submitter: caller.user.clone(),
         };
         let bounds = AdmissionLimits {

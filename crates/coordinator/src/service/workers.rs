@@ -6,6 +6,7 @@ use std::time::{Duration, Instant};
 use tessera_proto::ids::LeaseId;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::workers_server::Workers;
+use tessera_render::guide::SdTree;
 use tessera_render::{PixelRect, TileSums, IMAGE_REVISION};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
@@ -19,7 +20,8 @@ use crate::assets::CHUNK_BYTES;
 use crate::error::truncate;
 use crate::job::Unit;
 use crate::output::finish_job;
-use crate::scheduler::{Capabilities, Merged, Reported, MAX_LINES_PER_CALL};
+use crate::scheduler::{Capabilities, Merged, Reported, UnitResult, MAX_LINES_PER_CALL};
+use crate::store::Op;
 use crate::shared::{durable, now_ms};
 use tessera_proto::ids::BadId;
 use tessera_proto::tags::{check_tags, MAX_CPU_FEATURES, MAX_TAGS};
@@ -133,6 +135,12 @@ impl Workers for Service {
                             sample_start: range.start,
                             sample_end: range.end,
                             lease_ms,
+                            guide_sha256: job
+                                .guiding
+                                .as_ref()
+                                .and_then(|gd| gd.guide_for(g.unit.batch))
+                                .map(|gd| gd.hash.clone())
+                                .unwrap_or_default(),
                         })
                     })
                     .collect::<Vec<_>>();
@@ -240,7 +248,22 @@ impl Workers for Service {
             batch: req.batch_index,
         };
         let mut result = req.result;
-        let mut decoded: Option<TileSums> = None;
+        // A guided unit's training tree (up to tens of MiB) is decoded before the lock, off
+        // the async threads.
+        let train_bytes = result
+            .as_mut()
+            .map(|r| std::mem::take(&mut r.guide_train))
+            .filter(|b| !b.is_empty());
+        let mut train = match train_bytes {
+            Some(b) => Some(
+                tokio::task::spawn_blocking(move || SdTree::decode(&b))
+                    .await
+                    .map_err(|e| Status::internal(e.to_string()))?
+                    .map_err(|e| Status::invalid_argument(format!("guide_train: {e}"))),
+            ),
+            None => None,
+        };
+        let mut decoded: Option<UnitResult> = None;
         let mut read_back: Option<TileSums> = None;
         let mut reads = 0;
         let (merged, new) = loop {
@@ -264,7 +287,12 @@ impl Workers for Service {
                         .take()
                         .ok_or_else(|| Status::invalid_argument("request has no result"))
                         .and_then(decode_result)
-                    {
+                        .and_then(|sums| {
+                            Ok(UnitResult {
+                                sums,
+                                train: train.take().transpose()?,
+                            })
+                        }) {
                         Ok(s) => s,
                         Err(e) => {
                             core.refuse_result(w);
@@ -285,7 +313,12 @@ impl Workers for Service {
                             // Acknowledged once merged in memory: the next checkpoint makes it
                             // durable, and a crash before then costs its rendering again, not
                             // its bits.
+                            // A guide was trained: the next epoch's units are free.
+                            let epoch = ops.iter().any(|o| matches!(o, Op::PutGuide(..)));
                             self.shared.queue_checkpointed(ops);
+                            if epoch {
+                                self.shared.bump_work();
+                            }
                             if core.wants_checkpoint() {
                                 self.shared.request_checkpoint();
                             }
@@ -413,6 +446,24 @@ impl Workers for Service {
         request: Request<pb::FetchAssetRequest>,
     ) -> Result<Response<Self::FetchAssetStream>, Status> {
         let req = request.into_inner();
+        // A guided job's guide, held in memory by its job (and in the store).
+        let guide = self.shared.scheduler().guide(&req.sha256);
+        if let Some(bytes) = guide {
+            let total = bytes.len() as u64;
+            let chunks: Vec<Result<pb::AssetChunk, Status>> = (req.offset.min(total)..total)
+                .step_by(CHUNK_BYTES)
+                .map(|at| {
+                    let end = (at + CHUNK_BYTES as u64).min(total);
+                    Ok(pb::AssetChunk {
+                        sha256: req.sha256.clone(),
+                        offset: at,
+                        total_size: total,
+                        data: bytes[at as usize..end as usize].to_vec(),
+                    })
+                })
+                .collect();
+            return Ok(Response::new(Box::pin(tokio_stream::iter(chunks))));
+        }
         let held = self
             .shared
             .assets

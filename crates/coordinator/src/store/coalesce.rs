@@ -22,6 +22,7 @@ enum Key {
     Pending(u64, u32, u32),
     Unit(u64, u32, u32),
     Log(u64),
+    Guide(u64, u32),
 }
 
 impl Key {
@@ -32,13 +33,16 @@ impl Key {
             Op::PutPending(j, t, b, _) | Op::DelPending(j, t, b) => Some(Key::Pending(*j, *t, *b)),
             Op::PutUnit(j, t, b, _, _) => Some(Key::Unit(*j, *t, *b)),
             Op::PutLog(j, _) => Some(Key::Log(*j)),
+            Op::PutGuide(j, e, _) => Some(Key::Guide(*j, *e)),
             Op::PutScene(..) | Op::PutAudit(_) | Op::DropSums(_) | Op::DropScene(_) => None,
         }
     }
 
     fn job_sums(&self) -> Option<u64> {
         match self {
-            Key::Tile(j, _) | Key::Pending(j, _, _) | Key::Unit(j, _, _) => Some(*j),
+            Key::Tile(j, _) | Key::Pending(j, _, _) | Key::Unit(j, _, _) | Key::Guide(j, _) => {
+                Some(*j)
+            }
             Key::Job(_) | Key::Log(_) => None,
         }
     }

@@ -39,3 +39,10 @@ pub(super) fn audit_key(epoch: u64, n: u64) -> [u8; 17] {
     k[9..].copy_from_slice(&n.to_le_bytes());
     k
 }
+
+/// A guided job's tree of one epoch: the tile key's bytes under its own tag.
+pub(super) fn guide_key(job: u64, epoch: u32) -> [u8; 13] {
+    let mut k = [b'g'; 13];
+    k[1..].copy_from_slice(&tile_key(job, epoch));
+    k
+}

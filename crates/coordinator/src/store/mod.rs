@@ -23,11 +23,12 @@ mod migrate;
 mod records;
 mod sums;
 
-use keys::{audit_key, job_key, log_key, pending_key, tile_key, unit_key};
+use keys::{audit_key, guide_key, job_key, log_key, pending_key, tile_key, unit_key};
 
 pub use coalesce::Coalesced;
 pub use records::{
-    AuditRecord, JobPhase, JobRecord, LoadedJob, Op, RangeRef, StoredScene, UnitFailure,
+    AuditRecord, GuidingRecord, JobPhase, JobRecord, LoadedJob, Op, RangeRef, StoredScene,
+    UnitFailure,
 };
 pub use sums::{decode_sums, encode_sums, AOV_BYTES, PIXEL_BYTES};
 
@@ -48,6 +49,9 @@ const AUDITS: TableDefinition<(u64, u64), &[u8]> = TableDefinition::new("audits"
 const META: TableDefinition<&str, u64> = TableDefinition::new("meta");
 /// job id → its workers' log lines (`tessera logs`), JSON, bounded.
 const LOGS: TableDefinition<u64, &[u8]> = TableDefinition::new("logs");
+/// (job, epoch) → a guided job's tree of that epoch ([`tessera_render::guide::SdTree`]'s
+/// encoding): the guide it trained, or the training tree as merged so far.
+const GUIDES: TableDefinition<(u64, u32), &[u8]> = TableDefinition::new("guides");
 
 /// The layout of stored values: 2 = each value followed by the CRC-32 of its key and bytes.
 /// Stores of layout 1 (no checksums) are sealed in place when first opened.
@@ -313,6 +317,12 @@ impl Store {
             Err(redb::TableError::TableDoesNotExist(_)) => None,
             Err(e) => return Err(dberr(e)),
         };
+        // Made by the first guided job's checkpoint.
+        let guides = match tx.open_table(GUIDES) {
+            Ok(t) => Some(t),
+            Err(redb::TableError::TableDoesNotExist(_)) => None,
+            Err(e) => return Err(dberr(e)),
+        };
         let mut out = Vec::new();
         for row in jobs.iter().map_err(dberr)? {
             let (k, v) = row.map_err(dberr)?;
@@ -346,7 +356,17 @@ impl Store {
                 tiles: Vec::new(),
                 pending: Vec::new(),
                 log,
+                guides: Vec::new(),
             };
+            if let Some(g) = &guides {
+                for row in g.range((id, 0)..=(id, u32::MAX)).map_err(dberr)? {
+                    let (k, v) = row.map_err(dberr)?;
+                    let e = k.value().1;
+                    let bytes =
+                        unseal(|| format!("job {id} guide {e}"), &guide_key(id, e), v.value())?;
+                    job.guides.push((e, bytes.to_vec()));
+                }
+            }
             for row in tiles.range((id, 0)..=(id, u32::MAX)).map_err(dberr)? {
                 let (k, v) = row.map_err(dberr)?;
                 let t = k.value().1;
@@ -487,6 +507,7 @@ impl Store {
             let mut units = tx.open_table(UNITS).map_err(dberr)?;
             let mut audits = tx.open_table(AUDITS).map_err(dberr)?;
             let mut logs = tx.open_table(LOGS).map_err(dberr)?;
+            let mut guides = tx.open_table(GUIDES).map_err(dberr)?;
             for op in ops {
                 match op {
                     Op::PutScene(hash, scene) => {
@@ -558,6 +579,11 @@ impl Store {
                         logs.insert(*job, seal(&log_key(*job), bytes).as_slice())
                             .map_err(dberr)?;
                     }
+                    Op::PutGuide(job, e, bytes) => {
+                        guides
+                            .insert((*job, *e), seal(&guide_key(*job, *e), bytes).as_slice())
+                            .map_err(dberr)?;
+                    }
                     Op::DropScene(hash) => {
                         scenes.remove(hash.as_str()).map_err(dberr)?;
                     }
@@ -570,6 +596,9 @@ impl Store {
                             .map_err(dberr)?;
                         units
                             .retain_in((*job, 0, 0)..=(*job, u32::MAX, u32::MAX), |_, _| false)
+                            .map_err(dberr)?;
+                        guides
+                            .retain_in((*job, 0)..=(*job, u32::MAX), |_, _| false)
                             .map_err(dberr)?;
                     }
                 }

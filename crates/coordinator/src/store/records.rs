@@ -149,11 +149,25 @@ pub struct JobRecord {
     /// Times `tessera retry` put it back after it failed (0 in records written before retries).
     #[serde(default)]
     pub retries: u32,
+    /// Path guiding (`submit --guiding`): the box its guides start from (the scene's, at
+    /// admission), and the hashes of the guides its finished epochs trained, in order (none
+    /// for an unguided job, as in records written before guiding).
+    #[serde(default)]
+    pub guiding: Option<GuidingRecord>,
     /// The user whose token submitted it (empty: no named tokens, as in records written
     /// before them): fair share and the per-user cap count by it, and only that user or an
     /// admin may change the job.
     #[serde(default)]
     pub submitter: String,
+}
+
+/// A guided job's epochs, as its record keeps them.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct GuidingRecord {
+    /// The box epoch 0's structure spans (JSON writes f32s that read back to the same bits).
+    pub bounds: [[f32; 3]; 2],
+    /// SHA-256 of each finished epoch's guide, epoch by epoch.
+    pub guides: Vec<String>,
 }
 
 /// One unit that failed on one worker (`scheduler/failures.rs`).
@@ -235,6 +249,9 @@ pub enum Op {
     DropScene(String),
     /// Write a job's log (its workers' lines, JSON; table `logs`).
     PutLog(u64, Vec<u8>),
+    /// Write a guided job's tree of one epoch (table `guides`): the guide it trained once the
+    /// epoch is done, or its training tree as merged so far.
+    PutGuide(u64, u32, Vec<u8>),
 }
 
 impl Op {
@@ -255,7 +272,8 @@ impl Op {
             Op::PutTile(_, _, b)
             | Op::PutPending(_, _, _, b)
             | Op::PutUnit(_, _, _, _, b)
-            | Op::PutLog(_, b) => b.len() as u64,
+            | Op::PutLog(_, b)
+            | Op::PutGuide(_, _, b) => b.len() as u64,
             // Records are a few hundred bytes of JSON: counted as their fixed overhead only.
             Op::PutJob(_) | Op::PutAudit(_) => 256,
             Op::DelPending(..) | Op::DelTile(..) | Op::DropSums(_) | Op::DropScene(_) => 0,
@@ -297,4 +315,6 @@ pub struct LoadedJob {
     pub pending: Vec<((u32, u32), Vec<u8>)>,
     /// Its log as stored (JSON), if it has one.
     pub log: Option<Vec<u8>>,
+    /// A guided job's trees by epoch (`Op::PutGuide`).
+    pub guides: Vec<(u32, Vec<u8>)>,
 }

@@ -35,6 +35,7 @@ pub fn admission(name: Option<&str>, frames: Option<&str>, after: Option<JobId>)
         require: Vec::new(),
         min_memory: 0,
         progressive: false,
+        guide_bounds: [[0.0; 3], [1.0; 3]],
         submitter: String::new(),
     }
 }

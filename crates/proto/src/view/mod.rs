@@ -148,6 +148,8 @@ pub struct SettingsView {
     /// The AOVs rendered beside the beauty.
     #[schema(value_type = Object)]
     pub aovs: tessera_render::Aovs,
+    /// Path guiding.
+    pub guiding: bool,
 }
 
 impl From<&RenderSettings> for SettingsView {
@@ -160,6 +162,7 @@ impl From<&RenderSettings> for SettingsView {
             frame: s.frame,
             noise_target: s.adaptive.map(|a| a.noise_target),
             aovs: s.aovs,
+            guiding: s.guiding,
         }
     }
 }
@@ -174,6 +177,7 @@ impl From<&SettingsView> for pb::RenderSettings {
             noise_target: s.noise_target.unwrap_or(0.0),
             frame: s.frame,
             aovs: s.aovs.list(),
+            guiding: s.guiding,
         }
     }
 }
@@ -190,6 +194,7 @@ impl TryFrom<&pb::RenderSettings> for SettingsView {
             frame: s.frame,
             noise_target: (s.noise_target > 0.0).then_some(s.noise_target),
             aovs: tessera_render::Aovs::parse(&s.aovs).map_err(BadView::Aovs)?,
+            guiding: s.guiding,
         })
     }
 }
@@ -501,6 +506,7 @@ mod tests {
                 noise_target: 0.02,
                 frame: None,
                 aovs: "normal,depth".into(),
+                guiding: false,
             }),
             tile_size: 32,
             units_total: 20,

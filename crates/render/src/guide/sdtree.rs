@@ -264,6 +264,11 @@ impl SdTree {
         [c, c + 1]
     }
 
+    /// Vertices recorded, over every leaf.
+    pub fn records(&self) -> u64 {
+        self.leaves.iter().fold(0u64, |a, l| a.saturating_add(l.count))
+    }
+
     /// Adds `other`'s counts and energies to this tree's, leaf by leaf; the two must have
     /// the same structure. Counts and energies are integers, so the order of additions cannot
     /// change a bit.

@@ -42,7 +42,7 @@ pub const ALPHA: f32 = 0.25;
 
 /// The most vertices of one path that are recorded: deeper ones carry little, and the bound
 /// keeps a path's record on the stack.
-const MAX_VERTICES: usize = 16;
+pub const MAX_VERTICES: usize = 16;
 
 /// The guide a path tracer samples from and the tree it trains: the integrator's only
 /// contact with guiding. The tracer is generic over it, so that a render without guiding

@@ -78,6 +78,9 @@ pub fn render_metadata(
     if settings.aovs.any() {
         meta.push(("aovs".to_string(), settings.aovs.list()));
     }
+    if settings.guiding {
+        meta.push(("guiding".to_string(), "sd-tree".to_string()));
+    }
     meta.push((
         "renderer".to_string(),
         format!(

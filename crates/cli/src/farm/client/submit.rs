@@ -169,6 +169,14 @@ async fn upload(client: &mut Client, url: &str, name: &str, hash: &str, path: &P
 
 /// Runs `tessera submit`.
 pub fn submit(args: SubmitArgs) -> Result<()> {
+    if args.settings.guiding && args.settings.noise_target.is_some() {
+        bail!(
+            "--guiding takes every sample it is given; it cannot be combined with --noise-target"
+        );
+    }
+    if args.settings.guiding && args.frames.is_some() {
+        bail!("--guiding renders one frame per job; it cannot be combined with --frames");
+    }
     if let Some(o) = &args.output {
         if !args.wait {
             bail!("--output needs --wait (or use `tessera fetch JOB --output FILE` later)");
