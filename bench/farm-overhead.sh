@@ -8,8 +8,9 @@
 #
 # BATCH=B passes --batch B to both (default: the unit rule's batch); CHECKPOINT=S passes
 # --checkpoint-interval S to the coordinator; TILE=N --tile-size N to the farm job; OUT=FILE
-# names the report; TESSERA=BINARY uses that build instead of building one (a machine
-# without cargo).
+# names the report; GUIDING=1 renders with --guiding in both (a guided job: epochs, their
+# barriers, training trees sent and merged, guides fetched); TESSERA=BINARY uses that build
+# instead of building one (a machine without cargo).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 SCENE=${1:-scenes/cornell-box.toml}
@@ -18,7 +19,8 @@ RUNS=${3:-3}
 TILE=${TILE:-}   # tile edge for the farm job (default: the coordinator's)
 BATCH=${BATCH:-}
 CHECKPOINT=${CHECKPOINT:-}
-OUT=${OUT:-docs/benchmarks/farm-overhead-${SPP}spp${TILE:+-tile$TILE}${BATCH:+-batch$BATCH}${CHECKPOINT:+-checkpoint$CHECKPOINT}.md}
+GUIDING=${GUIDING:-}
+OUT=${OUT:-docs/benchmarks/farm-overhead-${SPP}spp${TILE:+-tile$TILE}${BATCH:+-batch$BATCH}${CHECKPOINT:+-checkpoint$CHECKPOINT}${GUIDING:+-guiding}.md}
 THREADS=$(nproc)
 if [ -n "${TESSERA:-}" ]; then T=$(realpath "$TESSERA"); else
   cargo build --release -q -p tessera-cli
@@ -38,7 +40,7 @@ gsamples=$(echo "$pixels * $SPP / 1000000000" | bc -l)
 local_s=(); farm_s=(); bytes=(); share=(); cpu_g=(); disk_g=(); util=()
 for run in $(seq "$RUNS"); do
   t0=$(now)
-  "$T" render "$SCENE" --spp "$SPP" ${BATCH:+--batch "$BATCH"} --threads "$THREADS" --output "$WORK/local.exr" >/dev/null 2>&1
+  "$T" render "$SCENE" --spp "$SPP" ${BATCH:+--batch "$BATCH"} ${GUIDING:+--guiding} --threads "$THREADS" --output "$WORK/local.exr" >/dev/null 2>&1
   t1=$(now)
   local_s+=("$(echo "$t1 - $t0" | bc -l)")
 
@@ -52,7 +54,7 @@ for run in $(seq "$RUNS"); do
   sleep 0.5
   c0=$(cpu_ticks $cpid); w0=$(wchar $wpid); d0=$(disk_writes $cpid); u0=$(cpu_ticks $wpid)
   t0=$(now)
-  "$T" submit "$SCENE" --coordinator "$url" --spp "$SPP" ${BATCH:+--batch "$BATCH"} ${TILE:+--tile-size "$TILE"} --wait --output "$WORK/farm.exr" >/dev/null 2>&1
+  "$T" submit "$SCENE" --coordinator "$url" --spp "$SPP" ${BATCH:+--batch "$BATCH"} ${GUIDING:+--guiding} ${TILE:+--tile-size "$TILE"} --wait --output "$WORK/farm.exr" >/dev/null 2>&1
   t1=$(now)
   c1=$(cpu_ticks $cpid); w1=$(wchar $wpid); d1=$(disk_writes $cpid); u1=$(cpu_ticks $wpid)
   batch=$("$T" status --coordinator "$url" --json 2>/dev/null | grep -o '"batch": *[0-9]*' | head -1 | grep -o '[0-9]*$' || true)
@@ -78,11 +80,11 @@ CPU=$(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //')
 {
   echo "# Farm overhead"
   echo
-  echo "Command: \`${TILE:+TILE=$TILE }${BATCH:+BATCH=$BATCH }${CHECKPOINT:+CHECKPOINT=$CHECKPOINT }bench/farm-overhead.sh $SCENE $SPP $RUNS\` ($(date -u +%Y-%m-%d))."
+  echo "Command: \`${GUIDING:+GUIDING=$GUIDING }${TILE:+TILE=$TILE }${BATCH:+BATCH=$BATCH }${CHECKPOINT:+CHECKPOINT=$CHECKPOINT }bench/farm-overhead.sh $SCENE $SPP $RUNS\` ($(date -u +%Y-%m-%d))."
   echo
   echo "Machine: $CPU, $(nproc) cores, $(awk '/MemTotal/ {printf "%.0f GiB", $2 / 1048576}' /proc/meminfo); $THREADS render threads in both runs."
   echo
-  echo "Job: \`$SCENE\` at $SPP spp, tile ${TILE:-128 (the default)}, batch $BATCH_NOTE, checkpoint interval ${CHECKPOINT:-5 (the default)} s; medians of $RUNS alternating runs."
+  echo "Job: \`$SCENE\` at $SPP spp${GUIDING:+ with --guiding (both runs)}, tile ${TILE:-128 (the default)}, batch $BATCH_NOTE, checkpoint interval ${CHECKPOINT:-5 (the default)} s; medians of $RUNS alternating runs."
   echo "The farm's EXR was checked byte-identical to the local one in every run."
   echo
   echo "| measure | value |"

@@ -133,7 +133,7 @@ fn trace<'a, G: Guiding<'a>>(
             }
             if let Some(g) = guiding.path() {
                 // A constant sky is never light-sampled: it stays in the guide's training.
-                g.found_direct(strategy, path.specular, path.l - before - sky);
+                g.found_direct(strategy, path.specular, path.l - before - sky, depth);
             }
             break;
         };
@@ -153,7 +153,7 @@ fn trace<'a, G: Guiding<'a>>(
                 let before = path.l;
                 add_emitted(&mut path, scene, strategy, li, le, &sp);
                 if let Some(g) = guiding.path() {
-                    g.found_direct(strategy, path.specular, path.l - before);
+                    g.found_direct(strategy, path.specular, path.l - before, depth);
                 }
             }
         }
@@ -210,6 +210,7 @@ fn trace<'a, G: Guiding<'a>>(
                         scene, strategy, &mut path, albedo, &sp, &at, bsdf_u, light_u,
                     ),
                     Some(g) => {
+                        g.at_bounce(depth);
                         let mut updated = path;
                         let next = guided::diffuse(
                             scene,

@@ -14,7 +14,6 @@
 //! workers to an aggregate rate of samples; without it they send as fast as the coordinator
 //! takes them, which measures the most it sustains.
 
-use std::fmt::Write as _;
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
@@ -29,6 +28,9 @@ use tessera_proto::v1::workers_client::WorkersClient;
 use tessera_render::scene::{Format, Limits, Scene};
 use tessera_render::{render_tile, PixelRect, RenderSettings, TileSums};
 use tonic::transport::Channel;
+
+mod report;
+use report::{report, to_csv};
 
 /// Arguments of `tessera loadtest`.
 #[derive(Debug, clap::Args)]
@@ -73,6 +75,11 @@ pub struct LoadArgs {
     /// Jobs at once for --memory.
     #[arg(long, default_value_t = 2)]
     jobs: usize,
+    /// After each worker count's run, the same with a guided job (`submit --guiding`): its
+    /// units return training trees, which the coordinator checks, adds and freezes into
+    /// guides between epochs (the records are synthetic; see `load_guided.rs`).
+    #[arg(long)]
+    guiding: bool,
 }
 
 /// The job every run renders: a 2048² Cornell box in 128-pixel tiles, with more samples than
@@ -170,6 +177,10 @@ fn replay(t: &TileSums, unit: &pb::WorkUnit) -> Result<pb::TileResult> {
 #[derive(Clone, Debug)]
 struct Run {
     workers: usize,
+    /// A guided job's run.
+    guided: bool,
+    /// A guided run's training epochs reached, and its largest training tree's bytes.
+    trained: (usize, usize),
     seconds: f64,
     merged: u64,
     /// Samples in the merged units.
@@ -301,6 +312,8 @@ pub(super) struct Shared {
     /// Results the coordinator deferred (told to retry while it stored merged sums).
     pub(super) deferred: AtomicU64,
     latencies: Mutex<Vec<f64>>,
+    /// A guided run's training trees (none: an unguided run).
+    trains: Option<super::load_guided::Trains>,
     /// The probe worker's: one more worker on a thread of its own, whose round trips are the
     /// coordinator's answer time under the others' load, not the load generator's queueing.
     probe_latencies: Mutex<Vec<f64>>,
@@ -320,6 +333,7 @@ impl Shared {
             refused: AtomicU64::new(0),
             deferred: AtomicU64::new(0),
             latencies: Mutex::new(Vec::new()),
+            trains: None,
             probe_latencies: Mutex::new(Vec::new()),
         }
     }
@@ -371,7 +385,10 @@ pub(super) async fn simulated_worker(
             mine.push(start.elapsed().as_secs_f64() * 1e3);
         }
         for u in units {
-            let result = replay(&shared.template, &u)?;
+            let mut result = replay(&shared.template, &u)?;
+            if let Some(t) = &shared.trains {
+                result.guide_train = t.tree(&mut client, &u).await?.to_vec();
+            }
             let samples =
                 u64::from(u.sample_end - u.sample_start) * u64::from(result.count.len() as u32);
             if let Some(pace) = shared.pace {
@@ -433,10 +450,12 @@ struct Plan {
     coordinator_args: Vec<String>,
     settings: RenderSettings,
     template: TileSums,
+    /// The scene's box, for guided runs' training trees.
+    bounds: [[f32; 3]; 2],
 }
 
 /// One run with `workers` simulated workers, measured for `plan.seconds`.
-async fn run_one(workers: usize, plan: &Plan) -> Result<Run> {
+async fn run_one(workers: usize, plan: &Plan, guided: bool) -> Result<Run> {
     let (seconds, split_cores) = (plan.seconds, plan.split_cores);
     let dir = tempfile::tempdir()?;
     let (coordinator, url) = Coordinator::start(
@@ -450,18 +469,24 @@ async fn run_one(workers: usize, plan: &Plan) -> Result<Run> {
     jobs.submit_job(pb::SubmitJobRequest {
         scene_text: scene_text(),
         scene_name: format!("cornell-{SIZE}.toml"),
-        settings: Some(pb::RenderSettings::from(&plan.settings)),
+        settings: Some(pb::RenderSettings::from(&RenderSettings {
+            guiding: guided,
+            ..plan.settings.clone()
+        })),
         tile_size: TILE,
         ..Default::default()
     })
     .await
     .map_err(|e| anyhow!("submit: {}", e.message()))?;
     let unit_samples = f64::from(TILE * TILE) * f64::from(plan.settings.batch);
-    let shared = Arc::new(Shared::new(
+    let mut shared = Shared::new(
         plan.template.clone(),
         (plan.rate > 0.0)
             .then(|| Duration::from_secs_f64(workers as f64 * unit_samples / (plan.rate * 1e6))),
-    ));
+    );
+    shared.trains =
+        guided.then(|| super::load_guided::Trains::new(plan.bounds, plan.settings.spp));
+    let shared = Arc::new(shared);
     shared.go.store(false, Ordering::Relaxed);
     // The probe first: a coordinator saturated by the others could keep it from registering.
     let probe = {
@@ -535,8 +560,11 @@ async fn run_one(workers: usize, plan: &Plan) -> Result<Run> {
         Ok(v)
     };
     let (lat, probe_lat) = (sorted(&shared.latencies)?, sorted(&shared.probe_latencies)?);
+    let trained = shared.trains.as_ref().map_or((0, 0), |t| t.reached());
     Ok(Run {
         workers,
+        guided,
+        trained,
         seconds: elapsed,
         merged,
         samples,
@@ -611,6 +639,7 @@ pub fn run(args: LoadArgs) -> Result<()> {
         rate: args.rate,
         coordinator_args: coordinator_args(&args),
         template: template(&scene, settings.batch),
+        bounds: tessera_render::guided::guide_bounds(&scene),
         settings,
     };
     errln!(
@@ -620,9 +649,11 @@ pub fn run(args: LoadArgs) -> Result<()> {
         f64::from(TILE * TILE) * 52.0 / 1e3
     );
     let mut runs = Vec::new();
-    for &n in &args.workers {
-        errln!("{n} simulated workers for {} s …", args.seconds);
-        let r = runtime.block_on(run_one(n, &plan))?;
+    let kinds: &[bool] = if args.guiding { &[false, true] } else { &[false] };
+    for (&n, &guided) in args.workers.iter().flat_map(|n| kinds.iter().map(move |g| (n, g))) {
+        let kind = if guided { " (guided job)" } else { "" };
+        errln!("{n} simulated workers for {} s{kind} …", args.seconds);
+        let r = runtime.block_on(run_one(n, &plan, guided))?;
         errln!(
             "  {:.2} Gsamples/s ({:.0} units/s), {:.3} CPU-s and {:.1} MB written per Gsample, lease p50 {:.2} ms p99 {:.2} ms (probe {:.2}/{:.2}), coordinator CPU {:.0}% RSS {:.1} MiB, {:.0} bytes written per unit",
             r.samples as f64 / 1e9 / r.seconds,
@@ -637,6 +668,13 @@ pub fn run(args: LoadArgs) -> Result<()> {
             r.rss_mib,
             r.bytes_per_unit
         );
+        if guided {
+            errln!(
+                "  training epochs reached: {}, largest training tree {:.0} KB",
+                r.trained.0,
+                r.trained.1 as f64 / 1e3
+            );
+        }
         runs.push(r);
     }
     let command = std::iter::once("tessera".to_string())
@@ -653,127 +691,4 @@ pub fn run(args: LoadArgs) -> Result<()> {
     )?;
     outln!("wrote {} and {}", md.display(), csv.display());
     Ok(())
-}
-
-impl Run {
-    /// The measured columns, in the reports' order.
-    fn columns(&self) -> [f64; 13] {
-        [
-            self.samples as f64 / 1e9 / self.seconds,
-            self.cpu_per_gsample,
-            self.mb_per_gsample,
-            self.merged as f64 / self.seconds,
-            self.lease_p50_ms,
-            self.lease_p99_ms,
-            self.lease_max_ms,
-            self.probe_p50_ms,
-            self.probe_p99_ms,
-            self.cpu_share,
-            self.rss_mib,
-            self.peak_rss_mib,
-            self.bytes_per_unit,
-        ]
-    }
-}
-
-/// [`Run::columns`]' names, and the decimals the markdown table gives each.
-const COLUMNS: [(&str, &str, usize); 13] = [
-    ("gsamples_per_s", "Gsamples merged/s", 3),
-    ("cpu_s_per_gsample", "coordinator CPU-s per Gsample", 3),
-    ("mb_written_per_gsample", "MB written per Gsample", 1),
-    ("units_per_s", "units merged/s", 0),
-    ("lease_p50_ms", "lease p50 ms", 2),
-    ("lease_p99_ms", "lease p99 ms", 2),
-    ("lease_max_ms", "lease max ms", 2),
-    ("probe_p50_ms", "probe p50 ms", 2),
-    ("probe_p99_ms", "probe p99 ms", 2),
-    ("coordinator_cpu_share", "coordinator CPU (cores)", 2),
-    ("rss_mib", "RSS MiB", 1),
-    ("peak_rss_mib", "peak RSS MiB", 1),
-    ("bytes_written_per_unit", "bytes written per unit", 0),
-];
-
-fn to_csv(runs: &[Run]) -> String {
-    let mut s = String::from("workers,seconds,units_merged,units_refused,samples_merged");
-    for (name, _, _) in COLUMNS {
-        let _ = write!(s, ",{name}");
-    }
-    s.push('\n');
-    for r in runs {
-        let _ = write!(
-            s,
-            "{},{:.3},{},{},{}",
-            r.workers, r.seconds, r.merged, r.refused, r.samples
-        );
-        for v in r.columns() {
-            let _ = write!(s, ",{v:.3}");
-        }
-        s.push('\n');
-    }
-    s
-}
-
-fn report(runs: &[Run], command: &str, machine: &str, plan: &Plan) -> String {
-    let mut md = String::from("# Many workers against one coordinator, full-size units\n\n");
-    let _ = writeln!(md, "Made by `{command}`.\n");
-    let _ = writeln!(md, "Machine: {machine}.\n");
-    let cores = if plan.split_cores {
-        "The coordinator ran on CPU 0 alone, the simulated workers on the others \
-         (`--split-cores`)."
-    } else {
-        "Both processes shared the machine's cores."
-    };
-    let pace = if plan.rate > 0.0 {
-        format!(
-            "The workers were paced to {} Msamples/s together.",
-            plan.rate
-        )
-    } else {
-        "The workers were not paced: each sent its next result as soon as the last was \
-         answered, so the rate is the most the coordinator took."
-            .to_string()
-    };
-    let flags = if plan.coordinator_args.is_empty() {
-        "its default flags".to_string()
-    } else {
-        format!("`{}`", plan.coordinator_args.join(" "))
-    };
-    let _ = writeln!(
-        md,
-        "A `tessera coordinator` process on loopback, with its store on this machine's disk and \
-         {flags}; N simulated workers in one other process, each \
-         with its own connection and registration, leasing one unit at a time and submitting \
-         a full-size result for it: a {TILE}² tile × {batch} samples ({msamples:.1} Msamples, \
-         {kb:.0} KB of sums) of a {SIZE}² Cornell box, the sums of one real render of a tile \
-         at {TEMPLATE_SPP} spp scaled to the unit's samples. {pace} The coordinator's CPU \
-         time and bytes written come from `/proc/PID/stat` and `/proc/PID/io` over the \
-         measured window (a checkpoint that falls in it writes what was merged before it), \
-         its memory from `/proc/PID/status` at the window's end. Lease latency is a `Lease` \
-         call's round trip, for calls that returned a unit, as the N workers saw it (their own \
-         process's queueing included) and as one more worker, the probe, saw it from a thread \
-         of its own. {cores}\n",
-        batch = plan.settings.batch,
-        msamples = f64::from(TILE * TILE * plan.settings.batch) / 1e6,
-        kb = f64::from(TILE * TILE) * 52.0 / 1e3,
-    );
-    md.push_str("| workers |");
-    for (_, title, _) in COLUMNS {
-        let _ = write!(md, " {title} |");
-    }
-    md.push_str("\n|---:|");
-    md.push_str(&"---:|".repeat(COLUMNS.len()));
-    md.push('\n');
-    for r in runs {
-        let _ = write!(md, "| {} |", r.workers);
-        for (v, (_, _, decimals)) in r.columns().into_iter().zip(COLUMNS) {
-            let _ = write!(md, " {v:.decimals$} |");
-        }
-        md.push('\n');
-    }
-    let refused: u64 = runs.iter().map(|r| r.refused).sum();
-    let _ = writeln!(
-        md,
-        "\nResults not merged (duplicates or refusals) during the measured windows: {refused}."
-    );
-    md
 }

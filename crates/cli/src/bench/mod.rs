@@ -17,6 +17,7 @@
 mod adaptive;
 mod guided;
 pub mod load;
+mod load_guided;
 pub(crate) mod memory;
 mod peer;
 mod plot;

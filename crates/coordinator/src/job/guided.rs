@@ -162,11 +162,17 @@ impl Guiding {
                         t.records()
                     ));
                 }
-                let mut probe = self.train.as_deref().cloned().ok_or("no tree is training")?;
-                probe
-                    .add(t)
-                    .map(|_| ())
-                    .map_err(|e| format!("the training tree is not epoch {k}'s structure: {e}"))
+                let train = self.train.as_deref().ok_or("no tree is training")?;
+                if train.same_shape(t) {
+                    Ok(())
+                } else {
+                    Err(format!(
+                        "the training tree is not epoch {k}'s structure ({} spatial leaves, \
+                         {} expected, or their directional trees differ)",
+                        t.leaves(),
+                        train.leaves()
+                    ))
+                }
             }
         }
     }

@@ -190,6 +190,11 @@ impl SdTree {
             leaf: 0,
         });
         let mut dir_nodes = 0;
+        // The copy of the old structure takes as many nodes as it has, whenever its inner
+        // nodes come off the stack: a split may only take what is left after all of them, or
+        // splits made early leave the copy too little room (the fuzzer found a 4-leaf guide
+        // whose refinement had 16,385 leaves, which decode refuses).
+        let mut split_nodes = 0usize;
         let mut stack = vec![Pending {
             old: 0,
             new: 0,
@@ -224,8 +229,9 @@ impl SdTree {
             };
             if count > split_after
                 && depth < MAX_SPATIAL_DEPTH
-                && out.nodes.len() + 2 <= MAX_SPATIAL_NODES
+                && self.nodes.len() + split_nodes + 2 <= MAX_SPATIAL_NODES
             {
+                split_nodes += 2;
                 let child = self.add_inner(&mut out, new);
                 for c in child {
                     stack.push(Pending {
@@ -264,6 +270,14 @@ impl SdTree {
         [c, c + 1]
     }
 
+    /// Whether `other` has this tree's structure (spatial nodes, and each leaf's directional
+    /// tree), so that [`SdTree::add`] takes it.
+    pub fn same_shape(&self, other: &SdTree) -> bool {
+        self.nodes == other.nodes
+            && self.leaves.len() == other.leaves.len()
+            && (self.leaves.iter().zip(&other.leaves)).all(|(a, b)| a.dir.same_shape(&b.dir))
+    }
+
     /// Vertices recorded, over every leaf.
     pub fn records(&self) -> u64 {
         self.leaves.iter().fold(0u64, |a, l| a.saturating_add(l.count))
@@ -274,10 +288,7 @@ impl SdTree {
     /// change a bit.
     pub fn add(&mut self, other: &SdTree) -> Result<(), GuideError> {
         // Checked whole before anything is added, so a mismatch leaves this tree as it was.
-        let same = self.nodes == other.nodes
-            && self.leaves.len() == other.leaves.len()
-            && (self.leaves.iter().zip(&other.leaves)).all(|(a, b)| a.dir.same_shape(&b.dir));
-        if !same {
+        if !self.same_shape(other) {
             return Err(GuideError::Mismatch(self.nodes.len(), other.nodes.len()));
         }
         for (a, b) in self.leaves.iter_mut().zip(&other.leaves) {
@@ -515,6 +526,25 @@ mod tests {
             "{} bytes",
             next.memory_bytes()
         );
+        assert!(SdTree::decode(&next.encode()).is_ok());
+    }
+
+    /// Leaves that all claim huge counts, refined: the splits of the first leaves off the stack
+    /// must leave room for the copy of the others (the fuzzer's 4-leaf guide).
+    #[test]
+    fn the_refinement_of_many_forged_leaves_still_decodes() {
+        let mut g = SdTree::new(Vec3A::ZERO, Vec3A::ONE);
+        g.leaves[0].count = 10;
+        let mut g = g.refined(6, 0.01);
+        g.leaves[0].count = 10;
+        g.leaves[1].count = 10;
+        let mut g = g.refined(6, 0.01);
+        assert_eq!(g.leaves(), 4);
+        for l in &mut g.leaves {
+            l.count = u64::MAX;
+        }
+        let next = g.refined(1000, 0.01);
+        assert!(next.nodes.len() <= MAX_SPATIAL_NODES, "{}", next.nodes.len());
         assert!(SdTree::decode(&next.encode()).is_ok());
     }
 

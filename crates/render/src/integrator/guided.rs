@@ -80,6 +80,8 @@ struct Vertex {
     beta: Vec3A,
     /// What the path had gathered before its continuation.
     l: Vec3A,
+    /// The bounce it was at.
+    depth: u32,
 }
 
 /// A guided path in progress: the guide it samples from (none in the first epoch), the tree
@@ -89,6 +91,8 @@ pub struct GuidedPath<'a> {
     train: Option<&'a mut SdTree>,
     vertices: [Vertex; MAX_VERTICES],
     len: usize,
+    /// The bounce the path is at, as the tracer last said ([`GuidedPath::at_bounce`]).
+    depth: u32,
 }
 
 impl<'a> GuidedPath<'a> {
@@ -99,6 +103,7 @@ impl<'a> GuidedPath<'a> {
             train,
             vertices: [Vertex::default(); MAX_VERTICES],
             len: 0,
+            depth: 0,
         }
     }
 
@@ -126,15 +131,31 @@ impl<'a> GuidedPath<'a> {
         }
     }
 
-    /// Takes `light`, found by the last vertex's continuation and weighed against light
-    /// sampling, out of that vertex's record (but not out of the vertices' before it, for
-    /// which it is indirect light): next-event estimation finds it, and a guide that learned
+    /// Says which bounce the path is at, before a vertex there is recorded.
+    #[inline]
+    pub(super) fn at_bounce(&mut self, depth: u32) {
+        self.depth = depth;
+    }
+
+    /// Takes `light`, found at bounce `depth` by the last recorded vertex's continuation
+    /// (the vertex one bounce before) and weighed against light sampling, out of that vertex's
+    /// record (but not out of the vertices' before it, for which it is indirect light; nor
+    /// when an unrecorded glossy vertex lies between, whose direct light it is): next-event estimation finds it, and a guide that learned
     /// it would take directions from the light sampler and not give them to the light that
     /// needs them. Light found after a specular bounce (a caustic), which light sampling
     /// cannot find, stays in.
-    pub(super) fn found_direct(&mut self, strategy: Strategy, specular: bool, light: Vec3A) {
+    pub(super) fn found_direct(
+        &mut self,
+        strategy: Strategy,
+        specular: bool,
+        light: Vec3A,
+        depth: u32,
+    ) {
         if strategy == Strategy::Mis && !specular && self.len > 0 {
-            self.vertices[self.len - 1].l += light;
+            let last = &mut self.vertices[self.len - 1];
+            if last.depth + 1 == depth {
+                last.l += light;
+            }
         }
     }
 
@@ -210,6 +231,7 @@ pub(super) fn diffuse(
         pdf: pdf / cos,
         beta: path.beta,
         l: path.l,
+        depth: g.depth,
     });
     Some(Ray::new(p_out, wi))
 }

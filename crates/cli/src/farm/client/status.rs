@@ -95,6 +95,9 @@ fn print_job(v: &JobView) -> std::io::Result<()> {
             settings.spp
         );
     }
+    if settings.guiding {
+        outln!("  guiding    path guiding: epochs of doubling samples, each sampling the last's guide");
+    }
     outln!("  priority   {}", v.priority);
     if !v.submitter.is_empty() {
         outln!("  submitter  {}", printable(&v.submitter));
