@@ -59,7 +59,10 @@ async fn a_guided_job_gives_the_local_bits_across_a_restart_between_epochs() {
     assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
     let farm = fetch(&mut client, &job).await;
     let local = local_exr_with(&text, &settings, ExrChannels::default(), dir.path());
-    assert!(farm == local, "farm EXR differs from the local guided render");
+    assert!(
+        farm == local,
+        "farm EXR differs from the local guided render"
+    );
     for w in workers {
         w.abort();
     }
@@ -90,7 +93,9 @@ async fn forged_training_trees_are_refused_and_epochs_wait_for_their_guide() {
     // Epoch 0 is one batch of 4 tiles: all of it, and nothing of epoch 1.
     let units = lease_now(&mut hand, &id, 8).await.expect("lease");
     assert_eq!(units.len(), 4, "epoch 1 was leased before its guide");
-    assert!(units.iter().all(|u| u.sample_end == 1 && u.guide_sha256.is_empty()));
+    assert!(units
+        .iter()
+        .all(|u| u.sample_end == 1 && u.guide_sha256.is_empty()));
     let train0 = structure(bounds, 0, None);
     let honest = |u: &pb::WorkUnit| {
         let rect = PixelRect::from(u.rect.expect("rect"));
@@ -143,12 +148,18 @@ async fn forged_training_trees_are_refused_and_epochs_wait_for_their_guide() {
         assert!(e.message().contains(says), "{what}: {}", e.message());
     }
     for u in &units {
-        let ok = hand.submit_result(send(u, honest(u))).await.expect("honest");
+        let ok = hand
+            .submit_result(send(u, honest(u)))
+            .await
+            .expect("honest");
         assert_eq!(ok.into_inner().outcome, pb::ResultOutcome::Merged as i32);
     }
     // Epoch 1 is released, naming the guide epoch 0 trained; the coordinator serves it.
     let next = lease_now(&mut hand, &id, 1).await.expect("lease");
-    let hash = next.first().map(|u| u.guide_sha256.clone()).unwrap_or_default();
+    let hash = next
+        .first()
+        .map(|u| u.guide_sha256.clone())
+        .unwrap_or_default();
     assert_eq!(hash.len(), 64, "{next:?}");
     let mut stream = hand
         .fetch_asset(pb::FetchAssetRequest {
@@ -178,7 +189,10 @@ async fn forged_training_trees_are_refused_and_epochs_wait_for_their_guide() {
     assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
     let farm = fetch(&mut client, &job).await;
     let local = local_exr_with(&text, &settings, ExrChannels::default(), dir.path());
-    assert!(farm == local, "farm EXR differs from the local guided render");
+    assert!(
+        farm == local,
+        "farm EXR differs from the local guided render"
+    );
     w.abort();
     coord.stop().await;
 }

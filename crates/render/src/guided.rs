@@ -95,7 +95,10 @@ pub fn units(spp: u32, batch: u32) -> Vec<Range<u32>> {
     for e in epochs(spp) {
         let mut s = e.start;
         while s < e.end {
-            let end = (s / batch).saturating_add(1).saturating_mul(batch).min(e.end);
+            let end = (s / batch)
+                .saturating_add(1)
+                .saturating_mul(batch)
+                .min(e.end);
             out.push(s..end);
             s = end;
         }
@@ -166,10 +169,7 @@ pub fn render_frame_guided(
             guide_leaves: guide.as_ref().map_or(0, SdTree::leaves),
             guide_bytes: guide.as_ref().map_or(0, SdTree::memory_bytes),
         });
-        let mine: Vec<&Range<u32>> = cuts
-            .iter()
-            .filter(|r| samples.contains(&r.start))
-            .collect();
+        let mine: Vec<&Range<u32>> = cuts.iter().filter(|r| samples.contains(&r.start)).collect();
         acc.par_iter_mut().for_each(|acc| {
             // Range by range, as a farm merges its units: a pixel's bits depend on where its
             // sums were cut.
@@ -282,7 +282,20 @@ mod tests {
 
     #[test]
     fn units_cut_epochs_at_batches() {
-        assert_eq!(units(64, 16), vec![0..1, 1..3, 3..7, 7..15, 15..16, 16..31, 31..32, 32..48, 48..64]);
+        assert_eq!(
+            units(64, 16),
+            vec![
+                0..1,
+                1..3,
+                3..7,
+                7..15,
+                15..16,
+                16..31,
+                31..32,
+                32..48,
+                48..64
+            ]
+        );
         for (spp, batch) in [(1, 1), (7, 3), (100, 16), (257, 64), (40, 1000)] {
             let u = units(spp, batch);
             assert_eq!(u[0].start, 0);
@@ -292,7 +305,11 @@ mod tests {
             }
             for r in &u {
                 assert!(r.len() as u32 <= batch, "{r:?}");
-                assert_eq!((r.start / batch), (r.end - 1) / batch, "{r:?} crosses a batch");
+                assert_eq!(
+                    (r.start / batch),
+                    (r.end - 1) / batch,
+                    "{r:?} crosses a batch"
+                );
                 let k = epoch_of(spp, r.start);
                 assert_eq!(k, epoch_of(spp, r.end - 1), "{r:?} crosses an epoch");
             }

@@ -55,7 +55,11 @@ impl Ctx {
         if (k == 0) != hash.is_empty() {
             return Err(SceneError::Unrenderable(format!(
                 "a unit of epoch {k} came {}",
-                if k == 0 { "with a guide" } else { "without a guide" }
+                if k == 0 {
+                    "with a guide"
+                } else {
+                    "without a guide"
+                }
             )));
         }
         let key: Key = (unit.scene_hash.clone(), settings.frame, hash.clone(), k);

@@ -10,8 +10,8 @@ use std::time::Duration;
 
 use tessera_proto::convert::settings_from_wire;
 use tessera_proto::v1 as pb;
-use tessera_render::scene::Scene;
 use tessera_render::guided::render_tile_guided;
+use tessera_render::scene::Scene;
 use tessera_render::{render_tile, PixelRect, RenderSettings, TileSums};
 use tokio::sync::{mpsc, OwnedSemaphorePermit, Semaphore};
 use tracing::{debug, info, warn};

@@ -484,8 +484,7 @@ async fn run_one(workers: usize, plan: &Plan, guided: bool) -> Result<Run> {
         (plan.rate > 0.0)
             .then(|| Duration::from_secs_f64(workers as f64 * unit_samples / (plan.rate * 1e6))),
     );
-    shared.trains =
-        guided.then(|| super::load_guided::Trains::new(plan.bounds, plan.settings.spp));
+    shared.trains = guided.then(|| super::load_guided::Trains::new(plan.bounds, plan.settings.spp));
     let shared = Arc::new(shared);
     shared.go.store(false, Ordering::Relaxed);
     // The probe first: a coordinator saturated by the others could keep it from registering.
@@ -649,8 +648,16 @@ pub fn run(args: LoadArgs) -> Result<()> {
         f64::from(TILE * TILE) * 52.0 / 1e3
     );
     let mut runs = Vec::new();
-    let kinds: &[bool] = if args.guiding { &[false, true] } else { &[false] };
-    for (&n, &guided) in args.workers.iter().flat_map(|n| kinds.iter().map(move |g| (n, g))) {
+    let kinds: &[bool] = if args.guiding {
+        &[false, true]
+    } else {
+        &[false]
+    };
+    for (&n, &guided) in args
+        .workers
+        .iter()
+        .flat_map(|n| kinds.iter().map(move |g| (n, g)))
+    {
         let kind = if guided { " (guided job)" } else { "" };
         errln!("{n} simulated workers for {} s{kind} …", args.seconds);
         let r = runtime.block_on(run_one(n, &plan, guided))?;

@@ -227,9 +227,7 @@ impl Guiding {
         if !std::mem::take(&mut self.dirty) {
             return None;
         }
-        self.train
-            .clone()
-            .map(|t| (self.guides.len() as u32, t))
+        self.train.clone().map(|t| (self.guides.len() as u32, t))
     }
 
     /// Rebuilds the epochs after a restart: `hashes` are the guides the record lists, `stored`
@@ -301,7 +299,11 @@ mod tests {
         assert_eq!(g.released(), 2);
         let hash = g.guide_for(1).map(|x| x.hash.clone()).expect("a guide");
         assert!(g.by_hash(&hash).is_some());
-        assert_eq!(g.guide_for(1).map(|x| hex(&Sha256::digest(x.bytes.as_slice()))), Some(hash));
+        assert_eq!(
+            g.guide_for(1)
+                .map(|x| hex(&Sha256::digest(x.bytes.as_slice()))),
+            Some(hash)
+        );
         // The last epoch releases everything and trains nothing.
         for (b, e) in [(1, 2), (2, 4)] {
             g.advanced(9, b, e, 2);

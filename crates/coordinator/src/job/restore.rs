@@ -97,7 +97,13 @@ impl Job {
             // Guides an epoch finished before the stop are in the record already; one this
             // finishes is recorded with the first commit.
             if !g
-                .restore(job.rec.id, &hashes.unwrap_or_default(), loaded.guides, next, n_tiles)?
+                .restore(
+                    job.rec.id,
+                    &hashes.unwrap_or_default(),
+                    loaded.guides,
+                    next,
+                    n_tiles,
+                )?
                 .is_empty()
             {
                 job.note_guides();

@@ -410,11 +410,15 @@ impl Scheduler {
                 )))
             }
         }
-        let checked = job.check_result(unit, &sums).and_then(|()| match &job.guiding {
-            Some(g) => g.check(unit.batch, sums.rect.area() as u64, train.as_ref()),
-            None if train.is_some() => Err("the job is not guided, and the result has a training tree".into()),
-            None => Ok(()),
-        });
+        let checked = job
+            .check_result(unit, &sums)
+            .and_then(|()| match &job.guiding {
+                Some(g) => g.check(unit.batch, sums.rect.area() as u64, train.as_ref()),
+                None if train.is_some() => {
+                    Err("the job is not guided, and the result has a training tree".into())
+                }
+                None => Ok(()),
+            });
         if let Err(e) = checked {
             self.count_bad_result(w);
             return Err(Refusal::Invalid(format!(

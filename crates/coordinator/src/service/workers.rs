@@ -21,8 +21,8 @@ use crate::error::truncate;
 use crate::job::Unit;
 use crate::output::finish_job;
 use crate::scheduler::{Capabilities, Merged, Reported, UnitResult, MAX_LINES_PER_CALL};
-use crate::store::Op;
 use crate::shared::{durable, now_ms};
+use crate::store::Op;
 use tessera_proto::ids::BadId;
 use tessera_proto::tags::{check_tags, MAX_CPU_FEATURES, MAX_TAGS};
 
@@ -254,6 +254,12 @@ impl Workers for Service {
             .as_mut()
             .map(|r| std::mem::take(&mut r.guide_train))
             .filter(|b| !b.is_empty());
+        if train_bytes.is_some() {
+            // Only a registered worker's tree is worth the decoding.
+            self.shared
+                .scheduler()
+                .touch_worker(&cred, Instant::now())?;
+        }
         let mut train = match train_bytes {
             Some(b) => Some(
                 tokio::task::spawn_blocking(move || SdTree::decode(&b))

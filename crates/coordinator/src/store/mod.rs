@@ -362,8 +362,11 @@ impl Store {
                 for row in g.range((id, 0)..=(id, u32::MAX)).map_err(dberr)? {
                     let (k, v) = row.map_err(dberr)?;
                     let e = k.value().1;
-                    let bytes =
-                        unseal(|| format!("job {id} guide {e}"), &guide_key(id, e), v.value())?;
+                    let bytes = unseal(
+                        || format!("job {id} guide {e}"),
+                        &guide_key(id, e),
+                        v.value(),
+                    )?;
                     job.guides.push((e, bytes.to_vec()));
                 }
             }

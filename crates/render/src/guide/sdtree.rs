@@ -280,7 +280,9 @@ impl SdTree {
 
     /// Vertices recorded, over every leaf.
     pub fn records(&self) -> u64 {
-        self.leaves.iter().fold(0u64, |a, l| a.saturating_add(l.count))
+        self.leaves
+            .iter()
+            .fold(0u64, |a, l| a.saturating_add(l.count))
     }
 
     /// Adds `other`'s counts and energies to this tree's, leaf by leaf; the two must have
@@ -544,7 +546,11 @@ mod tests {
             l.count = u64::MAX;
         }
         let next = g.refined(1000, 0.01);
-        assert!(next.nodes.len() <= MAX_SPATIAL_NODES, "{}", next.nodes.len());
+        assert!(
+            next.nodes.len() <= MAX_SPATIAL_NODES,
+            "{}",
+            next.nodes.len()
+        );
         assert!(SdTree::decode(&next.encode()).is_ok());
     }
 

@@ -96,7 +96,9 @@ fn print_job(v: &JobView) -> std::io::Result<()> {
         );
     }
     if settings.guiding {
-        outln!("  guiding    path guiding: epochs of doubling samples, each sampling the last's guide");
+        outln!(
+            "  guiding    path guiding: epochs of doubling samples, each sampling the last's guide"
+        );
     }
     outln!("  priority   {}", v.priority);
     if !v.submitter.is_empty() {
