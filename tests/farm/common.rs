@@ -141,8 +141,18 @@ pub fn worker(url: &str, name: &str) -> tokio::task::JoinHandle<()> {
 }
 
 pub fn worker_with(url: &str, name: &str, client: ClientOptions) -> tokio::task::JoinHandle<()> {
+    worker_of(url, name, 1, client)
+}
+
+/// An in-process worker of `threads` render threads.
+pub fn worker_of(
+    url: &str,
+    name: &str,
+    threads: usize,
+    client: ClientOptions,
+) -> tokio::task::JoinHandle<()> {
     let mut config = tessera_worker::Config::new(url);
-    config.threads = Some(1);
+    config.threads = Some(threads);
     config.name = name.into();
     config.client = client;
     tokio::spawn(async move {

@@ -16,16 +16,22 @@ fn guided() -> RenderSettings {
     }
 }
 
-/// A worker of `threads` render threads.
-fn worker_of(url: &str, name: &str, threads: usize) -> tokio::task::JoinHandle<()> {
-    let mut config = tessera_worker::Config::new(url);
-    config.threads = Some(threads);
-    config.name = name.into();
-    tokio::spawn(async move {
-        tessera_worker::run(config, std::future::pending())
-            .await
-            .expect("worker");
-    })
+/// Waits for `job` to finish and checks its EXR against `render --guiding`'s.
+async fn assert_local_bits(
+    client: &mut Client,
+    job: &str,
+    text: &str,
+    settings: &RenderSettings,
+    dir: &Path,
+) {
+    let status = wait(client, job).await;
+    assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
+    let farm = fetch(client, job).await;
+    let local = local_exr_with(text, settings, ExrChannels::default(), dir);
+    assert!(
+        farm == local,
+        "farm EXR differs from the local guided render"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
@@ -43,8 +49,8 @@ async fn a_guided_job_gives_the_local_bits_across_a_restart_between_epochs() {
     assert_eq!(status.units_total, 16 * 12);
     assert!(status.settings.as_ref().is_some_and(|s| s.guiding));
     let workers = vec![
-        worker_of(&coord.url(), "one-thread", 1),
-        worker_of(&coord.url(), "two-threads", 2),
+        worker_of(&coord.url(), "one-thread", 1, ClientOptions::default()),
+        worker_of(&coord.url(), "two-threads", 2, ClientOptions::default()),
     ];
     // Through epoch 2 (batches 0..4 of every tile: three guides trained and stored) and into
     // epoch 3, whose training tree as merged so far the restart must resume from.
@@ -55,14 +61,7 @@ async fn a_guided_job_gives_the_local_bits_across_a_restart_between_epochs() {
     coord.stop().await;
     let coord = Coordinator::restart_at(addr, &data, Duration::from_secs(30)).await;
     let mut client = coord.client().await;
-    let status = wait(&mut client, &job).await;
-    assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
-    let farm = fetch(&mut client, &job).await;
-    let local = local_exr_with(&text, &settings, ExrChannels::default(), dir.path());
-    assert!(
-        farm == local,
-        "farm EXR differs from the local guided render"
-    );
+    assert_local_bits(&mut client, &job, &text, &settings, dir.path()).await;
     for w in workers {
         w.abort();
     }
@@ -70,8 +69,8 @@ async fn a_guided_job_gives_the_local_bits_across_a_restart_between_epochs() {
 }
 
 /// A hand-driven worker sends epoch-0 results without a training tree, with one of another
-/// structure, with one counting more vertices than the unit has paths for, and an unguided
-/// job's result with one: each is refused. Its honest results are merged, no unit of epoch 1 is
+/// structure, with one counting more vertices than the unit has paths for, and with bytes that
+/// are no tree: each is refused. Its honest results are merged, no unit of epoch 1 is
 /// leased before epoch 0 is all in, epoch 1's units name the guide, which FetchAsset serves,
 /// and the image is the local one.
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
@@ -185,14 +184,7 @@ async fn forged_training_trees_are_refused_and_epochs_wait_for_their_guide() {
     .await
     .expect("release");
     let w = worker(&url, "w");
-    let status = wait(&mut client, &job).await;
-    assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
-    let farm = fetch(&mut client, &job).await;
-    let local = local_exr_with(&text, &settings, ExrChannels::default(), dir.path());
-    assert!(
-        farm == local,
-        "farm EXR differs from the local guided render"
-    );
+    assert_local_bits(&mut client, &job, &text, &settings, dir.path()).await;
     w.abort();
     coord.stop().await;
 }

@@ -210,7 +210,6 @@ fn trace<'a, G: Guiding<'a>>(
                         scene, strategy, &mut path, albedo, &sp, &at, bsdf_u, light_u,
                     ),
                     Some(g) => {
-                        g.at_bounce(depth);
                         let mut updated = path;
                         let next = guided::diffuse(
                             scene,
@@ -221,7 +220,7 @@ fn trace<'a, G: Guiding<'a>>(
                             &at,
                             (bsdf_u, u_choice),
                             light_u,
-                            g,
+                            (g, depth),
                         );
                         path = updated;
                         next
@@ -556,9 +555,9 @@ fn diffuse(
 
 /// Next-event estimation at a diffuse vertex: a point on a light, its shadow ray from
 /// `p_out`, and (under MIS) the power heuristic against BSDF sampling, whose density
-/// `bsdf_pdf` gives for a direction and its cosine (the cosine lobe's, or a guided mixture's). Returns the light's
-/// radiance and the factor cos·w/(π·pdf) the path's throughput and albedo scale it by, or
-/// `None` when the light adds nothing.
+/// `bsdf_pdf` gives for a direction and its cosine (the cosine lobe's, or a guided
+/// mixture's). Returns the light's radiance and the factor cos·w/(π·pdf) the path's
+/// throughput and albedo scale it by, or `None` when the light adds nothing.
 #[inline(always)]
 fn direct_light(
     scene: &Scene,

@@ -68,35 +68,66 @@ pub(crate) type SceneKey = (String, Option<u32>);
 /// Built scenes a worker keeps (one per scene and frame).
 const MAX_CACHED_SCENES: usize = 4;
 
+/// A few values a worker keeps by key, the least recently used going first when one more
+/// comes: scene texts, guides.
+pub(crate) struct Recent<K, V> {
+    max: usize,
+    /// The most recently used last.
+    kept: Vec<(K, V)>,
+}
+
+impl<K: PartialEq, V: Clone> Recent<K, V> {
+    /// Keeps at most `max`.
+    pub(crate) fn new(max: usize) -> Self {
+        Self {
+            max,
+            kept: Vec::new(),
+        }
+    }
+
+    /// The value of `key`, now the most recently used.
+    pub(crate) fn get<Q: PartialEq + ?Sized>(&mut self, key: &Q) -> Option<V>
+    where
+        K: std::borrow::Borrow<Q>,
+    {
+        let i = self.kept.iter().position(|(k, _)| k.borrow() == key)?;
+        let entry = self.kept.remove(i);
+        let v = entry.1.clone();
+        self.kept.push(entry);
+        Some(v)
+    }
+
+    /// Keeps `v` under `key` (replacing what it held), dropping the least recently used if
+    /// full.
+    pub(crate) fn put(&mut self, key: K, v: V) {
+        self.forget(&key);
+        if self.kept.len() >= self.max {
+            self.kept.remove(0);
+        }
+        self.kept.push((key, v));
+    }
+
+    /// Drops `key`'s value.
+    pub(crate) fn forget<Q: PartialEq + ?Sized>(&mut self, key: &Q)
+    where
+        K: std::borrow::Borrow<Q>,
+    {
+        self.kept.retain(|(k, _)| k.borrow() != key);
+    }
+
+    #[cfg(test)]
+    fn len(&self) -> usize {
+        self.kept.len()
+    }
+}
+
 /// Scene texts a worker keeps for the frames it has not built yet: a frame-range job's frames
 /// share one text (up to the coordinator's scene limit, 32 MiB), which is fetched once rather
 /// than once a frame.
-#[derive(Default)]
-pub(crate) struct Texts {
-    /// By hash, the most recently used last.
-    kept: Vec<(String, Arc<pb::GetSceneResponse>)>,
-}
+pub(crate) type Texts = Recent<String, Arc<pb::GetSceneResponse>>;
 
-impl Texts {
-    /// Texts kept at most.
-    const MAX: usize = 2;
-
-    fn get(&mut self, hash: &str) -> Option<Arc<pb::GetSceneResponse>> {
-        let i = self.kept.iter().position(|(h, _)| h == hash)?;
-        let entry = self.kept.remove(i);
-        let text = entry.1.clone();
-        self.kept.push(entry);
-        Some(text)
-    }
-
-    fn put(&mut self, hash: &str, text: Arc<pb::GetSceneResponse>) {
-        self.kept.retain(|(h, _)| h != hash);
-        if self.kept.len() >= Self::MAX {
-            self.kept.remove(0);
-        }
-        self.kept.push((hash.to_string(), text));
-    }
-}
+/// Texts kept at most (two animations at once).
+pub(crate) const MAX_TEXTS: usize = 2;
 
 impl Ctx {
     /// The scene of a unit at its frame, fetched and built once per hash and frame. A scene
@@ -147,7 +178,7 @@ impl Ctx {
             None => {
                 let text = Arc::new(self.fetch_text(hash).await?);
                 if frame.is_some() {
-                    lock(&self.texts).put(hash, text.clone());
+                    lock(&self.texts).put(hash.to_string(), text.clone());
                 }
                 text
             }
@@ -176,7 +207,7 @@ impl Ctx {
         .map_err(|e| SceneError::Unavailable(e.to_string()))?
         .map_err(|e| SceneError::Unrenderable(e.to_string()))?;
         if scene.hash != hash {
-            lock(&self.texts).kept.retain(|(h, _)| h != hash);
+            lock(&self.texts).forget(hash);
             return Err(SceneError::Unavailable(format!(
                 "scene {hash} arrived with hash {}",
                 scene.hash
@@ -342,18 +373,18 @@ mod tests {
                 ..Default::default()
             })
         };
-        let mut t = Texts::default();
-        t.put("a", text("a"));
-        t.put("b", text("b"));
+        let mut t = Texts::new(MAX_TEXTS);
+        t.put("a".into(), text("a"));
+        t.put("b".into(), text("b"));
         // Using a keeps it: the next text pushes b out, not a.
         assert_eq!(t.get("a").expect("a").scene_name, "a");
-        t.put("c", text("c"));
+        t.put("c".into(), text("c"));
         assert!(t.get("b").is_none());
         assert_eq!(t.get("a").expect("a").scene_name, "a");
         assert_eq!(t.get("c").expect("c").scene_name, "c");
         // Put again, a text is not kept twice.
-        t.put("c", text("c2"));
-        assert_eq!(t.kept.len(), 2);
+        t.put("c".into(), text("c2"));
+        assert_eq!(t.len(), 2);
         assert_eq!(t.get("c").expect("c").scene_name, "c2");
     }
 }

@@ -10,7 +10,7 @@ use tessera_render::guided::{epoch_of, epochs, guide_bounds, structure};
 use tessera_render::scene::Scene;
 use tessera_render::RenderSettings;
 
-use crate::cache::SceneError;
+use crate::cache::{Recent, SceneError};
 use crate::{lock, Ctx};
 
 /// A guided unit's guide and training structure.
@@ -28,9 +28,8 @@ type Key = (String, Option<u32>, String, usize);
 /// couple of guided jobs at once.
 pub(crate) const MAX_KEPT: usize = 4;
 
-/// The guides a worker has built, the most recently used last.
-#[derive(Default)]
-pub(crate) struct Kept(Vec<(Key, Arc<Guided>)>);
+/// The guides a worker has built.
+pub(crate) type Kept = Recent<Key, Arc<Guided>>;
 
 impl Ctx {
     /// What guided unit `unit` of `scene` renders with. A unit whose guide does not match its
@@ -63,14 +62,8 @@ impl Ctx {
             )));
         }
         let key: Key = (unit.scene_hash.clone(), settings.frame, hash.clone(), k);
-        {
-            let mut kept = lock(&self.guides);
-            if let Some(i) = kept.0.iter().position(|(x, _)| *x == key) {
-                let entry = kept.0.remove(i);
-                let g = entry.1.clone();
-                kept.0.push(entry);
-                return Ok(g);
-            }
+        if let Some(g) = lock(&self.guides).get(&key) {
+            return Ok(g);
         }
         let bytes = if hash.is_empty() {
             None
@@ -91,11 +84,7 @@ impl Ctx {
         .map_err(|e| SceneError::Unavailable(e.to_string()))?
         .map_err(SceneError::Unrenderable)?;
         let g = Arc::new(built);
-        let mut kept = lock(&self.guides);
-        if kept.0.len() >= MAX_KEPT {
-            kept.0.remove(0);
-        }
-        kept.0.push((key, g.clone()));
+        lock(&self.guides).put(key, g.clone());
         Ok(g)
     }
 }

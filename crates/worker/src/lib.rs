@@ -48,7 +48,7 @@ use tonic::{Code, Status};
 use tracing::{debug, info, warn};
 
 pub use cache::evict;
-use cache::{SceneKey, Texts};
+use cache::{SceneKey, Texts, MAX_TEXTS};
 pub use config::{Config, WorkerError, DEFAULT_CACHE_BYTES};
 pub use pipeline::{backoff_delay, MAX_HELD_UNITS};
 use pipeline::{Pipeline, Task};
@@ -311,8 +311,8 @@ pub async fn run(
         revoked: Mutex::new(HashSet::new()),
         scenes: Mutex::new(HashMap::new()),
         refused_scenes: Mutex::new(HashMap::new()),
-        guides: Mutex::new(guides::Kept::default()),
-        texts: Mutex::new(Texts::default()),
+        guides: Mutex::new(guides::Kept::new(guides::MAX_KEPT)),
+        texts: Mutex::new(Texts::new(MAX_TEXTS)),
         registering: tokio::sync::Mutex::new(()),
         stop,
         refused: Mutex::new(None),

@@ -35,17 +35,14 @@ pub struct Guide {
     pub hash: String,
     /// Its encoding ([`SdTree::encode`]).
     pub bytes: Arc<Vec<u8>>,
-    /// The tree, which the next epoch's structure is refined from.
-    pub tree: SdTree,
 }
 
 impl Guide {
-    fn of(tree: SdTree) -> Self {
+    fn of(tree: &SdTree) -> Self {
         let bytes = tree.encode();
         Self {
             hash: hex(&Sha256::digest(&bytes)),
             bytes: Arc::new(bytes),
-            tree,
         }
     }
 }
@@ -209,17 +206,22 @@ impl Guiding {
             let mut tree = Arc::unwrap_or_clone(t);
             tree.freeze();
             let k = self.guides.len();
-            let guide = Guide::of(tree);
+            let guide = Guide::of(&tree);
             ops.push(Op::PutGuide(id, k as u32, guide.bytes.to_vec()));
-            let next = k + 1;
-            self.train = (next + 1 < self.ends.len())
-                .then(|| Arc::new(structure(self.bounds, next, Some(&guide.tree))));
             self.guides.push(guide);
+            self.train = self.next_train(&tree);
             self.dirty = false;
             // No unit of the new epoch was leased before its guide existed.
             self.through = 0;
         }
         ops
+    }
+
+    /// The structure the epoch after the guides so far records into, given the last guide
+    /// (`guide`); none when that epoch is the last.
+    fn next_train(&self, guide: &SdTree) -> Option<Arc<SdTree>> {
+        let k = self.guides.len();
+        (k + 1 < self.ends.len()).then(|| Arc::new(structure(self.bounds, k, Some(guide))))
     }
 
     /// The training tree to write, if it changed since the last checkpoint: (epoch, tree).
@@ -250,15 +252,16 @@ impl Guiding {
             if &got != hash {
                 return Err(format!("guide {k} is {got}, the record says {hash}"));
             }
-            let tree = SdTree::decode(&bytes).map_err(|e| format!("guide {k}: {e}"))?;
-            let next_k = k + 1;
-            self.train = (next_k + 1 < self.ends.len())
-                .then(|| Arc::new(structure(self.bounds, next_k, Some(&tree))));
             self.guides.push(Guide {
                 hash: hash.clone(),
                 bytes: Arc::new(bytes),
-                tree,
             });
+        }
+        // Only the last guide's refinement is the structure the current epoch trains.
+        if let Some(last) = self.guides.last() {
+            let tree = SdTree::decode(&last.bytes)
+                .map_err(|e| format!("guide {}: {e}", self.guides.len() - 1))?;
+            self.train = self.next_train(&tree);
         }
         let k = self.guides.len();
         if let Some(bytes) = stored.remove(&(k as u32)) {

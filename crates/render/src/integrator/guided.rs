@@ -21,8 +21,9 @@
 //! radiance times the cosine at the vertex over the direction's density, L_i·cos/p: its
 //! expectation over the sampled directions in a region of the sphere is the integral of
 //! L_i·cos there, so the guide learns the product a diffuse vertex would ideally sample
-//! (Müller's L_i/p learns L_i alone; L_i·cos measured less error, docs/renderer.md). Direct light found by next-event estimation is not recorded: light
-//! sampling already finds it, and guiding is for the light it cannot find.
+//! (Müller's L_i/p learns L_i alone; L_i·cos measured less error, docs/renderer.md). Direct
+//! light found by next-event estimation is not recorded: light sampling already finds it, and
+//! guiding is for the light it cannot find.
 
 use glam::{Vec2, Vec3A};
 
@@ -91,8 +92,6 @@ pub struct GuidedPath<'a> {
     train: Option<&'a mut SdTree>,
     vertices: [Vertex; MAX_VERTICES],
     len: usize,
-    /// The bounce the path is at, as the tracer last said ([`GuidedPath::at_bounce`]).
-    depth: u32,
 }
 
 impl<'a> GuidedPath<'a> {
@@ -103,7 +102,6 @@ impl<'a> GuidedPath<'a> {
             train,
             vertices: [Vertex::default(); MAX_VERTICES],
             len: 0,
-            depth: 0,
         }
     }
 
@@ -131,19 +129,13 @@ impl<'a> GuidedPath<'a> {
         }
     }
 
-    /// Says which bounce the path is at, before a vertex there is recorded.
-    #[inline]
-    pub(super) fn at_bounce(&mut self, depth: u32) {
-        self.depth = depth;
-    }
-
     /// Takes `light`, found at bounce `depth` by the last recorded vertex's continuation
-    /// (the vertex one bounce before) and weighed against light sampling, out of that vertex's
-    /// record (but not out of the vertices' before it, for which it is indirect light; nor
-    /// when an unrecorded glossy vertex lies between, whose direct light it is): next-event estimation finds it, and a guide that learned
-    /// it would take directions from the light sampler and not give them to the light that
-    /// needs them. Light found after a specular bounce (a caustic), which light sampling
-    /// cannot find, stays in.
+    /// (the vertex one bounce before) and weighed against light sampling, out of that
+    /// vertex's record (but not out of the vertices' before it, for which it is indirect
+    /// light; nor when an unrecorded glossy vertex lies between, whose direct light it is):
+    /// next-event estimation finds it, and a guide that learned it would take directions from
+    /// the light sampler and not give them to the light that needs them. Light found after a
+    /// specular bounce (a caustic), which light sampling cannot find, stays in.
     pub(super) fn found_direct(
         &mut self,
         strategy: Strategy,
@@ -182,7 +174,7 @@ pub(super) fn diffuse(
     at: &Shading,
     (bsdf_u, u_pick): (Vec2, f32),
     light_u: Option<(f32, Vec2)>,
-    g: &mut GuidedPath<'_>,
+    (g, depth): (&mut GuidedPath<'_>, u32),
 ) -> Option<Ray> {
     let p_out = offset_ray_origin(sp.p, sp.err, at.n);
     let guide = g.at(sp.p);
@@ -231,7 +223,7 @@ pub(super) fn diffuse(
         pdf: pdf / cos,
         beta: path.beta,
         l: path.l,
-        depth: g.depth,
+        depth,
     });
     Some(Ray::new(p_out, wi))
 }
