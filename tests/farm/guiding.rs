@@ -42,6 +42,12 @@ async fn a_guided_job_gives_the_local_bits_across_a_restart_between_epochs() {
     let addr = coord.addr;
     let text = scene_text(64);
     let settings = guided();
+    // This scene's guide does not pay, so guiding turns off from epoch 3: the bits compared
+    // cover guided epochs and the unguided ones workers render after.
+    let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
+    let frame = tessera_render::guided::render_frame_guided(&scene, &settings, &|_| {});
+    let guided_epochs: Vec<bool> = frame.epochs.iter().map(|e| e.guided).collect();
+    assert_eq!(guided_epochs, [false, true, true, false, false]);
     let mut client = coord.client().await;
     let job = submit_job(&mut client, submit_request_with(&text, &settings)).await;
     let status = job_status(&mut client, &job).await;

@@ -151,14 +151,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
             return render_frame(&scene, &settings, &progress);
         }
         let frame = render_frame_guided(&scene, &settings, &progress);
-        if let Some(last) = frame.epochs.last() {
-            guide_note = format!(
-                ", {} guided epochs (last guide: {} leaves, {:.1} MB)",
-                frame.epochs.len(),
-                last.guide_leaves,
-                last.guide_bytes as f64 / 1e6
-            );
-        }
+        guide_note = guide_note_of(&frame.epochs);
         frame.sums
     });
     let secs = start.elapsed().as_secs_f64();
@@ -212,4 +205,26 @@ pub fn run(args: RenderArgs) -> Result<()> {
         errln!("warning: {line}");
     }
     Ok(())
+}
+
+/// What a guided render's summary line says of its epochs: how many, the largest guide any
+/// sampled, and where guiding turned itself off (the guide did not pay), if it did.
+fn guide_note_of(epochs: &[tessera_render::guided::Epoch]) -> String {
+    let sampled = epochs.iter().filter(|e| e.guided);
+    let largest = sampled.max_by_key(|e| e.guide_bytes);
+    let mut note = format!(", {} guided epochs", epochs.len());
+    if let Some(e) = largest {
+        note += &format!(
+            " (largest guide sampled: {} leaves, {:.1} MB)",
+            e.guide_leaves,
+            e.guide_bytes as f64 / 1e6
+        );
+    }
+    if let Some(off) = epochs.iter().skip(1).find(|e| !e.guided) {
+        note += &format!(
+            ", guiding off from sample {} (the guide did not pay for itself)",
+            off.samples.start
+        );
+    }
+    note
 }

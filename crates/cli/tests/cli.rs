@@ -681,7 +681,7 @@ fn guided_renders_say_so_and_are_the_same_bytes_on_any_threads() {
         assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
         let stdout = String::from_utf8_lossy(&r.stdout);
         assert!(
-            stdout.contains("at 8 spp, 3 guided epochs (last guide: "),
+            stdout.contains("at 8 spp, 3 guided epochs (largest guide sampled: "),
             "{stdout}"
         );
         let meta = read_exr_metadata(&out).expect("metadata");

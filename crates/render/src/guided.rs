@@ -7,6 +7,16 @@
 //! 0 samples no guide, and the last trains none. The structure each epoch trains is the last
 //! guide's refinement ([`crate::guide::SdTree::refined`]), a pure function of its sums.
 //!
+//! Turning itself off. From epoch [`FIRST_OFF_EPOCH`] on, a guide that would not pay for
+//! itself is not sampled ([`guides`]): one none of whose leaves samples it (each chose α = 0),
+//! or whose chosen mixtures measured more than [`OFF_ABOVE`] of the cosine lobe's second
+//! moment. Its epoch renders unguided (the many-path tracer where it applies) and records
+//! nothing, so the next guide has learned nothing and guiding stays off to the end. A guided
+//! sample costs two to three unguided ones (docs/renderer.md), so a guide that cuts the
+//! second moment by less than half loses at equal time; the first epochs are never off,
+//! because their guides are too crude to judge by (a first guide's leaves choose α = 0 on
+//! every scene measured, and better guides follow).
+//!
 //! The image is the plain mean of every sample of every epoch. Each sample is unbiased
 //! whatever guide it drew from (see [`crate::integrator`]'s guided vertex), so the mean is
 //! too; weights computed from the epochs' own variances (Müller et al.'s later
@@ -31,7 +41,7 @@ use crate::film::{assemble_render, PixelRect, TileSums};
 use crate::guide::SdTree;
 use crate::integrator::{sample_pixel_with, GuidedPath, RenderSettings};
 use crate::scene::Scene;
-use crate::tile::{aov_sums, scalar_row};
+use crate::tile::{aov_sums, render_tile, scalar_row};
 use crate::util::math::Aabb;
 use glam::Vec3A;
 
@@ -41,6 +51,22 @@ pub const SPLIT_C: f64 = 12_000.0;
 
 /// The share of a directional tree's energy a quadrant needs to be refined (Müller's ρ).
 pub const RHO: f64 = 0.01;
+
+/// The first epoch that may render unguided, if the guide it would sample does not pay
+/// ([`guides`]): epochs 0–2 are 7 samples, a cost a render of hundreds hardly sees.
+pub const FIRST_OFF_EPOCH: usize = 3;
+
+/// The most of the cosine lobe's second moment a guide's chosen mixtures may measure
+/// ([`SdTree::second_moment_ratio`]) and still be sampled from [`FIRST_OFF_EPOCH`] on.
+pub const OFF_ABOVE: f64 = 0.5;
+
+/// Whether epoch `k` samples `guide` (the one epoch k − 1 trained), or renders unguided and
+/// records nothing: a pure function of the guide and `k`, so a farm's workers and a local
+/// render decide alike.
+pub fn guides(k: usize, guide: Option<&SdTree>) -> bool {
+    let Some(g) = guide else { return false };
+    k < FIRST_OFF_EPOCH || (g.guides() && g.second_moment_ratio().is_none_or(|r| r <= OFF_ABOVE))
+}
 
 /// The tile edge the guided renderer renders by (it cannot change a bit: pixels are
 /// independent, and guides' sums do not depend on order).
@@ -55,6 +81,9 @@ pub struct Epoch {
     pub guide_leaves: usize,
     /// Bytes that guide held.
     pub guide_bytes: usize,
+    /// Whether it sampled that guide ([`guides`]); false for epoch 0, and for the epochs
+    /// after guiding turned itself off.
+    pub guided: bool,
 }
 
 /// A guided render: the frame's sums and its epochs.
@@ -163,24 +192,37 @@ pub fn render_frame_guided(
     for (k, samples) in ranges.iter().enumerate() {
         let trains = k + 1 < ranges.len();
         let training = trains.then(|| structure(bounds, k, guide.as_ref()));
-        let pool = copies(training.as_ref());
+        let guided = guides(k, guide.as_ref());
+        // Epoch 0 samples no guide but trains the first; an epoch after guiding turned off
+        // records nothing.
+        let records = guided || k == 0;
+        let pool = copies(training.as_ref().filter(|_| records));
         report.push(Epoch {
             samples: samples.clone(),
             guide_leaves: guide.as_ref().map_or(0, SdTree::leaves),
             guide_bytes: guide.as_ref().map_or(0, SdTree::memory_bytes),
+            guided,
         });
         let mine: Vec<&Range<u32>> = cuts.iter().filter(|r| samples.contains(&r.start)).collect();
         acc.par_iter_mut().for_each(|acc| {
             // Range by range, as a farm merges its units: a pixel's bits depend on where its
             // sums were cut.
             for r in &mine {
-                let part = guided_tile(scene, settings, acc.rect, r, guide.as_ref(), &pool);
+                let part = if records {
+                    guided_tile(scene, settings, acc.rect, r, guide.as_ref(), &pool)
+                } else {
+                    render_tile(scene, settings, acc.rect, (*r).clone())
+                };
                 acc.merge(&part)
                     .expect("same rectangle, contiguous samples");
                 progress(acc.rect.area() as u64 * r.len() as u64);
             }
         });
-        if let Some(next) = summed(pool) {
+        if let Some(next) = if records {
+            summed(pool)
+        } else {
+            training.map(frozen)
+        } {
             guide = Some(next);
         }
     }
@@ -195,8 +237,10 @@ pub fn render_frame_guided(
 
 /// Renders `rect` for sample indices `samples`, sampling directions from `guide` (none: the
 /// first epoch) and training a copy of `train` (none: the last epoch), which it returns
-/// frozen: what a farm's unit of a guided job is. Parallel over rows; the same bits on any
-/// number of threads.
+/// frozen: what a farm's unit of a guided job is. An epoch whose guide does not pay
+/// ([`guides`]; its index follows from `samples` and `settings.spp`) renders unguided and
+/// returns `train` with nothing recorded. Parallel over rows; the same bits on any number of
+/// threads.
 pub fn render_tile_guided(
     scene: &Scene,
     settings: &RenderSettings,
@@ -205,6 +249,11 @@ pub fn render_tile_guided(
     guide: Option<&SdTree>,
     train: Option<&SdTree>,
 ) -> (TileSums, Option<SdTree>) {
+    let k = epoch_of(settings.spp, samples.start).unwrap_or(0);
+    if k > 0 && !guides(k, guide) {
+        let sums = render_tile(scene, settings, rect, samples);
+        return (sums, train.cloned().map(frozen));
+    }
     let pool = copies(train);
     let sums = guided_tile(scene, settings, rect, &samples, guide, &pool);
     (sums, summed(pool))
@@ -221,6 +270,11 @@ fn copies(structure: Option<&SdTree>) -> Vec<Mutex<SdTree>> {
         .unwrap_or_default()
 }
 
+fn frozen(mut tree: SdTree) -> SdTree {
+    tree.freeze();
+    tree
+}
+
 /// The threads' trees added up (in any order: their sums are integers), frozen.
 fn summed(pool: Vec<Mutex<SdTree>>) -> Option<SdTree> {
     let mut trees = pool
@@ -230,8 +284,7 @@ fn summed(pool: Vec<Mutex<SdTree>>) -> Option<SdTree> {
     for t in trees {
         sum.add(&t).expect("copies of one structure");
     }
-    sum.freeze();
-    Some(sum)
+    Some(frozen(sum))
 }
 
 /// Renders `rect` for `samples`, sampling `guide` and recording into the calling thread's

@@ -26,7 +26,7 @@ use crate::util::sampling::{cosine_hemisphere_pdf, power_heuristic, PixelSampler
 
 mod guided;
 mod lobes;
-pub use guided::{GuidedPath, Guiding, NoGuide, ALPHA, MAX_VERTICES};
+pub use guided::{GuidedPath, Guiding, NoGuide, MAX_VERTICES};
 pub(crate) use lobes::pbr_at;
 use lobes::{conductor, pbr, plastic};
 

@@ -81,5 +81,8 @@ pub use util::{files, lanes, math, sampling};
 /// scene to this number, so a change that moves bits without bumping it fails there. The pin
 /// renders without guiding; guided renders' bits changed too in revision 5 (their units merged
 /// by epoch ranges, and what their guides learn), which the pin does not see, and a worker of
-/// an older revision would render a guided job's units without its guide.
-pub const IMAGE_REVISION: u32 = 5;
+/// an older revision would render a guided job's units without its guide. Revision 6 changed
+/// them again (each leaf of a guide learns its own selection probability, and guiding turns
+/// itself off where the guide does not pay); the pin now hashes a guided render too, so guided
+/// bits cannot change unseen either.
+pub const IMAGE_REVISION: u32 = 6;

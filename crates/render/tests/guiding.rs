@@ -1,13 +1,16 @@
 //! Path guiding (issue #60) is unbiased and deterministic: guided renders agree with unguided
 //! ones within their noise on the hard cases guiding is for and on a furnace, a guide trained
-//! on garbage changes the noise and not the mean, and the same guided render gives the same
-//! bits on any number of threads.
+//! on garbage changes the noise and not the mean at any selection probability a leaf may
+//! choose, an epoch whose guide does not pay renders the unguided bits, and the same guided
+//! render gives the same bits on any number of threads.
 
 mod common;
 
 use glam::{Vec2, Vec3A};
-use tessera_render::guide::{from_square, SdTree};
-use tessera_render::guided::{render_frame_guided, render_tile_guided};
+use tessera_render::guide::{from_square, SdTree, ALPHAS, DEFAULT_ALPHA};
+use tessera_render::guided::{
+    guides, render_frame_guided, render_tile_guided, FIRST_OFF_EPOCH, OFF_ABOVE,
+};
 use tessera_render::scene::Scene;
 use tessera_render::{assemble_render, Image, PixelRect, RenderSettings};
 
@@ -86,8 +89,9 @@ fn a_guided_furnace_gives_its_analytic_radiance() {
 
 /// A guide that has learned that all light arrives from one quarter of the sphere's
 /// longitudes, and most from one small patch of it: nowhere near where it comes from in
-/// any test scene. One spatial leaf, so that every vertex samples the garbage.
-fn garbage() -> SdTree {
+/// any test scene. One spatial leaf, so that every vertex samples the garbage, with
+/// probability `ALPHAS[alpha]` (its last epoch measured that candidate least).
+fn garbage(alpha: usize) -> SdTree {
     let mut garbage = SdTree::new(Vec3A::splat(-10.0), Vec3A::splat(10.0));
     for _ in 0..3 {
         let mut next = garbage.refined(u64::MAX, 0.01);
@@ -103,21 +107,29 @@ fn garbage() -> SdTree {
             };
             next.record(Vec3A::ZERO, from_square(u), 1.0);
         }
+        let moments = std::array::from_fn(|i| 1.0 + (i as f64 - alpha as f64).abs());
+        next.record_with(Vec3A::ZERO, Vec3A::Z, 1.0, Some(&moments));
         next.freeze();
         garbage = next;
     }
+    assert_eq!(garbage.alpha_at(Vec3A::ZERO).1, ALPHAS[alpha]);
     garbage
 }
 
-/// `scene` rendered whole as one tile, sampling `guide` and training nothing.
-fn with_guide(scene: &Scene, s: &RenderSettings, guide: &SdTree) -> Image {
-    let rect = PixelRect {
+/// The rectangle of the whole frame.
+fn whole(scene: &Scene) -> PixelRect {
+    PixelRect {
         x0: 0,
         y0: 0,
         width: scene.width,
         height: scene.height,
-    };
-    let (sums, trained) = render_tile_guided(scene, s, rect, 0..s.spp, Some(guide), None);
+    }
+}
+
+/// `scene` rendered whole as one tile, sampling `guide` and training nothing (samples from
+/// 0, so epoch 0, which never turns guiding off).
+fn with_guide(scene: &Scene, s: &RenderSettings, guide: &SdTree) -> Image {
+    let (sums, trained) = render_tile_guided(scene, s, whole(scene), 0..s.spp, Some(guide), None);
     assert!(trained.is_none());
     frame_of(s, scene, sums)
 }
@@ -128,29 +140,105 @@ fn frame_of(s: &RenderSettings, scene: &Scene, sums: tessera_render::TileSums) -
         .finalize()
 }
 
+/// At the default selection probability and at the largest a leaf may choose.
 #[test]
 fn a_guide_trained_on_garbage_stays_unbiased() {
-    let guide = garbage();
-    assert!(guide.at(Vec3A::ZERO).len() > 10, "the garbage was learned");
-    // The furnace: exactly Le/(1 − ρ).
-    let furnace = common::scene(&common::closed_sphere([0.8; 3], [0.5; 3], 16, 16));
-    let img = with_guide(&furnace, &settings(64, 4), &guide);
-    let (mean, se) = common::region_stats(&img, 0, 0, 16, 16);
-    for c in 0..3 {
-        assert!(
-            (mean[c] - 2.5).abs() < 4.0 * se[c] + 1e-4,
-            "{} ± {}",
-            mean[c],
-            se[c]
-        );
+    for alpha in [
+        ALPHAS.iter().position(|&a| a == DEFAULT_ALPHA),
+        Some(ALPHAS.len() - 1),
+    ] {
+        let alpha = alpha.expect("a candidate");
+        let guide = garbage(alpha);
+        assert!(guide.at(Vec3A::ZERO).len() > 10, "the garbage was learned");
+        // The furnace: exactly Le/(1 − ρ).
+        let furnace = common::scene(&common::closed_sphere([0.8; 3], [0.5; 3], 16, 16));
+        let img = with_guide(&furnace, &settings(64, 4), &guide);
+        let (mean, se) = common::region_stats(&img, 0, 0, 16, 16);
+        for c in 0..3 {
+            assert!(
+                (mean[c] - 2.5).abs() < 4.0 * se[c] + 1e-4,
+                "α = {}: {} ± {}",
+                ALPHAS[alpha],
+                mean[c],
+                se[c]
+            );
+        }
+        // The caustic, against an unguided render.
+        let scene = small("caustic.toml", 32);
+        let with = with_guide(&scene, &settings(512, 5), &guide);
+        let plain = common::render(&scene, &settings(512, 6));
+        let (frac, worst) = common::z_test(&plain, &with);
+        let a = ALPHAS[alpha];
+        assert!(frac < 0.01, "α = {a}: {frac} of pixel-channels beyond 4σ");
+        assert!(worst < 6.0, "α = {a}: a 4×4 block {worst:.2}σ apart");
     }
-    // The caustic, against an unguided render.
-    let scene = small("caustic.toml", 32);
-    let with = with_guide(&scene, &settings(512, 5), &guide);
-    let plain = common::render(&scene, &settings(512, 6));
-    let (frac, worst) = common::z_test(&plain, &with);
-    assert!(frac < 0.01, "{frac} of pixel-channels beyond 4σ");
-    assert!(worst < 6.0, "a 4×4 block {worst:.2}σ apart");
+}
+
+/// From [`FIRST_OFF_EPOCH`] on, a guide whose leaves all chose α = 0, or whose choices
+/// measured more than [`OFF_ABOVE`] of the cosine lobe's second moment, is not sampled: the
+/// epoch's unit is the unguided renderer's bits, and its training tree comes back with
+/// nothing recorded. Before that epoch the same guide is sampled and trains.
+#[test]
+fn an_epoch_whose_guide_does_not_pay_renders_unguided_and_trains_nothing() {
+    let scene = small("glass-mirror.toml", 16);
+    let s = settings(64, 7);
+    // Epochs of 64 spp: [0,1) [1,3) [3,7) [7,15) [15,31) [31,64).
+    let off_epoch = 7..15;
+    let on_epoch = 3..7;
+    // Every leaf chose 0 (its second moments least there); then every leaf chose ¾ but only
+    // gained a little: both are off from epoch 3, and sampled before.
+    for (alpha, gain) in [(0, None), (ALPHAS.len() - 1, Some(0.9))] {
+        let mut guide = garbage(alpha);
+        if let Some(g) = gain {
+            let mut next = guide.refined(u64::MAX, 0.01);
+            next.record(Vec3A::ZERO, Vec3A::Z, 1.0);
+            // The last candidate measures `g` of the cosine lobe's moment, the rest more.
+            let m = std::array::from_fn(|i| if i + 1 == ALPHAS.len() { g } else { 1.0 });
+            next.record_with(Vec3A::ZERO, Vec3A::Z, 1.0, Some(&m));
+            next.freeze();
+            guide = next;
+            assert!(guide.guides(), "a leaf samples it");
+            assert!(guide.second_moment_ratio().is_some_and(|r| r > OFF_ABOVE));
+        }
+        assert!(guides(FIRST_OFF_EPOCH - 1, Some(&guide)));
+        assert!(!guides(FIRST_OFF_EPOCH, Some(&guide)));
+        let structure = guide.refined(u64::MAX, 0.01);
+        let (sums, trained) = render_tile_guided(
+            &scene,
+            &s,
+            whole(&scene),
+            off_epoch.clone(),
+            Some(&guide),
+            Some(&structure),
+        );
+        let plain = tessera_render::render_tile(&scene, &s, whole(&scene), off_epoch.clone());
+        let bits = |t: &tessera_render::TileSums| {
+            (t.sum.iter().chain(&t.sum_sq))
+                .flat_map(|v| v.map(f64::to_bits))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(bits(&sums), bits(&plain), "the unguided bits");
+        let trained = trained.expect("the epoch trains");
+        assert_eq!(trained.records(), 0);
+        assert!(trained.same_shape(&structure));
+        let (_, on) = render_tile_guided(
+            &scene,
+            &s,
+            whole(&scene),
+            on_epoch.clone(),
+            Some(&guide),
+            Some(&structure),
+        );
+        assert!(on.is_some_and(|t| t.records() > 0), "epoch 2 trains");
+    }
+    // A guide sampled at a good gain stays on.
+    let mut good = garbage(ALPHAS.len() - 1).refined(u64::MAX, 0.01);
+    good.record(Vec3A::ZERO, Vec3A::Z, 1.0);
+    let m = std::array::from_fn(|i| if i + 1 == ALPHAS.len() { 0.3 } else { 1.0 });
+    good.record_with(Vec3A::ZERO, Vec3A::Z, 1.0, Some(&m));
+    good.freeze();
+    assert!(guides(FIRST_OFF_EPOCH + 5, Some(&good)));
+    assert!(!guides(0, None));
 }
 
 #[test]

@@ -60,7 +60,7 @@ const MAX_RECORD: f64 = 1_099_511_627_776.0; // 2^40
 
 /// `value` in fixed point; what is not positive and finite is nothing.
 #[inline]
-fn quantize(value: f64) -> u128 {
+pub(super) fn quantize(value: f64) -> u128 {
     if value > 0.0 && value.is_finite() {
         (value.min(MAX_RECORD) * ENERGY_ONE) as u128
     } else {

@@ -11,7 +11,17 @@
 
 use glam::Vec3A;
 
-use super::dirtree::{check_shape, DirTree, GuideError, Reader};
+use super::dirtree::{check_shape, quantize, DirTree, GuideError, Reader};
+
+/// The selection probabilities of the guide a leaf chooses among ([`SdTree::alpha_at`]). The
+/// guide is never sampled with probability 1: its density may be 0 where light arrives, and
+/// the cosine lobe's share is what keeps the mixture positive there.
+pub const ALPHAS: [f32; 5] = [0.0, 0.125, 0.25, 0.5, 0.75];
+
+/// The selection probability of a trained leaf that measured nothing to choose by (one whose
+/// vertices sampled no guide: the first guide's leaves). Müller et al. fix ½; ¼ measured
+/// less error at equal time on every scene of `tessera bench --guiding` (docs/renderer.md).
+pub const DEFAULT_ALPHA: f32 = 0.25;
 
 /// The deepest a spatial node may be (the root is at depth 1).
 pub const MAX_SPATIAL_DEPTH: u32 = 48;
@@ -32,7 +42,7 @@ pub const MAX_GUIDE_DIR_NODES: usize = 1 << 18;
 pub const MAX_SPATIAL_NODES: usize = 2 * MAX_SPATIAL_LEAVES - 1;
 
 const MAGIC: &[u8; 4] = b"TSGS";
-const VERSION: u8 = 1;
+const VERSION: u8 = 2;
 /// Magic, version, the bounds' six f32, node and leaf counts.
 const HEADER: usize = 4 + 1 + 24 + 4 + 4;
 /// A node's two children (0: it is a leaf) and its leaf index.
@@ -52,11 +62,45 @@ impl SNode {
     }
 }
 
-/// A spatial leaf: where its vertices' light came from, and how many it recorded.
+/// A spatial leaf: where its vertices' light came from, how many it recorded, and what each
+/// selection probability of [`ALPHAS`] would have cost them.
 #[derive(Clone, Debug, PartialEq)]
 struct Leaf {
     dir: DirTree,
     count: u64,
+    /// Per candidate of [`ALPHAS`], the estimated second moment of its estimator, summed in
+    /// fixed point over the vertices that sampled a guide (integers: any order of additions).
+    moments: [u128; ALPHAS.len()],
+    /// The selection probability this leaf's guide is sampled with, chosen at
+    /// [`SdTree::freeze`] from `moments`: 0 where it learned nothing.
+    alpha: f32,
+}
+
+impl Leaf {
+    fn empty(dir: DirTree) -> Self {
+        Self {
+            dir,
+            count: 0,
+            moments: [0; ALPHAS.len()],
+            alpha: 0.0,
+        }
+    }
+
+    /// The candidate of least second moment (the smallest such, on a tie), or
+    /// [`DEFAULT_ALPHA`] where nothing was measured; 0 where the directional tree learned
+    /// nothing. A pure function of the sums, so every machine chooses alike.
+    fn choose_alpha(&self) -> f32 {
+        if !self.dir.is_trained() {
+            return 0.0;
+        }
+        if self.moments.iter().all(|&m| m == 0) {
+            return DEFAULT_ALPHA;
+        }
+        let best = (0..ALPHAS.len())
+            .min_by_key(|&i| self.moments[i])
+            .unwrap_or(0);
+        ALPHAS[best]
+    }
 }
 
 /// A node of [`SdTree::refined`]'s output still to be filled in.
@@ -104,10 +148,7 @@ impl SdTree {
                 child: [0, 0],
                 leaf: 0,
             }],
-            leaves: vec![Leaf {
-                dir: DirTree::uniform(),
-                count: 0,
-            }],
+            leaves: vec![Leaf::empty(DirTree::uniform())],
         }
     }
 
@@ -127,12 +168,46 @@ impl SdTree {
                 .sum::<usize>()
     }
 
-    /// Freezes every leaf's directional tree ([`DirTree::freeze`]): what it has recorded
-    /// becomes what it samples.
+    /// Freezes every leaf's directional tree ([`DirTree::freeze`]) and chooses its
+    /// selection probability: what it has recorded becomes what it samples.
     pub fn freeze(&mut self) {
         for l in &mut self.leaves {
             l.dir.freeze();
+            l.alpha = l.choose_alpha();
         }
+    }
+
+    /// Whether any leaf samples its guide (a selection probability above 0). A guide that
+    /// does not is off: sampling it is the cosine lobe alone, at the cost of its lookups.
+    pub fn guides(&self) -> bool {
+        self.leaves.iter().any(|l| l.alpha > 0.0)
+    }
+
+    /// The second moment the leaves' chosen mixtures measured, over what the cosine lobe
+    /// alone measured, summed over the leaves: how much this guide's vertices would have
+    /// gained from sampling the guide their vertices sampled (1: nothing). `None` where no
+    /// vertex measured any (a first guide's, or one trained by an epoch that sampled none).
+    pub fn second_moment_ratio(&self) -> Option<f64> {
+        let (mut chosen, mut cosine) = (0f64, 0f64);
+        for l in &self.leaves {
+            cosine += l.moments[0] as f64;
+            if let Some(i) = ALPHAS.iter().position(|&a| a == l.alpha) {
+                chosen += l.moments[i] as f64;
+            }
+        }
+        (cosine > 0.0).then(|| chosen / cosine)
+    }
+
+    /// How many leaves chose each of [`ALPHAS`] (one not among them, none: a decoded guide
+    /// chooses from its sums).
+    pub fn alpha_histogram(&self) -> [usize; ALPHAS.len()] {
+        let mut h = [0; ALPHAS.len()];
+        for l in &self.leaves {
+            if let Some(i) = ALPHAS.iter().position(|&a| a == l.alpha) {
+                h[i] += 1;
+            }
+        }
+        h
     }
 
     /// Whether nothing was recorded in it.
@@ -166,12 +241,36 @@ impl SdTree {
         &self.leaves[self.leaf_of(p)].dir
     }
 
+    /// The directional distribution learned at `p` and the probability of sampling it there
+    /// (0 where it learned nothing).
+    pub fn alpha_at(&self, p: Vec3A) -> (&DirTree, f32) {
+        let l = &self.leaves[self.leaf_of(p)];
+        (&l.dir, l.alpha)
+    }
+
     /// Records that `value` of energy arrived at `p` along `d` (unit), and counts the vertex.
     pub fn record(&mut self, p: Vec3A, d: Vec3A, value: f64) {
+        self.record_with(p, d, value, None);
+    }
+
+    /// [`SdTree::record`], and adds `moments` (one per candidate of [`ALPHAS`], each
+    /// quantized as energies are; not positive and finite: nothing) to the leaf's.
+    pub fn record_with(
+        &mut self,
+        p: Vec3A,
+        d: Vec3A,
+        value: f64,
+        moments: Option<&[f64; ALPHAS.len()]>,
+    ) {
         let i = self.leaf_of(p);
         let leaf = &mut self.leaves[i];
         leaf.count += 1;
         leaf.dir.record(d, value);
+        if let Some(m) = moments {
+            for (sum, &v) in leaf.moments.iter_mut().zip(m) {
+                *sum = sum.saturating_add(quantize(v));
+            }
+        }
     }
 
     /// The structure to train next, with no energy and no counts: a leaf that counted more
@@ -251,7 +350,7 @@ impl SdTree {
                 }
                 dir_nodes += dir.len();
                 out.nodes[new].leaf = out.leaves.len() as u32;
-                out.leaves.push(Leaf { dir, count: 0 });
+                out.leaves.push(Leaf::empty(dir));
             }
         }
         out
@@ -296,6 +395,9 @@ impl SdTree {
         for (a, b) in self.leaves.iter_mut().zip(&other.leaves) {
             a.dir.add(&b.dir)?;
             a.count = a.count.saturating_add(b.count);
+            for (x, y) in a.moments.iter_mut().zip(b.moments) {
+                *x = x.saturating_add(y);
+            }
         }
         Ok(())
     }
@@ -319,6 +421,9 @@ impl SdTree {
         }
         for l in &self.leaves {
             out.extend_from_slice(&l.count.to_le_bytes());
+            for m in l.moments {
+                out.extend_from_slice(&m.to_le_bytes());
+            }
             let dir = l.dir.encode();
             out.extend_from_slice(&(dir.len() as u32).to_le_bytes());
             out.extend_from_slice(&dir);
@@ -391,13 +496,24 @@ impl SdTree {
         let mut dir_nodes = 0;
         for _ in 0..leaf_count {
             let count = u64::from_le_bytes(r.array()?);
+            let mut moments = [0u128; ALPHAS.len()];
+            for m in &mut moments {
+                *m = u128::from_le_bytes(r.array()?);
+            }
             let len = u32::from_le_bytes(r.array()?) as usize;
             let dir = DirTree::decode(r.take(len)?)?;
             dir_nodes += dir.len();
             if dir_nodes > MAX_GUIDE_DIR_NODES + leaf_count {
                 return Err(GuideError::NodeCount(dir_nodes as u64));
             }
-            leaves.push(Leaf { dir, count });
+            let mut leaf = Leaf {
+                dir,
+                count,
+                moments,
+                alpha: 0.0,
+            };
+            leaf.alpha = leaf.choose_alpha();
+            leaves.push(leaf);
         }
         if r.at != bytes.len() {
             return Err(GuideError::Length {
@@ -471,6 +587,56 @@ mod tests {
             guide.at(up)
         ));
         assert!(guide.memory_bytes() > guide.leaves() * 48);
+    }
+
+    /// Each leaf takes the candidate of least measured second moment, the default where it
+    /// measured none, and 0 where it learned nothing; the choice survives the bytes, and a
+    /// guide whose every leaf chose 0 samples nowhere.
+    #[test]
+    fn each_leaf_chooses_the_selection_probability_that_measured_least() {
+        let mut g = SdTree::new(Vec3A::ZERO, Vec3A::ONE);
+        g.freeze();
+        assert_eq!(g.alpha_at(Vec3A::splat(0.5)).1, 0.0, "nothing learned");
+        assert!(!g.guides());
+        assert_eq!(g.second_moment_ratio(), None);
+        g.record(Vec3A::splat(0.5), Vec3A::Z, 1.0);
+        g.freeze();
+        assert_eq!(
+            g.alpha_at(Vec3A::splat(0.5)).1,
+            DEFAULT_ALPHA,
+            "nothing measured"
+        );
+        assert!(g.guides());
+        for (best, &alpha) in ALPHAS.iter().enumerate() {
+            let mut t = g.refined(u64::MAX, 0.01);
+            // A bowl of second moments with its bottom at `best`.
+            let moments: [f64; ALPHAS.len()] =
+                std::array::from_fn(|i| 1.0 + (i as f64 - best as f64).abs());
+            t.record_with(Vec3A::splat(0.5), Vec3A::Z, 1.0, Some(&moments));
+            t.freeze();
+            assert_eq!(t.alpha_at(Vec3A::splat(0.5)).1, alpha);
+            assert_eq!(t.guides(), best > 0);
+            let ratio = t.second_moment_ratio().expect("measured");
+            assert!((ratio - 1.0 / (1.0 + best as f64)).abs() < 1e-9, "{ratio}");
+            let back = SdTree::decode(&t.encode()).expect("decodes");
+            assert_eq!(back.alpha_at(Vec3A::splat(0.5)).1, alpha);
+            assert_eq!(back, t);
+        }
+        // Moments add like energies: in any order, to the same choice.
+        let mut a = g.refined(u64::MAX, 0.01);
+        let mut b = a.clone();
+        let low = [5.0, 4.0, 1.0, 4.0, 5.0];
+        let high = [1.0, 2.0, 3.0, 4.0, 5.0];
+        a.record_with(Vec3A::splat(0.5), Vec3A::Z, 1.0, Some(&low));
+        b.record_with(Vec3A::splat(0.5), Vec3A::Z, 1.0, Some(&high));
+        let (mut ab, mut ba) = (a.clone(), b.clone());
+        ab.add(&b).expect("same structure");
+        ba.add(&a).expect("same structure");
+        ab.freeze();
+        ba.freeze();
+        assert_eq!(ab, ba);
+        // Sums 6, 6, 4, 8, 10: the third.
+        assert_eq!(ab.alpha_at(Vec3A::splat(0.5)).1, ALPHAS[2]);
     }
 
     #[test]

@@ -12,8 +12,20 @@
 //! and next-event estimation here), so the two weights of any light path still add to one.
 //! A guide sample below the surface has f = 0: the path ends, contributing 0, as it should.
 //!
-//! α is [`ALPHA`] where the vertex's leaf learned something, and 0 where it learned nothing,
-//! so an untrained region (or the first epoch) costs no variance.
+//! α is the vertex's leaf's own ([`SdTree::alpha_at`]), 0 where it learned nothing, so an
+//! untrained region (or the first epoch) costs no variance. Each leaf chooses it from
+//! [`crate::guide::ALPHAS`] by the second moment its vertices measured for each candidate
+//! (below): where the cosine lobe does better, as on most of a Cornell box, the leaf turns
+//! guiding off. Any α below 1 keeps the estimator unbiased, so the choice, noisy or not,
+//! costs variance only.
+//!
+//! Choosing α. A direction ω drawn from the mixture q that the vertex used, with integrand
+//! F(ω) = L_i·cos, estimates the second moment of the estimator of any other mixture q_c by
+//! F²/(q·q_c): its expectation under q is ∫F²/q_c, which is that estimator's second moment.
+//! Each guided vertex adds that, per candidate, to its leaf of the tree it trains, and the
+//! next guide's leaf takes the candidate of least sum. The candidates' densities use the guide
+//! the vertex sampled, not the one the choice is for: the next guide is that one refined, so
+//! the choice lags one epoch, as Müller et al.'s (2019) online one does.
 //!
 //! Training. Each vertex keeps the throughput after it and what the path had gathered before
 //! its continuation; at the path's end the radiance that arrived along its direction is what
@@ -29,17 +41,12 @@ use glam::{Vec2, Vec3A};
 
 use super::{direct_light, Path, Shading};
 use crate::bsdf::sample_diffuse;
-use crate::guide::{DirTree, SdTree};
+use crate::guide::{DirTree, SdTree, ALPHAS};
 use crate::interaction::SurfacePoint;
 use crate::scene::Scene;
 use crate::settings::Strategy;
 use crate::util::math::{offset_ray_origin, Ray};
 use crate::util::sampling::cosine_hemisphere_pdf;
-
-/// The probability of sampling the guide where it learned something. Müller et al. fix ½;
-/// ¼ measured less error at equal time on every scene of `tessera bench --guiding` (see
-/// docs/renderer.md, "Path guiding").
-pub const ALPHA: f32 = 0.25;
 
 /// The most vertices of one path that are recorded: deeper ones carry little, and the bound
 /// keeps a path's record on the stack.
@@ -79,6 +86,9 @@ struct Vertex {
     pdf: f32,
     /// The path's throughput after the vertex.
     beta: Vec3A,
+    /// The guide's density at `wi` and the cosine lobe's (none: no guide was trained here,
+    /// and the vertex measures no α).
+    densities: Option<(f32, f32)>,
     /// What the path had gathered before its continuation.
     l: Vec3A,
     /// The bounce it was at.
@@ -105,10 +115,13 @@ impl<'a> GuidedPath<'a> {
         }
     }
 
-    /// The distribution to mix with the BSDF at `p`: none where nothing was learned.
+    /// The distribution to mix with the BSDF at `p` and its selection probability (which
+    /// may be 0): none where nothing was learned.
     #[inline]
-    fn at(&self, p: Vec3A) -> Option<&'a DirTree> {
-        self.guide.map(|g| g.at(p)).filter(|d| d.is_trained())
+    fn at(&self, p: Vec3A) -> Option<(&'a DirTree, f32)> {
+        self.guide
+            .map(|g| g.alpha_at(p))
+            .filter(|(d, _)| d.is_trained())
     }
 
     /// Records the path that ended having gathered `l`, and starts the next.
@@ -125,7 +138,14 @@ impl<'a> GuidedPath<'a> {
                     li += (gathered[c] / v.beta[c]) as f64;
                 }
             }
-            train.record(v.p, v.wi, li / 3.0 / v.pdf as f64);
+            let li = li / 3.0;
+            let record = li / v.pdf as f64;
+            // F²/(q·q_c) for each candidate mixture q_c, with F = L_i·cos: the record is F/q.
+            let moments = v.densities.map(|(pg, pb)| {
+                let f = li * (pb * std::f32::consts::PI) as f64;
+                ALPHAS.map(|a| record * f / (a * pg + (1.0 - a) * pb) as f64)
+            });
+            train.record_with(v.p, v.wi, record, moments.as_ref());
         }
     }
 
@@ -178,9 +198,12 @@ pub(super) fn diffuse(
 ) -> Option<Ray> {
     let p_out = offset_ray_origin(sp.p, sp.err, at.n);
     let guide = g.at(sp.p);
+    // The guide's density enters the mixture only where it is sampled (α > 0); elsewhere the
+    // mixture is the cosine lobe, and a trained leaf still evaluates the guide at the sampled
+    // direction, to measure α for the next guide.
     let mixture = |wi: Vec3A, cos: f32| match guide {
-        Some(d) => ALPHA * d.pdf(wi) + (1.0 - ALPHA) * cosine_hemisphere_pdf(cos),
-        None => cosine_hemisphere_pdf(cos),
+        Some((d, a)) if a > 0.0 => a * d.pdf(wi) + (1.0 - a) * cosine_hemisphere_pdf(cos),
+        _ => cosine_hemisphere_pdf(cos),
     };
     if let Some(u) = light_u {
         if let Some((le, f)) = direct_light(scene, strategy, sp, at, p_out, u, mixture) {
@@ -189,23 +212,21 @@ pub(super) fn diffuse(
     }
     // Each technique's density at its own sample is the one it drew by; the other's is
     // evaluated.
-    let (wi, cos, pdf) = match guide {
-        Some(d) if u_pick < ALPHA => {
-            let (wi, p) = d.sample(bsdf_u);
+    let (wi, cos, pdf, densities) = match guide {
+        Some((d, a)) if u_pick < a => {
+            let (wi, pg) = d.sample(bsdf_u);
             let cos = at.ns.dot(wi);
-            (
-                wi,
-                cos,
-                ALPHA * p + (1.0 - ALPHA) * cosine_hemisphere_pdf(cos),
-            )
+            let pb = cosine_hemisphere_pdf(cos);
+            (wi, cos, a * pg + (1.0 - a) * pb, Some((pg, pb)))
         }
-        Some(d) => {
-            let (wi, p) = sample_diffuse(at.ns, bsdf_u);
-            (wi, at.ns.dot(wi), ALPHA * d.pdf(wi) + (1.0 - ALPHA) * p)
+        Some((d, a)) => {
+            let (wi, pb) = sample_diffuse(at.ns, bsdf_u);
+            let pg = d.pdf(wi);
+            (wi, at.ns.dot(wi), a * pg + (1.0 - a) * pb, Some((pg, pb)))
         }
         None => {
             let (wi, p) = sample_diffuse(at.ns, bsdf_u);
-            (wi, at.ns.dot(wi), p)
+            (wi, at.ns.dot(wi), p, None)
         }
     };
     path.specular = false;
@@ -222,6 +243,7 @@ pub(super) fn diffuse(
         wi,
         pdf: pdf / cos,
         beta: path.beta,
+        densities,
         l: path.l,
         depth,
     });
