@@ -1,17 +1,24 @@
 //! Audits on a running farm: a worker that returns plausible but wrong finite sums (every sum
 //! 1% high) on one unit in 50 is caught, convicted and its results rendered again by the
-//! honest workers, and the EXR is bit-identical to `tessera render`'s. Each worker connects
+//! honest workers, and the EXR is bit-identical to `tessera render`'s; in a guided job the
+//! conviction rewinds the job to the first epoch the liar trained, and the EXR is `tessera
+//! render --guiding`'s. Each worker connects
 //! from an address of its own on the loopback network (127.0.0.2, …), so the coordinator sees
 //! the hosts a real farm has.
 
+use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 
+use tessera_render::guide::SdTree;
+use tessera_render::guided::{epoch_of, epochs, guide_bounds, render_tile_guided, structure};
+
 use crate::common::*;
 
-/// The liar: leases one unit at a time, renders it for real, scales one result in 50, and
-/// keeps going until the coordinator refuses it or the test stops it. Returns how many wrong
-/// results it sent.
+/// The liar: leases one unit at a time, renders it for real (a guided unit with its guide,
+/// fetched by hash, and its epoch's structure, as a worker does), scales one result's sums in
+/// 50, and keeps going until the coordinator refuses it or the test stops it. Returns how many
+/// wrong results it sent.
 async fn liar(url: String, text: String, settings: RenderSettings, stop: Arc<AtomicBool>) -> u64 {
     let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
     let mut client = WorkersClient::new(
@@ -22,6 +29,7 @@ async fn liar(url: String, text: String, settings: RenderSettings, stop: Arc<Ato
     let id = register_as(&mut client, "liar", "0", IMAGE_REVISION)
         .await
         .expect("register");
+    let mut guides: HashMap<String, SdTree> = HashMap::new();
     let (mut sent, mut forged) = (0u64, 0u64);
     while !stop.load(Ordering::Relaxed) {
         let units = match lease_now(&mut client, &id, 1).await {
@@ -36,7 +44,18 @@ async fn liar(url: String, text: String, settings: RenderSettings, stop: Arc<Ato
             tokio::time::sleep(Duration::from_millis(2)).await;
             continue;
         };
-        let mut r = honest_result(&scene, &settings, &u);
+        let mut r = if settings.guiding {
+            let hash = u.guide_sha256.clone();
+            if !hash.is_empty() && !guides.contains_key(&hash) {
+                let Ok(bytes) = fetch_asset(&mut client, &hash).await else {
+                    break;
+                };
+                guides.insert(hash.clone(), SdTree::decode(&bytes).expect("a guide"));
+            }
+            honest_guided(&scene, &settings, &u, guides.get(&hash))
+        } else {
+            honest_result(&scene, &settings, &u)
+        };
         sent += 1;
         if sent % 50 == 7 {
             forged += 1;
@@ -47,6 +66,45 @@ async fn liar(url: String, text: String, settings: RenderSettings, stop: Arc<Ato
         let _ = client.submit_result(result_for(&id, &u, r)).await;
     }
     forged
+}
+
+/// An honest guided unit: rendered with `guide` (none in epoch 0), recording into its epoch's
+/// structure where the epoch trains.
+fn honest_guided(
+    scene: &Scene,
+    settings: &RenderSettings,
+    u: &pb::WorkUnit,
+    guide: Option<&SdTree>,
+) -> pb::TileResult {
+    let k = epoch_of(settings.spp, u.sample_start).expect("a sample of the job");
+    let train =
+        (k + 1 < epochs(settings.spp).len()).then(|| structure(guide_bounds(scene), k, guide));
+    let rect = PixelRect::from(u.rect.expect("rect"));
+    let range = u.sample_start..u.sample_end;
+    let (sums, trained) = render_tile_guided(scene, settings, rect, range, guide, train.as_ref());
+    pb::TileResult {
+        guide_train: trained.map(|t| t.encode()).unwrap_or_default(),
+        ..pb::TileResult::from(&sums)
+    }
+}
+
+/// A content-addressed asset's bytes, by hash.
+async fn fetch_asset(
+    client: &mut WorkersClient<Channel>,
+    hash: &str,
+) -> Result<Vec<u8>, tonic::Status> {
+    let mut stream = client
+        .fetch_asset(pb::FetchAssetRequest {
+            sha256: hash.to_string(),
+            offset: 0,
+        })
+        .await?
+        .into_inner();
+    let mut bytes = Vec::new();
+    while let Some(c) = stream.message().await? {
+        bytes.extend_from_slice(&c.data);
+    }
+    Ok(bytes)
 }
 
 /// Client options that connect from 127.0.0.`n`: another host, as the coordinator sees it.
@@ -62,7 +120,15 @@ fn from_host(n: u8) -> ClientOptions {
 /// back; the chance that none of them is checked is about 0.4^20 ≈ 1e-8.
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_lying_worker_is_convicted_and_the_image_is_still_bit_identical() {
-    lying_worker_among(2).await;
+    lying_worker_among(2, false).await;
+}
+
+/// The same in a guided job: the liar's results train guides before it is caught, so the
+/// conviction rewinds the job to the first epoch it trained, and the EXR is still `tessera
+/// render --guiding`'s.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_lying_worker_in_a_guided_job_is_convicted_and_the_job_rewinds_to_the_local_bits() {
+    lying_worker_among(2, true).await;
 }
 
 /// #55 D1 on a running farm: one honest worker and the liar. Before, their first dispute made
@@ -70,11 +136,12 @@ async fn a_lying_worker_is_convicted_and_the_image_is_still_bit_identical() {
 /// settles each dispute.
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn one_honest_worker_and_a_liar_still_finish_with_the_right_bits() {
-    lying_worker_among(1).await;
+    lying_worker_among(1, false).await;
 }
 
-/// The liar and `n_honest` honest workers, each on a host of its own, render an audited job.
-async fn lying_worker_among(n_honest: u8) {
+/// The liar and `n_honest` honest workers, each on a host of its own, render an audited job
+/// (`guided`: with `--guiding`).
+async fn lying_worker_among(n_honest: u8, guided: bool) {
     let dir = tempfile::tempdir().expect("tempdir");
     let coord = Coordinator::start_with(&dir.path().join("data"), Duration::from_secs(30), |c| {
         c.audit = 0.6;
@@ -83,11 +150,15 @@ async fn lying_worker_among(n_honest: u8) {
     let url = coord.url();
     let text = scene_text(32);
     let (spp, batch) = (32, 1);
+    let settings = RenderSettings {
+        guiding: guided,
+        ..job_settings(spp, batch)
+    };
     let mut client = coord.client().await;
     let job = client
         .submit_job(pb::SubmitJobRequest {
             tile_size: 4,
-            ..submit_request(&text, spp, batch)
+            ..submit_request_with(&text, &settings)
         })
         .await
         .expect("submit")
@@ -97,7 +168,7 @@ async fn lying_worker_among(n_honest: u8) {
     let liar = tokio::spawn(liar(
         url.clone(),
         text.clone(),
-        job_settings(spp, batch),
+        settings.clone(),
         stop.clone(),
     ));
     let honest: Vec<_> = (0..n_honest)
@@ -126,7 +197,7 @@ async fn lying_worker_among(n_honest: u8) {
     assert!(passed.load(Ordering::Relaxed) > 0, "no audit ran");
 
     let farm = fetch(&mut client, &job).await;
-    let local = local_exr(&text, spp, batch, dir.path());
+    let local = local_exr_with(&text, &settings, ExrChannels::default(), dir.path());
     assert!(
         farm == local,
         "the farm's EXR differs from tessera render's"

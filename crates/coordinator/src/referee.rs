@@ -15,6 +15,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use tessera_proto::ids::JobId;
+use tessera_render::guided::render_tile_guided;
 use tessera_render::render_tile;
 use tessera_render::scene::{Format, Scene, FIRST_FRAME};
 use tracing::{info, warn};
@@ -22,7 +23,7 @@ use tracing::{info, warn};
 use crate::assets::JobAssets;
 use crate::job::Unit;
 use crate::output::finish_job;
-use crate::scheduler::Merged;
+use crate::scheduler::{Merged, UnitResult};
 use crate::shared::{durable, now_ms, Shared};
 use crate::store::JobPhase;
 
@@ -46,15 +47,19 @@ async fn settle(shared: Arc<Shared>, job: JobId, unit: Unit) {
     let gathered = {
         let core = shared.scheduler();
         core.job(job).filter(|j| j.is_live()).and_then(|j| {
+            // A guided unit renders with its epoch's guide and records into its structure,
+            // as a worker's does (decoded here, under the lock: referee renders are rare).
+            let guided = j.guiding.as_ref().map(|g| g.unit_inputs(unit.batch));
             Some((
                 j.rec.scene_hash.clone(),
                 j.settings(),
                 j.tiles.get(unit.tile)?,
                 j.batch_range(unit.batch),
+                guided,
             ))
         })
     };
-    let Some((hash, settings, rect, samples)) = gathered else {
+    let Some((hash, settings, rect, samples, guided)) = gathered else {
         return;
     };
     let limits = shared.config.limits.clone();
@@ -80,7 +85,21 @@ async fn settle(shared: Arc<Shared>, job: JobId, unit: Unit) {
         if scene.hash != hash {
             return Err(format!("scene {hash} loads with hash {}", scene.hash));
         }
-        Ok(render_tile(&scene, &settings, rect, samples))
+        Ok(match guided {
+            None => UnitResult::from(render_tile(&scene, &settings, rect, samples)),
+            Some(inputs) => {
+                let (guide, train) = inputs?;
+                let (sums, train) = render_tile_guided(
+                    &scene,
+                    &settings,
+                    rect,
+                    samples,
+                    guide.as_ref(),
+                    train.as_ref(),
+                );
+                UnitResult { sums, train }
+            }
+        })
     })
     .await
     .map_err(|e| e.to_string())
@@ -88,8 +107,8 @@ async fn settle(shared: Arc<Shared>, job: JobId, unit: Unit) {
     let rx = {
         let mut core = shared.scheduler();
         match rendered {
-            Ok(sums) => {
-                match core.referee(job, unit, sums, Instant::now(), &*shared.store, now_ms()) {
+            Ok(result) => {
+                match core.referee(job, unit, result, Instant::now(), &*shared.store, now_ms()) {
                     Ok(Merged::New { ops, finished }) => {
                         info!(
                             "{job} tile {} batch {}: settled by the coordinator's own render",

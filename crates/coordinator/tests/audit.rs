@@ -8,8 +8,8 @@ use std::time::{Duration, Instant};
 
 use tessera_coordinator::error::Refusal;
 use tessera_coordinator::job::{same_bits, Job, KeptUnits, Unit};
-use tessera_coordinator::scheduler::{Granted, Merged, Policy, Scheduler};
-use tessera_coordinator::store::{JobRecord, Op, Store};
+use tessera_coordinator::scheduler::{Granted, Merged, Policy, Scheduler, UnitResult};
+use tessera_coordinator::store::{GuidingRecord, JobRecord, Op, Store};
 use tessera_proto::ids::JobId;
 use tessera_render::{Strategy, TileSums};
 
@@ -48,6 +48,37 @@ fn honest(job: &Job, u: Unit) -> TileSums {
     t
 }
 
+/// A guided audited job of the same image: 8 spp in batches of 1 cut at its epochs [0,1)
+/// [1,3) [3,8), so batch 0 is epoch 0, batches 1–2 epoch 1, and 3–7 the last epoch, which
+/// trains nothing.
+fn guided_record() -> JobRecord {
+    JobRecord {
+        guiding: Some(GuidingRecord {
+            bounds: [[0.0; 3], [1.0; 3]],
+            guides: Vec::new(),
+        }),
+        ..record(true)
+    }
+}
+
+/// What a worker returns for `u`: `honest`'s sums (`forged`'s if it lies) and, where the
+/// unit's epoch trains, a tree of that epoch's structure whose record differs by tile and
+/// batch (and by the lie), as a worker's trained tree differs by what its paths found.
+fn result(job: &Job, u: Unit, lie: bool) -> UnitResult {
+    let sums = if lie { forged(job, u) } else { honest(job, u) };
+    let train = job.guiding.as_ref().and_then(|g| {
+        let (_, structure) = g.unit_inputs(u.batch).expect("the unit's guide");
+        structure.map(|mut t| {
+            let v = 1.0 + u.tile as f64 + 0.5 * u.batch as f64 + if lie { 7.0 } else { 0.0 };
+            let at = glam::Vec3A::splat(0.1 + 0.2 * u.tile as f32);
+            t.record(at, glam::Vec3A::Z, v);
+            t.freeze();
+            t
+        })
+    });
+    UnitResult { sums, train }
+}
+
 /// Plausible but wrong: every sum 1% high, still finite and in range.
 fn forged(job: &Job, u: Unit) -> TileSums {
     let mut t = honest(job, u);
@@ -69,10 +100,14 @@ struct Farm {
 
 impl Farm {
     fn new(audited: bool) -> Self {
+        Self::with(record(audited))
+    }
+
+    fn with(rec: JobRecord) -> Self {
         let dir = tempfile::tempdir().expect("tempdir");
         let store = Store::open(dir.path()).expect("store");
         let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(60)));
-        core.insert_job(Job::new(record(audited)));
+        core.insert_job(Job::new(rec));
         Farm {
             core,
             store,
@@ -101,10 +136,10 @@ impl Farm {
         wanted
             .into_iter()
             .map(|(job, unit)| {
-                let sums = honest(self.core.job(job).expect("job"), unit);
+                let r = result(self.core.job(job).expect("job"), unit, false);
                 let m = self
                     .core
-                    .referee(job, unit, sums, self.now, &self.store, 0)
+                    .referee(job, unit, r, self.now, &self.store, 0)
                     .expect("the referee's result");
                 if let Merged::New { ops, .. } = &m {
                     self.store.apply(ops).expect("commit");
@@ -119,7 +154,7 @@ impl Farm {
     }
 
     /// Sends a result and commits what it changed; returns the outcome.
-    fn send(&mut self, w: u64, g: &Granted, r: TileSums) -> Merged {
+    fn send(&mut self, w: u64, g: &Granted, r: impl Into<UnitResult>) -> Merged {
         let m = self
             .core
             .submit(w, g.lease, g.job, g.unit, r, self.now)
@@ -143,7 +178,7 @@ impl Farm {
             for &w in ws {
                 let Some(g) = self.lease(w) else { continue };
                 worked = true;
-                let r = honest(self.job(), g.unit);
+                let r = result(self.job(), g.unit, false);
                 if let Merged::New { finished: true, .. } = self.send(w, &g, r) {
                     return;
                 }
@@ -610,4 +645,99 @@ fn a_convicted_workers_late_result_is_refused() {
     );
     assert!(matches!(r, Err(Refusal::Denied(_))), "{r:?}");
     assert_eq!(farm.job().units_done, done);
+}
+
+/// A guided job: a liar whose training went into guide 0 unchecked is caught in epoch 1. Every
+/// later epoch sampled a guide its training shaped, so the job rewinds to epoch 0: its tiles
+/// and guides are dropped, leases past the new barrier are refused, and the honest workers'
+/// render gives the honest farm's sums and guides, bit for bit.
+#[test]
+fn a_convicted_worker_that_trained_a_guide_rewinds_the_job_to_that_epoch() {
+    let guides = |farm: &Farm| farm.job().guiding.as_ref().expect("guided").hashes();
+    // The honest farm, for the guides it trains.
+    let mut clean = Farm::with(guided_record());
+    let (a, b) = (clean.worker("a"), clean.worker("b"));
+    clean.core.policy_mut().audit = 0.0;
+    clean.finish(&[a, b]);
+    let honest_guides = guides(&clean);
+    assert_eq!(honest_guides.len(), 2, "epochs 0 and 1 train");
+
+    let mut farm = Farm::with(guided_record());
+    let (a, b, liar) = (farm.worker("a"), farm.worker("b"), farm.worker("liar"));
+    farm.core.policy_mut().audit = 0.0;
+    // Epoch 0 (batch 0 of the 4 tiles): the liar's unit, sums and training, merged unchecked.
+    for w in [liar, a, b, a] {
+        let g = farm.lease(w).expect("a unit of epoch 0");
+        assert_eq!(g.unit.batch, 0);
+        let r = result(farm.job(), g.unit, w == liar);
+        assert!(matches!(farm.send(w, &g, r), Merged::New { .. }));
+    }
+    assert_eq!(guides(&farm).len(), 1);
+    assert_ne!(guides(&farm)[0], honest_guides[0], "the lie is in guide 0");
+    // Epoch 1: b holds a lease; every unit is checked from now, and the liar's next is caught.
+    let stale = farm.lease(b).expect("a unit of epoch 1");
+    let stale_result = result(farm.job(), stale.unit, false);
+    farm.core.policy_mut().audit = 1.0;
+    let g = farm.lease(liar).expect("a unit of epoch 1");
+    let caught = g.unit;
+    assert!(matches!(
+        farm.send(liar, &g, result(farm.job(), caught, true)),
+        Merged::Held
+    ));
+    let ga = farm.lease(a).expect("the copy");
+    assert_eq!(ga.unit, caught);
+    assert!(matches!(
+        farm.send(a, &ga, result(farm.job(), caught, false)),
+        Merged::Held
+    ));
+    let wanted = farm.core.take_referee_work();
+    assert_eq!(wanted, vec![(JOB, caught)]);
+    // The referee's render convicts the liar; the rewind leaves its render of epoch 1 with
+    // no guide to have sampled, so it is not merged either.
+    let outcome = farm
+        .core
+        .referee(
+            JOB,
+            caught,
+            result(farm.job(), caught, false),
+            farm.now,
+            &farm.store,
+            0,
+        )
+        .expect("refereed");
+    assert!(matches!(outcome, Merged::Discarded), "{outcome:?}");
+    assert!(farm.core.worker(liar).expect("worker").convicted.is_some());
+    assert!(
+        guides(&farm).is_empty(),
+        "guides from epoch 0 on are dropped"
+    );
+    assert_eq!(farm.job().units_done, 0, "every tile rewound to batch 0");
+    let audits = farm.store.audits().expect("audits");
+    assert!(
+        audits.is_empty(),
+        "the referee's ops were not committed here"
+    );
+    // b's lease of epoch 1 sampled the dropped guide: refused, not counted against it.
+    let late = farm.core.submit(
+        b,
+        stale.lease,
+        stale.job,
+        stale.unit,
+        stale_result,
+        farm.now,
+    );
+    assert!(matches!(late, Err(Refusal::Precondition(_))), "{late:?}");
+    assert_eq!(farm.core.worker(b).expect("worker").bad_results, 0);
+
+    farm.core.policy_mut().audit = 0.0;
+    farm.finish(&[a, b]);
+    assert!(
+        same_frame(&farm.job().frame_tiles(), &honest_frame(farm.job())),
+        "the finished sums are the honest bits"
+    );
+    assert_eq!(
+        guides(&farm),
+        honest_guides,
+        "and the guides the honest farm's"
+    );
 }

@@ -114,6 +114,72 @@ impl Guiding {
             .and_then(|k| self.guides.get(k))
     }
 
+    /// The first batch of epoch `k`.
+    pub fn first_batch(&self, k: usize) -> u32 {
+        k.checked_sub(1)
+            .and_then(|p| self.ends.get(p))
+            .copied()
+            .unwrap_or(0)
+    }
+
+    /// Whether epoch `k` trains a guide (every epoch but the last).
+    pub fn trains(&self, k: usize) -> bool {
+        k + 1 < self.ends.len()
+    }
+
+    /// What rendering batch `b` takes besides the scene: the guide its epoch samples (decoded)
+    /// and the empty structure it records into (none in the last epoch), as a worker builds
+    /// them. For the coordinator's own render of a unit (the referee).
+    pub fn unit_inputs(&self, b: u32) -> Result<(Option<SdTree>, Option<SdTree>), String> {
+        let k = self.epoch_of(b);
+        let guide = match k.checked_sub(1) {
+            None => None,
+            Some(p) => {
+                let g = self
+                    .guides
+                    .get(p)
+                    .ok_or_else(|| format!("batch {b}'s guide (epoch {p}'s) is not trained"))?;
+                Some(SdTree::decode(&g.bytes).map_err(|e| format!("guide {p}: {e}"))?)
+            }
+        };
+        let train = self
+            .trains(k)
+            .then(|| structure(self.bounds, k, guide.as_ref()));
+        Ok((guide, train))
+    }
+
+    /// Rewinds to the start of epoch `k` (no later than the training one): the guides of
+    /// epochs `k` on are dropped and epoch `k` trains afresh, from no results. An audit that
+    /// convicts a worker whose training shaped guide `k` calls it (with the job's tiles taken
+    /// back to the epoch's start, [`crate::job::Job::take_back`]), since every epoch after
+    /// `k` sampled what the liar's training made. Returns the store change that replaces
+    /// what the store holds for epoch `k` (a guide, or a training tree) with the empty tree.
+    pub fn rewind(&mut self, id: u64, k: usize) -> Result<Vec<Op>, String> {
+        if k > self.guides.len() {
+            return Err(format!(
+                "epoch {k} is past the training one ({})",
+                self.guides.len()
+            ));
+        }
+        let before = match k.checked_sub(1) {
+            None => None,
+            Some(p) => {
+                Some(SdTree::decode(&self.guides[p].bytes).map_err(|e| format!("guide {p}: {e}"))?)
+            }
+        };
+        self.guides.truncate(k);
+        self.train = self
+            .trains(k)
+            .then(|| Arc::new(structure(self.bounds, k, before.as_ref())));
+        self.dirty = false;
+        self.through = 0;
+        Ok(self
+            .train
+            .iter()
+            .map(|t| Op::PutGuide(id, k as u32, t.encode()))
+            .collect())
+    }
+
     /// The encoding of the guide named `hash`, if this job has it.
     pub fn by_hash(&self, hash: &str) -> Option<Arc<Vec<u8>>> {
         self.guides

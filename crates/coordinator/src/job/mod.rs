@@ -22,7 +22,7 @@ mod restore;
 mod tiles;
 
 use crate::store::{encode_sums, JobPhase, JobRecord, Op};
-pub use audit::{same_bits, AuditHold, KeptUnits, Source, NOBODY};
+pub use audit::{same_bits, same_result, AuditHold, KeptUnits, Source, TakenBack, NOBODY};
 pub use guided::{Guide, Guiding};
 pub use rate::Rate;
 pub use resident::{preview_step, FrameTile, Snapshot, Thumb, MAX_DIRTY_BYTES, PREVIEW_EDGE};
@@ -569,131 +569,6 @@ impl Job {
             self.finishing = true;
         }
         Ok((ops, finished))
-    }
-
-    /// Takes back every result worker `w` gave this audited, live job. Its early results and
-    /// audit copies are dropped. Each tile it gave a merged batch to is folded again, in batch
-    /// order from zero, from the kept results of the others, up to the first batch that is
-    /// its own or whose kept copy the store cannot give back; later kept batches wait as early
-    /// results. Every batch taken back goes to the front of the queue, to be rendered again.
-    /// Returns the store changes and the number of units taken back.
-    pub fn take_back(&mut self, w: u64, kept: &dyn KeptUnits) -> (Vec<Op>, u64) {
-        let id = self.rec.id;
-        let mut ops = Vec::new();
-        // Units counted as done that go back, and units held for an audit that lose a copy.
-        let mut again: Vec<Unit> = Vec::new();
-        let mut held: Vec<Unit> = Vec::new();
-        for (u, hold) in &mut self.audits {
-            if hold.results.iter().any(|(k, _)| *k == w) {
-                hold.results.retain(|(k, _)| *k != w);
-                held.push(*u);
-            }
-        }
-        self.audits.retain(|_, h| !h.results.is_empty());
-        let touched: Vec<u32> = self
-            .acc
-            .iter()
-            .filter(|(_, a)| {
-                a.by.iter()
-                    .chain(a.pending_by.values())
-                    .any(|s| s.worker == w)
-            })
-            .map(|(t, _)| *t)
-            .collect();
-        for t in touched {
-            let Some(rect) = self.tiles.get(t) else {
-                continue;
-            };
-            let first = self.first_batches;
-            let pixel_bytes = self.pixel_bytes();
-            let Some(acc) = self.acc.get_mut(&t) else {
-                continue;
-            };
-            let mine: Vec<u32> = acc
-                .pending_by
-                .iter()
-                .filter(|(_, s)| s.worker == w)
-                .map(|(b, _)| *b)
-                .collect();
-            let mut lost = Vec::new();
-            for b in mine {
-                acc.pending_by.remove(&b);
-                if let Some(p) = acc.pending.remove(&b) {
-                    lost.push(p);
-                }
-                ops.push(Op::DelPending(id, t, b));
-                again.push(Unit { tile: t, batch: b });
-            }
-            if acc.by.iter().any(|s| s.worker == w) {
-                let mut copies = kept.kept(id, t, rect);
-                let old = acc.sums.take();
-                let old_next = acc.next;
-                let by = std::mem::take(&mut acc.by);
-                let mut total: Option<TileSums> = None;
-                let mut next = 0u32;
-                for (b, src) in (0..old_next).zip(by) {
-                    let copy = copies
-                        .remove(&b)
-                        .filter(|(serial, _)| src.worker != w && src.matches(*serial));
-                    match copy {
-                        Some((_, s)) if next == b => {
-                            // Kept copies were checked when they were merged.
-                            let sum = total.get_or_insert_with(|| TileSums::empty(rect, 0));
-                            if sum.merge(&s).is_err() {
-                                again.push(Unit { tile: t, batch: b });
-                                continue;
-                            }
-                            acc.by.push(src);
-                            next += 1;
-                        }
-                        Some((_, s)) => {
-                            ops.push(Op::PutPending(id, t, b, encode_sums(&s)));
-                            acc.pending.insert(b, s);
-                            acc.pending_by.insert(b, src);
-                        }
-                        None => again.push(Unit { tile: t, batch: b }),
-                    }
-                }
-                self.nonfinite = self
-                    .nonfinite
-                    .saturating_sub(old.map_or(0, |o| o.nonfinite));
-                self.nonfinite += total.as_ref().map_or(0, |s| s.nonfinite);
-                self.nonfinite += acc
-                    .pending
-                    .iter()
-                    .filter(|(b, _)| **b < old_next)
-                    .map(|(_, p)| p.nonfinite)
-                    .sum::<u64>();
-                let noise = total.as_ref().map_or((0.0, 0.0, 0), |s| s.noise_parts());
-                add_noise(&mut self.noise_total, acc.noise, -1.0);
-                add_noise(&mut self.noise_total, noise, 1.0);
-                acc.noise = noise;
-                if self.dirty.insert(t) {
-                    self.dirty_bytes += rect.area() as u64 * pixel_bytes;
-                }
-                acc.sums = total.map(Arc::new);
-                acc.next = next;
-                if old_next >= first && next < first {
-                    self.pilots_in = self.pilots_in.saturating_sub(1);
-                    self.tiles_closed = self.tiles_closed.saturating_sub(1);
-                }
-            }
-            for p in lost {
-                self.nonfinite = self.nonfinite.saturating_sub(p.nonfinite);
-            }
-        }
-        let taken = again.len() as u64;
-        for u in &again {
-            let area = self.tiles.get(u.tile).map_or(0, |r| r.area() as u64);
-            self.units_done = self.units_done.saturating_sub(1);
-            self.samples_done = self
-                .samples_done
-                .saturating_sub(area * self.batch_range(u.batch).len() as u64);
-        }
-        for u in again.into_iter().chain(held) {
-            self.requeue.push_front(u);
-        }
-        (ops, taken)
     }
 
     /// Each tile's relative noise from its merged sums, row-major ([`relative_noise`]).

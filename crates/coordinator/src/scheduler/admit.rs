@@ -340,9 +340,9 @@ impl Scheduler {
             // An adaptive job's decisions follow its merged sums; taking results back would
             // need them made again from the start, which is not built: such jobs are not
             // audited (docs/farm.md).
-            // A guided job's later epochs sample what its earlier results trained: taking
-            // results back would need every epoch after them rendered again (not built).
-            audited: self.policy.audit > 0.0 && s.adaptive.is_none() && !s.guiding,
+            // A guided job is audited: a conviction rewinds it to the first epoch whose
+            // guide the convict's training shaped (`Job::take_back`).
+            audited: self.policy.audit > 0.0 && s.adaptive.is_none(),
         };
         // The job's own count, so that admission and scheduling cannot disagree on it; a job
         // costs nothing per unit until its units render, so making it first is free. Every

@@ -11,12 +11,13 @@
 use std::time::Instant;
 
 use tessera_proto::ids::JobId;
+use tessera_render::guide::SdTree;
 use tessera_render::TileSums;
 
 use super::pick::has_active_lease;
-use super::{Merged, Scheduler};
+use super::{Merged, Scheduler, UnitResult};
 use crate::error::Refusal;
-use crate::job::{same_bits, AuditHold, Job, KeptUnits, Source, Unit, NOBODY};
+use crate::job::{same_result, AuditHold, Job, KeptUnits, Source, Unit, NOBODY};
 use crate::store::{AuditRecord, Op};
 
 /// Whether worker `w`, registered from `host`, may not give unit `u` its audit copy: it, or a
@@ -25,7 +26,7 @@ use crate::store::{AuditRecord, Op};
 pub(super) fn audit_excludes(job: &Job, u: Unit, w: u64, host: &str) -> bool {
     job.audits.get(&u).is_some_and(|h| {
         h.disputed
-            || h.results.iter().any(|(k, _)| *k == w)
+            || h.results.iter().any(|(k, ..)| *k == w)
             || (!host.is_empty() && h.hosts.contains(host))
     })
 }
@@ -61,7 +62,7 @@ impl Scheduler {
         w: u64,
         job_id: JobId,
         unit: Unit,
-        sums: TileSums,
+        (sums, train): (TileSums, Option<&SdTree>),
         now: Instant,
     ) -> Option<(TileSums, u64, Vec<Op>)> {
         let host = self
@@ -78,7 +79,7 @@ impl Scheduler {
             job.audits.insert(
                 unit,
                 AuditHold {
-                    results: vec![(w, sums)],
+                    results: vec![(w, sums, train.cloned())],
                     hosts: std::iter::once(host).filter(|h| !h.is_empty()).collect(),
                     disputed: false,
                     since: Some(now),
@@ -87,13 +88,13 @@ impl Scheduler {
             job.requeue.push_front(unit);
             return None;
         };
-        if !hold.results.iter().any(|(_, s)| same_bits(s, &sums)) {
-            hold.results.push((w, sums));
+        if !(hold.results.iter()).any(|(_, s, t)| same_result((s, t.as_ref()), (&sums, train))) {
+            hold.results.push((w, sums, train.cloned()));
             if !host.is_empty() {
                 hold.hosts.insert(host);
             }
             hold.disputed = true;
-            let involved: Vec<u64> = hold.results.iter().map(|(k, _)| *k).collect();
+            let involved: Vec<u64> = hold.results.iter().map(|(k, ..)| *k).collect();
             tracing::warn!(
                 "{job_id} tile {} batch {}: {} workers' copies differ; the coordinator renders \
                  the unit to decide",
@@ -110,7 +111,7 @@ impl Scheduler {
             return None;
         }
         let hold = job.audits.remove(&unit).unwrap_or_default();
-        for (k, _) in &hold.results {
+        for (k, ..) in &hold.results {
             if let Some(x) = self.workers.get_mut(k) {
                 x.audits_passed += 1;
             }
@@ -134,15 +135,19 @@ impl Scheduler {
     /// deterministic and the coordinator trusts itself. Every held copy that differs from it
     /// convicts its worker; those that match pass; the referee's sums are merged (as from
     /// [`NOBODY`]).
+    ///
+    /// In a guided job's training epoch the render comes with its training tree, which the
+    /// copies' must equal too, and which is added to the epoch's with the merge.
     pub fn referee(
         &mut self,
         job_id: JobId,
         unit: Unit,
-        sums: TileSums,
+        result: impl Into<UnitResult>,
         now: Instant,
         kept: &dyn KeptUnits,
         now_ms: i64,
     ) -> Result<Merged, Refusal> {
+        let UnitResult { sums, train } = result.into();
         let Some(job) = self.jobs.get_mut(&job_id) else {
             return Ok(Merged::Discarded);
         };
@@ -157,11 +162,11 @@ impl Scheduler {
             self.leases.remove(&l);
         }
         let mut ops = Vec::new();
-        for (k, copy) in &hold.results {
+        for (k, copy, copy_train) in &hold.results {
             if let Some(x) = self.workers.get_mut(k) {
                 x.disputes.remove(&(job_id, unit));
             }
-            if same_bits(copy, &sums) {
+            if same_result((copy, copy_train.as_ref()), (&sums, train.as_ref())) {
                 if let Some(x) = self.workers.get_mut(k) {
                     x.audits_passed += 1;
                 }
@@ -181,6 +186,17 @@ impl Scheduler {
         // merged; it is not done until this merge either way.
         if job.is_done(unit) {
             return Ok(Merged::Duplicate);
+        }
+        if let Some(g) = &mut job.guiding {
+            // A conviction may have rewound the epochs since this render began: a unit past
+            // the barrier now, or of an epoch no longer training, sampled a guide that is gone.
+            let area = sums.rect.area() as u64;
+            if unit.batch >= g.released() || g.check(unit.batch, area, train.as_ref()).is_err() {
+                return Ok(Merged::Discarded);
+            }
+            if let Some(t) = &train {
+                g.add(t);
+            }
         }
         self.serial += 1;
         let source = Source {
@@ -231,12 +247,15 @@ impl Scheduler {
                 }
                 continue;
             }
-            let (job_ops, taken) = job.take_back(w, kept);
-            if !job_ops.is_empty() || taken > 0 {
+            let back = job.take_back(w, kept);
+            if !back.ops.is_empty() || back.units > 0 {
                 rebuilt.push(job_id.0);
             }
-            units += taken;
-            ops.extend(job_ops);
+            units += back.units;
+            ops.extend(back.ops);
+            for l in back.stale_leases {
+                self.leases.remove(&l);
+            }
         }
         self.convictions += 1;
         tracing::warn!(

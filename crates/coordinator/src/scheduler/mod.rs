@@ -439,7 +439,7 @@ impl Scheduler {
             self.leases.remove(&l);
         }
         let (sums, from, mut ops) = if job.rec.audited {
-            match self.audit_step(w, job_id, unit, sums, now) {
+            match self.audit_step(w, job_id, unit, (sums, train.as_ref()), now) {
                 Some(settled) => settled,
                 None => return Ok(Merged::Held),
             }
@@ -449,8 +449,8 @@ impl Scheduler {
         let Some(job) = self.jobs.get_mut(&job_id) else {
             return Ok(Merged::Discarded);
         };
-        // Guided jobs are not audited, so this is the result checked above; added once, as its
-        // sums are merged once.
+        // The result checked above (or, settled by an audit, the same bits as the copy held
+        // before it); added once, as its sums are merged once.
         if let (Some(g), Some(t)) = (&mut job.guiding, &train) {
             g.add(t);
         }
