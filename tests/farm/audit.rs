@@ -11,7 +11,6 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 
 use tessera_render::guide::SdTree;
-use tessera_render::guided::{epoch_of, epochs, guide_bounds, render_tile_guided, structure};
 
 use crate::common::*;
 
@@ -66,45 +65,6 @@ async fn liar(url: String, text: String, settings: RenderSettings, stop: Arc<Ato
         let _ = client.submit_result(result_for(&id, &u, r)).await;
     }
     forged
-}
-
-/// An honest guided unit: rendered with `guide` (none in epoch 0), recording into its epoch's
-/// structure where the epoch trains.
-fn honest_guided(
-    scene: &Scene,
-    settings: &RenderSettings,
-    u: &pb::WorkUnit,
-    guide: Option<&SdTree>,
-) -> pb::TileResult {
-    let k = epoch_of(settings.spp, u.sample_start).expect("a sample of the job");
-    let train =
-        (k + 1 < epochs(settings.spp).len()).then(|| structure(guide_bounds(scene), k, guide));
-    let rect = PixelRect::from(u.rect.expect("rect"));
-    let range = u.sample_start..u.sample_end;
-    let (sums, trained) = render_tile_guided(scene, settings, rect, range, guide, train.as_ref());
-    pb::TileResult {
-        guide_train: trained.map(|t| t.encode()).unwrap_or_default(),
-        ..pb::TileResult::from(&sums)
-    }
-}
-
-/// A content-addressed asset's bytes, by hash.
-async fn fetch_asset(
-    client: &mut WorkersClient<Channel>,
-    hash: &str,
-) -> Result<Vec<u8>, tonic::Status> {
-    let mut stream = client
-        .fetch_asset(pb::FetchAssetRequest {
-            sha256: hash.to_string(),
-            offset: 0,
-        })
-        .await?
-        .into_inner();
-    let mut bytes = Vec::new();
-    while let Some(c) = stream.message().await? {
-        bytes.extend_from_slice(&c.data);
-    }
-    Ok(bytes)
 }
 
 /// Client options that connect from 127.0.0.`n`: another host, as the coordinator sees it.

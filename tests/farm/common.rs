@@ -13,6 +13,8 @@ pub use tessera_proto::v1 as pb;
 pub use tessera_proto::v1::jobs_client::JobsClient;
 pub use tessera_proto::v1::workers_client::WorkersClient;
 pub use tessera_proto::Secret;
+use tessera_render::guide::SdTree;
+use tessera_render::guided::{epoch_of, epochs, guide_bounds, render_tile_guided, structure};
 pub use tessera_render::output::{render_metadata, write_exr, ExrChannels};
 pub use tessera_render::scene::{Format, Limits, Scene};
 pub use tessera_render::{render_frame, RenderSettings, IMAGE_REVISION};
@@ -281,6 +283,45 @@ pub async fn fetch(client: &mut Client, job: &str) -> Vec<u8> {
         out.extend_from_slice(&c.data);
     }
     out
+}
+
+/// An honest guided unit: rendered with `guide` (none in epoch 0), recording into its epoch's
+/// structure where the epoch trains.
+pub fn honest_guided(
+    scene: &Scene,
+    settings: &RenderSettings,
+    u: &pb::WorkUnit,
+    guide: Option<&SdTree>,
+) -> pb::TileResult {
+    let k = epoch_of(settings.spp, u.sample_start).expect("a sample of the job");
+    let train =
+        (k + 1 < epochs(settings.spp).len()).then(|| structure(guide_bounds(scene), k, guide));
+    let rect = PixelRect::from(u.rect.expect("rect"));
+    let range = u.sample_start..u.sample_end;
+    let (sums, trained) = render_tile_guided(scene, settings, rect, range, guide, train.as_ref());
+    pb::TileResult {
+        guide_train: trained.map(|t| t.encode()).unwrap_or_default(),
+        ..pb::TileResult::from(&sums)
+    }
+}
+
+/// A content-addressed asset's bytes, by hash.
+pub async fn fetch_asset(
+    client: &mut WorkersClient<Channel>,
+    hash: &str,
+) -> Result<Vec<u8>, tonic::Status> {
+    let mut stream = client
+        .fetch_asset(pb::FetchAssetRequest {
+            sha256: hash.to_string(),
+            offset: 0,
+        })
+        .await?
+        .into_inner();
+    let mut bytes = Vec::new();
+    while let Some(c) = stream.message().await? {
+        bytes.extend_from_slice(&c.data);
+    }
+    Ok(bytes)
 }
 
 /// The bytes `tessera render` writes for the same job.

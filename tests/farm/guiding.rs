@@ -5,7 +5,7 @@
 
 use crate::common::*;
 use tessera_render::guide::SdTree;
-use tessera_render::guided::{guide_bounds, render_tile_guided, structure};
+use tessera_render::guided::{guide_bounds, structure};
 
 /// Guided settings: 32 spp in batches of 4 (epochs [0,1) [1,3) [3,7) [7,15) [15,32), cut into
 /// 12 batches), seed 7.
@@ -101,22 +101,7 @@ async fn forged_training_trees_are_refused_and_epochs_wait_for_their_guide() {
     assert!(units
         .iter()
         .all(|u| u.sample_end == 1 && u.guide_sha256.is_empty()));
-    let train0 = structure(bounds, 0, None);
-    let honest = |u: &pb::WorkUnit| {
-        let rect = PixelRect::from(u.rect.expect("rect"));
-        let (sums, trained) = render_tile_guided(
-            &scene,
-            &settings,
-            rect,
-            u.sample_start..u.sample_end,
-            None,
-            Some(&train0),
-        );
-        pb::TileResult {
-            guide_train: trained.expect("epoch 0 trains").encode(),
-            ..pb::TileResult::from(&sums)
-        }
-    };
+    let honest = |u: &pb::WorkUnit| honest_guided(&scene, &settings, u, None);
     let send = |u: &pb::WorkUnit, result: pb::TileResult| pb::SubmitResultRequest {
         worker_id: id.clone(),
         lease_id: u.lease_id.clone(),
@@ -166,18 +151,7 @@ async fn forged_training_trees_are_refused_and_epochs_wait_for_their_guide() {
         .map(|u| u.guide_sha256.clone())
         .unwrap_or_default();
     assert_eq!(hash.len(), 64, "{next:?}");
-    let mut stream = hand
-        .fetch_asset(pb::FetchAssetRequest {
-            sha256: hash.clone(),
-            offset: 0,
-        })
-        .await
-        .expect("fetch")
-        .into_inner();
-    let mut bytes = Vec::new();
-    while let Some(c) = stream.message().await.expect("chunk") {
-        bytes.extend_from_slice(&c.data);
-    }
+    let bytes = fetch_asset(&mut hand, &hash).await.expect("fetch");
     assert_eq!(tessera_render::scene::assets::sha256_hex(&bytes), hash);
     SdTree::decode(&bytes).expect("a guide");
     // The hand-driven worker leaves; a real one finishes the job to the local bits.

@@ -99,13 +99,23 @@ fn renders_sampling_a_learned_guide_throughout_agree_with_unguided_ones() {
 #[test]
 fn a_guided_furnace_gives_its_analytic_radiance() {
     // Le/(1 − ρ) everywhere: 0.5/(1 − 0.8) = 2.5.
-    let scene = common::scene(&common::closed_sphere([0.8; 3], [0.5; 3], 16, 16));
-    let img = guided(&scene, &settings(128, 3));
-    let (mean, se) = common::region_stats(&img, 0, 0, 16, 16);
+    let img = guided(&furnace(), &settings(128, 3));
+    assert_furnace(&img, "");
+}
+
+/// A closed sphere of albedo 0.8 emitting 0.5, seen from inside at 16×16: Le/(1 − ρ) = 2.5
+/// everywhere.
+fn furnace() -> Scene {
+    common::scene(&common::closed_sphere([0.8; 3], [0.5; 3], 16, 16))
+}
+
+/// `img` of [`furnace`] is 2.5 within 4σ in each channel; `what` names the case.
+fn assert_furnace(img: &Image, what: &str) {
+    let (mean, se) = common::region_stats(img, 0, 0, 16, 16);
     for c in 0..3 {
         assert!(
             (mean[c] - 2.5).abs() < 4.0 * se[c] + 1e-4,
-            "channel {c}: {} ± {}",
+            "{what}channel {c}: {} ± {}",
             mean[c],
             se[c]
         );
@@ -176,18 +186,8 @@ fn a_guide_trained_on_garbage_stays_unbiased() {
         let guide = garbage(alpha);
         assert!(guide.at(Vec3A::ZERO).len() > 10, "the garbage was learned");
         // The furnace: exactly Le/(1 − ρ).
-        let furnace = common::scene(&common::closed_sphere([0.8; 3], [0.5; 3], 16, 16));
-        let img = with_guide(&furnace, &settings(64, 4), &guide);
-        let (mean, se) = common::region_stats(&img, 0, 0, 16, 16);
-        for c in 0..3 {
-            assert!(
-                (mean[c] - 2.5).abs() < 4.0 * se[c] + 1e-4,
-                "α = {}: {} ± {}",
-                ALPHAS[alpha],
-                mean[c],
-                se[c]
-            );
-        }
+        let img = with_guide(&furnace(), &settings(64, 4), &guide);
+        assert_furnace(&img, &format!("α = {}: ", ALPHAS[alpha]));
         // The caustic, against an unguided render.
         let scene = small("caustic.toml", 32);
         let with = with_guide(&scene, &settings(512, 5), &guide);
@@ -197,6 +197,18 @@ fn a_guide_trained_on_garbage_stays_unbiased() {
         assert!(frac < 0.01, "α = {a}: {frac} of pixel-channels beyond 4σ");
         assert!(worst < 6.0, "α = {a}: a 4×4 block {worst:.2}σ apart");
     }
+}
+
+/// The next guide after `guide`, one leaf trained, whose largest α measured `gain` of the
+/// cosine lobe's second moment and every other candidate as much as the lobe: it chooses the
+/// largest α, with ratio `gain`.
+fn measured(guide: &SdTree, gain: f64) -> SdTree {
+    let mut next = guide.refined(u64::MAX, 0.01);
+    next.record(Vec3A::ZERO, Vec3A::Z, 1.0);
+    let m = std::array::from_fn(|i| if i + 1 == ALPHAS.len() { gain } else { 1.0 });
+    next.record_with(Vec3A::ZERO, Vec3A::Z, 1.0, Some(&m));
+    next.freeze();
+    next
 }
 
 /// From [`FIRST_OFF_EPOCH`] on, a guide whose leaves all chose α = 0, or whose choices
@@ -215,13 +227,7 @@ fn an_epoch_whose_guide_does_not_pay_renders_unguided_and_trains_nothing() {
     for (alpha, gain) in [(0, None), (ALPHAS.len() - 1, Some(0.9))] {
         let mut guide = garbage(alpha);
         if let Some(g) = gain {
-            let mut next = guide.refined(u64::MAX, 0.01);
-            next.record(Vec3A::ZERO, Vec3A::Z, 1.0);
-            // The last candidate measures `g` of the cosine lobe's moment, the rest more.
-            let m = std::array::from_fn(|i| if i + 1 == ALPHAS.len() { g } else { 1.0 });
-            next.record_with(Vec3A::ZERO, Vec3A::Z, 1.0, Some(&m));
-            next.freeze();
-            guide = next;
+            guide = measured(&guide, g);
             assert!(guide.guides(), "a leaf samples it");
             assert!(guide.second_moment_ratio().is_some_and(|r| r > OFF_ABOVE));
         }
@@ -257,11 +263,7 @@ fn an_epoch_whose_guide_does_not_pay_renders_unguided_and_trains_nothing() {
         assert!(on.is_some_and(|t| t.records() > 0), "epoch 2 trains");
     }
     // A guide sampled at a good gain stays on.
-    let mut good = garbage(ALPHAS.len() - 1).refined(u64::MAX, 0.01);
-    good.record(Vec3A::ZERO, Vec3A::Z, 1.0);
-    let m = std::array::from_fn(|i| if i + 1 == ALPHAS.len() { 0.3 } else { 1.0 });
-    good.record_with(Vec3A::ZERO, Vec3A::Z, 1.0, Some(&m));
-    good.freeze();
+    let good = measured(&garbage(ALPHAS.len() - 1), 0.3);
     assert!(guides(FIRST_OFF_EPOCH + 5, Some(&good)));
     assert!(!guides(0, None));
 }
