@@ -257,6 +257,53 @@ fn bench_measures_a_peer_command_point_by_point_and_rejects_its_bad_answers() {
     assert_clean_failure(&r, &["may not be named tessera"]);
 }
 
+/// `bench --guiding` measures a guided render right after each unguided point and reports
+/// each guided point's speed-up at equal relMSE (NAME-guiding.md).
+#[test]
+fn bench_guiding_measures_guided_renders_beside_unguided_ones() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let scene = tiny_bench_scene(dir.path());
+    let out = dir.path().join("out");
+    std::fs::create_dir(&out).expect("mkdir");
+    let cache = dir.path().join("cache");
+    let r = tessera(&[
+        "bench",
+        "--scene",
+        &scene,
+        "--max-spp",
+        "64",
+        "--seeds",
+        "1",
+        "--reference-spp",
+        "64",
+        "--cache",
+        cache.to_str().expect("utf8"),
+        "--out",
+        out.to_str().expect("utf8"),
+        "--name",
+        "g",
+        "--guiding",
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let csv = std::fs::read_to_string(out.join("g.csv")).expect("csv");
+    // 4, 16 and 64 spp, each unguided and guided.
+    for renderer in ["tessera", "tessera-guided"] {
+        let rows = csv
+            .lines()
+            .filter(|l| l.starts_with(&format!("{renderer},tiny,")))
+            .count();
+        assert_eq!(rows, 3, "{renderer}: {csv}");
+    }
+    let md = std::fs::read_to_string(out.join("g-guiding.md")).expect("the guiding report");
+    assert!(
+        md.contains("| scene | spp | unguided s |")
+            && md.contains("| tiny | 64 |")
+            && md.contains("## Summary")
+            && md.contains("--guiding"),
+        "{md}"
+    );
+}
+
 #[test]
 fn loadtest_runs_simulated_workers_against_a_coordinator_and_reports_what_it_measured() {
     let dir = tempfile::tempdir().expect("tmp");
