@@ -84,5 +84,8 @@ pub use util::{files, lanes, math, sampling};
 /// an older revision would render a guided job's units without its guide. Revision 6 changed
 /// them again (each leaf of a guide learns its own selection probability, and guiding turns
 /// itself off where the guide does not pay); the pin now hashes a guided render too, so guided
-/// bits cannot change unseen either.
-pub const IMAGE_REVISION: u32 = 6;
+/// bits cannot change unseen either. Revision 7 clamps each sample's AOV albedo into [0, 1]
+/// and normal components into [−1, 1] as they enter a sum (a normalised f32 normal can exceed
+/// 1 by an ulp, which the farm's bounds refused), which moves AOV bits by an ulp where they
+/// had exceeded; the pin hashes AOV renders too since.
+pub const IMAGE_REVISION: u32 = 7;

@@ -152,13 +152,25 @@ fn sums_hash(hash: &mut u64, t: &TileSums) {
         eat(&k.to_le_bytes());
     }
     eat(&t.nonfinite.to_le_bytes());
+    if let Some(a) = &t.aov {
+        for i in 0..a.count.len() {
+            for c in 0..3 {
+                eat(&a.albedo[i][c].to_bits().to_le_bytes());
+                eat(&a.normal[i][c].to_bits().to_le_bytes());
+            }
+            eat(&a.depth[i].to_bits().to_le_bytes());
+            eat(&a.hits[i].to_le_bytes());
+            eat(&a.count[i].to_le_bytes());
+        }
+    }
 }
 
 /// The image revision and the hash of its renders: the bundled scenes of each kind (analytic
 /// shapes, glass, meshes, textures), plus an ellipsoid (the one shape they lack), for a few
 /// samples of each strategy over a strip through the middle of the frame, and a guided render
-/// of glass-mirror (since revision 6: before, guided bits could change unseen).
-const PINNED: (u32, u64) = (6, 0xf734_f9ec_5489_a556);
+/// of glass-mirror (since revision 6: before, guided bits could change unseen), and since
+/// revision 7 the AOVs of the glTF sample (smooth normals, a normal map) and the textured scene.
+const PINNED: (u32, u64) = (7, 0x98d4_2f3e_aaf6_0191);
 
 /// The bits the renderer returns are pinned to [`tessera_render::IMAGE_REVISION`]: a change
 /// that alters them must bump the revision (and update the hash here), because the farm refuses
@@ -237,6 +249,22 @@ radius = 0.3
     };
     let frame = tessera_render::guided::render_frame_guided(&scenes[2], &guided, &|_| {});
     sums_hash(&mut hash, &frame.sums);
+    // AOVs (revision 7 clamped each sample's albedo and normal where it enters a sum).
+    let aovs = RenderSettings {
+        seed: 3,
+        spp: 4,
+        aovs: tessera_render::Aovs::parse("albedo,normal,depth").expect("aovs"),
+        ..RenderSettings::default()
+    };
+    for scene in [&load("gltf/sample.glb"), &scenes[5]] {
+        let rect = PixelRect {
+            x0: 0,
+            y0: scene.height / 2 - 2,
+            width: scene.width,
+            height: 4,
+        };
+        sums_hash(&mut hash, &render_tile(scene, &aovs, rect, 0..4));
+    }
     assert_eq!(
         (tessera_render::IMAGE_REVISION, hash),
         PINNED,

@@ -108,6 +108,13 @@ pub(crate) struct AovBatch {
 
 impl AovBatch {
     /// Adds one sample's AOVs (left out if not finite).
+    ///
+    /// Each sample's albedo is clamped into [0, 1] and each normal component into [−1, 1]
+    /// here, the one place every sample enters a sum: a normalised f32 vector can have a
+    /// component of 1 + 1 ulp, and a base colour read from a file is whatever it says. So a
+    /// pixel's sums keep to the farm's bounds (albedo in [0, count], normal in [−count,
+    /// count]) by construction: rounding is monotone and every integer up to 2^53 is an f64,
+    /// so a sum of `k` values each at most 1, in any order and grouping, is at most `k`.
     #[inline]
     pub(crate) fn add(&mut self, h: FirstHit) {
         let depth = h.depth.unwrap_or(0.0);
@@ -115,8 +122,8 @@ impl AovBatch {
             return;
         }
         for c in 0..3 {
-            self.albedo[c] += f64::from(h.albedo[c]);
-            self.normal[c] += f64::from(h.normal[c]);
+            self.albedo[c] += f64::from(h.albedo[c].clamp(0.0, 1.0));
+            self.normal[c] += f64::from(h.normal[c].clamp(-1.0, 1.0));
         }
         if h.depth.is_some() {
             self.depth += f64::from(depth);
