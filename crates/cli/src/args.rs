@@ -55,17 +55,36 @@ impl GltfArgs {
                 if !p.is_file() {
                     bail!("--environment {}: no such file", p.display());
                 }
-                // The scene names files relative to the glTF file's directory.
+                // The scene names files relative to the glTF file's folder, and only inside
+                // it (what the farm's workers receive is that name, nothing above it).
                 let dir = scene.parent().unwrap_or(std::path::Path::new(""));
-                let name = match p.strip_prefix(dir) {
-                    Ok(rel) if !dir.as_os_str().is_empty() => rel.to_path_buf(),
-                    _ if dir.as_os_str().is_empty() => p.clone(),
-                    _ => std::path::absolute(p)
-                        .with_context(|| format!("--environment {}", p.display()))?,
+                let here = |p: &std::path::Path| {
+                    std::path::absolute(if p.as_os_str().is_empty() {
+                        ".".as_ref()
+                    } else {
+                        p
+                    })
+                    .with_context(|| format!("--environment {}", p.display()))
+                };
+                let name = match here(p)?.strip_prefix(here(dir)?) {
+                    Ok(rel) => rel.to_path_buf(),
+                    Err(_) => std::path::PathBuf::from(".."),
                 };
                 let name = name.to_str().with_context(|| {
                     format!("--environment {}: the path is not UTF-8", p.display())
                 })?;
+                if tessera_render::scene::assets::check_file_name(name).is_err() {
+                    bail!(
+                        "--environment {}: the map must be inside the glTF file's folder ({}), \
+                         as every file a scene reads is; copy or link it there",
+                        p.display(),
+                        if dir.as_os_str().is_empty() {
+                            ".".into()
+                        } else {
+                            dir.display().to_string()
+                        }
+                    );
+                }
                 Some(name.to_string())
             }
         };

@@ -603,16 +603,37 @@ fn render_writes_the_aovs_it_is_asked_for_and_names_one_it_does_not_know() {
 }
 
 /// A glTF file is a scene: `--camera` picks its camera by name, `--environment` lights it by
-/// an HDR map (named relative to the working directory, as a user types it), and both flags
-/// are refused for a TOML scene, whose text says its own camera and light; a broken glTF file
-/// is refused in one line naming it.
+/// an HDR map (named relative to the working directory, as a user types it, and inside the
+/// glTF file's folder, as every file a scene reads is), and both flags are refused for a TOML
+/// scene, whose text says its own camera and light; a broken glTF file is refused in one line
+/// naming it.
 #[test]
 fn gltf_files_render_with_their_camera_and_an_environment() {
     let dir = tempfile::tempdir().expect("tmp");
     let out = dir.path().join("g.exr");
     let out = out.to_str().expect("utf8");
-    let sample = repo("scenes/gltf/sample.glb");
-    let sky = repo("scenes/textures/sky.exr");
+    let model = dir.path().join("model");
+    std::fs::create_dir(&model).expect("mkdir");
+    std::fs::copy(repo("scenes/gltf/sample.glb"), model.join("sample.glb")).expect("copy");
+    std::fs::copy(repo("scenes/textures/sky.exr"), model.join("sky.exr")).expect("copy");
+    let sample = model.join("sample.glb").to_str().expect("utf8").to_string();
+    let sky = model.join("sky.exr").to_str().expect("utf8").to_string();
+    // A map outside the glTF file's folder is refused before anything is read.
+    let outside = repo("scenes/textures/sky.exr");
+    let r = tessera(&[
+        "render",
+        &sample,
+        "--spp",
+        "1",
+        "--output",
+        out,
+        "--environment",
+        &outside,
+    ]);
+    assert_clean_failure(
+        &r,
+        &["--environment", "must be inside the glTF file's folder"],
+    );
     let r = tessera(&[
         "render",
         &sample,
@@ -702,4 +723,79 @@ fn guided_renders_say_so_and_are_the_same_bytes_on_any_threads() {
         "x.exr",
     ]);
     assert_clean_failure(&bad, &["--guiding", "--noise-target"]);
+}
+
+/// A glTF file may read only files inside its own folder: a buffer or image URI that climbs
+/// out (`../secret/id_rsa`), percent-encoded or not, or that is absolute, is refused by
+/// `tessera render` and by `tessera submit` before anything is read or uploaded, naming the
+/// URI and where it is; a TOML scene's `file` alike.
+#[test]
+fn scene_files_may_not_read_outside_their_folder() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let secret = dir.path().join("secret");
+    std::fs::create_dir(&secret).expect("mkdir");
+    std::fs::write(secret.join("id_rsa"), b"PRIVATE KEY").expect("write");
+    std::fs::write(
+        secret.join("key.obj"),
+        b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+    )
+    .expect("write");
+    let model = dir.path().join("model");
+    std::fs::create_dir(&model).expect("mkdir");
+    let out = dir.path().join("o.exr");
+    let out = out.to_str().expect("utf8");
+    let abs = secret.join("id_rsa");
+    let abs = abs.to_str().expect("utf8");
+    for (uri, said) in [
+        ("../secret/id_rsa", "climbs out"),
+        ("..%2Fsecret%2Fid_rsa", "decodes to `../secret/id_rsa`"),
+        (&format!("{}", abs.replace('/', "%2F")), "absolute"),
+        (&format!("file://{abs}"), "scheme"),
+    ] {
+        let gltf = format!(
+            r#"{{"asset":{{"version":"2.0"}},"buffers":[{{"uri":"{uri}","byteLength":4}}]}}"#
+        );
+        let file = common::write(&model, "evil.gltf", &gltf);
+        let r = tessera(&["render", &file, "--spp", "1", "--output", out]);
+        assert_clean_failure(&r, &["evil.gltf", "buffers[0]", said]);
+        // Refused before it connects anywhere (nothing listens there) or reads the file.
+        let r = tessera_at(&["submit", &file, "--spp", "1"], "http://127.0.0.1:9");
+        assert_clean_failure(&r, &["evil.gltf", "buffers[0]", said]);
+        assert!(!String::from_utf8_lossy(&r.stderr).contains("uploaded"));
+    }
+    let toml = common::write(
+        &model,
+        "evil.toml",
+        "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 0, 5]\ntarget = [0, 0, 0]\n\
+         fov = 40\n[film]\nwidth = 8\nheight = 8\n[materials.m]\ntype = \"diffuse\"\n\
+         albedo = [0.5, 0.5, 0.5]\n[[objects]]\nshape = \"mesh\"\nfile = \"../secret/key.obj\"\n\
+         material = \"m\"\n",
+    );
+    let r = tessera(&["render", &toml, "--spp", "1", "--output", out]);
+    assert_clean_failure(&r, &["evil.toml", "objects[0].file", "climbs out"]);
+}
+
+/// One sample per pixel gives no pixel variance: the summary says the noise is not estimated
+/// rather than σ≈0 (the noisiest image there is once read as clean); two samples estimate it.
+#[test]
+fn one_sample_per_pixel_says_its_noise_is_not_estimated() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("o.exr");
+    let out = out.to_str().expect("utf8");
+    let scene = repo("scenes/cornell-box.toml");
+    for (spp, said) in [("1", "noise not estimated"), ("2", "noise σ≈")] {
+        let r = tessera(&[
+            "render",
+            &scene,
+            "--spp",
+            spp,
+            "--output",
+            out,
+            "--threads",
+            "2",
+        ]);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let stdout = String::from_utf8_lossy(&r.stdout);
+        assert!(stdout.contains(said), "--spp {spp}: {stdout}");
+    }
 }

@@ -376,6 +376,65 @@ fn the_triangle_limit_counts_gltf_meshes() {
     );
 }
 
+/// An instance bomb: a mesh of 1,000 primitives (one small accessor each, all the same) under
+/// 2,000 nodes is two million placed shapes from a file of a few tens of kilobytes. It is
+/// refused from the JSON's counts, before a shape is built (it once took the coordinator past
+/// 900 MiB); the same tree under a lower limit fits, and a declared triangle count above the
+/// limit is refused before its buffer is read.
+#[test]
+fn the_node_tree_is_counted_before_anything_is_built() {
+    let bomb = |nodes: usize, prims: usize| {
+        let primitives: Vec<Value> = (0..prims)
+            .map(|_| json!({"attributes": {"POSITION": 0}, "indices": 1}))
+            .collect();
+        let node_list: Vec<Value> = (0..nodes).map(|_| json!({"mesh": 0})).collect();
+        let roots: Vec<usize> = (0..nodes).collect();
+        triangle_doc(
+            &QUAD,
+            &[0, 1, 2, 0, 2, 3],
+            json!({"scenes": [{"nodes": roots}], "nodes": node_list, "meshes": [{"primitives": primitives}]}),
+        )
+    };
+    let bytes = serde_json::to_vec(&bomb(2000, 1000)).expect("ok");
+    assert!(bytes.len() < 200_000, "{} bytes", bytes.len());
+    let e = load_file(
+        "bomb.gltf",
+        &bytes,
+        &GltfOptions::default(),
+        &Limits::default(),
+    )
+    .expect_err("refused");
+    assert!(
+        e.contains("places 2000000 shapes, above the scene's limit of 1048576 placed shapes"),
+        "{e}"
+    );
+    let small = serde_json::to_vec(&bomb(20, 10)).expect("ok");
+    let limits = Limits {
+        max_instances: 200,
+        ..Limits::default()
+    };
+    let scene = load_file("ok.gltf", &small, &GltfOptions::default(), &limits).expect("fits");
+    assert_eq!(scene.prims.len(), 200);
+    let limits = Limits {
+        max_instances: 199,
+        ..Limits::default()
+    };
+    let e = load_file("ok.gltf", &small, &GltfOptions::default(), &limits).expect_err("refused");
+    assert!(e.contains("places 200 shapes"), "{e}");
+    // A declared count is enough to refuse: the accessor claims 3·10⁹ indices.
+    let mut huge = bomb(1, 1);
+    huge["accessors"][1]["count"] = json!(3_000_000_000u64);
+    let bytes = serde_json::to_vec(&huge).expect("ok");
+    let e = load_file(
+        "huge.gltf",
+        &bytes,
+        &GltfOptions::default(),
+        &Limits::default(),
+    )
+    .expect_err("refused");
+    assert!(e.contains("declares 1000000000 triangles"), "{e}");
+}
+
 #[test]
 fn cameras_are_picked_by_name_or_index_and_framed_without_one() {
     let cams = json!({

@@ -8,6 +8,47 @@ use std::path::PathBuf;
 
 use sha2::{Digest, Sha256};
 
+/// Why `name`, a file a scene names, may not be read: a name must be a relative path that stays
+/// inside the scene file's folder (no `..` part, not absolute, no scheme or drive, `/` as the
+/// only separator), or a scene file could read any file its renderer can (`../.ssh/id_rsa`)
+/// and `tessera submit` would upload it to the farm for others to fetch. Every reader checks
+/// it: `tessera render` and `submit` before any byte is read, the coordinator on submission
+/// and the worker on loading, so a client that skips it is refused anyway. A glTF URI is
+/// checked after its percent-decoding (`..%2Fsecret` is `../secret`).
+pub fn check_file_name(name: &str) -> Result<(), String> {
+    let refuse = |why: &str| {
+        Err(format!(
+            "`{name}` {why}: a scene reads only files inside its own folder"
+        ))
+    };
+    if name.is_empty() {
+        return refuse("is empty");
+    }
+    if name.contains('\\') {
+        return refuse("has a backslash (use `/` between folders)");
+    }
+    if name.chars().any(char::is_control) {
+        return refuse("has a control character");
+    }
+    if name.starts_with('/') {
+        return refuse("is an absolute path");
+    }
+    if name
+        .split('/')
+        .next()
+        .is_some_and(|first| first.contains(':'))
+    {
+        return refuse("names a scheme or drive");
+    }
+    if name.split('/').any(|part| part == "..") {
+        return refuse("climbs out of its folder with `..`");
+    }
+    if name.ends_with('/') {
+        return refuse("names a folder");
+    }
+    Ok(())
+}
+
 /// A source of the files a scene names, by the name the scene gives (`file = "..."`).
 pub trait Assets {
     /// The bytes of `name`, at most `max_bytes` of them, or a one-line reason why not.
@@ -20,6 +61,7 @@ pub struct DirAssets(pub PathBuf);
 
 impl Assets for DirAssets {
     fn read(&self, name: &str, max_bytes: u64) -> Result<Vec<u8>, String> {
+        check_file_name(name)?;
         let path = self.0.join(name);
         let meta = std::fs::metadata(&path).map_err(|e| format!("cannot read `{name}`: {e}"))?;
         if !meta.is_file() {
@@ -88,5 +130,44 @@ impl Assets for MemAssets {
             ));
         }
         Ok(bytes.clone())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn file_names_stay_inside_the_scene_folder() {
+        for ok in [
+            "a.obj",
+            "meshes/a.obj",
+            "./a.png",
+            "my car.bin",
+            "a..b.png",
+            "x/.../y",
+        ] {
+            assert_eq!(check_file_name(ok), Ok(()), "{ok}");
+        }
+        for (bad, why) in [
+            ("", "is empty"),
+            ("../secret/id_rsa", "climbs out"),
+            ("meshes/../../x", "climbs out"),
+            ("..", "climbs out"),
+            ("/etc/passwd", "absolute"),
+            ("file:///etc/passwd", "scheme"),
+            ("https://example.com/a.bin", "scheme"),
+            ("C:/Windows/win.ini", "drive"),
+            ("..\\secret", "backslash"),
+            ("a\nb", "control"),
+            ("meshes/", "folder"),
+        ] {
+            let e = check_file_name(bad).expect_err(bad);
+            assert!(e.contains(why), "{bad}: {e}");
+        }
+        assert!(DirAssets(".".into())
+            .read("../x", 10)
+            .expect_err("refused")
+            .contains("climbs out"));
     }
 }

@@ -67,6 +67,8 @@ pub(super) fn build(
             ),
         ));
     }
+    let n = desc.objects.len();
+    files.take_instances(n, n, limits, &root("objects"))?;
     let mut prims = Vec::with_capacity(desc.objects.len());
     let mut lights = Vec::new();
     let (mut gltf_lights, mut cameras, mut warnings) = (Vec::new(), Vec::new(), Vec::new());

@@ -32,6 +32,8 @@ pub(super) struct SceneFiles {
     pub(super) read: Vec<(String, String)>,
     triangles: usize,
     texels: u64,
+    /// Shapes placed so far (TOML objects, glTF mesh primitives under their nodes).
+    instances: usize,
 }
 
 /// A texture file read, whose header gave its size, waiting to be decoded.
@@ -94,6 +96,7 @@ impl SceneFiles {
                 ),
             ));
         }
+        super::assets::check_file_name(name).map_err(|m| (path.clone(), m))?;
         let bytes = assets
             .read(name, limits.max_asset_bytes)
             .map_err(|m| (path.clone(), m))?;
@@ -146,6 +149,41 @@ impl SceneFiles {
         })
     }
 
+    /// Takes `n` placed shapes from what is left of the scene's limit; `shown` is the number
+    /// the refusal names (a glTF file's whole tree, of which the file's own object was taken).
+    pub(super) fn take_instances(
+        &mut self,
+        n: usize,
+        shown: usize,
+        limits: &Limits,
+        path: &KeyPath,
+    ) -> Result<(), Invalid> {
+        let left = limits.max_instances.saturating_sub(self.instances);
+        if n > left {
+            return Err((
+                path.clone(),
+                format!(
+                    "places {shown} shapes, above the scene's limit of {} placed shapes",
+                    limits.max_instances
+                ),
+            ));
+        }
+        self.instances += n;
+        Ok(())
+    }
+
+    /// Whether `n` more triangles fit in what is left of the scene's limit (nothing is taken).
+    pub(super) fn triangles_fit(&self, n: usize, limits: &Limits) -> Result<(), String> {
+        let left = limits.max_triangles.saturating_sub(self.triangles);
+        if n > left {
+            return Err(format!(
+                "declares {n} triangles, above what is left of the scene's limit of {} ({left})",
+                limits.max_triangles
+            ));
+        }
+        Ok(())
+    }
+
     /// Takes `n` triangles from what is left of the scene's limit.
     pub(super) fn take_triangles(
         &mut self,
@@ -153,7 +191,7 @@ impl SceneFiles {
         limits: &Limits,
         path: &KeyPath,
     ) -> Result<(), Invalid> {
-        let left = limits.max_triangles - self.triangles;
+        let left = limits.max_triangles.saturating_sub(self.triangles);
         if n > left {
             return Err((
                 path.clone(),
@@ -307,7 +345,7 @@ impl SceneFiles {
                 ))
             })?;
             let bytes = self.read_file(name, path, limits, assets)?;
-            let left = limits.max_triangles - self.triangles;
+            let left = limits.max_triangles.saturating_sub(self.triangles);
             let groups = load::load(name, &bytes, format, left).map_err(|e| fail(e.to_string()))?;
             let meshes = groups
                 .into_iter()

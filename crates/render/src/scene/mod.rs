@@ -85,6 +85,12 @@ pub struct Limits {
     /// Largest number of triangles over the scene's distinct meshes (instances of one mesh
     /// count once: they share it).
     pub max_triangles: usize,
+    /// Largest number of placed shapes: a TOML scene's objects, and every glTF node's mesh
+    /// primitives (each a shape of its own, with its transform and its BVH entry, which cost
+    /// memory even when they share their triangles). A glTF file's node tree is counted
+    /// before anything is built, so a small file that places a mesh of many primitives under
+    /// many nodes (an instance bomb) is refused before it allocates.
+    pub max_instances: usize,
 }
 
 impl Default for Limits {
@@ -98,6 +104,7 @@ impl Default for Limits {
             max_asset_bytes: 2 << 30,
             max_assets: 1024,
             max_triangles: 64 << 20,
+            max_instances: 1 << 20,
         }
     }
 }

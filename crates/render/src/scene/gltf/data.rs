@@ -6,6 +6,7 @@
 //! lies about its sizes gets an error naming the accessor, never a panic or an allocation
 //! larger than the buffers it came with.
 
+use crate::scene::assets::check_file_name;
 use base64::Engine as _;
 use gltf::accessor::{DataType, Dimensions};
 use gltf::Accessor;
@@ -79,15 +80,18 @@ pub(super) fn data_uri(uri: &str) -> Option<Result<(String, Vec<u8>), String>> {
     )
 }
 
-/// A relative URI as a file name beside the glTF file: percent-decoded, and refused when it
-/// names a scheme other than a plain path.
+/// A relative URI as a file name in the glTF file's folder: percent-decoded first, then
+/// refused if it leaves that folder ([`check_file_name`]), so `..%2Fsecret` is refused as
+/// `../secret` is.
 pub(super) fn uri_file(dir: &str, uri: &str) -> Result<String, String> {
-    if uri.contains("://") || uri.starts_with('/') {
-        return Err(format!(
-            "`{uri}` is not a relative path: only files beside the glTF file are read"
-        ));
-    }
     let path = urlencoding::decode(uri).map_err(|_| format!("`{uri}` is not valid UTF-8"))?;
+    check_file_name(&path).map_err(|m| {
+        if path == uri {
+            format!("uri {m}")
+        } else {
+            format!("uri `{uri}` decodes to {m}")
+        }
+    })?;
     Ok(if dir.is_empty() {
         path.into_owned()
     } else {
@@ -377,5 +381,16 @@ mod tests {
         assert_eq!(uri_file("", "a.png").expect("ok"), "a.png");
         assert!(uri_file("", "https://example.com/a.bin").is_err());
         assert!(uri_file("", "/etc/passwd").is_err());
+        for bad in [
+            "../secret/id_rsa",
+            "..%2Fsecret%2Fid_rsa",
+            "%2Fetc%2Fpasswd",
+            "%2e%2e/x",
+            "file:///etc/passwd",
+            "sub/..%2F..%2Fx",
+        ] {
+            let e = uri_file("models", bad).expect_err(bad);
+            assert!(e.contains("inside its own folder"), "{bad}: {e}");
+        }
     }
 }

@@ -225,6 +225,14 @@ pub(super) fn import(
     let (doc, bin, mut warnings) = parse(&bytes).map_err(fail)?;
     let bin = bin.map(<[u8]>::to_vec);
     drop(bytes);
+    // What the node tree places, counted from the JSON before a buffer is read or a shape
+    // built: a file of a few kilobytes can place millions.
+    let (instances, declared) = implied(&doc);
+    // The file itself was counted as one of the scene's objects.
+    files
+        .take_instances(instances.saturating_sub(1), instances, limits, path)
+        .map_err(|(p, m)| (p, format!("{name}: {m}")))?;
+    files.triangles_fit(declared, limits).map_err(fail)?;
     let dir = dir_of(name);
     let buffers = buffers(&doc, bin, dir, files, limits, assets, path).map_err(fail)?;
     for o in overrides.keys() {
@@ -319,6 +327,46 @@ pub(super) fn import(
         .map(|w| format!("{name}: {w}"))
         .collect();
     Ok(out)
+}
+
+/// What the file's node tree places, from its JSON alone: (shapes, triangles). Shapes are the
+/// triangle primitives of every mesh node (a node is reached at most once, as [`walk`]
+/// checks); triangles are counted once per distinct primitive, from its accessors' declared
+/// counts (an upper bound: strips and fans have fewer), as instances share them.
+fn implied(doc: &gltf::Document) -> (usize, usize) {
+    let triangles_of = |prim: &gltf::Primitive| -> usize {
+        let count = match prim.indices() {
+            Some(a) => a.count(),
+            None => prim
+                .get(&gltf::Semantic::Positions)
+                .map_or(0, |a| a.count()),
+        };
+        match prim.mode() {
+            Mode::Triangles => count / 3,
+            Mode::TriangleStrip | Mode::TriangleFan => count.saturating_sub(2),
+            _ => 0,
+        }
+    };
+    let is_triangles = |p: &gltf::Primitive| {
+        matches!(
+            p.mode(),
+            Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+        )
+    };
+    let mut shapes = 0usize;
+    let mut used = vec![false; doc.meshes().len()];
+    for node in doc.nodes() {
+        if let Some(mesh) = node.mesh() {
+            shapes = shapes.saturating_add(mesh.primitives().filter(is_triangles).count());
+            used[mesh.index()] = true;
+        }
+    }
+    let triangles = doc
+        .meshes()
+        .filter(|m| used[m.index()])
+        .flat_map(|m| m.primitives())
+        .fold(0usize, |n, p| n.saturating_add(triangles_of(&p)));
+    (shapes, triangles)
 }
 
 /// Every buffer's bytes: the GLB's BIN chunk, a data URI, or a file beside the glTF file.
