@@ -212,19 +212,49 @@ fn progress_style(tail: &str) -> indicatif::ProgressStyle {
     .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
 }
 
-/// `s` with control characters (escape sequences, carriage returns) written as escapes: for
-/// names that came from someone else (a worker's, a scene's), which must not be able to move
-/// the cursor or recolour the terminal of whoever lists them.
+/// `s` with control characters (escape sequences, carriage returns) and Unicode's invisible
+/// format characters (bidirectional overrides such as U+202E, zero-width spaces, the line and
+/// paragraph separators U+2028 and U+2029) written as escapes: for names that came from
+/// someone else (a worker's, a scene's), which must not be able to move the cursor, recolour
+/// the terminal, or make one name read as another for whoever lists them.
 fn printable(s: &str) -> String {
     s.chars()
         .map(|c| {
-            if c.is_control() {
+            if c.is_control() || is_format_or_separator(c) {
                 c.escape_default().to_string()
             } else {
                 c.to_string()
             }
         })
         .collect()
+}
+
+/// Whether `c` is in Unicode's general category Cf (format), Zl or Zp (Unicode 15.1's table;
+/// none of them has a visible glyph of its own).
+fn is_format_or_separator(c: char) -> bool {
+    matches!(
+        u32::from(c),
+        0xAD | 0x600..=0x605
+            | 0x61C
+            | 0x6DD
+            | 0x70F
+            | 0x890..=0x891
+            | 0x8E2
+            | 0x180E
+            | 0x200B..=0x200F
+            | 0x2028..=0x202E
+            | 0x2060..=0x2064
+            | 0x2066..=0x206F
+            | 0xFEFF
+            | 0xFFF9..=0xFFFB
+            | 0x110BD
+            | 0x110CD
+            | 0x13430..=0x1343F
+            | 0x1BCA0..=0x1BCA3
+            | 0x1D173..=0x1D17A
+            | 0xE0001
+            | 0xE0020..=0xE007F
+    )
 }
 
 /// Whether an error comes from writing to a pipe whose reader has closed it.
@@ -264,5 +294,10 @@ mod tests {
     fn names_from_others_cannot_drive_the_terminal() {
         assert_eq!(super::printable("w\u{1b}[2J\rx"), "w\\u{1b}[2J\\rx");
         assert_eq!(super::printable("rendu-é"), "rendu-é");
+        // A right-to-left override would show "evil\u{202e}fdp.exr" as "evilrxe.pdf".
+        assert_eq!(
+            super::printable("a\u{202e}b\u{2028}c\u{200b}"),
+            "a\\u{202e}b\\u{2028}c\\u{200b}"
+        );
     }
 }

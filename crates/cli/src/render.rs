@@ -185,8 +185,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
             settings.spp
         ),
     };
+    let noise = noise_said(noise, rel, image.count.iter().any(|&k| k > 1));
     outln!(
-        "rendered {}×{} at {spp}{guide_note} in {:.2} s on {}: {:.2} Msamples/s, noise σ≈{:.4} ({:.2}% of mean), {} non-finite samples dropped → {}",
+        "rendered {}×{} at {spp}{guide_note} in {:.2} s on {}: {:.2} Msamples/s, {noise}, {} non-finite samples dropped → {}",
         scene.width,
         scene.height,
         secs,
@@ -195,8 +196,6 @@ pub fn run(args: RenderArgs) -> Result<()> {
             n => format!("{n} threads"),
         },
         samples as f64 / secs / 1e6,
-        noise,
-        rel * 100.0,
         image.nonfinite,
         args.output.display()
     );
@@ -205,6 +204,17 @@ pub fn run(args: RenderArgs) -> Result<()> {
         errln!("warning: {line}");
     }
     Ok(())
+}
+
+/// The summary line's noise: σ of the pixel means and its share of the mean, or, where no
+/// pixel has two samples (`--spp 1`), that a pixel's variance cannot be estimated (σ≈0 would
+/// say the image is clean when it is the noisiest there is).
+pub(crate) fn noise_said(rms: f64, relative: f64, estimated: bool) -> String {
+    if estimated {
+        format!("noise σ≈{rms:.4} ({:.2}% of mean)", relative * 100.0)
+    } else {
+        "noise not estimated (one sample per pixel: it takes two)".to_string()
+    }
 }
 
 /// What a guided render's summary line says of its epochs: how many, the largest guide any

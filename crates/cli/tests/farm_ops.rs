@@ -443,3 +443,91 @@ fn named_tokens_record_who_submitted_and_sighup_rereads_the_file() {
     );
     drop(coord);
 }
+
+/// Named tokens have roles: a user's token serves the job API only, so a worker started with
+/// it is refused and cannot lease anybody's units; a `worker` token serves the worker API
+/// only, so it cannot submit; with one of each the farm renders. (A user once registered a
+/// worker with her own token, leased another user's units, and her forged results were
+/// merged.)
+#[test]
+fn a_user_token_cannot_work_and_a_worker_token_cannot_submit() {
+    const ALICE: &str = "alice-token-0123456789abcdef";
+    const FARM: &str = "farm-token-0123456789abcdef";
+    let dir = tempfile::tempdir().expect("tmp");
+    let tokens = common::private_file(
+        dir.path(),
+        "tokens",
+        &format!("alice {ALICE}\nfarm {FARM} worker\n"),
+    );
+    let alice = common::private_file(dir.path(), "alice.token", ALICE);
+    let farm = common::private_file(dir.path(), "farm.token", FARM);
+    let (_coord, addr) = common::start_coordinator(
+        "127.0.0.1:0",
+        &dir.path().join("data"),
+        &["--tokens-file", tokens.to_str().expect("utf8")],
+        std::process::Stdio::null(),
+    );
+    let url = format!("http://{addr}");
+    one_line_failure(
+        &as_user(
+            &["submit", &repo("scenes/cornell-box.toml"), "--spp", "1"],
+            &url,
+            &farm,
+        ),
+        "worker API only",
+    );
+    let log = dir.path().join("thief.log");
+    let _thief = common::worker_with(
+        &url,
+        "thief",
+        &["--token-file", alice.to_str().expect("utf8")],
+        &log,
+    );
+    wait_for("the user's token to be refused to a worker", || {
+        std::fs::read_to_string(&log).is_ok_and(|l| l.contains("job API only"))
+    });
+    let listed = as_user(&["workers"], &url, &alice);
+    assert!(
+        !String::from_utf8_lossy(&listed.stdout).contains("thief"),
+        "{listed:?}"
+    );
+    let _honest = common::worker_with(
+        &url,
+        "honest",
+        &["--token-file", farm.to_str().expect("utf8")],
+        &dir.path().join("honest.log"),
+    );
+    let out_exr = dir.path().join("out.exr");
+    let out = as_user(
+        &[
+            "submit",
+            &repo("scenes/cornell-box.toml"),
+            "--spp",
+            "2",
+            "--wait",
+            "--output",
+            out_exr.to_str().expect("utf8"),
+        ],
+        &url,
+        &alice,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// A client pointed at the dashboard's port says that it is the HTTP port and where gRPC
+/// listens, not tonic's "invalid compression flag: 110".
+#[test]
+fn a_client_at_the_dashboard_port_is_told_it_is_the_http_port() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, _grpc, dash) = common::coordinator_with_dashboard(&dir.path().join("data"), &[]);
+    let out = tessera_at(&["status"], &dash);
+    one_line_failure(&out, "answers HTTP, not gRPC");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("listening on"),
+        "{out:?}"
+    );
+}

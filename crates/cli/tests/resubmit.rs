@@ -84,6 +84,12 @@ impl Jobs for CollectBeforeSubmit {
     ) -> R<pb::DrainWorkerResponse> {
         self.farm.service().drain_worker(req).await
     }
+    async fn release_worker(
+        &self,
+        req: Request<pb::ReleaseWorkerRequest>,
+    ) -> R<pb::ReleaseWorkerResponse> {
+        self.farm.service().release_worker(req).await
+    }
     type FetchResultStream = <tessera_coordinator::Service as Jobs>::FetchResultStream;
     async fn fetch_result(
         &self,

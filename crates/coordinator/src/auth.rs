@@ -6,16 +6,21 @@
 //! for each token, reread when the coordinator gets SIGHUP ([`Tokens::reload`]):
 //!
 //! ```text
-//! # NAME   TOKEN                              [admin]
+//! # NAME   TOKEN                              [admin|worker]
 //! alice    6f1d0c0e8a2b4d7f9e3c5a1b2d4f6e8a
 //! bob      0b9a8c7d6e5f4a3b2c1d0e9f8a7b6c5d
 //! ops      a1b2c3d4e5f6a7b8c9d0e1f2a3b4c5d6   admin
-//! farm     5e4d3c2b1a0f9e8d7c6b5a4f3e2d1c0b
+//! farm     5e4d3c2b1a0f9e8d7c6b5a4f3e2d1c0b   worker
 //! ```
 //!
-//! A job records the user who submitted it (fair share and the per-user cap count by it), and
-//! only that user or an `admin` may cancel, pause, resume, reprioritise or retry it. Workers
-//! use any token of the file (a `farm` line, say).
+//! Each named token has one role ([`Role`]). A user's token (no third word) and an admin's
+//! serve the job API only (`tessera.v1.Jobs`, the dashboard and its HTTP API); a `worker`
+//! token serves the worker API only (`tessera.v1.Workers`). So a user cannot register a
+//! worker, lease another user's units and have forged results merged, or fetch the scenes and
+//! files of others' jobs, which workers read; and a worker's token, which sits on every render
+//! machine, cannot submit or cancel jobs. A job records the user who submitted it (fair share
+//! and the per-user cap count by it), and only that user or an `admin` may cancel, pause,
+//! resume, reprioritise or retry it.
 //!
 //! Every comparison hashes both sides first and checks every token, so neither its time nor
 //! its length depends on how much of a token matched, or which one.
@@ -29,8 +34,33 @@ use tessera_proto::{parse_token, Secret};
 /// Most users a tokens file may name.
 pub const MAX_TOKENS: usize = 10_000;
 
+/// The largest priority, either way, a user who is not an admin may give a job.
+pub const MAX_USER_PRIORITY: i32 = 100;
+
 /// Most characters of a user name.
 pub const MAX_USER_CHARS: usize = 64;
+
+/// What a token may call.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Role {
+    /// The job API: submit, follow, fetch, and change its own jobs.
+    User,
+    /// The job API, and may change every user's jobs and release quarantined workers.
+    Admin,
+    /// The worker API only: register, lease, return results, read the scenes it renders.
+    Worker,
+    /// Both APIs: the lone `--token-file` token, or no token at all.
+    Any,
+}
+
+/// The two gRPC services a token may be allowed to call, and the HTTP port (the job API's).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Api {
+    /// `tessera.v1.Jobs`, the dashboard and its HTTP API.
+    Jobs,
+    /// `tessera.v1.Workers`.
+    Workers,
+}
 
 /// Who a call comes from, as the services see it (a request extension the token check sets).
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -39,6 +69,8 @@ pub struct Caller {
     pub user: String,
     /// May act on every user's jobs.
     pub admin: bool,
+    /// Which API the token serves.
+    pub role: Role,
 }
 
 impl Caller {
@@ -48,6 +80,39 @@ impl Caller {
         Self {
             user: String::new(),
             admin: true,
+            role: Role::Any,
+        }
+    }
+
+    /// Whether this caller may give a job priority `priority`: within ±[`MAX_USER_PRIORITY`]
+    /// for a user, anything for an admin. Priority goes before fair share, so a user who could
+    /// set `i32::MAX` would take the whole farm from everybody else.
+    pub fn may_set_priority(&self, priority: i32) -> Result<(), String> {
+        if self.admin || priority.unsigned_abs() <= MAX_USER_PRIORITY.unsigned_abs() {
+            return Ok(());
+        }
+        Err(format!(
+            "priority {priority}: a user may set -{MAX_USER_PRIORITY} to {MAX_USER_PRIORITY}; \
+             only an admin may go beyond"
+        ))
+    }
+
+    /// Whether this caller's token serves `api`; the refusal says which token would.
+    pub fn may_call(&self, api: Api) -> Result<(), String> {
+        match (self.role, api) {
+            (Role::Any, _)
+            | (Role::User | Role::Admin, Api::Jobs)
+            | (Role::Worker, Api::Workers) => Ok(()),
+            (Role::Worker, Api::Jobs) => Err(format!(
+                "{}'s token is a worker token: it serves the worker API only (submit and \
+                 follow jobs with a user's token)",
+                self.user
+            )),
+            (Role::User | Role::Admin, Api::Workers) => Err(format!(
+                "{}'s token is a user's token: it serves the job API only (a worker needs a \
+                 token marked `worker` in the coordinator's tokens file)",
+                self.user
+            )),
         }
     }
 
@@ -136,18 +201,20 @@ impl Tokens {
                 continue;
             }
             let words: Vec<&str> = line.split_whitespace().collect();
-            let (user, token, admin) = match words[..] {
-                [u, t] => (u, t, false),
-                [u, t, "admin"] => (u, t, true),
+            let (user, token, role) = match words[..] {
+                [u, t] => (u, t, Role::User),
+                [u, t, "admin"] => (u, t, Role::Admin),
+                [u, t, "worker"] => (u, t, Role::Worker),
                 [_, _, other] => {
                     return Err(format!(
-                        "{at}: the third word may only be `admin`, not {:?}",
+                        "{at}: the third word may only be `admin` or `worker`, not {:?}",
                         crate::error::truncate(other)
                     ))
                 }
                 _ => {
                     return Err(format!(
-                        "{at}: expected `NAME TOKEN` or `NAME TOKEN admin`, got {} words",
+                        "{at}: expected `NAME TOKEN`, `NAME TOKEN admin` or `NAME TOKEN worker`, \
+                         got {} words",
                         words.len()
                     ))
                 }
@@ -157,7 +224,8 @@ impl Tokens {
             let entry = Named::new(
                 Caller {
                     user: user.to_string(),
-                    admin,
+                    admin: role == Role::Admin,
+                    role,
                 },
                 &secret,
             );
@@ -174,7 +242,8 @@ impl Tokens {
         }
         if named.is_empty() {
             return Err(format!(
-                "{source}: no tokens (a line is `NAME TOKEN`, or `NAME TOKEN admin`)"
+                "{source}: no tokens (a line is `NAME TOKEN`, `NAME TOKEN admin` or `NAME TOKEN \
+                 worker`)"
             ));
         }
         Ok(Self::of(named))
@@ -302,6 +371,29 @@ mod tests {
             .expect("ops")
             .may_change("j", "bob", "cancel")
             .is_ok());
+        assert!(alice.may_set_priority(100).is_ok() && alice.may_set_priority(-100).is_ok());
+        assert!(alice
+            .may_set_priority(i32::MAX)
+            .unwrap_err()
+            .contains("only an admin"));
+        assert!(alice.may_set_priority(i32::MIN).is_err());
+        assert!(t.caller(B).expect("ops").may_set_priority(i32::MAX).is_ok());
+        // Roles: users and admins call the job API, workers the worker API, nobody both.
+        assert!(alice.may_call(Api::Jobs).is_ok());
+        assert!(alice
+            .may_call(Api::Workers)
+            .unwrap_err()
+            .contains("job API only"));
+        let farm = Tokens::parse(&format!("farm {A} worker\n"), "t").expect("parse");
+        let farm = farm.caller(A).expect("farm");
+        assert_eq!((farm.role, farm.admin), (Role::Worker, false));
+        assert!(farm.may_call(Api::Workers).is_ok());
+        assert!(farm
+            .may_call(Api::Jobs)
+            .unwrap_err()
+            .contains("worker API only"));
+        assert!(Caller::anyone().may_call(Api::Workers).is_ok());
+        assert!(Caller::anyone().may_call(Api::Jobs).is_ok());
         // Sessions are per token.
         let s = t.session_for(A).expect("session");
         assert_eq!(t.session_caller(&s).map(|c| c.user), Some("alice".into()));
@@ -316,7 +408,7 @@ mod tests {
             ),
             (
                 format!("alice {A} root\n"),
-                "tokens:1: the third word may only be `admin`",
+                "tokens:1: the third word may only be `admin` or `worker`",
             ),
             ("alice short\n".to_string(), "tokens:1: alice's token:"),
             (format!("al/ice {A}\n"), "tokens:1: user name \"al/ice\""),

@@ -11,7 +11,7 @@ use tessera_proto::v1::workers_server::WorkersServer;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Certificate, Identity, ServerTlsConfig};
 
-use crate::auth::{bearer, Tokens};
+use crate::auth::{bearer, Api, Tokens};
 use crate::config::{Config, MAX_STREAMS_PER_CONNECTION};
 use crate::conn;
 use crate::error::CoordinatorError;
@@ -121,7 +121,11 @@ pub async fn serve_when_ready(
     let svc = Service::new(shared.clone());
     let tokens = shared.config.auth();
     let (incoming, gate) = conn::Limited::new(listener, max_connections, idle, tokens.is_none());
-    let auth = AuthCheck { tokens, gate };
+    let auth = AuthCheck {
+        tokens,
+        gate,
+        api: Api::Jobs,
+    };
     // One shutdown for both servers: the caller's, or the gRPC server's failure.
     let (stop_tx, stop) = tokio::sync::watch::channel(false);
     let stop_tx = Arc::new(stop_tx);
@@ -149,7 +153,10 @@ pub async fn serve_when_ready(
             WorkersServer::new(svc)
                 .max_decoding_message_size(max_msg)
                 .max_encoding_message_size(max_msg),
-            auth,
+            AuthCheck {
+                api: Api::Workers,
+                ..auth
+            },
         ))
         .serve_with_incoming_shutdown(incoming, shutdown)
         .await;
@@ -375,6 +382,8 @@ fn tick(shared: &Arc<Shared>) {
 struct AuthCheck {
     tokens: Option<Tokens>,
     gate: Arc<conn::Gate>,
+    /// The service this check guards: a token serves one ([`crate::auth::Role`]).
+    api: Api,
 }
 
 impl tonic::service::Interceptor for AuthCheck {
@@ -396,6 +405,9 @@ impl tonic::service::Interceptor for AuthCheck {
             let caller = tokens
                 .caller(t)
                 .ok_or_else(|| tonic::Status::unauthenticated("wrong token"))?;
+            caller
+                .may_call(self.api)
+                .map_err(tonic::Status::permission_denied)?;
             request.extensions_mut().insert(caller);
         }
         self.gate.prove(request.remote_addr());

@@ -158,9 +158,57 @@ fn a_drained_worker_is_leased_nothing_and_shows_as_draining() {
     let c = core.register("render-01".into(), 1, "v".into(), "c".into(), now);
     core.set_draining(c);
     assert!(leased(&mut core, c, now).is_empty());
-    // With every worker draining, a job with work left says no worker can take it.
+    // With every worker draining, a job with work left says no worker can take it, and why.
     assert_eq!(
         waiting(&core, job, now).as_deref(),
-        Some("no worker is connected")
+        Some("no connected worker may work: 3 draining")
     );
+}
+
+/// Quarantined workers are named in a waiting job's reason (not "no worker is connected" while
+/// two are), and an admin's release lets them lease again with their count of invalid
+/// results cleared; releasing one that is not quarantined is refused by name.
+#[test]
+fn a_waiting_job_names_quarantined_workers_and_a_release_lets_them_work() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let names = OutputNames::new(dir.path());
+    let mut policy = Policy::new(Duration::from_secs(5));
+    policy.quarantine_after = 2;
+    let mut core = Scheduler::new(1, policy);
+    let now = Instant::now();
+    let (job, _) = core
+        .admit(requiring(&[], 0), LIMITS, &names, 1)
+        .expect("job");
+    let a = core.register("gltf-a".into(), 1, "v".into(), "a".into(), now);
+    let b = core.register("gltf-b".into(), 1, "v".into(), "b".into(), now);
+    for w in [a, b] {
+        core.count_bad_result(w);
+        core.count_bad_result(w);
+    }
+    let why = waiting(&core, job, now).expect("waits");
+    assert!(
+        why.starts_with(
+            "no connected worker may work: 2 quarantined: gltf-a (after 2 invalid results), gltf-b"
+        ) && why.contains("tessera workers --release NAME"),
+        "{why}"
+    );
+    assert!(leased(&mut core, a, now).is_empty());
+    assert!(matches!(
+        core.release_quarantine("nobody"),
+        Err(Refusal::NotFound(_))
+    ));
+    let released = core.release_quarantine("gltf-a").expect("released");
+    assert_eq!(released, vec![core.worker_id(a)]);
+    assert!(
+        matches!(core.release_quarantine("gltf-a"), Err(Refusal::NotFound(_))),
+        "not quarantined now"
+    );
+    assert_eq!(waiting(&core, job, now), None);
+    assert_eq!(leased(&mut core, a, now), vec![job]);
+    // Its count starts again: one more invalid result does not quarantine it.
+    core.count_bad_result(a);
+    let view = core.worker_views(now);
+    let a_view = view.iter().find(|v| v.name == "gltf-a").expect("listed");
+    assert_eq!(a_view.bad_results, 1);
+    assert_eq!(a_view.state, WorkerState::Alive);
 }

@@ -94,12 +94,12 @@ pub(super) fn as_caller<T>(msg: T, caller: Option<Extension<Caller>>) -> RpcRequ
     ),
     paths(
         openapi, list_jobs, intake::submit, job, cancel, pause, resume, priority, retry, logs,
-        output_exr, super::preview_png, list_workers, drain, intake::asset_status,
+        output_exr, super::preview_png, list_workers, drain, release, intake::asset_status,
         intake::upload_asset
     ),
     components(schemas(
         ApiError, intake::SubmitBody, intake::Submitted, PriorityBody, Retried, Cancelled,
-        LogsReply, LogLine, intake::Held, Drained, JobView, WorkerView
+        LogsReply, LogLine, intake::Held, Drained, Released, JobView, WorkerView
     )),
     modifiers(&Bearer),
     security(("bearer" = []))
@@ -434,6 +434,39 @@ pub(super) async fn drain(
     match app.svc.drain_worker(req).await {
         Ok(r) => Json(Drained {
             drained: r.into_inner().drained,
+        })
+        .into_response(),
+        Err(s) => refused(s),
+    }
+}
+
+/// The workers a release reached.
+#[derive(Serialize, ToSchema)]
+pub(super) struct Released {
+    /// Their public ids.
+    released: Vec<String>,
+}
+
+/// Lifts one worker's quarantine, by public id: its invalid results and any audit conviction
+/// are forgotten and it may lease again.
+#[utoipa::path(post, path = "/api/workers/{id}/release", params(("id" = String, Path, description = "public worker id, e.g. w1-3")), responses(
+    (status = 200, body = Released), (status = 400, body = ApiError), (status = 403, body = ApiError, description = "not an admin"), (status = 404, body = ApiError, description = "no quarantined worker has that id"),
+))]
+pub(super) async fn release(
+    State(app): State<App>,
+    Path(id): Path<String>,
+    caller: Option<Extension<Caller>>,
+) -> Response {
+    if id.parse::<tessera_proto::ids::WorkerId>().is_err() {
+        return refused(tonic::Status::invalid_argument(format!(
+            "{:?} is not a worker id",
+            crate::error::truncate(&id)
+        )));
+    }
+    let req = as_caller(pb::ReleaseWorkerRequest { worker: id }, caller);
+    match app.svc.release_worker(req).await {
+        Ok(r) => Json(Released {
+            released: r.into_inner().released,
         })
         .into_response(),
         Err(s) => refused(s),

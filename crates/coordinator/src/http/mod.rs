@@ -161,6 +161,7 @@ fn router(app: App) -> Router {
         .route("/api/jobs/{id}/output.exr", get(api::output_exr))
         .route("/api/workers", get(api::list_workers))
         .route("/api/workers/{id}/drain", post(api::drain))
+        .route("/api/workers/{id}/release", post(api::release))
         .route(
             "/api/assets/{sha256}",
             get(intake::asset_status).put(intake::upload_asset),
@@ -192,6 +193,13 @@ async fn check(State(app): State<App>, req: Request, next: Next) -> Response {
             trust.prove();
         }
         if let Some(c) = caller {
+            // The dashboard and its HTTP API are the job API: a worker's token is refused.
+            if let Err(message) = c.may_call(crate::auth::Api::Jobs) {
+                if api {
+                    return api::error(StatusCode::FORBIDDEN, "forbidden", &message);
+                }
+                return (StatusCode::FORBIDDEN, format!("{message}\n")).into_response();
+            }
             req.extensions_mut().insert(c);
         }
     } else if !open {

@@ -87,6 +87,35 @@ impl Scheduler {
         Ok(drained)
     }
 
+    /// Lifts the quarantine of the workers named `who` (every quarantined worker of that
+    /// name), or of the one whose public id it is; returns their ids. Their invalid results
+    /// and any conviction are forgotten: an admin who released one has judged it (a bad build
+    /// replaced, a check since fixed), and its next invalid results count from zero.
+    pub fn release_quarantine(&mut self, who: &str) -> Result<Vec<WorkerId>, Refusal> {
+        let by_id: Option<WorkerId> = who.parse().ok();
+        let mut released = Vec::new();
+        for (&n, w) in self.workers.iter_mut() {
+            let id = WorkerId {
+                epoch: self.epoch,
+                n,
+            };
+            if (by_id == Some(id) || w.name == who) && w.quarantined {
+                w.quarantined = false;
+                w.convicted = None;
+                w.bad_results = 0;
+                released.push(id);
+            }
+        }
+        if released.is_empty() {
+            return Err(Refusal::NotFound(format!(
+                "no quarantined worker is named {:?} or has that id (tessera workers lists \
+                 them)",
+                who.escape_debug().to_string()
+            )));
+        }
+        Ok(released)
+    }
+
     /// Why job `rec`, which has units to hand out, gets none: no connected worker that may
     /// work fits its requirements. `None` when one does.
     pub(super) fn waiting(&self, rec: &JobRecord, now: Instant) -> Option<String> {
@@ -99,7 +128,38 @@ impl Scheduler {
             })
             .collect();
         if able.is_empty() {
-            return Some("no worker is connected".into());
+            let alive = || self.workers.values().filter(|w| w.alive(now, lease_time));
+            let quarantined: Vec<String> = alive()
+                .filter(|w| w.quarantined)
+                .map(|w| match &w.convicted {
+                    Some(why) => format!("{} ({why})", w.name),
+                    None => format!("{} (after {} invalid results)", w.name, w.bad_results),
+                })
+                .collect();
+            let draining = alive().filter(|w| w.draining && !w.quarantined).count();
+            if quarantined.is_empty() && draining == 0 {
+                return Some("no worker is connected".into());
+            }
+            let mut why = Vec::new();
+            if !quarantined.is_empty() {
+                // Bounded: a farm of many quarantined workers names the first few.
+                let shown = quarantined.len().min(3);
+                why.push(format!(
+                    "{} quarantined: {}{} (an admin may release one: tessera workers --release \
+                     NAME)",
+                    quarantined.len(),
+                    quarantined[..shown].join(", "),
+                    if quarantined.len() > shown {
+                        ", …"
+                    } else {
+                        ""
+                    }
+                ));
+            }
+            if draining > 0 {
+                why.push(format!("{draining} draining"));
+            }
+            return Some(format!("no connected worker may work: {}", why.join("; ")));
         }
         let able: Vec<&super::Worker> = able
             .into_iter()

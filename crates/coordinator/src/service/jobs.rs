@@ -52,6 +52,9 @@ impl Jobs for Service {
         }
         check_tags("requirement", &req.require, MAX_REQUIREMENTS)
             .map_err(|e| Status::invalid_argument(format!("require: {e}")))?;
+        caller
+            .may_set_priority(req.priority)
+            .map_err(Status::permission_denied)?;
         let after = match req.after.as_str() {
             "" => None,
             a => Some(
@@ -291,6 +294,11 @@ impl Jobs for Service {
         let rx = {
             let mut core = self.shared.scheduler();
             may_change(&core, id, &caller, "pause, resume or reprioritise")?;
+            if let Some(p) = req.priority {
+                caller
+                    .may_set_priority(p)
+                    .map_err(Status::permission_denied)?;
+            }
             let ops = core.update(id, req.paused, req.priority)?;
             self.shared.queue_write(ops)
         };
@@ -404,6 +412,32 @@ impl Jobs for Service {
         }))
     }
 
+    async fn release_worker(
+        &self,
+        request: Request<pb::ReleaseWorkerRequest>,
+    ) -> Result<Response<pb::ReleaseWorkerResponse>, Status> {
+        if !caller(&request).admin {
+            return Err(Status::permission_denied(
+                "only an admin (a tokens-file line ending in `admin`) may release workers",
+            ));
+        }
+        let req = request.into_inner();
+        if req.worker.is_empty() || req.worker.len() > tessera_proto::MAX_ID_LEN * 4 {
+            return Err(Status::invalid_argument(
+                "worker: give a worker's name or public id (tessera workers lists them)",
+            ));
+        }
+        let released = self.shared.scheduler().release_quarantine(&req.worker)?;
+        for id in &released {
+            info!("worker {id} released from quarantine");
+        }
+        self.shared.bump_work();
+        self.shared.bump_changed();
+        Ok(Response::new(pb::ReleaseWorkerResponse {
+            released: released.iter().map(ToString::to_string).collect(),
+        }))
+    }
+
     type FetchResultStream = Stream_<pb::ResultChunk>;
 
     async fn fetch_result(
@@ -497,6 +531,9 @@ fn asset_names(refs: &[pb::AssetRef], max: usize) -> Result<BTreeMap<String, Str
                 r.name.len()
             )));
         }
+        // The same rule every scene reader keeps: a client that skipped it is refused here.
+        tessera_render::scene::assets::check_file_name(&r.name)
+            .map_err(|e| Status::invalid_argument(format!("the job's files: {}", truncate(&e))))?;
         if names.insert(r.name.clone(), r.sha256.clone()).is_some() {
             return Err(Status::invalid_argument(format!(
                 "the job lists `{}` twice",

@@ -34,11 +34,28 @@ use crate::{printable, progress_style};
 
 /// Turns a gRPC error into one line that says what failed.
 fn rpc_error(url: &str, what: &str, e: tonic::Status) -> anyhow::Error {
+    if answers_http_not_grpc(&e) {
+        return anyhow!(
+            "{url} answers HTTP, not gRPC: it looks like the coordinator's dashboard port. \
+             Clients and workers use its gRPC port, the one `tessera coordinator` prints as \
+             `listening on` (127.0.0.1:7878 by default), not its dashboard (--http) address"
+        );
+    }
     match e.code() {
         Code::Unavailable => anyhow!("cannot reach the coordinator at {url}: {}", e.message()),
         _ if e.message().contains(what) => anyhow!("{}", e.message()),
         _ => anyhow!("{what}: {}", e.message()),
     }
+}
+
+/// Whether `e` is what tonic makes of an HTTP answer that is not gRPC (a web page's body read
+/// as a gRPC frame: "invalid compression flag: 110" is its first byte, or a status without
+/// `grpc-status`).
+fn answers_http_not_grpc(e: &tonic::Status) -> bool {
+    let m = e.message();
+    m.contains("invalid compression flag")
+        || m.contains("grpc-status header missing")
+        || m.contains("invalid content type")
 }
 
 /// A `Jobs` client with the token attached.

@@ -39,12 +39,17 @@ pub struct WorkersArgs {
     #[command(flatten)]
     url: CoordinatorUrl,
     /// Print a JSON array for scripts, not the table.
-    #[arg(long, conflicts_with = "drain")]
+    #[arg(long, conflicts_with_all = ["drain", "release"])]
     json: bool,
     /// Drain the live workers of this name (or this worker id) instead of listing: each
     /// finishes the units it holds, hands back those not started, and exits.
-    #[arg(long, value_name = "NAME|ID")]
+    #[arg(long, value_name = "NAME|ID", conflicts_with = "release")]
     drain: Option<String>,
+    /// Lift the quarantine of the workers of this name (or this worker id), an admin's verb:
+    /// their count of invalid results and any audit conviction are cleared, and they may
+    /// lease again.
+    #[arg(long, value_name = "NAME|ID")]
+    release: Option<String>,
 }
 
 /// A job's status as its view ([`JobView`]): what the table, the detail and `--json` print.
@@ -330,6 +335,21 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
             outln!(
                 "draining {}: each finishes the units it holds, hands back the rest, and exits",
                 printable(&drained.join(", "))
+            );
+            return Ok(());
+        }
+        if let Some(who) = &args.release {
+            let released = client
+                .release_worker(pb::ReleaseWorkerRequest {
+                    worker: who.clone(),
+                })
+                .await
+                .map_err(|e| rpc_error(&url, &format!("releasing {who}"), e))?
+                .into_inner()
+                .released;
+            outln!(
+                "released {} from quarantine: they may lease again",
+                printable(&released.join(", "))
             );
             return Ok(());
         }

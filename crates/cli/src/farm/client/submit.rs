@@ -256,9 +256,16 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
                         && tries < 2 =>
                 {
                     tries += 1;
-                    errln!("the coordinator no longer holds a file ({}); uploading again", e.message());
+                    errln!(
+                        "the coordinator no longer holds a file ({}); uploading again",
+                        e.message()
+                    );
                 }
-                r => break r.map_err(|e| rpc_error(&url, "submit refused", e))?.into_inner(),
+                r => {
+                    break r
+                        .map_err(|e| rpc_error(&url, "submit refused", e))?
+                        .into_inner()
+                }
             }
         };
         if !args.wait {
@@ -283,14 +290,17 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
             let bytes = download(&mut client, &url, &resp.job_id, None, &out).await?;
             let secs = (s.finished_unix_ms - s.submitted_unix_ms) as f64 / 1000.0;
             outln!(
-                "{} done: {}×{} at {} in {:.2} s, noise σ≈{:.4} ({:.2}% of mean) → {} ({bytes} bytes)",
+                "{} done: {}×{} at {} in {:.2} s, {} → {} ({bytes} bytes)",
                 s.job_id,
                 s.width,
                 s.height,
                 spp_said(&s),
                 secs,
-                s.noise_rms,
-                s.noise_relative * 100.0,
+                crate::render::noise_said(
+                    s.noise_rms,
+                    s.noise_relative,
+                    s.settings.as_ref().is_some_and(|r| r.spp > 1)
+                ),
                 out.display()
             );
             Ok(())

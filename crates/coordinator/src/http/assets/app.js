@@ -48,6 +48,11 @@ function stateTag(s) { return el("span", { class: "state " + s }, s); }
 
 function live(s) { return s === "queued" || s === "running"; }
 
+async function release(w) {
+  if (!confirm(`Release ${w.name} (${w.worker_id}) from quarantine? Its invalid results are forgotten and it may lease again.`)) return;
+  try { await api(`/api/workers/${w.worker_id}/release`, { method: "POST" }); } catch (e) { alert(e.message); }
+}
+
 async function drain(w) {
   if (!confirm(`Drain ${w.name} (${w.worker_id})? It finishes the units it holds, hands back the rest, and exits.`)) return;
   try { await api(`/api/workers/${w.worker_id}/drain`, { method: "POST" }); } catch (e) { alert(e.message); }
@@ -244,7 +249,8 @@ function workersView(ws) {
     el("td", { class: "num" }, w.bad_results),
     el("td", { class: "num" }, w.audits_passed),
     el("td", {}, fmt.ago(1000 * w.last_seen_seconds_ago)),
-    el("td", {}, w.state === "alive" || w.state === "suspect" ? el("button", { onclick: () => drain(w) }, "Drain") : ""),
+    el("td", {}, w.state === "alive" || w.state === "suspect" ? el("button", { onclick: () => drain(w) }, "Drain") :
+      w.state === "quarantined" || w.state === "convicted" ? el("button", { onclick: () => release(w) }, "Release") : ""),
   ));
   return [
     el("h1", {}, "Workers ", el("span", { class: "muted" }, `(${ws.filter((w) => w.state === "alive").length} alive)`)),
