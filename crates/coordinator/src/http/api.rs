@@ -423,14 +423,10 @@ pub(super) async fn drain(
     Path(id): Path<String>,
     caller: Option<Extension<Caller>>,
 ) -> Response {
-    // By public id only: a name could drain several, which a button on one row must not.
-    if id.parse::<tessera_proto::ids::WorkerId>().is_err() {
-        return refused(tonic::Status::invalid_argument(format!(
-            "{:?} is not a worker id",
-            crate::error::truncate(&id)
-        )));
-    }
-    let req = as_caller(pb::DrainWorkerRequest { worker: id }, caller);
+    let req = match by_worker_id(id) {
+        Ok(worker) => as_caller(pb::DrainWorkerRequest { worker }, caller),
+        Err(r) => return r,
+    };
     match app.svc.drain_worker(req).await {
         Ok(r) => Json(Drained {
             drained: r.into_inner().drained,
@@ -438,6 +434,18 @@ pub(super) async fn drain(
         .into_response(),
         Err(s) => refused(s),
     }
+}
+
+/// A worker route's id, by public id only: a name could reach several, which a button on one
+/// row must not.
+fn by_worker_id(id: String) -> Result<String, Response> {
+    if id.parse::<tessera_proto::ids::WorkerId>().is_err() {
+        return Err(refused(tonic::Status::invalid_argument(format!(
+            "{:?} is not a worker id",
+            crate::error::truncate(&id)
+        ))));
+    }
+    Ok(id)
 }
 
 /// The workers a release reached.
@@ -457,13 +465,10 @@ pub(super) async fn release(
     Path(id): Path<String>,
     caller: Option<Extension<Caller>>,
 ) -> Response {
-    if id.parse::<tessera_proto::ids::WorkerId>().is_err() {
-        return refused(tonic::Status::invalid_argument(format!(
-            "{:?} is not a worker id",
-            crate::error::truncate(&id)
-        )));
-    }
-    let req = as_caller(pb::ReleaseWorkerRequest { worker: id }, caller);
+    let req = match by_worker_id(id) {
+        Ok(worker) => as_caller(pb::ReleaseWorkerRequest { worker }, caller),
+        Err(r) => return r,
+    };
     match app.svc.release_worker(req).await {
         Ok(r) => Json(Released {
             released: r.into_inner().released,

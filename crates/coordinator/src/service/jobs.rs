@@ -388,19 +388,8 @@ impl Jobs for Service {
         &self,
         request: Request<pb::DrainWorkerRequest>,
     ) -> Result<Response<pb::DrainWorkerResponse>, Status> {
-        if !caller(&request).admin {
-            // Workers are the farm's, not one user's.
-            return Err(Status::permission_denied(
-                "only an admin (a tokens-file line ending in `admin`) may drain workers",
-            ));
-        }
-        let req = request.into_inner();
-        if req.worker.is_empty() || req.worker.len() > tessera_proto::MAX_ID_LEN * 4 {
-            return Err(Status::invalid_argument(
-                "worker: give a worker's name or public id (tessera workers lists them)",
-            ));
-        }
-        let drained = self.shared.scheduler().drain(&req.worker, Instant::now())?;
+        let who = admins_worker(&caller(&request), "drain", request.into_inner().worker)?;
+        let drained = self.shared.scheduler().drain(&who, Instant::now())?;
         for id in &drained {
             info!("worker {id} draining");
         }
@@ -416,18 +405,8 @@ impl Jobs for Service {
         &self,
         request: Request<pb::ReleaseWorkerRequest>,
     ) -> Result<Response<pb::ReleaseWorkerResponse>, Status> {
-        if !caller(&request).admin {
-            return Err(Status::permission_denied(
-                "only an admin (a tokens-file line ending in `admin`) may release workers",
-            ));
-        }
-        let req = request.into_inner();
-        if req.worker.is_empty() || req.worker.len() > tessera_proto::MAX_ID_LEN * 4 {
-            return Err(Status::invalid_argument(
-                "worker: give a worker's name or public id (tessera workers lists them)",
-            ));
-        }
-        let released = self.shared.scheduler().release_quarantine(&req.worker)?;
+        let who = admins_worker(&caller(&request), "release", request.into_inner().worker)?;
+        let released = self.shared.scheduler().release_quarantine(&who)?;
         for id in &released {
             info!("worker {id} released from quarantine");
         }
@@ -515,6 +494,22 @@ impl Jobs for Service {
 }
 
 /// A job's files as name → hash: each hash well formed, each name once, at most `max`.
+/// The worker an admin's verb names (`who`: a name or a public id), or why not: workers are
+/// the farm's, not one user's, so only an admin may drain or release one.
+fn admins_worker(caller: &crate::auth::Caller, verb: &str, who: String) -> Result<String, Status> {
+    if !caller.admin {
+        return Err(Status::permission_denied(format!(
+            "only an admin (a tokens-file line ending in `admin`) may {verb} workers"
+        )));
+    }
+    if who.is_empty() || who.len() > tessera_proto::MAX_ID_LEN * 4 {
+        return Err(Status::invalid_argument(
+            "worker: give a worker's name or public id (tessera workers lists them)",
+        ));
+    }
+    Ok(who)
+}
+
 fn asset_names(refs: &[pb::AssetRef], max: usize) -> Result<BTreeMap<String, String>, Status> {
     if refs.len() > max {
         return Err(Status::resource_exhausted(format!(
