@@ -188,3 +188,33 @@ impl AovPlanes {
         self.depth.extend_from_slice(&other.depth);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3A;
+
+    /// A normalised f32 normal can have a component of 1 + 1 ulp, and a base colour can be
+    /// above 1: summed as they are, 32 such samples give 32.000000059604645, above the farm's
+    /// bound of 32 (`check_aov_sums`), and honest workers were quarantined for it.
+    #[test]
+    fn sums_of_ulp_high_samples_stay_within_their_counts() {
+        let over = f32::from_bits(1.0f32.to_bits() + 1);
+        let hit = FirstHit {
+            albedo: Vec3A::new(over, 1.5, -0.0),
+            normal: Vec3A::new(-over, over, 0.0),
+            depth: Some(2.0),
+        };
+        let mut sums = AovSums::zeros(1);
+        for _ in 0..4 {
+            let mut batch = AovBatch::default();
+            for _ in 0..8 {
+                batch.add(hit);
+            }
+            batch.flush_into(&mut sums, 0);
+        }
+        assert_eq!(sums.count[0], 32);
+        assert_eq!(sums.albedo[0], [32.0, 32.0, 0.0]);
+        assert_eq!(sums.normal[0], [-32.0, 32.0, 0.0]);
+    }
+}
