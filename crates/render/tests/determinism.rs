@@ -165,6 +165,16 @@ fn sums_hash(hash: &mut u64, t: &TileSums) {
     }
 }
 
+/// The strip of `rows` rows through the middle of `scene`'s frame.
+fn middle(scene: &tessera_render::scene::Scene, rows: u32) -> PixelRect {
+    PixelRect {
+        x0: 0,
+        y0: scene.height / 2 - rows / 2,
+        width: scene.width,
+        height: rows,
+    }
+}
+
 /// The image revision and the hash of its renders: the bundled scenes of each kind (analytic
 /// shapes, glass, meshes, textures), plus an ellipsoid (the one shape they lack), for a few
 /// samples of each strategy over a strip through the middle of the frame, and a guided render
@@ -230,13 +240,10 @@ radius = 0.3
                 strategy,
                 ..RenderSettings::default()
             };
-            let rect = PixelRect {
-                x0: 0,
-                y0: scene.height / 2 - 4,
-                width: scene.width,
-                height: 8,
-            };
-            sums_hash(&mut hash, &render_tile(scene, &settings, rect, 0..8));
+            sums_hash(
+                &mut hash,
+                &render_tile(scene, &settings, middle(scene, 8), 0..8),
+            );
         }
     }
     // Guided renders too (epochs, guides, each leaf's α, turning off from epoch 3): glass-mirror
@@ -257,13 +264,10 @@ radius = 0.3
         ..RenderSettings::default()
     };
     for scene in [&load("gltf/sample.glb"), &scenes[5]] {
-        let rect = PixelRect {
-            x0: 0,
-            y0: scene.height / 2 - 2,
-            width: scene.width,
-            height: 4,
-        };
-        sums_hash(&mut hash, &render_tile(scene, &aovs, rect, 0..4));
+        sums_hash(
+            &mut hash,
+            &render_tile(scene, &aovs, middle(scene, 4), 0..4),
+        );
     }
     assert_eq!(
         (tessera_render::IMAGE_REVISION, hash),

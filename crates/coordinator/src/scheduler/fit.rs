@@ -116,6 +116,42 @@ impl Scheduler {
         Ok(released)
     }
 
+    /// Why no connected worker may work, when none may: which are quarantined (the first few,
+    /// with why) and how many are draining, or that none is connected.
+    fn nobody_may_work(&self, now: Instant) -> String {
+        let lease_time = self.policy.lease_time;
+        let alive = || self.workers.values().filter(|w| w.alive(now, lease_time));
+        let quarantined: Vec<String> = alive()
+            .filter(|w| w.quarantined)
+            .map(|w| match &w.convicted {
+                Some(why) => format!("{} ({why})", w.name),
+                None => format!("{} (after {} invalid results)", w.name, w.bad_results),
+            })
+            .collect();
+        let draining = alive().filter(|w| w.draining && !w.quarantined).count();
+        if quarantined.is_empty() && draining == 0 {
+            return "no worker is connected".into();
+        }
+        let mut why = Vec::new();
+        if !quarantined.is_empty() {
+            let shown = quarantined.len().min(3);
+            why.push(format!(
+                "{} quarantined: {}{} (an admin may release one: tessera workers --release NAME)",
+                quarantined.len(),
+                quarantined[..shown].join(", "),
+                if quarantined.len() > shown {
+                    ", …"
+                } else {
+                    ""
+                }
+            ));
+        }
+        if draining > 0 {
+            why.push(format!("{draining} draining"));
+        }
+        format!("no connected worker may work: {}", why.join("; "))
+    }
+
     /// Why job `rec`, which has units to hand out, gets none: no connected worker that may
     /// work fits its requirements. `None` when one does.
     pub(super) fn waiting(&self, rec: &JobRecord, now: Instant) -> Option<String> {
@@ -128,38 +164,7 @@ impl Scheduler {
             })
             .collect();
         if able.is_empty() {
-            let alive = || self.workers.values().filter(|w| w.alive(now, lease_time));
-            let quarantined: Vec<String> = alive()
-                .filter(|w| w.quarantined)
-                .map(|w| match &w.convicted {
-                    Some(why) => format!("{} ({why})", w.name),
-                    None => format!("{} (after {} invalid results)", w.name, w.bad_results),
-                })
-                .collect();
-            let draining = alive().filter(|w| w.draining && !w.quarantined).count();
-            if quarantined.is_empty() && draining == 0 {
-                return Some("no worker is connected".into());
-            }
-            let mut why = Vec::new();
-            if !quarantined.is_empty() {
-                // Bounded: a farm of many quarantined workers names the first few.
-                let shown = quarantined.len().min(3);
-                why.push(format!(
-                    "{} quarantined: {}{} (an admin may release one: tessera workers --release \
-                     NAME)",
-                    quarantined.len(),
-                    quarantined[..shown].join(", "),
-                    if quarantined.len() > shown {
-                        ", …"
-                    } else {
-                        ""
-                    }
-                ));
-            }
-            if draining > 0 {
-                why.push(format!("{draining} draining"));
-            }
-            return Some(format!("no connected worker may work: {}", why.join("; ")));
+            return Some(self.nobody_may_work(now));
         }
         let able: Vec<&super::Worker> = able
             .into_iter()

@@ -291,14 +291,14 @@ impl Jobs for Service {
         let caller = caller(&request);
         let req = request.into_inner();
         let id = job_id(&req.job_id)?;
+        if let Some(p) = req.priority {
+            caller
+                .may_set_priority(p)
+                .map_err(Status::permission_denied)?;
+        }
         let rx = {
             let mut core = self.shared.scheduler();
             may_change(&core, id, &caller, "pause, resume or reprioritise")?;
-            if let Some(p) = req.priority {
-                caller
-                    .may_set_priority(p)
-                    .map_err(Status::permission_denied)?;
-            }
             let ops = core.update(id, req.paused, req.priority)?;
             self.shared.queue_write(ops)
         };
@@ -493,7 +493,6 @@ impl Jobs for Service {
     }
 }
 
-/// A job's files as name → hash: each hash well formed, each name once, at most `max`.
 /// The worker an admin's verb names (`who`: a name or a public id), or why not: workers are
 /// the farm's, not one user's, so only an admin may drain or release one.
 fn admins_worker(caller: &crate::auth::Caller, verb: &str, who: String) -> Result<String, Status> {
@@ -510,6 +509,7 @@ fn admins_worker(caller: &crate::auth::Caller, verb: &str, who: String) -> Resul
     Ok(who)
 }
 
+/// A job's files as name → hash: each hash well formed, each name once, at most `max`.
 fn asset_names(refs: &[pb::AssetRef], max: usize) -> Result<BTreeMap<String, String>, Status> {
     if refs.len() > max {
         return Err(Status::resource_exhausted(format!(

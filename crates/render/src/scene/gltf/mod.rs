@@ -227,7 +227,8 @@ pub(super) fn import(
     drop(bytes);
     // What the node tree places, counted from the JSON before a buffer is read or a shape
     // built: a file of a few kilobytes can place millions.
-    let (instances, declared) = implied(&doc);
+    let placed = walk(&doc, place).map_err(fail)?;
+    let (instances, declared) = implied(&doc, &placed);
     // The file itself was counted as one of the scene's objects.
     files
         .take_instances(instances.saturating_sub(1), instances, limits, path)
@@ -261,7 +262,7 @@ pub(super) fn import(
         warnings: Vec::new(),
     };
     let (mut skipped_modes, mut hidden) = (0usize, 0usize);
-    for (node, world) in walk(&doc, place).map_err(fail)? {
+    for (node, world) in placed {
         if let Some(camera) = node.camera() {
             out.cameras
                 .push(camera_at(&doc, &camera, &world).map_err(fail)?);
@@ -329,11 +330,11 @@ pub(super) fn import(
     Ok(out)
 }
 
-/// What the file's node tree places, from its JSON alone: (shapes, triangles). Shapes are the
-/// triangle primitives of every mesh node (a node is reached at most once, as [`walk`]
-/// checks); triangles are counted once per distinct primitive, from its accessors' declared
-/// counts (an upper bound: strips and fans have fewer), as instances share them.
-fn implied(doc: &gltf::Document) -> (usize, usize) {
+/// What the `placed` nodes ([`walk`]'s) place, from the JSON alone: (shapes, triangles).
+/// Shapes are the triangle primitives of every placed mesh node; triangles are counted once
+/// per distinct primitive, from its accessors' declared counts (an upper bound: strips and
+/// fans have fewer), as instances share them.
+fn implied(doc: &gltf::Document, placed: &[(gltf::Node<'_>, Affine3A)]) -> (usize, usize) {
     let triangles_of = |prim: &gltf::Primitive| -> usize {
         let count = match prim.indices() {
             Some(a) => a.count(),
@@ -355,7 +356,7 @@ fn implied(doc: &gltf::Document) -> (usize, usize) {
     };
     let mut shapes = 0usize;
     let mut used = vec![false; doc.meshes().len()];
-    for node in doc.nodes() {
+    for (node, _) in placed {
         if let Some(mesh) = node.mesh() {
             shapes = shapes.saturating_add(mesh.primitives().filter(is_triangles).count());
             used[mesh.index()] = true;
