@@ -444,7 +444,7 @@ fuzz_target!(|data: &[u8]| {
                         assert!(!w.worker_id.contains('.'), "a secret listed: {w:?}");
                     }
                     let _ = svc
-                        .list_jobs(Request::new(pb::ListJobsRequest {}))
+                        .list_jobs(Request::new(pb::ListJobsRequest::default()))
                         .await
                         .expect("list jobs");
                     if arg % 5 == 0 {

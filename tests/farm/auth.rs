@@ -47,7 +47,7 @@ async fn a_token_is_required_on_every_service() {
             .expect_err("fetch without the token");
         assert_eq!(e.code(), tonic::Code::Unauthenticated);
         let e = client
-            .list_jobs(pb::ListJobsRequest {})
+            .list_jobs(pb::ListJobsRequest::default())
             .await
             .expect_err("list without the token");
         assert_eq!(e.code(), tonic::Code::Unauthenticated);

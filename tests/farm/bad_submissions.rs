@@ -41,7 +41,7 @@ async fn bad_submissions_are_refused_with_the_reason() {
         .expect_err("unknown job");
     assert_eq!(err.code(), tonic::Code::NotFound);
     assert!(client
-        .list_jobs(pb::ListJobsRequest {})
+        .list_jobs(pb::ListJobsRequest::default())
         .await
         .expect("list")
         .into_inner()

@@ -24,7 +24,7 @@ async fn silent_connections_are_closed_and_do_not_starve_clients() {
     let mut client = coord.client().await;
     let listed = tokio::time::timeout(
         Duration::from_secs(20),
-        client.list_jobs(pb::ListJobsRequest {}),
+        client.list_jobs(pb::ListJobsRequest::default()),
     )
     .await
     .expect("answered in time")
@@ -103,7 +103,7 @@ async fn unauthenticated_pinging_connections_do_not_shut_out_token_holders() {
     for round in 0..3 {
         let answered = tokio::time::timeout(Duration::from_secs(5), async {
             let mut client = client_with(&coord.url(), &options).await;
-            client.list_jobs(pb::ListJobsRequest {}).await
+            client.list_jobs(pb::ListJobsRequest::default()).await
         })
         .await;
         assert!(

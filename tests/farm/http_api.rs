@@ -259,3 +259,63 @@ async fn with_a_token_the_api_answers_401_in_json_and_a_bearer_passes() {
     assert_eq!(r.status, 200, "{}", r.text());
     coord.stop().await;
 }
+
+/// Listings come a page at a time, over gRPC and HTTP alike: with more jobs than a page holds,
+/// the answer says where the next page starts, the pages together are the list once, and a
+/// token no listing gave is refused. (With every job in one answer, a long `--after` chain
+/// once took `ListJobs` past the gRPC limit, for every user.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn job_listings_come_a_page_at_a_time() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (coord, addr) = dashboard_farm(dir.path()).await;
+    let mut client = coord.client().await;
+    let text = scene_text(16);
+    let mut ids = Vec::new();
+    for p in 0..5 {
+        ids.push(submit(&mut client, &text, 4, 2, p).await);
+    }
+    ids.reverse(); // priority order
+    let mut paged = Vec::new();
+    let mut page_token = String::new();
+    loop {
+        let page = client
+            .list_jobs(pb::ListJobsRequest {
+                page_size: 2,
+                page_token,
+            })
+            .await
+            .expect("list")
+            .into_inner();
+        assert!(page.jobs.len() <= 2);
+        paged.extend(page.jobs.into_iter().map(|j| j.job_id));
+        if page.next_page_token.is_empty() {
+            break;
+        }
+        page_token = page.next_page_token;
+    }
+    assert_eq!(paged, ids);
+    let bad = client
+        .list_jobs(pb::ListJobsRequest {
+            page_size: 2,
+            page_token: "x".into(),
+        })
+        .await
+        .expect_err("refused");
+    assert_eq!(bad.code(), tonic::Code::InvalidArgument);
+    // HTTP: ?limit and ?page, the next page in X-Next-Page.
+    let first = get(addr, "/api/jobs?limit=3").await;
+    let next = first.header("x-next-page").expect("more").to_string();
+    let second = get(addr, &format!("/api/jobs?limit=3&page={next}")).await;
+    assert_eq!(second.header("x-next-page"), None);
+    let listed: Vec<String> = [json(&first), json(&second)]
+        .iter()
+        .flat_map(|v| v.as_array().expect("array").clone())
+        .map(|j| j["job_id"].as_str().expect("id").to_string())
+        .collect();
+    assert_eq!(listed, ids);
+    refused(
+        &get(addr, "/api/jobs?page=nope").await,
+        400,
+        "invalid_argument",
+    );
+}

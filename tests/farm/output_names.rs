@@ -76,7 +76,7 @@ async fn a_link_at_the_old_temporary_name_is_not_followed() {
     let mut client = coord.client().await;
     // Once the coordinator answers, its output directory exists.
     client
-        .list_jobs(pb::ListJobsRequest {})
+        .list_jobs(pb::ListJobsRequest::default())
         .await
         .expect("list");
     let planted = coord

@@ -13,7 +13,7 @@ async fn priorities_order_jobs_and_cancel_frees_units() {
     let doomed = submit(&mut client, &text, 4096, 4, 5).await;
     let high = submit(&mut client, &text, 32, 4, 10).await;
     let jobs = client
-        .list_jobs(pb::ListJobsRequest {})
+        .list_jobs(pb::ListJobsRequest::default())
         .await
         .expect("list")
         .into_inner()

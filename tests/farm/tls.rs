@@ -35,7 +35,7 @@ async fn a_job_completes_over_tls() {
         .expect("ep")
         .connect_lazy();
     let mut raw = JobsClient::new(channel);
-    assert!(raw.list_jobs(pb::ListJobsRequest {}).await.is_err());
+    assert!(raw.list_jobs(pb::ListJobsRequest::default()).await.is_err());
 
     render_one_job(&url, &options, &scene_text(16), dir.path()).await;
     coord.stop().await;

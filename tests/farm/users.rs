@@ -129,7 +129,7 @@ async fn a_user_changes_only_their_own_jobs_and_a_reload_withdraws_a_token() {
     .expect("write");
     assert_eq!(tokens.reload(&file), Ok(3));
     let e = bob
-        .list_jobs(pb::ListJobsRequest {})
+        .list_jobs(pb::ListJobsRequest::default())
         .await
         .expect_err("a withdrawn token");
     assert_eq!(e.code(), tonic::Code::Unauthenticated, "{e:?}");

@@ -131,3 +131,85 @@ fn a_job_after_a_frame_range_waits_for_every_frame_and_fails_with_any() {
         job.rec.error
     );
 }
+
+/// A long chain whose head fails: each job's error names the job it waits for and the chain's
+/// first cause once, in bounded text, instead of nesting every error before it (a 998-job
+/// chain once made a 57 KB error and a `ListJobs` answer past the gRPC limit).
+#[test]
+fn a_chain_names_its_first_cause_once_in_bounded_text() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let names = OutputNames::new(dir.path());
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(5)));
+    let limits = AdmissionLimits {
+        max_active_jobs: 1000,
+        ..LIMITS
+    };
+    let (head, _) = core
+        .admit(admission(None, None), limits, &names, 1)
+        .expect("head");
+    let mut chain = vec![head];
+    for i in 0..200 {
+        let after = *chain.last().expect("one");
+        let (j, _) = core
+            .admit(admission(None, Some(after)), limits, &names, 2 + i)
+            .expect("link");
+        chain.push(j);
+    }
+    let reason = "x".repeat(5000);
+    core.end_job(head, JobPhase::Failed, reason, 300);
+    let second = &core.job(chain[1]).expect("second").rec.error;
+    assert!(
+        second.starts_with(&format!(
+            "the job it waits for (--after) ended: {head} failed: xxx"
+        )) && second.ends_with('…')
+            && second.len() < 400,
+        "{second}"
+    );
+    for (i, &id) in chain.iter().enumerate().skip(2) {
+        let e = &core.job(id).expect("link").rec.error;
+        assert_eq!(core.job(id).expect("link").rec.phase, JobPhase::Failed);
+        assert!(e.len() < 500, "link {i}: {} bytes", e.len());
+        assert!(
+            e.starts_with(&format!(
+                "the job it waits for (--after) ended: {} failed waiting for another job; \
+                 first cause: {head} failed: xxx",
+                chain[i - 1]
+            )),
+            "link {i}: {e}"
+        );
+    }
+}
+
+/// Listings put jobs still to finish first (scheduling order), then ended ones, most recently
+/// ended first, and come a page at a time, the pages together the whole list once.
+#[test]
+fn listings_show_live_jobs_first_a_page_at_a_time() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let names = OutputNames::new(dir.path());
+    let mut core = Scheduler::new(1, Policy::new(Duration::from_secs(5)));
+    let ids: Vec<JobId> = (0..5)
+        .map(|i| {
+            let a = tessera_coordinator::scheduler::Admission {
+                priority: i as i32,
+                ..admission(None, None)
+            };
+            core.admit(a, LIMITS, &names, 1).expect("job").0
+        })
+        .collect();
+    // The highest-priority job ended first, then the lowest.
+    core.end_job(ids[4], JobPhase::Cancelled, String::new(), 10);
+    core.end_job(ids[0], JobPhase::Cancelled, String::new(), 20);
+    let now = Instant::now();
+    let order: Vec<JobId> = core.listing(now).iter().map(|v| v.job_id).collect();
+    assert_eq!(order, [ids[3], ids[2], ids[1], ids[0], ids[4]]);
+    let mut paged = Vec::new();
+    let mut offset = Some(0);
+    while let Some(o) = offset {
+        let (page, next) = core.job_page(now, o, 2);
+        assert!(page.len() <= 2);
+        paged.extend(page.iter().map(|v| v.job_id));
+        offset = next;
+    }
+    assert_eq!(paged, order);
+    assert!(core.job_page(now, 99, 2).0.is_empty());
+}

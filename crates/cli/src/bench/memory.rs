@@ -179,7 +179,10 @@ async fn one(size: u32, plan: &Plan, scene: &Scene) -> Result<MemRun> {
     loop {
         peak = peak.max(proc_figures(pid)?.1);
         let listed = client
-            .list_jobs(pb::ListJobsRequest::default())
+            .list_jobs(pb::ListJobsRequest {
+                page_size: 1000,
+                ..Default::default()
+            })
             .await
             .map_err(|e| anyhow!("list jobs: {}", e.message()))?
             .into_inner()

@@ -127,11 +127,35 @@ pub(super) async fn openapi() -> Response {
     Json(Api::openapi()).into_response()
 }
 
-/// Every job, in scheduling order (priority, then submission).
-#[utoipa::path(get, path = "/api/jobs", responses((status = 200, body = Vec<JobView>)))]
-pub(super) async fn list_jobs(State(app): State<App>) -> Response {
-    let views = app.svc.shared.scheduler().job_views(Instant::now());
-    Json(views).into_response()
+/// Which page of jobs to list.
+#[derive(Deserialize, utoipa::IntoParams)]
+pub(super) struct Page {
+    /// Most jobs in the answer (default 200, at most 1000).
+    limit: Option<u32>,
+    /// The `X-Next-Page` header of the previous answer (default: the first page).
+    page: Option<String>,
+}
+
+/// A page of jobs: those still to finish first, in scheduling order (priority, then
+/// submission), then the ended ones, most recently ended first. When there are more, the
+/// `X-Next-Page` header gives the `page` to ask for next.
+#[utoipa::path(get, path = "/api/jobs", params(Page), responses((status = 200, body = Vec<JobView>, headers(("X-Next-Page" = String, description = "the next page's `page`, when there is one")))))]
+pub(super) async fn list_jobs(State(app): State<App>, Query(p): Query<Page>) -> Response {
+    let (offset, size) =
+        match crate::service::list_page(p.page.as_deref().unwrap_or(""), p.limit.unwrap_or(0)) {
+            Ok(v) => v,
+            Err(s) => return refused(s),
+        };
+    let (views, next) = app
+        .svc
+        .shared
+        .scheduler()
+        .job_page(Instant::now(), offset, size);
+    let mut r = Json(views).into_response();
+    if let Some(v) = next.and_then(|n| HeaderValue::from_str(&n.to_string()).ok()) {
+        r.headers_mut().insert("x-next-page", v);
+    }
+    r
 }
 
 /// One job (a frame range: the whole range, with each frame).

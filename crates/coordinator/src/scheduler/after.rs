@@ -5,10 +5,19 @@
 
 use tessera_proto::ids::JobId;
 
-use super::retry::DEPENDENCY_ENDED;
 use super::Scheduler;
 use crate::error::Refusal;
 use crate::store::{JobPhase, Op};
+
+/// How [`Scheduler::end_dependents`] begins the error of a job it fails: a retry of the job
+/// waited for puts such a job back.
+pub(super) const DEPENDENCY_ENDED: &str = "the job it waits for (--after) ended";
+
+/// Where a dependency error names the job that ended first, down a chain of `--after` jobs.
+const FIRST_CAUSE: &str = "; first cause: ";
+
+/// Most characters of a failed job's own error that a dependent's error repeats.
+const MAX_CAUSE_CHARS: usize = 300;
 
 /// Where the job a dependent waits for stands.
 #[derive(Debug, PartialEq)]
@@ -36,7 +45,7 @@ impl Scheduler {
                 JobPhase::Active => waiting = true,
                 JobPhase::Cancelled => return Dependency::Ended(format!("{after} was cancelled")),
                 JobPhase::Failed => {
-                    return Dependency::Ended(format!("{after} failed: {}", job.rec.error))
+                    return Dependency::Ended(failed_because(after, &job.rec.error))
                 }
             }
         }
@@ -110,5 +119,29 @@ impl Scheduler {
             .filter_map(|(&dependent, j)| Some((dependent, JobId(j.rec.after?))))
             .filter(|&(_, after)| after == id || Some(after) == range)
             .collect()
+    }
+}
+
+/// Why job `id`, which failed with `error`, stops the jobs that wait for it, in bounded text:
+/// its own error (cut to [`MAX_CAUSE_CHARS`]), or, if it failed because a job it waited for
+/// ended, that and the first cause its error names. Each dependent names the job it waits for
+/// and the chain's first cause once, instead of nesting every error of a chain in the next
+/// (a 998-job chain once made a 57 KB error and a `ListJobs` past the gRPC limit).
+fn failed_because(id: JobId, error: &str) -> String {
+    match error.strip_prefix(DEPENDENCY_ENDED) {
+        Some(rest) => {
+            let rest = rest.trim_start_matches(": ");
+            let first = rest
+                .split_once(FIRST_CAUSE)
+                .map_or(rest, |(_, first)| first);
+            format!("{id} failed waiting for another job{FIRST_CAUSE}{first}")
+        }
+        None => {
+            let mut own: String = error.chars().take(MAX_CAUSE_CHARS).collect();
+            if own.len() < error.len() {
+                own.push('…');
+            }
+            format!("{id} failed: {own}")
+        }
     }
 }

@@ -13,14 +13,11 @@
 use tessera_proto::ids::JobId;
 use tessera_render::IMAGE_REVISION;
 
+use super::after::DEPENDENCY_ENDED;
 use super::Scheduler;
 use crate::error::Refusal;
 use crate::job::Job;
 use crate::store::{JobPhase, Op};
-
-/// How [`Scheduler::end_dependents`] begins the error of a job it fails: a retry of the job
-/// waited for puts such a job back.
-pub(super) const DEPENDENCY_ENDED: &str = "the job it waits for (--after) ended";
 
 impl Scheduler {
     /// Whether a job that needs the scene of this hash is active, or failed and still

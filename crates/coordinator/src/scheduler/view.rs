@@ -36,6 +36,33 @@ impl Scheduler {
             .collect()
     }
 
+    /// Up to `size` of the jobs as [`Scheduler::listing`] orders them, from `offset`, and
+    /// the offset of the next page if there is more.
+    pub fn job_page(
+        &self,
+        now: Instant,
+        offset: usize,
+        size: usize,
+    ) -> (Vec<JobView>, Option<usize>) {
+        let mut all = self.listing(now);
+        let more = all.len() > offset.saturating_add(size);
+        let page = all.drain(offset.min(all.len())..).take(size).collect();
+        (page, more.then_some(offset + size))
+    }
+
+    /// Every job as a listing shows them: those still to finish first, in scheduling order
+    /// (priority, then submission), then the ended ones, most recently ended first. A user
+    /// looks for what is running, not for last week's highest-priority job.
+    pub fn listing(&self, now: Instant) -> Vec<JobView> {
+        let (mut live, mut ended): (Vec<JobView>, Vec<JobView>) = self
+            .job_views(now)
+            .into_iter()
+            .partition(|v| v.finished_unix_ms.is_none());
+        ended.sort_by_key(|v| std::cmp::Reverse((v.finished_unix_ms, v.job_id)));
+        live.append(&mut ended);
+        live
+    }
+
     /// Every worker registered in this boot, by number.
     pub fn worker_views(&self, now: Instant) -> Vec<WorkerView> {
         self.workers

@@ -323,16 +323,18 @@ impl Jobs for Service {
 
     async fn list_jobs(
         &self,
-        _request: Request<pb::ListJobsRequest>,
+        request: Request<pb::ListJobsRequest>,
     ) -> Result<Response<pb::ListJobsResponse>, Status> {
-        let jobs = self
+        let req = request.into_inner();
+        let (offset, size) = list_page(&req.page_token, req.page_size)?;
+        let (views, next) = self
             .shared
             .scheduler()
-            .job_views(Instant::now())
-            .iter()
-            .map(pb::JobStatus::from)
-            .collect();
-        Ok(Response::new(pb::ListJobsResponse { jobs }))
+            .job_page(Instant::now(), offset, size);
+        Ok(Response::new(pb::ListJobsResponse {
+            jobs: views.iter().map(pb::JobStatus::from).collect(),
+            next_page_token: next.map(|n| n.to_string()).unwrap_or_default(),
+        }))
     }
 
     async fn list_workers(
@@ -491,6 +493,33 @@ impl Jobs for Service {
             complete: held.complete,
         }))
     }
+}
+
+/// Jobs one listing page holds when the caller does not say.
+pub(crate) const DEFAULT_PAGE: usize = 200;
+
+/// Most jobs one listing page holds: a page stays far below the gRPC message limit, however
+/// many jobs the coordinator keeps.
+pub(crate) const MAX_PAGE: usize = 1000;
+
+/// A listing page's (offset, size) from its token (empty: the first page) and asked size (0:
+/// [`DEFAULT_PAGE`], at most [`MAX_PAGE`]).
+pub(crate) fn list_page(token: &str, size: u32) -> Result<(usize, usize), Status> {
+    let offset = if token.is_empty() {
+        0
+    } else {
+        token.parse().map_err(|_| {
+            Status::invalid_argument(format!(
+                "page_token {:?} is not a token a listing gave",
+                truncate(token)
+            ))
+        })?
+    };
+    let size = match size as usize {
+        0 => DEFAULT_PAGE,
+        n => n.min(MAX_PAGE),
+    };
+    Ok((offset, size))
 }
 
 /// The worker an admin's verb names (`who`: a name or a public id), or why not: workers are

@@ -8,6 +8,7 @@
 //! - [`workers`]: `tessera.v1.Workers`, the workers' service (register, lease, results).
 
 mod jobs;
+pub(crate) use jobs::list_page;
 mod workers;
 
 use std::pin::Pin;

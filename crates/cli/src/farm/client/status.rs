@@ -242,15 +242,27 @@ pub fn status(args: StatusArgs) -> Result<()> {
             }
             return Ok(());
         }
-        let jobs = client
-            .list_jobs(pb::ListJobsRequest {})
-            .await
-            .map_err(|e| rpc_error(&url, "listing jobs", e))?
-            .into_inner()
-            .jobs
-            .iter()
-            .map(job_view)
-            .collect::<Result<Vec<_>>>()?;
+        // A page at a time, so that no answer nears the message limit however many jobs the
+        // coordinator keeps.
+        let mut jobs = Vec::new();
+        let mut page_token = String::new();
+        loop {
+            let page = client
+                .list_jobs(pb::ListJobsRequest {
+                    page_size: 1000,
+                    page_token,
+                })
+                .await
+                .map_err(|e| rpc_error(&url, "listing jobs", e))?
+                .into_inner();
+            for s in &page.jobs {
+                jobs.push(job_view(s)?);
+            }
+            if page.next_page_token.is_empty() {
+                break;
+            }
+            page_token = page.next_page_token;
+        }
         if args.json {
             outln!("{}", serde_json::to_string(&jobs)?);
             return Ok(());
