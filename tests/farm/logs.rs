@@ -128,3 +128,58 @@ async fn a_workers_lines_stay_with_its_units_job_bounded_and_across_a_restart() 
         .expect_err("no such frame");
     assert_eq!(e.code(), tonic::Code::NotFound);
 }
+
+/// An ended job's log is read from the store (a restart does not load it into memory, and the
+/// collector's sweep moves it out): `GetLogs` gives the same lines before and after, and says
+/// the job has ended.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn an_ended_jobs_log_is_read_from_the_store() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().join("data");
+    let lease = Duration::from_secs(30);
+    // Assets kept 4 s: the collector, which sweeps logs too, runs every second.
+    let fast = |c: &mut Config| c.asset_retention = Duration::from_secs(4);
+    let coord = Coordinator::start_with(&data, lease, fast).await;
+    let mut client = coord.client().await;
+    let job = submit(&mut client, &scene_text(32), 4, 2, 0).await;
+    let mut hand = workers_client(&coord.url());
+    let h = register_as(&mut hand, "h", "0", IMAGE_REVISION)
+        .await
+        .expect("register");
+    let mine = lease_now(&mut hand, &h, 1).await.expect("lease");
+    let r = hand
+        .report_log(pb::ReportLogRequest {
+            worker_id: h.clone(),
+            lines: vec![line(&mine[0].lease_id, "a texture fell back")],
+        })
+        .await
+        .expect("report")
+        .into_inner();
+    assert_eq!(r.kept, 1);
+    client
+        .cancel_job(pb::CancelJobRequest {
+            job_id: job.clone(),
+        })
+        .await
+        .expect("cancel");
+    let logs = pb::GetLogsRequest {
+        job_id: job.clone(),
+        frame: None,
+        after: 0,
+    };
+    // Past a sweep or two, the lines come from the store.
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let got = client
+        .get_logs(logs.clone())
+        .await
+        .expect("logs")
+        .into_inner();
+    assert!(got.ended);
+    assert_eq!(got.entries.len(), 1, "{got:?}");
+    assert_eq!(got.entries[0].message, "a texture fell back");
+    let coord = coord.restarted(&data, lease).await;
+    let mut client = coord.client().await;
+    let again = client.get_logs(logs).await.expect("logs").into_inner();
+    assert_eq!(again.entries, got.entries);
+    assert!(again.ended);
+}

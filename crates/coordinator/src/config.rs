@@ -49,6 +49,11 @@ pub struct Config {
     pub fail_unit_after_lapses: u32,
     /// How long a failed job's scene (and so its assets) is kept for `tessera retry`.
     pub retry_window: Duration,
+    /// How long an ended job's workers' log is kept (in the store; memory holds active jobs'
+    /// logs only).
+    pub log_retention: Duration,
+    /// Most bytes of ended jobs' logs kept in all; past it the oldest go first.
+    pub max_log_bytes: u64,
     /// Most leases one worker registration may hold at once.
     pub max_leases_per_worker: usize,
     /// Most live worker registrations from one host (the address it registers from).
@@ -178,6 +183,8 @@ impl Config {
             fail_frame_after: DEFAULT_FAIL_FRAME_AFTER,
             fail_unit_after_lapses: DEFAULT_FAIL_UNIT_AFTER_LAPSES,
             retry_window: DEFAULT_RETRY_WINDOW,
+            log_retention: crate::scheduler::DEFAULT_LOG_RETENTION,
+            max_log_bytes: crate::scheduler::DEFAULT_MAX_LOG_BYTES,
             max_leases_per_worker: DEFAULT_MAX_LEASES_PER_WORKER,
             max_workers_per_host: DEFAULT_MAX_WORKERS_PER_HOST,
             audit: 0.0,

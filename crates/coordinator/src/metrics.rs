@@ -130,6 +130,8 @@ pub struct Gauges {
     pub workers: Vec<WorkerLine>,
     /// Size of the store's file, when it could be read.
     pub store_file_bytes: Option<u64>,
+    /// Bytes of active jobs' logs in memory, and of ended jobs' logs in the store.
+    pub log_bytes: (u64, u64),
 }
 
 /// Prometheus text exposition format 0.0.4, built line by line.
@@ -237,6 +239,18 @@ impl Metrics {
             "Workers refused work after invalid results or an audit's conviction.",
             "gauge",
             g.workers_quarantined as f64,
+        );
+        t.single(
+            "tessera_log_memory_bytes",
+            "Bytes of active jobs' worker logs held in memory (about).",
+            "gauge",
+            g.log_bytes.0 as f64,
+        );
+        t.single(
+            "tessera_log_stored_bytes",
+            "Bytes of ended jobs' worker logs kept in the store (until --log-retention or --max-log-bytes).",
+            "gauge",
+            g.log_bytes.1 as f64,
         );
         self.merge.write(
             &mut t,

@@ -112,6 +112,19 @@ pub async fn serve_when_ready(
                     );
                 }
             }
+            // Ended jobs' logs leave memory once the store has their last lines, and the
+            // store keeps them for their retention only.
+            if crate::shared::durable(shared.queue_write(Vec::new()))
+                .await
+                .is_ok()
+            {
+                let ops = shared.scheduler().sweep_logs(crate::shared::now_ms());
+                if !ops.is_empty() {
+                    if let Err(e) = crate::shared::durable(shared.queue_write(ops)).await {
+                        tracing::warn!("dropping logs past their retention: {e}");
+                    }
+                }
+            }
             let r = tokio::task::spawn_blocking(move || shared.collect_assets()).await;
             if let Ok(Err(e)) = r {
                 tracing::warn!("asset collection: {e}");

@@ -92,6 +92,8 @@ impl Shared {
                 fail_unit_after_lapses: config.fail_unit_after_lapses,
                 retry_window: config.retry_window,
                 max_leases_per_user: config.max_leases_per_user,
+                log_retention: config.log_retention,
+                max_log_bytes: config.max_log_bytes,
             },
         );
         let mut seed = [0u8; 8];

@@ -684,6 +684,7 @@ fn an_adaptive_job_past_its_pilots_without_a_kept_scale_fails_at_restore_and_oth
             tiles,
             pending: Vec::new(),
             log: None,
+            log_bytes: 0,
             guides: Vec::new(),
         }
     };

@@ -111,6 +111,14 @@ pub struct CoordinatorArgs {
     /// names are kept that long after it failed.
     #[arg(long, default_value_t = config::DEFAULT_RETRY_WINDOW.as_secs_f64())]
     retry_window: f64,
+    /// Seconds an ended job's workers' log is kept (`tessera logs`); memory holds only active
+    /// jobs' logs, the store the ended ones' until then.
+    #[arg(long, default_value_t = tessera_coordinator::scheduler::DEFAULT_LOG_RETENTION.as_secs_f64())]
+    log_retention: f64,
+    /// Most bytes of ended jobs' logs kept in the store in all (e.g. 256M); past it the
+    /// oldest go first.
+    #[arg(long, value_name = "SIZE", default_value = "256M", value_parser = crate::args::memory_size)]
+    max_log_bytes: u64,
     /// Most units one worker may hold at once (a stock worker holds at most 3).
     #[arg(long, default_value_t = config::DEFAULT_MAX_LEASES_PER_WORKER as u32, value_parser = clap::value_parser!(u32).range(1..=4096))]
     max_leases_per_worker: u32,
@@ -225,6 +233,14 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
     config.fail_frame_after = args.fail_frame_after;
     config.fail_unit_after_lapses = args.fail_unit_after_lapses;
     config.retry_window = Duration::from_secs_f64(args.retry_window);
+    if !(args.log_retention.is_finite() && (0.0..=1e9).contains(&args.log_retention)) {
+        bail!(
+            "--log-retention must be between 0 and 1e9 seconds, got {}",
+            args.log_retention
+        );
+    }
+    config.log_retention = Duration::from_secs_f64(args.log_retention);
+    config.max_log_bytes = args.max_log_bytes;
     config.max_leases_per_worker = args.max_leases_per_worker as usize;
     config.max_connections = args.max_connections as usize;
     config.max_workers_per_host = args.max_workers_per_host as usize;

@@ -175,6 +175,8 @@ impl Scheduler {
             let id = JobId(loaded.record.id);
             if let Some(log) = loaded.log.take() {
                 self.restore_log(id, &log);
+            } else if loaded.log_bytes > 0 && loaded.record.phase != JobPhase::Active {
+                self.note_stored_log(id, loaded.record.finished_ms, loaded.log_bytes);
             }
             let scale = loaded.record.adaptive_scale;
             let mut job = Job::restore(loaded).map_err(|e| format!("{id}: {e}"))?;

@@ -55,7 +55,10 @@ use audit::audit_excludes;
 pub use admit::{Admission, AdmissionLimits, Asked, Checked};
 pub use fit::Capabilities;
 pub use leases::Lease;
-pub use logs::{JobLines, JobLog, LogLine, Reported, MAX_LINES_PER_CALL};
+pub use logs::{
+    add_stored, JobLines, JobLog, LogLine, LogQuery, Reported, DEFAULT_LOG_RETENTION,
+    DEFAULT_MAX_LOG_BYTES, MAX_LINES_PER_CALL,
+};
 pub use view::{JobView, WorkerView};
 pub use workers::Worker;
 
@@ -124,6 +127,10 @@ pub struct Policy {
     pub retry_window: Duration,
     /// Most units one user's jobs may hold leased at once (0: no cap).
     pub max_leases_per_user: usize,
+    /// How long an ended job's log is kept (in the store only).
+    pub log_retention: Duration,
+    /// Most bytes of ended jobs' logs kept in all: past it the oldest go first.
+    pub max_log_bytes: u64,
 }
 
 impl Policy {
@@ -142,6 +149,8 @@ impl Policy {
             fail_unit_after_lapses: DEFAULT_FAIL_UNIT_AFTER_LAPSES,
             retry_window: DEFAULT_RETRY_WINDOW,
             max_leases_per_user: 0,
+            log_retention: DEFAULT_LOG_RETENTION,
+            max_log_bytes: DEFAULT_MAX_LOG_BYTES,
         }
     }
 }
@@ -191,8 +200,10 @@ pub struct Scheduler {
     /// ([`Scheduler::evict`]): with the tiles dirty since, what memory holds that only a
     /// commit can let go ([`Scheduler::unstored_bytes`]).
     storing_bytes: u64,
-    /// Workers' lines about each job's units ([`logs`]).
+    /// Workers' lines about each active job's units ([`logs`]).
     logs: BTreeMap<JobId, logs::JobLog>,
+    /// The logs of ended jobs, which only the store holds: when each job ended and its size.
+    stored_logs: BTreeMap<JobId, logs::StoredLog>,
     /// The last log line's sequence number.
     log_seq: u64,
     /// The machines (a worker's host, or its name where that is unknown) and worker names each
@@ -241,6 +252,7 @@ impl Scheduler {
             checkpoint_asked: false,
             storing_bytes: 0,
             logs: BTreeMap::new(),
+            stored_logs: BTreeMap::new(),
             log_seq: 0,
             lapses: HashMap::new(),
             deferred: Vec::new(),

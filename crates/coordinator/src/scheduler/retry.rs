@@ -115,6 +115,10 @@ impl Scheduler {
             rec.retries += 1;
             *job = Job::new(rec);
             ops.push(Op::PutJob(job.rec.clone()));
+            // Its log starts again: the run that failed logged to the row it will write.
+            if self.stored_logs.remove(&m).is_some() {
+                ops.push(Op::DropLog(m.0));
+            }
             tracing::info!("{m} retried");
             put_back.push(m);
             // Those that failed because they waited for this one wait for it again.

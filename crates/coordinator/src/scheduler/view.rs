@@ -121,6 +121,7 @@ impl Scheduler {
                 .collect(),
             workers_active: self.workers.values().filter(|w| alive(w)).count() as u64,
             workers_quarantined: self.workers.values().filter(|w| w.quarantined).count() as u64,
+            log_bytes: self.log_bytes(),
             leases: self.leases_live(),
             counters: self.counters,
             workers: self

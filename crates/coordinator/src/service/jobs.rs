@@ -22,7 +22,7 @@ use crate::error::truncate;
 /// Most log lines one GetLogs answer carries.
 const MAX_LOG_ENTRIES: usize = 1000;
 use crate::names::OutputNames;
-use crate::scheduler::{Admission, AdmissionLimits, Asked, Checked};
+use crate::scheduler::{add_stored, Admission, AdmissionLimits, Asked, Checked};
 use crate::shared::{durable, now_ms};
 use crate::store::StoredScene;
 use tessera_proto::tags::{check_tags, MAX_REQUIREMENTS};
@@ -357,7 +357,25 @@ impl Jobs for Service {
     ) -> Result<Response<pb::GetLogsResponse>, Status> {
         let req = request.into_inner();
         let id = job_id(&req.job_id)?;
-        let (mut lines, dropped, ended) = self.shared.scheduler().logs(id, req.frame, req.after)?;
+        let mut q = self.shared.scheduler().logs(id, req.frame, req.after)?;
+        // Ended jobs' logs are in the store only.
+        if !q.stored.is_empty() {
+            let store = self.shared.store.clone();
+            q = tokio::task::spawn_blocking(move || {
+                for (job, frame) in std::mem::take(&mut q.stored) {
+                    let bytes = store
+                        .log(job.0)
+                        .map_err(|e| Status::internal(format!("coordinator state store: {e}")))?;
+                    if let Some(b) = bytes {
+                        add_stored(&mut q, job, frame, &b, req.after);
+                    }
+                }
+                Ok::<_, Status>(q)
+            })
+            .await
+            .map_err(|e| Status::internal(e.to_string()))??;
+        }
+        let (mut lines, dropped, ended) = (q.lines, q.dropped, q.ended);
         // A page at a time: a caller asks again after the last line's number.
         lines.truncate(MAX_LOG_ENTRIES);
         let entries = lines

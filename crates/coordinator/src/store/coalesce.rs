@@ -32,7 +32,7 @@ impl Key {
             Op::PutTile(j, t, _) | Op::DelTile(j, t) => Some(Key::Tile(*j, *t)),
             Op::PutPending(j, t, b, _) | Op::DelPending(j, t, b) => Some(Key::Pending(*j, *t, *b)),
             Op::PutUnit(j, t, b, _, _) => Some(Key::Unit(*j, *t, *b)),
-            Op::PutLog(j, _) => Some(Key::Log(*j)),
+            Op::PutLog(j, _) | Op::DropLog(j) => Some(Key::Log(*j)),
             Op::PutGuide(j, e, _) => Some(Key::Guide(*j, *e)),
             Op::PutScene(..) | Op::PutAudit(_) | Op::DropSums(_) | Op::DropScene(_) => None,
         }

@@ -301,6 +301,24 @@ impl Store {
         Ok(epoch)
     }
 
+    /// Job `id`'s stored log (JSON), if it has one: an ended job's, which is not kept in memory.
+    pub fn log(&self, id: u64) -> Result<Option<Vec<u8>>, StoreError> {
+        guarded(Path::new(FILE_NAME), || {
+            let tx = self.db()?.begin_read().map_err(dberr)?;
+            let logs = match tx.open_table(LOGS) {
+                Ok(t) => t,
+                Err(redb::TableError::TableDoesNotExist(_)) => return Ok(None),
+                Err(e) => return Err(dberr(e)),
+            };
+            let Some(v) = logs.get(id).map_err(dberr)? else {
+                return Ok(None);
+            };
+            Ok(Some(
+                unseal(|| format!("job {id} log"), &log_key(id), v.value())?.to_vec(),
+            ))
+        })
+    }
+
     /// Every job with its stored sums, each checked against its checksum.
     pub fn load(&self) -> Result<Vec<LoadedJob>, StoreError> {
         guarded(Path::new(FILE_NAME), || self.load_unguarded())
@@ -341,10 +359,13 @@ impl Store {
                 });
             }
             // A damaged log costs the log alone, not the start: it is only ever read by people.
+            // An ended job's log stays in the store (its size noted for retention).
             let stored = match &logs {
                 Some(t) => t.get(id).map_err(dberr)?,
                 None => None,
             };
+            let log_bytes = stored.as_ref().map_or(0, |v| v.value().len() as u64);
+            let stored = stored.filter(|_| record.phase == JobPhase::Active);
             let log = stored.and_then(|v| {
                 unseal(|| format!("job {id} log"), &log_key(id), v.value())
                     .map_err(|e| tracing::warn!("{e}; its log is left out"))
@@ -356,6 +377,7 @@ impl Store {
                 tiles: Vec::new(),
                 pending: Vec::new(),
                 log,
+                log_bytes,
                 guides: Vec::new(),
             };
             if let Some(g) = &guides {
@@ -581,6 +603,9 @@ impl Store {
                     Op::PutLog(job, bytes) => {
                         logs.insert(*job, seal(&log_key(*job), bytes).as_slice())
                             .map_err(dberr)?;
+                    }
+                    Op::DropLog(job) => {
+                        logs.remove(*job).map_err(dberr)?;
                     }
                     Op::PutGuide(job, e, bytes) => {
                         guides

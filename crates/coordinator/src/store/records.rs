@@ -249,6 +249,8 @@ pub enum Op {
     DropScene(String),
     /// Write a job's log (its workers' lines, JSON; table `logs`).
     PutLog(u64, Vec<u8>),
+    /// Forget a job's log (its retention has passed).
+    DropLog(u64),
     /// Write a guided job's tree of one epoch (table `guides`): the guide it trained once the
     /// epoch is done, or its training tree as merged so far.
     PutGuide(u64, u32, Vec<u8>),
@@ -276,7 +278,11 @@ impl Op {
             | Op::PutGuide(_, _, b) => b.len() as u64,
             // Records are a few hundred bytes of JSON: counted as their fixed overhead only.
             Op::PutJob(_) | Op::PutAudit(_) => 256,
-            Op::DelPending(..) | Op::DelTile(..) | Op::DropSums(_) | Op::DropScene(_) => 0,
+            Op::DelPending(..)
+            | Op::DelTile(..)
+            | Op::DropSums(_)
+            | Op::DropScene(_)
+            | Op::DropLog(_) => 0,
         }
     }
 }
@@ -313,8 +319,11 @@ pub struct LoadedJob {
     pub tiles: Vec<(u32, Vec<u8>)>,
     /// ((tile, batch), sums) waiting for their turn.
     pub pending: Vec<((u32, u32), Vec<u8>)>,
-    /// Its log as stored (JSON), if it has one.
+    /// Its log as stored (JSON), if it has one and is active: an ended job's log stays in the
+    /// store, read when asked for ([`crate::store::Store::log`]).
     pub log: Option<Vec<u8>>,
+    /// Bytes of its stored log (0: none), for the logs' retention.
+    pub log_bytes: u64,
     /// A guided job's trees by epoch (`Op::PutGuide`).
     pub guides: Vec<(u32, Vec<u8>)>,
 }
