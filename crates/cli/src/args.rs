@@ -139,6 +139,11 @@ pub struct SettingsArgs {
     /// --noise-target or --frames.
     #[arg(long)]
     pub guiding: bool,
+    /// The film's size, WIDTHxHEIGHT (e.g. 1920x1080), in place of the scene file's own, for
+    /// any scene (TOML or glTF): the camera frames it as it frames the file's. Part of the
+    /// render's identity, like --spp.
+    #[arg(long, value_name = "WxH", value_parser = resolution)]
+    pub resolution: Option<(u32, u32)>,
 }
 
 /// `--aov`'s list ([`Aovs::parse`]).
@@ -195,9 +200,34 @@ impl SettingsArgs {
             frame: self.frame,
             aovs: self.aov.unwrap_or_default(),
             guiding: self.guiding,
+            resolution: self.resolution,
             ..RenderSettings::default()
         }
     }
+
+    /// What these flags ask of the scene file: the frame (the first where none is named) and
+    /// the film's size.
+    pub fn shot(&self) -> tessera_render::scene::Shot {
+        tessera_render::scene::Shot {
+            frame: self.frame.unwrap_or(tessera_render::scene::FIRST_FRAME),
+            resolution: self.resolution,
+        }
+    }
+}
+
+/// clap's parser for `--resolution`: WIDTHxHEIGHT, each side 1 to 65,536 (the scene's limits,
+/// 16,384 a side by default, are checked when it is built).
+pub fn resolution(s: &str) -> Result<(u32, u32), String> {
+    let bad = || format!("{s:?}: expected WIDTHxHEIGHT, e.g. 1920x1080");
+    let (w, h) = s.split_once(['x', 'X', '×']).ok_or_else(bad)?;
+    let side = |v: &str| -> Result<u32, String> {
+        let n: u32 = v.trim().parse().map_err(|_| bad())?;
+        if !(1..=65_536).contains(&n) {
+            return Err(format!("{s:?}: each side must be 1 to 65536 pixels"));
+        }
+        Ok(n)
+    };
+    Ok((side(w)?, side(h)?))
 }
 
 /// `--strategy` values.

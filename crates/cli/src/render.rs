@@ -8,7 +8,7 @@ use anyhow::{bail, Context, Result};
 use indicatif::ProgressBar;
 use tessera_render::guided::render_frame_guided;
 use tessera_render::output::{render_metadata, write_exr, write_png_preview, ExrChannels, Preview};
-use tessera_render::scene::{Limits, Scene, FIRST_FRAME};
+use tessera_render::scene::{Limits, Scene};
 use tessera_render::{render_frame, RenderSettings, Tracer, DEFAULT_TILE};
 
 use crate::args::{check_extension, check_output_dir, tile_range, SettingsArgs};
@@ -114,9 +114,8 @@ pub fn run(args: RenderArgs) -> Result<()> {
         max_resolution: args.max_resolution,
         ..Limits::default()
     };
-    let frame = args.settings.frame.unwrap_or(FIRST_FRAME);
     let gltf = args.gltf.options(&args.scene)?;
-    let scene = Scene::load_with(&args.scene, &gltf, &limits, frame)?;
+    let scene = Scene::load_with(&args.scene, &gltf, &limits, args.settings.shot())?;
     for w in &scene.warnings {
         errln!("warning: {w}");
     }

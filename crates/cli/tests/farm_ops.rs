@@ -531,3 +531,77 @@ fn a_client_at_the_dashboard_port_is_told_it_is_the_http_port() {
         "{out:?}"
     );
 }
+
+/// `--resolution WxH` sets the film's size for any scene: a glTF file (whose own 1280×720 is
+/// above `--max-resolution 512`) and a TOML scene, on `render` and on the farm with the same
+/// bits; a bad value is refused naming the flag.
+#[test]
+fn resolution_sets_the_film_of_any_scene_on_render_and_the_farm() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, url) = coordinator(&dir.path().join("data"));
+    let _w = worker(&url, "res");
+    for (scene, size) in [
+        ("scenes/gltf/sample.glb", "64x36"),
+        ("scenes/cornell-box.toml", "40x24"),
+    ] {
+        let local = dir.path().join("local.exr");
+        let farm = dir.path().join("farm.exr");
+        let scene = repo(scene);
+        let args = |out: &std::path::Path| {
+            vec![
+                scene.clone(),
+                "--spp".into(),
+                "2".into(),
+                "--resolution".into(),
+                size.into(),
+                "--output".into(),
+                out.to_str().expect("utf8").to_string(),
+            ]
+        };
+        let mut render: Vec<String> = vec!["render".into()];
+        render.extend(args(&local));
+        render.extend(["--max-resolution".into(), "512".into()]);
+        let render: Vec<&str> = render.iter().map(String::as_str).collect();
+        let r = tessera_at(&render, &url);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let img = tessera_render::output::read_exr_rgb(&local).expect("exr");
+        let (w, h) = size.split_once('x').expect("size");
+        assert_eq!(
+            (img.width.to_string(), img.height.to_string()),
+            (w.into(), h.into())
+        );
+        let mut submit: Vec<String> = vec!["submit".into()];
+        submit.extend(args(&farm));
+        submit.push("--wait".into());
+        let submit: Vec<&str> = submit.iter().map(String::as_str).collect();
+        let r = tessera_at(&submit, &url);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        assert_eq!(
+            std::fs::read(&local).expect("local"),
+            std::fs::read(&farm).expect("farm"),
+            "{scene} at {size}: the farm's EXR differs from tessera render's"
+        );
+    }
+    for bad in ["64", "0x10", "64x", "axb"] {
+        let out = dir.path().join("x.exr");
+        let r = tessera_at(
+            &[
+                "render",
+                &repo("scenes/cornell-box.toml"),
+                "--spp",
+                "1",
+                "--resolution",
+                bad,
+                "--output",
+                out.to_str().expect("utf8"),
+            ],
+            &url,
+        );
+        assert!(!r.status.success());
+        assert!(
+            String::from_utf8_lossy(&r.stderr).contains("--resolution"),
+            "{bad}: {}",
+            String::from_utf8_lossy(&r.stderr)
+        );
+    }
+}

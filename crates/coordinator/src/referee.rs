@@ -17,7 +17,7 @@ use std::time::Instant;
 use tessera_proto::ids::JobId;
 use tessera_render::guided::render_tile_guided;
 use tessera_render::render_tile;
-use tessera_render::scene::{Format, Scene, FIRST_FRAME};
+use tessera_render::scene::{Format, Scene};
 use tracing::{info, warn};
 
 use crate::assets::JobAssets;
@@ -78,10 +78,15 @@ async fn settle(shared: Arc<Shared>, job: JobId, unit: Unit) {
         } else {
             Format::Toml
         };
-        let frame = settings.frame.unwrap_or(FIRST_FRAME);
-        let scene =
-            Scene::from_str_with(&stored.text, format, &stored.name, &limits, frame, &files)
-                .map_err(|e| e.to_string())?;
+        let scene = Scene::from_str_with(
+            &stored.text,
+            format,
+            &stored.name,
+            &limits,
+            settings.shot(),
+            &files,
+        )
+        .map_err(|e| e.to_string())?;
         if scene.hash != hash {
             return Err(format!("scene {hash} loads with hash {}", scene.hash));
         }

@@ -70,6 +70,9 @@ impl From<&RenderSettings> for pb::RenderSettings {
             frame: s.frame,
             aovs: s.aovs.list(),
             guiding: s.guiding,
+            resolution: s
+                .resolution
+                .map(|(width, height)| pb::Resolution { width, height }),
         }
     }
 }
@@ -99,6 +102,9 @@ pub enum BadSettings {
     /// and a guided epoch needs every tile's samples.
     #[error("guiding cannot be combined with a noise target")]
     GuidingAdaptive,
+    /// A film side of 0 pixels.
+    #[error("resolution {0}×{1}: each side must be at least 1 pixel")]
+    Resolution(u32, u32),
 }
 
 /// The renderer's settings from a message's: an unset strategy is MIS, as the protocol says,
@@ -122,6 +128,10 @@ impl TryFrom<&pb::RenderSettings> for RenderSettings {
         if s.guiding && s.noise_target != 0.0 {
             return Err(BadSettings::GuidingAdaptive);
         }
+        let resolution = s.resolution.map(|r| (r.width, r.height));
+        if let Some((w, h)) = resolution.filter(|&(w, h)| w == 0 || h == 0) {
+            return Err(BadSettings::Resolution(w, h));
+        }
         Ok(RenderSettings {
             seed: s.seed,
             spp: s.spp,
@@ -135,6 +145,7 @@ impl TryFrom<&pb::RenderSettings> for RenderSettings {
             frame: s.frame,
             aovs: Aovs::parse(&s.aovs).map_err(BadSettings::Aovs)?,
             guiding: s.guiding,
+            resolution,
             ..RenderSettings::default()
         })
     }

@@ -138,6 +138,10 @@ pub struct RenderSettings {
     /// Extra images for denoising to render beside the beauty ([`Aovs`]); none by default. They
     /// come from a pass of their own, so the beauty has the same bits and speed without them.
     pub aovs: Aovs,
+    /// The film's size in pixels in place of the scene file's own (`--resolution`), applied
+    /// when the scene is built ([`crate::scene::Shot`]); part of the render's identity when
+    /// set, like `spp`.
+    pub resolution: Option<(u32, u32)>,
     /// Path guiding ([`crate::guided`]): a render of these settings is
     /// [`crate::guided::render_frame_guided`]'s, in epochs, and a farm's units are
     /// [`crate::guided::units`]. Part of a job's identity when set. [`crate::render_frame`]
@@ -209,6 +213,17 @@ impl Aovs {
     }
 }
 
+impl RenderSettings {
+    /// What these settings ask of the scene file: their frame (the first where none is named)
+    /// and film size.
+    pub fn shot(&self) -> crate::scene::Shot {
+        crate::scene::Shot {
+            frame: self.frame.unwrap_or(crate::scene::FIRST_FRAME),
+            resolution: self.resolution,
+        }
+    }
+}
+
 impl Default for RenderSettings {
     fn default() -> Self {
         Self {
@@ -222,6 +237,7 @@ impl Default for RenderSettings {
             adaptive: None,
             frame: None,
             aovs: Aovs::default(),
+            resolution: None,
             guiding: false,
         }
     }

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use tessera_proto::v1 as pb;
 use tessera_render::files;
 use tessera_render::scene::assets::{sha256_hex, MemAssets};
-use tessera_render::scene::{Format, Limits, Scene, FIRST_FRAME};
+use tessera_render::scene::{Format, Limits, Scene, Shot, FIRST_FRAME};
 use tonic::Status;
 use tracing::warn;
 
@@ -63,7 +63,7 @@ pub(crate) enum SceneError {
 }
 
 /// A built scene's identity: the scene's hash and the frame it is built at.
-pub(crate) type SceneKey = (String, Option<u32>);
+pub(crate) type SceneKey = (String, Option<u32>, Option<(u32, u32)>);
 
 /// Built scenes a worker keeps (one per scene and frame).
 const MAX_CACHED_SCENES: usize = 4;
@@ -137,15 +137,16 @@ impl Ctx {
         &self,
         hash: &str,
         frame: Option<u32>,
+        resolution: Option<(u32, u32)>,
     ) -> Result<Arc<Scene>, SceneError> {
-        let key = (hash.to_string(), frame);
+        let key = (hash.to_string(), frame, resolution);
         if let Some(s) = lock(&self.scenes).get(&key) {
             return Ok(s.clone());
         }
         if let Some(why) = lock(&self.refused_scenes).get(&key) {
             return Err(SceneError::Unrenderable(why.clone()));
         }
-        let scene = self.fetch_scene(hash, frame).await;
+        let scene = self.fetch_scene(hash, frame, resolution).await;
         match &scene {
             Err(SceneError::Unrenderable(why)) => {
                 lock(&self.refused_scenes).insert(key, why.clone());
@@ -155,7 +156,7 @@ impl Ctx {
                 // Frames come mostly in order: an animation's earlier frames are done with,
                 // and each built frame holds its own geometry.
                 if scenes.len() >= MAX_CACHED_SCENES {
-                    if let Some(old) = scenes.keys().min_by_key(|(_, f)| *f).cloned() {
+                    if let Some(old) = scenes.keys().min_by_key(|(_, f, _)| *f).cloned() {
                         scenes.remove(&old);
                     }
                 }
@@ -170,6 +171,7 @@ impl Ctx {
         &self,
         hash: &str,
         frame: Option<u32>,
+        resolution: Option<(u32, u32)>,
     ) -> Result<Arc<Scene>, SceneError> {
         // A unit with a frame is one frame of an animation: its text builds the others too.
         let kept = frame.and_then(|_| lock(&self.texts).get(hash));
@@ -199,7 +201,10 @@ impl Ctx {
                 format,
                 &resp.scene_name,
                 &Limits::default(),
-                frame.unwrap_or(FIRST_FRAME),
+                Shot {
+                    frame: frame.unwrap_or(FIRST_FRAME),
+                    resolution,
+                },
                 &files,
             )
         })

@@ -133,7 +133,12 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
             );
             lock(&ctx.held).insert(unit.lease_id.clone());
             let frame = unit.settings.as_ref().and_then(|s| s.frame);
-            let prepared = match ctx.scene(&unit.scene_hash, frame).await {
+            let resolution = unit
+                .settings
+                .as_ref()
+                .and_then(|s| s.resolution)
+                .map(|r| (r.width, r.height));
+            let prepared = match ctx.scene(&unit.scene_hash, frame, resolution).await {
                 Ok(scene) => prepare(&unit, &scene)
                     .map(|p| (scene, p))
                     .map_err(SceneError::Unrenderable),

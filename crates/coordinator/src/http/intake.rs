@@ -87,6 +87,9 @@ pub(super) struct SubmitBody {
     /// Path guiding (not with a noise target or frames).
     #[serde(default)]
     guiding: bool,
+    /// The film's size, `[width, height]`, in place of the scene file's own.
+    #[serde(default)]
+    resolution: Option<[u32; 2]>,
 }
 
 impl SubmitBody {
@@ -126,6 +129,9 @@ impl SubmitBody {
                 frame: self.frame,
                 aovs: self.aovs,
                 guiding: self.guiding,
+                resolution: self
+                    .resolution
+                    .map(|[width, height]| pb::Resolution { width, height }),
             }),
             tile_size: self.tile_size,
             output_name: self.name,

@@ -341,6 +341,7 @@ impl Job {
             // Written by admission from a list that parsed; a damaged record gives none.
             aovs: Aovs::parse(&self.rec.aovs).unwrap_or_default(),
             guiding: self.guiding.is_some(),
+            resolution: self.rec.resolution,
             ..RenderSettings::default()
         }
     }

@@ -322,6 +322,7 @@ impl Scheduler {
             noise_target: s.adaptive.map_or(0.0, |a| a.noise_target),
             final_counts: (0, 0),
             frame,
+            resolution: s.resolution,
             range: None,
             adaptive_scale: None,
             aovs: s.aovs.list(),

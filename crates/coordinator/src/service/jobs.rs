@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use tessera_proto::convert::settings_from_wire;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_server::Jobs;
-use tessera_render::scene::{Format, Scene, FIRST_FRAME};
+use tessera_render::scene::{Format, Scene, Shot, FIRST_FRAME};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status};
@@ -107,7 +107,10 @@ impl Jobs for Service {
         }
         // A range's scene is checked at its first frame; a frame that cannot be built fails
         // alone, when a worker says so.
-        let frame = frames.map_or(settings.frame.unwrap_or(FIRST_FRAME), |r| r.first);
+        let shot = Shot {
+            frame: frames.map_or(settings.frame.unwrap_or(FIRST_FRAME), |r| r.first),
+            resolution: settings.resolution,
+        };
         let gauge = self.parsing.clone();
         let assets = self.shared.assets.clone();
         let (scene, text, name) = tokio::task::spawn_blocking(move || {
@@ -118,7 +121,7 @@ impl Jobs for Service {
                 store: &assets,
                 names,
             };
-            let r = Scene::from_str_with(&text, format, &name, &limits, frame, &files);
+            let r = Scene::from_str_with(&text, format, &name, &limits, shot, &files);
             gauge.0.fetch_sub(1, Ordering::SeqCst);
             (r, text, name)
         })

@@ -99,6 +99,10 @@ pub struct JobRecord {
     /// frame in the EXR's header).
     #[serde(default)]
     pub frame: Option<u32>,
+    /// The film's size when it is not the scene file's (`--resolution`): the scene is built at
+    /// it (none in records written before the flag).
+    #[serde(default)]
+    pub resolution: Option<(u32, u32)>,
     /// Audited: every unit's result is kept until the job ends ([`Op::PutUnit`]), and a
     /// fraction of its units is rendered twice (false in records written before audits).
     #[serde(default)]

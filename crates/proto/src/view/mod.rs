@@ -150,6 +150,8 @@ pub struct SettingsView {
     pub aovs: tessera_render::Aovs,
     /// Path guiding.
     pub guiding: bool,
+    /// The film's size when it is not the scene file's (`--resolution`): [width, height].
+    pub resolution: Option<[u32; 2]>,
 }
 
 impl From<&RenderSettings> for SettingsView {
@@ -163,6 +165,7 @@ impl From<&RenderSettings> for SettingsView {
             noise_target: s.adaptive.map(|a| a.noise_target),
             aovs: s.aovs,
             guiding: s.guiding,
+            resolution: s.resolution.map(|(w, h)| [w, h]),
         }
     }
 }
@@ -178,6 +181,9 @@ impl From<&SettingsView> for pb::RenderSettings {
             frame: s.frame,
             aovs: s.aovs.list(),
             guiding: s.guiding,
+            resolution: s
+                .resolution
+                .map(|[width, height]| pb::Resolution { width, height }),
         }
     }
 }
@@ -195,6 +201,7 @@ impl TryFrom<&pb::RenderSettings> for SettingsView {
             noise_target: (s.noise_target > 0.0).then_some(s.noise_target),
             aovs: tessera_render::Aovs::parse(&s.aovs).map_err(BadView::Aovs)?,
             guiding: s.guiding,
+            resolution: s.resolution.map(|r| [r.width, r.height]),
         })
     }
 }
@@ -507,6 +514,7 @@ mod tests {
                 frame: None,
                 aovs: "normal,depth".into(),
                 guiding: false,
+                resolution: None,
             }),
             tile_size: 32,
             units_total: 20,

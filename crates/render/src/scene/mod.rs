@@ -64,6 +64,27 @@ impl Format {
     }
 }
 
+/// What a render asks of a scene file besides its text: which frame of its `[animation]`, and
+/// a film size in place of the file's own (`--resolution`), applied before the scene is built
+/// so that the camera frames the new size as it frames the file's. A frame number converts
+/// into a shot of the file's own size.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct Shot {
+    /// The frame ([`FIRST_FRAME`] for a still).
+    pub frame: u32,
+    /// Width and height in pixels, if not the file's.
+    pub resolution: Option<(u32, u32)>,
+}
+
+impl From<u32> for Shot {
+    fn from(frame: u32) -> Self {
+        Self {
+            frame,
+            resolution: None,
+        }
+    }
+}
+
 /// Configurable bounds on what a scene may ask for, so that a hostile or mistaken file cannot
 /// exhaust memory or time.
 #[derive(Clone, Debug)]
@@ -260,7 +281,7 @@ impl Scene {
         path: &Path,
         gltf: &GltfOptions,
         limits: &Limits,
-        frame: u32,
+        frame: impl Into<Shot>,
     ) -> Result<Self, SceneError> {
         let (text, format) = scene_source(path, gltf, limits)?;
         let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
@@ -347,9 +368,10 @@ impl Scene {
         format: Format,
         file: &str,
         limits: &Limits,
-        frame: u32,
+        shot: impl Into<Shot>,
         files: &dyn assets::Assets,
     ) -> Result<Self, SceneError> {
+        let shot = shot.into();
         if text.len() > limits.max_bytes {
             return Err(at_start(
                 file,
@@ -361,7 +383,13 @@ impl Scene {
             ));
         }
         let desc = parse(text, format, file)?;
-        let (mut scene, read) = animate::at_frame(&desc, f64::from(frame))
+        let (mut scene, read) = animate::at_frame(&desc, f64::from(shot.frame))
+            .map(|mut desc| {
+                if let Some((width, height)) = shot.resolution {
+                    desc.film = format::FilmDesc { width, height };
+                }
+                desc
+            })
             .and_then(|desc| build(&desc, limits, files))
             .map_err(|(path, message)| locate(text, format, file, &path, message))?;
         scene.hash = assets::scene_hash(text, &read);

@@ -83,9 +83,12 @@ fn scene_files(
     args: &SubmitArgs,
     gltf: &tessera_render::scene::GltfOptions,
 ) -> Result<(Vec<SceneFile>, (u32, u32))> {
-    let frame = args
-        .frames
-        .map_or(args.settings.frame.unwrap_or(FIRST_FRAME), |r| r.first);
+    let shot = tessera_render::scene::Shot {
+        frame: args
+            .frames
+            .map_or(args.settings.frame.unwrap_or(FIRST_FRAME), |r| r.first),
+        resolution: args.settings.resolution,
+    };
     let lifted = Limits {
         max_resolution: u32::MAX,
         max_pixels: u64::MAX,
@@ -94,7 +97,7 @@ fn scene_files(
         max_asset_bytes: u64::MAX,
         ..Limits::default()
     };
-    let scene = Scene::load_with(&args.scene, gltf, &lifted, frame)?;
+    let scene = Scene::load_with(&args.scene, gltf, &lifted, shot)?;
     for w in &scene.warnings {
         errln!("warning: {w}");
     }
