@@ -319,3 +319,58 @@ async fn job_listings_come_a_page_at_a_time() {
         "invalid_argument",
     );
 }
+
+/// A glTF submission names its file among `files`: one that is not there, not uploaded, not a
+/// glTF file, or outside the scene's folder is refused with what is wrong; `camera` is for
+/// glTF scenes only.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn gltf_submissions_are_refused_naming_what_is_wrong() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (_coord, addr) = dashboard_farm(dir.path()).await;
+    let post = |body: serde_json::Value| async move {
+        http(
+            addr,
+            "POST",
+            "/api/jobs",
+            &[("content-type", "application/json")],
+            &body.to_string(),
+        )
+        .await
+    };
+    let sha = "ab".repeat(32);
+    for (body, status, code, says) in [
+        (
+            serde_json::json!({"format": "gltf", "scene": "m.glb", "spp": 1}),
+            400,
+            "invalid_argument",
+            "not among `files`",
+        ),
+        (
+            serde_json::json!({"format": "gltf", "scene": "m.glb", "spp": 1, "files": {"m.glb": sha}}),
+            409,
+            "failed_precondition",
+            "not uploaded",
+        ),
+        (
+            serde_json::json!({"format": "gltf", "scene": "m.toml", "spp": 1, "files": {"m.toml": sha}}),
+            400,
+            "invalid_argument",
+            "name the glTF file",
+        ),
+        (
+            serde_json::json!({"format": "gltf", "scene": "../m.glb", "spp": 1, "files": {"../m.glb": sha}}),
+            400,
+            "invalid_argument",
+            "climbs out",
+        ),
+        (
+            serde_json::json!({"scene": scene_text(8), "spp": 1, "camera": "main"}),
+            400,
+            "invalid_argument",
+            "for glTF scenes",
+        ),
+    ] {
+        let msg = refused(&post(body.clone()).await, status, code);
+        assert!(msg.contains(says), "{body}: {msg}");
+    }
+}

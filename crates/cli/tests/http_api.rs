@@ -37,23 +37,37 @@ fn the_documented_python_pipeline_submits_a_mesh_scene_and_gets_tessera_renders_
     // The script and its command, as the docs give them; only the address is this run's.
     let script = dir.path().join("pipeline.py");
     std::fs::write(&script, block("### The HTTP API for pipelines", "python")).expect("script");
-    let command = block("Saved as `pipeline.py`", "sh");
-    let words: Vec<&str> = command.split_whitespace().collect();
+    let commands = block("Saved as `pipeline.py`", "sh");
+    let lines: Vec<Vec<&str>> = commands
+        .lines()
+        .map(|l| l.split_whitespace().collect())
+        .collect();
     assert_eq!(
-        words,
+        lines,
         [
-            "python3",
-            "pipeline.py",
-            "http://127.0.0.1:7880",
-            "scenes/cornell-mesh.toml",
-            "16",
-            "mesh.exr"
+            [
+                "python3",
+                "pipeline.py",
+                "http://127.0.0.1:7880",
+                "scenes/cornell-mesh.toml",
+                "16",
+                "mesh.exr"
+            ],
+            [
+                "python3",
+                "pipeline.py",
+                "http://127.0.0.1:7880",
+                "scenes/gltf/sample.glb",
+                "2",
+                "sample.exr"
+            ]
         ],
-        "docs/farm.md's command changed: {command}"
+        "docs/farm.md's commands changed: {commands}"
     );
+    let words = &lines[0];
     // The script as the command runs it, writing to `out`, with the token in the environment
     // or without it.
-    let pipeline = |out: &std::path::Path, token: Option<&str>| {
+    let run_line = |words: &[&str], out: &std::path::Path, token: Option<&str>| {
         let mut cmd = Command::new("python3");
         cmd.arg(&script)
             .arg(&dash)
@@ -67,6 +81,7 @@ fn the_documented_python_pipeline_submits_a_mesh_scene_and_gets_tessera_renders_
         cmd.output()
             .expect("python3 (Debian's python3 package) runs the pipeline script")
     };
+    let pipeline = |out: &std::path::Path, token: Option<&str>| run_line(words, out, token);
     let out_exr = dir.path().join("mesh.exr");
     let run = pipeline(&out_exr, Some(token));
     assert!(
@@ -117,6 +132,32 @@ fn the_documented_python_pipeline_submits_a_mesh_scene_and_gets_tessera_renders_
         String::from_utf8_lossy(&refused.stderr).contains("unauthenticated"),
         "{}",
         String::from_utf8_lossy(&refused.stderr)
+    );
+    // The glTF file (a .glb with its textures inside), as `tessera submit` sends it.
+    let glb = &lines[1];
+    let farm_glb = dir.path().join("sample.exr");
+    let run = run_line(glb, &farm_glb, Some(token));
+    assert!(
+        run.status.success(),
+        "the pipeline script failed on the glTF file: {}{}",
+        String::from_utf8_lossy(&run.stdout),
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let local_glb = dir.path().join("local-sample.exr");
+    let render = Command::new(BIN)
+        .args(["render", &repo(glb[3]), "--spp", glb[4], "--output"])
+        .arg(&local_glb)
+        .output()
+        .expect("render");
+    assert!(
+        render.status.success(),
+        "{}",
+        String::from_utf8_lossy(&render.stderr)
+    );
+    assert!(
+        std::fs::read(&farm_glb).expect("the script's EXR")
+            == std::fs::read(&local_glb).expect("local"),
+        "the glTF EXR the pipeline script downloaded differs from tessera render's"
     );
     drop(w);
     drop(coord);

@@ -25,9 +25,10 @@ use crate::auth::Caller;
 #[derive(Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub(super) struct SubmitBody {
-    /// The scene file's text.
+    /// The scene file's text; with `format: "gltf"`, the glTF file's name among `files`.
     scene: String,
-    /// `toml` (the default) or `json`.
+    /// `toml` (the default), `json`, or `gltf`: then `scene` names the glTF file (.gltf or
+    /// .glb) among `files`, rendered as `tessera submit` renders one.
     #[serde(default)]
     format: Option<String>,
     /// A name for the scene in error messages (its file name).
@@ -90,16 +91,96 @@ pub(super) struct SubmitBody {
     /// The film's size, `[width, height]`, in place of the scene file's own.
     #[serde(default)]
     resolution: Option<[u32; 2]>,
+    /// With `format: "gltf"`: the glTF camera to render from, by name or index (`--camera`).
+    #[serde(default)]
+    camera: Option<String>,
+    /// With `format: "gltf"`: an HDR map among `files` to light it by (`--environment`).
+    #[serde(default)]
+    environment: Option<String>,
 }
 
 impl SubmitBody {
+    /// A glTF submission (`format: "gltf"`, `scene` the glTF file's name among `files`) as the
+    /// scene text `tessera submit` sends for it ([`gltf_scene_text`]), read from the uploaded
+    /// file's JSON (a .glb's JSON chunk alone); other submissions as they are.
+    async fn with_gltf_text(mut self, app: &App) -> Result<Self, tonic::Status> {
+        if self.format.as_deref() != Some("gltf") {
+            if self.camera.is_some() || self.environment.is_some() {
+                return Err(tonic::Status::invalid_argument(
+                    "camera and environment are for glTF scenes (format \"gltf\")",
+                ));
+            }
+            return Ok(self);
+        }
+        let name = self.scene.clone();
+        tessera_render::scene::assets::check_file_name(&name)
+            .map_err(|e| tonic::Status::invalid_argument(format!("scene: {e}")))?;
+        if !tessera_render::scene::is_gltf(std::path::Path::new(&name)) {
+            return Err(tonic::Status::invalid_argument(format!(
+                "scene: with format \"gltf\", name the glTF file (.gltf or .glb) among `files`, \
+                 not `{}`",
+                crate::error::truncate(&name)
+            )));
+        }
+        let sha = self.files.get(&name).cloned().ok_or_else(|| {
+            tonic::Status::invalid_argument(format!(
+                "scene: `{}` is not among `files` (upload it and name it there)",
+                crate::error::truncate(&name)
+            ))
+        })?;
+        let assets = app.svc.shared.assets.clone();
+        let max = app.svc.shared.config.limits.max_bytes as u64;
+        let json = tokio::task::spawn_blocking(move || gltf_json(&assets, &sha, max))
+            .await
+            .map_err(|e| tonic::Status::internal(e.to_string()))??;
+        let options = tessera_render::scene::GltfOptions {
+            camera: self.camera.take(),
+            environment: self.environment.take(),
+        };
+        self.scene = tessera_render::scene::gltf_scene_text(&name, &json, &options);
+        self.format = None;
+        if self.scene_name.is_empty() {
+            self.scene_name = name;
+        }
+        Ok(self)
+    }
+}
+
+/// The JSON of the uploaded glTF file `sha`: a .glb's JSON chunk (read alone, however large
+/// its binary chunk), or a .gltf file's whole text; at most `max` bytes of it.
+fn gltf_json(
+    assets: &crate::assets::AssetStore,
+    sha: &str,
+    max: u64,
+) -> Result<Vec<u8>, tonic::Status> {
+    let held = |e: crate::assets::AssetError| tonic::Status::failed_precondition(e.to_string());
+    let head = assets.read_from(sha, 0, 20).map_err(held)?;
+    let (at, len) = if head.len() == 20 && head.starts_with(b"glTF") && &head[16..20] == b"JSON" {
+        (
+            20,
+            u64::from(u32::from_le_bytes([head[12], head[13], head[14], head[15]])),
+        )
+    } else {
+        (0, max + 1)
+    };
+    let json = assets.read_from(sha, at, len.min(max + 1)).map_err(held)?;
+    if json.len() as u64 > max {
+        return Err(tonic::Status::resource_exhausted(format!(
+            "the glTF file's JSON is above the coordinator's scene limit of {max} bytes"
+        )));
+    }
+    Ok(json)
+}
+
+impl SubmitBody {
+    /// The gRPC submission this body asks for.
     fn into_request(self) -> Result<pb::SubmitJobRequest, String> {
         let scene_format = match self.format.as_deref() {
             None | Some("toml") => pb::SceneFormat::Toml,
             Some("json") => pb::SceneFormat::Json,
             Some(f) => {
                 return Err(format!(
-                    "format {:?}: expected toml or json",
+                    "format {:?}: expected toml, json or gltf",
                     crate::error::truncate(f)
                 ))
             }
@@ -222,6 +303,10 @@ pub(super) async fn submit(
                 format!("body: {e}"),
             )
         }
+    };
+    let body = match body.with_gltf_text(&app).await {
+        Ok(b) => b,
+        Err(s) => return refused(s),
     };
     let req = match body.into_request() {
         Ok(r) => r,
