@@ -757,3 +757,55 @@ async fn the_dashboard_and_the_cli_read_one_document() {
     w.abort();
     coord.stop().await;
 }
+
+/// DNS rebinding: without a token, a request naming a host the dashboard is not served as (a
+/// page on evil.example whose name now points at the farm) is refused, reading and changing
+/// alike; IP addresses, localhost and `--http-host` names pass, and so does Prometheus's scrape
+/// of /metrics. With a token the token decides, whatever the Host.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn without_a_token_only_the_dashboards_own_names_are_served() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord =
+        Coordinator::start_with_dashboard(&dir.path().join("data"), Duration::from_secs(30), |c| {
+            c.http_hosts = vec!["renderbox".into()];
+        })
+        .await;
+    let addr = coord.http.expect("dashboard");
+    let port = addr.port();
+    let evil = format!("evil.example:{port}");
+    for (method, path) in [
+        ("GET", "/api/jobs"),
+        ("GET", "/"),
+        ("POST", "/api/jobs/job-000001/cancel"),
+    ] {
+        let r = http(addr, method, path, &[("host", &evil)], "").await;
+        assert_eq!(r.status, 403, "{method} {path}: {}", r.text());
+        assert!(r.text().contains("--http-host"), "{}", r.text());
+    }
+    for host in [
+        format!("127.0.0.1:{port}"),
+        format!("localhost:{port}"),
+        format!("[::1]:{port}"),
+        format!("RenderBox:{port}"),
+        "renderbox".to_string(),
+    ] {
+        let r = http(addr, "GET", "/api/jobs", &[("host", &host)], "").await;
+        assert_eq!(r.status, 200, "{host}: {}", r.text());
+    }
+    let r = http(addr, "GET", "/metrics", &[("host", "coordinator:7880")], "").await;
+    assert_eq!(r.status, 200);
+    let with_token = farm_with_token(&dir.path().join("t")).await;
+    let addr = with_token.http.expect("dashboard");
+    let r = http(
+        addr,
+        "GET",
+        "/api/jobs",
+        &[
+            ("host", "evil.example"),
+            ("authorization", &format!("Bearer {TOKEN}")),
+        ],
+        "",
+    )
+    .await;
+    assert_eq!(r.status, 200, "{}", r.text());
+}

@@ -49,6 +49,9 @@ pub struct Config {
     pub fail_unit_after_lapses: u32,
     /// How long a failed job's scene (and so its assets) is kept for `tessera retry`.
     pub retry_window: Duration,
+    /// Host names the dashboard is served as, besides IP addresses and `localhost`: on a farm
+    /// without a token, a request naming another host is refused (DNS rebinding).
+    pub http_hosts: Vec<String>,
     /// How long an ended job's workers' log is kept (in the store; memory holds active jobs'
     /// logs only).
     pub log_retention: Duration,
@@ -183,6 +186,7 @@ impl Config {
             fail_frame_after: DEFAULT_FAIL_FRAME_AFTER,
             fail_unit_after_lapses: DEFAULT_FAIL_UNIT_AFTER_LAPSES,
             retry_window: DEFAULT_RETRY_WINDOW,
+            http_hosts: Vec::new(),
             log_retention: crate::scheduler::DEFAULT_LOG_RETENTION,
             max_log_bytes: crate::scheduler::DEFAULT_MAX_LOG_BYTES,
             max_leases_per_worker: DEFAULT_MAX_LEASES_PER_WORKER,

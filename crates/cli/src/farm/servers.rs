@@ -138,6 +138,12 @@ pub struct CoordinatorArgs {
     /// 127.0.0.1:7880; off unless given. Same token and TLS as the gRPC API.
     #[arg(long, value_name = "ADDR")]
     http: Option<String>,
+    /// A host name the dashboard is reached by (repeatable), e.g. renderbox or
+    /// farm.studio.example. IP addresses and localhost always are; on a farm without a token,
+    /// requests that name any other host are refused, so that a web page elsewhere cannot
+    /// reach the farm through a name it points at it (DNS rebinding).
+    #[arg(long = "http-host", value_name = "NAME")]
+    http_hosts: Vec<String>,
     /// Most memory, in bytes, that checking submitted scenes may spend decoding their textures
     /// at once (a texture larger than this is refused; more wait their turn).
     #[arg(long, default_value_t = tessera_render::texture::DEFAULT_DECODE_BUDGET)]
@@ -233,6 +239,11 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
     config.fail_frame_after = args.fail_frame_after;
     config.fail_unit_after_lapses = args.fail_unit_after_lapses;
     config.retry_window = Duration::from_secs_f64(args.retry_window);
+    config.http_hosts = args
+        .http_hosts
+        .iter()
+        .map(|h| h.to_ascii_lowercase())
+        .collect();
     if !(args.log_retention.is_finite() && (0.0..=1e9).contains(&args.log_retention)) {
         bail!(
             "--log-retention must be between 0 and 1e9 seconds, got {}",

@@ -178,6 +178,23 @@ fn router(app: App) -> Router {
 /// the login page to a browser, JSON to an API client, a line of text to anything else.
 async fn check(State(app): State<App>, req: Request, next: Next) -> Response {
     let api = req.uri().path().starts_with("/api/");
+    // Without a token anyone who reaches the port may act, so the Host must be one this
+    // dashboard is served as: a page on evil.example whose name an attacker points at the
+    // farm (DNS rebinding) sends `Host: evil.example`. Prometheus's scrape of /metrics names
+    // the coordinator's service, and reads nothing a user owns.
+    if app.auth.tokens.is_none() && req.uri().path() != "/metrics" {
+        if let Some(host) = foreign_host(&req, &app.svc.shared.config.http_hosts) {
+            let message = format!(
+                "this dashboard is not served as {host:?}: reach it by an IP address, \
+                 localhost, or a name given to `tessera coordinator --http-host` (without a \
+                 token, other names are refused against DNS rebinding)"
+            );
+            if api {
+                return api::error(StatusCode::FORBIDDEN, "forbidden", message);
+            }
+            return (StatusCode::FORBIDDEN, format!("{message}\n")).into_response();
+        }
+    }
     let changes = !matches!(*req.method(), Method::GET | Method::HEAD);
     if changes && cross_site(req.headers()) {
         let message = "a request from another site may not change anything here";
@@ -234,6 +251,40 @@ async fn check(State(app): State<App>, req: Request, next: Next) -> Response {
         Ok(req) => next.run(req).await,
         Err(r) => r,
     }
+}
+
+/// The host `req` names (its `Host` header, or an HTTP/2 request's authority), if it is not
+/// one the dashboard is served as: an IP address, `localhost` (or a name under it), or one of
+/// `allowed` (lower case). A request that names none passes: browsers always send one.
+fn foreign_host(req: &Request, allowed: &[String]) -> Option<String> {
+    let host = req
+        .headers()
+        .get(header::HOST)
+        .and_then(|v| v.to_str().ok())
+        .map(str::to_string)
+        .or_else(|| req.uri().authority().map(|a| a.as_str().to_string()))?;
+    // Without the port; an IPv6 literal keeps its brackets.
+    let name = match host.rsplit_once(':') {
+        Some((h, port))
+            if !h.is_empty() && port.bytes().all(|b| b.is_ascii_digit()) && !h.ends_with(':') =>
+        {
+            h
+        }
+        _ => host.as_str(),
+    }
+    .trim_end_matches('.')
+    .to_ascii_lowercase();
+    let ip = name
+        .strip_prefix('[')
+        .and_then(|n| n.strip_suffix(']'))
+        .unwrap_or(&name)
+        .parse::<std::net::IpAddr>()
+        .is_ok();
+    let local = name == "localhost" || name.ends_with(".localhost");
+    if ip || local || allowed.iter().any(|a| *a == name) {
+        return None;
+    }
+    Some(crate::error::truncate(&host))
 }
 
 /// Whether a browser says the request comes from another site: its `Sec-Fetch-Site`, or else
