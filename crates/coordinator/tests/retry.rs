@@ -40,9 +40,9 @@ fn a_retry_puts_a_failed_job_back_as_admitted_and_keeps_its_scene_meanwhile() {
     let (mut core, job) = common::one_job(&names);
     let now = Instant::now();
     let w = core.register("w".into(), 1, "v".into(), "s".into(), now);
-    assert!(precondition(core.retry(job, None)).contains("no failed frame"));
+    assert!(precondition(core.retry(job, None, 1000)).contains("no failed frame"));
     assert!(matches!(
-        core.retry(JobId(99), None),
+        core.retry(JobId(99), None, 1000),
         Err(Refusal::NotFound(_))
     ));
     let ops = fail(&mut core, w, job, 1000);
@@ -51,7 +51,7 @@ fn a_retry_puts_a_failed_job_back_as_admitted_and_keeps_its_scene_meanwhile() {
         "the scene of a failed job is kept for a retry: {ops:?}"
     );
     assert!(core.job_view(job, now).expect("view").retryable);
-    let (back, ops) = core.retry(job, None).expect("retry");
+    let (back, ops) = core.retry(job, None, 1000).expect("retry");
     assert_eq!(back, [job]);
     let rec = &core.job(job).expect("job").rec;
     assert_eq!(rec.phase, JobPhase::Active);
@@ -65,7 +65,7 @@ fn a_retry_puts_a_failed_job_back_as_admitted_and_keeps_its_scene_meanwhile() {
     let g = core.lease(w, 8, now);
     assert_eq!(g.len(), 8, "every unit is handed out again");
     assert!(g.iter().all(|g| g.job == job));
-    assert!(precondition(core.retry(job, None)).contains("no failed frame"));
+    assert!(precondition(core.retry(job, None, 1000)).contains("no failed frame"));
 }
 
 #[test]
@@ -86,7 +86,7 @@ fn past_the_window_the_scene_goes_and_a_retry_is_refused() {
         "{ops:?}"
     );
     assert!(core.sweep_failed(1000 + 20_000).is_empty(), "dropped once");
-    let why = precondition(core.retry(job, None));
+    let why = precondition(core.retry(job, None, 1000));
     assert!(
         why.contains("--retry-window") && why.contains("submit it again"),
         "{why}"
@@ -123,9 +123,9 @@ fn jobs_that_failed_waiting_for_a_retried_one_come_back_waiting_for_it() {
     let rec = &core.job(then).expect("then").rec;
     assert_eq!(rec.phase, JobPhase::Failed);
     // Retrying the dependent alone would fail it again at once.
-    let why = precondition(core.retry(then, None));
+    let why = precondition(core.retry(then, None, 1000));
     assert!(why.contains("retry that one first"), "{why}");
-    let (back, _) = core.retry(first, None).expect("retry");
+    let (back, _) = core.retry(first, None, 1000).expect("retry");
     assert_eq!(back, [first, then]);
     let view = core.job_view(then, Instant::now()).expect("view");
     assert_eq!(view.after, Some(first));
@@ -164,13 +164,50 @@ fn a_frame_of_a_range_is_retried_by_its_number() {
             .retryable
     );
     assert!(
-        matches!(core.retry(range, Some(9)), Err(Refusal::NotFound(m)) if m.contains("no frame 9"))
+        matches!(core.retry(range, Some(9), 1000), Err(Refusal::NotFound(m)) if m.contains("no frame 9"))
     );
-    assert!(precondition(core.retry(range, Some(2))).contains(&format!("{range} frame 2")));
-    let (back, _) = core.retry(range, Some(1)).expect("retry");
+    assert!(precondition(core.retry(range, Some(2), 1000)).contains(&format!("{range} frame 2")));
+    let (back, _) = core.retry(range, Some(1), 1000).expect("retry");
     assert_eq!(back, [frames[0]]);
     assert_eq!(
         core.job(frames[0]).expect("frame").rec.phase,
         JobPhase::Active
     );
+}
+
+/// A retry counts against the active-job limit as a submission does, the jobs that come back
+/// with it too: over a full queue it is refused, saying how many it would put back.
+#[test]
+fn a_retry_keeps_to_the_active_job_limit() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let names = OutputNames::new(dir.path());
+    let (mut core, first) = common::one_job(&names);
+    let mut chain = vec![first];
+    for i in 0..2 {
+        let after = *chain.last().expect("one");
+        let (j, _) = core
+            .admit(
+                common::admission(None, None, Some(after)),
+                LIMITS,
+                &names,
+                2 + i,
+            )
+            .expect("link");
+        chain.push(j);
+    }
+    let w = core.register("w".into(), 1, "v".into(), "s".into(), Instant::now());
+    fail(&mut core, w, first, 1000);
+    assert!(chain
+        .iter()
+        .all(|&j| core.job(j).expect("job").rec.phase == JobPhase::Failed));
+    core.admit(common::admission(None, None, None), LIMITS, &names, 5)
+        .expect("another");
+    // One active, three to come back: a limit of 3 refuses, 4 takes them.
+    match core.retry(first, None, 3) {
+        Err(Refusal::Exhausted(m)) => assert!(m.contains("put back 3 jobs"), "{m}"),
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(core.job(first).expect("first").rec.phase, JobPhase::Failed);
+    let (back, _) = core.retry(first, None, 4).expect("retry");
+    assert_eq!(back, chain);
 }

@@ -259,13 +259,7 @@ impl Scheduler {
         now_ms: i64,
     ) -> Result<(JobId, Vec<Op>), Refusal> {
         // A frame-range job counts once, as its user submitted it.
-        let mut ranges = std::collections::BTreeSet::new();
-        let active = self
-            .jobs
-            .values()
-            .filter(|j| j.rec.phase == JobPhase::Active)
-            .filter(|j| j.rec.range.is_none_or(|r| ranges.insert(r.id)))
-            .count();
+        let active = self.active_jobs();
         if active >= limits.max_active_jobs {
             return Err(Refusal::Exhausted(format!(
                 "{active} jobs are already queued or running, the limit is {}",

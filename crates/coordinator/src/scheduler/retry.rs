@@ -30,11 +30,14 @@ impl Scheduler {
 
     /// Puts back the failed frames of job `id` (a frame-range job: every failed frame, or
     /// frame `frame` alone), and the jobs that failed only because they waited for one of
-    /// them. Returns the ids put back and the store changes.
+    /// them, unless that would take the active jobs past `max_active` (the coordinator's
+    /// `max_active_jobs`, which a submission keeps to as well). Returns the ids put back and
+    /// the store changes.
     pub fn retry(
         &mut self,
         id: JobId,
         frame: Option<u32>,
+        max_active: usize,
     ) -> Result<(Vec<JobId>, Vec<Op>), Refusal> {
         let members: Vec<JobId> = self
             .members(id)
@@ -93,16 +96,37 @@ impl Scheduler {
                 }
             }
         }
+        let back = self.retry_closure(failed);
+        // What comes back counts against the active-job limit as a submission does: a range
+        // once, and only if none of its frames is active still.
+        let active = self.active_jobs();
+        let mut ranges = std::collections::BTreeSet::new();
+        let adding = back
+            .iter()
+            .filter_map(|m| self.jobs.get(m))
+            .filter(|j| {
+                j.rec.range.is_none_or(|r| {
+                    ranges.insert(r.id)
+                        && !self.members(JobId(r.id)).iter().any(|f| {
+                            self.jobs
+                                .get(f)
+                                .is_some_and(|x| x.rec.phase == JobPhase::Active)
+                        })
+                })
+            })
+            .count();
+        if active + adding > max_active {
+            return Err(Refusal::Exhausted(format!(
+                "retrying {id} would put back {adding} jobs over the {active} queued or running, \
+                 and the limit is {max_active}; retry it once some have finished"
+            )));
+        }
         let mut put_back = Vec::new();
         let mut ops = Vec::new();
-        let mut todo = failed;
-        while let Some(m) = todo.pop() {
+        for m in back {
             let Some(job) = self.jobs.get_mut(&m) else {
                 continue;
             };
-            if job.rec.phase != JobPhase::Failed || !job.retryable {
-                continue;
-            }
             let mut rec = job.rec.clone();
             rec.phase = JobPhase::Active;
             rec.error.clear();
@@ -121,8 +145,24 @@ impl Scheduler {
             }
             tracing::info!("{m} retried");
             put_back.push(m);
-            // Those that failed because they waited for this one wait for it again.
-            let range = self.jobs[&m].rec.range.map(|r| r.id);
+        }
+        put_back.sort_unstable();
+        Ok((put_back, ops))
+    }
+
+    /// The failed, retryable jobs a retry of `failed` puts back: those, and the jobs that
+    /// failed only because they waited (`--after`) for one put back, in turn.
+    fn retry_closure(&self, failed: Vec<JobId>) -> Vec<JobId> {
+        let mut back = std::collections::BTreeSet::new();
+        let mut todo = failed;
+        while let Some(m) = todo.pop() {
+            let Some(job) = self.jobs.get(&m) else {
+                continue;
+            };
+            if job.rec.phase != JobPhase::Failed || !job.retryable || !back.insert(m) {
+                continue;
+            }
+            let range = job.rec.range.map(|r| r.id);
             todo.extend(self.jobs.iter().filter_map(|(&d, j)| {
                 let waits = j.rec.after.is_some_and(|a| a == m.0 || Some(a) == range);
                 (waits
@@ -131,8 +171,17 @@ impl Scheduler {
                 .then_some(d)
             }));
         }
-        put_back.sort_unstable();
-        Ok((put_back, ops))
+        back.into_iter().collect()
+    }
+
+    /// Jobs queued or running, a frame-range job once: what the active-job limit counts.
+    pub(super) fn active_jobs(&self) -> usize {
+        let mut ranges = std::collections::BTreeSet::new();
+        self.jobs
+            .values()
+            .filter(|j| j.rec.phase == JobPhase::Active)
+            .filter(|j| j.rec.range.is_none_or(|r| ranges.insert(r.id)))
+            .count()
     }
 
     /// Drops the scenes of failed jobs whose retry window has passed (those no other job

@@ -269,7 +269,7 @@ impl Jobs for Service {
         let (ids, rx) = {
             let mut core = self.shared.scheduler();
             may_change(&core, id, &caller, "retry")?;
-            let (ids, ops) = core.retry(id, req.frame)?;
+            let (ids, ops) = core.retry(id, req.frame, self.shared.config.max_active_jobs)?;
             (ids, self.shared.queue_write(ops))
         };
         durable(rx).await.map_err(internal)?;
