@@ -47,10 +47,10 @@ async fn a_paused_job_finishes_its_leases_takes_no_new_ones_and_resumes_after_a_
     }
     let next = lease_now(&mut hand, &id, 2).await.expect("lease");
     assert!(!next.is_empty() && next.iter().all(|u| u.job_id == second));
-    assert!(
-        job_status(&mut client, &first).await.paused,
-        "before the restart"
-    );
+    let s = job_status(&mut client, &first).await;
+    assert!(s.paused, "before the restart");
+    // It merged samples a moment ago, but is going nowhere: no ETA (it once showed one).
+    assert!(s.samples_done > 0 && s.eta_seconds < 0.0, "{s:?}");
     // A restart keeps the pause; the second job's leases lapse with the old process.
     let coord = coord.restarted(&data, lease).await;
     let mut client = coord.client().await;

@@ -26,8 +26,9 @@ pub struct GltfArgs {
     /// first one a node places, or a framing of the whole scene when there is none).
     #[arg(long, value_name = "NAME|INDEX")]
     pub camera: Option<String>,
-    /// Light a glTF scene by this equirectangular HDR map (.exr or .hdr) instead of its
-    /// default (its own lights, or a uniform white sky when it has none).
+    /// Light a glTF scene by this equirectangular map (.exr or .hdr; .png, .jpg or .jpeg read
+    /// through the sRGB curve) instead of its default (its own lights, or a uniform white sky
+    /// when it has none). It must be inside the glTF file's folder.
     #[arg(long, value_name = "FILE")]
     pub environment: Option<std::path::PathBuf>,
 }

@@ -605,3 +605,32 @@ fn resolution_sets_the_film_of_any_scene_on_render_and_the_farm() {
         );
     }
 }
+
+/// `tessera workers` lines its rows up under its header (the id once ignored its column's
+/// width, pushing every later column right).
+#[test]
+fn the_workers_table_lines_up_under_its_header() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, url) = coordinator(&dir.path().join("data"));
+    let _w = worker(&url, "align");
+    wait_for("the worker to register", || {
+        String::from_utf8_lossy(&tessera_at(&["workers"], &url).stdout).contains("align")
+    });
+    let out = String::from_utf8_lossy(&tessera_at(&["workers"], &url).stdout).to_string();
+    let mut lines = out.lines();
+    let header = lines.next().expect("header");
+    let row = lines.find(|l| l.contains("align")).expect("row");
+    // NAME and STATE are left-aligned, CORES right-aligned.
+    for (column, value, at) in [
+        ("NAME", "align", 0),
+        ("STATE", "alive", 0),
+        ("CORES", "1", 4),
+    ] {
+        let start = header.find(column).expect("column") + at;
+        assert_eq!(
+            row.get(start..start + value.len()),
+            Some(value),
+            "{column} in:\n{header}\n{row}"
+        );
+    }
+}

@@ -145,9 +145,10 @@ impl Scheduler {
         let state = job.state();
         let (units_total, units_done, samples_total, samples_done) = job.progress();
         let rate = job.rate(now);
+        // A paused job keeps its recent rate for a while, but is going nowhere: no ETA.
         let eta = match state {
             JobState::Done => Some(0.0),
-            JobState::Queued | JobState::Running if rate > 0.0 => {
+            JobState::Queued | JobState::Running if rate > 0.0 && !rec.paused => {
                 Some(samples_total.saturating_sub(samples_done) as f64 / rate)
             }
             _ => None,
@@ -240,7 +241,9 @@ impl Scheduler {
             .sum();
         let eta = match state {
             JobState::Done => Some(0.0),
-            JobState::Running | JobState::Queued if rate > 0.0 => {
+            JobState::Running | JobState::Queued
+                if rate > 0.0 && !frames.iter().all(|f| f.paused || f.state.is_final()) =>
+            {
                 Some(samples_total.saturating_sub(samples_done) as f64 / rate)
             }
             _ => None,

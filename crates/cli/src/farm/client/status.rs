@@ -398,7 +398,7 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
         for w in &workers {
             outln!(
                 "{:<10} {:<20} {:>5} {:<11} {:>6} {:>8} {:>12} {:>5} {:>6} {:>8.1}s {:>9} {:<16} {}",
-                w.worker_id,
+                w.worker_id.to_string(),
                 printable(&w.name),
                 w.cores,
                 w.state.name(),
