@@ -148,6 +148,13 @@ async fn every_page_and_endpoint_needs_the_token() {
     )
     .await;
     assert_eq!(r.status, 200, "{}", r.text());
+    // The answer is the job, as pause's is.
+    let v: serde_json::Value = serde_json::from_slice(&r.body).expect("json");
+    assert_eq!(
+        (v["job_id"].as_str(), v["state"].as_str()),
+        (Some(job.as_str()), Some("cancelled")),
+        "{v}"
+    );
     assert_eq!(
         job_status(&mut client, &job).await.state,
         pb::JobState::Cancelled as i32
@@ -157,6 +164,14 @@ async fn every_page_and_endpoint_needs_the_token() {
     assert!(r
         .header("set-cookie")
         .is_some_and(|c| c.contains("Max-Age=0")));
+    // Logging out ends the session itself: the cookie, wherever it was copied, no longer works.
+    let r = http(addr, "GET", "/api/jobs", &[("cookie", &cookie)], "").await;
+    assert_eq!(
+        r.status,
+        401,
+        "a logged-out session still works: {}",
+        r.text()
+    );
     coord.stop().await;
 }
 

@@ -142,7 +142,6 @@ impl Caller {
 struct Named {
     caller: Caller,
     hash: [u8; 32],
-    session: String,
 }
 
 impl Named {
@@ -150,13 +149,6 @@ impl Named {
         Self {
             caller,
             hash: sha256(secret.expose().as_bytes()),
-            // Derived from the token, not the token itself: a cookie that leaks does not give
-            // away the token (which the workers and clients use too), and every session ends
-            // when the token is changed.
-            session: sha256(format!("tessera dashboard session\0{}", secret.expose()).as_bytes())
-                .iter()
-                .map(|b| format!("{b:02x}"))
-                .collect(),
         }
     }
 }
@@ -290,22 +282,16 @@ impl Tokens {
         self.find(|n| bool::from(n.hash.ct_eq(&hash)), |n| n.caller.clone())
     }
 
-    /// Who the dashboard session value `cookie` is of, if anyone.
-    pub(crate) fn session_caller(&self, cookie: &str) -> Option<Caller> {
-        self.find(
-            |n| {
-                cookie.len() == n.session.len()
-                    && bool::from(cookie.as_bytes().ct_eq(n.session.as_bytes()))
-            },
-            |n| n.caller.clone(),
-        )
+    /// Who holds the token of SHA-256 `hash` ([`token_hash`]), if it is still accepted: a
+    /// dashboard session names its token so, and ends when the token is withdrawn.
+    pub(crate) fn caller_of_hash(&self, hash: &[u8; 32]) -> Option<Caller> {
+        self.find(|n| bool::from(n.hash.ct_eq(hash)), |n| n.caller.clone())
     }
+}
 
-    /// The session value for the holder of token `presented`, if it is one.
-    pub(crate) fn session_for(&self, presented: &str) -> Option<String> {
-        let hash = sha256(presented.as_bytes());
-        self.find(|n| bool::from(n.hash.ct_eq(&hash)), |n| n.session.clone())
-    }
+/// The SHA-256 of token `presented`, as [`Tokens::caller_of_hash`] takes it.
+pub(crate) fn token_hash(presented: &str) -> [u8; 32] {
+    sha256(presented.as_bytes())
 }
 
 /// Checks a user name: 1 to [`MAX_USER_CHARS`] of letters, digits and `._@-`, so that it
@@ -339,16 +325,17 @@ mod tests {
     const B: &str = "bbbbbbbbbbbbbbbbbbbb";
 
     #[test]
-    fn only_the_token_matches_and_the_session_is_not_the_token() {
+    fn only_the_token_matches_and_its_hash_names_its_holder() {
         let t = Tokens::one(&Secret::new("s3cret-s3cret-s3cret".to_string()));
         let anyone = Caller::anyone();
         assert_eq!(t.caller("s3cret-s3cret-s3cret"), Some(anyone.clone()));
         assert_eq!(t.caller("s3cret-s3cret-s3cre"), None);
         assert_eq!(t.caller(""), None);
-        let session = t.session_for("s3cret-s3cret-s3cret").expect("session");
-        assert_eq!(t.session_caller(&session), Some(anyone));
-        assert_eq!(t.session_caller("s3cret-s3cret-s3cret"), None);
-        assert_eq!(t.session_for("nope"), None);
+        assert_eq!(
+            t.caller_of_hash(&token_hash("s3cret-s3cret-s3cret")),
+            Some(anyone)
+        );
+        assert_eq!(t.caller_of_hash(&token_hash("nope")), None);
         assert_eq!(bearer("Bearer abc"), Some("abc"));
         assert_eq!(bearer("Basic abc"), None);
     }
@@ -394,9 +381,10 @@ mod tests {
             .contains("worker API only"));
         assert!(Caller::anyone().may_call(Api::Workers).is_ok());
         assert!(Caller::anyone().may_call(Api::Jobs).is_ok());
-        // Sessions are per token.
-        let s = t.session_for(A).expect("session");
-        assert_eq!(t.session_caller(&s).map(|c| c.user), Some("alice".into()));
+        assert_eq!(
+            t.caller_of_hash(&token_hash(A)).map(|c| c.user),
+            Some("alice".into())
+        );
     }
 
     #[test]

@@ -22,7 +22,7 @@ use axum::{Extension, Json};
 use serde::{Deserialize, Serialize};
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_server::Jobs;
-use tessera_proto::view::{job_state_name, JobView, WorkerView};
+use tessera_proto::view::{JobView, WorkerView};
 use tonic::Request as RpcRequest;
 use utoipa::{OpenApi, ToSchema};
 
@@ -98,7 +98,7 @@ pub(super) fn as_caller<T>(msg: T, caller: Option<Extension<Caller>>) -> RpcRequ
         intake::upload_asset
     ),
     components(schemas(
-        ApiError, intake::SubmitBody, intake::Submitted, PriorityBody, Retried, Cancelled,
+        ApiError, intake::SubmitBody, intake::Submitted, PriorityBody, Retried,
         LogsReply, LogLine, intake::Held, Drained, Released, JobView, WorkerView
     )),
     modifiers(&Bearer),
@@ -169,28 +169,22 @@ pub(super) async fn job(State(app): State<App>, Path(id): Path<String>) -> Respo
     }
 }
 
-/// A job's state after a cancel.
-#[derive(Serialize, ToSchema)]
-pub(super) struct Cancelled {
-    /// `cancelled`, or the final state it already had.
-    state: &'static str,
-}
-
-/// Cancels a job (every frame of a range still active).
+/// Cancels a job (every frame of a range still active), answering the job as it now stands,
+/// as pause and resume do: its `state` is `cancelled`, or the final state it already had.
 #[utoipa::path(post, path = "/api/jobs/{id}/cancel", params(("id" = String, Path)), responses(
-    (status = 200, body = Cancelled), (status = 403, body = ApiError, description = "another user's job"), (status = 404, body = ApiError),
+    (status = 200, body = JobView), (status = 403, body = ApiError, description = "another user's job"), (status = 404, body = ApiError),
 ))]
 pub(super) async fn cancel(
     State(app): State<App>,
     Path(id): Path<String>,
     caller: Option<Extension<Caller>>,
 ) -> Response {
-    let req = as_caller(pb::CancelJobRequest { job_id: id }, caller);
+    let req = as_caller(pb::CancelJobRequest { job_id: id.clone() }, caller);
     match app.svc.cancel_job(req).await {
-        Ok(r) => Json(Cancelled {
-            state: job_state_name(r.get_ref().state),
-        })
-        .into_response(),
+        Ok(_) => match job_id(&id).and_then(|id| app.svc.job_view(id)) {
+            Ok(v) => Json(v).into_response(),
+            Err(s) => refused(s),
+        },
         Err(s) => refused(s),
     }
 }

@@ -13,6 +13,7 @@
 mod api;
 mod intake;
 mod preview;
+mod sessions;
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -31,7 +32,7 @@ use tokio_rustls::rustls;
 use tokio_stream::StreamExt as _;
 use tracing::debug;
 
-use crate::auth::{bearer, Caller, Tokens};
+use crate::auth::{bearer, token_hash, Caller, Tokens};
 use crate::config::ServerTls;
 use crate::error::CoordinatorError;
 use crate::service::Service;
@@ -58,16 +59,31 @@ struct App {
     auth: Arc<Auth>,
 }
 
-/// What a request must present when tokens are configured: a token (as a bearer header) or
-/// the session value derived from one (as the cookie), compared in constant time.
+/// What a request must present when tokens are configured: a token (as a bearer header,
+/// compared in constant time) or an open login session (as the cookie).
 struct Auth {
     tokens: Option<Tokens>,
     secure: bool,
+    sessions: sessions::Sessions,
 }
 
 impl Auth {
     fn new(tokens: Option<Tokens>, secure: bool) -> Self {
-        Self { tokens, secure }
+        Self {
+            tokens,
+            secure,
+            sessions: sessions::Sessions::default(),
+        }
+    }
+
+    /// The session cookie values a request carries.
+    fn cookies(headers: &HeaderMap) -> impl Iterator<Item = &str> {
+        headers
+            .get_all(header::COOKIE)
+            .iter()
+            .filter_map(|v| v.to_str().ok())
+            .flat_map(|v| v.split(';'))
+            .filter_map(|kv| kv.trim().strip_prefix(COOKIE)?.strip_prefix('='))
     }
 
     /// Who sends a request with these headers: `None` if it must not pass; with no tokens
@@ -83,13 +99,9 @@ impl Auth {
         if let Some(c) = presented.and_then(|t| tokens.caller(t)) {
             return Some(Some(c));
         }
-        headers
-            .get_all(header::COOKIE)
-            .iter()
-            .filter_map(|v| v.to_str().ok())
-            .flat_map(|v| v.split(';'))
-            .filter_map(|kv| kv.trim().strip_prefix(COOKIE)?.strip_prefix('='))
-            .find_map(|v| tokens.session_caller(v))
+        let now = std::time::Instant::now();
+        Self::cookies(headers)
+            .find_map(|v| tokens.caller_of_hash(&self.sessions.token_of(v, now)?))
             .map(Some)
     }
 }
@@ -418,18 +430,28 @@ async fn login(State(app): State<App>, Form(form): Form<LoginForm>) -> Response 
     let Some(tokens) = &app.auth.tokens else {
         return redirect(local_path(&form.next), None);
     };
-    let Some(session) = tokens.session_for(&form.token) else {
+    if tokens.caller(&form.token).is_none() {
         // Slows guessing down; a real token is far too long to guess anyway.
         tokio::time::sleep(Duration::from_millis(250)).await;
         return unauthorized(true, &form.next, Some("wrong token"));
+    }
+    let now = std::time::Instant::now();
+    let Some(session) = app.auth.sessions.open(token_hash(&form.token), now) else {
+        return unauthorized(true, &form.next, Some("no random source for a session"));
     };
     let secure = if app.auth.secure { "; Secure" } else { "" };
+    let age = sessions::SESSION_TIME.as_secs();
     let cookie =
-        format!("{COOKIE}={session}; Path=/; HttpOnly; SameSite=Strict; Max-Age=2592000{secure}");
+        format!("{COOKIE}={session}; Path=/; HttpOnly; SameSite=Strict; Max-Age={age}{secure}");
     redirect(local_path(&form.next), Some(cookie))
 }
 
-async fn logout() -> Response {
+/// Ends the request's session (its cookie no longer works, wherever it was copied to) and
+/// clears the cookie.
+async fn logout(State(app): State<App>, headers: HeaderMap) -> Response {
+    for value in Auth::cookies(&headers) {
+        app.auth.sessions.close(value);
+    }
     redirect(
         "/",
         Some(format!(
