@@ -359,3 +359,47 @@ mod size_tests {
             .contains("between 0"));
     }
 }
+
+/// `--preview` and `--exposure`: the PNG beside an EXR, the same for `render`, `submit --wait`,
+/// `fetch` and `preview`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct PreviewArgs {
+    /// Also write an 8-bit sRGB PNG preview here.
+    #[arg(long)]
+    pub preview: Option<std::path::PathBuf>,
+    /// Preview exposure in stops.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub exposure: f32,
+}
+
+impl PreviewArgs {
+    /// Refuses a non-finite exposure and a preview name that is not a .png in a directory
+    /// that exists, before anything is rendered or fetched.
+    pub fn check(&self) -> Result<()> {
+        if !self.exposure.is_finite() {
+            bail!("--exposure must be a finite number, got {}", self.exposure);
+        }
+        if let Some(p) = &self.preview {
+            check_extension("--preview", p, "png")?;
+            check_output_dir(p)?;
+        }
+        Ok(())
+    }
+
+    /// Writes the preview of the EXR at `exr`, if one was asked for.
+    pub fn write_of_exr(&self, exr: &std::path::Path) -> Result<()> {
+        let Some(p) = &self.preview else {
+            return Ok(());
+        };
+        let image = tessera_render::output::read_exr_rgb(exr)
+            .with_context(|| format!("reading {}", exr.display()))?;
+        tessera_render::output::write_png_of_exr(
+            p,
+            &image,
+            tessera_render::output::Preview {
+                exposure: self.exposure,
+            },
+        )?;
+        Ok(())
+    }
+}

@@ -80,6 +80,8 @@ enum Command {
     Workers(farm::WorkersArgs),
     /// Download a finished job's EXR.
     Fetch(farm::FetchArgs),
+    /// Write the PNG preview of an EXR file (as `render --preview` does).
+    Preview(render::PreviewCommandArgs),
     /// Print a shell completion script, e.g. `tessera completions bash >
     /// /etc/bash_completion.d/tessera`, or `source <(tessera completions zsh)`.
     Completions {
@@ -155,6 +157,7 @@ fn main() -> ExitCode {
         Command::Logs(args) => farm::logs(args),
         Command::Workers(args) => farm::workers(args),
         Command::Fetch(args) => farm::fetch(args),
+        Command::Preview(args) => render::preview(args),
         Command::Completions { shell } => {
             use clap::CommandFactory as _;
             let mut out = Vec::new();

@@ -33,12 +33,8 @@ pub struct RenderArgs {
     /// Worker threads (default: every core).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
     threads: Option<u32>,
-    /// Also write an 8-bit sRGB PNG preview here.
-    #[arg(long)]
-    preview: Option<PathBuf>,
-    /// Preview exposure in stops.
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
-    exposure: f32,
+    #[command(flatten)]
+    preview: crate::args::PreviewArgs,
     /// Add variance-of-the-mean channels (variance.R/G/B) to the EXR.
     #[arg(long)]
     variance: bool,
@@ -87,9 +83,7 @@ impl TracerArg {
 
 /// Runs `tessera render`.
 pub fn run(args: RenderArgs) -> Result<()> {
-    if !args.exposure.is_finite() {
-        bail!("--exposure must be a finite number, got {}", args.exposure);
-    }
+    args.preview.check()?;
     if args.settings.spp > args.max_spp {
         bail!(
             "--spp {} is above the limit of {} (raise it with --max-spp)",
@@ -103,12 +97,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         );
     }
     check_extension("--output", &args.output, "exr")?;
-    if let Some(p) = &args.preview {
-        check_extension("--preview", p, "png")?;
-    }
-    for out in std::iter::once(&args.output).chain(args.preview.as_ref()) {
-        check_output_dir(out)?;
-    }
+    check_output_dir(&args.output)?;
     let limits = Limits {
         max_spp: args.max_spp,
         max_resolution: args.max_resolution,
@@ -164,12 +153,12 @@ pub fn run(args: RenderArgs) -> Result<()> {
         aovs: settings.aovs,
     };
     write_exr(&args.output, &image, channels, &meta)?;
-    if let Some(p) = &args.preview {
+    if let Some(p) = &args.preview.preview {
         write_png_preview(
             p,
             &image,
             Preview {
-                exposure: args.exposure,
+                exposure: args.preview.exposure,
             },
         )?;
     }
@@ -236,4 +225,29 @@ fn guide_note_of(epochs: &[tessera_render::guided::Epoch]) -> String {
         );
     }
     note
+}
+
+/// Arguments of `tessera preview`.
+#[derive(Debug, clap::Args)]
+pub struct PreviewCommandArgs {
+    /// An OpenEXR file (a render's, or one fetched from the farm).
+    exr: PathBuf,
+    /// The PNG to write.
+    #[arg(long, short)]
+    output: PathBuf,
+    /// Exposure in stops.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    exposure: f32,
+}
+
+/// Runs `tessera preview`: the PNG `render --preview` would have written beside the EXR.
+pub fn preview(args: PreviewCommandArgs) -> Result<()> {
+    let p = crate::args::PreviewArgs {
+        preview: Some(args.output.clone()),
+        exposure: args.exposure,
+    };
+    p.check()?;
+    p.write_of_exr(&args.exr)?;
+    outln!("{} → {}", args.exr.display(), args.output.display());
+    Ok(())
 }

@@ -634,3 +634,89 @@ fn the_workers_table_lines_up_under_its_header() {
         );
     }
 }
+
+/// PNGs of farm results: `submit --wait --preview`, `fetch --preview` and `tessera preview` of
+/// an EXR write the bytes `render --preview` writes; a fetched EXR has the permissions a
+/// rendered one has (it was 0600).
+#[test]
+fn farm_results_get_the_preview_render_writes() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, url) = coordinator(&dir.path().join("data"));
+    let _w = worker(&url, "png");
+    let d = |n: &str| dir.path().join(n).to_str().expect("utf8").to_string();
+    let scene = repo("scenes/cornell-box.toml");
+    let ok = |args: &[&str]| {
+        let r = tessera_at(args, &url);
+        assert!(
+            r.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&r.stderr)
+        );
+        String::from_utf8_lossy(&r.stdout).to_string()
+    };
+    ok(&[
+        "render",
+        &scene,
+        "--spp",
+        "2",
+        "--output",
+        &d("local.exr"),
+        "--preview",
+        &d("local.png"),
+        "--exposure",
+        "1",
+    ]);
+    let said = ok(&[
+        "submit",
+        &scene,
+        "--spp",
+        "2",
+        "--wait",
+        "--output",
+        &d("farm.exr"),
+        "--preview",
+        &d("farm.png"),
+        "--exposure",
+        "1",
+    ]);
+    let job = said.split_whitespace().next().expect("job id").to_string();
+    ok(&[
+        "fetch",
+        &job,
+        "--output",
+        &d("fetched.exr"),
+        "--preview",
+        &d("fetched.png"),
+        "--exposure",
+        "1",
+    ]);
+    ok(&[
+        "preview",
+        &d("local.exr"),
+        "--output",
+        &d("again.png"),
+        "--exposure",
+        "1",
+    ]);
+    let local = std::fs::read(d("local.png")).expect("png");
+    for png in ["farm.png", "fetched.png", "again.png"] {
+        assert!(
+            std::fs::read(d(png)).expect("png") == local,
+            "{png} differs from render's"
+        );
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = |n: &str| std::fs::metadata(d(n)).expect("meta").permissions().mode() & 0o777;
+        assert_eq!(mode("fetched.exr"), mode("local.exr"));
+        assert_eq!(mode("farm.exr"), mode("local.exr"));
+    }
+    // Refused before anything is submitted: --preview without --wait.
+    let r = tessera_at(
+        &["submit", &scene, "--spp", "1", "--preview", &d("x.png")],
+        &url,
+    );
+    assert!(!r.status.success());
+    assert!(String::from_utf8_lossy(&r.stderr).contains("--preview needs --wait"));
+}

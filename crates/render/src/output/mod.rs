@@ -180,6 +180,37 @@ pub struct Preview {
 /// Writes an 8-bit sRGB PNG preview: exposure, then the ACES filmic curve (Narkowicz's fit),
 /// then the sRGB transfer function.
 pub fn write_png_preview(path: &Path, image: &Image, preview: Preview) -> Result<(), OutputError> {
+    write_png(path, (image.width, image.height), &image.rgb, preview)
+}
+
+/// [`write_png_preview`] of an image read from an EXR file ([`read_exr_rgb`]): the same PNG a
+/// render of it with `--preview` writes (`tessera preview`, `fetch --preview`).
+pub fn write_png_of_exr(
+    path: &Path,
+    image: &RgbImage,
+    preview: Preview,
+) -> Result<(), OutputError> {
+    let size = |n: usize| {
+        u32::try_from(n).map_err(|_| OutputError::Png {
+            path: path.to_path_buf(),
+            message: format!("an image {n} pixels wide or high is too large for a PNG"),
+        })
+    };
+    write_png(
+        path,
+        (size(image.width)?, size(image.height)?),
+        &image.rgb,
+        preview,
+    )
+}
+
+/// The PNG of `rgb`, `width` × `height` pixels row-major, tone-mapped as previews are.
+fn write_png(
+    path: &Path,
+    (width, height): (u32, u32),
+    rgb: &[[f32; 3]],
+    preview: Preview,
+) -> Result<(), OutputError> {
     let io = |source| OutputError::Io {
         path: path.to_path_buf(),
         source,
@@ -193,14 +224,14 @@ pub fn write_png_preview(path: &Path, image: &Image, preview: Preview) -> Result
         })
     };
     let placed = files::place(path, Place::Replace, Access::Shared, |w| {
-        let mut enc = png::Encoder::new(w, image.width, image.height);
+        let mut enc = png::Encoder::new(w, width, height);
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
         let mut writer = match enc.write_header() {
             Ok(writer) => writer,
             Err(e) => return png_step(Err(e)),
         };
-        png_step(writer.write_image_data(&tone_map(&image.rgb, preview)))?;
+        png_step(writer.write_image_data(&tone_map(rgb, preview)))?;
         png_step(writer.finish())
     });
     match (placed, encoded) {

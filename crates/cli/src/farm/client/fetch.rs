@@ -26,6 +26,8 @@ pub struct FetchArgs {
     /// Wait for the job to finish first.
     #[arg(long)]
     wait: bool,
+    #[command(flatten)]
+    preview: crate::args::PreviewArgs,
 }
 
 /// Runs `tessera fetch`.
@@ -40,6 +42,7 @@ pub fn fetch(args: FetchArgs) -> Result<()> {
         check_extension("--output", o, "exr")?;
         check_output_dir(o)?;
     }
+    args.preview.check()?;
     let url = args.url.coordinator.clone();
     runtime()?.block_on(async {
         let mut client = connect(&args.url).await?;
@@ -82,6 +85,6 @@ pub fn fetch(args: FetchArgs) -> Result<()> {
         }
         let bytes = download(&mut client, &url, &args.job, args.frame, &out).await?;
         outln!("{} → {} ({bytes} bytes)", args.job, out.display());
-        Ok(())
+        args.preview.write_of_exr(&out)
     })
 }

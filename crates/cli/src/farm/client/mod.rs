@@ -9,7 +9,6 @@ mod logs;
 mod status;
 mod submit;
 
-use std::io::Write as _;
 use std::path::Path;
 use std::time::Duration;
 
@@ -320,29 +319,15 @@ async fn download(
             bail!("{job}: the coordinator sent more bytes than it announced");
         }
     }
-    let dir = out
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    // A fresh, randomly named file (created exclusively, never through a link someone left
-    // under a predictable name), renamed over `out` once complete.
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".tessera-fetch-")
-        .suffix(".part")
-        .tempfile_in(dir)
-        .with_context(|| {
-            format!(
-                "writing {}: cannot create a file in {}",
-                out.display(),
-                dir.display()
-            )
-        })?;
-    tmp.write_all(&data)
-        .and_then(|()| tmp.as_file().sync_all())
-        .with_context(|| format!("writing {}", out.display()))?;
-    tmp.persist(out)
-        .map_err(|e| e.error)
-        .with_context(|| format!("writing {}", out.display()))?;
+    // As `tessera render` writes its EXR: complete or not at all, never through a link, and
+    // readable as any new file of the user's (it was 0600).
+    tessera_render::files::place_bytes(
+        out,
+        tessera_render::files::Place::Replace,
+        tessera_render::files::Access::Shared,
+        &data,
+    )
+    .with_context(|| format!("writing {}", out.display()))?;
     Ok(data.len() as u64)
 }
 

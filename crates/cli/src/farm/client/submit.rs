@@ -67,6 +67,9 @@ pub struct SubmitArgs {
     /// the directory the frames' EXRs go to.
     #[arg(long, short)]
     output: Option<PathBuf>,
+    /// With `--wait` (one frame): the PNG preview beside the EXR, as `render --preview`.
+    #[command(flatten)]
+    preview: crate::args::PreviewArgs,
 }
 
 /// A file a scene names: (name in the scene, SHA-256, path here).
@@ -191,6 +194,10 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
             check_output_dir(o)?;
         }
     }
+    args.preview.check()?;
+    if args.preview.preview.is_some() && (!args.wait || args.frames.is_some()) {
+        bail!("--preview needs --wait and one frame (or `tessera preview FRAME.exr` later)");
+    }
     let gltf = args.gltf.options(&args.scene)?;
     // A glTF file is sent as the scene text it stands for, with the file among its assets.
     let (text, format) = scene_source(
@@ -306,7 +313,7 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
                 ),
                 out.display()
             );
-            Ok(())
+            args.preview.write_of_exr(&out)
         };
         tokio::select! {
             r = follow_and_fetch => r,
