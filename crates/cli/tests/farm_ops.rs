@@ -720,3 +720,31 @@ fn farm_results_get_the_preview_render_writes() {
     assert!(!r.status.success());
     assert!(String::from_utf8_lossy(&r.stderr).contains("--preview needs --wait"));
 }
+
+/// A second coordinator on a data directory another one holds says so, naming the store and
+/// what to do; a worker pointed where nothing listens names the address and what to check.
+#[test]
+fn a_second_coordinator_and_an_unreachable_worker_say_what_to_check() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let data = dir.path().join("data");
+    let (_coord, _url) = coordinator(&data);
+    let second = Command::new(BIN)
+        .args(["coordinator", "--listen", "127.0.0.1:0", "--data-dir"])
+        .arg(&data)
+        .output()
+        .expect("second coordinator");
+    assert!(!second.status.success());
+    let err = String::from_utf8_lossy(&second.stderr);
+    assert!(
+        err.contains("coordinator.redb") && err.contains("another coordinator holds it"),
+        "{err}"
+    );
+    let log = dir.path().join("worker.log");
+    let _w = worker_with("http://127.0.0.1:1", "lost", &[], &log);
+    wait_for("the worker to say why it cannot connect", || {
+        std::fs::read_to_string(&log).is_ok_and(|l| {
+            l.contains("cannot reach the coordinator at http://127.0.0.1:1")
+                && l.contains("nothing listens there")
+        })
+    });
+}

@@ -125,3 +125,63 @@ impl Interceptor for Bearer {
         Ok(request)
     }
 }
+
+/// Why the coordinator at `url` could not be reached, for a person: the innermost cause of a
+/// connection error (tonic's own message is only "tcp connect error" or "dns error") and what
+/// to check for it.
+pub fn unreachable(url: &str, error: &(dyn std::error::Error + 'static)) -> String {
+    let mut cause = error.to_string();
+    let mut source = error.source();
+    while let Some(s) = source {
+        cause = s.to_string();
+        source = s.source();
+    }
+    let lower = cause.to_ascii_lowercase();
+    let check = if lower.contains("dns") || lower.contains("lookup") || lower.contains("resolve") {
+        "the host name does not resolve here: check the URL's spelling and this machine's DNS"
+    } else if lower.contains("refused") {
+        "nothing listens there: is the coordinator running, and is this the port it printed as \
+         `listening on` (its gRPC port, not the dashboard's)?"
+    } else if lower.contains("timed out") || lower.contains("unreachable") {
+        "no answer: check the address, the route to it, and any firewall between"
+    } else {
+        "check the URL (--coordinator or TESSERA_COORDINATOR) and that the coordinator is up"
+    };
+    format!("cannot reach the coordinator at {url}: {cause} ({check})")
+}
+
+#[cfg(test)]
+mod unreachable_tests {
+    use super::unreachable;
+
+    #[derive(Debug)]
+    struct Wrapped(&'static str, std::io::Error);
+    impl std::fmt::Display for Wrapped {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.write_str(self.0)
+        }
+    }
+    impl std::error::Error for Wrapped {
+        fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+            Some(&self.1)
+        }
+    }
+
+    #[test]
+    fn the_innermost_cause_is_named_with_what_to_check() {
+        let refused = Wrapped(
+            "tcp connect error",
+            std::io::Error::new(std::io::ErrorKind::ConnectionRefused, "Connection refused"),
+        );
+        let m = unreachable("http://farm:7878", &refused);
+        assert!(
+            m.contains("http://farm:7878: Connection refused") && m.contains("listening on"),
+            "{m}"
+        );
+        let dns = Wrapped(
+            "dns error",
+            std::io::Error::other("failed to lookup address information"),
+        );
+        assert!(unreachable("http://nowhere:1", &dns).contains("does not resolve"));
+    }
+}

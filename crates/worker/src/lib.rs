@@ -203,7 +203,10 @@ impl Ctx {
                 }
                 Err(e) => {
                     if attempt == 0 || attempt % 10 == 0 {
-                        warn!("cannot reach {}: {}", self.config.coordinator, e.message());
+                        warn!(
+                            "{}",
+                            tessera_proto::client::unreachable(&self.config.coordinator, &e)
+                        );
                     }
                     if !self.backoff(&mut attempt).await {
                         return false;

@@ -87,6 +87,12 @@ pub enum StoreError {
         /// What redb said.
         why: String,
     },
+    /// Another process has the store open: a second coordinator on the same data directory.
+    #[error("state store {path}: another coordinator holds it (one data directory serves one coordinator: stop that one, or give this one its own --data-dir)")]
+    Held {
+        /// The file.
+        path: String,
+    },
     /// The data directory cannot be used.
     #[error("state store: {path}: {source}")]
     Io {
@@ -199,7 +205,12 @@ impl Store {
             let db = Database::builder()
                 .set_cache_size(CACHE_BYTES)
                 .create(&path)
-                .map_err(dberr)?;
+                .map_err(|e| match e {
+                    redb::DatabaseError::DatabaseAlreadyOpen => StoreError::Held {
+                        path: path.display().to_string(),
+                    },
+                    e => dberr(e),
+                })?;
             // redb creates its file as an ordinary one; it holds every scene submitted.
             #[cfg(unix)]
             {

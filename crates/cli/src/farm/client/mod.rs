@@ -41,7 +41,7 @@ fn rpc_error(url: &str, what: &str, e: tonic::Status) -> anyhow::Error {
         );
     }
     match e.code() {
-        Code::Unavailable => anyhow!("cannot reach the coordinator at {url}: {}", e.message()),
+        Code::Unavailable => anyhow!("{}", tessera_proto::client::unreachable(url, &e)),
         _ if e.message().contains(what) => anyhow!("{}", e.message()),
         _ => anyhow!("{what}: {}", e.message()),
     }
@@ -64,15 +64,10 @@ async fn connect(args: &CoordinatorUrl) -> Result<Client> {
     let url = &args.coordinator;
     let options = args.options()?;
     let endpoint = endpoint(url, &options)?;
-    let channel = endpoint.connect().await.map_err(|e| {
-        let mut msg = e.to_string();
-        let mut src = std::error::Error::source(&e);
-        while let Some(s) = src {
-            msg = s.to_string();
-            src = s.source();
-        }
-        anyhow!("cannot reach the coordinator at {url}: {msg}")
-    })?;
+    let channel = endpoint
+        .connect()
+        .await
+        .map_err(|e| anyhow!("{}", tessera_proto::client::unreachable(url, &e)))?;
     Ok(JobsClient::with_interceptor(channel, Bearer::new(&options))
         .max_decoding_message_size(tessera_proto::MAX_MESSAGE_BYTES)
         // What may be sent is the coordinator's to decide (its --max-scene-bytes): it refuses
