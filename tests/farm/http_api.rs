@@ -374,3 +374,77 @@ async fn gltf_submissions_are_refused_naming_what_is_wrong() {
         assert!(msg.contains(says), "{body}: {msg}");
     }
 }
+
+/// An upload that trickles is cut off once past its grace (the bytes so far kept for a
+/// resume), and one sender may have only so many uploads under way at once: 260 trickling
+/// uploads once held the dashboard's every connection, and one byte every 40 s lived 240 s.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn trickling_uploads_are_cut_off_and_bounded_per_sender() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let coord =
+        Coordinator::start_with_dashboard(&dir.path().join("data"), Duration::from_secs(30), |c| {
+            c.upload_grace = Duration::from_secs(1);
+            c.upload_min_rate = 1000;
+            c.max_uploads_per_user = 2;
+        })
+        .await;
+    let addr = coord.http.expect("dashboard");
+    let sha = "cd".repeat(32);
+    // A PUT whose headers announce 100,000 bytes, its body sent `first` bytes at once.
+    let open = |first: usize| {
+        let sha = sha.clone();
+        async move {
+            let mut tcp = tokio::net::TcpStream::connect(addr).await.expect("connect");
+            let head = format!(
+                "PUT /api/assets/{sha}?offset=0&total=100000 HTTP/1.1\r\nhost: {addr}\r\n\
+                 content-length: 100000\r\n\r\n"
+            );
+            tcp.write_all(head.as_bytes()).await.expect("head");
+            tcp.write_all(&vec![b'x'; first]).await.expect("body");
+            tcp
+        }
+    };
+    let status_of = |reply: &[u8]| {
+        String::from_utf8_lossy(reply)
+            .lines()
+            .next()
+            .unwrap_or("")
+            .to_string()
+    };
+    // Two trickles hold this sender's places; a third upload is refused at once.
+    let mut a = open(1).await;
+    let _b = open(1).await;
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let mut c = open(1).await;
+    let mut reply = vec![0u8; 4096];
+    let n = tokio::time::timeout(Duration::from_secs(5), c.read(&mut reply))
+        .await
+        .expect("an answer")
+        .expect("read");
+    assert!(
+        status_of(&reply[..n]).contains("429"),
+        "{}",
+        String::from_utf8_lossy(&reply[..n])
+    );
+    // The trickle: a byte every 300 ms is under 1000 bytes a second; past the 1 s grace, the
+    // next byte gets 408.
+    let started = std::time::Instant::now();
+    let n = loop {
+        let _ = a.write_all(b"x").await;
+        if let Ok(Ok(n)) =
+            tokio::time::timeout(Duration::from_millis(300), a.read(&mut reply)).await
+        {
+            break n;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(10),
+            "the trickle was never cut off"
+        );
+    };
+    let text = String::from_utf8_lossy(&reply[..n]).to_string();
+    assert!(
+        status_of(&reply[..n]).contains("408") && text.contains("slower than 1000 bytes"),
+        "{text}"
+    );
+}

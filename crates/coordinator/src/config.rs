@@ -49,6 +49,15 @@ pub struct Config {
     pub fail_unit_after_lapses: u32,
     /// How long a failed job's scene (and so its assets) is kept for `tessera retry`.
     pub retry_window: Duration,
+    /// The slowest an HTTP upload may arrive, in bytes a second on average, once
+    /// [`Config::upload_grace`] has passed: a trickle that holds a connection for hours is cut
+    /// off (the bytes it sent are kept, and it may resume).
+    pub upload_min_rate: u64,
+    /// How long an HTTP upload may take before its rate is judged.
+    pub upload_grace: Duration,
+    /// Most HTTP uploads one user (or, without named tokens, one address) may have under way
+    /// at once.
+    pub max_uploads_per_user: usize,
     /// Host names the dashboard is served as, besides IP addresses and `localhost`: on a farm
     /// without a token, a request naming another host is refused (DNS rebinding).
     pub http_hosts: Vec<String>,
@@ -187,6 +196,9 @@ impl Config {
             fail_unit_after_lapses: DEFAULT_FAIL_UNIT_AFTER_LAPSES,
             retry_window: DEFAULT_RETRY_WINDOW,
             http_hosts: Vec::new(),
+            upload_min_rate: 16 << 10,
+            upload_grace: Duration::from_secs(10),
+            max_uploads_per_user: 8,
             log_retention: crate::scheduler::DEFAULT_LOG_RETENTION,
             max_log_bytes: crate::scheduler::DEFAULT_MAX_LOG_BYTES,
             max_leases_per_worker: DEFAULT_MAX_LEASES_PER_WORKER,

@@ -151,6 +151,11 @@ pub(crate) struct Trust {
 }
 
 impl Trust {
+    /// The address the connection comes from.
+    pub(crate) fn peer(&self) -> IpAddr {
+        self.peer.ip()
+    }
+
     /// Marks the connection proven: a request on it passed the auth check.
     pub(crate) fn prove(&self) {
         if self.proven.swap(true, std::sync::atomic::Ordering::AcqRel) {

@@ -377,8 +377,29 @@ pub(super) async fn upload_asset(
     State(app): State<App>,
     Path(sha): Path<String>,
     Query(q): Query<UploadQuery>,
+    caller: Option<Extension<Caller>>,
+    trust: Option<Extension<std::sync::Arc<crate::conn::Trust>>>,
     body: Body,
 ) -> Response {
+    let config = &app.svc.shared.config;
+    // One user's uploads at once are bounded: trickling many could hold every connection.
+    let who = match (&caller, &trust) {
+        (Some(c), _) if !c.user.is_empty() => format!("user {}", c.user),
+        (_, Some(t)) => format!("address {}", t.peer()),
+        _ => "anyone".to_string(),
+    };
+    let Some(_slot) = app.uploads.take(&who, config.max_uploads_per_user) else {
+        return error(
+            StatusCode::TOO_MANY_REQUESTS,
+            "resource_exhausted",
+            format!(
+                "{who} has {} uploads under way, the most at once; finish one first",
+                config.max_uploads_per_user
+            ),
+        );
+    };
+    let started = tokio::time::Instant::now();
+    let mut received: u64 = 0;
     let mut stream = body.into_data_stream();
     let mut offset = q.offset;
     let mut pending: Vec<u8> = Vec::new();
@@ -399,7 +420,24 @@ pub(super) async fn upload_asset(
         };
         let end = frame.is_none();
         if let Some(f) = frame {
+            received += f.len() as u64;
             pending.extend_from_slice(&f);
+        }
+        // A minimum rate, once past the grace: the bytes so far are kept below, for a resume.
+        let elapsed = started.elapsed();
+        if !end
+            && elapsed > config.upload_grace
+            && (received as f64) < config.upload_min_rate as f64 * elapsed.as_secs_f64()
+        {
+            return error(
+                StatusCode::REQUEST_TIMEOUT,
+                "timeout",
+                format!(
+                    "the upload arrives slower than {} bytes a second; resume it from where it \
+                     stands (GET /api/assets/{sha})",
+                    config.upload_min_rate
+                ),
+            );
         }
         // A mebibyte at a time, as the gRPC upload's chunks; the last piece whatever is left.
         while pending.len() >= crate::assets::CHUNK_BYTES || (end && !pending.is_empty()) {

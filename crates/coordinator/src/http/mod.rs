@@ -57,6 +57,39 @@ struct App {
     svc: Service,
     previews: Arc<Previews>,
     auth: Arc<Auth>,
+    uploads: Arc<Uploads>,
+}
+
+/// HTTP uploads under way, by who sends them (a user, or an address without named tokens).
+#[derive(Default)]
+struct Uploads(std::sync::Mutex<std::collections::HashMap<String, usize>>);
+
+/// One upload's place among its sender's, given back when it ends however it ends.
+struct UploadSlot(Arc<Uploads>, String);
+
+impl Uploads {
+    /// A place for one more of `who`'s uploads, if it has fewer than `max` under way.
+    fn take(self: &Arc<Self>, who: &str, max: usize) -> Option<UploadSlot> {
+        let mut m = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        let n = m.entry(who.to_string()).or_default();
+        if *n >= max {
+            return None;
+        }
+        *n += 1;
+        Some(UploadSlot(self.clone(), who.to_string()))
+    }
+}
+
+impl Drop for UploadSlot {
+    fn drop(&mut self) {
+        let mut m = (self.0).0.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(n) = m.get_mut(&self.1) {
+            *n -= 1;
+            if *n == 0 {
+                m.remove(&self.1);
+            }
+        }
+    }
 }
 
 /// What a request must present when tokens are configured: a token (as a bearer header,
@@ -111,6 +144,7 @@ pub(crate) fn routes_for(svc: &Service) -> Router {
     router(App {
         auth: Arc::new(Auth::new(svc.shared.config.auth(), false)),
         previews: Arc::default(),
+        uploads: Arc::default(),
         svc: svc.clone(),
     })
 }
@@ -661,6 +695,7 @@ async fn serve(
     let app = App {
         auth: Arc::new(Auth::new(config.auth(), tls.is_some())),
         previews: Arc::default(),
+        uploads: Arc::default(),
         svc: svc.clone(),
     };
     let routes = router(app);
