@@ -139,6 +139,12 @@ pub const DEFAULT_FAIL_UNIT_AFTER_LAPSES: u32 = 3;
 /// days, so that a frame that failed on Friday night can be retried on Monday.
 pub const DEFAULT_RETRY_WINDOW: Duration = Duration::from_secs(3 * 24 * 3600);
 
+/// How long an ended job's workers' log is kept by default: two weeks.
+pub const DEFAULT_LOG_RETENTION: Duration = Duration::from_secs(14 * 86_400);
+
+/// Bytes of ended jobs' logs kept by default, in all.
+pub const DEFAULT_MAX_LOG_BYTES: u64 = 256 << 20;
+
 /// Most leases one worker registration may hold, unless configured.
 pub const DEFAULT_MAX_LEASES_PER_WORKER: usize = 8;
 
@@ -199,8 +205,8 @@ impl Config {
             upload_min_rate: 16 << 10,
             upload_grace: Duration::from_secs(10),
             max_uploads_per_user: 8,
-            log_retention: crate::scheduler::DEFAULT_LOG_RETENTION,
-            max_log_bytes: crate::scheduler::DEFAULT_MAX_LOG_BYTES,
+            log_retention: DEFAULT_LOG_RETENTION,
+            max_log_bytes: DEFAULT_MAX_LOG_BYTES,
             max_leases_per_worker: DEFAULT_MAX_LEASES_PER_WORKER,
             max_workers_per_host: DEFAULT_MAX_WORKERS_PER_HOST,
             audit: 0.0,

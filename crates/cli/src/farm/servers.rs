@@ -113,7 +113,7 @@ pub struct CoordinatorArgs {
     retry_window: f64,
     /// Seconds an ended job's workers' log is kept (`tessera logs`); memory holds only active
     /// jobs' logs, the store the ended ones' until then.
-    #[arg(long, default_value_t = tessera_coordinator::scheduler::DEFAULT_LOG_RETENTION.as_secs_f64())]
+    #[arg(long, default_value_t = config::DEFAULT_LOG_RETENTION.as_secs_f64())]
     log_retention: f64,
     /// Most bytes of ended jobs' logs kept in the store in all (e.g. 256M); past it the
     /// oldest go first.

@@ -33,10 +33,6 @@ pub const MAX_LINES_PER_JOB: usize = 200;
 pub const MAX_LINE_CHARS: usize = 500;
 /// Lines one call may carry.
 pub const MAX_LINES_PER_CALL: usize = 32;
-/// How long an ended job's log is kept by default: two weeks.
-pub const DEFAULT_LOG_RETENTION: std::time::Duration = std::time::Duration::from_secs(14 * 86_400);
-/// Bytes of ended jobs' logs kept by default, in all.
-pub const DEFAULT_MAX_LOG_BYTES: u64 = 256 << 20;
 /// A worker's sustained rate, lines per second.
 pub const PER_SECOND: f64 = 5.0;
 /// A worker's burst.

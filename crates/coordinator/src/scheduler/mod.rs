@@ -43,8 +43,9 @@ use tessera_render::{PixelRect, RenderSettings, TileSums};
 
 use crate::config::{
     DEFAULT_BLOCKLIST_AFTER, DEFAULT_EVICT_OPEN_OVER, DEFAULT_FAIL_FRAME_AFTER,
-    DEFAULT_FAIL_UNIT_AFTER_LAPSES, DEFAULT_MAX_LEASES_PER_WORKER, DEFAULT_MAX_UNSTORED_BYTES,
-    DEFAULT_MAX_WORKERS_PER_HOST, DEFAULT_QUARANTINE_AFTER, DEFAULT_RETRY_WINDOW,
+    DEFAULT_FAIL_UNIT_AFTER_LAPSES, DEFAULT_LOG_RETENTION, DEFAULT_MAX_LEASES_PER_WORKER,
+    DEFAULT_MAX_LOG_BYTES, DEFAULT_MAX_UNSTORED_BYTES, DEFAULT_MAX_WORKERS_PER_HOST,
+    DEFAULT_QUARANTINE_AFTER, DEFAULT_RETRY_WINDOW,
 };
 use crate::error::Refusal;
 use crate::job::{FrameTile, Job, Snapshot, Source, Unit, MAX_DIRTY_BYTES};
@@ -55,10 +56,7 @@ use audit::audit_excludes;
 pub use admit::{Admission, AdmissionLimits, Asked, Checked};
 pub use fit::Capabilities;
 pub use leases::Lease;
-pub use logs::{
-    add_stored, JobLines, JobLog, LogLine, LogQuery, Reported, DEFAULT_LOG_RETENTION,
-    DEFAULT_MAX_LOG_BYTES, MAX_LINES_PER_CALL,
-};
+pub use logs::{add_stored, JobLines, JobLog, LogLine, LogQuery, Reported, MAX_LINES_PER_CALL};
 pub use view::{JobView, WorkerView};
 pub use workers::Worker;
 
