@@ -548,3 +548,28 @@ fn an_unlit_file_gets_a_white_sky_and_a_lit_one_its_own_light() {
         "{e}"
     );
 }
+
+/// A missing texture is named once, where the file names it, with the path it was looked for
+/// at (the error once said `materials[0]: materials[0].baseColorTexture: …` and only the
+/// file's own name).
+#[test]
+fn a_missing_texture_is_named_once_with_the_path_it_was_looked_for_at() {
+    let mut gltf = textured_quad_doc(
+        &[0; 4],
+        json!({
+            "scenes": [{"nodes": [0]}],
+            "nodes": [{"mesh": 0}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": 0}]}],
+            "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
+            "textures": [{"source": 0}],
+        }),
+    );
+    gltf["images"] = json!([{"uri": "tex/missing.png"}]);
+    let e = load(&gltf, &GltfOptions::default()).expect_err("missing");
+    assert_eq!(e.matches("materials[0]").count(), 1, "{e}");
+    assert!(
+        e.contains("materials[0].baseColorTexture: cannot read `tex/missing.png` (")
+            && e.contains("/tex/missing.png): "),
+        "{e}"
+    );
+}

@@ -63,7 +63,9 @@ impl Assets for DirAssets {
     fn read(&self, name: &str, max_bytes: u64) -> Result<Vec<u8>, String> {
         check_file_name(name)?;
         let path = self.0.join(name);
-        let meta = std::fs::metadata(&path).map_err(|e| format!("cannot read `{name}`: {e}"))?;
+        // The path as resolved, for a user looking for the file.
+        let meta = std::fs::metadata(&path)
+            .map_err(|e| format!("cannot read `{name}` ({}): {e}", path.display()))?;
         if !meta.is_file() {
             return Err(format!("`{name}` is not a file"));
         }

@@ -92,12 +92,20 @@ impl<'d> GltfMaterials<'d> {
             Some(i) => format!("materials[{i}]"),
             None => "the default material".into(),
         };
+        // Errors about one of its textures already name it (`materials[0].baseColorTexture`).
+        let within = |(p, e): Invalid| {
+            if e.starts_with(&what) {
+                (p, e)
+            } else {
+                (p, format!("{what}: {e}"))
+            }
+        };
         let (material, absorption, pbr) = self
             .convert(m, &what, files, limits, assets, path)
-            .map_err(|(p, e)| (p, format!("{what}: {e}")))?;
+            .map_err(within)?;
         let alpha = self
             .alpha(m, &what, files, limits, assets, path)
-            .map_err(|(p, e)| (p, format!("{what}: {e}")))?;
+            .map_err(within)?;
         let mut material = material;
         if let Some(p) = pbr {
             tables.pbrs.push(p);
