@@ -2,7 +2,7 @@
 //! hash, and the structure its epoch records into, built once per guide. Both are pure
 //! functions of the scene, the sample range and the guide, so every worker builds the same.
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use tessera_proto::v1 as pb;
 use tessera_render::guide::SdTree;
@@ -10,8 +10,8 @@ use tessera_render::guided::{epoch_of, epochs, guide_bounds, structure};
 use tessera_render::scene::Scene;
 use tessera_render::RenderSettings;
 
-use crate::cache::{Recent, SceneError};
-use crate::{lock, Ctx};
+use crate::cache::{Recent, SceneCache, SceneError};
+use crate::session::{lock, Session};
 
 /// A guided unit's guide and training structure.
 pub(crate) struct Guided {
@@ -26,17 +26,24 @@ type Key = (String, Option<u32>, String, usize);
 
 /// Guides kept: a job's epochs come one after another, and a worker rarely serves more than a
 /// couple of guided jobs at once.
-pub(crate) const MAX_KEPT: usize = 4;
+const MAX_KEPT: usize = 4;
 
 /// The guides a worker has built.
-pub(crate) type Kept = Recent<Key, Arc<Guided>>;
+pub(crate) struct GuideCache(Mutex<Recent<Key, Arc<Guided>>>);
 
-impl Ctx {
+impl GuideCache {
+    /// None built yet.
+    pub(crate) fn new() -> Self {
+        Self(Mutex::new(Recent::new(MAX_KEPT)))
+    }
+
     /// What guided unit `unit` of `scene` renders with. A unit whose guide does not match its
     /// epoch (one named in epoch 0, or none later) cannot be rendered as sent; a guide that does
     /// not decode is refused the same way (its hash was checked, so the coordinator made it).
     pub(crate) async fn guided(
         &self,
+        session: &Session,
+        scenes: &SceneCache,
         unit: &pb::WorkUnit,
         scene: &Arc<Scene>,
         settings: &RenderSettings,
@@ -62,13 +69,13 @@ impl Ctx {
             )));
         }
         let key: Key = (unit.scene_hash.clone(), settings.frame, hash.clone(), k);
-        if let Some(g) = lock(&self.guides).get(&key) {
+        if let Some(g) = lock(&self.0).get(&key) {
             return Ok(g);
         }
         let bytes = if hash.is_empty() {
             None
         } else {
-            Some(self.asset(&hash).await?)
+            Some(scenes.asset(session, &hash).await?)
         };
         let trains = k + 1 < epochs(spp).len();
         let scene = scene.clone();
@@ -84,7 +91,7 @@ impl Ctx {
         .map_err(|e| SceneError::Unavailable(e.to_string()))?
         .map_err(SceneError::Unrenderable)?;
         let g = Arc::new(built);
-        lock(&self.guides).put(key, g.clone());
+        lock(&self.0).put(key, g.clone());
         Ok(g)
     }
 }

@@ -16,9 +16,35 @@ use tessera_render::{render_tile, PixelRect, RenderSettings, TileSums};
 use tokio::sync::{mpsc, OwnedSemaphorePermit, Semaphore};
 use tracing::{debug, info, warn};
 
-use crate::cache::SceneError;
-use crate::guides::Guided;
-use crate::{lock, transient, Ctx};
+use crate::cache::{SceneCache, SceneError};
+use crate::guides::{GuideCache, Guided};
+use crate::session::{backoff_delay, lock, transient, Session};
+
+/// What the pipeline's tasks share: the session with the coordinator, the scenes and guides
+/// built for units, and the pool units render on.
+pub(crate) struct Worker {
+    session: Session,
+    scenes: SceneCache,
+    guides: GuideCache,
+    pool: rayon::ThreadPool,
+}
+
+impl Worker {
+    /// A worker over `session`, rendering on `pool`, with nothing built yet.
+    pub(crate) fn new(session: Session, pool: rayon::ThreadPool) -> Self {
+        Self {
+            session,
+            scenes: SceneCache::new(),
+            guides: GuideCache::new(),
+            pool,
+        }
+    }
+
+    /// Its session with the coordinator.
+    pub(crate) fn session(&self) -> &Session {
+        &self.session
+    }
+}
 
 /// A leased unit, ready to render.
 struct Ready {
@@ -56,23 +82,23 @@ fn prepare(unit: &pb::WorkUnit, scene: &Scene) -> Result<(PixelRect, RenderSetti
 const LEASE_WAIT: Duration = Duration::from_secs(2);
 
 /// Leases units while there is room, and queues them for the renderer.
-async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
+async fn fetcher(ctx: Arc<Worker>, tx: mpsc::Sender<Ready>) {
     // The units rendering and one queued ahead.
     let slots = Arc::new(Semaphore::new(MAX_HELD_UNITS));
     let mut attempt = 0;
-    let mut stop = ctx.stop.clone();
+    let mut stop = ctx.session.stop.clone();
     loop {
         let slot = tokio::select! {
             s = slots.clone().acquire_owned() => match s { Ok(s) => s, Err(_) => return },
             _ = stop.wait_for(|s| *s) => return,
         };
-        let req_id = ctx.id();
+        let req_id = ctx.session.id();
         let req = pb::LeaseRequest {
             worker_id: req_id.clone(),
             max_units: 1,
             wait_ms: LEASE_WAIT.as_millis() as u32,
         };
-        let mut client = ctx.client.clone();
+        let mut client = ctx.session.client.clone();
         let call = client.lease(req);
         tokio::pin!(call);
         let answered = tokio::select! {
@@ -94,8 +120,8 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
                     .collect();
                 // Handed back at once: the units go to other workers now, not when the ones
                 // rendering here are done.
-                lock(&ctx.held).extend(units.iter().cloned());
-                ctx.release(units, false).await;
+                lock(&ctx.session.held).extend(units.iter().cloned());
+                ctx.session.release(units, false).await;
             }
             return;
         };
@@ -104,22 +130,22 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
                 attempt = 0;
                 let r = r.into_inner();
                 if r.drain {
-                    ctx.drain();
+                    ctx.session.drain();
                 }
                 r.units
             }
             Err(e) if tessera_proto::reason::is_unknown_worker(&e) => {
                 warn!("{}", e.message());
-                if !ctx.reregister(&req_id).await {
+                if !ctx.session.reregister(&req_id).await {
                     return;
                 }
                 continue;
             }
             Err(e) => {
                 if attempt == 0 || attempt % 10 == 0 {
-                    warn!("leasing from {}: {}", ctx.config.coordinator, e.message());
+                    warn!("leasing from {}: {}", ctx.session.config.coordinator, e.message());
                 }
-                if !ctx.backoff(&mut attempt).await {
+                if !ctx.session.backoff(&mut attempt).await {
                     return;
                 }
                 continue;
@@ -131,14 +157,14 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
                 "{} tile {} batch {}: leased",
                 unit.job_id, unit.tile_index, unit.batch_index
             );
-            lock(&ctx.held).insert(unit.lease_id.clone());
+            lock(&ctx.session.held).insert(unit.lease_id.clone());
             let frame = unit.settings.as_ref().and_then(|s| s.frame);
             let resolution = unit
                 .settings
                 .as_ref()
                 .and_then(|s| s.resolution)
                 .map(|r| (r.width, r.height));
-            let prepared = match ctx.scene(&unit.scene_hash, frame, resolution).await {
+            let prepared = match ctx.scenes.scene(&ctx.session, &unit.scene_hash, frame, resolution).await {
                 Ok(scene) => prepare(&unit, &scene)
                     .map(|p| (scene, p))
                     .map_err(SceneError::Unrenderable),
@@ -146,7 +172,7 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
             };
             let prepared = match prepared {
                 Ok((scene, (rect, settings))) if settings.guiding => {
-                    match ctx.guided(&unit, &scene, &settings).await {
+                    match ctx.guides.guided(&ctx.session, &ctx.scenes, &unit, &scene, &settings).await {
                         Ok(g) => Ok((scene, (rect, settings), Some(g))),
                         Err(e) => Err(e),
                     }
@@ -161,12 +187,12 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
                         "unit {} of {}: scene {}: {e}; handing it back",
                         unit.lease_id, unit.job_id, unit.scene_hash
                     );
-                    ctx.log(
+                    ctx.session.log(
                         &unit.lease_id,
                         pb::LogLevel::Warn,
                         format!("scene unavailable here: {e}; handed back"),
                     );
-                    ctx.release(vec![unit.lease_id], false).await;
+                    ctx.session.release(vec![unit.lease_id], false).await;
                     continue;
                 }
                 Err(SceneError::Unrenderable(e)) => {
@@ -174,12 +200,12 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
                         "unit {} of {}: this worker cannot render it: {e}",
                         unit.lease_id, unit.job_id
                     );
-                    ctx.log(
+                    ctx.session.log(
                         &unit.lease_id,
                         pb::LogLevel::Error,
                         format!("this worker cannot render it: {e}"),
                     );
-                    ctx.hand_back(vec![unit.lease_id], false, e).await;
+                    ctx.session.hand_back(vec![unit.lease_id], false, e).await;
                     continue;
                 }
             };
@@ -194,7 +220,7 @@ async fn fetcher(ctx: Arc<Ctx>, tx: mpsc::Sender<Ready>) {
             };
             if let Err(unsent) = tx.send(ready).await {
                 // The renderer stopped taking units (shutdown): this one goes back at once.
-                ctx.release(vec![unsent.0.unit.lease_id], false).await;
+                ctx.session.release(vec![unsent.0.unit.lease_id], false).await;
                 return;
             }
         }
@@ -223,8 +249,8 @@ const OVERLAP: usize = 2;
 pub const MAX_HELD_UNITS: usize = OVERLAP + 1;
 
 /// Renders queued units on the whole pool, [`OVERLAP`] at a time.
-async fn renderer(ctx: Arc<Ctx>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::UnboundedSender<Done>) {
-    let mut stop = ctx.stop.clone();
+async fn renderer(ctx: Arc<Worker>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::UnboundedSender<Done>) {
+    let mut stop = ctx.session.stop.clone();
     let mut running: tokio::task::JoinSet<Done> = tokio::task::JoinSet::new();
     let mut open = true;
     let mut stopped = false;
@@ -251,8 +277,8 @@ async fn renderer(ctx: Arc<Ctx>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::Unboun
                     open = false;
                     continue;
                 };
-                if lock(&ctx.revoked).remove(&ready.unit.lease_id) {
-                    lock(&ctx.held).remove(&ready.unit.lease_id);
+                if lock(&ctx.session.revoked).remove(&ready.unit.lease_id) {
+                    lock(&ctx.session.held).remove(&ready.unit.lease_id);
                     continue;
                 }
                 let work = ctx.clone();
@@ -284,7 +310,7 @@ async fn renderer(ctx: Arc<Ctx>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::Unboun
                         started.elapsed().as_secs_f64()
                     );
                     if sums.nonfinite > 0 {
-                        work.log(
+                        work.session.log(
                             &ready.unit.lease_id,
                             pb::LogLevel::Warn,
                             format!(
@@ -307,7 +333,7 @@ async fn renderer(ctx: Arc<Ctx>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::Unboun
 }
 
 /// Closes the renderer's queue and hands back the units in it, which no render has started.
-async fn hand_back_queued(ctx: &Ctx, rx: &mut mpsc::Receiver<Ready>) {
+async fn hand_back_queued(ctx: &Worker, rx: &mut mpsc::Receiver<Ready>) {
     rx.close();
     let mut back = Vec::new();
     while let Ok(r) = rx.try_recv() {
@@ -315,24 +341,17 @@ async fn hand_back_queued(ctx: &Ctx, rx: &mut mpsc::Receiver<Ready>) {
     }
     if !back.is_empty() {
         info!("handing back {} queued unit(s)", back.len());
-        ctx.release(back, false).await;
+        ctx.session.release(back, false).await;
     }
 }
 
-/// The wait before retry number `attempt` (from 0) of a call the coordinator did not answer:
-/// 100 ms, doubling, never above `max`. Every retry loop of the worker waits this long, so a
-/// farm of workers whose coordinator restarts reconnects quickly without hammering it.
-pub fn backoff_delay(attempt: u32, max: Duration) -> Duration {
-    Duration::from_millis(100u64 << attempt.min(10)).min(max)
-}
-
 /// Sends results, retrying through network errors.
-async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
+async fn submitter(ctx: Arc<Worker>, mut rx: mpsc::UnboundedReceiver<Done>) {
     while let Some(done) = rx.recv().await {
         let mut attempt = 0;
         let started = std::time::Instant::now();
         loop {
-            let sent_as = ctx.id();
+            let sent_as = ctx.session.id();
             let req = pb::SubmitResultRequest {
                 worker_id: sent_as.clone(),
                 lease_id: done.unit.lease_id.clone(),
@@ -346,7 +365,7 @@ async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
                     ..pb::TileResult::from(&done.sums)
                 }),
             };
-            match ctx.client.clone().submit_result(req).await {
+            match ctx.session.client.clone().submit_result(req).await {
                 Ok(_) => {
                     debug!(
                         "{} tile {} batch {}: sent in {:.3} s",
@@ -358,7 +377,7 @@ async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
                     break;
                 }
                 Err(e) if tessera_proto::reason::is_unknown_worker(&e) => {
-                    if !ctx.reregister(&sent_as).await {
+                    if !ctx.session.reregister(&sent_as).await {
                         break;
                     }
                 }
@@ -368,7 +387,7 @@ async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
                     }
                     // Keep retrying during shutdown too, but not past the grace period
                     // (enforced by the caller's timeout).
-                    let delay = backoff_delay(attempt, ctx.config.max_backoff);
+                    let delay = backoff_delay(attempt, ctx.session.config.max_backoff);
                     attempt += 1;
                     tokio::time::sleep(delay).await;
                 }
@@ -380,7 +399,7 @@ async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
                         done.unit.batch_index,
                         e.message()
                     );
-                    ctx.log(
+                    ctx.session.log(
                         &done.unit.lease_id,
                         pb::LogLevel::Error,
                         format!("its result was refused: {}", e.message()),
@@ -389,32 +408,32 @@ async fn submitter(ctx: Arc<Ctx>, mut rx: mpsc::UnboundedReceiver<Done>) {
                 }
             }
         }
-        lock(&ctx.held).remove(&done.unit.lease_id);
+        lock(&ctx.session.held).remove(&done.unit.lease_id);
     }
 }
 
 /// Renews leases and learns which were revoked.
-async fn heartbeat(ctx: Arc<Ctx>) {
+async fn heartbeat(ctx: Arc<Worker>) {
     loop {
-        let every = Duration::from_millis(ctx.heartbeat_ms.load(Ordering::Relaxed));
+        let every = Duration::from_millis(ctx.session.heartbeat_ms.load(Ordering::Relaxed));
         tokio::time::sleep(every).await;
-        ctx.send_logs().await;
-        let lease_ids: Vec<String> = lock(&ctx.held).iter().cloned().collect();
+        ctx.session.send_logs().await;
+        let lease_ids: Vec<String> = lock(&ctx.session.held).iter().cloned().collect();
         let req = pb::HeartbeatRequest {
-            worker_id: ctx.id(),
+            worker_id: ctx.session.id(),
             lease_ids,
         };
-        match ctx.client.clone().heartbeat(req).await {
+        match ctx.session.client.clone().heartbeat(req).await {
             Ok(r) => {
                 let r = r.into_inner();
                 if r.drain {
-                    ctx.drain();
+                    ctx.session.drain();
                 }
                 let revoked = r.revoked;
                 if !revoked.is_empty() {
                     debug!("{} lease(s) revoked", revoked.len());
-                    let mut held = lock(&ctx.held);
-                    let mut gone = lock(&ctx.revoked);
+                    let mut held = lock(&ctx.session.held);
+                    let mut gone = lock(&ctx.session.revoked);
                     for l in revoked {
                         held.remove(&l);
                         gone.insert(l);
@@ -440,7 +459,7 @@ pub(crate) struct Pipeline {
 
 impl Pipeline {
     /// Starts the tasks over `ctx`.
-    pub(crate) fn start(ctx: &Arc<Ctx>) -> Self {
+    pub(crate) fn start(ctx: &Arc<Worker>) -> Self {
         let (ready_tx, ready_rx) = mpsc::channel(1);
         let (done_tx, done_rx) = mpsc::unbounded_channel();
         Self {

@@ -29,6 +29,8 @@ use tessera_render::scene::{Format, Limits, Scene};
 use tessera_render::{render_tile, PixelRect, RenderSettings, TileSums};
 use tonic::transport::Channel;
 
+mod guided;
+mod memory;
 mod report;
 use report::{report, to_csv};
 
@@ -77,7 +79,7 @@ pub struct LoadArgs {
     jobs: usize,
     /// After each worker count's run, the same with a guided job (`submit --guiding`): its
     /// units return training trees, which the coordinator checks, adds and freezes into
-    /// guides between epochs (the records are synthetic; see `load_guided.rs`).
+    /// guides between epochs (the records are synthetic; see `load/guided.rs`).
     #[arg(long)]
     guiding: bool,
 }
@@ -313,7 +315,7 @@ pub(super) struct Shared {
     pub(super) deferred: AtomicU64,
     latencies: Mutex<Vec<f64>>,
     /// A guided run's training trees (none: an unguided run).
-    trains: Option<super::load_guided::Trains>,
+    trains: Option<guided::Trains>,
     /// The probe worker's: one more worker on a thread of its own, whose round trips are the
     /// coordinator's answer time under the others' load, not the load generator's queueing.
     probe_latencies: Mutex<Vec<f64>>,
@@ -387,7 +389,7 @@ pub(super) async fn simulated_worker(
         for u in units {
             let mut result = replay(&shared.template, &u)?;
             if let Some(t) = &shared.trains {
-                result.guide_train = t.tree(&mut client, &u).await?.to_vec();
+                result.guide_train = t.tree(&mut client, &id, &u).await?.to_vec();
             }
             let samples =
                 u64::from(u.sample_end - u.sample_start) * u64::from(result.count.len() as u32);
@@ -484,7 +486,7 @@ async fn run_one(workers: usize, plan: &Plan, guided: bool) -> Result<Run> {
         (plan.rate > 0.0)
             .then(|| Duration::from_secs_f64(workers as f64 * unit_samples / (plan.rate * 1e6))),
     );
-    shared.trains = guided.then(|| super::load_guided::Trains::new(plan.bounds, plan.settings.spp));
+    shared.trains = guided.then(|| guided::Trains::new(plan.bounds, plan.settings.spp));
     let shared = Arc::new(shared);
     shared.go.store(false, Ordering::Relaxed);
     // The probe first: a coordinator saturated by the others could keep it from registering.
@@ -618,9 +620,9 @@ pub fn run(args: LoadArgs) -> Result<()> {
     let settings = settings(args.batch);
     let scene = Scene::from_str(&scene_text(), Format::Toml, "cornell", &Limits::default())?;
     if !args.memory.is_empty() {
-        return super::memory::run(
+        return memory::run(
             &args.memory,
-            &super::memory::Plan {
+            &memory::Plan {
                 jobs: args.jobs,
                 split_cores: args.split_cores,
                 batch: args.batch,

@@ -2,7 +2,8 @@
 //! commands do over gRPC, as JSON on the dashboard's port, behind the same token (a bearer
 //! header; the dashboard's session cookie too) and TLS. Each route that acts calls the gRPC
 //! service's own handler, so the two APIs check the same things and cannot disagree; the
-//! OpenAPI document at `/api/openapi.json` is generated from the annotations here (utoipa).
+//! OpenAPI document at `/api/openapi.json` is generated from the annotations here and in
+//! [`super::intake`] ([`super::openapi`]).
 //!
 //! Errors are JSON: `{"code": "not_found", "error": "unknown job job-000009"}`. The `code` is
 //! stable (the gRPC status's name in snake case; `unauthenticated`, `forbidden` and
@@ -24,9 +25,9 @@ use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_server::Jobs;
 use tessera_proto::view::{JobView, WorkerView};
 use tonic::Request as RpcRequest;
-use utoipa::{OpenApi, ToSchema};
+use utoipa::ToSchema;
 
-use super::{intake, App};
+use super::App;
 use crate::auth::Caller;
 use crate::service::job_id;
 
@@ -80,51 +81,6 @@ pub(super) fn as_caller<T>(msg: T, caller: Option<Extension<Caller>>) -> RpcRequ
         req.extensions_mut().insert(c);
     }
     req
-}
-
-/// The OpenAPI document of these routes.
-#[derive(OpenApi)]
-#[openapi(
-    info(
-        title = "tessera coordinator",
-        description = "Render jobs over HTTP: submit a scene (after uploading the files it \
-                       names), follow it, read its workers' log, pause, resume, reprioritise, \
-                       cancel or retry it, and download its EXR. Every route needs the farm's \
-                       token as `Authorization: Bearer TOKEN` when the coordinator has one."
-    ),
-    paths(
-        openapi, list_jobs, intake::submit, job, cancel, pause, resume, priority, retry, logs,
-        output_exr, super::preview_png, list_workers, drain, release, intake::asset_status,
-        intake::upload_asset
-    ),
-    components(schemas(
-        ApiError, intake::SubmitBody, intake::Submitted, PriorityBody, Retried,
-        LogsReply, LogLine, intake::Held, Drained, Released, JobView, WorkerView
-    )),
-    modifiers(&Bearer),
-    security(("bearer" = []))
-)]
-pub(super) struct Api;
-
-/// The bearer-token scheme every route uses.
-struct Bearer;
-
-impl utoipa::Modify for Bearer {
-    fn modify(&self, doc: &mut utoipa::openapi::OpenApi) {
-        use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
-        doc.components
-            .get_or_insert_with(Default::default)
-            .add_security_scheme(
-                "bearer",
-                SecurityScheme::Http(HttpBuilder::new().scheme(HttpAuthScheme::Bearer).build()),
-            );
-    }
-}
-
-/// This document.
-#[utoipa::path(get, path = "/api/openapi.json", responses((status = 200, description = "The OpenAPI 3.1 document of this API")))]
-pub(super) async fn openapi() -> Response {
-    Json(Api::openapi()).into_response()
 }
 
 /// Which page of jobs to list.
@@ -493,54 +449,5 @@ pub(super) async fn release(
         })
         .into_response(),
         Err(s) => refused(s),
-    }
-}
-
-/// The routes as the document lists them (method, path), for the test that it lists every one.
-#[cfg(test)]
-fn documented() -> Vec<(String, String)> {
-    let doc = Api::openapi();
-    let mut out = Vec::new();
-    for (path, item) in doc.paths.paths {
-        for (method, op) in [
-            ("GET", item.get.is_some()),
-            ("POST", item.post.is_some()),
-            ("PUT", item.put.is_some()),
-        ] {
-            if op {
-                out.push((method.to_string(), path.clone()));
-            }
-        }
-    }
-    out
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Every `/api/` route the router serves is in the OpenAPI document, and the document
-    /// lists nothing else: read from the router's own source, so a route added without its
-    /// annotation fails here.
-    #[test]
-    fn the_document_lists_exactly_the_routes_served() {
-        // Whitespace dropped, so that a route rustfmt wraps over several lines reads as one.
-        let source: String = include_str!("mod.rs").split_whitespace().collect();
-        let mut served: Vec<(String, String)> = Vec::new();
-        for call in source.split(".route(\"/api/").skip(1) {
-            let (path, rest) = call.split_once('"').expect("a quoted path");
-            // This route's handlers: up to the next route.
-            let handlers = rest.split(".route(").next().unwrap_or_default();
-            for (method, name) in [("GET", "get("), ("POST", "post("), ("PUT", "put(")] {
-                if handlers.contains(name) {
-                    served.push((method.to_string(), format!("/api/{path}")));
-                }
-            }
-        }
-        let mut listed = documented();
-        served.sort();
-        listed.sort();
-        assert!(served.len() >= 16, "{served:?}");
-        assert_eq!(served, listed);
     }
 }

@@ -14,7 +14,7 @@ use tessera_proto::ids::JobId;
 use tessera_render::guide::SdTree;
 use tessera_render::TileSums;
 
-use super::pick::has_active_lease;
+use super::leases::has_active_lease;
 use super::{Merged, Scheduler, UnitResult};
 use crate::error::Refusal;
 use crate::job::{same_result, AuditHold, Job, KeptUnits, Source, Unit, NOBODY};

@@ -5,22 +5,15 @@
 //! Every pick skips a unit that is done or has a live lease, and an audited unit goes only to
 //! a worker on a host that has no copy of it ([`super::audit`]).
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
 use tessera_proto::ids::JobId;
 
 use super::audit::audit_excludes;
-use super::leases::Lease;
+use super::leases::{has_active_lease, Lease};
 use super::{Granted, Scheduler};
 use crate::job::{Job, Unit};
-
-/// Whether unit `u` of `job` has a live lease.
-pub(super) fn has_active_lease(job: &Job, u: Unit, leases: &HashMap<u64, Lease>) -> bool {
-    job.issued
-        .get(&u)
-        .is_some_and(|ids| ids.iter().any(|l| leases.get(l).is_some_and(|x| x.active)))
-}
 
 /// A copy of a unit that is out already, for worker `w` to race, among those `w` does not
 /// hold: the one leased longest ago that has exactly one live lease, or else one whose live
@@ -122,20 +115,6 @@ fn next_unit(
         }
     }
     None
-}
-
-/// Puts the unit of `lease` back at the front of its job's queue, if the job still needs it:
-/// a lease that lapsed, was handed back, or was taken from a quarantined worker. Returns
-/// whether the unit went back.
-pub(super) fn requeue(jobs: &mut BTreeMap<JobId, Job>, lease: &mut Lease) -> bool {
-    lease.active = false;
-    match jobs.get_mut(&lease.job) {
-        Some(job) if job.is_live() && !job.is_done(lease.unit) => {
-            job.requeue.push_front(lease.unit);
-            true
-        }
-        _ => false,
-    }
 }
 
 impl Scheduler {

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use tessera_proto::ids::{JobId, WorkerCredential, WorkerId};
 
 use super::fit::Capabilities;
-use super::pick::requeue;
+use super::leases::requeue;
 use super::Scheduler;
 use crate::error::Refusal;
 use crate::job::{Rate, Unit};

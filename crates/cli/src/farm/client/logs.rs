@@ -8,7 +8,7 @@ use tessera_proto::v1 as pb;
 
 use super::{connect, rpc_error};
 use crate::farm::{runtime, CoordinatorUrl};
-use crate::printable;
+use crate::terminal::printable;
 
 /// Arguments of `tessera logs`.
 #[derive(Debug, clap::Args)]

@@ -29,7 +29,7 @@ pub use status::{cancel, status, workers, CancelArgs, StatusArgs, WorkersArgs};
 pub use submit::{submit, SubmitArgs};
 
 use super::CoordinatorUrl;
-use crate::{printable, progress_style};
+use crate::terminal::{printable, progress_style};
 
 /// Turns a gRPC error into one line that says what failed.
 fn rpc_error(url: &str, what: &str, e: tonic::Status) -> anyhow::Error {
@@ -183,7 +183,7 @@ impl IdleFarm {
                     errln!(
                         "{} is waiting: {} (still waiting)",
                         s.job_id,
-                        crate::printable(&s.waiting)
+                        printable(&s.waiting)
                     )
                 });
             }
@@ -211,7 +211,7 @@ fn done(job: &str, s: pb::JobStatus) -> Result<pb::JobStatus> {
     match pb::JobState::try_from(s.state) {
         Ok(pb::JobState::Done) => {
             for c in &s.checks {
-                errln!("warning: {job}: {}", crate::printable(&c.message));
+                errln!("warning: {job}: {}", printable(&c.message));
             }
             Ok(s)
         }

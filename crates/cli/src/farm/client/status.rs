@@ -5,7 +5,7 @@ use tessera_proto::view::job_state_name;
 
 use super::{connect, fmt_eta, rpc_error};
 use crate::farm::{runtime, CoordinatorUrl};
-use crate::printable;
+use crate::terminal::printable;
 
 use anyhow::{anyhow, bail, Result};
 use tessera_proto::v1 as pb;

@@ -16,7 +16,7 @@ use tessera_proto::v1::jobs_client::JobsClient;
 use tessera_render::scene::Scene;
 use tessera_render::RenderSettings;
 
-use super::load::{
+use super::{
     proc_figures, simulated_worker, sized_scene, template, Coordinator, Shared, TILE,
 };
 
@@ -83,7 +83,7 @@ pub(crate) fn run(
     let _ = writeln!(
         md,
         "Machine: {}.\n",
-        super::report::machine(super::report::measured_clock_ghz())
+        crate::bench::report::machine(crate::bench::report::measured_clock_ghz())
     );
     let _ = writeln!(
         md,

@@ -65,10 +65,12 @@ impl Trains {
         })
     }
 
-    /// The training tree to send with `unit`'s result (empty for an epoch that trains none).
+    /// The training tree to send with `unit`'s result (empty for an epoch that trains none),
+    /// fetching the unit's guide as `worker_id`, which holds its lease.
     pub async fn tree(
         &self,
         client: &mut WorkersClient<Channel>,
+        worker_id: &str,
         unit: &pb::WorkUnit,
     ) -> Result<Arc<Vec<u8>>> {
         let k = epoch_of(self.spp, unit.sample_start)
@@ -89,6 +91,7 @@ impl Trains {
                 .fetch_asset(pb::FetchAssetRequest {
                     sha256: unit.guide_sha256.clone(),
                     offset: 0,
+                    worker_id: worker_id.to_string(),
                 })
                 .await?
                 .into_inner();
