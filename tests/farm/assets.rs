@@ -144,6 +144,57 @@ async fn an_interrupted_upload_resumes_and_the_mesh_job_gives_the_local_bits() {
         .await
         .expect("submit")
         .into_inner();
+    // Only a worker holding a lease of the job reads its scene and files (#79.5).
+    let mut workers = workers_client(&coord.url());
+    let outsider = register_as(&mut workers, "outsider", "0", IMAGE_REVISION)
+        .await
+        .expect("register");
+    let hand = register_as(&mut workers, "hand", "0", IMAGE_REVISION)
+        .await
+        .expect("register");
+    let units = lease_now(&mut workers, &hand, 1).await.expect("lease");
+    assert_eq!(units.len(), 1);
+    let scene_of = |worker_id: &str| pb::GetSceneRequest {
+        scene_hash: units[0].scene_hash.clone(),
+        worker_id: worker_id.into(),
+    };
+    let e = fetch_asset(&mut workers, &outsider, &hash)
+        .await
+        .expect_err("no lease");
+    assert_eq!(e.code(), tonic::Code::PermissionDenied, "{e:?}");
+    assert!(e.message().contains("holds no lease"), "{}", e.message());
+    let e = workers
+        .get_scene(scene_of(&outsider))
+        .await
+        .expect_err("no lease");
+    assert_eq!(e.code(), tonic::Code::PermissionDenied, "{e:?}");
+    // Another worker's id without its secret is no one's.
+    let public = hand.split('.').next().expect("id");
+    let e = fetch_asset(&mut workers, public, &hash)
+        .await
+        .expect_err("no secret");
+    assert_ne!(e.code(), tonic::Code::Ok);
+    let scene = workers
+        .get_scene(scene_of(&hand))
+        .await
+        .expect("the leaseholder reads the scene")
+        .into_inner();
+    assert_eq!(scene.assets.len(), 1);
+    assert_eq!(
+        fetch_asset(&mut workers, &hand, &hash)
+            .await
+            .expect("the leaseholder fetches the file"),
+        bytes
+    );
+    workers
+        .release_leases(pb::ReleaseLeasesRequest {
+            worker_id: hand.clone(),
+            lease_ids: vec![units[0].lease_id.clone()],
+            goodbye: false,
+            cannot_render: String::new(),
+        })
+        .await
+        .expect("release");
     let w = worker(&coord.url(), "mesh-worker");
     let s = wait(&mut client, &job.job_id).await;
     assert_eq!(s.state, pb::JobState::Done as i32, "{}", s.error);
@@ -152,21 +203,11 @@ async fn an_interrupted_upload_resumes_and_the_mesh_job_gives_the_local_bits() {
         farm == local_mesh_exr(&text, dir.path()),
         "the farm's EXR differs from the local one"
     );
-    // A worker fetches the file by hash from the coordinator.
-    let mut workers = workers_client(&coord.url());
-    let mut stream = workers
-        .fetch_asset(pb::FetchAssetRequest {
-            sha256: hash.clone(),
-            offset: 0,
-        })
+    // The job has ended: its files are no longer anyone's to read.
+    let e = fetch_asset(&mut workers, &hand, &hash)
         .await
-        .expect("fetch")
-        .into_inner();
-    let mut got = Vec::new();
-    while let Some(c) = stream.message().await.expect("chunk") {
-        got.extend(c.data);
-    }
-    assert_eq!(got, bytes);
+        .expect_err("ended");
+    assert_eq!(e.code(), tonic::Code::PermissionDenied, "{e:?}");
     w.abort();
     coord.stop().await;
 }
@@ -369,26 +410,14 @@ async fn bad_uploads_are_refused_and_leave_nothing() {
         .await
         .expect_err("hoarding");
     assert_eq!(e.code(), tonic::Code::ResourceExhausted);
-    // A worker asking for a file never uploaded, or a malformed one.
+    // A worker asking for a file never uploaded, or a malformed one: no job reads it.
     let mut workers = workers_client(&coord.url());
+    let id = register_as(&mut workers, "asker", "0", IMAGE_REVISION)
+        .await
+        .expect("register");
     for h in [big.as_str(), "nope"] {
-        let e = match workers
-            .fetch_asset(pb::FetchAssetRequest {
-                sha256: h.into(),
-                offset: 0,
-            })
-            .await
-        {
-            Ok(mut s) => s.get_mut().message().await.expect_err("no file"),
-            Err(e) => e,
-        };
-        assert!(
-            matches!(
-                e.code(),
-                tonic::Code::NotFound | tonic::Code::InvalidArgument
-            ),
-            "{e:?}"
-        );
+        let e = fetch_asset(&mut workers, &id, h).await.expect_err("no file");
+        assert_eq!(e.code(), tonic::Code::PermissionDenied, "{e:?}");
     }
     // A job listing a file twice, or too many files.
     let mut req = mesh_request(&mesh_scene(16), &hash);

@@ -46,7 +46,7 @@ async fn liar(url: String, text: String, settings: RenderSettings, stop: Arc<Ato
         let mut r = if settings.guiding {
             let hash = u.guide_sha256.clone();
             if !hash.is_empty() && !guides.contains_key(&hash) {
-                let Ok(bytes) = fetch_asset(&mut client, &hash).await else {
+                let Ok(bytes) = fetch_asset(&mut client, &id, &hash).await else {
                     break;
                 };
                 guides.insert(hash.clone(), SdTree::decode(&bytes).expect("a guide"));

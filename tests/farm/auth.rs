@@ -105,6 +105,7 @@ async fn a_token_is_required_on_every_service() {
             .fetch_asset(pb::FetchAssetRequest {
                 sha256: "a".repeat(64),
                 offset: 0,
+                worker_id: "w1-1".into(),
             })
             .await
             .expect_err("fetch_asset without the token");

@@ -305,15 +305,17 @@ pub fn honest_guided(
     }
 }
 
-/// A content-addressed asset's bytes, by hash.
+/// A content-addressed asset's bytes, by hash, as worker `worker_id` asks for them.
 pub async fn fetch_asset(
     client: &mut WorkersClient<Channel>,
+    worker_id: &str,
     hash: &str,
 ) -> Result<Vec<u8>, tonic::Status> {
     let mut stream = client
         .fetch_asset(pb::FetchAssetRequest {
             sha256: hash.to_string(),
             offset: 0,
+            worker_id: worker_id.to_string(),
         })
         .await?
         .into_inner();

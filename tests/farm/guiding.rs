@@ -151,7 +151,7 @@ async fn forged_training_trees_are_refused_and_epochs_wait_for_their_guide() {
         .map(|u| u.guide_sha256.clone())
         .unwrap_or_default();
     assert_eq!(hash.len(), 64, "{next:?}");
-    let bytes = fetch_asset(&mut hand, &hash).await.expect("fetch");
+    let bytes = fetch_asset(&mut hand, &id, &hash).await.expect("fetch");
     assert_eq!(tessera_render::scene::assets::sha256_hex(&bytes), hash);
     SdTree::decode(&bytes).expect("a guide");
     // The hand-driven worker leaves; a real one finishes the job to the local bits.

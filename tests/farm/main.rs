@@ -27,6 +27,7 @@ mod output_names;
 mod parses;
 mod priorities;
 mod restart;
+mod retention;
 mod retry;
 mod revisions;
 mod same_bits;

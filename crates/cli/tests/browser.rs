@@ -429,7 +429,30 @@ fn the_dashboard_fits_1280_px_and_a_cancelled_job_shows_no_broken_picture() {
     let scene = scene.display().to_string();
     let cancelled = tessera(&["submit", &scene, "--spp", "64", "--priority", "10"]);
     tessera(&["cancel", &cancelled]);
-    tessera(&["submit", &scene, "--spp", "1048576", "--priority", "-3"]);
+    // Waiting for a tag no worker has, so that it stays queued with a worker connected.
+    let queued = tessera(&[
+        "submit",
+        &scene,
+        "--spp",
+        "1048576",
+        "--priority",
+        "-3",
+        "--require",
+        "pool=none",
+    ]);
+    // A worker named and tagged as a studio's are (#79.16: the workers page clipped its Drain
+    // button at 1280 px).
+    let _worker = Proc(
+        Command::new(BIN)
+            .args(["worker", "--coordinator", &grpc, "--threads", "1"])
+            .args(["--name", "render-node-0042.lighting.feature-film.studio.example"])
+            .args(["--tag", "pool=lighting-and-comp-farm", "--tag", "gpu-class=none"])
+            .args(["--tag", "site=building-7-floor-3"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start worker"),
+    );
 
     let profile = tempfile::tempdir().expect("profile");
     let mut cdp = Cdp::launch(profile.path());
@@ -477,5 +500,61 @@ fn the_dashboard_fits_1280_px_and_a_cancelled_job_shows_no_broken_picture() {
             .as_str()
             .is_some_and(|n| n.contains("cancelled before any sample")),
         "{page}"
+    );
+
+    // The queued job's page pauses, resumes and reprioritises it (#79.16: it offered Cancel
+    // alone).
+    cdp.navigate(&format!("{dash}/jobs/{queued}"));
+    let stat = |cdp: &mut Cdp, id: &str| {
+        cdp.eval(&format!(
+            "(() => {{ const e = document.getElementById('{id}'); return e ? e.textContent : null; }})()"
+        ))
+    };
+    wait_for("the pause button", || {
+        (stat(&mut cdp, "pause").as_str() == Some("Pause")).then_some(())
+    });
+    cdp.eval("document.getElementById('pause').click(); true");
+    wait_for("the job paused", || {
+        let paused = stat(&mut cdp, "stat-state").as_str() == Some("paused");
+        (paused && stat(&mut cdp, "resume").as_str() == Some("Resume")).then_some(())
+    });
+    cdp.eval("document.getElementById('resume').click(); true");
+    wait_for("the job resumed", || {
+        (stat(&mut cdp, "stat-state").as_str() == Some("queued")).then_some(())
+    });
+    cdp.eval(
+        "document.getElementById('priority-input').value = '7'; \
+         document.getElementById('set-priority').click(); true",
+    );
+    wait_for("the new priority", || {
+        (stat(&mut cdp, "stat-priority").as_str() == Some("7")).then_some(())
+    });
+    let listed = tessera(&["status", &queued]);
+    let words: Vec<&str> = listed.split_whitespace().collect();
+    assert!(
+        words.windows(2).any(|w| w == ["priority", "7"]),
+        "{listed}"
+    );
+
+    // The workers page fits 1280 px, its Drain button in view.
+    cdp.navigate(&format!("{dash}/workers"));
+    let fit = wait_for("the workers page with its Drain button", || {
+        let v = cdp.eval(
+            "(() => { const b = [...document.querySelectorAll('#workers button')].find((x) => x.textContent === 'Drain'); \
+             if (!b) return null; const d = document.documentElement; const r = b.getBoundingClientRect(); \
+             const box = b.closest('.scroll').getBoundingClientRect(); \
+             return { page: d.scrollWidth, view: d.clientWidth, right: r.right, width: r.width, box: box.right }; })()",
+        );
+        (!v.is_null()).then_some(v)
+    });
+    let (page, view, right, width) = (
+        fit["page"].as_f64().unwrap_or(f64::MAX),
+        fit["view"].as_f64().unwrap_or(0.0),
+        fit["right"].as_f64().unwrap_or(f64::MAX),
+        fit["width"].as_f64().unwrap_or(0.0),
+    );
+    assert!(
+        page <= view && right <= view && width > 20.0,
+        "the workers page clips its Drain button at 1280 px: {fit}"
     );
 }

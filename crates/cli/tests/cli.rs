@@ -232,12 +232,23 @@ fn bad_flags_and_paths_are_refused() {
             &["--audit must be a fraction between 0 and 1"],
         );
     }
-    for bad in ["-1", "NaN", "inf"] {
-        let bad = format!("--asset-retention={bad}");
-        assert_clean_failure(
-            &tessera(&["coordinator", "--data-dir", "/nonexistent-dir/d", &bad]),
-            &["--asset-retention must be between 0 and 1e9 seconds"],
-        );
+    // Every flag of seconds, one helper for all (`Duration::from_secs_f64` panics on these).
+    for (flag, range) in [
+        ("--asset-retention", "0 and 1e9"),
+        ("--retry-window", "0 and 1e9"),
+        ("--log-retention", "0 and 1e9"),
+        ("--job-retention", "0 and 1e9"),
+        ("--lease-timeout", "0.1 and 86400"),
+        ("--checkpoint-interval", "0 and 3600"),
+    ] {
+        for bad in ["-1", "NaN", "inf"] {
+            let bad = format!("{flag}={bad}");
+            let said = format!("{flag} must be between {range} seconds");
+            assert_clean_failure(
+                &tessera(&["coordinator", "--data-dir", "/nonexistent-dir/d", &bad]),
+                &[&said],
+            );
+        }
     }
 }
 

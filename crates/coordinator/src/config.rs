@@ -66,6 +66,12 @@ pub struct Config {
     pub log_retention: Duration,
     /// Most bytes of ended jobs' logs kept in all; past it the oldest go first.
     pub max_log_bytes: u64,
+    /// How long an ended job's record is kept (listings, status, fetch by id); its output
+    /// files stay where they were written.
+    pub job_retention: Duration,
+    /// Most ended jobs kept in all (a frame range counts its frames); past it the oldest go
+    /// first.
+    pub max_ended_jobs: usize,
     /// Most leases one worker registration may hold at once.
     pub max_leases_per_worker: usize,
     /// Most live worker registrations from one host (the address it registers from).
@@ -145,6 +151,14 @@ pub const DEFAULT_LOG_RETENTION: Duration = Duration::from_secs(14 * 86_400);
 /// Bytes of ended jobs' logs kept by default, in all.
 pub const DEFAULT_MAX_LOG_BYTES: u64 = 256 << 20;
 
+/// How long an ended job's record is kept by default: thirty days, past the retry window and
+/// the logs' retention, so that a job's record outlives everything that hangs on it.
+pub const DEFAULT_JOB_RETENTION: Duration = Duration::from_secs(30 * 86_400);
+
+/// Ended jobs kept by default, in all: each is a record of a few hundred bytes in memory and
+/// in the store, and a line in every listing.
+pub const DEFAULT_MAX_ENDED_JOBS: usize = 10_000;
+
 /// Most leases one worker registration may hold, unless configured.
 pub const DEFAULT_MAX_LEASES_PER_WORKER: usize = 8;
 
@@ -207,6 +221,8 @@ impl Config {
             max_uploads_per_user: 8,
             log_retention: DEFAULT_LOG_RETENTION,
             max_log_bytes: DEFAULT_MAX_LOG_BYTES,
+            job_retention: DEFAULT_JOB_RETENTION,
+            max_ended_jobs: DEFAULT_MAX_ENDED_JOBS,
             max_leases_per_worker: DEFAULT_MAX_LEASES_PER_WORKER,
             max_workers_per_host: DEFAULT_MAX_WORKERS_PER_HOST,
             audit: 0.0,

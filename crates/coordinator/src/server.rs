@@ -124,6 +124,14 @@ pub async fn serve_when_ready(
                         tracing::warn!("dropping logs past their retention: {e}");
                     }
                 }
+                // Ended jobs' records go after theirs, the oldest first.
+                let ops = shared.scheduler().sweep_jobs(crate::shared::now_ms());
+                if !ops.is_empty() {
+                    shared.bump_changed();
+                    if let Err(e) = crate::shared::durable(shared.queue_write(ops)).await {
+                        tracing::warn!("dropping ended jobs past their retention: {e}");
+                    }
+                }
             }
             let r = tokio::task::spawn_blocking(move || shared.collect_assets()).await;
             if let Ok(Err(e)) = r {

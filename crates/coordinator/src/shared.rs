@@ -94,6 +94,8 @@ impl Shared {
                 max_leases_per_user: config.max_leases_per_user,
                 log_retention: config.log_retention,
                 max_log_bytes: config.max_log_bytes,
+                job_retention: config.job_retention,
+                max_ended_jobs: config.max_ended_jobs,
             },
         );
         let mut seed = [0u8; 8];

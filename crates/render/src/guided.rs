@@ -42,7 +42,6 @@ use crate::guide::SdTree;
 use crate::integrator::{sample_pixel_with, GuidedPath, RenderSettings};
 use crate::scene::Scene;
 use crate::tile::{aov_sums, render_tile, scalar_row};
-use crate::util::math::Aabb;
 use glam::Vec3A;
 
 /// Müller et al.'s spatial split constant: a leaf splits once it counts more than
@@ -160,18 +159,7 @@ pub fn structure(bounds: [[f32; 3]; 2], k: usize, guide: Option<&SdTree>) -> SdT
 /// The box a guide of `scene` starts from: the one holding every finite object (planes are
 /// infinite).
 pub fn guide_bounds(scene: &Scene) -> [[f32; 3]; 2] {
-    let b = scene.prims.iter().fold(Aabb::EMPTY, |b, p| {
-        let o = p.shape.bounds();
-        if o.min.is_finite() && o.max.is_finite() {
-            Aabb {
-                min: b.min.min(o.min),
-                max: b.max.max(o.max),
-            }
-        } else {
-            b
-        }
-    });
-    [b.min.to_array(), b.max.to_array()]
+    crate::scene::shape_bounds(&scene.prims)
 }
 
 /// Renders the whole frame with path guiding, calling `progress` with the number of samples

@@ -123,3 +123,41 @@ fn parallel_parses_share_the_budget_in_bytes() {
     assert!(peak > 0, "the budget was never used");
     assert!(peak <= one, "{peak} bytes reserved at once, budget {one}");
 }
+
+/// What a coordinator admits a job by (#79.12): `Scene::check_with` decodes no image, so a
+/// scene with an 8192² texture (1.85 GB to decode) is checked within a budget of 1 MiB, and
+/// it says what the full build says of the scene's identity, size, files and bounds.
+#[cfg(unix)]
+#[test]
+fn a_scene_is_checked_without_decoding_its_textures() {
+    use tessera_render::scene::{assets::DirAssets, Format, FIRST_FRAME};
+    let _turn = LOCK.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tempfile::tempdir().expect("tmp");
+    let scene = scene_with_texture(dir.path(), &grey_png(8192, 8192), None);
+    let text = std::fs::read_to_string(&scene).expect("text");
+    let files = DirAssets(dir.path().to_path_buf());
+    let limits = Limits::default();
+    let check = |limits: &Limits| {
+        Scene::check_with(&text, Format::Toml, "scene.toml", limits, FIRST_FRAME, &files)
+    };
+    let budget = DecodeBudget::global();
+    budget.set_total(1 << 20);
+    let checked = check(&limits);
+    let refused = Scene::from_str_with(&text, Format::Toml, "s", &limits, FIRST_FRAME, &files)
+        .map(|_| ())
+        .expect_err("over the budget");
+    budget.set_total(DEFAULT_DECODE_BUDGET);
+    let checked = checked.expect("checked without decoding");
+    assert!(refused.to_string().contains("big.png"), "{refused}");
+    assert_eq!(budget.used(), 0);
+    let built = Scene::from_str_with(&text, Format::Toml, "s", &limits, FIRST_FRAME, &files)
+        .expect("built");
+    assert_eq!(checked.hash, built.hash);
+    assert_eq!((checked.width, checked.height), (built.width, built.height));
+    assert_eq!(checked.files, built.files);
+    assert_eq!(checked.bounds, tessera_render::guided::guide_bounds(&built));
+    // The header is still read and checked.
+    std::fs::write(dir.path().join("big.png"), b"not a png at all").expect("png");
+    let e = check(&limits).expect_err("no image");
+    assert!(e.to_string().contains("big.png"), "{e}");
+}

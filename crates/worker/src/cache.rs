@@ -2,7 +2,8 @@
 //! scenes for their other frames, and the asset files scenes read, in a content-addressed
 //! cache on disk bounded by `--cache-bytes` (least recently used out first).
 
-use std::sync::Arc;
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
 
 use tessera_proto::v1 as pb;
 use tessera_render::files;
@@ -11,7 +12,7 @@ use tessera_render::scene::{Format, Limits, Scene, Shot, FIRST_FRAME};
 use tonic::Status;
 use tracing::warn;
 
-use crate::{lock, transient, Ctx};
+use crate::session::{lock, transient, Session};
 
 /// Largest file a worker takes from a coordinator: the renderer's own limit.
 const MAX_ASSET_BYTES: u64 = 2 << 30;
@@ -63,7 +64,7 @@ pub(crate) enum SceneError {
 }
 
 /// A built scene's identity: the scene's hash and the frame it is built at.
-pub(crate) type SceneKey = (String, Option<u32>, Option<(u32, u32)>);
+type SceneKey = (String, Option<u32>, Option<(u32, u32)>);
 
 /// Built scenes a worker keeps (one per scene and frame).
 const MAX_CACHED_SCENES: usize = 4;
@@ -124,17 +125,39 @@ impl<K: PartialEq, V: Clone> Recent<K, V> {
 /// Scene texts a worker keeps for the frames it has not built yet: a frame-range job's frames
 /// share one text (up to the coordinator's scene limit, 32 MiB), which is fetched once rather
 /// than once a frame.
-pub(crate) type Texts = Recent<String, Arc<pb::GetSceneResponse>>;
+type Texts = Recent<String, Arc<pb::GetSceneResponse>>;
 
 /// Texts kept at most (two animations at once).
-pub(crate) const MAX_TEXTS: usize = 2;
+const MAX_TEXTS: usize = 2;
 
-impl Ctx {
+/// The scenes a worker has built for its units (by hash, frame and size), those it could not
+/// build and why, and animated scenes' texts; their files are in the cache on disk.
+pub(crate) struct SceneCache {
+    /// Scenes built, by hash and frame (at most [`MAX_CACHED_SCENES`]).
+    scenes: Mutex<HashMap<SceneKey, Arc<Scene>>>,
+    /// Scenes this worker cannot render, by hash and frame, with the reason: fetched and
+    /// refused once, not again for every unit.
+    refused: Mutex<HashMap<SceneKey, String>>,
+    /// Texts of animated scenes, for building their other frames without fetching them again.
+    texts: Mutex<Texts>,
+}
+
+impl SceneCache {
+    /// Nothing built yet.
+    pub(crate) fn new() -> Self {
+        Self {
+            scenes: Mutex::new(HashMap::new()),
+            refused: Mutex::new(HashMap::new()),
+            texts: Mutex::new(Texts::new(MAX_TEXTS)),
+        }
+    }
+
     /// The scene of a unit at its frame, fetched and built once per hash and frame. A scene
     /// that does not parse here (or breaks this worker's limits) is an `Err(Unrenderable)`,
     /// remembered.
     pub(crate) async fn scene(
         &self,
+        session: &Session,
         hash: &str,
         frame: Option<u32>,
         resolution: Option<(u32, u32)>,
@@ -143,13 +166,13 @@ impl Ctx {
         if let Some(s) = lock(&self.scenes).get(&key) {
             return Ok(s.clone());
         }
-        if let Some(why) = lock(&self.refused_scenes).get(&key) {
+        if let Some(why) = lock(&self.refused).get(&key) {
             return Err(SceneError::Unrenderable(why.clone()));
         }
-        let scene = self.fetch_scene(hash, frame, resolution).await;
+        let scene = self.fetch_scene(session, hash, frame, resolution).await;
         match &scene {
             Err(SceneError::Unrenderable(why)) => {
-                lock(&self.refused_scenes).insert(key, why.clone());
+                lock(&self.refused).insert(key, why.clone());
             }
             Ok(s) => {
                 let mut scenes = lock(&self.scenes);
@@ -167,8 +190,9 @@ impl Ctx {
         scene
     }
 
-    pub(crate) async fn fetch_scene(
+    async fn fetch_scene(
         &self,
+        session: &Session,
         hash: &str,
         frame: Option<u32>,
         resolution: Option<(u32, u32)>,
@@ -178,7 +202,7 @@ impl Ctx {
         let resp = match kept {
             Some(text) => text,
             None => {
-                let text = Arc::new(self.fetch_text(hash).await?);
+                let text = Arc::new(self.fetch_text(session, hash).await?);
                 if frame.is_some() {
                     lock(&self.texts).put(hash.to_string(), text.clone());
                 }
@@ -192,7 +216,7 @@ impl Ctx {
         };
         let mut files = MemAssets::default();
         for a in &resp.assets {
-            let bytes = self.asset(&a.sha256).await?;
+            let bytes = self.asset(session, &a.sha256).await?;
             files.0.insert(a.name.clone(), bytes);
         }
         let scene = tokio::task::spawn_blocking(move || {
@@ -224,14 +248,14 @@ impl Ctx {
     /// A file a scene names, from this machine's cache or else from the coordinator (and then
     /// cached). Its content is checked against its hash either way: a damaged cache file or a
     /// wrong download is never rendered from.
-    pub(crate) async fn asset(&self, hash: &str) -> Result<Vec<u8>, SceneError> {
+    pub(crate) async fn asset(&self, session: &Session, hash: &str) -> Result<Vec<u8>, SceneError> {
         if !tessera_proto::ids::is_sha256(hash) {
             return Err(SceneError::Unavailable(format!(
                 "the coordinator named a file by {:?}, which is not a SHA-256",
                 hash.chars().take(80).collect::<String>()
             )));
         }
-        let path = self.config.cache_dir.join(hash);
+        let path = session.config.cache_dir.join(hash);
         let (p, h) = (path.clone(), hash.to_string());
         let cached = tokio::task::spawn_blocking(move || {
             let bytes = std::fs::read(&p).ok()?;
@@ -254,9 +278,9 @@ impl Ctx {
         }
         let mut attempt = 0;
         let bytes = loop {
-            match self.fetch_asset(hash).await {
+            match self.fetch_asset(session, hash).await {
                 Ok(b) => break b,
-                Err(e) if transient(&e) && self.backoff(&mut attempt).await => continue,
+                Err(e) if transient(&e) && session.backoff(&mut attempt).await => continue,
                 Err(e) => return Err(SceneError::Unavailable(e.message().to_string())),
             }
         };
@@ -269,8 +293,8 @@ impl Ctx {
         // Written under a fresh random name, then renamed (`files::place`): another worker on
         // this machine may be caching the same file, a reader must never see half of one, and
         // nothing planted in the directory is followed.
-        let dir = self.config.cache_dir.clone();
-        let budget = self.config.cache_bytes;
+        let dir = session.config.cache_dir.clone();
+        let budget = session.config.cache_bytes;
         let keep = hash.to_string();
         let (bytes, saved) = tokio::task::spawn_blocking(move || {
             let r = files::private_dir(&dir).and_then(|()| {
@@ -287,17 +311,18 @@ impl Ctx {
         .map_err(|e| SceneError::Unavailable(e.to_string()))?;
         if let Err(e) = saved {
             // Rendering goes on; only the next fetch is not saved.
-            warn!("caching {hash} in {}: {e}", self.config.cache_dir.display());
+            warn!("caching {hash} in {}: {e}", session.config.cache_dir.display());
         }
         Ok(bytes)
     }
 
-    pub(crate) async fn fetch_asset(&self, hash: &str) -> Result<Vec<u8>, Status> {
+    async fn fetch_asset(&self, session: &Session, hash: &str) -> Result<Vec<u8>, Status> {
         let req = pb::FetchAssetRequest {
             sha256: hash.to_string(),
             offset: 0,
+            worker_id: session.id(),
         };
-        let mut stream = self.client.clone().fetch_asset(req).await?.into_inner();
+        let mut stream = session.client.clone().fetch_asset(req).await?.into_inner();
         let mut bytes = Vec::new();
         while let Some(chunk) = stream.message().await? {
             if chunk.offset != bytes.len() as u64 || chunk.total_size > MAX_ASSET_BYTES {
@@ -313,15 +338,16 @@ impl Ctx {
         Ok(bytes)
     }
 
-    pub(crate) async fn fetch_text(&self, hash: &str) -> Result<pb::GetSceneResponse, SceneError> {
+    async fn fetch_text(&self, session: &Session, hash: &str) -> Result<pb::GetSceneResponse, SceneError> {
         let mut attempt = 0;
         loop {
             let req = pb::GetSceneRequest {
                 scene_hash: hash.to_string(),
+                worker_id: session.id(),
             };
-            match self.client.clone().get_scene(req).await {
+            match session.client.clone().get_scene(req).await {
                 Ok(r) => return Ok(r.into_inner()),
-                Err(e) if transient(&e) && self.backoff(&mut attempt).await => continue,
+                Err(e) if transient(&e) && session.backoff(&mut attempt).await => continue,
                 Err(e) => return Err(SceneError::Unavailable(e.message().to_string())),
             }
         }

@@ -119,6 +119,14 @@ pub struct CoordinatorArgs {
     /// oldest go first.
     #[arg(long, value_name = "SIZE", default_value = "256M", value_parser = crate::args::memory_size)]
     max_log_bytes: u64,
+    /// Seconds an ended job (done, failed or cancelled) stays listed and known by its id
+    /// (status, logs, fetch, retry); its output files stay where they were written.
+    #[arg(long, default_value_t = config::DEFAULT_JOB_RETENTION.as_secs_f64())]
+    job_retention: f64,
+    /// Most ended jobs kept in all (a frame range counts its frames); past it the oldest are
+    /// forgotten first.
+    #[arg(long, default_value_t = config::DEFAULT_MAX_ENDED_JOBS as u32, value_parser = clap::value_parser!(u32).range(1..))]
+    max_ended_jobs: u32,
     /// Most units one worker may hold at once (a stock worker holds at most 3).
     #[arg(long, default_value_t = config::DEFAULT_MAX_LEASES_PER_WORKER as u32, value_parser = clap::value_parser!(u32).range(1..=4096))]
     max_leases_per_worker: u32,
@@ -184,31 +192,6 @@ pub struct WorkerArgs {
 
 /// Runs `tessera coordinator`.
 pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
-    if !(args.lease_timeout.is_finite() && (0.1..=86_400.0).contains(&args.lease_timeout)) {
-        bail!(
-            "--lease-timeout must be between 0.1 and 86400 seconds, got {}",
-            args.lease_timeout
-        );
-    }
-    if !(args.checkpoint_interval.is_finite() && (0.0..=3600.0).contains(&args.checkpoint_interval))
-    {
-        bail!(
-            "--checkpoint-interval must be between 0 and 3600 seconds, got {}",
-            args.checkpoint_interval
-        );
-    }
-    if !(args.asset_retention.is_finite() && (0.0..=1e9).contains(&args.asset_retention)) {
-        bail!(
-            "--asset-retention must be between 0 and 1e9 seconds, got {}",
-            args.asset_retention
-        );
-    }
-    if !(args.retry_window.is_finite() && (0.0..=1e9).contains(&args.retry_window)) {
-        bail!(
-            "--retry-window must be between 0 and 1e9 seconds, got {}",
-            args.retry_window
-        );
-    }
     if !(args.audit.is_finite() && (0.0..=1.0).contains(&args.audit)) {
         bail!(
             "--audit must be a fraction between 0 and 1, got {}",
@@ -220,8 +203,9 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
     let mut config = tessera_coordinator::Config::new(&args.data_dir);
     config.audit = args.audit;
     config.output_dir = args.output_dir;
-    config.lease_timeout = Duration::from_secs_f64(args.lease_timeout);
-    config.checkpoint_interval = Duration::from_secs_f64(args.checkpoint_interval);
+    config.lease_timeout = seconds("--lease-timeout", args.lease_timeout, 0.1..=86_400.0)?;
+    config.checkpoint_interval =
+        seconds("--checkpoint-interval", args.checkpoint_interval, 0.0..=3600.0)?;
     config.default_tile_size = args.tile_size;
     config.limits.max_bytes = args.max_scene_bytes;
     config.limits.max_spp = args.max_spp;
@@ -229,7 +213,7 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
     config.asset_store_bytes = args.asset_store_bytes;
     config.evict_open_over = args.evict_open_over;
     config.max_unstored_bytes = args.max_unstored_bytes;
-    config.asset_retention = Duration::from_secs_f64(args.asset_retention);
+    config.asset_retention = seconds("--asset-retention", args.asset_retention, 0.0..=1e9)?;
     config.limits.max_resolution = args.max_resolution;
     config.max_message_bytes = config
         .max_message_bytes
@@ -238,19 +222,15 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
     config.blocklist_after = args.blocklist_after;
     config.fail_frame_after = args.fail_frame_after;
     config.fail_unit_after_lapses = args.fail_unit_after_lapses;
-    config.retry_window = Duration::from_secs_f64(args.retry_window);
+    config.retry_window = seconds("--retry-window", args.retry_window, 0.0..=1e9)?;
     config.http_hosts = args
         .http_hosts
         .iter()
         .map(|h| h.to_ascii_lowercase())
         .collect();
-    if !(args.log_retention.is_finite() && (0.0..=1e9).contains(&args.log_retention)) {
-        bail!(
-            "--log-retention must be between 0 and 1e9 seconds, got {}",
-            args.log_retention
-        );
-    }
-    config.log_retention = Duration::from_secs_f64(args.log_retention);
+    config.log_retention = seconds("--log-retention", args.log_retention, 0.0..=1e9)?;
+    config.job_retention = seconds("--job-retention", args.job_retention, 0.0..=1e9)?;
+    config.max_ended_jobs = args.max_ended_jobs as usize;
     config.max_log_bytes = args.max_log_bytes;
     config.max_leases_per_worker = args.max_leases_per_worker as usize;
     config.max_connections = args.max_connections as usize;
@@ -374,4 +354,24 @@ pub fn worker(args: WorkerArgs) -> Result<()> {
     };
     runtime()?.block_on(tessera_worker::run(config, shutdown_signal()))?;
     Ok(())
+}
+
+/// A flag's seconds as a duration, refused (naming the flag and the range) outside `range`
+/// or when not finite: `Duration::from_secs_f64` would panic on a negative or NaN.
+fn seconds(flag: &str, v: f64, range: std::ops::RangeInclusive<f64>) -> Result<Duration> {
+    if !(v.is_finite() && range.contains(&v)) {
+        let show = |x: f64| {
+            if x >= 1e6 {
+                format!("{x:e}")
+            } else {
+                x.to_string()
+            }
+        };
+        bail!(
+            "{flag} must be between {} and {} seconds, got {v}",
+            show(*range.start()),
+            show(*range.end())
+        );
+    }
+    Ok(Duration::from_secs_f64(v))
 }

@@ -12,6 +12,7 @@
 
 mod api;
 mod intake;
+mod openapi;
 mod preview;
 mod sessions;
 
@@ -194,7 +195,7 @@ fn router(app: App) -> Router {
         .route("/workers", get(page))
         .route("/static/app.js", get(app_js))
         .route("/static/style.css", get(style_css))
-        .route("/api/openapi.json", get(api::openapi))
+        .route("/api/openapi.json", get(openapi::openapi))
         .route("/api/jobs", get(api::list_jobs).post(intake::submit))
         .route("/api/jobs/{id}", get(api::job))
         .route("/api/jobs/{id}/cancel", post(api::cancel))

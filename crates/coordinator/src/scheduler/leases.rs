@@ -6,11 +6,11 @@
 //! Lease ids carry the boot's epoch, so a lease from before a restart is stale rather than
 //! confused with a new lease of the same number.
 
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::time::Instant;
 
 use tessera_proto::ids::{JobId, LeaseId};
 
-use super::pick::requeue;
 use super::Scheduler;
 use crate::error::Refusal;
 use crate::job::{Job, Unit};
@@ -33,6 +33,27 @@ pub struct Lease {
     /// False once lapsed or handed back: the unit is back in the queue, but a late result
     /// quoting this lease is still merged (once) if the unit is not done by then.
     pub active: bool,
+}
+
+/// Whether unit `u` of `job` has a live lease.
+pub(super) fn has_active_lease(job: &Job, u: Unit, leases: &HashMap<u64, Lease>) -> bool {
+    job.issued
+        .get(&u)
+        .is_some_and(|ids| ids.iter().any(|l| leases.get(l).is_some_and(|x| x.active)))
+}
+
+/// Puts the unit of `lease` back at the front of its job's queue, if the job still needs it:
+/// a lease that lapsed, was handed back, or was taken from a quarantined worker. Returns
+/// whether the unit went back.
+pub(super) fn requeue(jobs: &mut BTreeMap<JobId, Job>, lease: &mut Lease) -> bool {
+    lease.active = false;
+    match jobs.get_mut(&lease.job) {
+        Some(job) if job.is_live() && !job.is_done(lease.unit) => {
+            job.requeue.push_front(lease.unit);
+            true
+        }
+        _ => false,
+    }
 }
 
 impl Scheduler {
@@ -141,6 +162,29 @@ impl Scheduler {
             .values()
             .filter(|l| l.worker == w && l.active)
             .count()
+    }
+
+    /// The live jobs of which worker `w` holds a lease (live, or lapsed but not yet
+    /// forgotten), in id order: what a worker may read of the farm's scenes, files and guides.
+    /// A worker token is not a pass to every user's files.
+    pub fn jobs_leased_by(&self, w: u64) -> Vec<&Job> {
+        let ids: BTreeSet<JobId> = self
+            .leases
+            .values()
+            .filter(|l| l.worker == w)
+            .map(|l| l.job)
+            .collect();
+        ids.into_iter()
+            .filter_map(|id| self.jobs.get(&id))
+            .filter(|j| j.is_live())
+            .collect()
+    }
+
+    /// The encoding of guide `hash` of a live guided job of which worker `w` holds a lease.
+    pub fn guide_leased_by(&self, w: u64, hash: &str) -> Option<std::sync::Arc<Vec<u8>>> {
+        self.jobs_leased_by(w)
+            .into_iter()
+            .find_map(|j| j.guiding.as_ref()?.by_hash(hash))
     }
 
     /// Live leases of a job's units.

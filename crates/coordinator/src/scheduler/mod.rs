@@ -27,6 +27,7 @@ mod audit;
 mod control;
 mod failures;
 mod fit;
+mod forget;
 mod leases;
 mod logs;
 mod pick;
@@ -43,8 +44,8 @@ use tessera_render::{PixelRect, RenderSettings, TileSums};
 
 use crate::config::{
     DEFAULT_BLOCKLIST_AFTER, DEFAULT_EVICT_OPEN_OVER, DEFAULT_FAIL_FRAME_AFTER,
-    DEFAULT_FAIL_UNIT_AFTER_LAPSES, DEFAULT_LOG_RETENTION, DEFAULT_MAX_LEASES_PER_WORKER,
-    DEFAULT_MAX_LOG_BYTES, DEFAULT_MAX_UNSTORED_BYTES, DEFAULT_MAX_WORKERS_PER_HOST,
+    DEFAULT_FAIL_UNIT_AFTER_LAPSES, DEFAULT_JOB_RETENTION, DEFAULT_LOG_RETENTION, DEFAULT_MAX_LEASES_PER_WORKER,
+    DEFAULT_MAX_ENDED_JOBS, DEFAULT_MAX_LOG_BYTES, DEFAULT_MAX_UNSTORED_BYTES, DEFAULT_MAX_WORKERS_PER_HOST,
     DEFAULT_QUARANTINE_AFTER, DEFAULT_RETRY_WINDOW,
 };
 use crate::error::Refusal;
@@ -129,6 +130,10 @@ pub struct Policy {
     pub log_retention: Duration,
     /// Most bytes of ended jobs' logs kept in all: past it the oldest go first.
     pub max_log_bytes: u64,
+    /// How long an ended job's record is kept ([`Scheduler::sweep_jobs`]).
+    pub job_retention: Duration,
+    /// Most ended jobs kept in all: past it the oldest go first.
+    pub max_ended_jobs: usize,
 }
 
 impl Policy {
@@ -149,6 +154,8 @@ impl Policy {
             max_leases_per_user: 0,
             log_retention: DEFAULT_LOG_RETENTION,
             max_log_bytes: DEFAULT_MAX_LOG_BYTES,
+            job_retention: DEFAULT_JOB_RETENTION,
+            max_ended_jobs: DEFAULT_MAX_ENDED_JOBS,
         }
     }
 }
@@ -309,14 +316,6 @@ impl Scheduler {
     /// Every worker registered in this boot, by number.
     pub fn workers(&self) -> impl Iterator<Item = (u64, &Worker)> {
         self.workers.iter().map(|(&n, w)| (n, w))
-    }
-
-    /// The encoding of a live guided job's guide named by SHA-256 `hash`, if one has it.
-    pub fn guide(&self, hash: &str) -> Option<std::sync::Arc<Vec<u8>>> {
-        self.jobs
-            .values()
-            .filter(|j| j.is_live())
-            .find_map(|j| j.guiding.as_ref()?.by_hash(hash))
     }
 
     /// Leases live now.

@@ -121,7 +121,7 @@ impl Jobs for Service {
                 store: &assets,
                 names,
             };
-            let r = Scene::from_str_with(&text, format, &name, &limits, shot, &files);
+            let r = Scene::check_with(&text, format, &name, &limits, shot, &files);
             gauge.0.fetch_sub(1, Ordering::SeqCst);
             (r, text, name)
         })
@@ -149,7 +149,7 @@ impl Jobs for Service {
             require: req.require,
             min_memory: req.min_memory_bytes,
             progressive: req.progressive,
-            guide_bounds: tessera_render::guided::guide_bounds(&scene),
+            guide_bounds: scene.bounds,
             submitter: caller.user.clone(),
         };
         let bounds = AdmissionLimits {

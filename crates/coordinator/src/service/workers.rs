@@ -1,9 +1,10 @@
 //! `tessera.v1.Workers`: what workers call (register, lease, heartbeat, results, hand-backs,
 //! and the scenes and files they render from).
 
+use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
 
-use tessera_proto::ids::LeaseId;
+use tessera_proto::ids::{LeaseId, WorkerCredential};
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::workers_server::Workers;
 use tessera_render::guide::SdTree;
@@ -421,7 +422,20 @@ impl Workers for Service {
         &self,
         request: Request<pb::GetSceneRequest>,
     ) -> Result<Response<pb::GetSceneResponse>, Status> {
-        let hash = request.into_inner().scene_hash;
+        let req = request.into_inner();
+        let cred = credential(&req.worker_id)?;
+        let hash = req.scene_hash;
+        {
+            let mut core = self.shared.scheduler();
+            let w = core.touch_worker(&cred, Instant::now())?;
+            if !core
+                .jobs_leased_by(w)
+                .iter()
+                .any(|j| j.rec.scene_hash == hash)
+            {
+                return Err(not_leased(&cred, "scene", &hash));
+            }
+        }
         let store = self.shared.store.clone();
         let h = hash.clone();
         let scene = tokio::task::spawn_blocking(move || store.scene(&h))
@@ -452,8 +466,22 @@ impl Workers for Service {
         request: Request<pb::FetchAssetRequest>,
     ) -> Result<Response<Self::FetchAssetStream>, Status> {
         let req = request.into_inner();
-        // A guided job's guide, held in memory by its job (and in the store).
-        let guide = self.shared.scheduler().guide(&req.sha256);
+        let cred = credential(&req.worker_id)?;
+        let (guide, scenes) = {
+            let mut core = self.shared.scheduler();
+            let w = core.touch_worker(&cred, Instant::now())?;
+            // A guided job's guide, held in memory by its job (and in the store).
+            let guide = core.guide_leased_by(w, &req.sha256);
+            let scenes: BTreeSet<String> = core
+                .jobs_leased_by(w)
+                .iter()
+                .map(|j| j.rec.scene_hash.clone())
+                .collect();
+            (guide, scenes)
+        };
+        if guide.is_none() && !self.scenes_name(scenes, &req.sha256).await? {
+            return Err(not_leased(&cred, "file", &req.sha256));
+        }
         if let Some(bytes) = guide {
             let total = bytes.len() as u64;
             let chunks: Vec<Result<pb::AssetChunk, Status>> = (req.offset.min(total)..total)
@@ -506,4 +534,37 @@ impl Workers for Service {
         });
         Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
     }
+}
+
+impl Service {
+    /// Whether one of the stored scenes `scenes` names file `sha256`.
+    async fn scenes_name(&self, scenes: BTreeSet<String>, sha256: &str) -> Result<bool, Status> {
+        let store = self.shared.store.clone();
+        let sha = sha256.to_string();
+        tokio::task::spawn_blocking(move || {
+            for hash in scenes {
+                if let Some(scene) = store.scene(&hash)? {
+                    if scene.assets.iter().any(|(_, h)| *h == sha) {
+                        return Ok(true);
+                    }
+                }
+            }
+            Ok(false)
+        })
+        .await
+        .map_err(|e| Status::internal(e.to_string()))?
+        .map_err(|e: crate::store::StoreError| {
+            Status::internal(format!("coordinator state store: {e}"))
+        })
+    }
+}
+
+/// The refusal of a worker that asks for a scene or file of no job it renders.
+fn not_leased(cred: &WorkerCredential, what: &str, hash: &str) -> Status {
+    Status::permission_denied(format!(
+        "worker {} holds no lease of a live job that reads {what} {}: a worker reads the \
+         scenes and files of the jobs it renders only",
+        cred.id,
+        truncate(hash)
+    ))
 }

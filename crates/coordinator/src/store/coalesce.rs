@@ -29,6 +29,7 @@ impl Key {
     fn of(op: &Op) -> Option<Self> {
         match op {
             Op::PutJob(r) => Some(Key::Job(r.id)),
+            Op::DropJob(j) => Some(Key::Job(*j)),
             Op::PutTile(j, t, _) | Op::DelTile(j, t) => Some(Key::Tile(*j, *t)),
             Op::PutPending(j, t, b, _) | Op::DelPending(j, t, b) => Some(Key::Pending(*j, *t, *b)),
             Op::PutUnit(j, t, b, _, _) => Some(Key::Unit(*j, *t, *b)),

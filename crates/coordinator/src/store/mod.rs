@@ -618,6 +618,9 @@ impl Store {
                     Op::DropLog(job) => {
                         logs.remove(*job).map_err(dberr)?;
                     }
+                    Op::DropJob(job) => {
+                        jobs.remove(*job).map_err(dberr)?;
+                    }
                     Op::PutGuide(job, e, bytes) => {
                         guides
                             .insert((*job, *e), seal(&guide_key(*job, *e), bytes).as_slice())

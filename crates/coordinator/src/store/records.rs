@@ -255,6 +255,9 @@ pub enum Op {
     PutLog(u64, Vec<u8>),
     /// Forget a job's log (its retention has passed).
     DropLog(u64),
+    /// Forget an ended job's record (its retention has passed; its sums and log are dropped
+    /// by their own ops).
+    DropJob(u64),
     /// Write a guided job's tree of one epoch (table `guides`): the guide it trained once the
     /// epoch is done, or its training tree as merged so far.
     PutGuide(u64, u32, Vec<u8>),
@@ -286,7 +289,8 @@ impl Op {
             | Op::DelTile(..)
             | Op::DropSums(_)
             | Op::DropScene(_)
-            | Op::DropLog(_) => 0,
+            | Op::DropLog(_)
+            | Op::DropJob(_) => 0,
         }
     }
 }

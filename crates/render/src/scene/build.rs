@@ -13,7 +13,7 @@ use super::check::{
 };
 use super::files::SceneFiles;
 use super::gltf::{GltfCamera, MaterialTables};
-use super::lights::{environment, punctual_lights, reach};
+use super::lights::{environment, punctual_lights, reach, PendingEnvironment};
 use super::materials::{build_materials, BuiltMaterials};
 use super::{
     CameraModel, KeyPath, Limits, Material, ObjectDesc, Primitive, Scene, SceneFile, ShapeKind,
@@ -25,13 +25,39 @@ use crate::light::{Light, LightShape, Lights, MeshLight};
 use crate::mesh::MeshInstance;
 use crate::shape::{Shape, Transformed};
 
-/// The runtime scene for a parsed file, or the first thing wrong with it; with it, the files
-/// the scene read (name and SHA-256).
-pub(super) fn build(
+/// A scene every check has passed, its images read and their headers checked but not decoded
+/// and its BVH not built: what a coordinator needs to admit a job (the pixels and the BVH are
+/// the workers' cost, and an 8192² texture would cost the coordinator a gigabyte), and the
+/// first half of every build ([`Assembled::finish`] is the second).
+pub(super) struct Assembled {
+    camera: Camera,
+    width: u32,
+    height: u32,
+    prims: Vec<Primitive>,
+    materials: Vec<Material>,
+    absorption: Vec<Vec3A>,
+    plastics: Vec<crate::bsdf::Plastic>,
+    pbrs: Vec<PbrMaterial>,
+    lights: Vec<Light>,
+    alpha_tests: Vec<(u32, super::AlphaTest)>,
+    /// Mesh lights whose emission is a texture: (light, texture, the light triangles'
+    /// texture coordinates), given their textures once decoded.
+    textured_lights: Vec<(u32, u32, Vec<[glam::Vec2; 3]>)>,
+    environment: PendingEnvironment,
+    /// How far the scene reaches (where distant lights sit).
+    reach: f32,
+    files: SceneFiles,
+    max_depth: Option<u32>,
+    warnings: Vec<String>,
+}
+
+/// Every check of a scene that needs no pixel: the film, camera, materials (textures read and
+/// their headers checked), objects, lights and environment.
+pub(super) fn assemble(
     desc: &SceneFile,
     limits: &Limits,
     assets: &dyn Assets,
-) -> Result<(Scene, Vec<(String, String)>), Invalid> {
+) -> Result<Assembled, Invalid> {
     if desc.version != 1 {
         return Err((
             root("version"),
@@ -49,14 +75,56 @@ pub(super) fn build(
     };
     let mut files = SceneFiles::default();
     let environment = environment(desc, &mut files, limits, assets)?;
-    let BuiltMaterials {
-        mut materials,
-        mut absorption,
-        plastics,
-        mut pbrs,
-        names,
-        mut emissive,
-    } = build_materials(desc, &mut files, limits, assets)?;
+    let mut built = build_materials(desc, &mut files, limits, assets)?;
+    let mut objects = build_objects(desc, &mut built, &mut files, limits, assets)?;
+    let reach = reach(&objects.prims);
+    punctual_lights(desc, reach, &mut objects.lights)?;
+    super::lights::gltf_lights(&objects.gltf_lights, reach, &mut objects.lights)?;
+    let camera = match camera {
+        Some(c) => c,
+        None => gltf_camera(desc, &objects.cameras, &objects.prims, w, h)?,
+    };
+    Ok(Assembled {
+        camera,
+        width: w,
+        height: h,
+        prims: objects.prims,
+        materials: built.materials,
+        absorption: built.absorption,
+        plastics: built.plastics,
+        pbrs: built.pbrs,
+        lights: objects.lights,
+        alpha_tests: objects.alpha_tests,
+        textured_lights: objects.textured_lights,
+        environment,
+        reach,
+        files,
+        max_depth: desc.render.max_depth,
+        warnings: objects.warnings,
+    })
+}
+
+/// What the objects of a scene give: shapes with their materials, the lights their emissive
+/// materials make, and what glTF files bring (lights, cameras, alpha tests, warnings).
+struct Objects {
+    prims: Vec<Primitive>,
+    lights: Vec<Light>,
+    gltf_lights: Vec<(KeyPath, String, super::gltf::GltfLight)>,
+    cameras: Vec<(KeyPath, GltfCamera)>,
+    warnings: Vec<String>,
+    alpha_tests: Vec<(u32, super::AlphaTest)>,
+    textured_lights: Vec<(u32, u32, Vec<[glam::Vec2; 3]>)>,
+}
+
+/// The scene's objects, each a shape, a mesh file or a glTF file (whose materials join
+/// `built`'s).
+fn build_objects(
+    desc: &SceneFile,
+    built: &mut BuiltMaterials,
+    files: &mut SceneFiles,
+    limits: &Limits,
+    assets: &dyn Assets,
+) -> Result<Objects, Invalid> {
     if desc.objects.len() > limits.max_objects {
         return Err((
             root("objects"),
@@ -69,33 +137,35 @@ pub(super) fn build(
     }
     let n = desc.objects.len();
     files.take_instances(n, n, limits, &root("objects"))?;
-    let mut prims = Vec::with_capacity(desc.objects.len());
-    let mut lights = Vec::new();
-    let (mut gltf_lights, mut cameras, mut warnings) = (Vec::new(), Vec::new(), Vec::new());
-    let mut alpha_tests = Vec::new();
-    // Emission textures (material, texture), the scene's and then glTF materials', and the
-    // mesh lights that take them once the textures are decoded (light, texture, the light
-    // triangles' coordinates).
-    let mut textured_lights = Vec::new();
+    let mut out = Objects {
+        prims: Vec::with_capacity(n),
+        lights: Vec::new(),
+        gltf_lights: Vec::new(),
+        cameras: Vec::new(),
+        warnings: Vec::new(),
+        alpha_tests: Vec::new(),
+        textured_lights: Vec::new(),
+    };
     for (i, o) in desc.objects.iter().enumerate() {
         let op = root("objects").index(i);
         let parts = if o.shape == ShapeKind::Gltf {
             let mut tables = MaterialTables {
-                materials: &mut materials,
-                absorption: &mut absorption,
-                pbrs: &mut pbrs,
-                alpha: &mut alpha_tests,
-                emissive: &mut emissive,
+                materials: &mut built.materials,
+                absorption: &mut built.absorption,
+                pbrs: &mut built.pbrs,
+                alpha: &mut out.alpha_tests,
+                emissive: &mut built.emissive,
             };
-            let file = build_gltf(o, &op, &names, &mut tables, &mut files, limits, assets)?;
+            let file = build_gltf(o, &op, &built.names, &mut tables, files, limits, assets)?;
             let name = o.file.clone().unwrap_or_default();
-            gltf_lights.extend(
+            out.gltf_lights.extend(
                 file.lights
                     .into_iter()
                     .map(|l| (op.key("file"), name.clone(), l)),
             );
-            cameras.extend(file.cameras.into_iter().map(|c| (op.key("file"), c)));
-            warnings.extend(file.warnings);
+            out.cameras
+                .extend(file.cameras.into_iter().map(|c| (op.key("file"), c)));
+            out.warnings.extend(file.warnings);
             file.parts
         } else {
             let kind = if o.shape == ShapeKind::Mesh {
@@ -104,112 +174,143 @@ pub(super) fn build(
                 "a shape"
             };
             let name = required(o.material.as_deref(), &op, kind, "material")?;
-            let material = material_index(&names, name, &op.key("material"))?;
+            let material = material_index(&built.names, name, &op.key("material"))?;
             if o.shape == ShapeKind::Mesh {
-                build_mesh(o, &op, material, &names, &mut files, limits, assets)?
+                build_mesh(o, &op, material, &built.names, files, limits, assets)?
             } else {
-                let emits = materials[material as usize].emission.max_element() > 0.0;
+                let emits = built.materials[material as usize].emission.max_element() > 0.0;
                 vec![(build_shape(o, &op, emits)?, material)]
             }
         };
-        for (shape, m) in &parts {
-            let emits_texture = emissive.iter().any(|(e, _)| e == m);
-            check_texture_coordinates(
-                shape,
-                &materials[*m as usize],
-                &pbrs,
-                emits_texture,
-                o,
-                &op,
-            )?;
-        }
         for (shape, material) in parts {
-            let bounds = shape.bounds();
-            if o.shape != ShapeKind::Plane && !bounds.is_finite() {
-                return Err((
-                    op.clone(),
-                    "object is too large: its bounds overflow f32".into(),
-                ));
-            }
-            let mat = &materials[material as usize];
-            let light = if mat.emission.max_element() > 0.0 {
-                add_lights(&shape, mat, &mut lights)
-            } else {
-                u32::MAX
-            };
-            if let (Some(&(_, t)), Shape::Mesh(m)) =
-                (emissive.iter().find(|(e, _)| *e == material), &shape)
-            {
-                if light != u32::MAX {
-                    textured_lights.push((light, t, m.light_uvs()));
-                }
-            }
-            let light_stride = u32::from(matches!(shape, Shape::Cuboid { .. }));
-            prims.push(Primitive {
-                shape,
-                material,
-                light,
-                light_stride,
-            });
+            place(shape, material, o, &op, built, &mut out)?;
         }
     }
-    let textures = files.decode_textures()?;
-    for (light, t, uvs) in textured_lights {
-        let texture = Arc::clone(&textures[t as usize]);
-        let mean = texture.mean();
-        lights[light as usize].texture = Some(Arc::new(crate::light::EmissionTexture {
-            texture,
-            uvs,
-            mean,
-        }));
-    }
-    let accel = Accel::build(&prims);
-    let reach = reach(&prims);
-    punctual_lights(desc, reach, &mut lights)?;
-    super::lights::gltf_lights(&gltf_lights, reach, &mut lights)?;
-    let camera = match camera {
-        Some(c) => c,
-        None => gltf_camera(desc, &cameras, &prims, w, h)?,
-    };
-    let environment = environment.finish(reach, &mut lights)?;
-    // A normal map bends shading normals too.
-    let shading_normals = prims
+    Ok(out)
+}
+
+/// Adds one shape of object `o` to the scene, with the lights its material makes.
+fn place(
+    shape: Shape,
+    material: u32,
+    o: &ObjectDesc,
+    op: &KeyPath,
+    built: &BuiltMaterials,
+    out: &mut Objects,
+) -> Result<(), Invalid> {
+    let emission_texture = built
+        .emissive
         .iter()
-        .any(|p| matches!(&p.shape, Shape::Mesh(m) if m.smooth && m.mesh.has_normals()))
-        || pbrs.iter().any(|p| p.normal_map.is_some());
-    let absorption = if absorption.iter().any(|a| *a != Vec3A::ZERO) {
-        absorption
+        .find(|(e, _)| *e == material)
+        .map(|&(_, t)| t);
+    let mat = &built.materials[material as usize];
+    check_texture_coordinates(
+        &shape,
+        mat,
+        &built.pbrs,
+        emission_texture.is_some(),
+        o,
+        op,
+    )?;
+    if o.shape != ShapeKind::Plane && !shape.bounds().is_finite() {
+        return Err((
+            op.clone(),
+            "object is too large: its bounds overflow f32".into(),
+        ));
+    }
+    let light = if mat.emission.max_element() > 0.0 {
+        add_lights(&shape, mat, &mut out.lights)
     } else {
-        Vec::new()
+        u32::MAX
     };
-    let mut alpha = Vec::new();
-    if !alpha_tests.is_empty() {
-        alpha = vec![None; materials.len()];
-        for (i, a) in alpha_tests {
-            alpha[i as usize] = Some(a);
+    if let (Some(t), Shape::Mesh(m)) = (emission_texture, &shape) {
+        if light != u32::MAX {
+            out.textured_lights.push((light, t, m.light_uvs()));
         }
     }
-    let scene = Scene {
-        camera,
-        width: w,
-        height: h,
-        prims,
-        materials,
-        lights: Lights::new(lights),
-        environment,
-        max_depth: desc.render.max_depth,
-        hash: String::new(),
-        files: Vec::new(),
-        textures,
-        accel,
-        shading_normals,
-        absorption,
-        plastics,
-        pbrs,
-        alpha,
-        warnings,
-    };
-    Ok((scene, files.read))
+    let light_stride = u32::from(matches!(shape, Shape::Cuboid { .. }));
+    out.prims.push(Primitive {
+        shape,
+        material,
+        light,
+        light_stride,
+    });
+    Ok(())
+}
+
+impl Assembled {
+    /// The scene's film size.
+    pub(super) fn film(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    /// The scene's shapes.
+    pub(super) fn prims(&self) -> &[Primitive] {
+        &self.prims
+    }
+
+    /// The files read so far (name and SHA-256).
+    pub(super) fn files_read(&self) -> &[(String, String)] {
+        &self.files.read
+    }
+
+    /// The runtime scene: the images decoded (each within the process's decode budget), the
+    /// emission textures given to their lights, the environment map made a light, the BVH
+    /// built.
+    pub(super) fn finish(mut self) -> Result<(Scene, Vec<(String, String)>), Invalid> {
+        let textures = self.files.decode_textures()?;
+        for (light, t, uvs) in self.textured_lights {
+            let texture = Arc::clone(&textures[t as usize]);
+            let mean = texture.mean();
+            self.lights[light as usize].texture =
+                Some(Arc::new(crate::light::EmissionTexture {
+                    texture,
+                    uvs,
+                    mean,
+                }));
+        }
+        let accel = Accel::build(&self.prims);
+        let environment = self.environment.finish(self.reach, &mut self.lights)?;
+        // A normal map bends shading normals too.
+        let shading_normals = self
+            .prims
+            .iter()
+            .any(|p| matches!(&p.shape, Shape::Mesh(m) if m.smooth && m.mesh.has_normals()))
+            || self.pbrs.iter().any(|p| p.normal_map.is_some());
+        let absorption = if self.absorption.iter().any(|a| *a != Vec3A::ZERO) {
+            self.absorption
+        } else {
+            Vec::new()
+        };
+        let mut alpha = Vec::new();
+        if !self.alpha_tests.is_empty() {
+            alpha = vec![None; self.materials.len()];
+            for (i, a) in self.alpha_tests {
+                alpha[i as usize] = Some(a);
+            }
+        }
+        let scene = Scene {
+            camera: self.camera,
+            width: self.width,
+            height: self.height,
+            prims: self.prims,
+            materials: self.materials,
+            lights: Lights::new(self.lights),
+            environment,
+            max_depth: self.max_depth,
+            hash: String::new(),
+            files: Vec::new(),
+            textures,
+            accel,
+            shading_normals,
+            absorption,
+            plastics: self.plastics,
+            pbrs: self.pbrs,
+            alpha,
+            warnings: self.warnings,
+        };
+        Ok((scene, self.files.read))
+    }
 }
 
 /// A textured material needs texture coordinates, which only meshes whose files give them

@@ -19,7 +19,6 @@ mod locate;
 mod materials;
 mod parse;
 
-use build::build;
 use parse::{at_start, hex, io_error, locate, parse};
 
 use std::fmt;
@@ -43,7 +42,7 @@ use crate::camera::Camera;
 use crate::light::Lights;
 pub use crate::primitive::Primitive;
 use crate::shape::Hit;
-use crate::util::math::Ray;
+use crate::util::math::{Aabb, Ray};
 
 /// Which syntax a scene is written in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -349,6 +348,68 @@ pub fn scene_source(
     Ok((text, Format::from_path(path)))
 }
 
+/// What a scene is, as [`Scene::check_with`] finds it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneCheck {
+    /// The scene's content address ([`Scene::hash`]).
+    pub hash: String,
+    /// Film width in pixels.
+    pub width: u32,
+    /// Film height in pixels.
+    pub height: u32,
+    /// The files the scene read ([`Scene::files`]).
+    pub files: Vec<(String, String)>,
+    /// The box around its bounded shapes ([`crate::guided::guide_bounds`]).
+    pub bounds: [[f32; 3]; 2],
+}
+
+/// The box around the bounded ones of `prims` (an infinite plane is left out).
+pub(crate) fn shape_bounds(prims: &[Primitive]) -> [[f32; 3]; 2] {
+    let b = prims.iter().fold(Aabb::EMPTY, |b, p| {
+        let o = p.shape.bounds();
+        if o.min.is_finite() && o.max.is_finite() {
+            Aabb {
+                min: b.min.min(o.min),
+                max: b.max.max(o.max),
+            }
+        } else {
+            b
+        }
+    });
+    [b.min.to_array(), b.max.to_array()]
+}
+
+/// A scene text parsed at `shot` and assembled: every check but those that need pixels.
+fn assemble_str(
+    text: &str,
+    format: Format,
+    file: &str,
+    limits: &Limits,
+    shot: Shot,
+    files: &dyn assets::Assets,
+) -> Result<build::Assembled, SceneError> {
+    if text.len() > limits.max_bytes {
+        return Err(at_start(
+            file,
+            format!(
+                "scene is {} bytes, above the limit of {}",
+                text.len(),
+                limits.max_bytes
+            ),
+        ));
+    }
+    let desc = parse(text, format, file)?;
+    animate::at_frame(&desc, f64::from(shot.frame))
+        .map(|mut desc| {
+            if let Some((width, height)) = shot.resolution {
+                desc.film = format::FilmDesc { width, height };
+            }
+            desc
+        })
+        .and_then(|desc| build::assemble(&desc, limits, files))
+        .map_err(|(path, message)| locate(text, format, file, &path, message))
+}
+
 impl Scene {
     /// [`Scene::from_str`] at `frame` of the scene's `[animation]` (a scene without one is
     /// the same at every frame).
@@ -371,30 +432,36 @@ impl Scene {
         shot: impl Into<Shot>,
         files: &dyn assets::Assets,
     ) -> Result<Self, SceneError> {
-        let shot = shot.into();
-        if text.len() > limits.max_bytes {
-            return Err(at_start(
-                file,
-                format!(
-                    "scene is {} bytes, above the limit of {}",
-                    text.len(),
-                    limits.max_bytes
-                ),
-            ));
-        }
-        let desc = parse(text, format, file)?;
-        let (mut scene, read) = animate::at_frame(&desc, f64::from(shot.frame))
-            .map(|mut desc| {
-                if let Some((width, height)) = shot.resolution {
-                    desc.film = format::FilmDesc { width, height };
-                }
-                desc
-            })
-            .and_then(|desc| build(&desc, limits, files))
+        let assembled = assemble_str(text, format, file, limits, shot.into(), files)?;
+        let (mut scene, read) = assembled
+            .finish()
             .map_err(|(path, message)| locate(text, format, file, &path, message))?;
         scene.hash = assets::scene_hash(text, &read);
         scene.files = read;
         Ok(scene)
+    }
+
+    /// What [`Scene::from_str_with`] would build, checked as it checks it but with no image
+    /// decoded and no BVH built: what a coordinator admits a job by, at a fraction of the
+    /// memory (an image's header gives its size; its pixels are the workers' to decode).
+    pub fn check_with(
+        text: &str,
+        format: Format,
+        file: &str,
+        limits: &Limits,
+        shot: impl Into<Shot>,
+        files: &dyn assets::Assets,
+    ) -> Result<SceneCheck, SceneError> {
+        let assembled = assemble_str(text, format, file, limits, shot.into(), files)?;
+        let (width, height) = assembled.film();
+        let read = assembled.files_read().to_vec();
+        Ok(SceneCheck {
+            hash: assets::scene_hash(text, &read),
+            width,
+            height,
+            files: read,
+            bounds: shape_bounds(assembled.prims()),
+        })
     }
 
     /// Closest hit along `ray` with t in (0, t_max).

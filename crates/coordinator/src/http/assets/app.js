@@ -73,6 +73,36 @@ async function retry(id, frame) {
   refresh();
 }
 
+async function setPaused(id, paused) {
+  try { await api(`/api/jobs/${id}/${paused ? "pause" : "resume"}`, { method: "POST" }); } catch (e) { alert(e.message); }
+  refresh();
+}
+
+async function setPriority(id, value) {
+  const priority = Number(value);
+  if (!Number.isInteger(priority)) { alert(`The priority must be a whole number, not ${JSON.stringify(value)}`); return; }
+  try {
+    await api(`/api/jobs/${id}/priority`, { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify({ priority }) });
+  } catch (e) { alert(e.message); }
+  refresh();
+}
+
+// The job page's controls for a job still to finish: pause or resume, and its priority. The
+// priority box is kept across refreshes (it is moved, not rebuilt), so what is being typed
+// into it stays.
+function liveControls(j) {
+  const pause = j.paused
+    ? el("button", { id: "resume", onclick: () => setPaused(j.job_id, false) }, "Resume")
+    : el("button", { id: "pause", onclick: () => setPaused(j.job_id, true) }, "Pause");
+  let box = document.getElementById("priority-input");
+  if (!box || box.dataset.job !== j.job_id) {
+    box = el("input", { id: "priority-input", type: "number", step: "1", value: String(j.priority), "data-job": j.job_id, "aria-label": "Priority" });
+    box.style.width = "5em";
+  }
+  const set = el("button", { id: "set-priority", onclick: () => setPriority(j.job_id, box.value) }, "Set priority");
+  return [pause, box, set];
+}
+
 // The job list's and job page's action for a job: Cancel while it runs, Retry once it failed.
 function jobAction(j) {
   if (live(j.state)) return el("button", { class: "danger", onclick: () => cancel(j.job_id) }, "Cancel");
@@ -182,6 +212,7 @@ function jobView(j) {
   if (j.checks.length > 0) stats.push(["Checks", el("ul", { class: "checks", id: "checks" }, ...j.checks.map((c) => el("li", { class: "flag", "data-code": c.code }, c.message)))]);
   const side = [el("dl", { class: "stats", id: "stats" }, ...stats.flatMap(([k, v]) => [el("dt", {}, k), el("dd", { id: "stat-" + k.toLowerCase().replace(/\W/g, "") }, v)]))];
   const actions = el("p", { class: "controls" });
+  if (live(j.state)) actions.append(...liveControls(j));
   actions.append(jobAction(j));
   if (j.state === "done" && j.frames.length === 0) actions.append(el("a", { id: "download", href: `/api/jobs/${j.job_id}/output.exr`, download: j.output }, "Download EXR"));
   side.push(actions);
@@ -237,11 +268,11 @@ async function loadLogs(id) {
 
 function workersView(ws) {
   const rows = ws.map((w) => el("tr", {},
-    el("td", {}, w.name, el("div", { class: "muted" }, w.worker_id)),
+    el("td", { class: "name", title: w.name }, w.name, el("div", { class: "muted" }, w.worker_id)),
     el("td", {}, w.host || "–"),
     el("td", { class: "num" }, w.cores),
     el("td", { class: "num" }, w.memory_bytes > 0 ? fmt.gib(w.memory_bytes) : "–"),
-    el("td", { class: "tags" }, w.tags.join(" ") || "–"),
+    el("td", { class: "tags", title: w.tags.join(" ") }, w.tags.join(" ") || "–"),
     el("td", {}, stateTag(w.state), w.convicted ? el("div", { class: "error" }, w.convicted) : ""),
     el("td", { class: "num" }, w.leases),
     el("td", { class: "num" }, fmt.count(w.units_done)),
@@ -255,9 +286,9 @@ function workersView(ws) {
   return [
     el("h1", {}, "Workers ", el("span", { class: "muted" }, `(${ws.filter((w) => w.state === "alive").length} alive)`)),
     ws.length === 0 ? el("p", { class: "muted" }, "No workers yet: tessera worker --coordinator URL") :
-    el("table", { id: "workers" },
+    el("div", { class: "scroll" }, el("table", { id: "workers" },
       el("thead", {}, el("tr", {}, ...["Worker", "Host", "Threads", "Memory", "Tags", "State", "Leases", "Units done", "Msamples/s", "Bad results", "Audits passed", "Last heartbeat", ""].map((h, i) => el("th", { class: [2, 3, 6, 7, 8, 9, 10].includes(i) ? "num" : "" }, h)))),
-      el("tbody", {}, ...rows)),
+      el("tbody", {}, ...rows))),
   ];
 }
 
