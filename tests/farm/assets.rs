@@ -416,7 +416,9 @@ async fn bad_uploads_are_refused_and_leave_nothing() {
         .await
         .expect("register");
     for h in [big.as_str(), "nope"] {
-        let e = fetch_asset(&mut workers, &id, h).await.expect_err("no file");
+        let e = fetch_asset(&mut workers, &id, h)
+            .await
+            .expect_err("no file");
         assert_eq!(e.code(), tonic::Code::PermissionDenied, "{e:?}");
     }
     // A job listing a file twice, or too many files.

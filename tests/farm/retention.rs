@@ -33,7 +33,10 @@ async fn ended_jobs_past_the_limit_are_forgotten_oldest_first() {
     let mut ids = Vec::new();
     for _ in 0..4 {
         let id = submit(&mut client, &text, 4, 2, 0).await;
-        assert_eq!(wait(&mut client, &id).await.state, pb::JobState::Done as i32);
+        assert_eq!(
+            wait(&mut client, &id).await.state,
+            pb::JobState::Done as i32
+        );
         ids.push(id);
     }
     let first_exr = coord.out.join(format!("{}.exr", ids[0]));

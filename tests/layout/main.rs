@@ -189,9 +189,17 @@ type ModPath = Vec<String>;
 fn module_path(rel: &Path) -> ModPath {
     let mut parts: Vec<String> = rel
         .components()
-        .map(|c| c.as_os_str().to_string_lossy().trim_end_matches(".rs").to_string())
+        .map(|c| {
+            c.as_os_str()
+                .to_string_lossy()
+                .trim_end_matches(".rs")
+                .to_string()
+        })
         .collect();
-    if matches!(parts.last().map(String::as_str), Some("mod" | "lib" | "main")) {
+    if matches!(
+        parts.last().map(String::as_str),
+        Some("mod" | "lib" | "main")
+    ) {
         parts.pop();
     }
     parts
@@ -372,13 +380,22 @@ fn no_folder_has_an_import_cycle_among_its_files() {
 fn a_planted_cycle_between_sibling_files_is_caught() {
     let files: Vec<(PathBuf, String)> = [
         ("lib.rs", "mod x; use crate::x::a;"),
-        ("x/mod.rs", "mod a; mod b; mod y; use self::a::T; use self::y::z;"),
-        ("x/a.rs", "use super::b::U;\nfn f() { super::super::x::Thing::new(); }"),
+        (
+            "x/mod.rs",
+            "mod a; mod b; mod y; use self::a::T; use self::y::z;",
+        ),
+        (
+            "x/a.rs",
+            "use super::b::U;\nfn f() { super::super::x::Thing::new(); }",
+        ),
         ("x/b.rs", "use crate::{x::{a::T, mod_item}, other};"),
         ("x/y/mod.rs", "mod p; mod q; mod z;"),
         ("x/y/p.rs", "use super::q::A;"),
         ("x/y/q.rs", "fn g() { crate::x::y::z::h(); }"),
-        ("x/y/z.rs", "use super::super::y::p::B;\n#[cfg(test)]\nmod tests { use super::q; }"),
+        (
+            "x/y/z.rs",
+            "use super::super::y::p::B;\n#[cfg(test)]\nmod tests { use super::q; }",
+        ),
     ]
     .iter()
     .map(|(p, t)| (PathBuf::from(p), t.to_string()))

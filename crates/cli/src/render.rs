@@ -122,7 +122,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
 
     let total = scene.width as u64 * scene.height as u64 * settings.spp as u64;
     let bar = ProgressBar::new(total);
-    bar.set_style(crate::terminal::progress_style("{percent:>3}% ETA {eta} {wide_msg}"));
+    bar.set_style(crate::terminal::progress_style(
+        "{percent:>3}% ETA {eta} {wide_msg}",
+    ));
     let done = AtomicU64::new(0);
     let start = Instant::now();
     let progress = |n| {

@@ -445,8 +445,16 @@ fn the_dashboard_fits_1280_px_and_a_cancelled_job_shows_no_broken_picture() {
     let _worker = Proc(
         Command::new(BIN)
             .args(["worker", "--coordinator", &grpc, "--threads", "1"])
-            .args(["--name", "render-node-0042.lighting.feature-film.studio.example"])
-            .args(["--tag", "pool=lighting-and-comp-farm", "--tag", "gpu-class=none"])
+            .args([
+                "--name",
+                "render-node-0042.lighting.feature-film.studio.example",
+            ])
+            .args([
+                "--tag",
+                "pool=lighting-and-comp-farm",
+                "--tag",
+                "gpu-class=none",
+            ])
             .args(["--tag", "site=building-7-floor-3"])
             .stdout(Stdio::null())
             .stderr(Stdio::null())
@@ -531,10 +539,7 @@ fn the_dashboard_fits_1280_px_and_a_cancelled_job_shows_no_broken_picture() {
     });
     let listed = tessera(&["status", &queued]);
     let words: Vec<&str> = listed.split_whitespace().collect();
-    assert!(
-        words.windows(2).any(|w| w == ["priority", "7"]),
-        "{listed}"
-    );
+    assert!(words.windows(2).any(|w| w == ["priority", "7"]), "{listed}");
 
     // The workers page fits 1280 px, its Drain button in view.
     cdp.navigate(&format!("{dash}/workers"));

@@ -71,6 +71,8 @@ pub enum Refusal {
     Exists(String),
     /// Not now, for a reason that passes by itself: the caller retries.
     Unavailable(String),
+    /// The coordinator failed inside (its store, a task of its own).
+    Internal(String),
 }
 
 impl From<Refusal> for Status {
@@ -84,6 +86,7 @@ impl From<Refusal> for Status {
             Refusal::Exhausted(m) => Status::resource_exhausted(m),
             Refusal::Exists(m) => Status::already_exists(m),
             Refusal::Unavailable(m) => Status::unavailable(m),
+            Refusal::Internal(m) => Status::internal(m),
         }
     }
 }

@@ -45,6 +45,43 @@ pub enum Bsdf {
     Pbr(u32),
 }
 
+impl Bsdf {
+    /// Whether a vertex on it samples lights (next-event estimation): every BSDF but the
+    /// delta ones (a mirror, smooth glass, a smooth metal), which no light sample can reach.
+    #[inline(always)]
+    pub fn samples_lights(&self) -> bool {
+        match self {
+            Bsdf::Diffuse(_) | Bsdf::RoughDielectric(_) | Bsdf::Plastic(_) | Bsdf::Pbr(_) => true,
+            Bsdf::Conductor(m) => !m.is_smooth(),
+            Bsdf::Mirror(_) | Bsdf::Dielectric(_) | Bsdf::ThinDielectric(_) => false,
+        }
+    }
+
+    /// Whether a vertex on it draws a choice number: glass's reflection or refraction, a
+    /// layered material's lobe.
+    #[inline(always)]
+    pub fn draws_choice(&self) -> bool {
+        matches!(
+            self,
+            Bsdf::Dielectric(_)
+                | Bsdf::RoughDielectric(_)
+                | Bsdf::ThinDielectric(_)
+                | Bsdf::Plastic(_)
+                | Bsdf::Pbr(_)
+        )
+    }
+
+    /// Whether its back side scatters though the material is not two-sided: glass has two
+    /// sides, and a pbr surface decides at its vertex (where it transmits, it has two).
+    #[inline(always)]
+    pub fn has_two_sides(&self) -> bool {
+        matches!(
+            self,
+            Bsdf::Dielectric(_) | Bsdf::RoughDielectric(_) | Bsdf::ThinDielectric(_) | Bsdf::Pbr(_)
+        )
+    }
+}
+
 /// A direction from the Lambertian lobe about the unit normal `n`, drawn with pdf cos θ/π from
 /// the square sample `u`, and that pdf. With f = ρ/π, the throughput update f·cos θ/pdf is
 /// exactly ρ, so callers multiply by the albedo alone.

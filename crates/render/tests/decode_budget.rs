@@ -138,7 +138,14 @@ fn a_scene_is_checked_without_decoding_its_textures() {
     let files = DirAssets(dir.path().to_path_buf());
     let limits = Limits::default();
     let check = |limits: &Limits| {
-        Scene::check_with(&text, Format::Toml, "scene.toml", limits, FIRST_FRAME, &files)
+        Scene::check_with(
+            &text,
+            Format::Toml,
+            "scene.toml",
+            limits,
+            FIRST_FRAME,
+            &files,
+        )
     };
     let budget = DecodeBudget::global();
     budget.set_total(1 << 20);

@@ -311,7 +311,10 @@ impl SceneCache {
         .map_err(|e| SceneError::Unavailable(e.to_string()))?;
         if let Err(e) = saved {
             // Rendering goes on; only the next fetch is not saved.
-            warn!("caching {hash} in {}: {e}", session.config.cache_dir.display());
+            warn!(
+                "caching {hash} in {}: {e}",
+                session.config.cache_dir.display()
+            );
         }
         Ok(bytes)
     }
@@ -338,7 +341,11 @@ impl SceneCache {
         Ok(bytes)
     }
 
-    async fn fetch_text(&self, session: &Session, hash: &str) -> Result<pb::GetSceneResponse, SceneError> {
+    async fn fetch_text(
+        &self,
+        session: &Session,
+        hash: &str,
+    ) -> Result<pb::GetSceneResponse, SceneError> {
         let mut attempt = 0;
         loop {
             let req = pb::GetSceneRequest {

@@ -143,7 +143,11 @@ async fn fetcher(ctx: Arc<Worker>, tx: mpsc::Sender<Ready>) {
             }
             Err(e) => {
                 if attempt == 0 || attempt % 10 == 0 {
-                    warn!("leasing from {}: {}", ctx.session.config.coordinator, e.message());
+                    warn!(
+                        "leasing from {}: {}",
+                        ctx.session.config.coordinator,
+                        e.message()
+                    );
                 }
                 if !ctx.session.backoff(&mut attempt).await {
                     return;
@@ -164,7 +168,11 @@ async fn fetcher(ctx: Arc<Worker>, tx: mpsc::Sender<Ready>) {
                 .as_ref()
                 .and_then(|s| s.resolution)
                 .map(|r| (r.width, r.height));
-            let prepared = match ctx.scenes.scene(&ctx.session, &unit.scene_hash, frame, resolution).await {
+            let prepared = match ctx
+                .scenes
+                .scene(&ctx.session, &unit.scene_hash, frame, resolution)
+                .await
+            {
                 Ok(scene) => prepare(&unit, &scene)
                     .map(|p| (scene, p))
                     .map_err(SceneError::Unrenderable),
@@ -172,7 +180,11 @@ async fn fetcher(ctx: Arc<Worker>, tx: mpsc::Sender<Ready>) {
             };
             let prepared = match prepared {
                 Ok((scene, (rect, settings))) if settings.guiding => {
-                    match ctx.guides.guided(&ctx.session, &ctx.scenes, &unit, &scene, &settings).await {
+                    match ctx
+                        .guides
+                        .guided(&ctx.session, &ctx.scenes, &unit, &scene, &settings)
+                        .await
+                    {
                         Ok(g) => Ok((scene, (rect, settings), Some(g))),
                         Err(e) => Err(e),
                     }
@@ -220,7 +232,9 @@ async fn fetcher(ctx: Arc<Worker>, tx: mpsc::Sender<Ready>) {
             };
             if let Err(unsent) = tx.send(ready).await {
                 // The renderer stopped taking units (shutdown): this one goes back at once.
-                ctx.session.release(vec![unsent.0.unit.lease_id], false).await;
+                ctx.session
+                    .release(vec![unsent.0.unit.lease_id], false)
+                    .await;
                 return;
             }
         }
@@ -249,7 +263,11 @@ const OVERLAP: usize = 2;
 pub const MAX_HELD_UNITS: usize = OVERLAP + 1;
 
 /// Renders queued units on the whole pool, [`OVERLAP`] at a time.
-async fn renderer(ctx: Arc<Worker>, mut rx: mpsc::Receiver<Ready>, tx: mpsc::UnboundedSender<Done>) {
+async fn renderer(
+    ctx: Arc<Worker>,
+    mut rx: mpsc::Receiver<Ready>,
+    tx: mpsc::UnboundedSender<Done>,
+) {
     let mut stop = ctx.session.stop.clone();
     let mut running: tokio::task::JoinSet<Done> = tokio::task::JoinSet::new();
     let mut open = true;

@@ -4,9 +4,9 @@
 //! share besides (scenes, guides, the render pool) is theirs ([`crate::pipeline::Worker`]).
 
 use std::collections::HashSet;
-use std::time::Duration;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Mutex, RwLock};
+use std::time::Duration;
 
 use tessera_proto::client::Bearer;
 use tessera_proto::v1 as pb;
@@ -78,7 +78,6 @@ impl Session {
         }
     }
 }
-
 
 pub(crate) fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
@@ -240,7 +239,12 @@ impl Session {
 
     /// Hands leases back; with a reason in `cannot_render`, their units are ones this worker
     /// will never be able to render, and the coordinator fails their jobs with it.
-    pub(crate) async fn hand_back(&self, leases: Vec<String>, goodbye: bool, cannot_render: String) {
+    pub(crate) async fn hand_back(
+        &self,
+        leases: Vec<String>,
+        goodbye: bool,
+        cannot_render: String,
+    ) {
         if leases.is_empty() && !goodbye {
             return;
         }

@@ -163,7 +163,9 @@ fn reference(
         // terminal, as in CI's logs).
         let bar =
             indicatif::ProgressBar::new(scene.width as u64 * scene.height as u64 * spp as u64);
-        bar.set_style(crate::terminal::progress_style("{percent:>3}% ETA {eta} {wide_msg}"));
+        bar.set_style(crate::terminal::progress_style(
+            "{percent:>3}% ETA {eta} {wide_msg}",
+        ));
         bar.set_message(format!("{name} reference"));
         let done = std::sync::atomic::AtomicU64::new(0);
         let img = pool

@@ -204,8 +204,11 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
     config.audit = args.audit;
     config.output_dir = args.output_dir;
     config.lease_timeout = seconds("--lease-timeout", args.lease_timeout, 0.1..=86_400.0)?;
-    config.checkpoint_interval =
-        seconds("--checkpoint-interval", args.checkpoint_interval, 0.0..=3600.0)?;
+    config.checkpoint_interval = seconds(
+        "--checkpoint-interval",
+        args.checkpoint_interval,
+        0.0..=3600.0,
+    )?;
     config.default_tile_size = args.tile_size;
     config.limits.max_bytes = args.max_scene_bytes;
     config.limits.max_spp = args.max_spp;

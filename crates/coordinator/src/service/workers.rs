@@ -7,23 +7,19 @@ use std::time::{Duration, Instant};
 use tessera_proto::ids::{LeaseId, WorkerCredential};
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::workers_server::Workers;
-use tessera_render::guide::SdTree;
-use tessera_render::{PixelRect, TileSums, IMAGE_REVISION};
+use tessera_render::IMAGE_REVISION;
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status};
-use tracing::{info, warn};
+use tracing::info;
 
-use super::{
-    asset_status, credential, decode_result, internal, job_id, lease_ids, Service, Stream_,
-};
+use super::{asset_status, credential, internal, job_id, lease_ids, Service, Stream_};
 use crate::assets::CHUNK_BYTES;
 use crate::error::truncate;
+use crate::ingest::{ingest, Arrival, Outcome};
 use crate::job::Unit;
-use crate::output::finish_job;
-use crate::scheduler::{Capabilities, Merged, Reported, UnitResult, MAX_LINES_PER_CALL};
+use crate::scheduler::{Capabilities, Reported, MAX_LINES_PER_CALL};
 use crate::shared::{durable, now_ms};
-use crate::store::Op;
 use tessera_proto::ids::BadId;
 use tessera_proto::tags::{check_tags, MAX_CPU_FEATURES, MAX_TAGS};
 
@@ -236,152 +232,27 @@ impl Workers for Service {
         &self,
         request: Request<pb::SubmitResultRequest>,
     ) -> Result<Response<pb::SubmitResultResponse>, Status> {
-        let arrived = Instant::now();
         let req = request.into_inner();
-        let cred = credential(&req.worker_id)?;
-        let job = job_id(&req.job_id)?;
-        let lease: LeaseId = req
-            .lease_id
-            .parse()
-            .map_err(|e: tessera_proto::ids::BadId| Status::invalid_argument(e.to_string()))?;
-        let unit = Unit {
-            tile: req.tile_index,
-            batch: req.batch_index,
+        let arrival = Arrival {
+            cred: credential(&req.worker_id)?,
+            job: job_id(&req.job_id)?,
+            lease: req
+                .lease_id
+                .parse()
+                .map_err(|e: BadId| Status::invalid_argument(e.to_string()))?,
+            unit: Unit {
+                tile: req.tile_index,
+                batch: req.batch_index,
+            },
+            result: req.result,
         };
-        let mut result = req.result;
-        // A guided unit's training tree (up to tens of MiB) is decoded before the lock, off
-        // the async threads.
-        let train_bytes = result
-            .as_mut()
-            .map(|r| std::mem::take(&mut r.guide_train))
-            .filter(|b| !b.is_empty());
-        if train_bytes.is_some() {
-            // Only a registered worker's tree is worth the decoding.
-            self.shared
-                .scheduler()
-                .touch_worker(&cred, Instant::now())?;
-        }
-        let mut train = match train_bytes {
-            Some(b) => Some(
-                tokio::task::spawn_blocking(move || SdTree::decode(&b))
-                    .await
-                    .map_err(|e| Status::internal(e.to_string()))?
-                    .map_err(|e| Status::invalid_argument(format!("guide_train: {e}"))),
-            ),
-            None => None,
+        let outcome = match ingest(&self.shared, arrival).await? {
+            Outcome::Merged => pb::ResultOutcome::Merged,
+            Outcome::Duplicate => pb::ResultOutcome::Duplicate,
+            Outcome::Discarded => pb::ResultOutcome::Discarded,
         };
-        let mut decoded: Option<UnitResult> = None;
-        let mut read_back: Option<TileSums> = None;
-        let mut reads = 0;
-        let (merged, new) = loop {
-            // The lock is let go before any await: a tile read back happens outside it.
-            let step: Result<(bool, bool), PixelRect> = {
-                let mut core = self.shared.scheduler();
-                let now = Instant::now();
-                let w = core.touch_worker(&cred, now)?;
-                if decoded.is_none() && core.defer_result() {
-                    // Before its checks and merge, which a deferred result does not cost; the
-                    // worker keeps it (its lease renewed by heartbeats) until the retry.
-                    drop(core);
-                    self.shared.request_checkpoint();
-                    return Err(Status::unavailable(
-                        "the coordinator is storing merged results; retry shortly",
-                    ));
-                }
-                let sums = match decoded.take() {
-                    Some(s) => s,
-                    None => match result
-                        .take()
-                        .ok_or_else(|| Status::invalid_argument("request has no result"))
-                        .and_then(decode_result)
-                        .and_then(|sums| {
-                            Ok(UnitResult {
-                                sums,
-                                train: train.take().transpose()?,
-                            })
-                        }) {
-                        Ok(s) => s,
-                        Err(e) => {
-                            core.refuse_result(w);
-                            warn!("result from {} refused: {}", cred.id, e.message());
-                            return Err(e);
-                        }
-                    },
-                };
-                if let Some(back) = read_back.take() {
-                    core.reload(job, unit.tile, back);
-                }
-                if let Some(rect) = core.needs_reload(w, lease, job, unit) {
-                    decoded = Some(sums);
-                    Err(rect)
-                } else {
-                    Ok(match core.submit(w, lease, job, unit, sums, now) {
-                        Ok(Merged::New { ops, finished }) => {
-                            // Acknowledged once merged in memory: the next checkpoint makes it
-                            // durable, and a crash before then costs its rendering again, not
-                            // its bits.
-                            // A guide was trained: the next epoch's units are free.
-                            let epoch = ops.iter().any(|o| matches!(o, Op::PutGuide(..)));
-                            self.shared.queue_checkpointed(ops);
-                            if epoch {
-                                self.shared.bump_work();
-                            }
-                            if core.wants_checkpoint() {
-                                self.shared.request_checkpoint();
-                            }
-                            (finished, true)
-                        }
-                        Ok(Merged::Duplicate) => {
-                            return Ok(Response::new(pb::SubmitResultResponse {
-                                outcome: pb::ResultOutcome::Duplicate as i32,
-                            }))
-                        }
-                        // Told merged, like any accepted result: a worker must not learn which
-                        // of its units are audited.
-                        Ok(Merged::Held) => (false, false),
-                        Ok(Merged::Discarded) => {
-                            return Ok(Response::new(pb::SubmitResultResponse {
-                                outcome: pb::ResultOutcome::Discarded as i32,
-                            }))
-                        }
-                        Err(r) => {
-                            warn!("result from {} refused: {r:?}", cred.id);
-                            return Err(r.into());
-                        }
-                    })
-                }
-            };
-            let rect = match step {
-                Ok(outcome) => break outcome,
-                Err(rect) => rect,
-            };
-            // The tile left memory between batches (a large job's open tile): read it back,
-            // then merge. A read that raced a checkpoint is refused by `reload` and read
-            // again; past a few, the worker's retry tries once more.
-            if reads == 3 {
-                return Err(Status::unavailable(format!(
-                    "{job} tile {}: its sums could not be read back; retry",
-                    unit.tile
-                )));
-            }
-            reads += 1;
-            let store = self.shared.store.clone();
-            let read = tokio::task::spawn_blocking(move || store.tile(job.0, unit.tile, rect))
-                .await
-                .map_err(|e| Status::internal(format!("reading a tile back: {e}")))?;
-            read_back =
-                Some(read.map_err(|e| Status::internal(format!("coordinator state store: {e}")))?);
-        };
-        crate::referee::spawn_pending(&self.shared);
-        if new {
-            self.shared.metrics.merge.observe(arrived.elapsed());
-        }
-        if merged {
-            tokio::spawn(finish_job(self.shared.clone(), job));
-        }
-        self.shared.bump_changed();
         Ok(Response::new(pb::SubmitResultResponse {
-            outcome: pb::ResultOutcome::Merged as i32,
+            outcome: outcome as i32,
         }))
     }
 

@@ -204,14 +204,7 @@ fn place(
         .find(|(e, _)| *e == material)
         .map(|&(_, t)| t);
     let mat = &built.materials[material as usize];
-    check_texture_coordinates(
-        &shape,
-        mat,
-        &built.pbrs,
-        emission_texture.is_some(),
-        o,
-        op,
-    )?;
+    check_texture_coordinates(&shape, mat, &built.pbrs, emission_texture.is_some(), o, op)?;
     if o.shape != ShapeKind::Plane && !shape.bounds().is_finite() {
         return Err((
             op.clone(),
@@ -262,12 +255,11 @@ impl Assembled {
         for (light, t, uvs) in self.textured_lights {
             let texture = Arc::clone(&textures[t as usize]);
             let mean = texture.mean();
-            self.lights[light as usize].texture =
-                Some(Arc::new(crate::light::EmissionTexture {
-                    texture,
-                    uvs,
-                    mean,
-                }));
+            self.lights[light as usize].texture = Some(Arc::new(crate::light::EmissionTexture {
+                texture,
+                uvs,
+                mean,
+            }));
         }
         let accel = Accel::build(&self.prims);
         let environment = self.environment.finish(self.reach, &mut self.lights)?;

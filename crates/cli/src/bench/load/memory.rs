@@ -16,9 +16,7 @@ use tessera_proto::v1::jobs_client::JobsClient;
 use tessera_render::scene::Scene;
 use tessera_render::RenderSettings;
 
-use super::{
-    proc_figures, simulated_worker, sized_scene, template, Coordinator, Shared, TILE,
-};
+use super::{proc_figures, simulated_worker, sized_scene, template, Coordinator, Shared, TILE};
 
 /// Samples per pixel of every job.
 const SPP: u32 = 8;

@@ -12,11 +12,13 @@
 use glam::{Vec2, Vec3A};
 
 use crate::bsdf::dielectric::thin_reflectance;
-use crate::bsdf::{fresnel_dielectric, reflect, refract, sample_diffuse, Bsdf, RoughDielectric};
+use crate::bsdf::{fresnel_dielectric, reflect, refract, sample_diffuse, RoughDielectric};
 use crate::envmap::EnvMap;
+use crate::interaction::Hit;
 use crate::interaction::SurfacePoint;
 use crate::light::LightSample;
-use crate::scene::{Environment, Scene};
+use crate::primitive::Primitive;
+use crate::scene::{Environment, Material, Scene};
 pub use crate::settings::{
     unit_batch, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_TILE, DEFAULT_UNIT_SAMPLES,
     MIN_UNITS_PER_FRAME, TILE_RANGE, UNIT_SAMPLES_RANGE,
@@ -26,9 +28,10 @@ use crate::util::sampling::{cosine_hemisphere_pdf, power_heuristic, PixelSampler
 
 mod guided;
 mod lobes;
+mod vertex;
 pub use guided::{GuidedPath, Guiding, NoGuide, MAX_VERTICES};
 pub(crate) use lobes::pbr_at;
-use lobes::{conductor, pbr, plastic};
+use vertex::{scatter, Numbers, Vertex};
 
 /// The radiance estimate of one camera sample of pixel (`x`, `y`): the sample `sampler` (made
 /// for that pixel and the job's seed) is at.
@@ -88,287 +91,59 @@ fn trace<'a, G: Guiding<'a>>(
     mut light_uv: [f32; 2],
     guiding: &mut G,
 ) -> Vec3A {
-    // Only smooth meshes have shading normals; other scenes skip their side tests below
-    // (a branch that always goes one way) rather than pay for them at every bounce.
-    let shading_normals = scene.has_shading_normals();
-    // Likewise only scenes with coloured glass track the medium a path is in.
-    let absorbing = scene.has_absorption();
-    let strategy = if scene.lights.is_empty() {
-        Strategy::Bsdf
-    } else {
-        settings.strategy
-    };
-    // Punctual lights are reached by light sampling alone, whatever the strategy.
-    let light_sampling = strategy != Strategy::Bsdf || scene.lights.has_delta();
-    let mut path = Path {
-        l: Vec3A::ZERO,
-        beta: Vec3A::ONE,
-        eta_scale: 1.0,
-        // The camera "bounce" is specular: emitters seen directly count in full.
-        specular: true,
-        prev_pdf: 0.0,
-        prev_p: ray.o,
-        medium: Vec3A::ZERO,
-    };
+    let setup = Setup::new(scene, settings);
+    let mut path = Path::from_camera(ray.o);
     let mut depth = 0u32;
     loop {
         let found = scene.intersect(&ray, f32::INFINITY);
-        if absorbing && path.medium != Vec3A::ZERO {
+        if setup.absorbing && path.medium != Vec3A::ZERO {
             path.beta *= absorbed(path.medium, found.map_or(f32::INFINITY, |h| h.t));
         }
         let Some(hit) = found else {
-            let (before, mut sky) = (path.l, Vec3A::ZERO);
-            match &scene.environment {
-                None => {}
-                Some(Environment::Map { map, light }) => {
-                    add_environment(&mut path, scene, strategy, map, *light, ray.d);
-                }
-                Some(env) => {
-                    sky = path.beta * env.radiance(ray.d);
-                    path.l += sky;
-                }
-            }
-            if !scene.lights.suns().is_empty() {
-                add_suns(&mut path, scene, strategy, ray.d);
-            }
-            if let Some(g) = guiding.path() {
-                // A constant sky is never light-sampled: it stays in the guide's training.
-                g.found_direct(strategy, path.specular, path.l - before - sky, depth);
-            }
+            escape(&mut path, scene, setup.strategy, ray.d, guiding, depth);
             break;
         };
         let prim = &scene.prims[hit.prim as usize];
         let sp = prim.shape.surface(&ray, hit.t, hit.part);
         let mat = &scene.materials[prim.material as usize];
-        let wo = -ray.d;
-
         if prim.light != u32::MAX {
-            let li = (prim.light + hit.part * prim.light_stride) as usize;
-            let light = &scene.lights.lights[li];
-            let mut le = light.emitted(sp.n, wo);
-            if let Some(t) = &light.texture {
-                le *= t.texture.lookup(prim.shape.uv(&ray, hit.part));
-            }
-            if le != Vec3A::ZERO {
-                let before = path.l;
-                add_emitted(&mut path, scene, strategy, li, le, &sp);
-                if let Some(g) = guiding.path() {
-                    g.found_direct(strategy, path.specular, path.l - before, depth);
-                }
-            }
+            emission(
+                &mut path,
+                scene,
+                setup.strategy,
+                (&ray, &hit, prim, &sp),
+                guiding,
+                depth,
+            );
         }
         if scene.max_depth.is_some_and(|m| depth >= m) {
             break;
         }
-        let (front, at) = Shading::facing(&sp, wo, shading_normals);
-        let glass = matches!(
-            mat.bsdf,
-            Bsdf::Dielectric(_) | Bsdf::RoughDielectric(_) | Bsdf::ThinDielectric(_)
-        );
-        // A pbr surface decides at its vertex: where it transmits it has two sides.
-        let pbr_mat = matches!(mat.bsdf, Bsdf::Pbr(_));
-        if !front && !mat.two_sided && !glass && !pbr_mat {
+        let (front, at) = Shading::facing(&sp, -ray.d, setup.shading_normals);
+        if !front && !mat.two_sided && !mat.bsdf.has_two_sides() {
             // The back of a one-sided surface absorbs everything.
             break;
         }
-        let Shading { n, ns, shaded } = at;
-        let [u0, u1, next_lx, next_ly] = sampler.get4(1 + 2 * depth);
-        // Light sampling at every vertex whose BSDF is not a delta: diffuse, rough metal and
-        // rough glass.
-        let nee = light_sampling
-            && match mat.bsdf {
-                Bsdf::Diffuse(_) | Bsdf::RoughDielectric(_) | Bsdf::Plastic(_) | Bsdf::Pbr(_) => {
-                    true
-                }
-                Bsdf::Conductor(m) => !m.is_smooth(),
-                Bsdf::Mirror(_) | Bsdf::Dielectric(_) | Bsdf::ThinDielectric(_) => false,
-            };
-        // u_rr decides Russian roulette after this bounce; u_choice a glass's reflection or
-        // refraction, or a plastic's lobe.
-        let chooses = glass
-            || matches!(mat.bsdf, Bsdf::Plastic(_) | Bsdf::Pbr(_))
-            || guiding.path().is_some();
-        let [u_select, u_choice, u_rr, _] = if (nee && scene.lights.lights.len() > 1)
-            || chooses
-            || depth + 1 >= settings.rr_depth
-        {
-            sampler.get4(2 + 2 * depth)
-        } else {
-            [0.0; 4]
+        let (u, u_rr) = setup.numbers(mat, sampler, &mut light_uv, guiding, depth);
+        let v = Vertex {
+            scene,
+            strategy: setup.strategy,
+            ray: &ray,
+            hit: &hit,
+            prim,
+            mat,
+            sp: &sp,
+            at: &at,
+            front,
+            absorbing: setup.absorbing,
         };
-        let [lx, ly] = std::mem::replace(&mut light_uv, [next_lx, next_ly]);
-        let next = match mat.bsdf {
-            Bsdf::Diffuse(albedo) => {
-                let albedo = match mat.texture {
-                    None => albedo,
-                    Some(t) => scene.textures[t as usize].lookup(prim.shape.uv(&ray, hit.part)),
-                };
-                let light_u = nee.then_some((u_select, Vec2::new(lx, ly)));
-                let bsdf_u = Vec2::new(u0, u1);
-                let next = match guiding.path() {
-                    None => diffuse(
-                        scene, strategy, &mut path, albedo, &sp, &at, bsdf_u, light_u,
-                    ),
-                    Some(g) => {
-                        let mut updated = path;
-                        let next = guided::diffuse(
-                            scene,
-                            strategy,
-                            &mut updated,
-                            albedo,
-                            &sp,
-                            &at,
-                            (bsdf_u, u_choice),
-                            light_u,
-                            (g, depth),
-                        );
-                        path = updated;
-                        next
-                    }
-                };
-                let Some(next) = next else {
-                    break;
-                };
-                next
-            }
-            Bsdf::Mirror(r) => {
-                path.beta *= r;
-                path.specular = true;
-                let wi = reflect(ray.d, ns);
-                if shaded && n.dot(wi) <= 0.0 {
-                    break;
-                }
-                Ray::new(offset_ray_origin(sp.p, sp.err, n), wi)
-            }
-            Bsdf::Conductor(ref m) => {
-                let light_u = nee.then_some((u_select, Vec2::new(lx, ly)));
-                // A copy, updated and taken back even when the path ends here (its direct
-                // light counts).
-                let mut updated = path;
-                let next = conductor(
-                    scene,
-                    strategy,
-                    &mut updated,
-                    &m.conductor(),
-                    wo,
-                    &sp,
-                    &at,
-                    Vec2::new(u0, u1),
-                    light_u,
-                );
-                path = updated;
-                let Some(next) = next else {
-                    break;
-                };
-                next
-            }
-            Bsdf::Dielectric(ior) => {
-                let Some(next) = dielectric(&ray, &sp, &at, front, ior, u_choice) else {
-                    break;
-                };
-                path.specular = true;
-                path.beta /= next.attenuation;
-                path.eta_scale *= next.attenuation;
-                if absorbing && next.through {
-                    path.medium = if front {
-                        scene.absorption(prim.material)
-                    } else {
-                        Vec3A::ZERO
-                    };
-                }
-                next.ray
-            }
-            Bsdf::RoughDielectric(ref rd) => {
-                let light_u = nee.then_some((u_select, Vec2::new(lx, ly)));
-                let eta = if front { rd.ior } else { 1.0 / rd.ior };
-                let mut updated = path;
-                let next = rough_dielectric(
-                    scene,
-                    strategy,
-                    &mut updated,
-                    rd,
-                    eta,
-                    wo,
-                    &sp,
-                    &at,
-                    (Vec2::new(u0, u1), u_choice),
-                    light_u,
-                );
-                path = updated;
-                let Some((next, through)) = next else {
-                    break;
-                };
-                if absorbing && through {
-                    path.medium = if front {
-                        scene.absorption(prim.material)
-                    } else {
-                        Vec3A::ZERO
-                    };
-                }
-                next
-            }
-            Bsdf::ThinDielectric(ior) => {
-                let Some(next) = thin_dielectric(&ray, &sp, &at, ior, u_choice) else {
-                    break;
-                };
-                path.specular = true;
-                next
-            }
-            Bsdf::Pbr(index) => {
-                let light_u = nee.then_some((u_select, Vec2::new(lx, ly)));
-                let mut updated = path;
-                let next = pbr(
-                    scene,
-                    strategy,
-                    &mut updated,
-                    lobes::PbrHit {
-                        material: scene.pbr(index),
-                        ray: &ray,
-                        hit: &hit,
-                        prim,
-                        two_sided: mat.two_sided,
-                        front,
-                    },
-                    &sp,
-                    &at,
-                    (Vec2::new(u0, u1), u_choice),
-                    light_u,
-                );
-                path = updated;
-                let Some(next) = next else {
-                    break;
-                };
-                next
-            }
-            Bsdf::Plastic(index) => {
-                let light_u = nee.then_some((u_select, Vec2::new(lx, ly)));
-                let mut updated = path;
-                let next = plastic(
-                    scene,
-                    strategy,
-                    &mut updated,
-                    scene.plastic(index),
-                    wo,
-                    &sp,
-                    &at,
-                    (Vec2::new(u0, u1), u_choice),
-                    light_u,
-                );
-                path = updated;
-                let Some(next) = next else {
-                    break;
-                };
-                next
-            }
+        let Some(next) = scatter(&v, &mut path, u, guiding, depth) else {
+            break;
         };
         path.prev_p = sp.p;
         depth += 1;
-        if depth >= settings.rr_depth {
-            let q = ((path.beta * path.eta_scale).max_element() / settings.rr_threshold).min(0.95);
-            if !(u_rr < q) {
-                break;
-            }
-            path.beta /= q;
+        if depth >= settings.rr_depth && !path.survives_roulette(settings, u_rr) {
+            break;
         }
         ray = Ray::new(next.o, next.d.normalize());
     }
@@ -378,11 +153,131 @@ fn trace<'a, G: Guiding<'a>>(
     path.l
 }
 
+/// What a scene and the settings decide once for every path: which side tests, media and
+/// estimators its vertices need.
+#[derive(Clone, Copy)]
+struct Setup {
+    /// Only smooth meshes have shading normals; other scenes skip their side tests (a branch
+    /// that always goes one way) rather than pay for them at every bounce.
+    shading_normals: bool,
+    /// Likewise only scenes with coloured glass track the medium a path is in.
+    absorbing: bool,
+    strategy: Strategy,
+    /// Whether vertices sample lights: punctual lights are reached by light sampling alone,
+    /// whatever the strategy.
+    light_sampling: bool,
+    /// Lights in the scene: with one, a vertex draws no selection number.
+    lights: usize,
+    rr_depth: u32,
+}
+
+impl Setup {
+    #[inline(always)]
+    fn new(scene: &Scene, settings: &RenderSettings) -> Self {
+        let strategy = if scene.lights.is_empty() {
+            Strategy::Bsdf
+        } else {
+            settings.strategy
+        };
+        Self {
+            shading_normals: scene.has_shading_normals(),
+            absorbing: scene.has_absorption(),
+            strategy,
+            light_sampling: strategy != Strategy::Bsdf || scene.lights.has_delta(),
+            lights: scene.lights.lights.len(),
+            rr_depth: settings.rr_depth,
+        }
+    }
+
+    /// The numbers the vertex at `depth` on `mat` draws, and Russian roulette's after it;
+    /// `light_uv` gives this vertex's light point and takes the next one's.
+    #[inline(always)]
+    fn numbers<'a, G: Guiding<'a>>(
+        &self,
+        mat: &Material,
+        sampler: &PixelSampler,
+        light_uv: &mut [f32; 2],
+        guiding: &mut G,
+        depth: u32,
+    ) -> (Numbers, f32) {
+        let [u0, u1, next_lx, next_ly] = sampler.get4(1 + 2 * depth);
+        // Light sampling at every vertex whose BSDF is not a delta.
+        let nee = self.light_sampling && mat.bsdf.samples_lights();
+        let chooses = mat.bsdf.draws_choice() || guiding.path().is_some();
+        let [u_select, u_choice, u_rr, _] =
+            if (nee && self.lights > 1) || chooses || depth + 1 >= self.rr_depth {
+                sampler.get4(2 + 2 * depth)
+            } else {
+                [0.0; 4]
+            };
+        let [lx, ly] = std::mem::replace(light_uv, [next_lx, next_ly]);
+        let u = Numbers {
+            bsdf: Vec2::new(u0, u1),
+            light: nee.then_some((u_select, Vec2::new(lx, ly))),
+            choice: u_choice,
+        };
+        (u, u_rr)
+    }
+}
+
+/// What a path that escapes the scene along `d` finds: the environment and the suns.
+#[inline(always)]
+fn escape<'a, G: Guiding<'a>>(
+    path: &mut Path,
+    scene: &Scene,
+    strategy: Strategy,
+    d: Vec3A,
+    guiding: &mut G,
+    depth: u32,
+) {
+    let (before, mut sky) = (path.l, Vec3A::ZERO);
+    match &scene.environment {
+        None => {}
+        Some(Environment::Map { map, light }) => {
+            add_environment(path, scene, strategy, map, *light, d);
+        }
+        Some(env) => {
+            sky = path.beta * env.radiance(d);
+            path.l += sky;
+        }
+    }
+    if !scene.lights.suns().is_empty() {
+        add_suns(path, scene, strategy, d);
+    }
+    if let Some(g) = guiding.path() {
+        // A constant sky is never light-sampled: it stays in the guide's training.
+        g.found_direct(strategy, path.specular, path.l - before - sky, depth);
+    }
+}
+
+/// What the emitter the path hit at `sp` (along `ray`) gives it.
+#[inline(always)]
+fn emission<'a, G: Guiding<'a>>(
+    path: &mut Path,
+    scene: &Scene,
+    strategy: Strategy,
+    (ray, hit, prim, sp): (&Ray, &Hit, &Primitive, &SurfacePoint),
+    guiding: &mut G,
+    depth: u32,
+) {
+    let li = (prim.light + hit.part * prim.light_stride) as usize;
+    let light = &scene.lights.lights[li];
+    let mut le = light.emitted(sp.n, -ray.d);
+    if let Some(t) = &light.texture {
+        le *= t.texture.lookup(prim.shape.uv(ray, hit.part));
+    }
+    if le != Vec3A::ZERO {
+        let before = path.l;
+        add_emitted(path, scene, strategy, li, le, sp);
+        if let Some(g) = guiding.path() {
+            g.found_direct(strategy, path.specular, path.l - before, depth);
+        }
+    }
+}
+
 /// A path between vertices: what it has gathered, its throughput, and how it arrived at
 /// its last vertex (what weighs an emitter it finds next). Copy, so that the out-of-line
-/// vertices (metal, rough and thin glass) get a copy to update: a `&mut` to the loop's own
-/// path would make its address escape, and keep it in memory rather than in registers for
-/// every other bounce.
+/// vertices get a copy to update ([`vertex`]).
 #[derive(Clone, Copy)]
 struct Path {
     l: Vec3A,
@@ -399,6 +294,35 @@ struct Path {
     /// in scenes with coloured glass. Media do not nest: leaving any glass is leaving to clear
     /// air.
     medium: Vec3A,
+}
+
+impl Path {
+    /// A path leaving the camera from `o`. The camera "bounce" is specular: emitters seen
+    /// directly count in full.
+    #[inline(always)]
+    fn from_camera(o: Vec3A) -> Self {
+        Self {
+            l: Vec3A::ZERO,
+            beta: Vec3A::ONE,
+            eta_scale: 1.0,
+            specular: true,
+            prev_pdf: 0.0,
+            prev_p: o,
+            medium: Vec3A::ZERO,
+        }
+    }
+
+    /// Russian roulette with `u_rr`: false ends the path (probability 1 − q); a survivor's
+    /// throughput is divided by q, which keeps the estimate unbiased.
+    #[inline(always)]
+    fn survives_roulette(&mut self, settings: &RenderSettings, u_rr: f32) -> bool {
+        let q = ((self.beta * self.eta_scale).max_element() / settings.rr_threshold).min(0.95);
+        if !(u_rr < q) {
+            return false;
+        }
+        self.beta /= q;
+        true
+    }
 }
 
 /// Beer–Lambert's factor over a segment of length `t` in a medium absorbing `sigma` per unit;
