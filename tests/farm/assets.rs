@@ -81,6 +81,9 @@ fn local_mesh_exr(text: &str, dir: &Path) -> Vec<u8> {
 
 /// An upload cut off half way resumes where it stopped, even after the coordinator restarts;
 /// the job over the file renders on workers that fetch it, and its EXR is the local one.
+///
+/// Long because it is one scenario, its steps in the order they happen to the farm (each
+/// step's state is the next one's start); split into functions, that order would be hidden.
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn an_interrupted_upload_resumes_and_the_mesh_job_gives_the_local_bits() {
     let dir = tempfile::tempdir().expect("tempdir");

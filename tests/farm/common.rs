@@ -210,6 +210,16 @@ pub async fn submit_job(client: &mut Client, request: pb::SubmitJobRequest) -> S
         .job_id
 }
 
+/// The first page of the job listing, as `tessera status` starts reading it.
+pub async fn list_jobs(client: &mut Client) -> Vec<pb::JobStatus> {
+    client
+        .list_jobs(pb::ListJobsRequest::default())
+        .await
+        .expect("list")
+        .into_inner()
+        .jobs
+}
+
 /// The request that hands in `result` for unit `u` leased by `worker_id`.
 pub fn result_for(
     worker_id: &str,

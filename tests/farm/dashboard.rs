@@ -195,6 +195,9 @@ fn tone_mapped(rgb: &[[f32; 3]]) -> Vec<u8> {
 /// While a job runs, its preview shows exactly the means merged so far (a tile merged, the
 /// others black) and a noise map; once it is done, the preview is the EXR tone-mapped, the
 /// download is the EXR, and that is `tessera render`'s bits.
+///
+/// Long because it is one scenario, its steps in the order they happen to the farm (each
+/// step's state is the next one's start); split into functions, that order would be hidden.
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn the_preview_shows_the_merged_sums_then_the_exr() {
     let dir = tempfile::tempdir().expect("tempdir");

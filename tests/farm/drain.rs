@@ -5,6 +5,8 @@
 
 use crate::common::*;
 
+// Long because it is one scenario, its steps in the order they happen to the farm (each
+// step's state is the next one's start); split into functions, that order would be hidden.
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_drained_worker_is_told_keeps_its_unit_and_stays_drained_across_a_restart() {
     let dir = tempfile::tempdir().expect("tempdir");

@@ -196,12 +196,8 @@ async fn a_frame_range_is_listed_and_cancelled_as_one_job() {
     };
     let job = submit_job(&mut client, range(1, 5)).await;
     let other = submit(&mut client, &text, 4, 4, 0).await;
-    let listed: Vec<_> = client
-        .list_jobs(pb::ListJobsRequest::default())
+    let listed: Vec<_> = list_jobs(&mut client)
         .await
-        .expect("list")
-        .into_inner()
-        .jobs
         .into_iter()
         .map(|s| (s.job_id, s.frames.len()))
         .collect();

@@ -5,12 +5,8 @@
 use crate::common::*;
 
 async fn listed(client: &mut Client) -> Vec<String> {
-    client
-        .list_jobs(pb::ListJobsRequest::default())
+    list_jobs(client)
         .await
-        .expect("list")
-        .into_inner()
-        .jobs
         .into_iter()
         .map(|j| j.job_id)
         .collect()

@@ -18,6 +18,8 @@ async fn as_user(url: &str, token: &str) -> Client {
     client_with(url, &options).await
 }
 
+// Long because it is one scenario, its steps in the order they happen to the farm (each
+// step's state is the next one's start); split into functions, that order would be hidden.
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_user_changes_only_their_own_jobs_and_a_reload_withdraws_a_token() {
     let dir = tempfile::tempdir().expect("tempdir");

@@ -20,6 +20,8 @@ fn tiny_bench_scene(dir: &Path) -> String {
     )
 }
 
+// Long because it is one scenario, its steps in the order they happen to the farm (each
+// step's state is the next one's start); split into functions, that order would be hidden.
 #[test]
 fn bench_writes_csv_markdown_and_plot_with_peer_ratios() {
     let dir = tempfile::tempdir().expect("tmp");

@@ -224,6 +224,8 @@ fn fetch_in_page(cdp: &mut Cdp, url_js: &str) -> Vec<u8> {
         .collect()
 }
 
+// Long because it is one scenario, its steps in the order they happen to the farm (each
+// step's state is the next one's start); split into functions, that order would be hidden.
 #[test]
 fn the_dashboard_in_chromium_follows_a_job_to_its_exr() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -402,6 +404,9 @@ fn the_dashboard_in_chromium_follows_a_job_to_its_exr() {
 /// path, the priority and the Cancel button off the edge); with no token configured the page
 /// offered "Log out"; a cancelled job's page showed a broken-image icon and "Noise – (rms
 /// 0.00)".
+///
+/// Long because it is one scenario, its steps in the order they happen to the farm (each
+/// step's state is the next one's start); split into functions, that order would be hidden.
 #[test]
 fn the_dashboard_fits_1280_px_and_a_cancelled_job_shows_no_broken_picture() {
     let dir = tempfile::tempdir().expect("tempdir");

@@ -84,6 +84,8 @@ impl Rng {
     }
 }
 
+// Long because it is one scenario, its steps in the order they happen to the farm (each
+// step's state is the next one's start); split into functions, that order would be hidden.
 #[test]
 fn sigkilled_workers_and_coordinator_do_not_change_a_bit() {
     let dir = tempfile::tempdir().expect("tmp");

@@ -128,6 +128,7 @@ fn a_closed_stderr_does_not_turn_an_error_into_a_panic() {
     assert_eq!(status.code(), Some(1), "{status:?}");
 }
 
+// Long because it is a table of cases, one refusal each, read top to bottom.
 #[test]
 fn bad_flags_and_paths_are_refused() {
     let scene = repo("scenes/cornell-box.toml");

@@ -39,6 +39,8 @@ fn wait_for(what: &str, mut f: impl FnMut() -> bool) {
     wait_for_blocking(what, || f().then_some(()));
 }
 
+// Long because it is one scenario, its steps in the order they happen to the farm (each
+// step's state is the next one's start); split into functions, that order would be hidden.
 #[test]
 fn coordinator_two_workers_and_submit_wait_match_a_local_render() {
     let dir = tempfile::tempdir().expect("tmp");

@@ -23,6 +23,8 @@ fn block(heading: &str, lang: &str) -> String {
         .to_string()
 }
 
+// Long because it is one scenario, its steps in the order they happen to the farm (each
+// step's state is the next one's start); split into functions, that order would be hidden.
 #[test]
 fn the_documented_python_pipeline_submits_a_mesh_scene_and_gets_tessera_renders_bits() {
     let dir = tempfile::tempdir().expect("tmp");

@@ -170,6 +170,8 @@ fn worker_row(net: &Net, url: &str, name: &str) -> Option<WorkerRow> {
     })
 }
 
+// Long because it is one scenario, its steps in the order they happen to the farm (each
+// step's state is the next one's start); split into functions, that order would be hidden.
 #[test]
 fn a_farm_across_namespaces_survives_a_cut_link_and_gives_the_local_bytes() {
     let root = Command::new("id")

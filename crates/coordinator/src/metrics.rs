@@ -222,36 +222,7 @@ impl Metrics {
         ] {
             t.single(name, help, "counter", v as f64);
         }
-        t.single(
-            "tessera_leases",
-            "Leases live now.",
-            "gauge",
-            g.leases as f64,
-        );
-        t.single(
-            "tessera_workers_active",
-            "Workers that called within a lease time and have not said goodbye.",
-            "gauge",
-            g.workers_active as f64,
-        );
-        t.single(
-            "tessera_workers_quarantined",
-            "Workers refused work after invalid results or an audit's conviction.",
-            "gauge",
-            g.workers_quarantined as f64,
-        );
-        t.single(
-            "tessera_log_memory_bytes",
-            "Bytes of active jobs' worker logs held in memory (about).",
-            "gauge",
-            g.log_bytes.0 as f64,
-        );
-        t.single(
-            "tessera_log_stored_bytes",
-            "Bytes of ended jobs' worker logs kept in the store (until --log-retention or --max-log-bytes).",
-            "gauge",
-            g.log_bytes.1 as f64,
-        );
+        gauges(&mut t, g);
         self.merge.write(
             &mut t,
             "tessera_merge_seconds",
@@ -288,37 +259,67 @@ impl Metrics {
             "counter",
             self.previews.load(Ordering::Relaxed) as f64,
         );
-        t.header(
+        per_worker(&mut t, &g.workers);
+        t.0
+    }
+}
+
+/// The single-valued gauges of `g`: leases, workers, logs.
+fn gauges(t: &mut Text, g: &Gauges) {
+    t.single(
+        "tessera_leases",
+        "Leases live now.",
+        "gauge",
+        g.leases as f64,
+    );
+    t.single(
+        "tessera_workers_active",
+        "Workers that called within a lease time and have not said goodbye.",
+        "gauge",
+        g.workers_active as f64,
+    );
+    t.single(
+        "tessera_workers_quarantined",
+        "Workers refused work after invalid results or an audit's conviction.",
+        "gauge",
+        g.workers_quarantined as f64,
+    );
+    t.single(
+        "tessera_log_memory_bytes",
+        "Bytes of active jobs' worker logs held in memory (about).",
+        "gauge",
+        g.log_bytes.0 as f64,
+    );
+    t.single(
+        "tessera_log_stored_bytes",
+        "Bytes of ended jobs' worker logs kept in the store (until --log-retention or --max-log-bytes).",
+        "gauge",
+        g.log_bytes.1 as f64,
+    );
+}
+
+/// Each live worker's rate and merged samples, labelled by its id and name.
+fn per_worker(t: &mut Text, workers: &[WorkerLine]) {
+    let families: [(&str, &str, &str, fn(&WorkerLine) -> f64); 2] = [
+        (
             "tessera_worker_samples_per_second",
             "Each live worker's merged samples per second, recently.",
             "gauge",
-        );
-        for w in &g.workers {
-            t.line(
-                &format!(
-                    "tessera_worker_samples_per_second{{worker=\"{}\",name=\"{}\"}}",
-                    label(&w.id),
-                    label(&w.name)
-                ),
-                w.rate,
-            );
-        }
-        t.header(
+            |w| w.rate,
+        ),
+        (
             "tessera_worker_samples_merged_total",
             "Each live worker's merged samples since it registered.",
             "counter",
-        );
-        for w in &g.workers {
-            t.line(
-                &format!(
-                    "tessera_worker_samples_merged_total{{worker=\"{}\",name=\"{}\"}}",
-                    label(&w.id),
-                    label(&w.name)
-                ),
-                w.samples as f64,
-            );
+            |w| w.samples as f64,
+        ),
+    ];
+    for (name, help, kind, value) in families {
+        t.header(name, help, kind);
+        for w in workers {
+            let labels = format!("worker=\"{}\",name=\"{}\"", label(&w.id), label(&w.name));
+            t.line(&format!("{name}{{{labels}}}"), value(w));
         }
-        t.0
     }
 }
 

@@ -60,20 +60,7 @@ pub async fn serve_when_ready(
     let max_msg = config.max_message_bytes;
     let lease_timeout = config.lease_timeout;
     let retention = config.asset_retention;
-    let mut builder = tonic::transport::Server::builder()
-        // A connection that sends nothing is closed rather than kept for ever, and one
-        // connection cannot open unbounded streams.
-        .http2_keepalive_interval(Some(Duration::from_secs(30)))
-        .http2_keepalive_timeout(Some(Duration::from_secs(20)))
-        .max_concurrent_streams(Some(MAX_STREAMS_PER_CONNECTION));
-    if let Some(tls) = &config.tls {
-        let mut cfg = ServerTlsConfig::new()
-            .identity(Identity::from_pem(&tls.cert_pem, tls.key_pem.expose()));
-        if let Some(ca) = &tls.client_ca_pem {
-            cfg = cfg.client_ca_root(Certificate::from_pem(ca));
-        }
-        builder = builder.tls_config(cfg)?;
-    }
+    let mut builder = grpc_server(&config)?;
     // Loaded before the store opens, so that a bad identity stops the coordinator before it
     // says it is up, as the gRPC side's does.
     let dashboard = http
@@ -101,43 +88,7 @@ pub async fn serve_when_ready(
     let collector = every(
         &shared,
         (retention / 4).clamp(Duration::from_secs(1), Duration::from_secs(60)),
-        |shared| async move {
-            // Failed jobs past their retry window let their scenes go first, so that the
-            // files only those scenes named are collected with the rest.
-            let ops = shared.scheduler().sweep_failed(crate::shared::now_ms());
-            if !ops.is_empty() {
-                if let Err(e) = crate::shared::durable(shared.queue_write(ops)).await {
-                    tracing::warn!(
-                        "dropping the scenes of failed jobs past their retry window: {e}"
-                    );
-                }
-            }
-            // Ended jobs' logs leave memory once the store has their last lines, and the
-            // store keeps them for their retention only.
-            if crate::shared::durable(shared.queue_write(Vec::new()))
-                .await
-                .is_ok()
-            {
-                let ops = shared.scheduler().sweep_logs(crate::shared::now_ms());
-                if !ops.is_empty() {
-                    if let Err(e) = crate::shared::durable(shared.queue_write(ops)).await {
-                        tracing::warn!("dropping logs past their retention: {e}");
-                    }
-                }
-                // Ended jobs' records go after theirs, the oldest first.
-                let ops = shared.scheduler().sweep_jobs(crate::shared::now_ms());
-                if !ops.is_empty() {
-                    shared.bump_changed();
-                    if let Err(e) = crate::shared::durable(shared.queue_write(ops)).await {
-                        tracing::warn!("dropping ended jobs past their retention: {e}");
-                    }
-                }
-            }
-            let r = tokio::task::spawn_blocking(move || shared.collect_assets()).await;
-            if let Ok(Err(e)) = r {
-                tracing::warn!("asset collection: {e}");
-            }
-        },
+        |shared| async move { collect(shared).await },
     );
     let svc = Service::new(shared.clone());
     let tokens = shared.config.auth();
@@ -199,6 +150,64 @@ pub async fn serve_when_ready(
     let _ = tokio::time::timeout(Duration::from_secs(5), writer).await;
     result?;
     dashboard
+}
+
+/// The gRPC server's builder: keepalives, a bound on streams per connection, TLS.
+fn grpc_server(config: &Config) -> Result<tonic::transport::Server, CoordinatorError> {
+    let mut builder = tonic::transport::Server::builder()
+        // A connection that sends nothing is closed rather than kept for ever, and one
+        // connection cannot open unbounded streams.
+        .http2_keepalive_interval(Some(Duration::from_secs(30)))
+        .http2_keepalive_timeout(Some(Duration::from_secs(20)))
+        .max_concurrent_streams(Some(MAX_STREAMS_PER_CONNECTION));
+    if let Some(tls) = &config.tls {
+        let mut cfg = ServerTlsConfig::new()
+            .identity(Identity::from_pem(&tls.cert_pem, tls.key_pem.expose()));
+        if let Some(ca) = &tls.client_ca_pem {
+            cfg = cfg.client_ca_root(Certificate::from_pem(ca));
+        }
+        builder = builder.tls_config(cfg)?;
+    }
+    Ok(builder)
+}
+
+/// One pass of the collector: failed jobs past their retry window let their scenes go, ended
+/// jobs' logs leave memory and past their retention the store, ended jobs past theirs are
+/// forgotten, and the files no job names any more are deleted.
+async fn collect(shared: Arc<Shared>) {
+    // Failed jobs' scenes go first, so that the files only those scenes named are collected
+    // with the rest.
+    let ops = shared.scheduler().sweep_failed(crate::shared::now_ms());
+    if !ops.is_empty() {
+        if let Err(e) = crate::shared::durable(shared.queue_write(ops)).await {
+            tracing::warn!("dropping the scenes of failed jobs past their retry window: {e}");
+        }
+    }
+    // Ended jobs' logs leave memory once the store has their last lines, and the store keeps
+    // them for their retention only.
+    if crate::shared::durable(shared.queue_write(Vec::new()))
+        .await
+        .is_ok()
+    {
+        let ops = shared.scheduler().sweep_logs(crate::shared::now_ms());
+        if !ops.is_empty() {
+            if let Err(e) = crate::shared::durable(shared.queue_write(ops)).await {
+                tracing::warn!("dropping logs past their retention: {e}");
+            }
+        }
+        // Ended jobs' records go after theirs, the oldest first.
+        let ops = shared.scheduler().sweep_jobs(crate::shared::now_ms());
+        if !ops.is_empty() {
+            shared.bump_changed();
+            if let Err(e) = crate::shared::durable(shared.queue_write(ops)).await {
+                tracing::warn!("dropping ended jobs past their retention: {e}");
+            }
+        }
+    }
+    let r = tokio::task::spawn_blocking(move || shared.collect_assets()).await;
+    if let Ok(Err(e)) = r {
+        tracing::warn!("asset collection: {e}");
+    }
 }
 
 /// A coordinator serving in this process on a port it bound itself, until stopped: what tests

@@ -223,6 +223,8 @@ fn same_frame(a: &[TileSums], b: &[TileSums]) -> bool {
     a.len() == b.len() && a.iter().zip(b).all(|(x, y)| same_bits(x, y))
 }
 
+// Long because it is one scenario, its steps in the order they happen to the farm (each
+// step's state is the next one's start); split into functions, that order would be hidden.
 #[test]
 fn a_convicted_worker_has_every_result_taken_back_and_the_job_ends_with_the_honest_bits() {
     let mut farm = Farm::new(true);

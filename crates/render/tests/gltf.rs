@@ -230,6 +230,7 @@ fn points_and_lines_are_skipped_with_a_warning() {
     );
 }
 
+// Long because it is a table of cases, one refusal each, read top to bottom.
 #[test]
 fn bad_files_are_refused_with_one_line_naming_the_place() {
     let good = triangle_doc(&QUAD, &[0, 1, 2], json!({}));

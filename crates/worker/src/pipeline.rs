@@ -13,7 +13,7 @@ use tessera_proto::v1 as pb;
 use tessera_render::guided::render_tile_guided;
 use tessera_render::scene::Scene;
 use tessera_render::{render_tile, PixelRect, RenderSettings, TileSums};
-use tokio::sync::{mpsc, OwnedSemaphorePermit, Semaphore};
+use tokio::sync::{mpsc, watch, OwnedSemaphorePermit, Semaphore};
 use tracing::{debug, info, warn};
 
 use crate::cache::{SceneCache, SceneError};
@@ -92,68 +92,10 @@ async fn fetcher(ctx: Arc<Worker>, tx: mpsc::Sender<Ready>) {
             s = slots.clone().acquire_owned() => match s { Ok(s) => s, Err(_) => return },
             _ = stop.wait_for(|s| *s) => return,
         };
-        let req_id = ctx.session.id();
-        let req = pb::LeaseRequest {
-            worker_id: req_id.clone(),
-            max_units: 1,
-            wait_ms: LEASE_WAIT.as_millis() as u32,
-        };
-        let mut client = ctx.session.client.clone();
-        let call = client.lease(req);
-        tokio::pin!(call);
-        let answered = tokio::select! {
-            r = &mut call => Some(r),
-            _ = stop.wait_for(|s| *s) => None,
-        };
-        let Some(resp) = answered else {
-            // The coordinator may have granted units in the answer already on its way: dropping
-            // the call would leave them leased to nobody until their leases lapse. The call is
-            // a long poll of at most LEASE_WAIT, so take its answer and keep its units as held,
-            // for the shutdown to hand back at once.
-            let late = tokio::time::timeout(LEASE_WAIT + Duration::from_secs(1), call).await;
-            if let Ok(Ok(r)) = late {
-                let units: Vec<String> = r
-                    .into_inner()
-                    .units
-                    .into_iter()
-                    .map(|u| u.lease_id)
-                    .collect();
-                // Handed back at once: the units go to other workers now, not when the ones
-                // rendering here are done.
-                lock(&ctx.session.held).extend(units.iter().cloned());
-                ctx.session.release(units, false).await;
-            }
-            return;
-        };
-        let units = match resp {
-            Ok(r) => {
-                attempt = 0;
-                let r = r.into_inner();
-                if r.drain {
-                    ctx.session.drain();
-                }
-                r.units
-            }
-            Err(e) if tessera_proto::reason::is_unknown_worker(&e) => {
-                warn!("{}", e.message());
-                if !ctx.session.reregister(&req_id).await {
-                    return;
-                }
-                continue;
-            }
-            Err(e) => {
-                if attempt == 0 || attempt % 10 == 0 {
-                    warn!(
-                        "leasing from {}: {}",
-                        ctx.session.config.coordinator,
-                        e.message()
-                    );
-                }
-                if !ctx.session.backoff(&mut attempt).await {
-                    return;
-                }
-                continue;
-            }
+        let units = match lease_call(&ctx, &mut stop, &mut attempt).await {
+            Leased::Units(units) => units,
+            Leased::Again => continue,
+            Leased::Stop => return,
         };
         let mut slot = Some(slot);
         for unit in units {
@@ -162,64 +104,8 @@ async fn fetcher(ctx: Arc<Worker>, tx: mpsc::Sender<Ready>) {
                 unit.job_id, unit.tile_index, unit.batch_index
             );
             lock(&ctx.session.held).insert(unit.lease_id.clone());
-            let frame = unit.settings.as_ref().and_then(|s| s.frame);
-            let resolution = unit
-                .settings
-                .as_ref()
-                .and_then(|s| s.resolution)
-                .map(|r| (r.width, r.height));
-            let prepared = match ctx
-                .scenes
-                .scene(&ctx.session, &unit.scene_hash, frame, resolution)
-                .await
-            {
-                Ok(scene) => prepare(&unit, &scene)
-                    .map(|p| (scene, p))
-                    .map_err(SceneError::Unrenderable),
-                Err(e) => Err(e),
-            };
-            let prepared = match prepared {
-                Ok((scene, (rect, settings))) if settings.guiding => {
-                    match ctx
-                        .guides
-                        .guided(&ctx.session, &ctx.scenes, &unit, &scene, &settings)
-                        .await
-                    {
-                        Ok(g) => Ok((scene, (rect, settings), Some(g))),
-                        Err(e) => Err(e),
-                    }
-                }
-                Ok((scene, p)) => Ok((scene, p, None)),
-                Err(e) => Err(e),
-            };
-            let (scene, (rect, settings), guided) = match prepared {
-                Ok(p) => p,
-                Err(SceneError::Unavailable(e)) => {
-                    warn!(
-                        "unit {} of {}: scene {}: {e}; handing it back",
-                        unit.lease_id, unit.job_id, unit.scene_hash
-                    );
-                    ctx.session.log(
-                        &unit.lease_id,
-                        pb::LogLevel::Warn,
-                        format!("scene unavailable here: {e}; handed back"),
-                    );
-                    ctx.session.release(vec![unit.lease_id], false).await;
-                    continue;
-                }
-                Err(SceneError::Unrenderable(e)) => {
-                    warn!(
-                        "unit {} of {}: this worker cannot render it: {e}",
-                        unit.lease_id, unit.job_id
-                    );
-                    ctx.session.log(
-                        &unit.lease_id,
-                        pb::LogLevel::Error,
-                        format!("this worker cannot render it: {e}"),
-                    );
-                    ctx.session.hand_back(vec![unit.lease_id], false, e).await;
-                    continue;
-                }
+            let Some((scene, rect, settings, guided)) = prepare_unit(&ctx, &unit).await else {
+                continue;
             };
             let Some(s) = slot.take() else { break };
             let ready = Ready {
@@ -237,6 +123,150 @@ async fn fetcher(ctx: Arc<Worker>, tx: mpsc::Sender<Ready>) {
                     .await;
                 return;
             }
+        }
+    }
+}
+
+/// What one lease call came to.
+enum Leased {
+    /// The units granted (none if there was no work within the wait).
+    Units(Vec<pb::WorkUnit>),
+    /// Nothing now: call again (after a backoff, or a new registration).
+    Again,
+    /// Shutdown began, or the coordinator refused this worker for good.
+    Stop,
+}
+
+/// One lease call, a long poll of at most [`LEASE_WAIT`]; network errors back off, and a
+/// coordinator that forgot this worker gets it registered again.
+async fn lease_call(ctx: &Worker, stop: &mut watch::Receiver<bool>, attempt: &mut u32) -> Leased {
+    let req_id = ctx.session.id();
+    let req = pb::LeaseRequest {
+        worker_id: req_id.clone(),
+        max_units: 1,
+        wait_ms: LEASE_WAIT.as_millis() as u32,
+    };
+    let mut client = ctx.session.client.clone();
+    let call = client.lease(req);
+    tokio::pin!(call);
+    let answered = tokio::select! {
+        r = &mut call => Some(r),
+        _ = stop.wait_for(|s| *s) => None,
+    };
+    let Some(resp) = answered else {
+        // The coordinator may have granted units in the answer already on its way: dropping
+        // the call would leave them leased to nobody until their leases lapse. The call is a
+        // long poll of at most LEASE_WAIT, so take its answer and keep its units as held, for
+        // the shutdown to hand back at once.
+        let late = tokio::time::timeout(LEASE_WAIT + Duration::from_secs(1), call).await;
+        if let Ok(Ok(r)) = late {
+            let units: Vec<String> = r
+                .into_inner()
+                .units
+                .into_iter()
+                .map(|u| u.lease_id)
+                .collect();
+            // Handed back at once: the units go to other workers now, not when the ones
+            // rendering here are done.
+            lock(&ctx.session.held).extend(units.iter().cloned());
+            ctx.session.release(units, false).await;
+        }
+        return Leased::Stop;
+    };
+    match resp {
+        Ok(r) => {
+            *attempt = 0;
+            let r = r.into_inner();
+            if r.drain {
+                ctx.session.drain();
+            }
+            Leased::Units(r.units)
+        }
+        Err(e) if tessera_proto::reason::is_unknown_worker(&e) => {
+            warn!("{}", e.message());
+            if ctx.session.reregister(&req_id).await {
+                Leased::Again
+            } else {
+                Leased::Stop
+            }
+        }
+        Err(e) => {
+            if *attempt == 0 || *attempt % 10 == 0 {
+                warn!(
+                    "leasing from {}: {}",
+                    ctx.session.config.coordinator,
+                    e.message()
+                );
+            }
+            if ctx.session.backoff(attempt).await {
+                Leased::Again
+            } else {
+                Leased::Stop
+            }
+        }
+    }
+}
+
+/// What a unit renders with: its scene, rectangle, settings and (guided) guide.
+type Prepared = (Arc<Scene>, PixelRect, RenderSettings, Option<Arc<Guided>>);
+
+/// Unit `unit`, ready to render; or `None` once it has been handed back: its scene is not at
+/// hand here (another worker may have it), or this worker can never render it (the
+/// coordinator fails its job with the reason).
+async fn prepare_unit(ctx: &Worker, unit: &pb::WorkUnit) -> Option<Prepared> {
+    let frame = unit.settings.as_ref().and_then(|s| s.frame);
+    let resolution = unit
+        .settings
+        .as_ref()
+        .and_then(|s| s.resolution)
+        .map(|r| (r.width, r.height));
+    let prepared = async {
+        let scene = ctx
+            .scenes
+            .scene(&ctx.session, &unit.scene_hash, frame, resolution)
+            .await?;
+        let (rect, settings) = prepare(unit, &scene).map_err(SceneError::Unrenderable)?;
+        let guided = if settings.guiding {
+            let g = ctx
+                .guides
+                .guided(&ctx.session, &ctx.scenes, unit, &scene, &settings);
+            Some(g.await?)
+        } else {
+            None
+        };
+        Ok::<Prepared, SceneError>((scene, rect, settings, guided))
+    };
+    match prepared.await {
+        Ok(p) => Some(p),
+        Err(SceneError::Unavailable(e)) => {
+            warn!(
+                "unit {} of {}: scene {}: {e}; handing it back",
+                unit.lease_id, unit.job_id, unit.scene_hash
+            );
+            ctx.session.log(
+                &unit.lease_id,
+                pb::LogLevel::Warn,
+                format!("scene unavailable here: {e}; handed back"),
+            );
+            ctx.session
+                .release(vec![unit.lease_id.clone()], false)
+                .await;
+            None
+        }
+        Err(SceneError::Unrenderable(e)) => {
+            warn!(
+                "unit {} of {}: this worker cannot render it: {e}",
+                unit.lease_id, unit.job_id
+            );
+            ctx.session.log(
+                &unit.lease_id,
+                pb::LogLevel::Error,
+                format!("this worker cannot render it: {e}"),
+            );
+            ctx.session
+                .hand_back(vec![unit.lease_id.clone()], false, e)
+                .await;
+            None
         }
     }
 }

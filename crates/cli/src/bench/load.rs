@@ -456,6 +456,33 @@ struct Plan {
     bounds: [[f32; 3]; 2],
 }
 
+/// Waits until the coordinator lists more than `more_than` workers, asking every
+/// `interval`; past `limit`, fails with `said(listed)`.
+async fn wait_for_workers(
+    jobs: &mut JobsClient<tonic::transport::Channel>,
+    more_than: usize,
+    (limit, interval): (Duration, Duration),
+    said: impl Fn(usize) -> String,
+) -> Result<()> {
+    let start = Instant::now();
+    loop {
+        let listed = jobs
+            .list_workers(pb::ListWorkersRequest {})
+            .await
+            .map_err(|e| anyhow!("list workers: {}", e.message()))?
+            .into_inner()
+            .workers
+            .len();
+        if listed > more_than {
+            return Ok(());
+        }
+        if start.elapsed() > limit {
+            bail!("{}", said(listed));
+        }
+        tokio::time::sleep(interval).await;
+    }
+}
+
 /// One run with `workers` simulated workers, measured for `plan.seconds`.
 async fn run_one(workers: usize, plan: &Plan, guided: bool) -> Result<Run> {
     let (seconds, split_cores) = (plan.seconds, plan.split_cores);
@@ -499,41 +526,20 @@ async fn run_one(workers: usize, plan: &Plan, guided: bool) -> Result<Run> {
                 .block_on(simulated_worker(url, workers, shared, true))
         })
     };
-    let start = Instant::now();
-    while jobs
-        .list_workers(pb::ListWorkersRequest {})
-        .await
-        .map_err(|e| anyhow!("list workers: {}", e.message()))?
-        .into_inner()
-        .workers
-        .is_empty()
-    {
-        if start.elapsed() > Duration::from_secs(60) {
-            bail!("the probe worker did not register in 60 s");
-        }
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+    let wait = (Duration::from_secs(60), Duration::from_millis(20));
+    wait_for_workers(&mut jobs, 0, wait, |_| {
+        "the probe worker did not register in 60 s".into()
+    })
+    .await?;
     let tasks: Vec<_> = (0..workers)
         .map(|n| tokio::spawn(simulated_worker(url.clone(), n, shared.clone(), false)))
         .collect();
     // Registered and leasing: wait until the coordinator lists them all.
-    let start = Instant::now();
-    loop {
-        let listed = jobs
-            .list_workers(pb::ListWorkersRequest {})
-            .await
-            .map_err(|e| anyhow!("list workers: {}", e.message()))?
-            .into_inner()
-            .workers
-            .len();
-        if listed > workers {
-            break;
-        }
-        if start.elapsed() > Duration::from_secs(120) {
-            bail!("only {listed} of {workers} workers registered in 120 s");
-        }
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
+    let wait = (Duration::from_secs(120), Duration::from_millis(100));
+    wait_for_workers(&mut jobs, workers, wait, |listed| {
+        format!("only {listed} of {workers} workers registered in 120 s")
+    })
+    .await?;
     shared.go.store(true, Ordering::Relaxed);
     tokio::time::sleep(Duration::from_secs(1)).await;
     let before = proc_figures(pid)?;

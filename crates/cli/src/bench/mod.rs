@@ -242,7 +242,57 @@ pub fn run(args: BenchArgs) -> Result<()> {
     if !args.out.is_dir() {
         bail!("output directory {} does not exist", args.out.display());
     }
-    let scenes = if args.scenes.is_empty() {
+    let (scenes, names) = scene_list(&args)?;
+    let given = given_references(&args, &names)?;
+    let peer_rows = read_peer_rows(&args.peers)?;
+    let mut peer = args
+        .peer_command
+        .as_deref()
+        .map(PeerCommand::start)
+        .transpose()?;
+    let mut pool = rayon::ThreadPoolBuilder::new();
+    if let Some(t) = args.threads {
+        pool = pool.num_threads(t as usize);
+    }
+    let pool = pool.build().context("starting the render threads")?;
+    let mut m = Measured {
+        threads: pool.current_num_threads(),
+        clock_ghz: measured_clock_ghz(),
+        ..Measured::default()
+    };
+    for (path, name) in scenes.iter().zip(&names) {
+        let given = given.get(name.as_str()).copied();
+        measure_scene(&args, (path, name, given), &pool, peer.as_mut(), &mut m)?;
+    }
+    drop(peer);
+    m.rows.extend(peer_rows);
+    write_reports(&args, &m)
+}
+
+/// What a bench run measured, for its reports.
+#[derive(Default)]
+struct Measured {
+    threads: usize,
+    clock_ghz: f64,
+    rows: Vec<Row>,
+    adaptive_points: Vec<adaptive::Point>,
+    /// Each scene's reference and where it came from.
+    references: Vec<(String, String)>,
+    /// Lines about mesh BVH builds.
+    builds: Vec<String>,
+}
+
+impl Measured {
+    /// Keeps `row`, printed as it comes.
+    fn keep(&mut self, row: Row) {
+        errln!("{}", row.to_csv());
+        self.rows.push(row);
+    }
+}
+
+/// The scenes to measure (the three default ones unless some are named) and their names.
+fn scene_list(args: &BenchArgs) -> Result<(Vec<PathBuf>, Vec<String>)> {
+    let scenes: Vec<PathBuf> = if args.scenes.is_empty() {
         ["cornell-box", "spheres", "glass-mirror"]
             .iter()
             .map(|s| PathBuf::from(format!("scenes/{s}.toml")))
@@ -259,186 +309,146 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 .with_context(|| format!("{}: a scene file needs a UTF-8 name", path.display()))
         })
         .collect::<Result<Vec<_>>>()?;
-    let given = given_references(&args, &names)?;
-    let mut peer_rows = Vec::new();
-    for file in &args.peers {
+    Ok((scenes, names))
+}
+
+/// The rows of peers' CSV files (`--peer`), each line named by file and number if it is bad.
+fn read_peer_rows(files: &[PathBuf]) -> Result<Vec<Row>> {
+    let mut rows = Vec::new();
+    for file in files {
         let text =
             std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
         for (i, line) in text.lines().enumerate() {
             if i == 0 && line.trim() == CSV_HEADER || line.trim().is_empty() {
                 continue;
             }
-            peer_rows.push(Row::parse(line, &format!("{}:{}", file.display(), i + 1))?);
+            rows.push(Row::parse(line, &format!("{}:{}", file.display(), i + 1))?);
         }
     }
-    let mut peer = args
-        .peer_command
-        .as_deref()
-        .map(PeerCommand::start)
-        .transpose()?;
-    let mut pool = rayon::ThreadPoolBuilder::new();
-    if let Some(t) = args.threads {
-        pool = pool.num_threads(t as usize);
-    }
-    let pool = pool.build().context("starting the render threads")?;
-    let threads = pool.current_num_threads();
-    let clock_ghz = measured_clock_ghz();
+    Ok(rows)
+}
 
-    let mut rows = Vec::new();
-    let mut adaptive_points = Vec::new();
-    let mut references = Vec::new();
-    let mut builds = Vec::new();
-    for (path, name) in scenes.iter().zip(&names) {
-        let start = Instant::now();
-        let scene = Scene::load(path, &Limits::default())?;
-        let load_seconds = start.elapsed().as_secs_f64();
-        builds.extend(mesh_builds(name, &scene, load_seconds, &pool));
-        let (reference, source) = reference(
-            &args,
-            given.get(name.as_str()).copied(),
-            name,
-            &scene,
-            &pool,
-        )?;
-        if (reference.width, reference.height) != (scene.width as usize, scene.height as usize) {
-            bail!(
-                "the reference for {name} is {}×{}, the scene {}×{}",
-                reference.width,
-                reference.height,
-                scene.width,
-                scene.height
-            );
-        }
-        references.push((name.clone(), source));
-        // Warm-up (page faults, thread start), not timed.
-        let warm = RenderSettings {
-            spp: 1,
-            ..RenderSettings::default()
-        };
-        pool.install(|| render_frame(&scene, &warm, &|_| {}));
-        let mut spp = 4;
-        while spp <= args.max_spp {
-            for seed in 0..args.seeds as u64 {
-                let settings = RenderSettings {
-                    seed: 1 + seed,
-                    spp,
-                    ..RenderSettings::default()
-                };
-                let start = Instant::now();
-                let sums = pool.install(|| render_frame(&scene, &settings, &|_| {}));
-                let seconds = start.elapsed().as_secs_f64();
-                let img = sums.finalize();
-                let samples = scene.width as f64 * scene.height as f64 * spp as f64;
-                let row = Row {
-                    renderer: "tessera".into(),
-                    scene: name.clone(),
-                    spp,
-                    seed: settings.seed,
-                    threads,
-                    seconds,
-                    msamples_per_s: samples / seconds / 1e6,
-                    relmse: rel_mse(&img, &reference),
-                };
-                errln!("{}", row.to_csv());
-                rows.push(row);
-                if args.guiding {
-                    let row = guided::measure(&scene, name, &settings, &reference, &pool);
-                    errln!("{}", row.to_csv());
-                    rows.push(row);
-                }
-                if let Some(peer) = peer.as_mut() {
-                    for row in peer.measure(name, spp, settings.seed)? {
-                        errln!("{}", row.to_csv());
-                        rows.push(row);
-                    }
+/// One scene's rows: tessera at 4, 16, … spp and every seed (guided too with `--guiding`),
+/// the peer's at the same points, and adaptive sampling's with `--adaptive`.
+fn measure_scene(
+    args: &BenchArgs,
+    (path, name, given): (&Path, &String, Option<&Path>),
+    pool: &rayon::ThreadPool,
+    mut peer: Option<&mut PeerCommand>,
+    m: &mut Measured,
+) -> Result<()> {
+    let start = Instant::now();
+    let scene = Scene::load(path, &Limits::default())?;
+    let load_seconds = start.elapsed().as_secs_f64();
+    m.builds
+        .extend(mesh_builds(name, &scene, load_seconds, pool));
+    let (reference, source) = reference(args, given, name, &scene, pool)?;
+    if (reference.width, reference.height) != (scene.width as usize, scene.height as usize) {
+        bail!(
+            "the reference for {name} is {}×{}, the scene {}×{}",
+            reference.width,
+            reference.height,
+            scene.width,
+            scene.height
+        );
+    }
+    m.references.push((name.clone(), source));
+    // Warm-up (page faults, thread start), not timed.
+    let warm = RenderSettings {
+        spp: 1,
+        ..RenderSettings::default()
+    };
+    pool.install(|| render_frame(&scene, &warm, &|_| {}));
+    let mut spp = 4;
+    while spp <= args.max_spp {
+        for seed in 0..args.seeds as u64 {
+            let settings = RenderSettings {
+                seed: 1 + seed,
+                spp,
+                ..RenderSettings::default()
+            };
+            let start = Instant::now();
+            let sums = pool.install(|| render_frame(&scene, &settings, &|_| {}));
+            let seconds = start.elapsed().as_secs_f64();
+            let img = sums.finalize();
+            let samples = scene.width as f64 * scene.height as f64 * spp as f64;
+            m.keep(Row {
+                renderer: "tessera".into(),
+                scene: name.clone(),
+                spp,
+                seed: settings.seed,
+                threads: m.threads,
+                seconds,
+                msamples_per_s: samples / seconds / 1e6,
+                relmse: rel_mse(&img, &reference),
+            });
+            if args.guiding {
+                m.keep(guided::measure(&scene, name, &settings, &reference, pool));
+            }
+            if let Some(peer) = peer.as_deref_mut() {
+                for row in peer.measure(name, spp, settings.seed)? {
+                    m.keep(row);
                 }
             }
-            spp *= 4;
         }
-        if args.adaptive {
-            let knobs = (args.max_spp, args.adaptive_tile, args.seeds);
-            adaptive_points.extend(adaptive::measure(&scene, name, &reference, &pool, knobs)?);
-        }
+        spp *= 4;
     }
-    drop(peer);
-    rows.extend(peer_rows);
+    if args.adaptive {
+        let knobs = (args.max_spp, args.adaptive_tile, args.seeds);
+        m.adaptive_points
+            .extend(adaptive::measure(&scene, name, &reference, pool, knobs)?);
+    }
+    Ok(())
+}
 
+/// The run's CSV, plot and markdown report, and the guided and adaptive reports when those
+/// were measured.
+fn write_reports(args: &BenchArgs, m: &Measured) -> Result<()> {
+    let threads = m.threads;
     let base = args.out.join(&args.name);
     let csv = std::iter::once(CSV_HEADER.to_string())
-        .chain(rows.iter().map(Row::to_csv))
+        .chain(m.rows.iter().map(Row::to_csv))
         .collect::<Vec<_>>()
         .join("\n")
         + "\n";
     let csv_path = base.with_extension("csv");
     std::fs::write(&csv_path, csv).with_context(|| format!("writing {}", csv_path.display()))?;
     let svg_path = base.with_extension("svg");
-    plot::plot(&rows, &svg_path)?;
+    plot::plot(&m.rows, &svg_path)?;
     let md_path = base.with_extension("md");
     let md = report(
-        &rows,
-        &references,
-        &args,
+        &m.rows,
+        &m.references,
+        args,
         threads,
-        clock_ghz,
+        m.clock_ghz,
         &svg_path,
         &csv_path,
     );
-    let md = if builds.is_empty() {
+    let md = if m.builds.is_empty() {
         md
     } else {
         format!(
             "{md}\n## Mesh BVH builds\n\nEach distinct mesh's BVH built again from its triangles, timed alone (the scene's \
              load, which also reads the file, in brackets), on {threads} threads:\n\n{}\n",
-            builds.join("\n")
+            m.builds.join("\n")
         )
     };
     std::fs::write(&md_path, md).with_context(|| format!("writing {}", md_path.display()))?;
     if args.guiding {
         let path = args.out.join(format!("{}-guiding.md", args.name));
-        let md = guided::report(&rows, &report::command())
+        let md = guided::report(&m.rows, &report::command())
             + &format!(
                 "\nMachine: {}, {threads} threads. Data: the rows of [`{}`]({}).\n",
-                report::machine(clock_ghz),
+                report::machine(m.clock_ghz),
                 csv_path.display(),
-                csv_path
-                    .file_name()
-                    .map_or_else(String::new, |f| f.to_string_lossy().into()),
+                file_name(&csv_path),
             );
         std::fs::write(&path, md).with_context(|| format!("writing {}", path.display()))?;
         outln!("wrote {}", path.display());
     }
     if args.adaptive {
-        let base = args.out.join(format!("{}-adaptive", args.name));
-        let (cap, tile) = (args.max_spp, args.adaptive_tile);
-        let csv = std::iter::once(adaptive::CSV_HEADER.to_string())
-            .chain(
-                adaptive_points
-                    .iter()
-                    .map(|p| adaptive::to_csv(p, cap, tile)),
-            )
-            .collect::<Vec<_>>()
-            .join("\n")
-            + "\n";
-        let csv_path = base.with_extension("csv");
-        std::fs::write(&csv_path, csv)
-            .with_context(|| format!("writing {}", csv_path.display()))?;
-        let mut md = adaptive::report(&rows, &adaptive_points, cap, tile, &report::command());
-        md += &format!(
-            "\nMachine: {}, {threads} threads. Data: [`{}`]({}); the uniform points are those \
-             of [`{}`]({}).\n",
-            report::machine(clock_ghz),
-            csv_path.display(),
-            csv_path
-                .file_name()
-                .map_or_else(String::new, |f| f.to_string_lossy().into()),
-            md_path.display(),
-            md_path
-                .file_name()
-                .map_or_else(String::new, |f| f.to_string_lossy().into()),
-        );
-        let path = base.with_extension("md");
-        std::fs::write(&path, md).with_context(|| format!("writing {}", path.display()))?;
-        outln!("wrote {} and {}", path.display(), csv_path.display());
+        write_adaptive(args, m, &md_path)?;
     }
     outln!(
         "wrote {}, {} and {}",
@@ -447,4 +457,42 @@ pub fn run(args: BenchArgs) -> Result<()> {
         svg_path.display()
     );
     Ok(())
+}
+
+/// Adaptive sampling's CSV and report, beside the uniform run's report at `md_path`.
+fn write_adaptive(args: &BenchArgs, m: &Measured, md_path: &Path) -> Result<()> {
+    let base = args.out.join(format!("{}-adaptive", args.name));
+    let (cap, tile) = (args.max_spp, args.adaptive_tile);
+    let csv = std::iter::once(adaptive::CSV_HEADER.to_string())
+        .chain(
+            m.adaptive_points
+                .iter()
+                .map(|p| adaptive::to_csv(p, cap, tile)),
+        )
+        .collect::<Vec<_>>()
+        .join("\n")
+        + "\n";
+    let csv_path = base.with_extension("csv");
+    std::fs::write(&csv_path, csv).with_context(|| format!("writing {}", csv_path.display()))?;
+    let mut md = adaptive::report(&m.rows, &m.adaptive_points, cap, tile, &report::command());
+    md += &format!(
+        "\nMachine: {}, {} threads. Data: [`{}`]({}); the uniform points are those of \
+         [`{}`]({}).\n",
+        report::machine(m.clock_ghz),
+        m.threads,
+        csv_path.display(),
+        file_name(&csv_path),
+        md_path.display(),
+        file_name(md_path),
+    );
+    let path = base.with_extension("md");
+    std::fs::write(&path, md).with_context(|| format!("writing {}", path.display()))?;
+    outln!("wrote {} and {}", path.display(), csv_path.display());
+    Ok(())
+}
+
+/// A path's last component, for a link beside it.
+fn file_name(path: &Path) -> String {
+    path.file_name()
+        .map_or_else(String::new, |f| f.to_string_lossy().into())
 }

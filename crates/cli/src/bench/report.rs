@@ -6,7 +6,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use super::peer::Row;
-use super::stats::{by_spp, reference_noises, series, summary};
+use super::stats::{by_spp, reference_noises, series, summary, Series};
 use super::BenchArgs;
 
 /// The core clock, timed on a chain of dependent rotate-and-xor operations, which take one
@@ -228,12 +228,34 @@ pub(super) fn report(
     for (name, source) in references {
         let _ = writeln!(md, "- {name}: {source}");
     }
+    summary_section(&mut md, &all);
+    by_spp_section(&mut md, &all);
+    let _ = writeln!(md, "## All points\n");
+    let _ = writeln!(
+        md,
+        "| scene | renderer | spp | seconds | Msamples/s | relMSE | efficiency |\n|---|---|---:|---:|---:|---:|---:|"
+    );
+    for ((scene, renderer), points) in &all {
+        for (spp, (s, e, m)) in points {
+            let _ = writeln!(
+                md,
+                "| {scene} | {renderer} | {spp} | {s:.3} | {m:.2} | {e:.3e} | {:.1} |",
+                1.0 / (e * s)
+            );
+        }
+    }
+    md
+}
+
+/// The summary: each scene and renderer's throughput, relMSE·s and efficiency, and the ratios
+/// to tessera's.
+fn summary_section(md: &mut String, all: &Series) {
     let _ = writeln!(md, "\n## Summary\n");
     let _ = writeln!(
         md,
         "| scene | renderer | Msamples/s | relMSE·s | efficiency | throughput vs tessera | equal-time relMSE vs tessera |\n|---|---|---:|---:|---:|---:|---:|"
     );
-    for ((scene, renderer), points) in &all {
+    for ((scene, renderer), points) in all {
         let (et, ms) = summary(points);
         let (ratio_t, ratio_e) = match all.get(&(scene.clone(), "tessera".to_string())) {
             Some(t) if renderer != "tessera" => {
@@ -254,8 +276,12 @@ pub(super) fn report(
          tessera\" is tessera's relMSE·s over the peer's: the error tessera reaches in the time the \
          peer needs for its own (below 1 is better for tessera).\n"
     );
-    let noises = reference_noises(&all);
-    let table = by_spp(&all, &noises);
+}
+
+/// The equal-time ratios at each spp, with the references' estimated noise taken off.
+fn by_spp_section(md: &mut String, all: &Series) {
+    let noises = reference_noises(all);
+    let table = by_spp(all, &noises);
     if !table.is_empty() {
         let _ = writeln!(md, "## Equal-time relMSE by spp\n");
         let _ = writeln!(
@@ -285,21 +311,6 @@ pub(super) fn report(
         }
         let _ = writeln!(md);
     }
-    let _ = writeln!(md, "## All points\n");
-    let _ = writeln!(
-        md,
-        "| scene | renderer | spp | seconds | Msamples/s | relMSE | efficiency |\n|---|---|---:|---:|---:|---:|---:|"
-    );
-    for ((scene, renderer), points) in &all {
-        for (spp, (s, e, m)) in points {
-            let _ = writeln!(
-                md,
-                "| {scene} | {renderer} | {spp} | {s:.3} | {m:.2} | {e:.3e} | {:.1} |",
-                1.0 / (e * s)
-            );
-        }
-    }
-    md
 }
 
 /// The command line this process was run with, each argument quoted as a shell would need it

@@ -152,8 +152,9 @@ pub struct CoordinatorArgs {
     /// reach the farm through a name it points at it (DNS rebinding).
     #[arg(long = "http-host", value_name = "NAME")]
     http_hosts: Vec<String>,
-    /// Most memory, in bytes, that checking submitted scenes may spend decoding their textures
-    /// at once (a texture larger than this is refused; more wait their turn).
+    /// Most memory, in bytes, that the coordinator's own renders (an audit's referee) may spend
+    /// decoding textures at once (more wait their turn). Submitted scenes' images are checked
+    /// by their headers alone, never decoded.
     #[arg(long, default_value_t = tessera_render::texture::DEFAULT_DECODE_BUDGET)]
     texture_decode_bytes: u64,
 }
@@ -200,9 +201,69 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
     }
     init_logging();
     tessera_render::texture::DecodeBudget::global().set_total(args.texture_decode_bytes);
+    let config = coordinator_config(&args)?;
+    let tokens = config.tokens.clone();
+    let auth = match (config.auth().is_some(), &config.tls) {
+        (true, Some(_)) => "token and TLS",
+        (true, None) => "token (no TLS: the token crosses the network in clear)",
+        (false, Some(_)) => "TLS, no token",
+        (false, None) => "none: anyone who can connect may submit, lease and fetch",
+    };
+    runtime()?.block_on(async {
+        let listener = tokio::net::TcpListener::bind(&args.listen)
+            .await
+            .with_context(|| format!("--listen {}: cannot listen", args.listen))?;
+        let addr = listener.local_addr()?;
+        let http = match &args.http {
+            Some(a) => Some(
+                tokio::net::TcpListener::bind(a)
+                    .await
+                    .with_context(|| format!("--http {a}: cannot listen"))?,
+            ),
+            None => None,
+        };
+        let http_addr = http.as_ref().map(|l| l.local_addr()).transpose()?;
+        let scheme = if config.tls.is_some() {
+            "https"
+        } else {
+            "http"
+        };
+        // Said once the store is open and the TLS key loaded, so that a script (or a person)
+        // waiting for it knows the coordinator is really up; a failure before that is the
+        // one line of the error instead. stdout is line-buffered, so the newline sends it.
+        // Best effort: a script that read it and closed the pipe must not stop the server.
+        let ready = move || {
+            tracing::info!("auth: {auth}");
+            let _ = writeln!(std::io::stdout(), "listening on {addr}");
+            if let Some(h) = http_addr {
+                let _ = writeln!(std::io::stdout(), "dashboard on {scheme}://{h}/");
+            }
+        };
+        let listeners = tessera_coordinator::Listeners {
+            grpc: listener,
+            http,
+        };
+        // Listening before `listening on` is printed, so that a SIGHUP sent once it is seen
+        // rereads the file rather than ending the process (SIGHUP's default).
+        #[cfg(unix)]
+        if let (Some(tokens), Some(path)) = (tokens, args.tokens_file.clone()) {
+            use tokio::signal::unix::{signal, SignalKind};
+            let hup = signal(SignalKind::hangup()).context("cannot listen for SIGHUP")?;
+            tokio::spawn(reload_on_sighup(hup, tokens, path));
+        }
+        #[cfg(not(unix))]
+        drop(tokens);
+        tessera_coordinator::serve_when_ready(config, listeners, shutdown_signal(), ready).await?;
+        Ok(())
+    })
+}
+
+/// The coordinator's configuration from its flags: bounds, durations, tokens, TLS (files read
+/// here, so that a missing one stops it before it listens).
+fn coordinator_config(args: &CoordinatorArgs) -> Result<tessera_coordinator::Config> {
     let mut config = tessera_coordinator::Config::new(&args.data_dir);
     config.audit = args.audit;
-    config.output_dir = args.output_dir;
+    config.output_dir = args.output_dir.clone();
     config.lease_timeout = seconds("--lease-timeout", args.lease_timeout, 0.1..=86_400.0)?;
     config.checkpoint_interval = seconds(
         "--checkpoint-interval",
@@ -259,60 +320,7 @@ pub fn coordinator(args: CoordinatorArgs) -> Result<()> {
                 .transpose()?,
         });
     }
-    let tokens = config.tokens.clone();
-    let auth = match (config.auth().is_some(), &config.tls) {
-        (true, Some(_)) => "token and TLS",
-        (true, None) => "token (no TLS: the token crosses the network in clear)",
-        (false, Some(_)) => "TLS, no token",
-        (false, None) => "none: anyone who can connect may submit, lease and fetch",
-    };
-    runtime()?.block_on(async {
-        let listener = tokio::net::TcpListener::bind(&args.listen)
-            .await
-            .with_context(|| format!("--listen {}: cannot listen", args.listen))?;
-        let addr = listener.local_addr()?;
-        let http = match &args.http {
-            Some(a) => Some(
-                tokio::net::TcpListener::bind(a)
-                    .await
-                    .with_context(|| format!("--http {a}: cannot listen"))?,
-            ),
-            None => None,
-        };
-        let http_addr = http.as_ref().map(|l| l.local_addr()).transpose()?;
-        let scheme = if config.tls.is_some() {
-            "https"
-        } else {
-            "http"
-        };
-        // Said once the store is open and the TLS key loaded, so that a script (or a person)
-        // waiting for it knows the coordinator is really up; a failure before that is the
-        // one line of the error instead. stdout is line-buffered, so the newline sends it.
-        // Best effort: a script that read it and closed the pipe must not stop the server.
-        let ready = move || {
-            tracing::info!("auth: {auth}");
-            let _ = writeln!(std::io::stdout(), "listening on {addr}");
-            if let Some(h) = http_addr {
-                let _ = writeln!(std::io::stdout(), "dashboard on {scheme}://{h}/");
-            }
-        };
-        let listeners = tessera_coordinator::Listeners {
-            grpc: listener,
-            http,
-        };
-        // Listening before `listening on` is printed, so that a SIGHUP sent once it is seen
-        // rereads the file rather than ending the process (SIGHUP's default).
-        #[cfg(unix)]
-        if let (Some(tokens), Some(path)) = (tokens, args.tokens_file.clone()) {
-            use tokio::signal::unix::{signal, SignalKind};
-            let hup = signal(SignalKind::hangup()).context("cannot listen for SIGHUP")?;
-            tokio::spawn(reload_on_sighup(hup, tokens, path));
-        }
-        #[cfg(not(unix))]
-        drop(tokens);
-        tessera_coordinator::serve_when_ready(config, listeners, shutdown_signal(), ready).await?;
-        Ok(())
-    })
+    Ok(config)
 }
 
 /// Rereads the tokens file at each SIGHUP: its tokens are accepted from then on (a user added,

@@ -13,8 +13,6 @@
 //! coordinator's scene limit for a submission, and the asset store's own checks for an upload,
 //! which arrives a mebibyte at a time.
 
-use std::time::Instant;
-
 use axum::body::Body;
 use axum::extract::{Path, Query, State};
 use axum::http::{header, HeaderValue, StatusCode};
@@ -97,16 +95,13 @@ pub(super) struct Page {
 /// `X-Next-Page` header gives the `page` to ask for next.
 #[utoipa::path(get, path = "/api/jobs", params(Page), responses((status = 200, body = Vec<JobView>, headers(("X-Next-Page" = String, description = "the next page's `page`, when there is one")))))]
 pub(super) async fn list_jobs(State(app): State<App>, Query(p): Query<Page>) -> Response {
-    let (offset, size) =
-        match crate::service::list_page(p.page.as_deref().unwrap_or(""), p.limit.unwrap_or(0)) {
-            Ok(v) => v,
-            Err(s) => return refused(s),
-        };
-    let (views, next) = app
+    let (views, next) = match app
         .svc
-        .shared
-        .scheduler()
-        .job_page(Instant::now(), offset, size);
+        .job_page(p.page.as_deref().unwrap_or(""), p.limit.unwrap_or(0))
+    {
+        Ok(v) => v,
+        Err(s) => return refused(s),
+    };
     let mut r = Json(views).into_response();
     if let Some(v) = next.and_then(|n| HeaderValue::from_str(&n.to_string()).ok()) {
         r.headers_mut().insert("x-next-page", v);
@@ -377,8 +372,7 @@ pub(super) async fn output_exr(
 /// Every worker the coordinator has seen.
 #[utoipa::path(get, path = "/api/workers", responses((status = 200, body = Vec<WorkerView>)))]
 pub(super) async fn list_workers(State(app): State<App>) -> Response {
-    let views = app.svc.shared.scheduler().worker_views(Instant::now());
-    Json(views).into_response()
+    Json(app.svc.worker_views()).into_response()
 }
 
 /// The workers a drain reached.

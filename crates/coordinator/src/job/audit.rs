@@ -130,6 +130,11 @@ impl Job {
     /// on from there with the honest farm's guides and bits. The lie costs the job every
     /// sample from that epoch on: epochs double, so a liar caught in a job's last epoch
     /// costs about half of it, one that trained epoch 0 all of it.
+    ///
+    /// Long because it is one pass over the job's accumulators that keeps the job's totals
+    /// (units and samples done, non-finite samples, noise, dirty tiles, pilots) in step with
+    /// each tile it folds again while that tile's accumulator is borrowed; a helper per step
+    /// would take half of the job's fields as arguments.
     pub fn take_back(&mut self, w: u64, kept: &dyn KeptUnits) -> TakenBack {
         let id = self.rec.id;
         let mut ops = Vec::new();

@@ -156,6 +156,69 @@ impl Admission {
             output_name,
         })
     }
+
+    /// The record of this job (of its frame `frame`, for a frame range), neither numbered nor
+    /// named yet.
+    fn record(&self, frame: Option<u32>, now_ms: i64, audited: bool) -> JobRecord {
+        let s = &self.settings;
+        // A request that leaves the batch to the coordinator gets the rule `tessera render`
+        // follows, so that its bits are render's for the same flags.
+        let batch = if s.batch == 0 {
+            unit_batch(
+                self.width,
+                self.height,
+                s.spp,
+                s.adaptive.is_some(),
+                DEFAULT_UNIT_SAMPLES,
+            )
+        } else {
+            s.batch
+        };
+        JobRecord {
+            id: 0,
+            scene_hash: self.scene_hash.clone(),
+            scene_name: self.scene.name.clone(),
+            width: self.width,
+            height: self.height,
+            spp: s.spp,
+            seed: s.seed,
+            batch,
+            strategy: s.strategy,
+            tile_size: self.tile_size,
+            output_name: String::new(),
+            priority: self.priority,
+            variance: self.variance,
+            sample_count: self.sample_count,
+            phase: JobPhase::Active,
+            error: String::new(),
+            submitted_ms: now_ms,
+            finished_ms: 0,
+            final_noise: (0.0, 0.0),
+            image_revision: IMAGE_REVISION,
+            noise_target: s.adaptive.map_or(0.0, |a| a.noise_target),
+            final_counts: (0, 0),
+            frame,
+            resolution: s.resolution,
+            range: None,
+            adaptive_scale: None,
+            aovs: s.aovs.list(),
+            checks: Default::default(),
+            after: self.after.map(|j| j.0),
+            require: self.require.clone(),
+            min_memory: self.min_memory,
+            progressive: self.progressive && self.frames.is_some(),
+            failures: Vec::new(),
+            blocklist: Vec::new(),
+            paused: false,
+            retries: 0,
+            submitter: self.submitter.clone(),
+            guiding: s.guiding.then(|| GuidingRecord {
+                bounds: self.guide_bounds,
+                guides: Vec::new(),
+            }),
+            audited,
+        }
+    }
 }
 
 impl Scheduler {
@@ -258,7 +321,70 @@ impl Scheduler {
         names: &OutputNames<'_>,
         now_ms: i64,
     ) -> Result<(JobId, Vec<Op>), Refusal> {
-        // A frame-range job counts once, as its user submitted it.
+        self.check_bounds(&a, &limits)?;
+        // An adaptive job's decisions follow its merged sums; taking results back would need
+        // them made again from the start, which is not built: such jobs are not audited
+        // (docs/farm.md). A guided job is audited: a conviction rewinds it to the first epoch
+        // whose guide the convict's training shaped (`Job::take_back`).
+        let audited = self.policy.audit > 0.0 && a.settings.adaptive.is_none();
+        // The job's own count, so that admission and scheduling cannot disagree on it; a job
+        // costs nothing per unit until its units render, so making it first is free. Every
+        // frame of a range has the same count.
+        let first_frame = a.frames.map_or(a.settings.frame, |r| Some(r.first));
+        let first = Job::new(a.record(first_frame, now_ms, audited));
+        let units = first.units_total();
+        if units > limits.max_units_per_job {
+            return Err(Refusal::Exhausted(format!(
+                "the job would have {units} work units{}, above the limit of {} (use larger \
+                 tiles or batches)",
+                if a.frames.is_some() { " per frame" } else { "" },
+                limits.max_units_per_job
+            )));
+        }
+        let taken = self
+            .jobs
+            .values()
+            .map(|j| (j.id(), j.rec.output_name.as_str()));
+        let Some(frames) = a.frames else {
+            let (id, output_name) =
+                names.choose(JobId(self.next_job), a.output_name.clone(), taken)?;
+            let mut job = first;
+            self.next_job = id.0 + 1;
+            job.rec.id = id.0;
+            job.rec.output_name = output_name;
+            let ops = vec![
+                Op::PutScene(a.scene_hash, a.scene),
+                Op::PutJob(job.rec.clone()),
+            ];
+            self.jobs.insert(id, job);
+            return Ok((id, ops));
+        };
+        let (range_id, output_names) =
+            names.choose_range(JobId(self.next_job), a.output_name.clone(), frames, taken)?;
+        let range = RangeRef {
+            id: range_id.0,
+            frames,
+        };
+        let mut ops = vec![Op::PutScene(a.scene_hash.clone(), a.scene.clone())];
+        let mut members = Vec::with_capacity(output_names.len());
+        for ((frame, output_name), id) in frames.iter().zip(output_names).zip(range_id.0 + 1..) {
+            let mut job = Job::new(a.record(Some(frame), now_ms, audited));
+            job.rec.id = id;
+            job.rec.output_name = output_name;
+            job.rec.range = Some(range);
+            ops.push(Op::PutJob(job.rec.clone()));
+            members.push(JobId(id));
+            self.jobs.insert(JobId(id), job);
+        }
+        self.next_job = members.last().map_or(range_id.0, |m| m.0) + 1;
+        self.ranges.insert(range_id, members);
+        Ok((range_id, ops))
+    }
+
+    /// The coordinator's bounds a new job must keep to before it is made: active jobs (a
+    /// frame range counts once, as its user submitted it), a dependency that can still be
+    /// met, frames per job.
+    fn check_bounds(&self, a: &Admission, limits: &AdmissionLimits) -> Result<(), Refusal> {
         let active = self.active_jobs();
         if active >= limits.max_active_jobs {
             return Err(Refusal::Exhausted(format!(
@@ -278,119 +404,7 @@ impl Scheduler {
                 )));
             }
         }
-        let s = &a.settings;
-        // A request that leaves the batch to the coordinator gets the rule `tessera render`
-        // follows, so that its bits are render's for the same flags.
-        let batch = if s.batch == 0 {
-            unit_batch(
-                a.width,
-                a.height,
-                s.spp,
-                s.adaptive.is_some(),
-                DEFAULT_UNIT_SAMPLES,
-            )
-        } else {
-            s.batch
-        };
-        let record = |frame: Option<u32>| JobRecord {
-            id: 0,
-            scene_hash: a.scene_hash.clone(),
-            scene_name: a.scene.name.clone(),
-            width: a.width,
-            height: a.height,
-            spp: s.spp,
-            seed: s.seed,
-            batch,
-            strategy: s.strategy,
-            tile_size: a.tile_size,
-            output_name: String::new(),
-            priority: a.priority,
-            variance: a.variance,
-            sample_count: a.sample_count,
-            phase: JobPhase::Active,
-            error: String::new(),
-            submitted_ms: now_ms,
-            finished_ms: 0,
-            final_noise: (0.0, 0.0),
-            image_revision: IMAGE_REVISION,
-            noise_target: s.adaptive.map_or(0.0, |a| a.noise_target),
-            final_counts: (0, 0),
-            frame,
-            resolution: s.resolution,
-            range: None,
-            adaptive_scale: None,
-            aovs: s.aovs.list(),
-            checks: Default::default(),
-            after: a.after.map(|j| j.0),
-            require: a.require.clone(),
-            min_memory: a.min_memory,
-            progressive: a.progressive && a.frames.is_some(),
-            failures: Vec::new(),
-            blocklist: Vec::new(),
-            paused: false,
-            retries: 0,
-            submitter: a.submitter.clone(),
-            guiding: s.guiding.then(|| GuidingRecord {
-                bounds: a.guide_bounds,
-                guides: Vec::new(),
-            }),
-            // An adaptive job's decisions follow its merged sums; taking results back would
-            // need them made again from the start, which is not built: such jobs are not
-            // audited (docs/farm.md).
-            // A guided job is audited: a conviction rewinds it to the first epoch whose
-            // guide the convict's training shaped (`Job::take_back`).
-            audited: self.policy.audit > 0.0 && s.adaptive.is_none(),
-        };
-        // The job's own count, so that admission and scheduling cannot disagree on it; a job
-        // costs nothing per unit until its units render, so making it first is free. Every
-        // frame of a range has the same count.
-        let first = Job::new(record(a.frames.map_or(s.frame, |r| Some(r.first))));
-        let units = first.units_total();
-        if units > limits.max_units_per_job {
-            return Err(Refusal::Exhausted(format!(
-                "the job would have {units} work units{}, above the limit of {} (use larger \
-                 tiles or batches)",
-                if a.frames.is_some() { " per frame" } else { "" },
-                limits.max_units_per_job
-            )));
-        }
-        let taken = self
-            .jobs
-            .values()
-            .map(|j| (j.id(), j.rec.output_name.as_str()));
-        let Some(frames) = a.frames else {
-            let (id, output_name) = names.choose(JobId(self.next_job), a.output_name, taken)?;
-            let mut job = first;
-            self.next_job = id.0 + 1;
-            job.rec.id = id.0;
-            job.rec.output_name = output_name;
-            let ops = vec![
-                Op::PutScene(a.scene_hash, a.scene),
-                Op::PutJob(job.rec.clone()),
-            ];
-            self.jobs.insert(id, job);
-            return Ok((id, ops));
-        };
-        let (range_id, output_names) =
-            names.choose_range(JobId(self.next_job), a.output_name, frames, taken)?;
-        let range = RangeRef {
-            id: range_id.0,
-            frames,
-        };
-        let mut ops = vec![Op::PutScene(a.scene_hash.clone(), a.scene.clone())];
-        let mut members = Vec::with_capacity(output_names.len());
-        for ((frame, output_name), id) in frames.iter().zip(output_names).zip(range_id.0 + 1..) {
-            let mut job = Job::new(record(Some(frame)));
-            job.rec.id = id;
-            job.rec.output_name = output_name;
-            job.rec.range = Some(range);
-            ops.push(Op::PutJob(job.rec.clone()));
-            members.push(JobId(id));
-            self.jobs.insert(JobId(id), job);
-        }
-        self.next_job = members.last().map_or(range_id.0, |m| m.0) + 1;
-        self.ranges.insert(range_id, members);
-        Ok((range_id, ops))
+        Ok(())
     }
 
     /// The jobs `id` names: a frame-range job's frames, or the job itself.

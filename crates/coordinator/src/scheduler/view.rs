@@ -211,26 +211,7 @@ impl Scheduler {
         let first = frames.first()?;
         let range = self.jobs.get(&members[0])?.rec.range?;
         let state = JobState::of_range(frames.iter().map(|f| f.state));
-        let failed: Vec<String> = frames
-            .iter()
-            .filter(|f| f.state == JobState::Failed)
-            .map(|f| {
-                format!(
-                    "frame {} ({}): {}",
-                    f.settings.frame.unwrap_or_default(),
-                    f.job_id,
-                    f.error
-                )
-            })
-            .collect();
-        let error = match failed.len() {
-            0 => String::new(),
-            n => format!(
-                "{n} of {} frames failed; {}",
-                frames.len(),
-                failed.first().map_or("", |f| f.as_str())
-            ),
-        };
+        let error = range_error(&frames);
         let sum = |f: fn(&JobView) -> u64| frames.iter().map(f).sum::<u64>();
         let (samples_total, samples_done) = (sum(|s| s.samples_total), sum(|s| s.samples_done));
         // Ended frames keep their last rate for a while; only the frames still going add up.
@@ -239,15 +220,12 @@ impl Scheduler {
             .filter(|f| !f.state.is_final())
             .map(|f| f.samples_per_second)
             .sum();
-        let eta = match state {
-            JobState::Done => Some(0.0),
-            JobState::Running | JobState::Queued
-                if rate > 0.0 && !frames.iter().all(|f| f.paused || f.state.is_final()) =>
-            {
-                Some(samples_total.saturating_sub(samples_done) as f64 / rate)
-            }
-            _ => None,
-        };
+        let eta = range_eta(
+            state,
+            &frames,
+            samples_total.saturating_sub(samples_done),
+            rate,
+        );
         // The worst frame's noise: the figure a user waiting for the whole range needs.
         let worst = frames
             .iter()
@@ -303,30 +281,8 @@ impl Scheduler {
                 names
             },
             waiting: frames.iter().find_map(|f| f.waiting.clone()),
-            // Every flagged frame's checks, named, so that one flagged frame of 240 is seen.
-            checks: frames
-                .iter()
-                .flat_map(|f| {
-                    let frame = f.settings.frame.unwrap_or_default();
-                    f.checks.iter().map(move |c| CheckView {
-                        code: c.code.clone(),
-                        message: format!("frame {frame}: {}", c.message),
-                    })
-                })
-                .collect(),
-            frames: frames
-                .into_iter()
-                .map(|f| FrameView {
-                    frame: f.settings.frame.unwrap_or_default(),
-                    job_id: f.job_id,
-                    state: f.state,
-                    units_done: f.units_done,
-                    units_total: f.units_total,
-                    output: f.output,
-                    error: f.error,
-                    checks: f.checks,
-                })
-                .collect(),
+            checks: range_checks(&frames),
+            frames: frames.into_iter().map(frame_of_range).collect(),
         })
     }
 }
@@ -338,4 +294,69 @@ fn range_output_pattern(first_frame_name: &str) -> String {
         .unwrap_or(first_frame_name);
     let stem = stem.rsplit_once('.').map_or(stem, |(s, _)| s);
     format!("{stem}.####.exr")
+}
+/// A frame range's error: how many frames failed, and the first one's reason.
+fn range_error(frames: &[JobView]) -> String {
+    let failed: Vec<String> = frames
+        .iter()
+        .filter(|f| f.state == JobState::Failed)
+        .map(|f| {
+            format!(
+                "frame {} ({}): {}",
+                f.settings.frame.unwrap_or_default(),
+                f.job_id,
+                f.error
+            )
+        })
+        .collect();
+    match failed.len() {
+        0 => String::new(),
+        n => format!(
+            "{n} of {} frames failed; {}",
+            frames.len(),
+            failed.first().map_or("", |f| f.as_str())
+        ),
+    }
+}
+
+/// A frame range's ETA: `left` samples at the frames' summed `rate`, none while every frame
+/// still to finish is paused.
+fn range_eta(state: JobState, frames: &[JobView], left: u64, rate: f64) -> Option<f64> {
+    match state {
+        JobState::Done => Some(0.0),
+        JobState::Running | JobState::Queued
+            if rate > 0.0 && !frames.iter().all(|f| f.paused || f.state.is_final()) =>
+        {
+            Some(left as f64 / rate)
+        }
+        _ => None,
+    }
+}
+
+/// Every flagged frame's checks, named, so that one flagged frame of 240 is seen.
+fn range_checks(frames: &[JobView]) -> Vec<CheckView> {
+    frames
+        .iter()
+        .flat_map(|f| {
+            let frame = f.settings.frame.unwrap_or_default();
+            f.checks.iter().map(move |c| CheckView {
+                code: c.code.clone(),
+                message: format!("frame {frame}: {}", c.message),
+            })
+        })
+        .collect()
+}
+
+/// A frame's line in its range's view.
+fn frame_of_range(f: JobView) -> FrameView {
+    FrameView {
+        frame: f.settings.frame.unwrap_or_default(),
+        job_id: f.job_id,
+        state: f.state,
+        units_done: f.units_done,
+        units_total: f.units_total,
+        output: f.output,
+        error: f.error,
+        checks: f.checks,
+    }
 }

@@ -7,9 +7,10 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use tessera_proto::convert::settings_from_wire;
+use tessera_proto::ids::JobId;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_server::Jobs;
-use tessera_render::scene::{Format, Scene, Shot, FIRST_FRAME};
+use tessera_render::scene::{Format, Scene, SceneCheck, Shot, FIRST_FRAME};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status};
@@ -17,6 +18,8 @@ use tracing::info;
 
 use super::{asset_status, caller, internal, job_id, may_change, Service, Stream_};
 use crate::assets::{check_hash, JobAssets};
+use crate::auth::Caller;
+use crate::config::Config;
 use crate::error::truncate;
 
 /// Most log lines one GetLogs answer carries.
@@ -34,146 +37,27 @@ impl Jobs for Service {
         request: Request<pb::SubmitJobRequest>,
     ) -> Result<Response<pb::SubmitJobResponse>, Status> {
         let caller = caller(&request);
-        let req = request.into_inner();
-        let config = &self.shared.config;
-        let limits = config.limits.clone();
-        let settings = settings_from_wire(req.settings.as_ref())
-            .map_err(|e| Status::invalid_argument(e.to_string()))?;
-        if req.progressive && req.frames.is_none() {
-            return Err(Status::invalid_argument(
-                "progressive: only a frame range (--frames) is leased progressively",
-            ));
-        }
-        if req.progressive && settings.adaptive.is_some() {
-            return Err(Status::invalid_argument(
-                "progressive: an adaptive job (a noise target) decides its own batches; it \
-                 cannot also be leased progressively",
-            ));
-        }
-        check_tags("requirement", &req.require, MAX_REQUIREMENTS)
-            .map_err(|e| Status::invalid_argument(format!("require: {e}")))?;
-        caller
-            .may_set_priority(req.priority)
-            .map_err(Status::permission_denied)?;
-        let after = match req.after.as_str() {
-            "" => None,
-            a => Some(
-                job_id(a)
-                    .map_err(|e| Status::invalid_argument(format!("after: {}", e.message())))?,
-            ),
-        };
-        let Checked {
-            settings,
-            tile_size,
-            frames,
-            output_name,
-        } = Admission::check(
-            Asked {
-                settings,
-                tile_size: req.tile_size,
-                frames: req.frames.map(|r| (r.first, r.last, r.step)),
-                output_name: Some(req.output_name).filter(|n| !n.is_empty()),
-            },
-            limits.max_spp,
-            config.default_tile_size,
-        )?;
-        let json = req.scene_format == pb::SceneFormat::Json as i32;
-        let name = if req.scene_name.is_empty() {
-            "scene".to_string()
-        } else {
-            truncate(&req.scene_name)
-        };
-        // Parsing builds the BVH: keep it off the async threads, and few at a time.
+        let mut req = request.into_inner();
+        let (checked, after) = check_request(&caller, &req, &self.shared.config)?;
+        // Checking a scene reads its meshes: keep it off the async threads, and few at a time.
         let _permit = self
             .parses
             .clone()
             .acquire_owned()
             .await
             .map_err(|_| Status::unavailable("the coordinator is shutting down"))?;
-        let text = req.scene_text;
-        let names = asset_names(&req.assets, limits.max_assets)?;
         // Until the job is durable (and its scene names its files), they are not collected.
         let _assets_held = self.shared.asset_gate.read().await;
-        let missing: Vec<String> = names
-            .iter()
-            .filter(|(_, hash)| !self.shared.assets.status(hash).is_ok_and(|h| h.complete))
-            .map(|(name, hash)| format!("`{}` (sha256 {hash})", truncate(name)))
-            .collect();
-        if !missing.is_empty() {
-            return Err(Status::failed_precondition(format!(
-                "not uploaded: {} (tessera submit uploads a scene's files)",
-                missing.join(", ")
-            )));
-        }
-        // A range's scene is checked at its first frame; a frame that cannot be built fails
-        // alone, when a worker says so.
-        let shot = Shot {
-            frame: frames.map_or(settings.frame.unwrap_or(FIRST_FRAME), |r| r.first),
-            resolution: settings.resolution,
-        };
-        let gauge = self.parsing.clone();
-        let assets = self.shared.assets.clone();
-        let (scene, text, name) = tokio::task::spawn_blocking(move || {
-            let now = gauge.0.fetch_add(1, Ordering::SeqCst) + 1;
-            gauge.1.fetch_max(now, Ordering::SeqCst);
-            let format = if json { Format::Json } else { Format::Toml };
-            let files = JobAssets {
-                store: &assets,
-                names,
-            };
-            let r = Scene::check_with(&text, format, &name, &limits, shot, &files);
-            gauge.0.fetch_sub(1, Ordering::SeqCst);
-            (r, text, name)
-        })
-        .await
-        .map_err(|e| Status::internal(e.to_string()))?;
-        let scene = scene.map_err(|e| Status::invalid_argument(e.to_string()))?;
-        let admission = Admission {
-            scene_hash: scene.hash.clone(),
-            scene: StoredScene {
-                text,
-                json,
-                name,
-                assets: scene.files.clone(),
-            },
-            width: scene.width,
-            height: scene.height,
-            settings: settings.clone(),
-            tile_size,
-            output_name,
-            priority: req.priority,
-            variance: req.channels.as_ref().is_some_and(|c| c.variance),
-            sample_count: req.channels.as_ref().is_some_and(|c| c.sample_count),
-            frames,
-            after,
-            require: req.require,
-            min_memory: req.min_memory_bytes,
-            progressive: req.progressive,
-            guide_bounds: scene.bounds,
-            submitter: caller.user.clone(),
-        };
-        let bounds = AdmissionLimits {
-            max_active_jobs: config.max_active_jobs,
-            max_units_per_job: config.max_units_per_job,
-            max_frames_per_job: config.max_frames_per_job,
-        };
-        let out_dir = config.output_dir();
-        let (id, units, rx) = {
-            let mut core = self.shared.scheduler();
-            let (id, ops) = core.admit(admission, bounds, &OutputNames::new(&out_dir), now_ms())?;
-            let units = core
-                .members(id)
-                .into_iter()
-                .filter_map(|m| core.job(m))
-                .map(|j| j.units_total())
-                .sum::<u64>();
-            (id, units, self.shared.queue_write(ops))
-        };
-        durable(rx).await.map_err(internal)?;
+        let (scene, stored) = self.check_scene(&mut req, &checked).await?;
+        let frames = checked.frames;
+        let spp = checked.settings.spp;
+        let (id, units) = self
+            .admit_job(&caller, req, checked, after, &scene, stored)
+            .await?;
         let n_frames = frames.map_or(1, |r| r.len()) as u32;
         info!(
-            "{id} submitted: {}×{} at {} spp, {n_frames} frame(s), {units} units",
-            scene.width, scene.height, settings.spp
+            "{id} submitted: {}×{} at {spp} spp, {n_frames} frame(s), {units} units",
+            scene.width, scene.height
         );
         self.shared.bump_work();
         self.shared.bump_changed();
@@ -329,11 +213,7 @@ impl Jobs for Service {
         request: Request<pb::ListJobsRequest>,
     ) -> Result<Response<pb::ListJobsResponse>, Status> {
         let req = request.into_inner();
-        let (offset, size) = list_page(&req.page_token, req.page_size)?;
-        let (views, next) = self
-            .shared
-            .scheduler()
-            .job_page(Instant::now(), offset, size);
+        let (views, next) = self.job_page(&req.page_token, req.page_size)?;
         Ok(Response::new(pb::ListJobsResponse {
             jobs: views.iter().map(pb::JobStatus::from).collect(),
             next_page_token: next.map(|n| n.to_string()).unwrap_or_default(),
@@ -345,9 +225,7 @@ impl Jobs for Service {
         _request: Request<pb::ListWorkersRequest>,
     ) -> Result<Response<pb::ListWorkersResponse>, Status> {
         let workers = self
-            .shared
-            .scheduler()
-            .worker_views(Instant::now())
+            .worker_views()
             .iter()
             .map(pb::WorkerInfo::from)
             .collect();
@@ -522,6 +400,165 @@ pub(crate) const DEFAULT_PAGE: usize = 200;
 /// Most jobs one listing page holds: a page stays far below the gRPC message limit, however
 /// many jobs the coordinator keeps.
 pub(crate) const MAX_PAGE: usize = 1000;
+
+/// A submission's settings and wire fields checked, before its scene is read: what
+/// [`Admission::check`] decides, and the job it waits for.
+fn check_request(
+    caller: &Caller,
+    req: &pb::SubmitJobRequest,
+    config: &Config,
+) -> Result<(Checked, Option<JobId>), Status> {
+    let settings = settings_from_wire(req.settings.as_ref())
+        .map_err(|e| Status::invalid_argument(e.to_string()))?;
+    if req.progressive && req.frames.is_none() {
+        return Err(Status::invalid_argument(
+            "progressive: only a frame range (--frames) is leased progressively",
+        ));
+    }
+    if req.progressive && settings.adaptive.is_some() {
+        return Err(Status::invalid_argument(
+            "progressive: an adaptive job (a noise target) decides its own batches; it \
+             cannot also be leased progressively",
+        ));
+    }
+    check_tags("requirement", &req.require, MAX_REQUIREMENTS)
+        .map_err(|e| Status::invalid_argument(format!("require: {e}")))?;
+    caller
+        .may_set_priority(req.priority)
+        .map_err(Status::permission_denied)?;
+    let after = match req.after.as_str() {
+        "" => None,
+        a => Some(
+            job_id(a).map_err(|e| Status::invalid_argument(format!("after: {}", e.message())))?,
+        ),
+    };
+    let checked = Admission::check(
+        Asked {
+            settings,
+            tile_size: req.tile_size,
+            frames: req.frames.map(|r| (r.first, r.last, r.step)),
+            output_name: Some(req.output_name.clone()).filter(|n| !n.is_empty()),
+        },
+        config.limits.max_spp,
+        config.default_tile_size,
+    )?;
+    Ok((checked, after))
+}
+
+impl Service {
+    /// A submission's scene, checked as `tessera render` checks it (no image decoded) over the
+    /// files the job names, every one uploaded; with the scene as it is stored. Takes the
+    /// request's scene text.
+    async fn check_scene(
+        &self,
+        req: &mut pb::SubmitJobRequest,
+        checked: &Checked,
+    ) -> Result<(SceneCheck, StoredScene), Status> {
+        let limits = self.shared.config.limits.clone();
+        let json = req.scene_format == pb::SceneFormat::Json as i32;
+        let name = if req.scene_name.is_empty() {
+            "scene".to_string()
+        } else {
+            truncate(&req.scene_name)
+        };
+        let names = asset_names(&req.assets, limits.max_assets)?;
+        let missing: Vec<String> = names
+            .iter()
+            .filter(|(_, hash)| !self.shared.assets.status(hash).is_ok_and(|h| h.complete))
+            .map(|(name, hash)| format!("`{}` (sha256 {hash})", truncate(name)))
+            .collect();
+        if !missing.is_empty() {
+            return Err(Status::failed_precondition(format!(
+                "not uploaded: {} (tessera submit uploads a scene's files)",
+                missing.join(", ")
+            )));
+        }
+        // A range's scene is checked at its first frame; a frame that cannot be built fails
+        // alone, when a worker says so.
+        let shot = Shot {
+            frame: checked
+                .frames
+                .map_or(checked.settings.frame.unwrap_or(FIRST_FRAME), |r| r.first),
+            resolution: checked.settings.resolution,
+        };
+        let gauge = self.parsing.clone();
+        let assets = self.shared.assets.clone();
+        let text = std::mem::take(&mut req.scene_text);
+        let (scene, text, name) = tokio::task::spawn_blocking(move || {
+            let now = gauge.0.fetch_add(1, Ordering::SeqCst) + 1;
+            gauge.1.fetch_max(now, Ordering::SeqCst);
+            let format = if json { Format::Json } else { Format::Toml };
+            let files = JobAssets {
+                store: &assets,
+                names,
+            };
+            let r = Scene::check_with(&text, format, &name, &limits, shot, &files);
+            gauge.0.fetch_sub(1, Ordering::SeqCst);
+            (r, text, name)
+        })
+        .await
+        .map_err(|e| Status::internal(e.to_string()))?;
+        let scene = scene.map_err(|e| Status::invalid_argument(e.to_string()))?;
+        let stored = StoredScene {
+            text,
+            json,
+            name,
+            assets: scene.files.clone(),
+        };
+        Ok((scene, stored))
+    }
+
+    /// Admits a checked submission and waits until it is durable; its id and units.
+    async fn admit_job(
+        &self,
+        caller: &Caller,
+        req: pb::SubmitJobRequest,
+        checked: Checked,
+        after: Option<JobId>,
+        scene: &SceneCheck,
+        stored: StoredScene,
+    ) -> Result<(JobId, u64), Status> {
+        let config = &self.shared.config;
+        let admission = Admission {
+            scene_hash: scene.hash.clone(),
+            scene: stored,
+            width: scene.width,
+            height: scene.height,
+            settings: checked.settings,
+            tile_size: checked.tile_size,
+            output_name: checked.output_name,
+            priority: req.priority,
+            variance: req.channels.as_ref().is_some_and(|c| c.variance),
+            sample_count: req.channels.as_ref().is_some_and(|c| c.sample_count),
+            frames: checked.frames,
+            after,
+            require: req.require,
+            min_memory: req.min_memory_bytes,
+            progressive: req.progressive,
+            guide_bounds: scene.bounds,
+            submitter: caller.user.clone(),
+        };
+        let bounds = AdmissionLimits {
+            max_active_jobs: config.max_active_jobs,
+            max_units_per_job: config.max_units_per_job,
+            max_frames_per_job: config.max_frames_per_job,
+        };
+        let out_dir = config.output_dir();
+        let (id, units, rx) = {
+            let mut core = self.shared.scheduler();
+            let (id, ops) = core.admit(admission, bounds, &OutputNames::new(&out_dir), now_ms())?;
+            let units = core
+                .members(id)
+                .into_iter()
+                .filter_map(|m| core.job(m))
+                .map(|j| j.units_total())
+                .sum::<u64>();
+            (id, units, self.shared.queue_write(ops))
+        };
+        durable(rx).await.map_err(internal)?;
+        Ok((id, units))
+    }
+}
 
 /// A listing page's (offset, size) from its token (empty: the first page) and asked size (0:
 /// [`DEFAULT_PAGE`], at most [`MAX_PAGE`]).

@@ -8,7 +8,7 @@
 //! - [`workers`]: `tessera.v1.Workers`, the workers' service (register, lease, results).
 
 mod jobs;
-pub(crate) use jobs::list_page;
+use jobs::list_page;
 mod workers;
 
 use std::pin::Pin;
@@ -18,7 +18,7 @@ use std::time::Instant;
 
 use tessera_proto::ids::{BadId, JobId, LeaseId, WorkerCredential};
 use tessera_proto::v1 as pb;
-use tessera_proto::view::{JobState, JobView};
+use tessera_proto::view::{JobState, JobView, WorkerView};
 use tessera_render::TileSums;
 use tokio_stream::Stream;
 use tonic::Status;
@@ -134,6 +134,25 @@ impl Service {
             .scheduler()
             .job_view(id, Instant::now())
             .ok_or_else(|| Status::not_found(format!("unknown job {id}")))
+    }
+
+    /// A page of the job listing (`page`, `size`: [`list_page`]'s), and where the next page
+    /// starts; what `ListJobs` and `/api/jobs` answer.
+    pub(crate) fn job_page(
+        &self,
+        page: &str,
+        size: u32,
+    ) -> Result<(Vec<JobView>, Option<usize>), Status> {
+        let (offset, size) = list_page(page, size)?;
+        Ok(self
+            .shared
+            .scheduler()
+            .job_page(Instant::now(), offset, size))
+    }
+
+    /// Every worker the coordinator has seen; what `ListWorkers` and `/api/workers` answer.
+    pub(crate) fn worker_views(&self) -> Vec<WorkerView> {
+        self.shared.scheduler().worker_views(Instant::now())
     }
 
     /// The finished EXR of job `id` (of its frame `frame`, for a frame range): its name and

@@ -167,6 +167,33 @@ fn load_obj(file: &str, bytes: &[u8], max_triangles: usize) -> Result<Vec<Group>
     // OBJ is ASCII; other bytes turn up in comments and names (Latin-1 exports), where they
     // are harmless, so they are replaced rather than refused.
     let text = String::from_utf8_lossy(bytes);
+    let (models, materials) = read_obj(file, &text)?;
+    let mut groups: Vec<Group> = Vec::new();
+    let mut total = 0usize;
+    for model in &models {
+        add_obj_model(
+            file,
+            model,
+            &materials,
+            (&mut total, max_triangles),
+            &mut groups,
+        )?;
+    }
+    // A group whose models disagree on normals or texture coordinates gets none: they are
+    // all or nothing.
+    for g in &mut groups {
+        if g.normals.len() != g.tris.len() {
+            g.normals.clear();
+        }
+        if g.uvs.len() != g.tris.len() {
+            g.uvs.clear();
+        }
+    }
+    Ok(groups)
+}
+
+/// An OBJ text as `tobj` reads it: its models, and the materials its `usemtl` lines name.
+fn read_obj(file: &str, text: &str) -> Result<(Vec<tobj::Model>, Vec<tobj::Material>), MeshError> {
     let bytes = text.as_bytes();
     // tobj keeps a `usemtl` name only if a material library defines it, and the materials
     // come from the scene, not from .mtl files. So the reader is handed one library, first,
@@ -202,106 +229,103 @@ fn load_obj(file: &str, bytes: &[u8], max_triangles: usize) -> Result<Vec<Group>
     let (models, materials) = loaded.map_err(|e| {
         // tobj notices a reference out of range only when its group ends; the face itself,
         // and the reference, are found again here (on this error path only).
-        if let Some((line, message)) = bad_obj_reference(&text) {
+        if let Some((line, message)) = bad_obj_reference(text) {
             return error(file, format!(":{line}"), message);
         }
         let line = reader.line().saturating_sub(1);
         error(file, format!(":{}", line.max(1)), obj_error_text(&e))
     })?;
-    let materials = materials.unwrap_or_default();
-    let mut groups: Vec<Group> = Vec::new();
-    let mut total = 0usize;
-    for model in &models {
-        let m = &model.mesh;
-        let name = m
-            .material_id
-            .and_then(|i| materials.get(i))
-            .map(|mat| mat.name.clone());
-        let vertex = |i: u32, what: &str| -> Result<Vec3A, MeshError> {
-            let src = if what == "normal" {
-                &m.normals
-            } else {
-                &m.positions
-            };
-            let k = i as usize * 3;
-            let v = src.get(k..k + 3).ok_or_else(|| {
-                error(
-                    file,
-                    String::new(),
-                    format!(
-                        "object `{}`: a face names {what} {i}, which does not exist",
-                        model.name
-                    ),
-                )
-            })?;
-            let v = Vec3A::new(v[0], v[1], v[2]);
-            if !v.is_finite() {
-                return Err(error(
-                    file,
-                    String::new(),
-                    format!(
-                        "object `{}`: {what} {i} is not finite: {:?}",
-                        model.name,
-                        v.to_array()
-                    ),
-                ));
-            }
-            Ok(v)
+    Ok((models, materials.unwrap_or_default()))
+}
+
+/// Adds `model`'s triangles (with its normals and texture coordinates, where it has all of
+/// them) to the group of its material, counting them against the file's limit.
+fn add_obj_model(
+    file: &str,
+    model: &tobj::Model,
+    materials: &[tobj::Material],
+    (total, max_triangles): (&mut usize, usize),
+    groups: &mut Vec<Group>,
+) -> Result<(), MeshError> {
+    let m = &model.mesh;
+    let name = m
+        .material_id
+        .and_then(|i| materials.get(i))
+        .map(|mat| mat.name.clone());
+    let vertex = |i: u32, what: &str| -> Result<Vec3A, MeshError> {
+        let src = if what == "normal" {
+            &m.normals
+        } else {
+            &m.positions
         };
-        let has_normals = m.normals.len() == m.positions.len() && !m.normals.is_empty();
-        let has_uvs = m.texcoords.len() / 2 == m.positions.len() / 3 && !m.texcoords.is_empty();
-        let uv = |i: u32| {
-            let k = i as usize * 2;
-            Vec2::new(m.texcoords[k], m.texcoords[k + 1])
-        };
-        let count = m.indices.len() / 3;
-        total += count;
-        if total > max_triangles {
+        let k = i as usize * 3;
+        let v = src.get(k..k + 3).ok_or_else(|| {
+            error(
+                file,
+                String::new(),
+                format!(
+                    "object `{}`: a face names {what} {i}, which does not exist",
+                    model.name
+                ),
+            )
+        })?;
+        let v = Vec3A::new(v[0], v[1], v[2]);
+        if !v.is_finite() {
             return Err(error(
                 file,
                 String::new(),
-                format!("more than {max_triangles} triangles, the limit for one mesh file"),
+                format!(
+                    "object `{}`: {what} {i} is not finite: {:?}",
+                    model.name,
+                    v.to_array()
+                ),
             ));
         }
-        let g = match groups.iter_mut().position(|g| g.material == name) {
-            Some(i) => &mut groups[i],
-            None => {
-                groups.push(Group {
-                    material: name,
-                    ..Group::default()
-                });
-                groups.last_mut().expect("just pushed")
-            }
-        };
-        for f in m.indices.chunks_exact(3) {
-            g.tris.push([
-                vertex(f[0], "vertex")?,
-                vertex(f[1], "vertex")?,
-                vertex(f[2], "vertex")?,
+        Ok(v)
+    };
+    let has_normals = m.normals.len() == m.positions.len() && !m.normals.is_empty();
+    let has_uvs = m.texcoords.len() / 2 == m.positions.len() / 3 && !m.texcoords.is_empty();
+    let uv = |i: u32| {
+        let k = i as usize * 2;
+        Vec2::new(m.texcoords[k], m.texcoords[k + 1])
+    };
+    let count = m.indices.len() / 3;
+    *total += count;
+    if *total > max_triangles {
+        return Err(error(
+            file,
+            String::new(),
+            format!("more than {max_triangles} triangles, the limit for one mesh file"),
+        ));
+    }
+    let g = match groups.iter_mut().position(|g| g.material == name) {
+        Some(i) => &mut groups[i],
+        None => {
+            groups.push(Group {
+                material: name,
+                ..Group::default()
+            });
+            groups.last_mut().expect("just pushed")
+        }
+    };
+    for f in m.indices.chunks_exact(3) {
+        g.tris.push([
+            vertex(f[0], "vertex")?,
+            vertex(f[1], "vertex")?,
+            vertex(f[2], "vertex")?,
+        ]);
+        if has_normals {
+            g.normals.push([
+                vertex(f[0], "normal")?,
+                vertex(f[1], "normal")?,
+                vertex(f[2], "normal")?,
             ]);
-            if has_normals {
-                g.normals.push([
-                    vertex(f[0], "normal")?,
-                    vertex(f[1], "normal")?,
-                    vertex(f[2], "normal")?,
-                ]);
-            }
-            if has_uvs {
-                g.uvs.push([uv(f[0]), uv(f[1]), uv(f[2])]);
-            }
+        }
+        if has_uvs {
+            g.uvs.push([uv(f[0]), uv(f[1]), uv(f[2])]);
         }
     }
-    // A group whose models disagree on normals or texture coordinates gets none: they are
-    // all or nothing.
-    for g in &mut groups {
-        if g.normals.len() != g.tris.len() {
-            g.normals.clear();
-        }
-        if g.uvs.len() != g.tris.len() {
-            g.uvs.clear();
-        }
-    }
-    Ok(groups)
+    Ok(())
 }
 
 /// The first face of an OBJ text that names a vertex, texture coordinate or normal that does
@@ -542,19 +566,7 @@ fn load_ply(file: &str, bytes: &[u8], max_triangles: usize) -> Result<Vec<Group>
         lines: 0,
         at_line_start: true,
     };
-    let header = Parser::<Skip>::new()
-        .read_header(&mut reader)
-        .map_err(|e| {
-            let at = format!(":{}", reader.line().max(1));
-            // ply-rs says "Line N: …" itself; the position is given once, in `at`.
-            let e = e.to_string();
-            let e = e
-                .strip_prefix("Line ")
-                .and_then(|r| r.split_once(": "))
-                .filter(|(n, _)| n.bytes().all(|b| b.is_ascii_digit()))
-                .map_or(e.as_str(), |(_, rest)| rest);
-            error(file, at, format!("bad PLY header: {e}"))
-        })?;
+    let header = read_ply_header(file, &mut reader)?;
     let vertex_def = header.elements.get("vertex");
     let mut positions: Vec<Vec3A> = Vec::new();
     let mut normals: Vec<Vec3A> = Vec::new();
@@ -644,6 +656,35 @@ fn load_ply(file: &str, bytes: &[u8], max_triangles: usize) -> Result<Vec<Group>
             _ => read_elements(file, &mut reader, def, header.encoding, |_, _: Skip| Ok(()))?,
         }
     }
+    Ok(vec![fan(file, &positions, (&normals, &uvs), faces)?])
+}
+
+/// A PLY file's header, its errors positioned once (ply-rs says "Line N: …" itself).
+fn read_ply_header<R: std::io::BufRead>(
+    file: &str,
+    reader: &mut LineCounter<R>,
+) -> Result<ply_rs::ply::Header, MeshError> {
+    Parser::<Skip>::new().read_header(reader).map_err(|e| {
+        let at = format!(":{}", reader.line().max(1));
+        // ply-rs says "Line N: …" itself; the position is given once, in `at`.
+        let e = e.to_string();
+        let e = e
+            .strip_prefix("Line ")
+            .and_then(|r| r.split_once(": "))
+            .filter(|(n, _)| n.bytes().all(|b| b.is_ascii_digit()))
+            .map_or(e.as_str(), |(_, rest)| rest);
+        error(file, at, format!("bad PLY header: {e}"))
+    })
+}
+
+/// The triangles of PLY faces (vertex lists, each with its element number), each polygon
+/// as a fan, with the vertices' normals and texture coordinates where every vertex has them.
+fn fan(
+    file: &str,
+    positions: &[Vec3A],
+    (normals, uvs): (&[Vec3A], &[Vec2]),
+    faces: Vec<(usize, Vec<u32>)>,
+) -> Result<Group, MeshError> {
     let mut group = Group::default();
     let with_normals = normals.len() == positions.len() && !normals.is_empty();
     let with_uvs = uvs.len() == positions.len() && !uvs.is_empty();
@@ -669,7 +710,7 @@ fn load_ply(file: &str, bytes: &[u8], max_triangles: usize) -> Result<Vec<Group>
             }
         }
     }
-    Ok(vec![group])
+    Ok(group)
 }
 
 #[cfg(test)]

@@ -82,7 +82,7 @@ pub(super) fn assemble(
     super::lights::gltf_lights(&objects.gltf_lights, reach, &mut objects.lights)?;
     let camera = match camera {
         Some(c) => c,
-        None => gltf_camera(desc, &objects.cameras, &objects.prims, w, h)?,
+        None => super::gltf::camera(desc, &objects.cameras, &objects.prims, w, h)?,
     };
     Ok(Assembled {
         camera,
@@ -398,138 +398,6 @@ fn build_gltf(
     )
 }
 
-/// The camera of a `gltf` camera model: the glTF camera `[camera]` picks by name or by index
-/// in its file's `cameras` (by default the lowest index placed), or, with none in the scene,
-/// one that frames every finite object from the front (+z), a little above.
-fn gltf_camera(
-    desc: &SceneFile,
-    cameras: &[(KeyPath, GltfCamera)],
-    prims: &[Primitive],
-    w: u32,
-    h: u32,
-) -> Result<Camera, Invalid> {
-    let cp = root("camera");
-    let c = &desc.camera;
-    let present = [
-        ("eye", c.eye.is_some()),
-        ("target", c.target.is_some()),
-        ("up", c.up.is_some()),
-        ("pitch", c.pitch.is_some()),
-        ("yaw", c.yaw.is_some()),
-        ("fov", c.fov.is_some()),
-        ("name", c.name.is_some()),
-        ("index", c.index.is_some()),
-    ];
-    only(&cp, "a gltf camera", &present, &["name", "index"])?;
-    let listed = || {
-        let names: Vec<String> = cameras
-            .iter()
-            .map(|(_, g)| match &g.name {
-                Some(n) => format!("{} ({n:?})", g.index),
-                None => g.index.to_string(),
-            })
-            .collect();
-        if names.is_empty() {
-            "none".to_string()
-        } else {
-            names.join(", ")
-        }
-    };
-    let chosen = match (&c.name, c.index) {
-        (Some(_), Some(_)) => {
-            return Err((cp.clone(), "give `name` or `index`, not both".into()));
-        }
-        (Some(name), None) => Some(
-            cameras
-                .iter()
-                .find(|(_, g)| g.name.as_deref() == Some(name))
-                .ok_or_else(|| {
-                    (
-                        cp.key("name"),
-                        format!("no glTF camera is named {name:?} (cameras: {})", listed()),
-                    )
-                })?,
-        ),
-        (None, Some(i)) => Some(cameras.iter().find(|(_, g)| g.index == i).ok_or_else(|| {
-            (
-                cp.key("index"),
-                format!(
-                    "no glTF camera {i} is placed by a node (cameras: {})",
-                    listed()
-                ),
-            )
-        })?),
-        (None, None) => cameras.iter().min_by_key(|(_, g)| g.index),
-    };
-    let aspect = w as f32 / h as f32;
-    let camera = match chosen {
-        Some((path, g)) => {
-            let Some(yfov) = g.yfov else {
-                // The film keeps its pixels square: the magnification that fits the film's
-                // aspect ratio to the camera's height (glTF's xmag is a hint).
-                let (_, ymag) = g.mag;
-                return Camera::orthographic(g.eye, g.forward, g.up, (ymag * aspect, ymag), w, h)
-                    .ok_or_else(|| {
-                        (
-                            path.clone(),
-                            format!(
-                                "glTF camera {}: an orthographic camera needs a positive ymag \
-                                 and a non-degenerate node transform",
-                                g.index
-                            ),
-                        )
-                    });
-            };
-            let fov = 2.0 * ((0.5 * yfov).tan() * aspect).atan();
-            if !(fov > 0.0 && fov < std::f32::consts::PI) {
-                return Err((
-                    path.clone(),
-                    format!("glTF camera {}: yfov {yfov} is out of range", g.index),
-                ));
-            }
-            Camera::look_at(g.eye, g.eye + g.forward, g.up, fov, w, h).ok_or_else(|| {
-                (
-                    path.clone(),
-                    format!(
-                        "glTF camera {}: its node's transform is degenerate",
-                        g.index
-                    ),
-                )
-            })?
-        }
-        None => {
-            let bounds = prims
-                .iter()
-                .filter(|p| !matches!(p.shape, Shape::Plane { .. }))
-                .fold(crate::util::math::Aabb::EMPTY, |b, p| {
-                    b.union(p.shape.bounds())
-                });
-            if !(bounds.min.cmple(bounds.max).all()) {
-                return Err((
-                    cp.clone(),
-                    "the scene has no camera and no surface to frame (a glTF file's points and lines are not rendered)".into(),
-                ));
-            }
-            let centre = 0.5 * (bounds.min + bounds.max);
-            let radius = (0.5 * (bounds.max - bounds.min).length()).max(1e-3);
-            // The vertical field of view is 40°; the bounding sphere fits the narrower one.
-            let vfov = 40f32.to_radians();
-            let hfov = 2.0 * ((0.5 * vfov).tan() * aspect).atan();
-            let fit = vfov.min(hfov);
-            let distance = 1.05 * radius / (0.5 * fit).sin();
-            let dir = Vec3A::new(0.0, 15f32.to_radians().sin(), 15f32.to_radians().cos());
-            let eye = centre + distance * dir;
-            Camera::look_at(eye, centre, Vec3A::Y, hfov, w, h).ok_or_else(|| {
-                (
-                    cp.clone(),
-                    "the scene's bounds cannot be framed".to_string(),
-                )
-            })?
-        }
-    };
-    Ok(camera)
-}
-
 /// A mesh object: one shape per material group of its file, each with its material.
 fn build_mesh(
     o: &ObjectDesc,
@@ -659,7 +527,7 @@ fn build_camera(desc: &SceneFile, w: u32, h: u32) -> Result<Camera, Invalid> {
                 )
             })?
         }
-        CameraModel::Gltf => unreachable!("a gltf camera is built by gltf_camera"),
+        CameraModel::Gltf => unreachable!("a gltf camera is built by gltf::camera"),
         CameraModel::PitchYaw => {
             only(&cp, "a pitch_yaw camera", &present, &["pitch", "yaw"])?;
             if w < 2 {

@@ -148,30 +148,12 @@ fn punctual(l: &LightDesc, lp: &KeyPath, reach: f32) -> Result<Light, Invalid> {
                         "outer_angle",
                     ],
                 )?;
-                let inner = l.inner_angle.unwrap_or(0.0);
-                let outer = l.outer_angle.unwrap_or(45.0);
-                if !(0.0..90.0).contains(&inner) {
-                    return Err((
-                        lp.key("inner_angle"),
-                        format!("must be at least 0 and under 90 degrees, got {inner}"),
-                    ));
-                }
-                if !(outer > inner && outer <= 90.0) {
-                    return Err((
-                        lp.key("outer_angle"),
-                        format!(
-                            "must be greater than inner_angle ({inner}) and at most 90 degrees, \
-                             got {outer}"
-                        ),
-                    ));
-                }
-                // In f64, rounded once, as for rotations: every worker gets the same bits.
-                let cos = |deg: f32| f64::from(deg).to_radians().cos() as f32;
+                let (cos_inner, cos_outer) = spot_cones(l, &lp)?;
                 let shape = LightShape::Spot {
                     position: position(kind)?,
                     axis: direction(kind)?,
-                    cos_inner: cos(inner),
-                    cos_outer: cos(outer),
+                    cos_inner,
+                    cos_outer,
                 };
                 (shape, power(l.intensity, kind, "intensity")?)
             }
@@ -180,26 +162,7 @@ fn punctual(l: &LightDesc, lp: &KeyPath, reach: f32) -> Result<Light, Invalid> {
                 only(&lp, kind, &present, &["direction", "irradiance", "angle"])?;
                 let towards = -direction(kind)?;
                 let irradiance = power(l.irradiance, kind, "irradiance")?;
-                let angle = l.angle.unwrap_or(0.0);
-                if !(0.0..=90.0).contains(&angle) {
-                    return Err((
-                        lp.key("angle"),
-                        format!("must be from 0 to 90 degrees, got {angle}"),
-                    ));
-                }
-                if angle == 0.0 {
-                    (LightShape::Directional { towards, reach }, irradiance)
-                } else {
-                    sun(towards, angle, irradiance, reach).ok_or_else(|| {
-                        (
-                            lp.key("irradiance"),
-                            format!(
-                                "spread over a disk of {angle} degrees, the radiance \
-                                     irradiance / (π sin²(angle / 2)) overflows a 32-bit float"
-                            ),
-                        )
-                    })?
-                }
+                sun_or_directional(towards, irradiance, l.angle, &lp, reach)?
             }
         };
         Ok(Light {
@@ -209,6 +172,60 @@ fn punctual(l: &LightDesc, lp: &KeyPath, reach: f32) -> Result<Light, Invalid> {
             texture: None,
         })
     }
+}
+
+/// A spot light's cones, as the cosines of their half-angles: `inner_angle` (0 unless given)
+/// from 0 to under 90 degrees, `outer_angle` (45 unless given) above it and at most 90.
+fn spot_cones(l: &LightDesc, lp: &KeyPath) -> Result<(f32, f32), Invalid> {
+    let inner = l.inner_angle.unwrap_or(0.0);
+    let outer = l.outer_angle.unwrap_or(45.0);
+    if !(0.0..90.0).contains(&inner) {
+        return Err((
+            lp.key("inner_angle"),
+            format!("must be at least 0 and under 90 degrees, got {inner}"),
+        ));
+    }
+    if !(outer > inner && outer <= 90.0) {
+        return Err((
+            lp.key("outer_angle"),
+            format!(
+                "must be greater than inner_angle ({inner}) and at most 90 degrees, got {outer}"
+            ),
+        ));
+    }
+    // In f64, rounded once, as for rotations: every worker gets the same bits.
+    let cos = |deg: f32| f64::from(deg).to_radians().cos() as f32;
+    Ok((cos(inner), cos(outer)))
+}
+
+/// A directional light shining `towards`, with `irradiance`: a sun, a disk `angle` degrees
+/// across, when it has one (from 0 to 90), else a delta light.
+fn sun_or_directional(
+    towards: Vec3A,
+    irradiance: Vec3A,
+    angle: Option<f32>,
+    lp: &KeyPath,
+    reach: f32,
+) -> Result<(LightShape, Vec3A), Invalid> {
+    let angle = angle.unwrap_or(0.0);
+    if !(0.0..=90.0).contains(&angle) {
+        return Err((
+            lp.key("angle"),
+            format!("must be from 0 to 90 degrees, got {angle}"),
+        ));
+    }
+    if angle == 0.0 {
+        return Ok((LightShape::Directional { towards, reach }, irradiance));
+    }
+    sun(towards, angle, irradiance, reach).ok_or_else(|| {
+        (
+            lp.key("irradiance"),
+            format!(
+                "spread over a disk of {angle} degrees, the radiance irradiance / (π \
+                 sin²(angle / 2)) overflows a 32-bit float"
+            ),
+        )
+    })
 }
 
 /// A sun of angular diameter `angle` degrees whose disk gives `irradiance` to a surface facing

@@ -48,105 +48,8 @@ pub(super) fn build_materials<'a>(
     let mut emissive = Vec::new();
     for (name, m) in &desc.materials {
         let mp = root("materials").key(name);
-        let present = [
-            ("albedo", m.albedo.is_some()),
-            ("reflectance", m.reflectance.is_some()),
-            ("ior", m.ior.is_some()),
-            ("roughness", m.roughness.is_some()),
-            ("metal", m.metal.is_some()),
-            ("eta", m.eta.is_some()),
-            ("k", m.k.is_some()),
-            ("f0", m.f0.is_some()),
-            ("thin", m.thin.is_some()),
-            ("absorption", m.absorption.is_some()),
-            ("base_color", m.base_color.is_some()),
-            ("metallic", m.metallic.is_some()),
-            ("transmission", m.transmission.is_some()),
-            ("normal_map", m.normal_map.is_some()),
-        ];
-        let mut texture = None;
-        let bsdf = match m.kind {
-            MaterialKind::Diffuse => {
-                only(&mp, "a diffuse material", &present, &["albedo"])?;
-                let a = required(m.albedo.as_ref(), &mp, "a diffuse material", "albedo")?;
-                match a {
-                    AlbedoDesc::Color(c) => Bsdf::Diffuse(color(*c, &mp.key("albedo"), true)?),
-                    AlbedoDesc::Texture(file) => {
-                        let path = mp.key("albedo").key("texture");
-                        texture =
-                            Some(files.texture(file, &path, limits, assets, TextureUse::Color)?);
-                        // The texel replaces it at each hit; this is what NEE-free code
-                        // paths and tests see.
-                        Bsdf::Diffuse(Vec3A::splat(0.5))
-                    }
-                }
-            }
-            MaterialKind::Mirror => {
-                only(&mp, "a mirror material", &present, &["reflectance"])?;
-                Bsdf::Mirror(color(
-                    m.reflectance.unwrap_or([1.0; 3]),
-                    &mp.key("reflectance"),
-                    true,
-                )?)
-            }
-            MaterialKind::Dielectric => {
-                let kind = "a dielectric material";
-                only(
-                    &mp,
-                    kind,
-                    &present,
-                    &["ior", "roughness", "thin", "absorption"],
-                )?;
-                dielectric(m, &mp)?
-            }
-            MaterialKind::Conductor => {
-                let kind = "a conductor material";
-                only(
-                    &mp,
-                    kind,
-                    &present,
-                    &["roughness", "metal", "eta", "k", "f0"],
-                )?;
-                Bsdf::Conductor(Metal::new(&conductor(m, &mp)?))
-            }
-            MaterialKind::Plastic => {
-                let kind = "a plastic material";
-                only(&mp, kind, &present, &["albedo", "roughness", "ior"])?;
-                let albedo =
-                    match required(m.albedo.as_ref(), &mp, kind, "albedo")? {
-                        AlbedoDesc::Color(c) => color(*c, &mp.key("albedo"), true)?,
-                        AlbedoDesc::Texture(_) => return Err((
-                            mp.key("albedo").key("texture"),
-                            "a plastic's albedo is a colour: textures are for diffuse materials"
-                                .into(),
-                        )),
-                    };
-                let roughness = constant_roughness(m, &mp, kind)?;
-                let ior = positive(m.ior.unwrap_or(1.5), &mp.key("ior"))?;
-                if ior == 1.0 {
-                    return Err((
-                        mp.key("ior"),
-                        "a plastic's coat of index 1 is no coat: use a diffuse material".into(),
-                    ));
-                }
-                plastics.push(Plastic::new(albedo, roughness, ior));
-                Bsdf::Plastic(plastics.len() as u32 - 1)
-            }
-            MaterialKind::Pbr => {
-                let kind = "a pbr material";
-                let keys = [
-                    "base_color",
-                    "metallic",
-                    "roughness",
-                    "transmission",
-                    "ior",
-                    "normal_map",
-                ];
-                only(&mp, kind, &present, &keys)?;
-                pbrs.push(pbr(m, &mp, files, limits, assets)?);
-                Bsdf::Pbr(pbrs.len() as u32 - 1)
-            }
-        };
+        let (bsdf, texture) =
+            scattering(m, &mp, files, limits, assets, (&mut plastics, &mut pbrs))?;
         let emission = match m.emission {
             Some(e) => color(e, &mp.key("emission"), false)?,
             None => Vec3A::ZERO,
@@ -190,6 +93,128 @@ pub(super) fn build_materials<'a>(
         names,
         emissive,
     })
+}
+
+/// Which of the TOML's keys a material gives: each kind takes its own (`only`).
+fn present(m: &MaterialDesc) -> [(&'static str, bool); 14] {
+    [
+        ("albedo", m.albedo.is_some()),
+        ("reflectance", m.reflectance.is_some()),
+        ("ior", m.ior.is_some()),
+        ("roughness", m.roughness.is_some()),
+        ("metal", m.metal.is_some()),
+        ("eta", m.eta.is_some()),
+        ("k", m.k.is_some()),
+        ("f0", m.f0.is_some()),
+        ("thin", m.thin.is_some()),
+        ("absorption", m.absorption.is_some()),
+        ("base_color", m.base_color.is_some()),
+        ("metallic", m.metallic.is_some()),
+        ("transmission", m.transmission.is_some()),
+        ("normal_map", m.normal_map.is_some()),
+    ]
+}
+
+/// A material's scattering part by its kind, and a diffuse albedo's texture. Plastics and
+/// pbr materials go in their tables, which the BSDF indexes.
+fn scattering(
+    m: &MaterialDesc,
+    mp: &KeyPath,
+    files: &mut SceneFiles,
+    limits: &Limits,
+    assets: &dyn Assets,
+    (plastics, pbrs): (&mut Vec<Plastic>, &mut Vec<PbrMaterial>),
+) -> Result<(Bsdf, Option<u32>), Invalid> {
+    let present = present(m);
+    let mut texture = None;
+    let bsdf = match m.kind {
+        MaterialKind::Diffuse => {
+            only(mp, "a diffuse material", &present, &["albedo"])?;
+            let a = required(m.albedo.as_ref(), mp, "a diffuse material", "albedo")?;
+            match a {
+                AlbedoDesc::Color(c) => Bsdf::Diffuse(color(*c, &mp.key("albedo"), true)?),
+                AlbedoDesc::Texture(file) => {
+                    let path = mp.key("albedo").key("texture");
+                    texture =
+                        Some(files.texture(file, &path, limits, assets, TextureUse::Color)?);
+                    // The texel replaces it at each hit; this is what NEE-free code
+                    // paths and tests see.
+                    Bsdf::Diffuse(Vec3A::splat(0.5))
+                }
+            }
+        }
+        MaterialKind::Mirror => {
+            only(mp, "a mirror material", &present, &["reflectance"])?;
+            Bsdf::Mirror(color(
+                m.reflectance.unwrap_or([1.0; 3]),
+                &mp.key("reflectance"),
+                true,
+            )?)
+        }
+        MaterialKind::Dielectric => {
+            let kind = "a dielectric material";
+            only(
+                mp,
+                kind,
+                &present,
+                &["ior", "roughness", "thin", "absorption"],
+            )?;
+            dielectric(m, mp)?
+        }
+        MaterialKind::Conductor => {
+            let kind = "a conductor material";
+            only(
+                mp,
+                kind,
+                &present,
+                &["roughness", "metal", "eta", "k", "f0"],
+            )?;
+            Bsdf::Conductor(Metal::new(&conductor(m, mp)?))
+        }
+        MaterialKind::Plastic => {
+            plastics.push(plastic(m, mp, &present)?);
+            Bsdf::Plastic(plastics.len() as u32 - 1)
+        }
+        MaterialKind::Pbr => {
+            let kind = "a pbr material";
+            let keys = [
+                "base_color",
+                "metallic",
+                "roughness",
+                "transmission",
+                "ior",
+                "normal_map",
+            ];
+            only(mp, kind, &present, &keys)?;
+            pbrs.push(pbr(m, mp, files, limits, assets)?);
+            Bsdf::Pbr(pbrs.len() as u32 - 1)
+        }
+    };
+    Ok((bsdf, texture))
+}
+
+/// A `plastic` material: a diffuse albedo (a colour) under a clear coat of index `ior`.
+fn plastic(m: &MaterialDesc, mp: &KeyPath, present: &[(&str, bool)]) -> Result<Plastic, Invalid> {
+    let kind = "a plastic material";
+    only(mp, kind, present, &["albedo", "roughness", "ior"])?;
+    let albedo = match required(m.albedo.as_ref(), mp, kind, "albedo")? {
+        AlbedoDesc::Color(c) => color(*c, &mp.key("albedo"), true)?,
+        AlbedoDesc::Texture(_) => {
+            return Err((
+                mp.key("albedo").key("texture"),
+                "a plastic's albedo is a colour: textures are for diffuse materials".into(),
+            ))
+        }
+    };
+    let roughness = constant_roughness(m, mp, kind)?;
+    let ior = positive(m.ior.unwrap_or(1.5), &mp.key("ior"))?;
+    if ior == 1.0 {
+        return Err((
+            mp.key("ior"),
+            "a plastic's coat of index 1 is no coat: use a diffuse material".into(),
+        ));
+    }
+    Ok(Plastic::new(albedo, roughness, ior))
 }
 
 /// A `pbr` material: glTF's defaults (white, metallic 1, roughness 1, no transmission, index

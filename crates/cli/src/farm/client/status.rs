@@ -59,8 +59,17 @@ fn job_view(s: &pb::JobStatus) -> Result<JobView> {
     JobView::try_from(s).map_err(|e| anyhow!("the coordinator sent a job {e}"))
 }
 
-/// One job in detail, as `tessera status JOB` prints it.
+/// One job in detail, as `tessera status JOB` prints it: what it renders, how it is
+/// scheduled, how far it is, and a range's frames.
 fn print_job(v: &JobView) -> std::io::Result<()> {
+    print_what(v)?;
+    print_scheduling(v)?;
+    print_progress(v)?;
+    print_frames(v)
+}
+
+/// The job's state, scene, image and render settings.
+fn print_what(v: &JobView) -> std::io::Result<()> {
     let settings = &v.settings;
     outln!("{}", v.job_id);
     if v.paused {
@@ -105,6 +114,11 @@ fn print_job(v: &JobView) -> std::io::Result<()> {
             "  guiding    path guiding: epochs of doubling samples, each sampling the last's guide"
         );
     }
+    Ok(())
+}
+
+/// Its priority, submitter, dependency, requirements, failures and why it waits.
+fn print_scheduling(v: &JobView) -> std::io::Result<()> {
     outln!("  priority   {}", v.priority);
     if !v.submitter.is_empty() {
         outln!("  submitter  {}", printable(&v.submitter));
@@ -150,6 +164,11 @@ fn print_job(v: &JobView) -> std::io::Result<()> {
     if let Some(w) = &v.waiting {
         outln!("  waiting    {}", printable(w));
     }
+    Ok(())
+}
+
+/// How far it is: units, samples, rate, noise, output and the finished image's checks.
+fn print_progress(v: &JobView) -> std::io::Result<()> {
     outln!(
         "  progress   {}/{} units ({} leased), {}/{} samples",
         v.units_done,
@@ -182,6 +201,11 @@ fn print_job(v: &JobView) -> std::io::Result<()> {
     if v.progressive {
         outln!("  order      progressive: every frame's first batch before any frame's second");
     }
+    Ok(())
+}
+
+/// A frame range's frames, one line each.
+fn print_frames(v: &JobView) -> std::io::Result<()> {
     if let Some(r) = v.frame_range {
         let count = |st: JobState| v.frames.iter().filter(|f| f.state == st).count();
         outln!(

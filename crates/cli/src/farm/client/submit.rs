@@ -175,6 +175,44 @@ async fn upload(client: &mut Client, url: &str, name: &str, hash: &str, path: &P
 
 /// Runs `tessera submit`.
 pub fn submit(args: SubmitArgs) -> Result<()> {
+    check_flags(&args)?;
+    let gltf = args.gltf.options(&args.scene)?;
+    // A glTF file is sent as the scene text it stands for, with the file among its assets.
+    let (text, format) = scene_source(
+        &args.scene,
+        &gltf,
+        &Limits {
+            max_asset_bytes: u64::MAX,
+            ..Limits::default()
+        },
+    )?;
+    let json = format == tessera_render::scene::Format::Json;
+    let (files, (width, height)) = scene_files(&args, &gltf)?;
+    let url = args.url.coordinator.clone();
+    runtime()?.block_on(async {
+        let mut client = connect(&args.url).await?;
+        let req = request(&args, text, json, &files, (width, height));
+        let resp = submit_with_files(&mut client, &url, &files, req).await?;
+        if !args.wait {
+            outln!("{}", resp.job_id);
+            return Ok(());
+        }
+        errln!("{} submitted ({} units)", resp.job_id, resp.units);
+        // Ctrl-C stops the following, not the job: say so, with the id to pick it up again.
+        let job = resp.job_id.clone();
+        tokio::select! {
+            r = follow_and_fetch(&args, &mut client, &url, resp) => r,
+            _ = tokio::signal::ctrl_c() => bail!(
+                "interrupted: {job} goes on rendering on the farm; follow it with `tessera \
+                 status {job}`, fetch it with `tessera fetch {job} --wait`, or stop it with \
+                 `tessera cancel {job}`"
+            ),
+        }
+    })
+}
+
+/// The flags that cannot go together, and the output checked before anything is sent.
+fn check_flags(args: &SubmitArgs) -> Result<()> {
     if args.settings.guiding && args.settings.noise_target.is_some() {
         bail!(
             "--guiding takes every sample it is given; it cannot be combined with --noise-target"
@@ -198,132 +236,129 @@ pub fn submit(args: SubmitArgs) -> Result<()> {
     if args.preview.preview.is_some() && (!args.wait || args.frames.is_some()) {
         bail!("--preview needs --wait and one frame (or `tessera preview FRAME.exr` later)");
     }
-    let gltf = args.gltf.options(&args.scene)?;
-    // A glTF file is sent as the scene text it stands for, with the file among its assets.
-    let (text, format) = scene_source(
-        &args.scene,
-        &gltf,
-        &Limits {
-            max_asset_bytes: u64::MAX,
-            ..Limits::default()
-        },
-    )?;
-    let json = format == tessera_render::scene::Format::Json;
-    let (files, (width, height)) = scene_files(&args, &gltf)?;
-    let url = args.url.coordinator.clone();
-    runtime()?.block_on(async {
-        let mut client = connect(&args.url).await?;
-        let assets = files
-            .iter()
-            .map(|(name, hash, _)| pb::AssetRef {
-                name: name.clone(),
-                sha256: hash.clone(),
-            })
-            .collect();
-        let req = pb::SubmitJobRequest {
-            assets,
-            scene_text: text,
-            scene_format: if json {
-                pb::SceneFormat::Json
-            } else {
-                pb::SceneFormat::Toml
-            } as i32,
-            scene_name: args.scene.display().to_string(),
-            settings: Some(pb::RenderSettings::from(&args.settings.to_settings(
-                args.tile_size.unwrap_or(DEFAULT_TILE),
-                width,
-                height,
-            ))),
-            tile_size: args.tile_size.unwrap_or(0),
-            output_name: args.name.clone().unwrap_or_default(),
-            priority: args.priority,
-            channels: Some(pb::OutputChannels {
-                variance: args.variance,
-                sample_count: args.sample_count,
-            }),
-            frames: args.frames.map(|r| pb::FrameRange {
-                first: r.first,
-                last: r.last,
-                step: r.step,
-            }),
-            after: args.after.clone().unwrap_or_default(),
-            require: args.require.clone(),
-            min_memory_bytes: args.min_memory.unwrap_or(0),
-            progressive: args.progressive,
-        };
-        // The coordinator deletes files no active job has used for a while; one it held when
-        // `upload` asked may be gone by the submission. Uploading again and resubmitting
-        // settles that (twice at most: a file deleted every time is a misconfigured farm).
-        let mut tries = 0;
-        let resp = loop {
-            for (name, hash, path) in &files {
-                upload(&mut client, &url, name, hash, path).await?;
-            }
-            match client.submit_job(req.clone()).await {
-                Err(e)
-                    if e.code() == tonic::Code::FailedPrecondition
-                        && e.message().starts_with("not uploaded")
-                        && tries < 2 =>
-                {
-                    tries += 1;
-                    errln!(
-                        "the coordinator no longer holds a file ({}); uploading again",
-                        e.message()
-                    );
-                }
-                r => {
-                    break r
-                        .map_err(|e| rpc_error(&url, "submit refused", e))?
-                        .into_inner()
-                }
-            }
-        };
-        if !args.wait {
-            outln!("{}", resp.job_id);
-            return Ok(());
+    Ok(())
+}
+
+/// The submission of `text` (JSON or TOML) with `files`, at the film size `width`×`height`.
+fn request(
+    args: &SubmitArgs,
+    text: String,
+    json: bool,
+    files: &[SceneFile],
+    (width, height): (u32, u32),
+) -> pb::SubmitJobRequest {
+    let assets = files
+        .iter()
+        .map(|(name, hash, _)| pb::AssetRef {
+            name: name.clone(),
+            sha256: hash.clone(),
+        })
+        .collect();
+    pb::SubmitJobRequest {
+        assets,
+        scene_text: text,
+        scene_format: if json {
+            pb::SceneFormat::Json
+        } else {
+            pb::SceneFormat::Toml
+        } as i32,
+        scene_name: args.scene.display().to_string(),
+        settings: Some(pb::RenderSettings::from(&args.settings.to_settings(
+            args.tile_size.unwrap_or(DEFAULT_TILE),
+            width,
+            height,
+        ))),
+        tile_size: args.tile_size.unwrap_or(0),
+        output_name: args.name.clone().unwrap_or_default(),
+        priority: args.priority,
+        channels: Some(pb::OutputChannels {
+            variance: args.variance,
+            sample_count: args.sample_count,
+        }),
+        frames: args.frames.map(|r| pb::FrameRange {
+            first: r.first,
+            last: r.last,
+            step: r.step,
+        }),
+        after: args.after.clone().unwrap_or_default(),
+        require: args.require.clone(),
+        min_memory_bytes: args.min_memory.unwrap_or(0),
+        progressive: args.progressive,
+    }
+}
+
+/// Uploads `files` and submits `req`.
+async fn submit_with_files(
+    client: &mut Client,
+    url: &str,
+    files: &[SceneFile],
+    req: pb::SubmitJobRequest,
+) -> Result<pb::SubmitJobResponse> {
+    // The coordinator deletes files no active job has used for a while; one it held when
+    // `upload` asked may be gone by the submission. Uploading again and resubmitting settles
+    // that (twice at most: a file deleted every time is a misconfigured farm).
+    let mut tries = 0;
+    loop {
+        for (name, hash, path) in files {
+            upload(client, url, name, hash, path).await?;
         }
-        errln!("{} submitted ({} units)", resp.job_id, resp.units);
-        // Ctrl-C stops the following, not the job: say so, with the id to pick it up again.
-        let job = resp.job_id.clone();
-        let follow_and_fetch = async move {
-            if args.frames.is_some() {
-                errln!("{} frames", resp.frames);
-                let s = follow_to_end(&mut client, &url, &resp.job_id).await?;
-                let dir = args.output.clone().unwrap_or_else(|| PathBuf::from("."));
-                return download_frames(&mut client, &url, &s, &dir).await;
+        match client.submit_job(req.clone()).await {
+            Err(e)
+                if e.code() == tonic::Code::FailedPrecondition
+                    && e.message().starts_with("not uploaded")
+                    && tries < 2 =>
+            {
+                tries += 1;
+                errln!(
+                    "the coordinator no longer holds a file ({}); uploading again",
+                    e.message()
+                );
             }
-            let s = follow(&mut client, &url, &resp.job_id).await?;
-            let out = args
-                .output
-                .clone()
-                .unwrap_or_else(|| PathBuf::from(&s.output_name));
-            let bytes = download(&mut client, &url, &resp.job_id, None, &out).await?;
-            let secs = (s.finished_unix_ms - s.submitted_unix_ms) as f64 / 1000.0;
-            outln!(
-                "{} done: {}×{} at {} in {:.2} s, {} → {} ({bytes} bytes)",
-                s.job_id,
-                s.width,
-                s.height,
-                spp_said(&s),
-                secs,
-                crate::render::noise_said(
-                    s.noise_rms,
-                    s.noise_relative,
-                    s.settings.as_ref().is_some_and(|r| r.spp > 1)
-                ),
-                out.display()
-            );
-            args.preview.write_of_exr(&out)
-        };
-        tokio::select! {
-            r = follow_and_fetch => r,
-            _ = tokio::signal::ctrl_c() => bail!(
-                "interrupted: {job} goes on rendering on the farm; follow it with `tessera \
-                 status {job}`, fetch it with `tessera fetch {job} --wait`, or stop it with \
-                 `tessera cancel {job}`"
-            ),
+            r => {
+                return Ok(r
+                    .map_err(|e| rpc_error(url, "submit refused", e))?
+                    .into_inner())
+            }
         }
-    })
+    }
+}
+
+/// Follows a submitted job to its end and fetches its EXR (a range's frames into the
+/// output folder), with the preview if asked.
+async fn follow_and_fetch(
+    args: &SubmitArgs,
+    client: &mut Client,
+    url: &str,
+    resp: pb::SubmitJobResponse,
+) -> Result<()> {
+    if args.frames.is_some() {
+        errln!("{} frames", resp.frames);
+        let s = follow_to_end(client, url, &resp.job_id).await?;
+        let dir = args.output.clone().unwrap_or_else(|| PathBuf::from("."));
+        return download_frames(client, url, &s, &dir).await;
+    }
+    let s = follow(client, url, &resp.job_id).await?;
+    let out = args
+        .output
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(&s.output_name));
+    let bytes = download(client, url, &resp.job_id, None, &out).await?;
+    let secs = (s.finished_unix_ms - s.submitted_unix_ms) as f64 / 1000.0;
+    outln!(
+        "{} done: {}×{} at {} in {:.2} s, {} → {} ({bytes} bytes)",
+        s.job_id,
+        s.width,
+        s.height,
+        spp_said(&s),
+        secs,
+        crate::render::noise_said(
+            s.noise_rms,
+            s.noise_relative,
+            s.settings.as_ref().is_some_and(|r| r.spp > 1)
+        ),
+        out.display()
+    );
+    args.preview.write_of_exr(&out)
 }
 
 /// The samples a finished job took, as `tessera render` says them: "N spp", or for an

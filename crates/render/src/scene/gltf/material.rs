@@ -158,14 +158,7 @@ impl<'d> GltfMaterials<'d> {
         if factors.iter().any(|x| !x.is_finite()) {
             return Err(fail(format!("a factor is not finite: {factors:?}")));
         }
-        let strength = m.emissive_strength().unwrap_or(1.0);
-        let emission = Vec3A::from_array(m.emissive_factor()) * strength;
-        if !emission.is_finite() || emission.min_element() < 0.0 {
-            return Err(fail(format!(
-                "emission {:?} × strength {strength} must be finite and not negative",
-                m.emissive_factor()
-            )));
-        }
+        let emission = emission_of(m).map_err(fail)?;
         let (set, map) = self.uv_map(m);
         if infos(m)
             .into_iter()
@@ -174,16 +167,7 @@ impl<'d> GltfMaterials<'d> {
         {
             self.warn("reads every texture of a material through its base colour's texture coordinates and transform");
         }
-        let ior = match m.ior() {
-            Some(x) if x.is_finite() && x >= 1.0 => x,
-            None => 1.5,
-            Some(x) => {
-                self.warn(&format!(
-                    "reads an ior of {x} as 1.5 (it must be at least 1)"
-                ));
-                1.5
-            }
-        };
+        let ior = self.ior_of(m);
         let transmission = m.transmission();
         let factor = transmission
             .as_ref()
@@ -194,47 +178,20 @@ impl<'d> GltfMaterials<'d> {
         // A material that transmits fully through a volume is glass: tessera's refracting
         // dielectric, with the volume's attenuation as Beer–Lambert absorption.
         if let Some(volume) = m.volume() {
-            if factor == 1.0 && !textured_tx && metallic == 0.0 && volume.thickness_factor() > 0.0 {
-                if pbr.base_color_texture().is_some() || base_color != Vec3A::ONE {
-                    self.warn(
-                        "does not tint glass by its base colour (only its volume's attenuation)",
-                    );
-                }
-                let distribution = TrowbridgeReitz::from_roughness(roughness);
-                let bsdf = if distribution.is_smooth() || ior == 1.0 {
-                    Bsdf::Dielectric(ior)
-                } else {
-                    Bsdf::RoughDielectric(RoughDielectric { distribution, ior })
-                };
-                let c = Vec3A::from_array(volume.attenuation_color());
-                let d = volume.attenuation_distance();
-                if !c.is_finite() || !(d > 0.0) {
-                    return Err(fail(format!(
-                        "KHR_materials_volume: attenuation colour {:?} and distance {d} must be finite and positive",
-                        c.to_array()
-                    )));
-                }
-                let sigma = if d.is_finite() {
-                    c.clamp(Vec3A::splat(1e-6), Vec3A::ONE)
-                        .to_array()
-                        .map(|x| -x.ln() / d)
-                } else {
-                    [0.0; 3]
-                };
-                let material = Material {
-                    bsdf,
-                    emission,
-                    two_sided: false,
-                    texture: None,
-                };
-                return Ok((material, Vec3A::from_array(sigma).max(Vec3A::ZERO), None));
+            let clear = factor == 1.0 && !textured_tx && metallic == 0.0;
+            if clear && volume.thickness_factor() > 0.0 {
+                let tinted = pbr.base_color_texture().is_some() || base_color != Vec3A::ONE;
+                let (material, sigma) = self
+                    .volume_glass(&volume, (roughness, ior), tinted, emission)
+                    .map_err(fail)?;
+                return Ok((material, sigma, None));
             }
             self.warn("renders a volume that does not transmit fully, or is metallic or textured, as a thin wall");
         }
-        let mut texture = |info: Option<gltf::texture::Info>, key: &str, usage: TextureUse| {
-            info.map(|i| {
+        let mut texture = |t: Option<gltf::Texture>, key: &str, usage: TextureUse| {
+            t.map(|t| {
                 self.texture(
-                    &i.texture(),
+                    &t,
                     &format!("{what}.{key}"),
                     usage,
                     files,
@@ -246,38 +203,35 @@ impl<'d> GltfMaterials<'d> {
             .transpose()
         };
         let base_texture = texture(
-            pbr.base_color_texture(),
+            pbr.base_color_texture().map(|i| i.texture()),
             "baseColorTexture",
             TextureUse::Color,
         )?;
         let mr = texture(
-            pbr.metallic_roughness_texture(),
+            pbr.metallic_roughness_texture().map(|i| i.texture()),
             "metallicRoughnessTexture",
             TextureUse::Data,
         )?;
         let tx = texture(
-            transmission.as_ref().and_then(|t| t.transmission_texture()),
+            transmission
+                .as_ref()
+                .and_then(|t| t.transmission_texture())
+                .map(|i| i.texture()),
             "transmissionTexture",
             TextureUse::Data,
         )?;
         let normal_map = match m.normal_texture() {
-            Some(n) => {
+            Some(n) if !n.scale().is_finite() => {
                 let scale = n.scale();
-                if !scale.is_finite() {
-                    return Err(fail(format!(
-                        "normalTexture.scale must be finite, got {scale}"
-                    )));
-                }
-                let t = self.texture(
-                    &n.texture(),
-                    &format!("{what}.normalTexture"),
-                    TextureUse::Data,
-                    files,
-                    limits,
-                    assets,
-                    path,
-                )?;
-                Some(NormalMap { texture: t, scale })
+                return Err(fail(format!(
+                    "normalTexture.scale must be finite, got {scale}"
+                )));
+            }
+            Some(n) => {
+                texture(Some(n.texture()), "normalTexture", TextureUse::Data)?.map(|t| NormalMap {
+                    texture: t,
+                    scale: n.scale(),
+                })
             }
             None => None,
         };
@@ -302,6 +256,64 @@ impl<'d> GltfMaterials<'d> {
             texture: None,
         };
         Ok((runtime, Vec3A::ZERO, Some(material)))
+    }
+
+    /// A material's index of refraction (`KHR_materials_ior`), 1.5 when it gives none or one
+    /// below 1 (said once).
+    fn ior_of(&mut self, m: &gltf::Material) -> f32 {
+        match m.ior() {
+            Some(x) if x.is_finite() && x >= 1.0 => x,
+            None => 1.5,
+            Some(x) => {
+                self.warn(&format!(
+                    "reads an ior of {x} as 1.5 (it must be at least 1)"
+                ));
+                1.5
+            }
+        }
+    }
+
+    /// Glass for a material that transmits fully through `volume`: smooth or rough by its
+    /// `roughness`, of index `ior`, absorbing inside by the volume's attenuation (σ per unit
+    /// length, Beer–Lambert).
+    fn volume_glass(
+        &mut self,
+        volume: &gltf::material::Volume<'_>,
+        (roughness, ior): (f32, f32),
+        tinted: bool,
+        emission: Vec3A,
+    ) -> Result<(Material, Vec3A), String> {
+        if tinted {
+            self.warn("does not tint glass by its base colour (only its volume's attenuation)");
+        }
+        let distribution = TrowbridgeReitz::from_roughness(roughness);
+        let bsdf = if distribution.is_smooth() || ior == 1.0 {
+            Bsdf::Dielectric(ior)
+        } else {
+            Bsdf::RoughDielectric(RoughDielectric { distribution, ior })
+        };
+        let c = Vec3A::from_array(volume.attenuation_color());
+        let d = volume.attenuation_distance();
+        if !c.is_finite() || !(d > 0.0) {
+            return Err(format!(
+                "KHR_materials_volume: attenuation colour {:?} and distance {d} must be finite and positive",
+                c.to_array()
+            ));
+        }
+        let sigma = if d.is_finite() {
+            c.clamp(Vec3A::splat(1e-6), Vec3A::ONE)
+                .to_array()
+                .map(|x| -x.ln() / d)
+        } else {
+            [0.0; 3]
+        };
+        let material = Material {
+            bsdf,
+            emission,
+            two_sided: false,
+            texture: None,
+        };
+        Ok((material, Vec3A::from_array(sigma).max(Vec3A::ZERO)))
     }
 
     /// A `MASK` or `BLEND` material's alpha test: the base colour factor's alpha times its
@@ -478,4 +490,17 @@ pub(super) fn map_uv(m: &UvMap, uv: Vec2) -> Vec2 {
 /// A factor clamped into [0, 1], as glTF's schema bounds it (NaN is caught by the caller).
 fn unit(x: f32) -> f32 {
     x.clamp(0.0, 1.0)
+}
+/// A material's emitted radiance: its emissive factor times its strength
+/// (`KHR_materials_emissive_strength`), finite and not negative.
+fn emission_of(m: &gltf::Material) -> Result<Vec3A, String> {
+    let strength = m.emissive_strength().unwrap_or(1.0);
+    let emission = Vec3A::from_array(m.emissive_factor()) * strength;
+    if !emission.is_finite() || emission.min_element() < 0.0 {
+        return Err(format!(
+            "emission {:?} × strength {strength} must be finite and not negative",
+            m.emissive_factor()
+        ));
+    }
+    Ok(emission)
 }

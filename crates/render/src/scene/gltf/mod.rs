@@ -9,6 +9,7 @@
 //! identity covers them), its textures decode once however many materials share them, and a
 //! mesh that several nodes use is one BVH placed several times.
 
+mod camera;
 mod data;
 mod entry;
 mod material;
@@ -30,6 +31,7 @@ use crate::interaction::Transformed;
 use crate::mesh::{MeshInstance, TriMesh};
 use crate::shape::Shape;
 
+pub(super) use camera::camera;
 pub use entry::{is_gltf, json_part, scene_text, GltfOptions};
 pub(super) use material::GltfMaterials;
 
@@ -569,30 +571,7 @@ fn triangles(
         Some(a) => data::read_indices(buffers, &a, n, &format!("{what}.indices")).map_err(fail)?,
         None => (0..n as u32).collect(),
     };
-    let corners: Vec<[u32; 3]> = match prim.mode() {
-        Mode::Triangles => indices
-            .chunks_exact(3)
-            .map(|c| [c[0], c[1], c[2]])
-            .collect(),
-        // Every other triangle of a strip is wound the other way, so its corners swap to keep
-        // the front side consistent.
-        Mode::TriangleStrip => indices
-            .windows(3)
-            .enumerate()
-            .map(|(i, w)| {
-                if i % 2 == 0 {
-                    [w[0], w[1], w[2]]
-                } else {
-                    [w[1], w[0], w[2]]
-                }
-            })
-            .collect(),
-        Mode::TriangleFan => match indices.split_first() {
-            Some((&hub, rest)) => rest.windows(2).map(|w| [hub, w[0], w[1]]).collect(),
-            None => Vec::new(),
-        },
-        _ => Vec::new(),
-    };
+    let corners = corners(prim.mode(), &indices);
     if corners.is_empty() {
         return Ok(None);
     }
@@ -662,4 +641,32 @@ fn triangles(
         Arc::new(TriMesh::with_tangents(tris, normals, uvs, tangents)),
         smooth,
     )))
+}
+
+/// The triangles (their three indices) a primitive of `mode` makes of `indices`; none for
+/// points and lines. Every other triangle of a strip is wound the other way, so its corners
+/// swap to keep the front side consistent.
+fn corners(mode: Mode, indices: &[u32]) -> Vec<[u32; 3]> {
+    match mode {
+        Mode::Triangles => indices
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect(),
+        Mode::TriangleStrip => indices
+            .windows(3)
+            .enumerate()
+            .map(|(i, w)| {
+                if i % 2 == 0 {
+                    [w[0], w[1], w[2]]
+                } else {
+                    [w[1], w[0], w[2]]
+                }
+            })
+            .collect(),
+        Mode::TriangleFan => match indices.split_first() {
+            Some((&hub, rest)) => rest.windows(2).map(|w| [hub, w[0], w[1]]).collect(),
+            None => Vec::new(),
+        },
+        _ => Vec::new(),
+    }
 }

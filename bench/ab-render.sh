@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# Same-sitting A/B of `tessera render` wall time: the baseline binary ($1) against the new ($2),
+# interleaved (the order alternates each round), the EXRs compared by cmp.
+set -euo pipefail
+old=$1; new=$2; rounds=${3:-5}
+cd "$(dirname "$0")/.."
+declare -A spp=([cornell-box.toml]=512 [materials.toml]=192 [gltf-metals.toml]=192 [glass-mirror.toml]=256)
+for s in cornell-box.toml materials.toml gltf-metals.toml glass-mirror.toml; do
+  for r in $(seq "$rounds"); do
+    if (( r % 2 )); then order="old new"; else order="new old"; fi
+    for which in $order; do
+      bin=$old; [[ $which == new ]] && bin=$new
+      t0=$(date +%s.%N)
+      "$bin" render "scenes/$s" --spp "${spp[$s]}" --output "/tmp/ab-$which-$s.exr" >/dev/null 2>&1
+      t1=$(date +%s.%N)
+      echo "$s $which $(echo "$t1 - $t0" | bc)"
+    done
+  done
+  cmp "/tmp/ab-old-$s.exr" "/tmp/ab-new-$s.exr" && echo "$s same bits"
+done
