@@ -14,7 +14,7 @@ pub use tessera_proto::v1::jobs_client::JobsClient;
 pub use tessera_proto::v1::workers_client::WorkersClient;
 pub use tessera_proto::Secret;
 use tessera_render::guide::SdTree;
-use tessera_render::guided::{epoch_of, epochs, guide_bounds, render_tile_guided, structure};
+use tessera_render::guiding::{epoch_of, epochs, guide_bounds, render_tile_guided, structure};
 pub use tessera_render::output::{render_metadata, write_exr, ExrChannels};
 pub use tessera_render::scene::{Format, Limits, Scene};
 pub use tessera_render::{render_frame, RenderSettings, IMAGE_REVISION};
@@ -376,7 +376,7 @@ pub fn local_exr_files(
     )
     .expect("scene");
     let sums = if settings.guiding {
-        tessera_render::guided::render_frame_guided(&scene, settings, &|_| {}).sums
+        tessera_render::guiding::render_frame_guided(&scene, settings, &|_| {}).sums
     } else {
         render_frame(&scene, settings, &|_| {})
     };

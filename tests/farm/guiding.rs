@@ -5,7 +5,7 @@
 
 use crate::common::*;
 use tessera_render::guide::SdTree;
-use tessera_render::guided::{guide_bounds, structure};
+use tessera_render::guiding::{guide_bounds, structure};
 
 /// Guided settings: 32 spp in batches of 4 (epochs [0,1) [1,3) [3,7) [7,15) [15,32), cut into
 /// 12 batches), seed 7.
@@ -45,7 +45,7 @@ async fn a_guided_job_gives_the_local_bits_across_a_restart_between_epochs() {
     // This scene's guide does not pay, so guiding turns off from epoch 3: the bits compared
     // cover guided epochs and the unguided ones workers render after.
     let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
-    let frame = tessera_render::guided::render_frame_guided(&scene, &settings, &|_| {});
+    let frame = tessera_render::guiding::render_frame_guided(&scene, &settings, &|_| {});
     let guided_epochs: Vec<bool> = frame.epochs.iter().map(|e| e.guided).collect();
     assert_eq!(guided_epochs, [false, true, true, false, false]);
     let mut client = coord.client().await;

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use indicatif::ProgressBar;
-use tessera_render::guided::render_frame_guided;
+use tessera_render::guiding::render_frame_guided;
 use tessera_render::output::{render_metadata, write_exr, write_png_preview, ExrChannels, Preview};
 use tessera_render::scene::{Limits, Scene};
 use tessera_render::{render_frame, RenderSettings, Tracer, DEFAULT_TILE};
@@ -209,7 +209,7 @@ pub(crate) fn noise_said(rms: f64, relative: f64, estimated: bool) -> String {
 
 /// What a guided render's summary line says of its epochs: how many, the largest guide any
 /// sampled, and where guiding turned itself off (the guide did not pay), if it did.
-fn guide_note_of(epochs: &[tessera_render::guided::Epoch]) -> String {
+fn guide_note_of(epochs: &[tessera_render::guiding::Epoch]) -> String {
     let sampled = epochs.iter().filter(|e| e.guided);
     let largest = sampled.max_by_key(|e| e.guide_bytes);
     let mut note = format!(", {} guided epochs", epochs.len());

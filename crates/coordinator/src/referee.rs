@@ -15,7 +15,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use tessera_proto::ids::JobId;
-use tessera_render::guided::render_tile_guided;
+use tessera_render::guiding::render_tile_guided;
 use tessera_render::render_tile;
 use tessera_render::scene::{Format, Scene};
 use tracing::{info, warn};

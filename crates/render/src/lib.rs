@@ -44,7 +44,7 @@ pub mod camera;
 pub mod envmap;
 pub mod film;
 pub mod guide;
-pub mod guided;
+pub mod guiding;
 pub mod integrator;
 pub mod interaction;
 pub mod light;

@@ -142,9 +142,9 @@ pub struct RenderSettings {
     /// when the scene is built ([`crate::scene::Shot`]); part of the render's identity when
     /// set, like `spp`.
     pub resolution: Option<(u32, u32)>,
-    /// Path guiding ([`crate::guided`]): a render of these settings is
-    /// [`crate::guided::render_frame_guided`]'s, in epochs, and a farm's units are
-    /// [`crate::guided::units`]. Part of a job's identity when set. [`crate::render_frame`]
+    /// Path guiding ([`crate::guiding`]): a render of these settings is
+    /// [`crate::guiding::render_frame_guided`]'s, in epochs, and a farm's units are
+    /// [`crate::guiding::units`]. Part of a job's identity when set. [`crate::render_frame`]
     /// does not read it: callers choose the guided renderer by it.
     pub guiding: bool,
 }

@@ -162,7 +162,10 @@ fn a_scene_is_checked_without_decoding_its_textures() {
     assert_eq!(checked.hash, built.hash);
     assert_eq!((checked.width, checked.height), (built.width, built.height));
     assert_eq!(checked.files, built.files);
-    assert_eq!(checked.bounds, tessera_render::guided::guide_bounds(&built));
+    assert_eq!(
+        checked.bounds,
+        tessera_render::guiding::guide_bounds(&built)
+    );
     // The header is still read and checked.
     std::fs::write(dir.path().join("big.png"), b"not a png at all").expect("png");
     let e = check(&limits).expect_err("no image");

@@ -254,7 +254,7 @@ radius = 0.3
         guiding: true,
         ..RenderSettings::default()
     };
-    let frame = tessera_render::guided::render_frame_guided(&scenes[2], &guided, &|_| {});
+    let frame = tessera_render::guiding::render_frame_guided(&scenes[2], &guided, &|_| {});
     sums_hash(&mut hash, &frame.sums);
     // AOVs (revision 7 clamped each sample's albedo and normal where it enters a sum).
     let aovs = RenderSettings {

@@ -8,7 +8,7 @@ mod common;
 
 use glam::{Vec2, Vec3A};
 use tessera_render::guide::{from_square, SdTree, ALPHAS, DEFAULT_ALPHA};
-use tessera_render::guided::{
+use tessera_render::guiding::{
     guides, render_frame_guided, render_tile_guided, FIRST_OFF_EPOCH, OFF_ABOVE,
 };
 use tessera_render::scene::Scene;
@@ -283,7 +283,7 @@ fn a_guided_render_is_the_same_bits_on_any_number_of_threads() {
     let three = run(3);
     assert_eq!(one.epochs, three.epochs);
     assert!(one.epochs.last().is_some_and(|e| e.guide_leaves > 0));
-    let bits = |f: &tessera_render::guided::GuidedFrame| {
+    let bits = |f: &tessera_render::guiding::GuidedFrame| {
         f.sums
             .sum
             .iter()

@@ -17,7 +17,7 @@
 //!
 //! The crate, by concept: [`Config`] and [`WorkerError`] (`config.rs`); what a worker keeps
 //! between units, built scenes and the asset cache on disk (`cache.rs`, [`evict`]), and guided
-//! units' guides (`guides.rs`); the session with the coordinator: registration, leases held,
+//! units' guides (`guide_cache.rs`); the session with the coordinator: registration, leases held,
 //! log lines, the shutdown signal (`session.rs`); the pipeline's tasks and what they share
 //! (`pipeline.rs`); and here [`run`].
 //!
@@ -30,7 +30,7 @@
 
 mod cache;
 mod config;
-mod guides;
+mod guide_cache;
 mod memory;
 mod pipeline;
 mod session;

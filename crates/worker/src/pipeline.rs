@@ -10,14 +10,14 @@ use std::time::Duration;
 
 use tessera_proto::convert::settings_from_wire;
 use tessera_proto::v1 as pb;
-use tessera_render::guided::render_tile_guided;
+use tessera_render::guiding::render_tile_guided;
 use tessera_render::scene::Scene;
 use tessera_render::{render_tile, PixelRect, RenderSettings, TileSums};
 use tokio::sync::{mpsc, watch, OwnedSemaphorePermit, Semaphore};
 use tracing::{debug, info, warn};
 
 use crate::cache::{SceneCache, SceneError};
-use crate::guides::{GuideCache, Guided};
+use crate::guide_cache::{GuideCache, Guided};
 use crate::session::{backoff_delay, lock, transient, Session};
 
 /// What the pipeline's tasks share: the session with the coordinator, the scenes and guides

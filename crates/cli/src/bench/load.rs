@@ -29,9 +29,9 @@ use tessera_render::scene::{Format, Limits, Scene};
 use tessera_render::{render_tile, PixelRect, RenderSettings, TileSums};
 use tonic::transport::Channel;
 
-mod guided;
 mod memory;
 mod report;
+mod training;
 use report::{report, to_csv};
 
 /// Arguments of `tessera loadtest`.
@@ -79,7 +79,7 @@ pub struct LoadArgs {
     jobs: usize,
     /// After each worker count's run, the same with a guided job (`submit --guiding`): its
     /// units return training trees, which the coordinator checks, adds and freezes into
-    /// guides between epochs (the records are synthetic; see `load/guided.rs`).
+    /// guides between epochs (the records are synthetic; see `load/training.rs`).
     #[arg(long)]
     guiding: bool,
 }
@@ -315,7 +315,7 @@ pub(super) struct Shared {
     pub(super) deferred: AtomicU64,
     latencies: Mutex<Vec<f64>>,
     /// A guided run's training trees (none: an unguided run).
-    trains: Option<guided::Trains>,
+    trains: Option<training::Trains>,
     /// The probe worker's: one more worker on a thread of its own, whose round trips are the
     /// coordinator's answer time under the others' load, not the load generator's queueing.
     probe_latencies: Mutex<Vec<f64>>,
@@ -513,7 +513,7 @@ async fn run_one(workers: usize, plan: &Plan, guided: bool) -> Result<Run> {
         (plan.rate > 0.0)
             .then(|| Duration::from_secs_f64(workers as f64 * unit_samples / (plan.rate * 1e6))),
     );
-    shared.trains = guided.then(|| guided::Trains::new(plan.bounds, plan.settings.spp));
+    shared.trains = guided.then(|| training::Trains::new(plan.bounds, plan.settings.spp));
     let shared = Arc::new(shared);
     shared.go.store(false, Ordering::Relaxed);
     // The probe first: a coordinator saturated by the others could keep it from registering.
@@ -646,7 +646,7 @@ pub fn run(args: LoadArgs) -> Result<()> {
         rate: args.rate,
         coordinator_args: coordinator_args(&args),
         template: template(&scene, settings.batch),
-        bounds: tessera_render::guided::guide_bounds(&scene),
+        bounds: tessera_render::guiding::guide_bounds(&scene),
         settings,
     };
     errln!(

@@ -15,7 +15,7 @@
 //! The parts: [`peer`] (CSV rows and the peer protocol), [`stats`], [`report`] and [`plot`].
 
 mod adaptive;
-mod guided;
+mod guiding_cost;
 pub mod load;
 mod peer;
 mod plot;
@@ -383,7 +383,9 @@ fn measure_scene(
                 relmse: rel_mse(&img, &reference),
             });
             if args.guiding {
-                m.keep(guided::measure(&scene, name, &settings, &reference, pool));
+                m.keep(guiding_cost::measure(
+                    &scene, name, &settings, &reference, pool,
+                ));
             }
             if let Some(peer) = peer.as_deref_mut() {
                 for row in peer.measure(name, spp, settings.seed)? {
@@ -437,7 +439,7 @@ fn write_reports(args: &BenchArgs, m: &Measured) -> Result<()> {
     std::fs::write(&md_path, md).with_context(|| format!("writing {}", md_path.display()))?;
     if args.guiding {
         let path = args.out.join(format!("{}-guiding.md", args.name));
-        let md = guided::report(&m.rows, &report::command())
+        let md = guiding_cost::report(&m.rows, &report::command())
             + &format!(
                 "\nMachine: {}, {threads} threads. Data: the rows of [`{}`]({}).\n",
                 report::machine(m.clock_ghz),

@@ -15,7 +15,7 @@ use tessera_render::{Adaptive, Aovs, RenderSettings, TileSums};
 use crate::error::Refusal;
 
 mod audit;
-mod guided;
+mod guide_epochs;
 mod rate;
 mod resident;
 mod restore;
@@ -23,7 +23,7 @@ mod tiles;
 
 use crate::store::{encode_sums, JobPhase, JobRecord, Op};
 pub use audit::{same_bits, same_result, AuditHold, KeptUnits, Source, TakenBack, NOBODY};
-pub use guided::{Guide, Guiding};
+pub use guide_epochs::{Guide, Guiding};
 pub use rate::Rate;
 pub use resident::{preview_step, FrameTile, Snapshot, Thumb, MAX_DIRTY_BYTES, PREVIEW_EDGE};
 pub use tiles::{check_aov_sums, pixel_in_range, sums_in_range, TileGrid};

@@ -51,7 +51,7 @@ pub struct Admission {
     /// not adaptive).
     pub progressive: bool,
     /// The box a guided job's guides start from
-    /// ([`tessera_render::guided::guide_bounds`] of its scene); not read for other jobs.
+    /// ([`tessera_render::guiding::guide_bounds`] of its scene); not read for other jobs.
     pub guide_bounds: [[f32; 3]; 2],
     /// The user whose token submitted it ([`crate::auth`]; empty without named tokens).
     pub submitter: String,

@@ -26,10 +26,10 @@ pub use crate::settings::{
 use crate::util::math::{exp_nonpositive, offset_ray_origin, Frame, Ray};
 use crate::util::sampling::{cosine_hemisphere_pdf, power_heuristic, PixelSampler};
 
-mod guided;
+mod guided_vertex;
 mod lobes;
 mod vertex;
-pub use guided::{GuidedPath, Guiding, NoGuide, MAX_VERTICES};
+pub use guided_vertex::{GuidedPath, Guiding, NoGuide, MAX_VERTICES};
 pub(crate) use lobes::pbr_at;
 use vertex::{scatter, Numbers, Vertex};
 
@@ -46,7 +46,7 @@ pub fn sample_pixel(
 }
 
 /// [`sample_pixel`] with path guiding (`guiding`: the guide it samples from and the tree it
-/// trains; [`crate::guided`]).
+/// trains; [`crate::guiding`]).
 #[inline]
 pub fn sample_pixel_with<'a, G: Guiding<'a>>(
     scene: &Scene,

@@ -1,6 +1,6 @@
 //! One vertex of a path: the material the path met scatters it. Every material's vertex is
 //! one arm of [`scatter`], calling that material's own code (in this folder's `lobes` and
-//! `guided`, and in [`super`] for the smooth and rough glass); what the loop of
+//! `guided_vertex`, and in [`super`] for the smooth and rough glass); what the loop of
 //! `trace` asks of a material before it scatters (whether to sample lights, whether
 //! to draw a choice, whether its back side scatters) is [`Bsdf`]'s to answer.
 //!
@@ -12,7 +12,7 @@ use glam::{Vec2, Vec3A};
 
 use super::lobes::{self, conductor, pbr, plastic};
 use super::{
-    dielectric, diffuse, guided, rough_dielectric, thin_dielectric, Guiding, Path, Shading,
+    dielectric, diffuse, guided_vertex, rough_dielectric, thin_dielectric, Guiding, Path, Shading,
 };
 use crate::bsdf::{reflect, Bsdf};
 use crate::interaction::Hit;
@@ -78,7 +78,7 @@ pub(super) fn scatter<'a, G: Guiding<'a>>(
                 None => diffuse(scene, strategy, path, albedo, sp, at, u.bsdf, u.light),
                 Some(g) => {
                     let mut updated = *path;
-                    let next = guided::diffuse(
+                    let next = guided_vertex::diffuse(
                         scene,
                         strategy,
                         &mut updated,

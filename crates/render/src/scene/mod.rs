@@ -359,7 +359,7 @@ pub struct SceneCheck {
     pub height: u32,
     /// The files the scene read ([`Scene::files`]).
     pub files: Vec<(String, String)>,
-    /// The box around its bounded shapes ([`crate::guided::guide_bounds`]).
+    /// The box around its bounded shapes ([`crate::guiding::guide_bounds`]).
     pub bounds: [[f32; 3]; 2],
 }
 

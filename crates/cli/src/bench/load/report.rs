@@ -129,7 +129,7 @@ pub(super) fn report(runs: &[Run], command: &str, machine: &str, plan: &Plan) ->
              returns a training tree of {} synthetic records in its epoch's structure (fetched \
              and refined by the simulated workers, one per epoch), and the coordinator checks \
              and adds each and freezes each epoch's into the next guide.",
-            super::guided::RECORDS
+            super::training::RECORDS
         );
     }
     for r in runs.iter().filter(|r| r.guided) {

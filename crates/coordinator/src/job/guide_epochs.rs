@@ -1,5 +1,5 @@
 //! A guided job's epochs and guides (issue #60; the renderer's side is
-//! [`tessera_render::guided`]).
+//! [`tessera_render::guiding`]).
 //!
 //! A guided job's batches are [`units`]: its epochs' sample ranges cut at multiples of the
 //! batch, so a tile folds them in the same order `tessera render --guiding` does. Epoch k's
@@ -23,7 +23,7 @@ use std::sync::Arc;
 
 use sha2::{Digest, Sha256};
 use tessera_render::guide::SdTree;
-use tessera_render::guided::{epochs, structure, units};
+use tessera_render::guiding::{epochs, structure, units};
 use tessera_render::integrator::MAX_VERTICES;
 
 use crate::store::Op;

@@ -16,7 +16,7 @@ use glam::{Vec2, Vec3A};
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::workers_client::WorkersClient;
 use tessera_render::guide::{from_square, SdTree};
-use tessera_render::guided::{epoch_of, epochs, structure};
+use tessera_render::guiding::{epoch_of, epochs, structure};
 use tonic::transport::Channel;
 
 /// Vertices each unit's training tree records: fewer than any unit's paths can have (a 128²

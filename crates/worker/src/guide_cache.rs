@@ -6,7 +6,7 @@ use std::sync::{Arc, Mutex};
 
 use tessera_proto::v1 as pb;
 use tessera_render::guide::SdTree;
-use tessera_render::guided::{epoch_of, epochs, guide_bounds, structure};
+use tessera_render::guiding::{epoch_of, epochs, guide_bounds, structure};
 use tessera_render::scene::Scene;
 use tessera_render::RenderSettings;
 

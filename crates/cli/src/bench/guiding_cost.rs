@@ -9,7 +9,7 @@
 use std::fmt::Write as _;
 use std::time::Instant;
 
-use tessera_render::guided::render_frame_guided;
+use tessera_render::guiding::render_frame_guided;
 use tessera_render::output::RgbImage;
 use tessera_render::scene::Scene;
 use tessera_render::RenderSettings;
