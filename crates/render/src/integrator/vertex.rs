@@ -14,7 +14,7 @@ use super::lobes::{self, conductor, pbr, plastic};
 use super::{
     dielectric, diffuse, guided_vertex, rough_dielectric, thin_dielectric, Guiding, Path, Shading,
 };
-use crate::bsdf::{reflect, Bsdf};
+use crate::bsdf::{reflect, Bsdf, Metal, RoughDielectric};
 use crate::interaction::Hit;
 use crate::interaction::SurfacePoint;
 use crate::primitive::Primitive;
@@ -55,9 +55,8 @@ pub(super) struct Numbers {
 /// Scatters `path` at `v`: adds the direct light its material gathers there and returns the
 /// next ray, or `None` where the path ends.
 ///
-/// Long because it is the one place a material's vertex is dispatched: an arm per material,
-/// each a call into that material's code with the numbers and the path's copy it takes.
-/// Splitting it would put the dispatch in two places, which is what it replaced.
+/// The one place a material's vertex is dispatched: an arm per material; the longer arms are
+/// functions of their own, inlined (the loop's codegen is what it was).
 #[inline(always)]
 pub(super) fn scatter<'a, G: Guiding<'a>>(
     v: &Vertex<'_>,
@@ -67,7 +66,6 @@ pub(super) fn scatter<'a, G: Guiding<'a>>(
     depth: u32,
 ) -> Option<Ray> {
     let (scene, strategy, sp, at) = (v.scene, v.strategy, v.sp, v.at);
-    let wo = -v.ray.d;
     match v.mat.bsdf {
         Bsdf::Diffuse(albedo) => {
             let albedo = match v.mat.texture {
@@ -103,22 +101,7 @@ pub(super) fn scatter<'a, G: Guiding<'a>>(
             }
             Some(Ray::new(offset_ray_origin(sp.p, sp.err, at.n), wi))
         }
-        Bsdf::Conductor(ref m) => {
-            let mut updated = *path;
-            let next = conductor(
-                scene,
-                strategy,
-                &mut updated,
-                &m.conductor(),
-                wo,
-                sp,
-                at,
-                u.bsdf,
-                u.light,
-            );
-            *path = updated;
-            next
-        }
+        Bsdf::Conductor(ref m) => conductor_vertex(v, m, path, u),
         Bsdf::Dielectric(ior) => {
             let next = dielectric(v.ray, sp, at, v.front, ior, u.choice)?;
             path.specular = true;
@@ -129,72 +112,112 @@ pub(super) fn scatter<'a, G: Guiding<'a>>(
             }
             Some(next.ray)
         }
-        Bsdf::RoughDielectric(ref rd) => {
-            let eta = if v.front { rd.ior } else { 1.0 / rd.ior };
-            let mut updated = *path;
-            let next = rough_dielectric(
-                scene,
-                strategy,
-                &mut updated,
-                rd,
-                eta,
-                wo,
-                sp,
-                at,
-                (u.bsdf, u.choice),
-                u.light,
-            );
-            *path = updated;
-            let (next, through) = next?;
-            if v.absorbing && through {
-                path.medium = medium_entered(v);
-            }
-            Some(next)
-        }
+        Bsdf::RoughDielectric(ref rd) => rough_glass_vertex(v, rd, path, u),
         Bsdf::ThinDielectric(ior) => {
             let next = thin_dielectric(v.ray, sp, at, ior, u.choice)?;
             path.specular = true;
             Some(next)
         }
-        Bsdf::Pbr(index) => {
-            let mut updated = *path;
-            let next = pbr(
-                scene,
-                strategy,
-                &mut updated,
-                lobes::PbrHit {
-                    material: scene.pbr(index),
-                    ray: v.ray,
-                    hit: v.hit,
-                    prim: v.prim,
-                    two_sided: v.mat.two_sided,
-                    front: v.front,
-                },
-                sp,
-                at,
-                (u.bsdf, u.choice),
-                u.light,
-            );
-            *path = updated;
-            next
-        }
-        Bsdf::Plastic(index) => {
-            let mut updated = *path;
-            let next = plastic(
-                scene,
-                strategy,
-                &mut updated,
-                scene.plastic(index),
-                wo,
-                sp,
-                at,
-                (u.bsdf, u.choice),
-                u.light,
-            );
-            *path = updated;
-            next
-        }
+        Bsdf::Pbr(index) => pbr_vertex(v, index, path, u),
+        Bsdf::Plastic(index) => plastic_vertex(v, index, path, u),
     }
+}
+
+/// A metal's vertex (rough or smooth).
+#[inline(always)]
+fn conductor_vertex(v: &Vertex<'_>, m: &Metal, path: &mut Path, u: Numbers) -> Option<Ray> {
+    let (scene, strategy, sp, at, wo) = (v.scene, v.strategy, v.sp, v.at, -v.ray.d);
+    let mut updated = *path;
+    let next = conductor(
+        scene,
+        strategy,
+        &mut updated,
+        &m.conductor(),
+        wo,
+        sp,
+        at,
+        u.bsdf,
+        u.light,
+    );
+    *path = updated;
+    next
+}
+
+/// A rough glass's vertex: reflection or refraction, and the medium entered.
+#[inline(always)]
+fn rough_glass_vertex(
+    v: &Vertex<'_>,
+    rd: &RoughDielectric,
+    path: &mut Path,
+    u: Numbers,
+) -> Option<Ray> {
+    let (scene, strategy, sp, at, wo) = (v.scene, v.strategy, v.sp, v.at, -v.ray.d);
+    let eta = if v.front { rd.ior } else { 1.0 / rd.ior };
+    let mut updated = *path;
+    let next = rough_dielectric(
+        scene,
+        strategy,
+        &mut updated,
+        rd,
+        eta,
+        wo,
+        sp,
+        at,
+        (u.bsdf, u.choice),
+        u.light,
+    );
+    *path = updated;
+    let (next, through) = next?;
+    if v.absorbing && through {
+        path.medium = medium_entered(v);
+    }
+    Some(next)
+}
+
+/// A glTF metallic–roughness material's vertex.
+#[inline(always)]
+fn pbr_vertex(v: &Vertex<'_>, index: u32, path: &mut Path, u: Numbers) -> Option<Ray> {
+    let (scene, strategy, sp, at) = (v.scene, v.strategy, v.sp, v.at);
+    let mut updated = *path;
+    let next = pbr(
+        scene,
+        strategy,
+        &mut updated,
+        lobes::PbrHit {
+            material: scene.pbr(index),
+            ray: v.ray,
+            hit: v.hit,
+            prim: v.prim,
+            two_sided: v.mat.two_sided,
+            front: v.front,
+        },
+        sp,
+        at,
+        (u.bsdf, u.choice),
+        u.light,
+    );
+    *path = updated;
+    next
+}
+
+/// A plastic's vertex: the coat or the base.
+#[inline(always)]
+fn plastic_vertex(v: &Vertex<'_>, index: u32, path: &mut Path, u: Numbers) -> Option<Ray> {
+    let (scene, strategy, sp, at, wo) = (v.scene, v.strategy, v.sp, v.at, -v.ray.d);
+    let mut updated = *path;
+    let next = plastic(
+        scene,
+        strategy,
+        &mut updated,
+        scene.plastic(index),
+        wo,
+        sp,
+        at,
+        (u.bsdf, u.choice),
+        u.light,
+    );
+    *path = updated;
+    next
 }
 
 /// The medium a path is in once it has gone through `v`'s glass: the material's inside when
