@@ -30,10 +30,17 @@
 
 use glam::Vec3A;
 
-use crate::bsdf::{reflect, Bsdf};
-use crate::integrator::{dielectric, pbr_at, thin_dielectric, Shading};
+use std::sync::Arc;
+
+use glam::Vec2;
+
+use crate::interaction::{Hit, Shading, SurfacePoint};
+use crate::material::{port, Tables};
+use crate::mesh::UvFrame;
+use crate::primitive::Primitive;
 use crate::scene::Scene;
-use crate::util::math::{offset_ray_origin, Ray};
+use crate::texture::Texture;
+use crate::util::math::Ray;
 use crate::util::sampling::PixelSampler;
 
 /// Delta bounces followed before a sample is taken to have met nothing (two facing mirrors).
@@ -75,52 +82,79 @@ pub fn first_hit(scene: &Scene, x: u32, y: u32, sampler: &PixelSampler) -> First
         let sp = prim.shape.surface(&ray, hit.t, hit.part);
         let mat = &scene.materials[prim.material as usize];
         let (front, at) = Shading::facing(&sp, -ray.d, shading_normals);
-        let surface = |albedo: Vec3A| FirstHit {
-            albedo: albedo.clamp(Vec3A::ZERO, Vec3A::ONE),
-            normal: at.ns,
-            depth: out.depth,
+        let seen = Seen {
+            scene,
+            ray: &ray,
+            hit: &hit,
+            prim,
+            sp: &sp,
+            at: &at,
+            front,
+            two_sided: mat.two_sided,
         };
         // The beauty's u_choice for this bounce (its group 2 + 2d, second number).
-        let u_choice = || sampler.get4(2 + 2 * bounce)[1];
-        let next = match mat.bsdf {
-            Bsdf::Diffuse(albedo) => {
-                let albedo = match mat.texture {
-                    None => albedo,
-                    Some(t) => scene.textures[t as usize].lookup(prim.shape.uv(&ray, hit.part)),
-                };
-                return surface(albedo);
-            }
-            Bsdf::Plastic(index) => return surface(scene.plastic(index).albedo()),
-            Bsdf::Pbr(index) => {
-                let (params, bent) =
-                    pbr_at(scene, scene.pbr(index), &ray, &hit, prim, &sp, &at, front);
+        let u_choice = sampler.get4(2 + 2 * bounce)[1];
+        let next = match mat.bsdf.first_hit(&seen, u_choice) {
+            port::Seen::Albedo(albedo) => {
                 return FirstHit {
-                    albedo: params.base_color,
-                    normal: bent.ns,
+                    albedo: albedo.clamp(Vec3A::ZERO, Vec3A::ONE),
+                    normal: at.ns,
                     depth: out.depth,
-                };
-            }
-            Bsdf::RoughDielectric(_) => return surface(Vec3A::ONE),
-            Bsdf::Conductor(ref m) if !m.is_smooth() => {
-                return surface(m.conductor().fresnel.eval(1.0))
-            }
-            Bsdf::Conductor(_) | Bsdf::Mirror(_) => {
-                let wi = reflect(ray.d, at.ns);
-                if at.shaded && at.n.dot(wi) <= 0.0 {
-                    return out;
                 }
-                Ray::new(offset_ray_origin(sp.p, sp.err, at.n), wi)
             }
-            Bsdf::Dielectric(ior) => match dielectric(&ray, &sp, &at, front, ior, u_choice()) {
-                Some(r) => r.ray,
-                None => return out,
-            },
-            Bsdf::ThinDielectric(ior) => match thin_dielectric(&ray, &sp, &at, ior, u_choice()) {
-                Some(r) => r,
-                None => return out,
-            },
+            port::Seen::Shaded { albedo, normal } => {
+                return FirstHit {
+                    albedo,
+                    normal,
+                    depth: out.depth,
+                }
+            }
+            port::Seen::Next(r) => r,
+            port::Seen::Nothing => return out,
         };
         ray = next;
     }
     out
+}
+
+/// A surface the AOV pass meets, as a material sees it.
+struct Seen<'s> {
+    scene: &'s Scene,
+    ray: &'s Ray,
+    hit: &'s Hit,
+    prim: &'s Primitive,
+    sp: &'s SurfacePoint,
+    at: &'s Shading,
+    front: bool,
+    two_sided: bool,
+}
+
+impl<'s> port::Surface<'s> for Seen<'s> {
+    fn ray(&self) -> &Ray {
+        self.ray
+    }
+    fn point(&self) -> &SurfacePoint {
+        self.sp
+    }
+    fn shading(&self) -> &Shading {
+        self.at
+    }
+    fn front(&self) -> bool {
+        self.front
+    }
+    fn two_sided(&self) -> bool {
+        self.two_sided
+    }
+    fn textures(&self) -> &'s [Arc<Texture>] {
+        &self.scene.textures
+    }
+    fn tables(&self) -> &'s Tables {
+        self.scene.tables()
+    }
+    fn uv(&self) -> Vec2 {
+        self.prim.shape.uv(self.ray, self.hit.part)
+    }
+    fn uv_frame(&self) -> Option<UvFrame> {
+        self.prim.shape.uv_frame(self.ray, self.hit.part)
+    }
 }

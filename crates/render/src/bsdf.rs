@@ -1,9 +1,9 @@
 //! The BSDFs a material can have: Lambertian diffuse, a perfect mirror, a smooth
 //! dielectric with Fresnel reflection and refraction, rough or smooth metals ([`conductor`],
 //! on the GGX distribution of [`microfacet`]), rough glass ([`dielectric`]) and plastic
-//! ([`plastic`]), and glTF's metallic–roughness material ([`pbr`]). The integrators (scalar and lanes) ask
-//! these for directions and weights; every function does its arithmetic in one fixed order,
-//! since the renderer's bits depend on it.
+//! ([`plastic`]), and glTF's metallic–roughness material ([`pbr`]): the arithmetic of the
+//! materials in [`crate::material`], which wrap them. Every function does its arithmetic in one
+//! fixed order, since the renderer's bits depend on it.
 
 pub mod conductor;
 pub mod dielectric;
@@ -20,67 +20,6 @@ pub use plastic::{Plastic, PlasticSample};
 
 use crate::util::math::Frame;
 use crate::util::sampling::{cosine_hemisphere_pdf, square_to_cosine_hemisphere};
-
-/// A material's scattering part.
-#[derive(Clone, Copy, Debug)]
-pub enum Bsdf {
-    /// Lambertian with this albedo.
-    Diffuse(Vec3A),
-    /// Perfect mirror with this reflectance.
-    Mirror(Vec3A),
-    /// Smooth dielectric with this relative index of refraction (inside / outside).
-    Dielectric(f32),
-    /// A metal, rough or smooth.
-    Conductor(Metal),
-    /// Rough glass (its roughness above the mirror threshold, its index not 1: otherwise it
-    /// is a [`Bsdf::Dielectric`]).
-    RoughDielectric(RoughDielectric),
-    /// A thin sheet of smooth glass of this index: reflects, or passes straight through.
-    ThinDielectric(f32),
-    /// A diffuse base under a clear coat, rough or smooth: the index of its [`Plastic`] in
-    /// the scene's list (its tables are too large to keep in every material).
-    Plastic(u32),
-    /// glTF's metallic–roughness material: the index of its [`PbrMaterial`] in the scene's
-    /// list (its parameters may vary over the surface).
-    Pbr(u32),
-}
-
-impl Bsdf {
-    /// Whether a vertex on it samples lights (next-event estimation): every BSDF but the
-    /// delta ones (a mirror, smooth glass, a smooth metal), which no light sample can reach.
-    #[inline(always)]
-    pub fn samples_lights(&self) -> bool {
-        match self {
-            Bsdf::Diffuse(_) | Bsdf::RoughDielectric(_) | Bsdf::Plastic(_) | Bsdf::Pbr(_) => true,
-            Bsdf::Conductor(m) => !m.is_smooth(),
-            Bsdf::Mirror(_) | Bsdf::Dielectric(_) | Bsdf::ThinDielectric(_) => false,
-        }
-    }
-
-    /// Whether a vertex on it draws a choice number: glass's reflection or refraction, a
-    /// layered material's lobe.
-    #[inline(always)]
-    pub fn draws_choice(&self) -> bool {
-        matches!(
-            self,
-            Bsdf::Dielectric(_)
-                | Bsdf::RoughDielectric(_)
-                | Bsdf::ThinDielectric(_)
-                | Bsdf::Plastic(_)
-                | Bsdf::Pbr(_)
-        )
-    }
-
-    /// Whether its back side scatters though the material is not two-sided: glass has two
-    /// sides, and a pbr surface decides at its vertex (where it transmits, it has two).
-    #[inline(always)]
-    pub fn has_two_sides(&self) -> bool {
-        matches!(
-            self,
-            Bsdf::Dielectric(_) | Bsdf::RoughDielectric(_) | Bsdf::ThinDielectric(_) | Bsdf::Pbr(_)
-        )
-    }
-}
 
 /// A direction from the Lambertian lobe about the unit normal `n`, drawn with pdf cos θ/π from
 /// the square sample `u`, and that pdf. With f = ρ/π, the throughput update f·cos θ/pdf is

@@ -151,3 +151,31 @@ pub(crate) fn transformed_box(m: &Affine3A, min: Vec3A, max: Vec3A) -> Aabb {
         max: b.max + pad,
     }
 }
+
+/// The normals at a vertex, on the side the path arrived from: the geometric one (offsets,
+/// and which side a direction leaves by) and the shading one (scattering), and whether they
+/// differ (a smooth mesh).
+#[derive(Clone, Copy)]
+pub(crate) struct Shading {
+    pub(crate) n: Vec3A,
+    pub(crate) ns: Vec3A,
+    pub(crate) shaded: bool,
+}
+
+impl Shading {
+    /// The normals at `sp` for a path leaving towards `wo`, and whether it arrived on the
+    /// front side. Without `shading_normals` (every scene but smooth meshes) ns = n, and the
+    /// side tests that compare the two are skipped: they would repeat the shading ones.
+    #[inline(always)]
+    pub(crate) fn facing(sp: &SurfacePoint, wo: Vec3A, shading_normals: bool) -> (bool, Self) {
+        let front = sp.n.dot(wo) >= 0.0;
+        let n = if front { sp.n } else { -sp.n };
+        let shaded = shading_normals && sp.ns != sp.n;
+        let ns = match (shaded, front) {
+            (false, _) => n,
+            (true, true) => sp.ns,
+            (true, false) => -sp.ns,
+        };
+        (front, Self { n, ns, shaded })
+    }
+}

@@ -48,6 +48,7 @@ pub mod guiding;
 pub mod integrator;
 pub mod interaction;
 pub mod light;
+pub mod material;
 pub mod mesh;
 pub mod output;
 pub mod packet;

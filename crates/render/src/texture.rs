@@ -522,6 +522,19 @@ fn decode_exr(bytes: &[u8], max_texels: u64) -> Result<Decoded, String> {
     Ok((w, h, texels))
 }
 
+/// What a material reads from a texture, which decides how it is decoded and checked.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TextureUse {
+    /// A colour, sRGB-encoded in 8- and 16-bit files.
+    Color,
+    /// Data with linear codes (a normal map, or a scalar from a named channel).
+    Data,
+    /// A scalar from the whole image, which must then be grey.
+    Grey,
+    /// The image's alpha channel (a glTF material's alpha mask).
+    Alpha,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -14,7 +14,6 @@ use std::ops::Range;
 
 use glam::Vec3A;
 
-use crate::bsdf::Bsdf;
 use crate::integrator::{RenderSettings, Strategy};
 use crate::light::LightShape;
 use crate::packet::Rays;
@@ -124,10 +123,7 @@ impl<'a> Wide<'a> {
     /// The many-path tracer for `scene`, if its bounce is one this module models, eight paths
     /// at a time.
     pub fn new(scene: &'a Scene, settings: &'a RenderSettings) -> Option<Self> {
-        let diffuse = scene
-            .materials
-            .iter()
-            .all(|m| matches!(m.bsdf, Bsdf::Diffuse(_)) && m.texture.is_none());
+        let diffuse = scene.materials.iter().all(|m| m.bsdf.lanes().is_some());
         let [light] = scene.lights.lights.as_slice() else {
             return None;
         };
@@ -349,8 +345,8 @@ impl<'a> Wide<'a> {
                 continue;
             }
             let nn = if front { sp.n } else { -sp.n };
-            let Bsdf::Diffuse(a) = mat.bsdf else {
-                unreachable!("Wide::new admits diffuse scenes only")
+            let Some(a) = mat.bsdf.lanes() else {
+                unreachable!("Wide::new admits only scenes whose materials it models")
             };
             let depth = s.depth[lane];
             let [u0, u1, nlx, nly] = s.sampler[lane].get4(1 + 2 * depth);

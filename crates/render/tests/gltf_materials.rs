@@ -387,10 +387,12 @@ fn normal_maps_read_in_the_files_tangents_or_mikktspaces_and_mirroring_keeps_the
         let ray = tessera_render::util::math::Ray::new(x + Vec3A::Z, Vec3A::NEG_Z);
         let (_, tri) = m.intersect(&ray, f32::INFINITY).expect("hit");
         let frame = m.uv_frame(&ray, tri).expect("uvs");
-        let tessera_render::bsdf::Bsdf::Pbr(i) = s.materials[0].bsdf else {
+        let tessera_render::material::Bsdf::Pbr(tessera_render::material::pbr::PbrRef(i)) =
+            s.materials[0].bsdf
+        else {
             panic!()
         };
-        s.pbr(i).bend(&s.textures, &frame, Vec3A::Z)
+        s.tables().pbr(i).bend(&s.textures, &frame, Vec3A::Z)
     };
     let tilted = |toward: Vec3A| (toward + Vec3A::Z).normalize();
     // Within the texel's 8-bit rounding (128 is 0.004 off zero).

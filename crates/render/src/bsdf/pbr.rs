@@ -430,7 +430,7 @@ pub struct NormalMap {
 }
 
 /// A `pbr` material as a scene builds it: each parameter a constant or a texture, the normal
-/// map, and the coat's table. Kept beside the materials ([`super::Bsdf::Pbr`] holds its index).
+/// map, and the coat's table. Kept beside the materials ([`crate::material::Bsdf::Pbr`] holds its index).
 #[derive(Clone, Debug)]
 pub struct PbrMaterial {
     /// Base colour (linear), or the multiplier of `base_texture`.

@@ -44,7 +44,7 @@ pub const TABLE: usize = 64;
 const QUADRATURE: usize = 48;
 
 /// A plastic as a scene builds it (kept beside the materials, like absorption, so that a
-/// material stays small: [`super::Bsdf::Plastic`] holds its index).
+/// material stays small: [`crate::material::Bsdf::Plastic`] holds its index).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Plastic {
     albedo: Vec3A,

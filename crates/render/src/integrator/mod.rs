@@ -11,27 +11,25 @@
 
 use glam::{Vec2, Vec3A};
 
-use crate::bsdf::dielectric::thin_reflectance;
-use crate::bsdf::{fresnel_dielectric, reflect, refract, sample_diffuse, RoughDielectric};
+use crate::bsdf::sample_diffuse;
 use crate::envmap::EnvMap;
-use crate::interaction::Hit;
-use crate::interaction::SurfacePoint;
+use crate::interaction::{Hit, Shading, SurfacePoint};
 use crate::light::LightSample;
+use crate::material::port::{Numbers, Path};
 use crate::primitive::Primitive;
 use crate::scene::{Environment, Material, Scene};
 pub use crate::settings::{
     unit_batch, RenderSettings, Strategy, Tracer, BATCH_RANGE, DEFAULT_TILE, DEFAULT_UNIT_SAMPLES,
     MIN_UNITS_PER_FRAME, TILE_RANGE, UNIT_SAMPLES_RANGE,
 };
-use crate::util::math::{exp_nonpositive, offset_ray_origin, Frame, Ray};
+use crate::util::math::{exp_nonpositive, offset_ray_origin, Ray};
 use crate::util::sampling::{cosine_hemisphere_pdf, power_heuristic, PixelSampler};
 
 mod guided_vertex;
 mod lobes;
 mod vertex;
 pub use guided_vertex::{GuidedPath, Guiding, NoGuide, MAX_VERTICES};
-pub(crate) use lobes::pbr_at;
-use vertex::{scatter, Numbers, Vertex};
+use vertex::{scatter, Vertex};
 
 /// The radiance estimate of one camera sample of pixel (`x`, `y`): the sample `sampler` (made
 /// for that pixel and the job's seed) is at.
@@ -275,27 +273,6 @@ fn emission<'a, G: Guiding<'a>>(
     }
 }
 
-/// A path between vertices: what it has gathered, its throughput, and how it arrived at
-/// its last vertex (what weighs an emitter it finds next). Copy, so that the out-of-line
-/// vertices get a copy to update ([`vertex`]).
-#[derive(Clone, Copy)]
-struct Path {
-    l: Vec3A,
-    beta: Vec3A,
-    /// The product of η² over the refractions so far, which Russian roulette undoes: radiance
-    /// compressed by entering glass is not a reason to end a path.
-    eta_scale: f32,
-    /// The last bounce was specular (or the camera's): light sampling could not have found
-    /// the emitter, so it counts in full.
-    specular: bool,
-    prev_pdf: f32,
-    prev_p: Vec3A,
-    /// Absorption per unit length of the medium the path is in (zero: clear); tracked only
-    /// in scenes with coloured glass. Media do not nest: leaving any glass is leaving to clear
-    /// air.
-    medium: Vec3A,
-}
-
 impl Path {
     /// A path leaving the camera from `o`. The camera "bounce" is specular: emitters seen
     /// directly count in full.
@@ -345,34 +322,6 @@ fn transmittance(sigma: f32, t: f32) -> f32 {
         1.0
     } else {
         exp_nonpositive(-sigma * t)
-    }
-}
-
-/// The normals at a vertex, on the side the path arrived from: the geometric one (offsets,
-/// and which side a direction leaves by) and the shading one (scattering), and whether they
-/// differ (a smooth mesh).
-#[derive(Clone, Copy)]
-pub(crate) struct Shading {
-    pub(crate) n: Vec3A,
-    pub(crate) ns: Vec3A,
-    pub(crate) shaded: bool,
-}
-
-impl Shading {
-    /// The normals at `sp` for a path leaving towards `wo`, and whether it arrived on the
-    /// front side. Without `shading_normals` (every scene but smooth meshes) ns = n, and the
-    /// side tests that compare the two are skipped: they would repeat the shading ones.
-    #[inline(always)]
-    pub(crate) fn facing(sp: &SurfacePoint, wo: Vec3A, shading_normals: bool) -> (bool, Self) {
-        let front = sp.n.dot(wo) >= 0.0;
-        let n = if front { sp.n } else { -sp.n };
-        let shaded = shading_normals && sp.ns != sp.n;
-        let ns = match (shaded, front) {
-            (false, _) => n,
-            (true, true) => sp.ns,
-            (true, false) => -sp.ns,
-        };
-        (front, Self { n, ns, shaded })
     }
 }
 
@@ -542,134 +491,4 @@ fn visible_light(
         return None;
     }
     Some((ls, cos))
-}
-
-/// A rough glass vertex, the path arriving on the side where the index ratio across the
-/// interface is `eta`: direct light from either side by next-event estimation (when `light_u`
-/// is given) weighed against the BSDF's density under MIS, then a reflection or refraction
-/// about a visible normal, weighted G/G1 and, through the interface, by 1/η² (see
-/// [`crate::bsdf::dielectric`]). Returns the next ray and whether it went through; `None` ends
-/// the path.
-#[allow(clippy::too_many_arguments)]
-// Out of line: the loop that diffuse, mirror and glass scenes run stays as small as it was.
-#[inline(never)]
-fn rough_dielectric(
-    scene: &Scene,
-    strategy: Strategy,
-    path: &mut Path,
-    rd: &RoughDielectric,
-    eta: f32,
-    wo: Vec3A,
-    sp: &SurfacePoint,
-    at: &Shading,
-    (bsdf_u, u_choice): (Vec2, f32),
-    light_u: Option<(f32, Vec2)>,
-) -> Option<(Ray, bool)> {
-    let frame = Frame::from_normal(at.ns);
-    let o = frame.to_local(wo);
-    if let Some(u) = light_u {
-        let lobe = lobes::Lobe {
-            frame: &frame,
-            eval: |i| Vec3A::splat(rd.eval(o, i, eta)),
-            pdf: |i| rd.pdf(o, i, eta),
-        };
-        lobes::two_sided_light(scene, strategy, path, sp, at, u, lobe);
-    }
-    let s = rd.sample(o, eta, bsdf_u, u_choice)?;
-    let wi = frame.to_world(s.wi);
-    path.beta *= s.weight;
-    if s.refracted {
-        // Radiance is compressed by 1/η² entering a denser medium.
-        path.beta /= eta * eta;
-        path.eta_scale *= eta * eta;
-    }
-    path.specular = false;
-    path.prev_pdf = s.pdf;
-    Some((lobes::leave(sp, at, wi, s.refracted)?, s.refracted))
-}
-
-/// A path's next ray off or through a thin sheet of glass of index `ior`: both faces at once,
-/// reflected with R' (see [`thin_reflectance`]) or straight on, unbent. `None` where the
-/// shading normal and the geometric one disagree.
-#[inline(never)]
-pub(crate) fn thin_dielectric(
-    ray: &Ray,
-    sp: &SurfacePoint,
-    at: &Shading,
-    ior: f32,
-    u_choice: f32,
-) -> Option<Ray> {
-    let (n, ns) = (at.n, at.ns);
-    let cos_i = ns.dot(-ray.d).min(1.0);
-    if at.shaded && !(cos_i > 0.0) {
-        return None;
-    }
-    let (wi, side) = if u_choice < thin_reflectance(cos_i, ior) {
-        (reflect(ray.d, ns), n)
-    } else {
-        (ray.d, -n)
-    };
-    if at.shaded && n.dot(wi) * side.dot(n) <= 0.0 {
-        return None;
-    }
-    Some(Ray::new(offset_ray_origin(sp.p, sp.err, side), wi))
-}
-
-/// A path's next ray through (or off) a smooth dielectric, and what its throughput is divided
-/// by.
-pub(crate) struct Refracted {
-    pub(crate) ray: Ray,
-    /// η² through the surface (radiance is compressed by 1/η² entering a denser medium), 1
-    /// on reflection.
-    attenuation: f32,
-    /// Whether the path went through.
-    through: bool,
-}
-
-/// Reflects or refracts the path at a smooth dielectric of index `ior` (outside on the front
-/// side), choosing by the Fresnel reflectance with `u_choice`; `None` when no Fresnel term is
-/// defined (seen from behind the shading normal).
-#[inline(always)]
-pub(crate) fn dielectric(
-    ray: &Ray,
-    sp: &SurfacePoint,
-    at: &Shading,
-    front: bool,
-    ior: f32,
-    u_choice: f32,
-) -> Option<Refracted> {
-    let (n, ns, shaded) = (at.n, at.ns, at.shaded);
-    let wo = -ray.d;
-    // The front side (sp.n) is outside.
-    let eta = if front { ior } else { 1.0 / ior };
-    let cos_i = ns.dot(wo).min(1.0);
-    if shaded && !(cos_i > 0.0) {
-        // Seen from behind its shading normal: no Fresnel term is defined.
-        return None;
-    }
-    let (f, cos_t) = fresnel_dielectric(cos_i, eta);
-    let (wi, through) = if u_choice < f {
-        (reflect(ray.d, ns), false)
-    } else {
-        (refract(wo, ns, eta, cos_i, cos_t), true)
-    };
-    // Off the side the new direction leaves by: the geometric normal decides it
-    // where the shading normal could disagree.
-    let side = if shaded {
-        if n.dot(wi) >= 0.0 {
-            n
-        } else {
-            -n
-        }
-    } else if through {
-        -n
-    } else {
-        n
-    };
-    // Radiance is compressed by 1/η² entering a denser medium.
-    Some(Refracted {
-        ray: Ray::new(offset_ray_origin(sp.p, sp.err, side), wi),
-        attenuation: if through { eta * eta } else { 1.0 },
-        through,
-    })
 }

@@ -1,26 +1,28 @@
-//! One vertex of a path: the material the path met scatters it. Every material's vertex is
-//! one arm of [`scatter`], calling that material's own code (in this folder's `lobes` and
-//! `guided_vertex`, and in [`super`] for the smooth and rough glass); what the loop of
-//! `trace` asks of a material before it scatters (whether to sample lights, whether
-//! to draw a choice, whether its back side scatters) is [`Bsdf`]'s to answer.
+//! One vertex of a path: the material the path met scatters it ([`crate::material::Model`]'s
+//! `scatter`), through what this module lends it ([`Here`], the path tracer's side of
+//! [`At`]): the scene's textures and tables, next-event estimation through a lobe, the
+//! Lambertian vertex with guiding, and the medium a path is in.
 //!
-//! Each out-of-line vertex gets a copy of the path to update, taken back even when the path
-//! ends there (its direct light counts): a `&mut` to the loop's own path would make its
-//! address escape, and keep it in memory rather than in registers for every other bounce.
+//! The material gets a copy of the path to update, taken back even when the path ends there
+//! (its direct light counts): a `&mut` to the loop's own path would make its address escape
+//! into the out-of-line vertices, and keep it in memory rather than in registers for every
+//! other bounce.
+
+use std::sync::Arc;
 
 use glam::{Vec2, Vec3A};
 
-use super::lobes::{self, conductor, pbr, plastic};
-use super::{
-    dielectric, diffuse, guided_vertex, rough_dielectric, thin_dielectric, Guiding, Path, Shading,
-};
-use crate::bsdf::{reflect, Bsdf, Metal, RoughDielectric};
-use crate::interaction::Hit;
-use crate::interaction::SurfacePoint;
+use super::lobes::{reflected_light, two_sided_light};
+use super::{diffuse, guided_vertex, Guiding};
+use crate::interaction::{Hit, Shading, SurfacePoint};
+use crate::material::port::{At, Lobe, Numbers, Path, Surface};
+use crate::material::Tables;
+use crate::mesh::UvFrame;
 use crate::primitive::Primitive;
 use crate::scene::{Material, Scene};
 use crate::settings::Strategy;
-use crate::util::math::{offset_ray_origin, Ray};
+use crate::texture::Texture;
+use crate::util::math::Ray;
 
 /// Where a path meets a surface, and how it arrived.
 pub(super) struct Vertex<'s> {
@@ -40,23 +42,8 @@ pub(super) struct Vertex<'s> {
     pub(super) absorbing: bool,
 }
 
-/// The numbers a vertex draws with (`trace`'s dimension layout says from where).
-#[derive(Clone, Copy)]
-pub(super) struct Numbers {
-    /// The BSDF's direction.
-    pub(super) bsdf: Vec2,
-    /// Light selection and the light's point, when the vertex samples a light.
-    pub(super) light: Option<(f32, Vec2)>,
-    /// A glass's reflection or refraction, a layered material's lobe, a guided vertex's
-    /// choice of the guide or the BSDF.
-    pub(super) choice: f32,
-}
-
 /// Scatters `path` at `v`: adds the direct light its material gathers there and returns the
 /// next ray, or `None` where the path ends.
-///
-/// The one place a material's vertex is dispatched: an arm per material; the longer arms are
-/// functions of their own, inlined (the loop's codegen is what it was).
 #[inline(always)]
 pub(super) fn scatter<'a, G: Guiding<'a>>(
     v: &Vertex<'_>,
@@ -65,168 +52,143 @@ pub(super) fn scatter<'a, G: Guiding<'a>>(
     guiding: &mut G,
     depth: u32,
 ) -> Option<Ray> {
-    let (scene, strategy, sp, at) = (v.scene, v.strategy, v.sp, v.at);
-    match v.mat.bsdf {
-        Bsdf::Diffuse(albedo) => {
-            let albedo = match v.mat.texture {
-                None => albedo,
-                Some(t) => scene.textures[t as usize].lookup(v.prim.shape.uv(v.ray, v.hit.part)),
-            };
-            match guiding.path() {
-                None => diffuse(scene, strategy, path, albedo, sp, at, u.bsdf, u.light),
-                Some(g) => {
-                    let mut updated = *path;
-                    let next = guided_vertex::diffuse(
-                        scene,
-                        strategy,
-                        &mut updated,
-                        albedo,
-                        sp,
-                        at,
-                        (u.bsdf, u.choice),
-                        u.light,
-                        (g, depth),
-                    );
-                    *path = updated;
-                    next
-                }
-            }
-        }
-        Bsdf::Mirror(r) => {
-            path.beta *= r;
-            path.specular = true;
-            let wi = reflect(v.ray.d, at.ns);
-            if at.shaded && at.n.dot(wi) <= 0.0 {
-                return None;
-            }
-            Some(Ray::new(offset_ray_origin(sp.p, sp.err, at.n), wi))
-        }
-        Bsdf::Conductor(ref m) => conductor_vertex(v, m, path, u),
-        Bsdf::Dielectric(ior) => {
-            let next = dielectric(v.ray, sp, at, v.front, ior, u.choice)?;
-            path.specular = true;
-            path.beta /= next.attenuation;
-            path.eta_scale *= next.attenuation;
-            if v.absorbing && next.through {
-                path.medium = medium_entered(v);
-            }
-            Some(next.ray)
-        }
-        Bsdf::RoughDielectric(ref rd) => rough_glass_vertex(v, rd, path, u),
-        Bsdf::ThinDielectric(ior) => {
-            let next = thin_dielectric(v.ray, sp, at, ior, u.choice)?;
-            path.specular = true;
-            Some(next)
-        }
-        Bsdf::Pbr(index) => pbr_vertex(v, index, path, u),
-        Bsdf::Plastic(index) => plastic_vertex(v, index, path, u),
-    }
-}
-
-/// A metal's vertex (rough or smooth).
-#[inline(always)]
-fn conductor_vertex(v: &Vertex<'_>, m: &Metal, path: &mut Path, u: Numbers) -> Option<Ray> {
-    let (scene, strategy, sp, at, wo) = (v.scene, v.strategy, v.sp, v.at, -v.ray.d);
-    let mut updated = *path;
-    let next = conductor(
-        scene,
-        strategy,
-        &mut updated,
-        &m.conductor(),
-        wo,
-        sp,
-        at,
-        u.bsdf,
-        u.light,
-    );
-    *path = updated;
+    let mut here = Here {
+        v,
+        path: *path,
+        u,
+        guiding,
+        depth,
+    };
+    let next = v.mat.bsdf.scatter(&mut here);
+    *path = here.path;
     next
 }
 
-/// A rough glass's vertex: reflection or refraction, and the medium entered.
-#[inline(always)]
-fn rough_glass_vertex(
-    v: &Vertex<'_>,
-    rd: &RoughDielectric,
-    path: &mut Path,
+/// A vertex as a material sees it: the path tracer's side of [`At`].
+struct Here<'v, 's, 'g, G> {
+    v: &'v Vertex<'s>,
+    path: Path,
     u: Numbers,
-) -> Option<Ray> {
-    let (scene, strategy, sp, at, wo) = (v.scene, v.strategy, v.sp, v.at, -v.ray.d);
-    let eta = if v.front { rd.ior } else { 1.0 / rd.ior };
-    let mut updated = *path;
-    let next = rough_dielectric(
-        scene,
-        strategy,
-        &mut updated,
-        rd,
-        eta,
-        wo,
-        sp,
-        at,
-        (u.bsdf, u.choice),
-        u.light,
-    );
-    *path = updated;
-    let (next, through) = next?;
-    if v.absorbing && through {
-        path.medium = medium_entered(v);
+    guiding: &'g mut G,
+    depth: u32,
+}
+
+impl<'s, G> Surface<'s> for Here<'_, 's, '_, G> {
+    #[inline(always)]
+    fn ray(&self) -> &Ray {
+        self.v.ray
     }
-    Some(next)
+    #[inline(always)]
+    fn point(&self) -> &SurfacePoint {
+        self.v.sp
+    }
+    #[inline(always)]
+    fn shading(&self) -> &Shading {
+        self.v.at
+    }
+    #[inline(always)]
+    fn front(&self) -> bool {
+        self.v.front
+    }
+    #[inline(always)]
+    fn two_sided(&self) -> bool {
+        self.v.mat.two_sided
+    }
+    #[inline(always)]
+    fn textures(&self) -> &'s [Arc<Texture>] {
+        &self.v.scene.textures
+    }
+    #[inline(always)]
+    fn tables(&self) -> &'s Tables {
+        self.v.scene.tables()
+    }
+    #[inline(always)]
+    fn uv(&self) -> Vec2 {
+        self.v.prim.shape.uv(self.v.ray, self.v.hit.part)
+    }
+    #[inline(always)]
+    fn uv_frame(&self) -> Option<UvFrame> {
+        self.v.prim.shape.uv_frame(self.v.ray, self.v.hit.part)
+    }
 }
 
-/// A glTF metallic–roughness material's vertex.
-#[inline(always)]
-fn pbr_vertex(v: &Vertex<'_>, index: u32, path: &mut Path, u: Numbers) -> Option<Ray> {
-    let (scene, strategy, sp, at) = (v.scene, v.strategy, v.sp, v.at);
-    let mut updated = *path;
-    let next = pbr(
-        scene,
-        strategy,
-        &mut updated,
-        lobes::PbrHit {
-            material: scene.pbr(index),
-            ray: v.ray,
-            hit: v.hit,
-            prim: v.prim,
-            two_sided: v.mat.two_sided,
-            front: v.front,
-        },
-        sp,
-        at,
-        (u.bsdf, u.choice),
-        u.light,
-    );
-    *path = updated;
-    next
-}
-
-/// A plastic's vertex: the coat or the base.
-#[inline(always)]
-fn plastic_vertex(v: &Vertex<'_>, index: u32, path: &mut Path, u: Numbers) -> Option<Ray> {
-    let (scene, strategy, sp, at, wo) = (v.scene, v.strategy, v.sp, v.at, -v.ray.d);
-    let mut updated = *path;
-    let next = plastic(
-        scene,
-        strategy,
-        &mut updated,
-        scene.plastic(index),
-        wo,
-        sp,
-        at,
-        (u.bsdf, u.choice),
-        u.light,
-    );
-    *path = updated;
-    next
-}
-
-/// The medium a path is in once it has gone through `v`'s glass: the material's inside when
-/// it entered by the front, clear air when it left.
-#[inline]
-fn medium_entered(v: &Vertex<'_>) -> Vec3A {
-    if v.front {
-        v.scene.absorption(v.prim.material)
-    } else {
-        Vec3A::ZERO
+impl<'a, 's, G: Guiding<'a>> At<'s> for Here<'_, 's, '_, G> {
+    #[inline(always)]
+    fn numbers(&self) -> Numbers {
+        self.u
+    }
+    #[inline(always)]
+    fn path(&mut self) -> &mut Path {
+        &mut self.path
+    }
+    #[inline(always)]
+    fn diffuse(&mut self, albedo: Vec3A) -> Option<Ray> {
+        let (v, u) = (self.v, self.u);
+        match self.guiding.path() {
+            None => diffuse(
+                v.scene,
+                v.strategy,
+                &mut self.path,
+                albedo,
+                v.sp,
+                v.at,
+                u.bsdf,
+                u.light,
+            ),
+            Some(g) => guided_vertex::diffuse(
+                v.scene,
+                v.strategy,
+                &mut self.path,
+                albedo,
+                v.sp,
+                v.at,
+                (u.bsdf, u.choice),
+                u.light,
+                (g, self.depth),
+            ),
+        }
+    }
+    #[inline(always)]
+    fn reflected_light<E, P>(
+        &mut self,
+        at: &Shading,
+        p_out: Vec3A,
+        u: (f32, Vec2),
+        lobe: Lobe<'_, E, P>,
+    ) where
+        E: Fn(Vec3A) -> Vec3A,
+        P: Fn(Vec3A) -> f32,
+    {
+        let v = self.v;
+        reflected_light(
+            v.scene,
+            v.strategy,
+            &mut self.path,
+            v.sp,
+            at,
+            p_out,
+            u,
+            lobe,
+        );
+    }
+    #[inline(always)]
+    fn two_sided_light<E, P>(&mut self, at: &Shading, u: (f32, Vec2), lobe: Lobe<'_, E, P>)
+    where
+        E: Fn(Vec3A) -> Vec3A,
+        P: Fn(Vec3A) -> f32,
+    {
+        let v = self.v;
+        two_sided_light(v.scene, v.strategy, &mut self.path, v.sp, at, u, lobe);
+    }
+    #[inline(always)]
+    fn went_through(&mut self) {
+        let v = self.v;
+        if v.absorbing {
+            self.path.medium = if v.front {
+                v.scene.absorption(v.prim.material)
+            } else {
+                Vec3A::ZERO
+            };
+        }
     }
 }

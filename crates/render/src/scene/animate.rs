@@ -12,7 +12,7 @@ use super::check::{build_transform, Invalid};
 use super::format::{
     AnimationDesc, CameraKeyDesc, ObjectKeyDesc, RotateDesc, SceneFile, TransformDesc,
 };
-use super::locate::KeyPath;
+use super::KeyPath;
 
 fn root() -> KeyPath {
     KeyPath::default().key("animation")

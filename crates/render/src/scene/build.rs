@@ -19,9 +19,9 @@ use super::{
     CameraModel, KeyPath, Limits, Material, ObjectDesc, Primitive, Scene, SceneFile, ShapeKind,
 };
 use crate::aggregate::Accel;
-use crate::bsdf::{Bsdf, PbrMaterial};
 use crate::camera::Camera;
 use crate::light::{Light, LightShape, Lights, MeshLight};
+use crate::material::Tables;
 use crate::mesh::MeshInstance;
 use crate::shape::{Shape, Transformed};
 
@@ -36,8 +36,7 @@ pub(super) struct Assembled {
     prims: Vec<Primitive>,
     materials: Vec<Material>,
     absorption: Vec<Vec3A>,
-    plastics: Vec<crate::bsdf::Plastic>,
-    pbrs: Vec<PbrMaterial>,
+    tables: Tables,
     lights: Vec<Light>,
     alpha_tests: Vec<(u32, super::AlphaTest)>,
     /// Mesh lights whose emission is a texture: (light, texture, the light triangles'
@@ -91,8 +90,7 @@ pub(super) fn assemble(
         prims: objects.prims,
         materials: built.materials,
         absorption: built.absorption,
-        plastics: built.plastics,
-        pbrs: built.pbrs,
+        tables: built.tables,
         lights: objects.lights,
         alpha_tests: objects.alpha_tests,
         textured_lights: objects.textured_lights,
@@ -152,7 +150,7 @@ fn build_objects(
             let mut tables = MaterialTables {
                 materials: &mut built.materials,
                 absorption: &mut built.absorption,
-                pbrs: &mut built.pbrs,
+                kinds: &mut built.tables,
                 alpha: &mut out.alpha_tests,
                 emissive: &mut built.emissive,
             };
@@ -204,7 +202,14 @@ fn place(
         .find(|(e, _)| *e == material)
         .map(|&(_, t)| t);
     let mat = &built.materials[material as usize];
-    check_texture_coordinates(&shape, mat, &built.pbrs, emission_texture.is_some(), o, op)?;
+    check_texture_coordinates(
+        &shape,
+        mat,
+        &built.tables,
+        emission_texture.is_some(),
+        o,
+        op,
+    )?;
     if o.shape != ShapeKind::Plane && !shape.bounds().is_finite() {
         return Err((
             op.clone(),
@@ -268,7 +273,7 @@ impl Assembled {
             .prims
             .iter()
             .any(|p| matches!(&p.shape, Shape::Mesh(m) if m.smooth && m.mesh.has_normals()))
-            || self.pbrs.iter().any(|p| p.normal_map.is_some());
+            || self.tables.pbrs().iter().any(|p| p.normal_map.is_some());
         let absorption = if self.absorption.iter().any(|a| *a != Vec3A::ZERO) {
             self.absorption
         } else {
@@ -296,8 +301,7 @@ impl Assembled {
             accel,
             shading_normals,
             absorption,
-            plastics: self.plastics,
-            pbrs: self.pbrs,
+            tables: self.tables,
             alpha,
             warnings: self.warnings,
         };
@@ -310,13 +314,12 @@ impl Assembled {
 fn check_texture_coordinates(
     shape: &Shape,
     mat: &Material,
-    pbrs: &[PbrMaterial],
+    tables: &Tables,
     emits_texture: bool,
     o: &ObjectDesc,
     op: &KeyPath,
 ) -> Result<(), Invalid> {
-    let pbr_textured = matches!(mat.bsdf, Bsdf::Pbr(i) if pbrs[i as usize].is_textured());
-    if mat.texture.is_none() && !pbr_textured && !emits_texture {
+    if !mat.bsdf.reads_uv(tables) && !emits_texture {
         return Ok(());
     }
     let why = match shape {

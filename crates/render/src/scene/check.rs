@@ -1,87 +1,13 @@
-//! The checks every builder applies to a parsed value (finite, positive, a colour, one of
-//! exclusive keys, a transform that can be inverted), each answering with the key path of what
-//! is wrong: what [`super::build`] and [`super::animate`] share.
+//! The checks every builder applies to a parsed value, each answering with the key path of
+//! what is wrong: a transform that can be inverted here, the value checks (finite, positive, a
+//! colour, keys that do not apply) from [`crate::util::fields`], which the materials share.
 
-use glam::{Affine3A, Mat3, Vec3, Vec3A};
+use glam::{Affine3A, Mat3, Vec3};
 
-use super::{KeyPath, Seg, TransformDesc};
-use crate::util::math::v3;
-
-/// What is wrong, and where in the file.
-pub(super) type Invalid = (KeyPath, String);
-
-pub(super) fn root(k: &str) -> KeyPath {
-    KeyPath(vec![Seg::Key(k.to_string())])
-}
-
-pub(super) fn finite3(v: [f32; 3], path: &KeyPath) -> Result<Vec3A, Invalid> {
-    if v.iter().all(|x| x.is_finite()) {
-        Ok(v3(v))
-    } else {
-        Err((path.clone(), format!("must be finite numbers, got {v:?}")))
-    }
-}
-
-pub(super) fn color(v: [f32; 3], path: &KeyPath, max_one: bool) -> Result<Vec3A, Invalid> {
-    let c = finite3(v, path)?;
-    if c.min_element() < 0.0 {
-        return Err((path.clone(), format!("must not be negative, got {v:?}")));
-    }
-    if max_one && c.max_element() > 1.0 {
-        return Err((
-            path.clone(),
-            format!(
-                "must be at most 1 (a surface cannot reflect more than it receives), got {v:?}"
-            ),
-        ));
-    }
-    Ok(c)
-}
-
-pub(super) fn positive(x: f32, path: &KeyPath) -> Result<f32, Invalid> {
-    if x.is_finite() && x > 0.0 {
-        Ok(x)
-    } else {
-        Err((
-            path.clone(),
-            format!("must be a finite number greater than 0, got {x}"),
-        ))
-    }
-}
-
-pub(super) fn finite(x: f32, path: &KeyPath) -> Result<f32, Invalid> {
-    if x.is_finite() {
-        Ok(x)
-    } else {
-        Err((path.clone(), format!("must be a finite number, got {x}")))
-    }
-}
-
-/// Rejects fields that do not belong to the chosen kind, so a typo'd or misplaced key is an
-/// error rather than silently ignored.
-pub(super) fn only(
-    path: &KeyPath,
-    kind: &str,
-    present: &[(&str, bool)],
-    allowed: &[&str],
-) -> Result<(), Invalid> {
-    for (name, is) in present {
-        if *is && !allowed.contains(name) {
-            return Err((path.key(name), format!("`{name}` does not apply to {kind}")));
-        }
-    }
-    Ok(())
-}
-
-/// The value of a key that `kind` cannot do without, or an error at that key saying so.
-pub(super) fn required<T>(
-    value: Option<T>,
-    path: &KeyPath,
-    kind: &str,
-    name: &str,
-) -> Result<T, Invalid> {
-    value.ok_or_else(|| (path.key(name), format!("{kind} needs `{name}`")))
-}
+use super::{KeyPath, TransformDesc};
+pub(super) use crate::util::fields::{
+    color, finite, finite3, only, positive, required, root, Invalid,
+};
 
 pub(super) fn build_transform(t: &TransformDesc, path: &KeyPath) -> Result<Affine3A, Invalid> {
     let m = if let Some(rows) = t.matrix {

@@ -11,7 +11,7 @@ use super::check::Invalid;
 use super::{KeyPath, Limits};
 use crate::mesh::load::{self, MeshFormat};
 use crate::mesh::TriMesh;
-use crate::texture::{self, ImageFormat, Texture, Wrap};
+use crate::texture::{self, ImageFormat, Texture, TextureUse, Wrap};
 
 /// A mesh file's material groups: each one's name in the file, and its mesh.
 type MeshGroups = Vec<(Option<String>, Arc<TriMesh>)>;
@@ -49,19 +49,6 @@ struct PendingTexture {
     grey: Option<KeyPath>,
     /// How its coordinates wrap.
     wrap: [Wrap; 2],
-}
-
-/// What a material reads from a texture, which decides how it is decoded and checked.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) enum TextureUse {
-    /// A colour, sRGB-encoded in 8- and 16-bit files.
-    Color,
-    /// Data with linear codes (a normal map, or a scalar from a named channel).
-    Data,
-    /// A scalar from the whole image, which must then be grey.
-    Grey,
-    /// The image's alpha channel (a glTF material's alpha mask).
-    Alpha,
 }
 
 /// How a texture's file is decoded: one decoded copy per kind.

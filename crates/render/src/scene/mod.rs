@@ -26,20 +26,21 @@ use std::path::Path;
 
 use glam::Vec3A;
 
+pub use crate::util::fields::{KeyPath, Seg};
 pub use alpha::AlphaTest;
 pub use format::*;
 pub use frames::{BadFrameRange, FrameRange};
 pub use gltf::{is_gltf, scene_text as gltf_scene_text, GltfOptions};
-pub use locate::{line_col, KeyPath, Seg};
+pub use locate::line_col;
 
 /// The frame a scene is built at when none is asked for: frames are numbered from 1, as farm
 /// users number them (`--frames 1-240`).
 pub const FIRST_FRAME: u32 = 1;
 
 use crate::aggregate::Accel;
-use crate::bsdf::Bsdf;
 use crate::camera::Camera;
 use crate::light::Lights;
+use crate::material::{Bsdf, Tables};
 pub use crate::primitive::Primitive;
 use crate::shape::Hit;
 use crate::util::math::{Aabb, Ray};
@@ -168,9 +169,6 @@ pub struct Material {
     /// Whether the back side reflects and emits like the front. One-sided surfaces (the
     /// default, as in Mitsuba) are black from behind.
     pub two_sided: bool,
-    /// A texture whose texel replaces a diffuse albedo, as an index into
-    /// [`Scene::textures`].
-    pub texture: Option<u32>,
 }
 
 /// Light from infinitely far away.
@@ -241,10 +239,9 @@ pub struct Scene {
     /// [`Material`] so that the materials every bounce reads stay as small as they were; empty
     /// when no material absorbs.
     absorption: Vec<Vec3A>,
-    /// The plastics that [`Bsdf::Plastic`] materials index.
-    plastics: Vec<crate::bsdf::Plastic>,
-    /// The glTF materials that [`Bsdf::Pbr`] materials index.
-    pbrs: Vec<crate::bsdf::PbrMaterial>,
+    /// The plastics and glTF materials that [`Bsdf::Plastic`] and [`Bsdf::Pbr`] materials
+    /// index.
+    tables: Tables,
     /// Each material's alpha test, by material index; empty when no material has one, which
     /// is every scene but glTF files with `MASK` or `BLEND` materials.
     alpha: Vec<Option<AlphaTest>>,
@@ -514,16 +511,10 @@ impl Scene {
             .unwrap_or(Vec3A::ZERO)
     }
 
-    /// The plastic a [`Bsdf::Plastic`] material names by `index`.
-    #[inline]
-    pub fn plastic(&self, index: u32) -> &crate::bsdf::Plastic {
-        &self.plastics[index as usize]
-    }
-
-    /// The glTF material a [`Bsdf::Pbr`] material names by `index`.
-    #[inline]
-    pub fn pbr(&self, index: u32) -> &crate::bsdf::PbrMaterial {
-        &self.pbrs[index as usize]
+    /// The plastics and glTF materials its materials name by index.
+    #[inline(always)]
+    pub fn tables(&self) -> &Tables {
+        &self.tables
     }
 
     /// The scene's ray queries.

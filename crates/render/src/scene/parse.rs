@@ -2,8 +2,9 @@
 //! type) placed at file:line:column and key path.
 
 use super::format::SceneFile;
-use super::locate::{self, line_col, KeyPath, Seg};
+use super::locate::{self, line_col};
 use super::{Format, SceneError};
+use super::{KeyPath, Seg};
 
 /// Lower-case hex of `bytes`.
 pub(super) fn hex(bytes: &[u8]) -> String {

@@ -10,12 +10,14 @@ use glam::{Vec2, Vec3A};
 
 use super::super::assets::Assets;
 use super::super::check::Invalid;
-use super::super::files::{SceneFiles, TextureUse};
+use super::super::files::SceneFiles;
 use super::super::{AlphaTest, KeyPath, Limits, Material};
 use super::{data, MaterialTables};
-use crate::bsdf::microfacet::TrowbridgeReitz;
 use crate::bsdf::pbr::{CoatTable, NormalMap, ScalarParam};
-use crate::bsdf::{Bsdf, PbrMaterial, RoughDielectric};
+use crate::bsdf::PbrMaterial;
+use crate::material::pbr::PbrRef;
+use crate::material::{glass, Bsdf};
+use crate::texture::TextureUse;
 use crate::texture::{ImageFormat, Wrap};
 
 /// An affine map of texture coordinates (`KHR_texture_transform`): u' = a·u + b·v + c,
@@ -108,8 +110,7 @@ impl<'d> GltfMaterials<'d> {
             .map_err(within)?;
         let mut material = material;
         if let Some(p) = pbr {
-            tables.pbrs.push(p);
-            material.bsdf = Bsdf::Pbr(tables.pbrs.len() as u32 - 1);
+            material.bsdf = PbrRef::add(tables.kinds, p);
         }
         let i = tables.materials.len() as u32;
         if let Some(info) = m
@@ -250,10 +251,9 @@ impl<'d> GltfMaterials<'d> {
             coat: CoatTable::shared(ior),
         };
         let runtime = Material {
-            bsdf: Bsdf::Pbr(u32::MAX),
+            bsdf: Bsdf::Pbr(PbrRef(u32::MAX)),
             emission,
             two_sided: m.double_sided(),
-            texture: None,
         };
         Ok((runtime, Vec3A::ZERO, Some(material)))
     }
@@ -286,12 +286,7 @@ impl<'d> GltfMaterials<'d> {
         if tinted {
             self.warn("does not tint glass by its base colour (only its volume's attenuation)");
         }
-        let distribution = TrowbridgeReitz::from_roughness(roughness);
-        let bsdf = if distribution.is_smooth() || ior == 1.0 {
-            Bsdf::Dielectric(ior)
-        } else {
-            Bsdf::RoughDielectric(RoughDielectric { distribution, ior })
-        };
+        let bsdf = glass::solid(ior, roughness);
         let c = Vec3A::from_array(volume.attenuation_color());
         let d = volume.attenuation_distance();
         if !c.is_finite() || !(d > 0.0) {
@@ -311,7 +306,6 @@ impl<'d> GltfMaterials<'d> {
             bsdf,
             emission,
             two_sided: false,
-            texture: None,
         };
         Ok((material, Vec3A::from_array(sigma).max(Vec3A::ZERO)))
     }

@@ -26,8 +26,8 @@ use super::assets::Assets;
 use super::check::{degenerate, Invalid};
 use super::files::SceneFiles;
 use super::{KeyPath, Limits, Material};
-use crate::bsdf::{Bsdf, PbrMaterial};
 use crate::interaction::Transformed;
+use crate::material::Tables;
 use crate::mesh::{MeshInstance, TriMesh};
 use crate::shape::Shape;
 
@@ -103,8 +103,8 @@ pub(super) struct MaterialTables<'a> {
     pub(super) materials: &'a mut Vec<Material>,
     /// Their absorption.
     pub(super) absorption: &'a mut Vec<Vec3A>,
-    /// The glTF materials [`crate::bsdf::Bsdf::Pbr`] indexes.
-    pub(super) pbrs: &'a mut Vec<PbrMaterial>,
+    /// The large materials (glTF's) that the small ones index.
+    pub(super) kinds: &'a mut Tables,
     /// The alpha tests of `MASK` and `BLEND` materials, by material index.
     pub(super) alpha: &'a mut Vec<(u32, super::AlphaTest)>,
     /// Emission textures, as (material index, texture index).
@@ -291,10 +291,9 @@ pub(super) fn import(
                 .map_err(|(p, m)| (p, format!("{name}: {m}")))?;
             let uv_map = mats.uv_map(&prim.material());
             // Only a normal map reads tangents, so only its meshes carry them.
-            let tangents = match tables.materials[material as usize].bsdf {
-                Bsdf::Pbr(i) => tables.pbrs[i as usize].normal_map.is_some(),
-                _ => false,
-            };
+            let tangents = tables.materials[material as usize]
+                .bsdf
+                .needs_tangents(tables.kinds);
             let key = (mesh.index(), prim.index());
             if let std::collections::btree_map::Entry::Vacant(e) = meshes.entry(key) {
                 let what = format!("meshes[{}].primitives[{}]", mesh.index(), prim.index());

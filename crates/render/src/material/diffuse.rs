@@ -1,0 +1,88 @@
+//! Lambertian reflection, f = ρ/π, with an albedo or a texture's texel at each hit. The path
+//! tracer's own vertex ([`At::diffuse`]): it is the lobe path guiding learns and the eight-lane
+//! tracer runs, so its next-event estimation and its guided sampling live with them.
+
+use glam::Vec3A;
+
+use super::port::{At, Reading, Seen, Surface};
+use super::{Bsdf, Model};
+use crate::texture::TextureUse;
+use crate::util::fields::{color, required, Invalid};
+use crate::util::math::Ray;
+
+/// A diffuse material.
+#[derive(Clone, Copy, Debug)]
+pub struct Diffuse {
+    /// The albedo, in [0, 1].
+    pub albedo: Vec3A,
+    /// A texture whose texel replaces the albedo, by index into the scene's textures.
+    pub texture: Option<u32>,
+}
+
+impl Diffuse {
+    /// An untextured diffuse material.
+    pub fn new(albedo: Vec3A) -> Self {
+        Self {
+            albedo,
+            texture: None,
+        }
+    }
+
+    /// The albedo at `s`.
+    #[inline(always)]
+    fn albedo_at<'s, S: Surface<'s>>(&self, s: &S) -> Vec3A {
+        match self.texture {
+            None => self.albedo,
+            Some(t) => s.textures()[t as usize].lookup(s.uv()),
+        }
+    }
+}
+
+impl Model for Diffuse {
+    fn samples_lights(&self) -> bool {
+        true
+    }
+    fn draws_choice(&self) -> bool {
+        false
+    }
+    fn has_two_sides(&self) -> bool {
+        false
+    }
+    #[inline(always)]
+    fn lanes(&self) -> Option<Vec3A> {
+        match self.texture {
+            None => Some(self.albedo),
+            Some(_) => None,
+        }
+    }
+    fn reads_uv(&self, _: &super::Tables) -> bool {
+        self.texture.is_some()
+    }
+    #[inline(always)]
+    fn scatter<'s, A: At<'s>>(&self, v: &mut A) -> Option<Ray> {
+        let albedo = self.albedo_at(v);
+        v.diffuse(albedo)
+    }
+    fn first_hit<'s, S: Surface<'s>>(&self, s: &S, _: f32) -> Seen {
+        Seen::Albedo(self.albedo_at(s))
+    }
+}
+
+/// `type = "diffuse"`: an albedo, a colour or `{ texture = "file" }`.
+pub(crate) fn read(r: &mut Reading<'_, '_>) -> Result<Bsdf, Invalid> {
+    r.only("a diffuse material", &["albedo"])?;
+    let a = required(r.desc.albedo.as_ref(), r.at, "a diffuse material", "albedo")?;
+    Ok(Bsdf::Diffuse(match a {
+        super::desc::AlbedoDesc::Color(c) => Diffuse::new(color(*c, &r.key("albedo"), true)?),
+        super::desc::AlbedoDesc::Texture(file) => {
+            let path = r.key("albedo").key("texture");
+            let t = (r.textures)(file, &path, TextureUse::Color)?;
+            // The texel replaces it at each hit; this is what NEE-free code paths and tests
+            // see.
+            Diffuse {
+                albedo: Vec3A::splat(0.5),
+                texture: Some(t),
+            }
+        }
+    }))
+}

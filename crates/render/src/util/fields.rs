@@ -1,0 +1,156 @@
+//! A scene file's fields: where a value sits ([`KeyPath`], `materials.glass.ior`), the checks
+//! every reader applies to one (finite, positive, a colour, a number in [0, 1], keys that do
+//! not apply to a kind), each answering with the path of what is wrong, and the serde helper
+//! for three-number vectors. Below the scene readers and the materials, which both read
+//! fields.
+
+use std::fmt;
+
+use glam::Vec3A;
+use serde::de::Error as _;
+use serde::{Deserialize, Deserializer};
+
+use crate::util::math::v3;
+
+/// One step of a key path.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Seg {
+    /// A table key.
+    Key(String),
+    /// An array index.
+    Index(usize),
+}
+
+/// A key path into a scene document.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct KeyPath(pub Vec<Seg>);
+
+impl KeyPath {
+    /// The path extended by a key.
+    pub fn key(&self, k: &str) -> Self {
+        let mut v = self.0.clone();
+        v.push(Seg::Key(k.to_string()));
+        Self(v)
+    }
+
+    /// The path extended by an index.
+    pub fn index(&self, i: usize) -> Self {
+        let mut v = self.0.clone();
+        v.push(Seg::Index(i));
+        Self(v)
+    }
+}
+
+impl fmt::Display for KeyPath {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.0.is_empty() {
+            return f.write_str("(document)");
+        }
+        for (i, s) in self.0.iter().enumerate() {
+            match s {
+                Seg::Key(k) if i == 0 => write!(f, "{k}")?,
+                Seg::Key(k) => write!(f, ".{k}")?,
+                Seg::Index(n) => write!(f, "[{n}]")?,
+            }
+        }
+        Ok(())
+    }
+}
+
+/// What is wrong, and where in the file.
+pub type Invalid = (KeyPath, String);
+
+/// The path of a top-level key (`materials`).
+pub fn root(k: &str) -> KeyPath {
+    KeyPath(vec![Seg::Key(k.to_string())])
+}
+
+/// Three finite numbers.
+pub fn finite3(v: [f32; 3], path: &KeyPath) -> Result<Vec3A, Invalid> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(v3(v))
+    } else {
+        Err((path.clone(), format!("must be finite numbers, got {v:?}")))
+    }
+}
+
+/// A colour: finite, not negative, and at most 1 where `max_one` (a reflectance).
+pub fn color(v: [f32; 3], path: &KeyPath, max_one: bool) -> Result<Vec3A, Invalid> {
+    let c = finite3(v, path)?;
+    if c.min_element() < 0.0 {
+        return Err((path.clone(), format!("must not be negative, got {v:?}")));
+    }
+    if max_one && c.max_element() > 1.0 {
+        return Err((
+            path.clone(),
+            format!(
+                "must be at most 1 (a surface cannot reflect more than it receives), got {v:?}"
+            ),
+        ));
+    }
+    Ok(c)
+}
+
+/// A finite number greater than 0.
+pub fn positive(x: f32, path: &KeyPath) -> Result<f32, Invalid> {
+    if x.is_finite() && x > 0.0 {
+        Ok(x)
+    } else {
+        Err((
+            path.clone(),
+            format!("must be a finite number greater than 0, got {x}"),
+        ))
+    }
+}
+
+/// A finite number.
+pub fn finite(x: f32, path: &KeyPath) -> Result<f32, Invalid> {
+    if x.is_finite() {
+        Ok(x)
+    } else {
+        Err((path.clone(), format!("must be a finite number, got {x}")))
+    }
+}
+
+/// Rejects fields that do not belong to the chosen kind, so a typo'd or misplaced key is an
+/// error rather than silently ignored.
+pub fn only(
+    path: &KeyPath,
+    kind: &str,
+    present: &[(&str, bool)],
+    allowed: &[&str],
+) -> Result<(), Invalid> {
+    for (name, is) in present {
+        if *is && !allowed.contains(name) {
+            return Err((path.key(name), format!("`{name}` does not apply to {kind}")));
+        }
+    }
+    Ok(())
+}
+
+/// The value of a key that `kind` cannot do without, or an error at that key saying so.
+pub fn required<T>(value: Option<T>, path: &KeyPath, kind: &str, name: &str) -> Result<T, Invalid> {
+    value.ok_or_else(|| (path.key(name), format!("{kind} needs `{name}`")))
+}
+
+/// A number in [0, 1].
+pub fn unit(x: f32, path: &KeyPath) -> Result<f32, Invalid> {
+    if (0.0..=1.0).contains(&x) {
+        Ok(x)
+    } else {
+        Err((path.clone(), format!("must be between 0 and 1, got {x}")))
+    }
+}
+
+/// A vector of exactly three numbers. serde's own `[f32; 3]` stops reading after the third
+/// element, so TOML's `[0, 0, 3.9, 42, "junk"]` would load as `[0, 0, 3.9]`: a typo that
+/// silently changes the scene.
+pub fn exactly_three<'de, D: Deserializer<'de>>(d: D) -> Result<[f32; 3], D::Error> {
+    let v = Vec::<f32>::deserialize(d)?;
+    <[f32; 3]>::try_from(v).map_err(|v| D::Error::invalid_length(v.len(), &"a vector of 3 numbers"))
+}
+
+/// [`exactly_three`] for a key that may be left out.
+pub fn maybe_three<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f32; 3]>, D::Error> {
+    exactly_three(d).map(Some)
+}
