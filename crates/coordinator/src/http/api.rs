@@ -21,7 +21,7 @@ use axum::{Extension, Json};
 use serde::{Deserialize, Serialize};
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_server::Jobs;
-use tessera_proto::view::{JobView, WorkerView};
+use tessera_proto::view::{JobView, LogPage, WorkerView};
 use tonic::Request as RpcRequest;
 use utoipa::ToSchema;
 
@@ -268,76 +268,17 @@ pub(super) struct LogsQuery {
     after: u64,
 }
 
-/// A line of a job's log.
-#[derive(Serialize, ToSchema)]
-pub(super) struct LogLine {
-    seq: u64,
-    unix_ms: i64,
-    worker_id: String,
-    worker_name: String,
-    job_id: String,
-    frame: Option<u32>,
-    tile: u32,
-    batch: u32,
-    /// `info`, `warn` or `error`.
-    level: &'static str,
-    message: String,
-}
-
-/// A job's log.
-#[derive(Serialize, ToSchema)]
-pub(super) struct LogsReply {
-    entries: Vec<LogLine>,
-    /// Lines dropped (rate, size, the job's cap).
-    dropped: u64,
-    /// The job has ended: no more lines will come.
-    ended: bool,
-}
-
 /// The warnings and errors workers reported about a job's units (`tessera logs`).
 #[utoipa::path(get, path = "/api/jobs/{id}/logs", params(("id" = String, Path), LogsQuery), responses(
-    (status = 200, body = LogsReply), (status = 404, body = ApiError),
+    (status = 200, body = LogPage), (status = 404, body = ApiError),
 ))]
 pub(super) async fn logs(
     State(app): State<App>,
     Path(id): Path<String>,
     Query(q): Query<LogsQuery>,
 ) -> Response {
-    let req = RpcRequest::new(pb::GetLogsRequest {
-        job_id: id,
-        frame: q.frame,
-        after: q.after,
-    });
-    match app.svc.get_logs(req).await {
-        Ok(r) => {
-            let r = r.into_inner();
-            let entries = r
-                .entries
-                .into_iter()
-                .map(|e| LogLine {
-                    level: match pb::LogLevel::try_from(e.level) {
-                        Ok(pb::LogLevel::Info) => "info",
-                        Ok(pb::LogLevel::Error) => "error",
-                        _ => "warn",
-                    },
-                    seq: e.seq,
-                    unix_ms: e.unix_ms,
-                    worker_id: e.worker_id,
-                    worker_name: e.worker_name,
-                    job_id: e.job_id,
-                    frame: e.frame,
-                    tile: e.tile_index,
-                    batch: e.batch_index,
-                    message: e.message,
-                })
-                .collect();
-            Json(LogsReply {
-                entries,
-                dropped: r.dropped,
-                ended: r.ended,
-            })
-            .into_response()
-        }
+    match app.svc.log_page(&id, q.frame, q.after).await {
+        Ok(page) => Json(page).into_response(),
         Err(s) => refused(s),
     }
 }

@@ -4,7 +4,7 @@
 
 use axum::response::{IntoResponse, Response};
 use axum::Json;
-use tessera_proto::view::{JobView, WorkerView};
+use tessera_proto::view::{JobView, LogEntryView, LogLevel, LogPage, WorkerView};
 use utoipa::OpenApi;
 
 use super::{api, intake};
@@ -26,7 +26,7 @@ use super::{api, intake};
     ),
     components(schemas(
         api::ApiError, intake::SubmitBody, intake::Submitted, api::PriorityBody, api::Retried,
-        api::LogsReply, api::LogLine, intake::Held, api::Drained, api::Released, JobView,
+        LogPage, LogEntryView, LogLevel, intake::Held, api::Drained, api::Released, JobView,
         WorkerView
     )),
     modifiers(&Bearer),

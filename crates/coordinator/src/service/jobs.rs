@@ -10,6 +10,7 @@ use tessera_proto::convert::settings_from_wire;
 use tessera_proto::ids::JobId;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::jobs_server::Jobs;
+use tessera_proto::view::{LogEntryView, LogLevel, LogPage};
 use tessera_render::scene::{Format, Scene, SceneCheck, Shot, FIRST_FRAME};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
@@ -237,52 +238,8 @@ impl Jobs for Service {
         request: Request<pb::GetLogsRequest>,
     ) -> Result<Response<pb::GetLogsResponse>, Status> {
         let req = request.into_inner();
-        let id = job_id(&req.job_id)?;
-        let mut q = self.shared.scheduler().logs(id, req.frame, req.after)?;
-        // Ended jobs' logs are in the store only.
-        if !q.stored.is_empty() {
-            let store = self.shared.store.clone();
-            q = tokio::task::spawn_blocking(move || {
-                for (job, frame) in std::mem::take(&mut q.stored) {
-                    let bytes = store
-                        .log(job.0)
-                        .map_err(|e| Status::internal(format!("coordinator state store: {e}")))?;
-                    if let Some(b) = bytes {
-                        add_stored(&mut q, job, frame, &b, req.after);
-                    }
-                }
-                Ok::<_, Status>(q)
-            })
-            .await
-            .map_err(|e| Status::internal(e.to_string()))??;
-        }
-        let (mut lines, dropped, ended) = (q.lines, q.dropped, q.ended);
-        // A page at a time: a caller asks again after the last line's number.
-        lines.truncate(MAX_LOG_ENTRIES);
-        let entries = lines
-            .into_iter()
-            .map(|(job, frame, l)| pb::LogEntry {
-                seq: l.seq,
-                unix_ms: l.unix_ms,
-                worker_id: l.worker_id,
-                worker_name: l.worker_name,
-                job_id: job.to_string(),
-                frame,
-                tile_index: l.tile,
-                batch_index: l.batch,
-                level: match l.level.as_str() {
-                    "info" => pb::LogLevel::Info,
-                    "error" => pb::LogLevel::Error,
-                    _ => pb::LogLevel::Warn,
-                } as i32,
-                message: l.message,
-            })
-            .collect();
-        Ok(Response::new(pb::GetLogsResponse {
-            entries,
-            dropped,
-            ended,
-        }))
+        let page = self.log_page(&req.job_id, req.frame, req.after).await?;
+        Ok(Response::new((&page).into()))
     }
 
     async fn drain_worker(
@@ -446,6 +403,58 @@ fn check_request(
 }
 
 impl Service {
+    /// A page of job `id`'s log (of its frame `frame`, for a frame range): the lines after
+    /// `after`, at most [`MAX_LOG_ENTRIES`]; what `GetLogs` and `/api/jobs/{id}/logs`
+    /// answer. An ended job's lines are read from the store.
+    pub(crate) async fn log_page(
+        &self,
+        id: &str,
+        frame: Option<u32>,
+        after: u64,
+    ) -> Result<LogPage, Status> {
+        let id = job_id(id)?;
+        let mut q = self.shared.scheduler().logs(id, frame, after)?;
+        if !q.stored.is_empty() {
+            let store = self.shared.store.clone();
+            q = tokio::task::spawn_blocking(move || {
+                for (job, frame) in std::mem::take(&mut q.stored) {
+                    let bytes = store
+                        .log(job.0)
+                        .map_err(|e| Status::internal(format!("coordinator state store: {e}")))?;
+                    if let Some(b) = bytes {
+                        add_stored(&mut q, job, frame, &b, after);
+                    }
+                }
+                Ok::<_, Status>(q)
+            })
+            .await
+            .map_err(|e| Status::internal(e.to_string()))??;
+        }
+        let (mut lines, dropped, ended) = (q.lines, q.dropped, q.ended);
+        // A page at a time: a caller asks again after the last line's number.
+        lines.truncate(MAX_LOG_ENTRIES);
+        let entries = lines
+            .into_iter()
+            .map(|(job, frame, l)| LogEntryView {
+                seq: l.seq,
+                unix_ms: l.unix_ms,
+                worker_id: l.worker_id,
+                worker_name: l.worker_name,
+                job_id: job.to_string(),
+                frame,
+                tile: l.tile,
+                batch: l.batch,
+                level: LogLevel::from_name(&l.level),
+                message: l.message,
+            })
+            .collect();
+        Ok(LogPage {
+            entries,
+            dropped,
+            ended,
+        })
+    }
+
     /// A submission's scene, checked as `tessera render` checks it (no image decoded) over the
     /// files the job names, every one uploaded; with the scene as it is stored. Takes the
     /// request's scene text.

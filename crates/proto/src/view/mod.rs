@@ -16,8 +16,10 @@ use crate::convert::strategy_from_wire;
 use crate::ids::{BadId, JobId};
 use crate::v1 as pb;
 
+mod logs;
 mod worker;
 
+pub use logs::{LogEntryView, LogLevel, LogPage};
 pub use worker::{WorkerState, WorkerView};
 
 /// Where a job is in its life. A frame range's state is its frames' ([`JobState::of_range`]).

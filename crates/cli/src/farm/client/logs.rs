@@ -5,6 +5,7 @@ use std::time::Duration;
 
 use anyhow::Result;
 use tessera_proto::v1 as pb;
+use tessera_proto::view::{LogEntryView, LogPage};
 
 use super::{connect, rpc_error};
 use crate::farm::{runtime, CoordinatorUrl};
@@ -48,19 +49,15 @@ fn utc(unix_ms: i64) -> String {
 }
 
 /// One line as printed.
-fn line(e: &pb::LogEntry) -> String {
-    let level = match pb::LogLevel::try_from(e.level) {
-        Ok(pb::LogLevel::Info) => "info",
-        Ok(pb::LogLevel::Error) => "error",
-        _ => "warn",
-    };
+fn line(e: &LogEntryView) -> String {
+    let level = e.level.name();
     let frame = e.frame.map(|f| format!(" frame {f}")).unwrap_or_default();
     format!(
         "{} {}{frame} tile {} batch {} {} ({}): {level}: {}",
         utc(e.unix_ms),
         e.job_id,
-        e.tile_index,
-        e.batch_index,
+        e.tile,
+        e.batch,
         e.worker_id,
         printable(&e.worker_name),
         printable(&e.message)
@@ -84,6 +81,7 @@ pub fn logs(args: LogsArgs) -> Result<()> {
                 .await
                 .map_err(|e| rpc_error(&url, &args.job, e))?
                 .into_inner();
+            let r = LogPage::try_from(&r)?;
             if r.dropped > said_dropped {
                 errln!(
                     "({} lines were not kept: a job keeps its last 200, and a worker may send 5 a \
@@ -122,16 +120,16 @@ mod tests {
 
     #[test]
     fn a_line_names_the_unit_and_the_worker() {
-        let e = pb::LogEntry {
+        let e = LogEntryView {
             seq: 3,
             unix_ms: 0,
             worker_id: "w1-2".into(),
             worker_name: "render\u{1b}[2J".into(),
             job_id: "job-000004".into(),
             frame: Some(7),
-            tile_index: 3,
-            batch_index: 1,
-            level: pb::LogLevel::Error as i32,
+            tile: 3,
+            batch: 1,
+            level: tessera_proto::view::LogLevel::Error,
             message: "out of memory".into(),
         };
         let l = line(&e);
