@@ -23,7 +23,11 @@ fuzz_target!(|data: &[u8]| {
             ("image.png".to_string(), data.to_vec()),
         ]));
         let text = gltf_scene_text(name, data, &GltfOptions::default());
-        match Scene::from_str_with(&text, Format::Toml, name, &limits, 1, &files) {
+        match Scene::text(&text, Format::Toml, name, &limits)
+            .at(1)
+            .assets(&files)
+            .load()
+        {
             Ok(scene) => {
                 for p in &scene.prims {
                     let b = p.shape.bounds();

@@ -14,7 +14,10 @@ fuzz_target!(|data: &[u8]| {
         return;
     };
     assert_eq!(guide.encode(), data);
-    for (i, p) in [Vec3A::ZERO, Vec3A::splat(1e30), Vec3A::splat(-0.5)].into_iter().enumerate() {
+    for (i, p) in [Vec3A::ZERO, Vec3A::splat(1e30), Vec3A::splat(-0.5)]
+        .into_iter()
+        .enumerate()
+    {
         let u = Vec2::new(0.1 + 0.3 * i as f32, 0.999_999);
         let (d, pdf) = guide.at(p).sample(u);
         assert!(d.is_finite() && pdf.is_finite() && pdf >= 0.0);
@@ -23,7 +26,9 @@ fuzz_target!(|data: &[u8]| {
         let alpha = guide.alpha_at(p).1;
         assert!(ALPHAS.contains(&alpha) && alpha < 1.0, "{alpha}");
     }
-    assert!(guide.second_moment_ratio().is_none_or(|r| r.is_finite() && r >= 0.0));
+    assert!(guide
+        .second_moment_ratio()
+        .is_none_or(|r| r.is_finite() && r >= 0.0));
     let next = guide.refined(1000, 0.01);
     assert!(SdTree::decode(&next.encode()).is_ok());
 });

@@ -38,7 +38,9 @@ fn scene_text() -> &'static str {
 fn scene() -> &'static Scene {
     static SCENE: OnceLock<Scene> = OnceLock::new();
     SCENE.get_or_init(|| {
-        Scene::from_str(scene_text(), Format::Toml, "c.toml", &Limits::default()).expect("scene")
+        Scene::text(scene_text(), Format::Toml, "c.toml", &Limits::default())
+            .load()
+            .expect("scene")
     })
 }
 

@@ -21,7 +21,7 @@ fuzz_target!(|data: &[u8]| {
     // before the first and after the last.
     let frame = data.len() as u32 % 64;
     for format in [Format::Toml, Format::Json] {
-        match Scene::from_str_at(text, format, "fuzz", &limits, frame) {
+        match Scene::text(text, format, "fuzz", &limits).at(frame).load() {
             Ok(scene) => {
                 // A scene that loads must be renderable: trace one sample of its centre.
                 let settings = tessera_render::RenderSettings {

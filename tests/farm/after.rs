@@ -40,7 +40,9 @@ async fn a_job_after_another_waits_for_it_across_a_restart() {
     }
     let coord = coord.restarted(&data, lease).await;
     let url = coord.url();
-    let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
+    let scene = Scene::text(&text, Format::Toml, "c", &Limits::default())
+        .load()
+        .expect("scene");
     let settings = job_settings(4, 4);
     let mut hand = workers_client(&url);
     let id = register_as(&mut hand, "hand", "0", IMAGE_REVISION)

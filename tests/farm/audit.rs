@@ -19,7 +19,9 @@ use crate::common::*;
 /// 50, and keeps going until the coordinator refuses it or the test stops it. Returns how many
 /// wrong results it sent.
 async fn liar(url: String, text: String, settings: RenderSettings, stop: Arc<AtomicBool>) -> u64 {
-    let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
+    let scene = Scene::text(&text, Format::Toml, "c", &Limits::default())
+        .load()
+        .expect("scene");
     let mut client = WorkersClient::new(
         endpoint(&url, &from_host(9))
             .expect("endpoint")

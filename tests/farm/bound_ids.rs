@@ -35,7 +35,9 @@ async fn ids_and_leases_are_bound_to_the_worker_that_got_them() {
         .await
         .expect("lease")
         .remove(0);
-    let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
+    let scene = Scene::text(&text, Format::Toml, "c", &Limits::default())
+        .load()
+        .expect("scene");
     let result = honest_result(&scene, &job_settings(4, 2), &unit);
     let send = |who: &str, r: pb::TileResult| pb::SubmitResultRequest {
         worker_id: who.into(),

@@ -82,7 +82,9 @@ async fn closed_tiles_leave_memory_once_stored_and_the_frame_keeps_its_bits() {
     // take them out of memory. Waited for, since when a checkpoint runs is the coordinator's
     // timer's business: with a worker racing through the job, a job that ended before any
     // checkpoint left nothing to evict, and the test failed on a loaded machine.
-    let scene = Scene::from_str(&text, Format::Toml, "cornell", &Limits::default()).expect("scene");
+    let scene = Scene::text(&text, Format::Toml, "cornell", &Limits::default())
+        .load()
+        .expect("scene");
     merge_by_hand(&coord, &scene, 8).await;
     let evicted = wait_evicted(&coord, 52.0 * 16.0 * 16.0).await;
     assert!(
@@ -112,7 +114,9 @@ async fn a_restart_reads_stored_tiles_back_for_the_frame() {
     let job = submit(&mut client, &text, 16, 16, 0).await;
     // Half the tiles rendered by hand, then a clean stop: they are stored, and after the
     // restart they are closed tiles that leave memory at once.
-    let scene = Scene::from_str(&text, Format::Toml, "cornell", &Limits::default()).expect("scene");
+    let scene = Scene::text(&text, Format::Toml, "cornell", &Limits::default())
+        .load()
+        .expect("scene");
     merge_by_hand(&coord, &scene, 8).await;
     let addr = coord.addr;
     coord.stop().await;
@@ -146,7 +150,9 @@ async fn open_tiles_of_a_large_job_leave_memory_between_batches_and_are_read_bac
     let job = submit(&mut client, &text, 16, 2, 0).await;
     // Batch-major: the first 16 units are every tile's batch 0. Once stored, all 16 open
     // tiles leave memory, and each tile's batch 1 must read it back before it merges.
-    let scene = Scene::from_str(&text, Format::Toml, "cornell", &Limits::default()).expect("scene");
+    let scene = Scene::text(&text, Format::Toml, "cornell", &Limits::default())
+        .load()
+        .expect("scene");
     merge_by_hand_in(&coord, &scene, 16, 2).await;
     let evicted = wait_evicted(&coord, 16.0 * 52.0 * 16.0 * 16.0).await;
     assert!(

@@ -366,15 +366,11 @@ pub fn local_exr_files(
     files: &dyn tessera_render::scene::assets::Assets,
 ) -> Vec<u8> {
     let frame = settings.frame.unwrap_or(tessera_render::scene::FIRST_FRAME);
-    let scene = Scene::from_str_with(
-        text,
-        Format::Toml,
-        "cornell.toml",
-        &Limits::default(),
-        frame,
-        files,
-    )
-    .expect("scene");
+    let scene = Scene::text(text, Format::Toml, "cornell.toml", &Limits::default())
+        .at(frame)
+        .assets(files)
+        .load()
+        .expect("scene");
     let sums = if settings.guiding {
         tessera_render::guiding::render_frame_guided(&scene, settings, &|_| {}).sums
     } else {

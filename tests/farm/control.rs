@@ -15,7 +15,9 @@ async fn a_paused_job_finishes_its_leases_takes_no_new_ones_and_resumes_after_a_
     let mut client = coord.client().await;
     let first = submit(&mut client, &text, 4, 2, 0).await;
     let second = submit(&mut client, &text, 4, 2, 0).await;
-    let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
+    let scene = Scene::text(&text, Format::Toml, "c", &Limits::default())
+        .load()
+        .expect("scene");
     let settings = job_settings(4, 2);
     let mut hand = workers_client(&coord.url());
     let id = register_as(&mut hand, "hand", "0", IMAGE_REVISION)

@@ -214,7 +214,9 @@ async fn the_preview_shows_the_merged_sums_then_the_exr() {
         .expect("register");
     let units = lease_now(&mut workers, &me, 1).await.expect("lease");
     let u = &units[0];
-    let scene = Scene::from_str_at(&text, Format::Toml, "cornell.toml", &Limits::default(), 1)
+    let scene = Scene::text(&text, Format::Toml, "cornell.toml", &Limits::default())
+        .at(1)
+        .load()
         .expect("scene");
     let settings = job_settings(spp, batch);
     let rect = PixelRect::from(u.rect.expect("rect"));

@@ -16,7 +16,9 @@ async fn a_drained_worker_is_told_keeps_its_unit_and_stays_drained_across_a_rest
     let text = scene_text(32);
     let mut client = coord.client().await;
     let job = submit(&mut client, &text, 4, 2, 0).await;
-    let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
+    let scene = Scene::text(&text, Format::Toml, "c", &Limits::default())
+        .load()
+        .expect("scene");
     let settings = job_settings(4, 2);
     let mut hand = workers_client(&coord.url());
     let id = hand

@@ -13,7 +13,9 @@ async fn forged_results_are_refused_and_leave_the_image_unaffected() {
     let text = scene_text(32);
     let mut client = coord.client().await;
     let job = submit(&mut client, &text, 8, 4, 0).await;
-    let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
+    let scene = Scene::text(&text, Format::Toml, "c", &Limits::default())
+        .load()
+        .expect("scene");
     let settings = job_settings(8, 4);
 
     let mut forger = workers_client(&url);
@@ -121,7 +123,9 @@ async fn forged_aov_sums_are_refused_and_leave_the_image_unaffected() {
     };
     let mut client = coord.client().await;
     let job = submit_job(&mut client, submit_request_with(&text, &settings)).await;
-    let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
+    let scene = Scene::text(&text, Format::Toml, "c", &Limits::default())
+        .load()
+        .expect("scene");
     let mut forger = workers_client(&url);
     let id = register_as(&mut forger, "forger", "0", IMAGE_REVISION)
         .await

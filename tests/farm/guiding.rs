@@ -44,7 +44,9 @@ async fn a_guided_job_gives_the_local_bits_across_a_restart_between_epochs() {
     let settings = guided();
     // This scene's guide does not pay, so guiding turns off from epoch 3: the bits compared
     // cover guided epochs and the unguided ones workers render after.
-    let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
+    let scene = Scene::text(&text, Format::Toml, "c", &Limits::default())
+        .load()
+        .expect("scene");
     let frame = tessera_render::guiding::render_frame_guided(&scene, &settings, &|_| {});
     let guided_epochs: Vec<bool> = frame.epochs.iter().map(|e| e.guided).collect();
     assert_eq!(guided_epochs, [false, true, true, false, false]);
@@ -88,7 +90,9 @@ async fn forged_training_trees_are_refused_and_epochs_wait_for_their_guide() {
     let settings = guided();
     let mut client = coord.client().await;
     let job = submit_job(&mut client, submit_request_with(&text, &settings)).await;
-    let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
+    let scene = Scene::text(&text, Format::Toml, "c", &Limits::default())
+        .load()
+        .expect("scene");
     let bounds = guide_bounds(&scene);
 
     let mut hand = workers_client(&url);

@@ -73,7 +73,9 @@ async fn dropped_non_finite_samples_flag_the_frame() {
     let text = scene_text(16);
     let mut client = coord.client().await;
     let job = submit(&mut client, &text, 4, 4, 0).await;
-    let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
+    let scene = Scene::text(&text, Format::Toml, "c", &Limits::default())
+        .load()
+        .expect("scene");
     let settings = job_settings(4, 4);
     let mut hand = workers_client(&url);
     let id = register_as(&mut hand, "hand", "0", IMAGE_REVISION)

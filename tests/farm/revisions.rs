@@ -38,7 +38,9 @@ async fn renderer_revisions_are_never_mixed() {
         .expect("lease")
         .remove(0);
     assert_eq!(unit.job_id, started, "the higher priority first");
-    let scene = Scene::from_str(&text, Format::Toml, "c", &Limits::default()).expect("scene");
+    let scene = Scene::text(&text, Format::Toml, "c", &Limits::default())
+        .load()
+        .expect("scene");
     let settings = job_settings(8, 4);
     let outcome = workers
         .submit_result(pb::SubmitResultRequest {

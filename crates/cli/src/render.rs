@@ -104,7 +104,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
         ..Limits::default()
     };
     let gltf = args.gltf.options(&args.scene)?;
-    let scene = Scene::load_with(&args.scene, &gltf, &limits, args.settings.shot())?;
+    let scene = Scene::file(&args.scene, &limits)
+        .gltf(&gltf)
+        .at(args.settings.shot())
+        .load()?;
     for w in &scene.warnings {
         errln!("warning: {w}");
     }

@@ -78,15 +78,11 @@ async fn settle(shared: Arc<Shared>, job: JobId, unit: Unit) {
         } else {
             Format::Toml
         };
-        let scene = Scene::from_str_with(
-            &stored.text,
-            format,
-            &stored.name,
-            &limits,
-            settings.shot(),
-            &files,
-        )
-        .map_err(|e| e.to_string())?;
+        let scene = Scene::text(&stored.text, format, &stored.name, &limits)
+            .at(settings.shot())
+            .assets(&files)
+            .load()
+            .map_err(|e| e.to_string())?;
         if scene.hash != hash {
             return Err(format!("scene {hash} loads with hash {}", scene.hash));
         }

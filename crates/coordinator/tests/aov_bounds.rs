@@ -14,7 +14,9 @@ fn scene(name: &str) -> Scene {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../../scenes")
         .join(name);
-    Scene::load(&path, &Limits::default()).unwrap_or_else(|e| panic!("{name}: {e}"))
+    Scene::file(&path, &Limits::default())
+        .load()
+        .unwrap_or_else(|e| panic!("{name}: {e}"))
 }
 
 #[test]

@@ -209,19 +209,28 @@ fn load(c: &mut Criterion) {
     group.throughput(Throughput::Elements(triangles));
     group.bench_function("glb_with_textures", |b| {
         b.iter(|| {
-            Scene::from_str_with(&gltf_text, Format::Toml, "big", &limits, 1, &gltf_files)
+            Scene::text(&gltf_text, Format::Toml, "big", &limits)
+                .at(1)
+                .assets(&gltf_files)
+                .load()
                 .expect("glb loads")
         })
     });
     group.bench_function("glb_with_textures_and_normal_map", |b| {
         b.iter(|| {
-            Scene::from_str_with(&bumpy_text, Format::Toml, "big", &limits, 1, &bumpy_files)
+            Scene::text(&bumpy_text, Format::Toml, "big", &limits)
+                .at(1)
+                .assets(&bumpy_files)
+                .load()
                 .expect("glb loads")
         })
     });
     group.bench_function("ply", |b| {
         b.iter(|| {
-            Scene::from_str_with(ply_text, Format::Toml, "big", &limits, 1, &ply_files)
+            Scene::text(ply_text, Format::Toml, "big", &limits)
+                .at(1)
+                .assets(&ply_files)
+                .load()
                 .expect("ply loads")
         })
     });

@@ -16,7 +16,9 @@ use tessera_render::{render_tile, PixelRect, RenderSettings};
 
 fn scene(name: &str) -> Scene {
     let path = format!("{}/../../scenes/{name}.toml", env!("CARGO_MANIFEST_DIR"));
-    Scene::load(path.as_ref(), &Limits::default()).expect("bundled scene loads")
+    Scene::file(path.as_ref(), &Limits::default())
+        .load()
+        .expect("bundled scene loads")
 }
 
 fn kernels(c: &mut Criterion) {

@@ -68,7 +68,7 @@ fn probe() -> Result<()> {
         "REF",
         "tests/data/cornell-box-reference.exr".to_string(),
     )?);
-    let scene = Scene::load(&scene_path, &Limits::default())?;
+    let scene = Scene::file(&scene_path, &Limits::default()).load()?;
     let reference = read_exr_rgb(&ref_path)?;
     let base = RenderSettings {
         spp,

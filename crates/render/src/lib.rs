@@ -29,7 +29,7 @@
 //!
 //! ```no_run
 //! use tessera_render::{scene::{Limits, Scene}, RenderSettings, render_frame};
-//! let scene = Scene::load("scenes/cornell-box.toml".as_ref(), &Limits::default()).unwrap();
+//! let scene = Scene::file("scenes/cornell-box.toml".as_ref(), &Limits::default()).load().unwrap();
 //! let settings = RenderSettings { spp: 16, ..RenderSettings::default() };
 //! let sums = render_frame(&scene, &settings, &|_| {});
 //! let image = sums.finalize();

@@ -132,7 +132,7 @@ pub struct RenderSettings {
     pub adaptive: Option<Adaptive>,
     /// The frame of an animated scene this render is of (`None`: a render that names no
     /// frame, of a still scene or of an animated scene's first frame). It chooses the scene
-    /// built from the file ([`crate::scene::Scene::from_str_at`]) and goes into the EXR's
+    /// built from the file ([`crate::scene::Load::at`]) and goes into the EXR's
     /// header, so it is part of the render's identity when set.
     pub frame: Option<u32>,
     /// Extra images for denoising to render beside the beauty ([`Aovs`]); none by default. They

@@ -35,7 +35,9 @@ fn render(scene: &Scene) -> Vec<[f64; 3]> {
 }
 
 fn at(text: &str, frame: u32) -> Scene {
-    Scene::from_str_at(text, Format::Toml, "a.toml", &Limits::default(), frame)
+    Scene::text(text, Format::Toml, "a.toml", &Limits::default())
+        .at(frame)
+        .load()
         .unwrap_or_else(|e| panic!("{e}"))
 }
 
@@ -84,7 +86,9 @@ fn bad_animations_name_the_key_and_line() {
         ),
     ];
     for (text, want) in cases {
-        let e = Scene::from_str_at(&text, Format::Toml, "a.toml", &Limits::default(), 3)
+        let e = Scene::text(&text, Format::Toml, "a.toml", &Limits::default())
+            .at(3)
+            .load()
             .expect_err(want)
             .to_string();
         assert!(e.contains(want), "{e}");

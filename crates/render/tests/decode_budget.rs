@@ -62,7 +62,9 @@ fn a_scene_refused_for_its_shape_never_decodes_its_texture() {
     );
     let budget = DecodeBudget::global();
     budget.set_total(1 << 20);
-    let e = Scene::load(&scene, &Limits::default()).expect_err("no texture coordinates");
+    let e = Scene::file(&scene, &Limits::default())
+        .load()
+        .expect_err("no texture coordinates");
     budget.set_total(DEFAULT_DECODE_BUDGET);
     let e = e.to_string();
     assert!(e.contains("needs a mesh with texture coordinates"), "{e}");
@@ -79,14 +81,18 @@ fn a_texture_larger_than_the_budget_is_refused_by_name() {
     let scene = scene_with_texture(dir.path(), &grey_png(256, 256), None);
     let budget = DecodeBudget::global();
     budget.set_total(decode_bytes(256, 256) - 1);
-    let e = Scene::load(&scene, &Limits::default()).expect_err("over the budget");
+    let e = Scene::file(&scene, &Limits::default())
+        .load()
+        .expect_err("over the budget");
     budget.set_total(DEFAULT_DECODE_BUDGET);
     let e = e.to_string();
     assert!(e.contains("big.png"), "{e}");
     assert!(e.contains("decode budget"), "{e}");
     assert!(e.contains(&(decode_bytes(256, 256) - 1).to_string()), "{e}");
     assert_eq!(e.lines().count(), 1, "{e}");
-    Scene::load(&scene, &Limits::default()).expect("loads within the budget");
+    Scene::file(&scene, &Limits::default())
+        .load()
+        .expect("loads within the budget");
     assert_eq!(budget.used(), 0);
 }
 
@@ -111,7 +117,7 @@ fn parallel_parses_share_the_budget_in_bytes() {
             }
         });
         let loads: Vec<_> = (0..8)
-            .map(|_| s.spawn(|| Scene::load(&scene, &Limits::default()).map(|_| ())))
+            .map(|_| s.spawn(|| Scene::file(&scene, &Limits::default()).load().map(|_| ())))
             .collect();
         for l in loads {
             l.join().expect("thread").expect("loads");
@@ -124,7 +130,7 @@ fn parallel_parses_share_the_budget_in_bytes() {
     assert!(peak <= one, "{peak} bytes reserved at once, budget {one}");
 }
 
-/// What a coordinator admits a job by (#79.12): `Scene::check_with` decodes no image, so a
+/// What a coordinator admits a job by (#79.12): `Load::check` decodes no image, so a
 /// scene with an 8192² texture (1.85 GB to decode) is checked within a budget of 1 MiB, and
 /// it says what the full build says of the scene's identity, size, files and bounds.
 #[cfg(unix)]
@@ -138,26 +144,28 @@ fn a_scene_is_checked_without_decoding_its_textures() {
     let files = DirAssets(dir.path().to_path_buf());
     let limits = Limits::default();
     let check = |limits: &Limits| {
-        Scene::check_with(
-            &text,
-            Format::Toml,
-            "scene.toml",
-            limits,
-            FIRST_FRAME,
-            &files,
-        )
+        Scene::text(&text, Format::Toml, "scene.toml", limits)
+            .at(FIRST_FRAME)
+            .assets(&files)
+            .check()
     };
     let budget = DecodeBudget::global();
     budget.set_total(1 << 20);
     let checked = check(&limits);
-    let refused = Scene::from_str_with(&text, Format::Toml, "s", &limits, FIRST_FRAME, &files)
+    let refused = Scene::text(&text, Format::Toml, "s", &limits)
+        .at(FIRST_FRAME)
+        .assets(&files)
+        .load()
         .map(|_| ())
         .expect_err("over the budget");
     budget.set_total(DEFAULT_DECODE_BUDGET);
     let checked = checked.expect("checked without decoding");
     assert!(refused.to_string().contains("big.png"), "{refused}");
     assert_eq!(budget.used(), 0);
-    let built = Scene::from_str_with(&text, Format::Toml, "s", &limits, FIRST_FRAME, &files)
+    let built = Scene::text(&text, Format::Toml, "s", &limits)
+        .at(FIRST_FRAME)
+        .assets(&files)
+        .load()
         .expect("built");
     assert_eq!(checked.hash, built.hash);
     assert_eq!((checked.width, checked.height), (built.width, built.height));

@@ -23,7 +23,9 @@ fn shrink(name: &str, w: u32, h: u32) -> Scene {
         })
         .collect::<Vec<_>>()
         .join("\n");
-    Scene::from_str(&text, Format::Toml, name, &Limits::default()).expect("valid")
+    Scene::text(&text, Format::Toml, name, &Limits::default())
+        .load()
+        .expect("valid")
 }
 
 fn agree(scene: &Scene, spp: [u32; 3], block: u32) {
@@ -94,8 +96,9 @@ fn strategies_agree_on_rough_metals() {
                 [[objects]]\nshape = \"sphere\"\nmaterial = \"a\"\ncenter = [-0.9, 0.8, 0]\nradius = 0.8\n\
                 [[objects]]\nshape = \"sphere\"\nmaterial = \"b\"\ncenter = [0.9, 0.8, 0]\nradius = 0.8\n\
                 [[objects]]\nshape = \"sphere\"\nmaterial = \"lamp\"\ncenter = [0, 3.5, 2.5]\nradius = 1.2\n";
-    let scene =
-        Scene::from_str(text, Format::Toml, "big-lamp.toml", &Limits::default()).expect("valid");
+    let scene = Scene::text(text, Format::Toml, "big-lamp.toml", &Limits::default())
+        .load()
+        .expect("valid");
     agree(&scene, [256, 256, 1024], 8);
 }
 
@@ -117,8 +120,9 @@ fn strategies_agree_on_rough_and_coloured_glass() {
                 [[objects]]\nshape = \"sphere\"\nmaterial = \"frosted\"\ncenter = [-0.9, 0.8, 0]\nradius = 0.8\n\
                 [[objects]]\nshape = \"box\"\nmaterial = \"tinted\"\nmin = [0.2, 0, -0.6]\nmax = [1.6, 1.4, 0.6]\n\
                 [[objects]]\nshape = \"sphere\"\nmaterial = \"lamp\"\ncenter = [-0.3, 1.0, -2.5]\nradius = 1.0\n";
-    let scene =
-        Scene::from_str(text, Format::Toml, "glass.toml", &Limits::default()).expect("valid");
+    let scene = Scene::text(text, Format::Toml, "glass.toml", &Limits::default())
+        .load()
+        .expect("valid");
     agree(&scene, [512, 512, 2048], 8);
 }
 
@@ -180,8 +184,9 @@ fn strategies_agree_with_punctual_and_area_lights_together() {
                 [[lights]]\ntype = \"point\"\nposition = [-1.5, 2, 1.5]\nintensity = [4, 3, 2]\n\
                 [[lights]]\ntype = \"spot\"\nposition = [1, 2.5, 1]\ndirection = [0, -1, -0.3]\nintensity = [6, 6, 6]\ninner_angle = 15\nouter_angle = 30\n\
                 [[lights]]\ntype = \"directional\"\ndirection = [1, -2, -1]\nirradiance = [0.5, 0.6, 0.8]\n";
-    let scene =
-        Scene::from_str(text, Format::Toml, "punctual.toml", &Limits::default()).expect("valid");
+    let scene = Scene::text(text, Format::Toml, "punctual.toml", &Limits::default())
+        .load()
+        .expect("valid");
     agree(&scene, [256, 256, 1024], 8);
 }
 

@@ -31,7 +31,9 @@ fn mesh_bounds(scene: &Scene) -> Vec<(Vec3A, Vec3A)> {
 
 #[test]
 fn the_sample_scene_reads_its_camera_lights_materials_and_instances() {
-    let scene = Scene::load(Path::new(SAMPLE), &Limits::default()).expect("sample.glb loads");
+    let scene = Scene::file(Path::new(SAMPLE), &Limits::default())
+        .load()
+        .expect("sample.glb loads");
     assert!(scene.warnings.is_empty(), "{:?}", scene.warnings);
     // 16:9 from the camera's aspect ratio.
     assert_eq!((scene.width, scene.height), (1280, 720));
@@ -89,11 +91,16 @@ fn the_sample_scene_reads_its_camera_lights_materials_and_instances() {
 
 #[test]
 fn the_farm_builds_the_same_scene_from_the_text_and_the_uploaded_file() {
-    let local = Scene::load(Path::new(SAMPLE), &Limits::default()).expect("loads");
+    let local = Scene::file(Path::new(SAMPLE), &Limits::default())
+        .load()
+        .expect("loads");
     let bytes = std::fs::read(SAMPLE).expect("read");
     let text = gltf_scene_text("sample.glb", &bytes, &GltfOptions::default());
     let files = MemAssets(BTreeMap::from([("sample.glb".to_string(), bytes)]));
-    let farm = Scene::from_str_with(&text, Format::Toml, "job", &Limits::default(), 1, &files)
+    let farm = Scene::text(&text, Format::Toml, "job", &Limits::default())
+        .at(1)
+        .assets(&files)
+        .load()
         .expect("loads from memory");
     assert_eq!(farm.hash, local.hash);
     assert_eq!(mesh_bounds(&farm), mesh_bounds(&local));
@@ -353,6 +360,26 @@ fn bad_files_are_refused_with_one_line_naming_the_place() {
             Ok(_) => panic!("loaded; should fail with {want:?}"),
         }
     }
+    // The same file as an object of a scene file: the error is placed at the key naming the
+    // file, and says where in the file.
+    let mut bad = good.clone();
+    bad["extensionsRequired"] = json!(["EXT_unheard_of"]);
+    bad["extensionsUsed"] = json!(["EXT_unheard_of"]);
+    let dir = tempfile::tempdir().expect("tempdir");
+    std::fs::write(dir.path().join("model.gltf"), serde_json::to_vec(&bad).unwrap()).unwrap();
+    let scene = "version = 1\n[camera]\nmodel = \"gltf\"\n\n[film]\nwidth = 8\nheight = 8\n\n\
+                 [[objects]]\nshape = \"gltf\"\nfile = \"model.gltf\"\n";
+    std::fs::write(dir.path().join("s.toml"), scene).unwrap();
+    let e = Scene::file(&dir.path().join("s.toml"), &Limits::default())
+        .load()
+        .expect_err("refused")
+        .to_string();
+    let e = e.rsplit('/').next().unwrap_or(&e);
+    assert_eq!(
+        e,
+        "s.toml:11:8: objects[0].file: model.gltf: requires the extension EXT_unheard_of, \
+         which tessera does not read"
+    );
     // A GLB whose header lies.
     let mut glb = b"glTF".to_vec();
     glb.extend(2u32.to_le_bytes());

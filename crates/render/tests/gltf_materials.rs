@@ -77,7 +77,10 @@ fn materials_map_replaces_a_file_material_by_name() {
              [[objects]]\nshape = \"gltf\"\nfile = \"m.gltf\"\n{map}"
         );
         let files = MemAssets(BTreeMap::from([("m.gltf".to_string(), bytes.clone())]));
-        Scene::from_str_with(&text, Format::Toml, "s.toml", &Limits::default(), 1, &files)
+        Scene::text(&text, Format::Toml, "s.toml", &Limits::default())
+            .at(1)
+            .assets(&files)
+            .load()
     };
     let s = scene("materials_override = { paint = \"red\" }").expect("ok");
     assert_eq!(s.prims[0].material, 0, "the scene's `red`");
@@ -209,15 +212,11 @@ fn emitter_scene(png: &[u8]) -> Scene {
         "lamp.gltf".to_string(),
         serde_json::to_vec(&gltf).expect("json"),
     )]));
-    Scene::from_str_with(
-        text,
-        Format::Toml,
-        "lamp.toml",
-        &Limits::default(),
-        1,
-        &files,
-    )
-    .expect("loads")
+    Scene::text(text, Format::Toml, "lamp.toml", &Limits::default())
+        .at(1)
+        .assets(&files)
+        .load()
+        .expect("loads")
 }
 
 /// The image mean of `scene` under `strategy` at `spp`, with its standard error.
@@ -307,14 +306,10 @@ fn a_toml_meshs_emission_texture_lights_as_the_gltf_one_does() {
         ("band.png".to_string(), png.clone()),
     ]));
     let load = |shape: &str| {
-        Scene::from_str_with(
-            &text(shape),
-            Format::Toml,
-            "lamp.toml",
-            &Limits::default(),
-            1,
-            &files,
-        )
+        Scene::text(&text(shape), Format::Toml, "lamp.toml", &Limits::default())
+            .at(1)
+            .assets(&files)
+            .load()
     };
     let toml = load("shape = \"mesh\"\nfile = \"lamp.obj\"").expect("loads");
     assert!(toml.lights.lights.iter().any(|l| l.texture.is_some()));

@@ -128,7 +128,7 @@ fn every_corpus_gltf_renders_or_is_refused_in_one_line() {
     let (mut rendered, mut refused) = (0, 0);
     for path in &files {
         let name = path.to_string_lossy().to_string();
-        match Scene::load(path, &Limits::default()) {
+        match Scene::file(path, &Limits::default()).load() {
             Ok(scene) => {
                 assert!(
                     !broken.iter().any(|b| name.contains(b)),

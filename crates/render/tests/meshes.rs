@@ -223,7 +223,10 @@ fn load_err(text: &str, files: &[(&str, &[u8])]) -> String {
             .map(|(n, b)| (n.to_string(), b.to_vec()))
             .collect(),
     );
-    Scene::from_str_with(text, Format::Toml, "s.toml", &Limits::default(), 1, &files)
+    Scene::text(text, Format::Toml, "s.toml", &Limits::default())
+        .at(1)
+        .assets(&files)
+        .load()
         .expect_err("refused")
         .to_string()
 }

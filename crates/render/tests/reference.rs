@@ -109,15 +109,11 @@ fn load_at(name: &str, size: u32) -> Scene {
         })
         .collect();
     let files = tessera_render::scene::assets::DirAssets(repo_root().join("scenes"));
-    Scene::from_str_with(
-        &text.join("\n"),
-        Format::Toml,
-        name,
-        &Limits::default(),
-        1,
-        &files,
-    )
-    .expect("scene")
+    Scene::text(&text.join("\n"), Format::Toml, name, &Limits::default())
+        .at(1)
+        .assets(&files)
+        .load()
+        .expect("scene")
 }
 
 /// [`check_against`] for a scene already loaded: its film square, a multiple of 64 pixels.

@@ -9,7 +9,7 @@ fn err(text: &str) -> SceneError {
 }
 
 fn err_with(text: &str, format: Format, limits: &Limits) -> SceneError {
-    match Scene::from_str(text, format, "s.toml", limits) {
+    match Scene::text(text, format, "s.toml", limits).load() {
         Ok(_) => panic!("accepted:\n{text}"),
         Err(e) => e,
     }
@@ -231,7 +231,11 @@ fn json_errors_have_positions_too() {
  "film": {"width": 8, "height": 8},
  "materials": {"m": {"type": "diffuse", "albedo": [0.5,0.5,0.5]}},
  "objects": [{"shape": "sphere", "material": "m", "radius": 1}]}"#;
-    assert!(Scene::from_str(good, Format::Json, "s.json", &Limits::default()).is_ok());
+    assert!(
+        Scene::text(good, Format::Json, "s.json", &Limits::default())
+            .load()
+            .is_ok()
+    );
     let e = err_with(
         &good.replace("\"radius\": 1", "\"radius\": -1"),
         Format::Json,
@@ -268,12 +272,13 @@ fn garbage_never_panics() {
     ))
     .expect("scene");
     for cut in (0..text.len()).step_by(7) {
-        let _ = Scene::from_str(
+        let _ = Scene::text(
             &text[..text.floor_char_boundary(cut)],
             Format::Toml,
             "cut.toml",
             &Limits::default(),
-        );
+        )
+        .load();
     }
     let bytes = text.as_bytes();
     for i in (0..bytes.len()).step_by(5) {
@@ -281,8 +286,8 @@ fn garbage_never_panics() {
             let mut v = bytes.to_vec();
             v[i] = b;
             if let Ok(s) = String::from_utf8(v) {
-                let _ = Scene::from_str(&s, Format::Toml, "flip.toml", &Limits::default());
-                let _ = Scene::from_str(&s, Format::Json, "flip.json", &Limits::default());
+                let _ = Scene::text(&s, Format::Toml, "flip.toml", &Limits::default()).load();
+                let _ = Scene::text(&s, Format::Json, "flip.json", &Limits::default()).load();
             }
         }
     }

@@ -220,17 +220,18 @@ impl SceneCache {
             files.0.insert(a.name.clone(), bytes);
         }
         let scene = tokio::task::spawn_blocking(move || {
-            Scene::from_str_with(
+            Scene::text(
                 &resp.scene_text,
                 format,
                 &resp.scene_name,
                 &Limits::default(),
-                Shot {
-                    frame: frame.unwrap_or(FIRST_FRAME),
-                    resolution,
-                },
-                &files,
             )
+            .at(Shot {
+                frame: frame.unwrap_or(FIRST_FRAME),
+                resolution,
+            })
+            .assets(&files)
+            .load()
         })
         .await
         .map_err(|e| SceneError::Unavailable(e.to_string()))?

@@ -549,7 +549,9 @@ mod tests {
         let text = include_str!("../../../scenes/cornell-box.toml")
             .replace("width = 256", "width = 8")
             .replace("height = 256", "height = 8");
-        Scene::from_str(&text, Format::Toml, "c.toml", &Limits::default()).expect("scene")
+        Scene::text(&text, Format::Toml, "c.toml", &Limits::default())
+            .load()
+            .expect("scene")
     }
 
     fn unit(rect: pb::Rect, start: u32, end: u32, strategy: i32) -> pb::WorkUnit {

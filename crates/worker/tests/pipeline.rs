@@ -80,7 +80,9 @@ fn exr_pair(
     batch: u32,
 ) -> (Vec<u8>, Vec<u8>) {
     let farm = std::fs::read(out.join(format!("{job}.exr"))).expect("farm EXR");
-    let scene = Scene::from_str(text, Format::Toml, "box.toml", &Limits::default()).expect("scene");
+    let scene = Scene::text(text, Format::Toml, "box.toml", &Limits::default())
+        .load()
+        .expect("scene");
     let settings = RenderSettings {
         spp,
         batch,

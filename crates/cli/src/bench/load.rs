@@ -624,7 +624,7 @@ pub fn run(args: LoadArgs) -> Result<()> {
         );
     }
     let settings = settings(args.batch);
-    let scene = Scene::from_str(&scene_text(), Format::Toml, "cornell", &Limits::default())?;
+    let scene = Scene::text(&scene_text(), Format::Toml, "cornell", &Limits::default()).load()?;
     if !args.memory.is_empty() {
         return memory::run(
             &args.memory,

@@ -338,7 +338,7 @@ fn measure_scene(
     m: &mut Measured,
 ) -> Result<()> {
     let start = Instant::now();
-    let scene = Scene::load(path, &Limits::default())?;
+    let scene = Scene::file(path, &Limits::default()).load()?;
     let load_seconds = start.elapsed().as_secs_f64();
     m.builds
         .extend(mesh_builds(name, &scene, load_seconds, pool));

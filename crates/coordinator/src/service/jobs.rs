@@ -501,7 +501,10 @@ impl Service {
                 store: &assets,
                 names,
             };
-            let r = Scene::check_with(&text, format, &name, &limits, shot, &files);
+            let r = Scene::text(&text, format, &name, &limits)
+                .at(shot)
+                .assets(&files)
+                .check();
             gauge.0.fetch_sub(1, Ordering::SeqCst);
             (r, text, name)
         })

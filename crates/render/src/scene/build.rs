@@ -1,6 +1,6 @@
 //! Validation and conversion of a parsed scene file (the serde types of `format`) into the
 //! runtime [`Scene`]: each part of the file has a builder of its own, and every error is a key
-//! path with a message, which [`Scene::from_str`] turns into file:line:column.
+//! path with a message, which [`super::Load`] turns into file:line:column.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -56,6 +56,7 @@ pub(super) fn assemble(
     desc: &SceneFile,
     limits: &Limits,
     assets: &dyn Assets,
+    lent: Option<super::gltf::Lent>,
 ) -> Result<Assembled, Invalid> {
     if desc.version != 1 {
         return Err((
@@ -75,10 +76,11 @@ pub(super) fn assemble(
     let mut files = SceneFiles::default();
     let environment = environment(desc, &mut files, limits, assets)?;
     let mut built = build_materials(desc, &mut files, limits, assets)?;
-    let mut objects = build_objects(desc, &mut built, &mut files, limits, assets)?;
+    let mut lent = lent;
+    let mut objects = build_objects(desc, &mut built, &mut files, limits, (assets, &mut lent))?;
     let reach = reach(&objects.prims);
     punctual_lights(desc, reach, &mut objects.lights)?;
-    super::lights::gltf_lights(&objects.gltf_lights, reach, &mut objects.lights)?;
+    super::gltf::lights(&objects.gltf_lights, reach, &mut objects.lights)?;
     let camera = match camera {
         Some(c) => c,
         None => super::gltf::camera(desc, &objects.cameras, &objects.prims, w, h)?,
@@ -121,7 +123,7 @@ fn build_objects(
     built: &mut BuiltMaterials,
     files: &mut SceneFiles,
     limits: &Limits,
-    assets: &dyn Assets,
+    (assets, lent): (&dyn Assets, &mut Option<super::gltf::Lent>),
 ) -> Result<Objects, Invalid> {
     if desc.objects.len() > limits.max_objects {
         return Err((
@@ -154,7 +156,8 @@ fn build_objects(
                 alpha: &mut out.alpha_tests,
                 emissive: &mut built.emissive,
             };
-            let file = build_gltf(o, &op, &built.names, &mut tables, files, limits, assets)?;
+            let reads = (&mut *files, limits, assets, &mut *lent);
+            let file = build_gltf(o, &op, &built.names, &mut tables, reads)?;
             let name = o.file.clone().unwrap_or_default();
             out.gltf_lights.extend(
                 file.lights
@@ -357,9 +360,12 @@ fn build_gltf(
     op: &KeyPath,
     names: &BTreeMap<&str, u32>,
     tables: &mut MaterialTables,
-    files: &mut SceneFiles,
-    limits: &Limits,
-    assets: &dyn Assets,
+    (files, limits, assets, lent): (
+        &mut SceneFiles,
+        &Limits,
+        &dyn Assets,
+        &mut Option<super::gltf::Lent>,
+    ),
 ) -> Result<super::gltf::Imported, Invalid> {
     only(
         op,
@@ -389,12 +395,14 @@ fn build_gltf(
         let path = op.key("materials_map").key(from);
         overrides.insert(from.clone(), material_index(names, to, &path)?);
     }
+    // A file read and parsed already (a glTF file loaded as a whole scene) is not parsed again.
+    let lent = lent.take_if(|l| l.is(file));
     super::gltf::import(
         file,
         xf,
         &overrides,
         tables,
-        files,
+        (files, lent),
         limits,
         assets,
         &op.key("file"),

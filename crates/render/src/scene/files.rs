@@ -30,6 +30,7 @@ pub(super) struct SceneFiles {
     pending_textures: Vec<PendingTexture>,
     /// Each file read, with its SHA-256, in the order first read.
     pub(super) read: Vec<(String, String)>,
+
     triangles: usize,
     texels: u64,
     /// Shapes placed so far (TOML objects, glTF mesh primitives under their nodes).

@@ -9,7 +9,6 @@ use glam::Vec3A;
 use super::assets::Assets;
 use super::check::{color, finite, finite3, only, required, root, Invalid};
 use super::files::{SceneFiles, MAX_TEXELS};
-use super::gltf::GltfLight;
 use super::{
     Environment, EnvironmentKind, KeyPath, LightDesc, LightKind, Limits, Primitive, SceneFile,
 };
@@ -40,55 +39,8 @@ pub(super) fn punctual_lights(
     Ok(())
 }
 
-/// The lights of glTF files (`KHR_lights_punctual`), each placed in the world, with the key
-/// of the object whose file holds it: validated as `[[lights]]` are, and named in errors by
-/// the file and the light's index there. A light of zero intensity is left out, as glTF
-/// allows.
-pub(super) fn gltf_lights(
-    placed: &[(KeyPath, String, GltfLight)],
-    reach: f32,
-    lights: &mut Vec<Light>,
-) -> Result<(), Invalid> {
-    for (path, file, g) in placed {
-        if g.power.iter().all(|&p| p == 0.0) {
-            continue;
-        }
-        let (d, p) = (Some(g.direction.to_array()), Some(g.position.to_array()));
-        let mut l = LightDesc {
-            kind: g.kind,
-            position: None,
-            direction: None,
-            intensity: Some(g.power),
-            irradiance: None,
-            inner_angle: None,
-            outer_angle: None,
-            angle: None,
-        };
-        match g.kind {
-            LightKind::Point => l.position = p,
-            LightKind::Spot => {
-                (l.position, l.direction) = (p, d);
-                (l.inner_angle, l.outer_angle) = (Some(g.cone.0), Some(g.cone.1));
-            }
-            LightKind::Directional => {
-                (l.direction, l.irradiance, l.intensity) = (d, Some(g.power), None);
-            }
-        }
-        let light = punctual(&l, &root("lights").index(g.index), reach).map_err(|(at, m)| {
-            let at = at.to_string();
-            let key = at.strip_prefix("lights").unwrap_or(&at);
-            (
-                path.clone(),
-                format!("{file}: KHR_lights_punctual.lights{key}: {m}"),
-            )
-        })?;
-        lights.push(light);
-    }
-    Ok(())
-}
-
 /// One `[[lights]]` entry at `lp`.
-fn punctual(l: &LightDesc, lp: &KeyPath, reach: f32) -> Result<Light, Invalid> {
+pub(super) fn punctual(l: &LightDesc, lp: &KeyPath, reach: f32) -> Result<Light, Invalid> {
     {
         let lp = lp.clone();
         let present = [

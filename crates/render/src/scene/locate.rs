@@ -35,6 +35,8 @@ fn walk_toml(node: TomlNode<'_>, segs: &[Seg], best: &mut Option<Range<usize>>) 
         return;
     };
     match seg {
+        // A place inside another file: the key that names the file is as far as this text goes.
+        Seg::File(_) => {}
         Seg::Key(k) => {
             let table: Option<&dyn toml_edit::TableLike> = match node {
                 TomlNode::Item(i) => i.as_table_like(),

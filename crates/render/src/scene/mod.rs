@@ -15,11 +15,12 @@ mod format;
 mod frames;
 mod gltf;
 mod lights;
+mod load;
 mod locate;
 mod materials;
 mod parse;
 
-use parse::{at_start, hex, io_error, locate, parse};
+use parse::hex;
 
 use std::fmt;
 use std::path::Path;
@@ -31,6 +32,7 @@ pub use alpha::AlphaTest;
 pub use format::*;
 pub use frames::{BadFrameRange, FrameRange};
 pub use gltf::{is_gltf, scene_text as gltf_scene_text, GltfOptions};
+pub use load::{scene_source, Load};
 pub use locate::line_col;
 
 /// The frame a scene is built at when none is asked for: frames are numbered from 1, as farm
@@ -250,102 +252,7 @@ pub struct Scene {
     pub warnings: Vec<String>,
 }
 
-impl Scene {
-    /// Reads, parses, validates and builds a scene file.
-    pub fn load(path: &Path, limits: &Limits) -> Result<Self, SceneError> {
-        Self::load_at(path, limits, FIRST_FRAME)
-    }
-
-    /// Parses, validates and builds a scene from text; `file` names it in errors. An animated
-    /// scene is built at frame 1 ([`Scene::from_str_at`]).
-    pub fn from_str(
-        text: &str,
-        format: Format,
-        file: &str,
-        limits: &Limits,
-    ) -> Result<Self, SceneError> {
-        Self::from_str_at(text, format, file, limits, FIRST_FRAME)
-    }
-
-    /// [`Scene::load`] at `frame` of the scene's `[animation]`.
-    pub fn load_at(path: &Path, limits: &Limits, frame: u32) -> Result<Self, SceneError> {
-        Self::load_with(path, &GltfOptions::default(), limits, frame)
-    }
-
-    /// [`Scene::load_at`], rendering a glTF file as `gltf` says (its camera, its light).
-    pub fn load_with(
-        path: &Path,
-        gltf: &GltfOptions,
-        limits: &Limits,
-        frame: impl Into<Shot>,
-    ) -> Result<Self, SceneError> {
-        let (text, format) = scene_source(path, gltf, limits)?;
-        let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
-        let file = path.display().to_string();
-        let files = assets::DirAssets(dir);
-        let scene = Self::from_str_with(&text, format, &file, limits, frame, &files);
-        if !is_gltf(path) {
-            return scene;
-        }
-        // The text is generated, so its lines mean nothing to the user: the message alone
-        // names the place in the glTF file.
-        scene.map_err(|e| {
-            let name = path.file_name().map(|n| n.to_string_lossy().into_owned());
-            let message = name
-                .and_then(|n| {
-                    e.message
-                        .strip_prefix(&format!("{n}: "))
-                        .map(str::to_string)
-                })
-                .unwrap_or(e.message);
-            let message = match e.path.as_str() {
-                "" | "objects[0].file" | "objects[0]" => message,
-                p => format!("{p}: {message}"),
-            };
-            SceneError {
-                file: e.file,
-                line: 0,
-                column: 0,
-                path: String::new(),
-                message,
-            }
-        })
-    }
-}
-
-/// A scene file's text and syntax: the file's own, or for a glTF file the scene that renders
-/// it ([`gltf_scene_text`]), whose one object is the file.
-pub fn scene_source(
-    path: &Path,
-    gltf: &GltfOptions,
-    limits: &Limits,
-) -> Result<(String, Format), SceneError> {
-    let file = path.display().to_string();
-    if is_gltf(path) {
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        // The text needs the JSON only: a .glb's buffers are read once, by the build.
-        let json = gltf::json_part(path, limits.max_asset_bytes).map_err(|m| at_start(&file, m))?;
-        return Ok((gltf_scene_text(&name, &json, gltf), Format::Toml));
-    }
-    let meta = std::fs::metadata(path).map_err(|e| io_error(&file, e))?;
-    if meta.len() > limits.max_bytes as u64 {
-        return Err(at_start(
-            &file,
-            format!(
-                "scene is {} bytes, above the limit of {}",
-                meta.len(),
-                limits.max_bytes
-            ),
-        ));
-    }
-    let text = std::fs::read_to_string(path).map_err(|e| io_error(&file, e))?;
-    Ok((text, Format::from_path(path)))
-}
-
-/// What a scene is, as [`Scene::check_with`] finds it.
+/// What a scene is, as [`Load::check`] finds it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SceneCheck {
     /// The scene's content address ([`Scene::hash`]).
@@ -376,91 +283,7 @@ pub(crate) fn shape_bounds(prims: &[Primitive]) -> [[f32; 3]; 2] {
     [b.min.to_array(), b.max.to_array()]
 }
 
-/// A scene text parsed at `shot` and assembled: every check but those that need pixels.
-fn assemble_str(
-    text: &str,
-    format: Format,
-    file: &str,
-    limits: &Limits,
-    shot: Shot,
-    files: &dyn assets::Assets,
-) -> Result<build::Assembled, SceneError> {
-    if text.len() > limits.max_bytes {
-        return Err(at_start(
-            file,
-            format!(
-                "scene is {} bytes, above the limit of {}",
-                text.len(),
-                limits.max_bytes
-            ),
-        ));
-    }
-    let desc = parse(text, format, file)?;
-    animate::at_frame(&desc, f64::from(shot.frame))
-        .map(|mut desc| {
-            if let Some((width, height)) = shot.resolution {
-                desc.film = format::FilmDesc { width, height };
-            }
-            desc
-        })
-        .and_then(|desc| build::assemble(&desc, limits, files))
-        .map_err(|(path, message)| locate(text, format, file, &path, message))
-}
-
 impl Scene {
-    /// [`Scene::from_str`] at `frame` of the scene's `[animation]` (a scene without one is
-    /// the same at every frame).
-    pub fn from_str_at(
-        text: &str,
-        format: Format,
-        file: &str,
-        limits: &Limits,
-        frame: u32,
-    ) -> Result<Self, SceneError> {
-        Self::from_str_with(text, format, file, limits, frame, &assets::NoAssets)
-    }
-
-    /// [`Scene::from_str_at`], reading the files the scene names (meshes) from `files`.
-    pub fn from_str_with(
-        text: &str,
-        format: Format,
-        file: &str,
-        limits: &Limits,
-        shot: impl Into<Shot>,
-        files: &dyn assets::Assets,
-    ) -> Result<Self, SceneError> {
-        let assembled = assemble_str(text, format, file, limits, shot.into(), files)?;
-        let (mut scene, read) = assembled
-            .finish()
-            .map_err(|(path, message)| locate(text, format, file, &path, message))?;
-        scene.hash = assets::scene_hash(text, &read);
-        scene.files = read;
-        Ok(scene)
-    }
-
-    /// What [`Scene::from_str_with`] would build, checked as it checks it but with no image
-    /// decoded and no BVH built: what a coordinator admits a job by, at a fraction of the
-    /// memory (an image's header gives its size; its pixels are the workers' to decode).
-    pub fn check_with(
-        text: &str,
-        format: Format,
-        file: &str,
-        limits: &Limits,
-        shot: impl Into<Shot>,
-        files: &dyn assets::Assets,
-    ) -> Result<SceneCheck, SceneError> {
-        let assembled = assemble_str(text, format, file, limits, shot.into(), files)?;
-        let (width, height) = assembled.film();
-        let read = assembled.files_read().to_vec();
-        Ok(SceneCheck {
-            hash: assets::scene_hash(text, &read),
-            width,
-            height,
-            files: read,
-            bounds: shape_bounds(assembled.prims()),
-        })
-    }
-
     /// Closest hit along `ray` with t in (0, t_max).
     #[inline]
     pub fn intersect(&self, ray: &Ray, t_max: f32) -> Option<Hit> {
@@ -535,7 +358,9 @@ mod tests {
     fn leaves_and_bvh_agree_with_brute_force() {
         for name in ["cornell-box", "spheres", "glass-mirror"] {
             let path = format!("{}/../../scenes/{name}.toml", env!("CARGO_MANIFEST_DIR"));
-            let scene = Scene::load(path.as_ref(), &Limits::default()).expect("scene loads");
+            let scene = Scene::file(path.as_ref(), &Limits::default())
+                .load()
+                .expect("scene loads");
             let mut rng = HashRng::new(5);
             let mut v =
                 |s: f32| Vec3A::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 * s - s;

@@ -38,6 +38,16 @@ pub(super) fn locate(
     path: &KeyPath,
     message: String,
 ) -> SceneError {
+    // Inside a file the scene names: placed at the key that names it, the message saying
+    // where in that file.
+    if let Some((key, name, inner)) = path.split_file() {
+        let message = if inner.0.is_empty() {
+            format!("{name}: {message}")
+        } else {
+            format!("{name}: {inner}: {message}")
+        };
+        return locate(text, format, file, &key, message);
+    }
     let span = match format {
         Format::Toml => locate::toml_span(text, path),
         Format::Json => locate::json_span(text, path),

@@ -19,6 +19,9 @@ pub enum Seg {
     Key(String),
     /// An array index.
     Index(usize),
+    /// Inside the file the path so far names (a glTF file an object reads): what follows is
+    /// a place in that file, not in the scene's text.
+    File(String),
 }
 
 /// A key path into a scene document.
@@ -39,6 +42,29 @@ impl KeyPath {
         v.push(Seg::Index(i));
         Self(v)
     }
+
+    /// The path into the file `file` that this key names: an error found inside that file
+    /// keeps both places, the key in the scene and the file it names.
+    pub fn within(&self, file: &str) -> Self {
+        let mut v = self.0.clone();
+        v.push(Seg::File(file.to_string()));
+        Self(v)
+    }
+
+    /// A path into a file ([`KeyPath::within`]) as its parts: the key in the scene, the file,
+    /// and the place in the file (empty: the file as a whole). `None` for a place in the
+    /// scene's own text.
+    pub fn split_file(&self) -> Option<(KeyPath, &str, KeyPath)> {
+        let i = self.0.iter().position(|s| matches!(s, Seg::File(_)))?;
+        let Seg::File(file) = &self.0[i] else {
+            return None;
+        };
+        Some((
+            KeyPath(self.0[..i].to_vec()),
+            file,
+            KeyPath(self.0[i + 1..].to_vec()),
+        ))
+    }
 }
 
 impl fmt::Display for KeyPath {
@@ -51,6 +77,7 @@ impl fmt::Display for KeyPath {
                 Seg::Key(k) if i == 0 => write!(f, "{k}")?,
                 Seg::Key(k) => write!(f, ".{k}")?,
                 Seg::Index(n) => write!(f, "[{n}]")?,
+                Seg::File(name) => write!(f, " in `{name}`")?,
             }
         }
         Ok(())
@@ -153,4 +180,21 @@ pub fn exactly_three<'de, D: Deserializer<'de>>(d: D) -> Result<[f32; 3], D::Err
 /// [`exactly_three`] for a key that may be left out.
 pub fn maybe_three<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f32; 3]>, D::Error> {
     exactly_three(d).map(Some)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_path_into_a_file_splits_into_the_key_the_file_and_the_place() {
+        let key = root("objects").index(0).key("file");
+        assert_eq!(key.split_file(), None);
+        let inside = key.within("m.gltf").key("materials").index(2);
+        let (k, file, place) = inside.split_file().expect("a file");
+        assert_eq!((k.to_string(), file), ("objects[0].file".into(), "m.gltf"));
+        assert_eq!(place.to_string(), "materials[2]");
+        let whole = key.within("m.gltf").split_file().expect("a file");
+        assert!(whole.2 .0.is_empty());
+    }
 }

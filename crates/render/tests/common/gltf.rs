@@ -98,12 +98,16 @@ pub fn load_file(
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join(name);
     std::fs::write(&path, bytes).expect("write");
-    Scene::load_with(&path, opts, limits, 1).map_err(|e| {
-        let e = e.to_string();
-        e.strip_prefix(&format!("{}/", dir.path().display()))
-            .unwrap_or(&e)
-            .to_string()
-    })
+    Scene::file(&path, limits)
+        .gltf(opts)
+        .at(1)
+        .load()
+        .map_err(|e| {
+            let e = e.to_string();
+            e.strip_prefix(&format!("{}/", dir.path().display()))
+                .unwrap_or(&e)
+                .to_string()
+        })
 }
 
 /// Loads `gltf` as the whole scene of a file named `model.gltf`.

@@ -41,7 +41,9 @@ fn png_8bit(w: u32, h: u32, color: png::ColorType, data: &[u8]) -> Vec<u8> {
 
 pub fn load(name: &str) -> Scene {
     let path = repo_root().join("scenes").join(name);
-    Scene::load(&path, &Limits::default()).unwrap_or_else(|e| panic!("{e}"))
+    Scene::file(&path, &Limits::default())
+        .load()
+        .unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// A scene from text with the files it names held in memory.
@@ -57,19 +59,16 @@ pub fn try_scene_with_files(text: &str, files: &[(&str, &[u8])]) -> Result<Scene
             .map(|(n, b)| (n.to_string(), b.to_vec()))
             .collect(),
     );
-    Scene::from_str_with(
-        text,
-        Format::Toml,
-        "test.toml",
-        &Limits::default(),
-        1,
-        &files,
-    )
-    .map_err(|e| e.to_string())
+    Scene::text(text, Format::Toml, "test.toml", &Limits::default())
+        .at(1)
+        .assets(&files)
+        .load()
+        .map_err(|e| e.to_string())
 }
 
 pub fn scene(text: &str) -> Scene {
-    Scene::from_str(text, Format::Toml, "test.toml", &Limits::default())
+    Scene::text(text, Format::Toml, "test.toml", &Limits::default())
+        .load()
         .unwrap_or_else(|e| panic!("{e}"))
 }
 

@@ -100,7 +100,10 @@ fn scene_files(
         max_asset_bytes: u64::MAX,
         ..Limits::default()
     };
-    let scene = Scene::load_with(&args.scene, gltf, &lifted, shot)?;
+    let scene = Scene::file(&args.scene, &lifted)
+        .gltf(gltf)
+        .at(shot)
+        .load()?;
     for w in &scene.warnings {
         errln!("warning: {w}");
     }

@@ -61,10 +61,19 @@ pub fn json_part(path: &Path, max_bytes: u64) -> Result<Vec<u8>, String> {
 /// does not parse still gets a text: building it reports what is wrong.
 pub fn scene_text(name: &str, bytes: &[u8], opts: &GltfOptions) -> String {
     let doc = super::parse(bytes).ok().map(|(d, _, _)| d);
+    describe(name, doc.as_ref(), opts)
+}
+
+/// [`scene_text`] of the file's parsed document (`None`: it does not parse).
+pub(in crate::scene) fn describe(
+    name: &str,
+    doc: Option<&gltf::Document>,
+    opts: &GltfOptions,
+) -> String {
     let quote = |s: &str| toml::Value::String(s.to_string()).to_string();
     let mut camera_key = String::new();
     let mut aspect = None;
-    if let Some(doc) = &doc {
+    if let Some(doc) = doc {
         let placed: Vec<usize> = doc
             .nodes()
             .filter_map(|n| n.camera().map(|c| c.index()))
@@ -88,16 +97,14 @@ pub fn scene_text(name: &str, bytes: &[u8], opts: &GltfOptions) -> String {
         }
     }
     if let Some(c) = &opts.camera {
-        let by_name = doc
-            .as_ref()
-            .is_some_and(|d| d.cameras().any(|cam| cam.name() == Some(c.as_str())));
+        let by_name = doc.is_some_and(|d| d.cameras().any(|cam| cam.name() == Some(c.as_str())));
         camera_key = match c.parse::<usize>() {
             Ok(i) if !by_name => format!("index = {i}\n"),
             _ => format!("name = {}\n", quote(c)),
         };
     }
     let height = aspect.map_or(720, |a| ((GLTF_WIDTH as f32 / a).round() as u32).max(1));
-    let lit = doc.as_ref().is_some_and(|d| {
+    let lit = doc.is_some_and(|d| {
         d.nodes().any(|n| n.light().is_some())
             || d.materials()
                 .any(|m| m.emissive_factor().iter().any(|&e| e > 0.0))

@@ -12,6 +12,7 @@
 mod camera;
 mod data;
 mod entry;
+mod lights;
 mod material;
 mod tangents;
 
@@ -32,7 +33,10 @@ use crate::mesh::{MeshInstance, TriMesh};
 use crate::shape::Shape;
 
 pub(super) use camera::camera;
+pub(super) use entry::describe;
 pub use entry::{is_gltf, json_part, scene_text, GltfOptions};
+use lights::light_at;
+pub(super) use lights::{lights, GltfLight};
 pub(super) use material::GltfMaterials;
 
 /// The extensions whose data tessera reads, which a file may therefore require.
@@ -48,23 +52,6 @@ const READ: &[&str] = &[
 
 /// Most nodes a file may hold: the node tree is walked once, so this bounds the walk.
 const MAX_NODES: usize = 1 << 20;
-
-/// A punctual light from `KHR_lights_punctual`, placed in the world.
-#[derive(Clone, Debug)]
-pub(super) struct GltfLight {
-    /// Which light of the file, for errors.
-    pub(super) index: usize,
-    /// Point, spot or directional.
-    pub(super) kind: super::LightKind,
-    /// Colour × intensity.
-    pub(super) power: [f32; 3],
-    /// Where it is.
-    pub(super) position: Vec3A,
-    /// Where it shines.
-    pub(super) direction: Vec3A,
-    /// Spot cone half-angles, degrees.
-    pub(super) cone: (f32, f32),
-}
 
 /// A camera the file places, in the world.
 #[derive(Clone, Debug)]
@@ -119,6 +106,41 @@ fn dir_of(name: &str) -> &str {
 
 /// A parsed file: its document, its GLB's BIN chunk, and its warnings.
 pub(crate) type Parsed<'a> = (gltf::Document, Option<&'a [u8]>, Vec<String>);
+
+/// A glTF file already read and parsed, lent to the build that imports it: a glTF file loaded
+/// as a whole scene is read and parsed once, for the scene text it stands for and for its
+/// contents alike.
+pub(crate) struct Lent {
+    /// The file's name, as the scene names it.
+    name: String,
+    doc: gltf::Document,
+    /// A .glb's binary chunk.
+    bin: Option<Vec<u8>>,
+    warnings: Vec<String>,
+}
+
+impl Lent {
+    /// The file `name` whose bytes are `bytes`, parsed; or why it does not parse.
+    pub(crate) fn parse(name: &str, bytes: &[u8]) -> Result<Self, String> {
+        let (doc, bin, warnings) = parse(bytes)?;
+        Ok(Self {
+            name: name.to_string(),
+            doc,
+            bin: bin.map(<[u8]>::to_vec),
+            warnings,
+        })
+    }
+
+    /// Its document.
+    pub(crate) fn doc(&self) -> &gltf::Document {
+        &self.doc
+    }
+
+    /// Whether it is file `name`.
+    pub(in crate::scene) fn is(&self, name: &str) -> bool {
+        self.name == name
+    }
+}
 
 /// A primitive's mesh and whether it shades smooth; `None` for one without triangles.
 type Built = Option<(Arc<TriMesh>, bool)>;
@@ -209,23 +231,30 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<Parsed<'_>, String> {
     ))
 }
 
-/// Reads glTF file `name` (through `files`, so its hash joins the scene's) and everything it
-/// names, placed by `place`. `path` is where the scene names the file, for errors.
+/// Reads glTF file `name` (through `files`, so its hash joins the scene's; parsed already where
+/// `lent`) and everything it names, placed by `place`. `path` is where the scene names the file, for errors.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn import(
     name: &str,
     place: Affine3A,
     overrides: &BTreeMap<String, u32>,
     tables: &mut MaterialTables,
-    files: &mut SceneFiles,
+    (files, lent): (&mut SceneFiles, Option<Lent>),
     limits: &Limits,
     assets: &dyn Assets,
     path: &KeyPath,
 ) -> Result<Imported, Invalid> {
-    let fail = |m: String| (path.clone(), format!("{name}: {m}"));
+    let fail = |m: String| (path.within(name), m);
+    // Read even when lent: the file counts among the scene's files, and its hash in the
+    // scene's.
     let bytes = files.read_file(name, path, limits, assets)?;
-    let (doc, bin, mut warnings) = parse(&bytes).map_err(fail)?;
-    let bin = bin.map(<[u8]>::to_vec);
+    let (doc, bin, mut warnings) = match lent {
+        Some(l) => (l.doc, l.bin, l.warnings),
+        None => {
+            let (doc, bin, warnings) = parse(&bytes).map_err(fail)?;
+            (doc, bin.map(<[u8]>::to_vec), warnings)
+        }
+    };
     drop(bytes);
     // What the node tree places, counted from the JSON before a buffer is read or a shape
     // built: a file of a few kilobytes can place millions.
@@ -234,7 +263,7 @@ pub(super) fn import(
     // The file itself was counted as one of the scene's objects.
     files
         .take_instances(instances.saturating_sub(1), instances, limits, path)
-        .map_err(|(p, m)| (p, format!("{name}: {m}")))?;
+        .map_err(|(p, m)| (p.within(name), m))?;
     files.triangles_fit(declared, limits).map_err(fail)?;
     let dir = dir_of(name);
     let buffers = buffers(&doc, bin, dir, files, limits, assets, path).map_err(fail)?;
@@ -242,9 +271,9 @@ pub(super) fn import(
         if !doc.materials().any(|m| m.name() == Some(o.as_str())) {
             let known: Vec<&str> = doc.materials().filter_map(|m| m.name()).collect();
             return Err((
-                path.clone(),
+                path.within(name),
                 format!(
-                    "{name}: materials_map names `{o}`, which the file has no material of \
+                    "materials_map names `{o}`, which the file has no material of \
                      (it has: {})",
                     if known.is_empty() {
                         "none".into()
@@ -288,7 +317,7 @@ pub(super) fn import(
             }
             let material = mats
                 .index(&prim.material(), tables, files, limits, assets, path)
-                .map_err(|(p, m)| (p, format!("{name}: {m}")))?;
+                .map_err(|(p, m)| (p.within(name), m))?;
             let uv_map = mats.uv_map(&prim.material());
             // Only a normal map reads tangents, so only its meshes carry them.
             let tangents = tables.materials[material as usize]
@@ -300,7 +329,7 @@ pub(super) fn import(
                 let built = triangles(
                     &prim, &buffers, uv_map, tangents, &what, files, limits, path,
                 )
-                .map_err(|(p, m)| (p, format!("{name}: {m}")))?;
+                .map_err(|(p, m)| (p.within(name), m))?;
                 e.insert(built);
             }
             if let Some(Some((mesh, smooth))) = meshes.get(&key) {
@@ -490,32 +519,6 @@ fn camera_at(
             .as_ref()
             .map_or((0.0, 0.0), |o| (o.xmag.abs(), o.ymag.abs())),
     })
-}
-
-/// A light node, in the world.
-fn light_at(light: &gltf::khr_lights_punctual::Light, world: &Affine3A) -> GltfLight {
-    use gltf::khr_lights_punctual::Kind;
-    let (kind, cone) = match light.kind() {
-        Kind::Point => (super::LightKind::Point, (0.0, 0.0)),
-        Kind::Directional => (super::LightKind::Directional, (0.0, 0.0)),
-        Kind::Spot {
-            inner_cone_angle,
-            outer_cone_angle,
-        } => (
-            super::LightKind::Spot,
-            (inner_cone_angle.to_degrees(), outer_cone_angle.to_degrees()),
-        ),
-    };
-    let c = light.color();
-    let i = light.intensity();
-    GltfLight {
-        index: light.index(),
-        kind,
-        power: [c[0] * i, c[1] * i, c[2] * i],
-        position: world.transform_point3a(Vec3A::ZERO),
-        direction: world.transform_vector3a(Vec3A::NEG_Z),
-        cone,
-    }
 }
 
 /// A primitive's per-vertex attribute `semantic` (labelled `label` in errors, its count in

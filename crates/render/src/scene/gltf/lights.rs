@@ -1,0 +1,100 @@
+//! A glTF file's punctual lights (`KHR_lights_punctual`): each light node placed in the world
+//! ([`light_at`]), then validated as the scene's own `[[lights]]` are and added to its lights
+//! ([`lights`]).
+
+use glam::{Affine3A, Vec3A};
+
+use super::super::check::{root, Invalid};
+use super::super::lights::punctual;
+use super::super::{KeyPath, LightDesc, LightKind};
+use crate::light::Light;
+
+/// A punctual light from `KHR_lights_punctual`, placed in the world.
+#[derive(Clone, Debug)]
+pub(in crate::scene) struct GltfLight {
+    /// Which light of the file, for errors.
+    pub(in crate::scene) index: usize,
+    /// Point, spot or directional.
+    pub(in crate::scene) kind: LightKind,
+    /// Colour × intensity.
+    pub(in crate::scene) power: [f32; 3],
+    /// Where it is.
+    pub(in crate::scene) position: Vec3A,
+    /// Where it shines.
+    pub(in crate::scene) direction: Vec3A,
+    /// Spot cone half-angles, degrees.
+    pub(in crate::scene) cone: (f32, f32),
+}
+
+/// A light node, in the world.
+pub(super) fn light_at(light: &gltf::khr_lights_punctual::Light, world: &Affine3A) -> GltfLight {
+    use gltf::khr_lights_punctual::Kind;
+    let (kind, cone) = match light.kind() {
+        Kind::Point => (LightKind::Point, (0.0, 0.0)),
+        Kind::Directional => (LightKind::Directional, (0.0, 0.0)),
+        Kind::Spot {
+            inner_cone_angle,
+            outer_cone_angle,
+        } => (
+            LightKind::Spot,
+            (inner_cone_angle.to_degrees(), outer_cone_angle.to_degrees()),
+        ),
+    };
+    let c = light.color();
+    let i = light.intensity();
+    GltfLight {
+        index: light.index(),
+        kind,
+        power: [c[0] * i, c[1] * i, c[2] * i],
+        position: world.transform_point3a(Vec3A::ZERO),
+        direction: world.transform_vector3a(Vec3A::NEG_Z),
+        cone,
+    }
+}
+
+/// The lights of glTF files (`KHR_lights_punctual`), each placed in the world, with the key
+/// of the object whose file holds it: validated as `[[lights]]` are, and named in errors by
+/// the file and the light's index there. A light of zero intensity is left out, as glTF
+/// allows.
+pub(in crate::scene) fn lights(
+    placed: &[(KeyPath, String, GltfLight)],
+    reach: f32,
+    lights: &mut Vec<Light>,
+) -> Result<(), Invalid> {
+    for (path, file, g) in placed {
+        if g.power.iter().all(|&p| p == 0.0) {
+            continue;
+        }
+        let (d, p) = (Some(g.direction.to_array()), Some(g.position.to_array()));
+        let mut l = LightDesc {
+            kind: g.kind,
+            position: None,
+            direction: None,
+            intensity: Some(g.power),
+            irradiance: None,
+            inner_angle: None,
+            outer_angle: None,
+            angle: None,
+        };
+        match g.kind {
+            LightKind::Point => l.position = p,
+            LightKind::Spot => {
+                (l.position, l.direction) = (p, d);
+                (l.inner_angle, l.outer_angle) = (Some(g.cone.0), Some(g.cone.1));
+            }
+            LightKind::Directional => {
+                (l.direction, l.irradiance, l.intensity) = (d, Some(g.power), None);
+            }
+        }
+        let light = punctual(&l, &root("lights").index(g.index), reach).map_err(|(at, m)| {
+            let at = at.to_string();
+            let key = at.strip_prefix("lights").unwrap_or(&at);
+            (
+                path.within(file),
+                format!("KHR_lights_punctual.lights{key}: {m}"),
+            )
+        })?;
+        lights.push(light);
+    }
+    Ok(())
+}
