@@ -366,7 +366,11 @@ fn bad_files_are_refused_with_one_line_naming_the_place() {
     bad["extensionsRequired"] = json!(["EXT_unheard_of"]);
     bad["extensionsUsed"] = json!(["EXT_unheard_of"]);
     let dir = tempfile::tempdir().expect("tempdir");
-    std::fs::write(dir.path().join("model.gltf"), serde_json::to_vec(&bad).unwrap()).unwrap();
+    std::fs::write(
+        dir.path().join("model.gltf"),
+        serde_json::to_vec(&bad).unwrap(),
+    )
+    .unwrap();
     let scene = "version = 1\n[camera]\nmodel = \"gltf\"\n\n[film]\nwidth = 8\nheight = 8\n\n\
                  [[objects]]\nshape = \"gltf\"\nfile = \"model.gltf\"\n";
     std::fs::write(dir.path().join("s.toml"), scene).unwrap();

@@ -33,6 +33,7 @@ use vertex::{scatter, Vertex};
 
 /// The radiance estimate of one camera sample of pixel (`x`, `y`): the sample `sampler` (made
 /// for that pixel and the job's seed) is at.
+#[inline]
 pub fn sample_pixel(
     scene: &Scene,
     settings: &RenderSettings,

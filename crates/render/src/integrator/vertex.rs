@@ -3,11 +3,14 @@
 //! [`At`]): the scene's textures and tables, next-event estimation through a lobe, the
 //! Lambertian vertex with guiding, and the medium a path is in.
 //!
-//! The material gets a copy of the path to update, taken back even when the path ends there
-//! (its direct light counts): a `&mut` to the loop's own path would make its address escape
-//! into the out-of-line vertices, and keep it in memory rather than in registers for every
-//! other bounce.
+//! A material whose vertex runs inline updates the loop's own path; one whose vertex runs out
+//! of line ([`crate::material::Model::FAR`]) gets a copy, taken back even when the path ends
+//! there (its direct light counts): a `&mut` to the loop's own path passed out of line would
+//! make its address escape, and keep it in memory rather than in registers for every other
+//! bounce. For the same reason [`Here`] holds the vertex by value, built in the branch that
+//! lends it.
 
+use std::borrow::BorrowMut;
 use std::sync::Arc;
 
 use glam::{Vec2, Vec3A};
@@ -25,6 +28,7 @@ use crate::texture::Texture;
 use crate::util::math::Ray;
 
 /// Where a path meets a surface, and how it arrived.
+#[derive(Clone, Copy)]
 pub(super) struct Vertex<'s> {
     pub(super) scene: &'s Scene,
     pub(super) strategy: Strategy,
@@ -52,28 +56,40 @@ pub(super) fn scatter<'a, G: Guiding<'a>>(
     guiding: &mut G,
     depth: u32,
 ) -> Option<Ray> {
-    let mut here = Here {
-        v,
+    let bsdf = v.mat.bsdf;
+    if !bsdf.is_far() {
+        let mut near = Here {
+            v: *v,
+            path,
+            u,
+            guiding,
+            depth,
+        };
+        return bsdf.scatter_if::<_, false>(&mut near).flatten();
+    }
+    let mut far = Here {
+        v: *v,
         path: *path,
         u,
         guiding,
         depth,
     };
-    let next = v.mat.bsdf.scatter(&mut here);
-    *path = here.path;
+    let next = bsdf.scatter_if::<_, true>(&mut far).flatten();
+    *path = far.path;
     next
 }
 
-/// A vertex as a material sees it: the path tracer's side of [`At`].
-struct Here<'v, 's, 'g, G> {
-    v: &'v Vertex<'s>,
-    path: Path,
+/// A vertex as a material sees it: the path tracer's side of [`At`]. `H` holds the path: the
+/// loop's own (`&mut Path`), or a copy (`Path`).
+struct Here<'s, 'g, G, H> {
+    v: Vertex<'s>,
+    path: H,
     u: Numbers,
     guiding: &'g mut G,
     depth: u32,
 }
 
-impl<'s, G> Surface<'s> for Here<'_, 's, '_, G> {
+impl<'s, G, H> Surface<'s> for Here<'s, '_, G, H> {
     #[inline(always)]
     fn ray(&self) -> &Ray {
         self.v.ray
@@ -112,33 +128,27 @@ impl<'s, G> Surface<'s> for Here<'_, 's, '_, G> {
     }
 }
 
-impl<'a, 's, G: Guiding<'a>> At<'s> for Here<'_, 's, '_, G> {
+impl<'a, 's, G: Guiding<'a>, H: BorrowMut<Path>> At<'s> for Here<'s, '_, G, H> {
     #[inline(always)]
     fn numbers(&self) -> Numbers {
         self.u
     }
     #[inline(always)]
     fn path(&mut self) -> &mut Path {
-        &mut self.path
+        self.path.borrow_mut()
     }
     #[inline(always)]
     fn diffuse(&mut self, albedo: Vec3A) -> Option<Ray> {
         let (v, u) = (self.v, self.u);
+        let path = self.path.borrow_mut();
         match self.guiding.path() {
             None => diffuse(
-                v.scene,
-                v.strategy,
-                &mut self.path,
-                albedo,
-                v.sp,
-                v.at,
-                u.bsdf,
-                u.light,
+                v.scene, v.strategy, path, albedo, v.sp, v.at, u.bsdf, u.light,
             ),
             Some(g) => guided_vertex::diffuse(
                 v.scene,
                 v.strategy,
-                &mut self.path,
+                path,
                 albedo,
                 v.sp,
                 v.at,
@@ -163,7 +173,7 @@ impl<'a, 's, G: Guiding<'a>> At<'s> for Here<'_, 's, '_, G> {
         reflected_light(
             v.scene,
             v.strategy,
-            &mut self.path,
+            self.path.borrow_mut(),
             v.sp,
             at,
             p_out,
@@ -178,13 +188,14 @@ impl<'a, 's, G: Guiding<'a>> At<'s> for Here<'_, 's, '_, G> {
         P: Fn(Vec3A) -> f32,
     {
         let v = self.v;
-        two_sided_light(v.scene, v.strategy, &mut self.path, v.sp, at, u, lobe);
+        let path = self.path.borrow_mut();
+        two_sided_light(v.scene, v.strategy, path, v.sp, at, u, lobe);
     }
     #[inline(always)]
     fn went_through(&mut self) {
         let v = self.v;
         if v.absorbing {
-            self.path.medium = if v.front {
+            self.path.borrow_mut().medium = if v.front {
                 v.scene.absorption(v.prim.material)
             } else {
                 Vec3A::ZERO

@@ -14,6 +14,7 @@ use crate::util::fields::{color, finite3, required, Invalid};
 use crate::util::math::{offset_ray_origin, Frame, Ray};
 
 impl Model for Metal {
+    const FAR: bool = true;
     fn samples_lights(&self) -> bool {
         !self.is_smooth()
     }

@@ -38,6 +38,11 @@ use port::{At, Reading, Seen, Surface};
 /// dispatched by [`Bsdf`]; generic over the ports, so each call inlines into its caller as the
 /// hand-written arms did.
 pub(crate) trait Model {
+    /// Whether its vertex runs out of line (`#[inline(never)]`, so that the loop other
+    /// materials run stays as small as it was): the tracer then lends it a copy of the path,
+    /// taken back after, since a reference to the loop's own path passed out of line would
+    /// keep that path in memory rather than in registers for every bounce.
+    const FAR: bool = false;
     /// Whether a vertex on it samples lights (next-event estimation): false for a delta BSDF
     /// (a mirror, smooth glass, a smooth metal), which no light sample can reach.
     fn samples_lights(&self) -> bool;
@@ -105,10 +110,27 @@ macro_rules! registry {
             pub fn needs_tangents(&self, tables: &Tables) -> bool {
                 match self { $(Bsdf::$variant(m) => m.needs_tangents(tables),)* }
             }
-            /// [`Model::scatter`].
+            /// [`Model::scatter`] for a kind whose [`Model::FAR`] is `FAR`; `None` (and no code)
+            /// for the others.
             #[inline(always)]
-            pub(crate) fn scatter<'s, A: At<'s>>(&self, v: &mut A) -> Option<Ray> {
-                match self { $(Bsdf::$variant(m) => m.scatter(v),)* }
+            pub(crate) fn scatter_if<'s, A: At<'s>, const FAR: bool>(
+                &self,
+                v: &mut A,
+            ) -> Option<Option<Ray>> {
+                match self {
+                    $(Bsdf::$variant(m) => {
+                        if <$kind as Model>::FAR == FAR {
+                            Some(m.scatter(v))
+                        } else {
+                            None
+                        }
+                    })*
+                }
+            }
+            /// Whether its vertex runs out of line ([`Model::FAR`]).
+            #[inline(always)]
+            pub(crate) fn is_far(&self) -> bool {
+                match self { $(Bsdf::$variant(_) => <$kind as Model>::FAR,)* }
             }
             /// [`Model::first_hit`].
             pub(crate) fn first_hit<'s, S: Surface<'s>>(&self, s: &S, u_choice: f32) -> Seen {

@@ -28,6 +28,7 @@ impl PbrRef {
 }
 
 impl Model for PbrRef {
+    const FAR: bool = true;
     fn samples_lights(&self) -> bool {
         true
     }

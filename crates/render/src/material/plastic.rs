@@ -20,6 +20,7 @@ impl PlasticRef {
 }
 
 impl Model for PlasticRef {
+    const FAR: bool = true;
     fn samples_lights(&self) -> bool {
         true
     }

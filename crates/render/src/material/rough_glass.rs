@@ -15,6 +15,7 @@ pub(crate) fn new(rd: RoughDielectric) -> Bsdf {
 }
 
 impl Model for RoughDielectric {
+    const FAR: bool = true;
     fn samples_lights(&self) -> bool {
         true
     }
