@@ -248,12 +248,14 @@ pub(super) fn import(
     // Read even when lent: the file counts among the scene's files, and its hash in the
     // scene's.
     let bytes = files.read_file(name, path, limits, assets)?;
-    let (doc, bin, mut warnings) = match lent {
-        Some(l) => (l.doc, l.bin, l.warnings),
-        None => {
-            let (doc, bin, warnings) = parse(&bytes).map_err(fail)?;
-            (doc, bin.map(<[u8]>::to_vec), warnings)
-        }
+    let Lent {
+        doc,
+        bin,
+        mut warnings,
+        ..
+    } = match lent {
+        Some(l) => l,
+        None => Lent::parse(name, &bytes).map_err(fail)?,
     };
     drop(bytes);
     // What the node tree places, counted from the JSON before a buffer is read or a shape
@@ -267,23 +269,7 @@ pub(super) fn import(
     files.triangles_fit(declared, limits).map_err(fail)?;
     let dir = dir_of(name);
     let buffers = buffers(&doc, bin, dir, files, limits, assets, path).map_err(fail)?;
-    for o in overrides.keys() {
-        if !doc.materials().any(|m| m.name() == Some(o.as_str())) {
-            let known: Vec<&str> = doc.materials().filter_map(|m| m.name()).collect();
-            return Err((
-                path.within(name),
-                format!(
-                    "materials_map names `{o}`, which the file has no material of \
-                     (it has: {})",
-                    if known.is_empty() {
-                        "none".into()
-                    } else {
-                        known.join(", ")
-                    }
-                ),
-            ));
-        }
-    }
+    check_overrides(&doc, overrides, name, path)?;
     let mut mats = GltfMaterials::new(name, dir, doc.as_json(), &buffers, overrides);
     let mut meshes: BTreeMap<(usize, usize), Built> = BTreeMap::new();
     let mut out = Imported {
@@ -358,6 +344,34 @@ pub(super) fn import(
         .map(|w| format!("{name}: {w}"))
         .collect();
     Ok(out)
+}
+
+/// Refuses a `materials_map` that names a material file `name` does not have, listing those
+/// it has.
+fn check_overrides(
+    doc: &gltf::Document,
+    overrides: &BTreeMap<String, u32>,
+    name: &str,
+    path: &KeyPath,
+) -> Result<(), Invalid> {
+    for o in overrides.keys() {
+        if !doc.materials().any(|m| m.name() == Some(o.as_str())) {
+            let known: Vec<&str> = doc.materials().filter_map(|m| m.name()).collect();
+            return Err((
+                path.within(name),
+                format!(
+                    "materials_map names `{o}`, which the file has no material of \
+                     (it has: {})",
+                    if known.is_empty() {
+                        "none".into()
+                    } else {
+                        known.join(", ")
+                    }
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// What the `placed` nodes ([`walk`]'s) place, from the JSON alone: (shapes, triangles).
