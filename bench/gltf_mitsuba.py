@@ -13,8 +13,9 @@ and refuses the rest by name:
 - transmission with a volume as `dielectric` or `roughdielectric` (alpha = roughness²) with a
   purely absorbing `homogeneous` interior (sigma_t = -ln(attenuationColor) /
   attenuationDistance), which needs Mitsuba's `volpath` integrator;
-- KHR_lights_punctual point and directional lights (colour x intensity, as tessera takes
-  them), and a perspective camera (yfov about the vertical axis).
+- KHR_lights_punctual point and directional lights (colour x intensity / 683: candela and lux
+  to W/sr and W/m², as tessera and Blender convert them), and a perspective camera (yfov
+  about the vertical axis).
 
 Texture coordinates are passed as glTF gives them: Mitsuba's bitmaps, like glTF, put v = 0
 on the image's top row.
@@ -230,7 +231,9 @@ def convert(mi, path, out_dir, overrides=None):
         light = n.get("extensions", {}).get("KHR_lights_punctual")
         if light is not None:
             l = lights[light["light"]]
-            power = [c * l.get("intensity", 1.0) for c in l.get("color", [1, 1, 1])]
+            # glTF's candela (point) and lux (directional) to W/sr and W/m², with 683 lm/W
+            # as Blender and tessera convert.
+            power = [c * (l.get("intensity", 1.0) / 683.0) for c in l.get("color", [1, 1, 1])]
             if l["type"] == "point":
                 entries[f"light{k}"] = {"type": "point", "position": world[:3, 3].tolist(),
                                         "intensity": {"type": "rgb", "value": power}}

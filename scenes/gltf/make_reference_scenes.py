@@ -60,7 +60,9 @@ def common(g, materials):
         "cameras": [{"name": "main", "type": "perspective",
                      "perspective": {"yfov": math.radians(40), "aspectRatio": 1.0, "znear": 0.1}}],
         "extensions": {"KHR_lights_punctual": {"lights": [
-            {"name": "lamp", "type": "point", "color": [1.0, 0.9, 0.8], "intensity": 4.0}]}},
+            {"name": "lamp", "type": "point", "color": [1.0, 0.9, 0.8],
+             # 4 W/sr in candela (683 lm/W).
+             "intensity": 4.0 * 683}]}},
     }
 
 

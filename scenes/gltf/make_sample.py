@@ -98,8 +98,9 @@ doc = {
     "cameras": [{"name": "main", "type": "perspective",
                  "perspective": {"yfov": 0.6, "aspectRatio": 16 / 9, "znear": 0.1}}],
     "extensions": {"KHR_lights_punctual": {"lights": [
-        {"type": "directional", "color": [1.0, 0.95, 0.85], "intensity": 2.5},
-        {"type": "point", "color": [1.0, 0.9, 0.8], "intensity": 12.0},
+        # 2.5 W/m² in lux and 12 W/sr in candela (683 lm/W).
+        {"type": "directional", "color": [1.0, 0.95, 0.85], "intensity": 2.5 * 683},
+        {"type": "point", "color": [1.0, 0.9, 0.8], "intensity": 12.0 * 683},
     ]}},
 }
 del doc["samplers"]

@@ -542,7 +542,7 @@ fn cameras_are_picked_by_name_or_index_and_framed_without_one() {
 }
 
 #[test]
-fn an_unlit_file_gets_a_white_sky_and_a_lit_one_its_own_light() {
+fn an_unlit_file_gets_a_white_sky_and_a_lit_one_its_own_light_in_photometric_units() {
     let plain = triangle_doc(&QUAD, &[0, 1, 2], json!({}));
     let s = load(&plain, &GltfOptions::default()).expect("ok");
     assert!(s.environment.is_some() && s.lights.lights.is_empty());
@@ -555,7 +555,8 @@ fn an_unlit_file_gets_a_white_sky_and_a_lit_one_its_own_light() {
             "nodes": [{"mesh": 0}, {"extensions": {"KHR_lights_punctual": {"light": 0}},
                                     "translation": [0, 0, 2], "rotation": [std::f32::consts::FRAC_1_SQRT_2, 0, 0, std::f32::consts::FRAC_1_SQRT_2]}],
             "extensions": {"KHR_lights_punctual": {"lights": [
-                {"type": "spot", "intensity": 3, "color": [1, 0.5, 0.25],
+                // 3 W/sr in candela (683 lm/W, as Blender converts).
+                {"type": "spot", "intensity": 3 * 683, "color": [1, 0.5, 0.25],
                  "spot": {"innerConeAngle": 0.2, "outerConeAngle": 0.4}}]}},
         }),
     );
@@ -571,6 +572,12 @@ fn an_unlit_file_gets_a_white_sky_and_a_lit_one_its_own_light() {
         }
         _ => panic!("a spot"),
     }
+    // Lux, as Blender writes a sun: 683 lux is 1 W/m².
+    let mut sun = lit.clone();
+    sun["extensions"]["KHR_lights_punctual"]["lights"][0] =
+        json!({"type": "directional", "intensity": 2 * 683, "color": [1, 0.5, 0.25]});
+    let s = load(&sun, &GltfOptions::default()).expect("ok");
+    assert_eq!(s.lights.lights[0].radiance, Vec3A::new(2.0, 1.0, 0.5));
     // A cone whose outer angle is not past its inner one is refused, naming the light.
     let mut bad = lit.clone();
     bad["extensions"]["KHR_lights_punctual"]["lights"][0]["spot"]["outerConeAngle"] = json!(0.1);

@@ -9,6 +9,14 @@ use super::super::lights::punctual;
 use super::super::{KeyPath, LightDesc, LightKind};
 use crate::light::Light;
 
+/// Lumens per watt: glTF gives a punctual light's intensity in photometric units (candela for
+/// point and spot lights, lux for directional ones), tessera in radiometric ones (W/sr, W/m²).
+/// Blender's glTF importer and exporter convert with 683 lm/W, the luminous efficacy of light
+/// at 555 nm, and so does tessera: a Blender point light of P watts is exported as P/(4π)·683
+/// cd and read back as P/(4π) W/sr, the intensity of an isotropic source of P W; a sun of
+/// E W/m² is exported as E·683 lux and read back as E W/m².
+pub(in crate::scene) const LUMENS_PER_WATT: f32 = 683.0;
+
 /// A punctual light from `KHR_lights_punctual`, placed in the world.
 #[derive(Clone, Debug)]
 pub(in crate::scene) struct GltfLight {
@@ -16,7 +24,7 @@ pub(in crate::scene) struct GltfLight {
     pub(in crate::scene) index: usize,
     /// Point, spot or directional.
     pub(in crate::scene) kind: LightKind,
-    /// Colour × intensity.
+    /// Colour × intensity, in W/sr (point, spot) or W/m² (directional).
     pub(in crate::scene) power: [f32; 3],
     /// Where it is.
     pub(in crate::scene) position: Vec3A,
@@ -41,7 +49,9 @@ pub(super) fn light_at(light: &gltf::khr_lights_punctual::Light, world: &Affine3
         ),
     };
     let c = light.color();
-    let i = light.intensity();
+    // Candela (point, spot) or lux (directional) to W/sr or W/m², before the colour: an
+    // intensity given as a whole multiple of 683 then gives the radiometric value exactly.
+    let i = light.intensity() / LUMENS_PER_WATT;
     GltfLight {
         index: light.index(),
         kind,
