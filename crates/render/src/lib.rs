@@ -14,14 +14,17 @@
 //! workspace's layout test checks that there is no import cycle):
 //! - [`util`]: [`math`] (vectors, rays, rounding-error bounds), [`lanes`] (f32 SIMD lanes of any
 //!   width), [`sampling`] (sample generation and warps), [`files`] (durable file writes, never
-//!   through a link).
+//!   through a link), `fields` (a scene file's key paths and value checks).
 //! - [`settings`] (what decides a render's bits besides the scene), [`accel`] (BVHs, apart from
 //!   what they hold), [`interaction`] (hits and surface points), [`packet`] (rays in SIMD
 //!   lanes).
 //! - Geometry: [`mesh`] and [`shape`]; [`primitive`] (a shape with its material and lights);
 //!   [`aggregate`] (the scene's ray queries: a BVH whose leaves test quads four at a time).
-//! - Appearance and light: [`texture`], [`bsdf`], [`envmap`], [`light`], [`camera`].
-//! - [`scene`] (file format, parsing, validation, the runtime scene).
+//! - Appearance and light: [`texture`], [`bsdf`] (the materials' arithmetic), [`material`]
+//!   (each material in one module behind one interface, which the tracers, the AOV pass and
+//!   the scene readers go through), [`envmap`], [`light`], [`camera`].
+//! - [`scene`] (file format, parsing, validation, the runtime scene; loaded by
+//!   `Scene::file(path, &limits).load()` or `Scene::text(…)`).
 //! - Rendering: [`integrator`], [`aov`] (auxiliary images for denoising), [`wide`] (the integrator four to sixteen paths at a time, for
 //!   the scenes whose bounce it models, with the same bits), [`adaptive`] (noise-targeted
 //!   sampling), [`film`] (partial sums and images), [`tile`] (the render driver) and

@@ -120,7 +120,7 @@ pub struct Conductor {
     pub fresnel: Fresnel,
 }
 
-/// A metal as a material stores it: 28 bytes of f32s, so that [`super::Bsdf`] stays the 32
+/// A metal as a material stores it: 28 bytes of f32s, so that [`crate::material::Bsdf`] stays the 32
 /// bytes it was before metals (a larger enum made every material larger and measurably slowed
 /// the scenes that have none). [`Metal::conductor`] unpacks it at the vertex.
 #[derive(Clone, Copy, Debug, PartialEq)]

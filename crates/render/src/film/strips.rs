@@ -201,7 +201,7 @@ fn grow(image: &mut Image, rows: u32) {
 /// The finished image of a render with `settings` from its tiles, in row-major order: the
 /// same pixels as [`crate::assemble_render`]'s frame finalized, with the same checks of each
 /// tile, built from [`Strips`] without a frame of sums beside the tiles. Writing a large frame
-/// takes the strips themselves ([`crate::output::write_exr_strips`]) and never holds the image.
+/// takes the strips themselves ([`crate::output::write_new_exr_strips`]) and never holds the image.
 pub fn assemble_image(
     settings: &crate::RenderSettings,
     width: u32,

@@ -1,5 +1,5 @@
 //! A material as the scene file writes it (`[materials.NAME]`): one flat table whose `type`
-//! picks the kind and whose other keys each kind takes or refuses ([`super::Model`]'s
+//! picks the kind and whose other keys each kind takes or refuses (`Model`'s
 //! readers say which). Kept apart from the runtime materials it is read into.
 
 use serde::de::Error as _;

@@ -128,7 +128,7 @@ pub(crate) enum Seen {
     Nothing,
 }
 
-/// The materials too large to keep in every [`super::Material`] (a plastic's tables, a glTF
+/// The materials too large to keep in every [`crate::scene::Material`] (a plastic's tables, a glTF
 /// material's textures), which the small ones name by index.
 #[derive(Clone, Debug, Default)]
 pub struct Tables {

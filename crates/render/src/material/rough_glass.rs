@@ -1,6 +1,6 @@
 //! Rough glass: GGX microfacets over a dielectric interface, reflecting and transmitting
 //! ([`RoughDielectric`] holds its arithmetic). Read as a `dielectric` with a roughness
-//! ([`super::glass::read`]).
+//! (`glass::read`).
 
 use glam::{Vec2, Vec3A};
 

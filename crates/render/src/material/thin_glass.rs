@@ -1,6 +1,6 @@
 //! A thin sheet of smooth glass (a window pane): both faces at once, so light reflects with
 //! the sheet's total reflectance R' or passes straight on, unbent. Read as a `dielectric`
-//! with `thin = true` ([`super::glass::read`]).
+//! with `thin = true` (`glass::read`).
 
 use super::port::{At, Seen, Surface};
 use super::Model;
