@@ -411,3 +411,63 @@ fn normal_maps_read_in_the_files_tangents_or_mikktspaces_and_mirroring_keeps_the
     let e = load(&short, &GltfOptions::default()).expect_err("refused");
     assert!(e.contains("TANGENT: 3 for 4 positions"), "{e}");
 }
+
+/// `KHR_materials_specular` as Blender writes it (`specularFactor` = 2 × Specular IOR Level):
+/// a factor of 0 is no specular layer, so a white dielectric base keeps all of the light head-on
+/// (Blender's diffuse walls); 0.5 halves the layer's F0, between that and no extension at all.
+#[test]
+fn the_specular_factor_scales_the_dielectric_layer_as_blender_writes_it() {
+    use tessera_render::bsdf::PbrBsdf;
+    use tessera_render::material::pbr::PbrRef;
+    use tessera_render::material::Bsdf;
+    let albedo_head_on = |specular: Option<f32>| {
+        let mut material =
+            json!({"pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 0.5}});
+        if let Some(s) = specular {
+            material["extensions"] = json!({"KHR_materials_specular": {"specularFactor": s}});
+        }
+        let gltf = triangle_doc(
+            &QUAD,
+            &[0, 1, 2],
+            json!({
+                "extensionsUsed": ["KHR_materials_specular"],
+                "materials": [material],
+                "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]}],
+            }),
+        );
+        let s = load(&gltf, &GltfOptions::default()).expect("loads");
+        assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+        let i = s
+            .materials
+            .iter()
+            .find_map(|m| match m.bsdf {
+                Bsdf::Pbr(PbrRef(i)) => Some(i),
+                _ => None,
+            })
+            .expect("a pbr material");
+        let m = s.tables().pbr(i);
+        let b = PbrBsdf::new(m.params(&s.textures, glam::Vec2::ZERO), &m.coat);
+        let n = 64;
+        let mut sum = 0.0f64;
+        for k in 0..n * n {
+            let u = glam::Vec2::new(
+                ((k % n) as f32 + 0.5) / n as f32,
+                ((k / n) as f32 + 0.5) / n as f32,
+            );
+            if let Some(x) = b.sample(Vec3A::Z, u, ((k * 7919) % (n * n)) as f32 / (n * n) as f32) {
+                sum += f64::from(x.weight.x);
+            }
+        }
+        sum / (n * n) as f64
+    };
+    let none = albedo_head_on(Some(0.0));
+    let half = albedo_head_on(Some(0.5));
+    let full = albedo_head_on(None);
+    eprintln!(
+        "white base, roughness 0.5, head-on albedo: factor 0 {none}, 0.5 {half}, none {full}"
+    );
+    assert!((none - 1.0).abs() < 1e-3, "no specular layer: {none}");
+    assert!(full < half && half < none, "{full} < {half} < {none}");
+    // A factor of 1 is the extension's default: the index itself.
+    assert_eq!(albedo_head_on(Some(1.0)), full);
+}

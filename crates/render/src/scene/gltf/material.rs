@@ -248,7 +248,7 @@ impl<'d> GltfMaterials<'d> {
             roughness: param(roughness, mr, 1),
             transmission: param(factor, tx, 0),
             normal_map,
-            coat: CoatTable::shared(ior),
+            coat: CoatTable::shared(self.specular_ior(m, ior)),
         };
         let runtime = Material {
             bsdf: Bsdf::Pbr(PbrRef(u32::MAX)),
@@ -256,6 +256,32 @@ impl<'d> GltfMaterials<'d> {
             two_sided: m.double_sided(),
         };
         Ok((runtime, Vec3A::ZERO, Some(material)))
+    }
+
+    /// The index of the dielectric layer's reflection under `KHR_materials_specular`, for a
+    /// material of index `ior`. The extension's factor s scales the layer's reflectance at
+    /// normal incidence, F0 = ((η − 1)/(η + 1))². Blender writes it from its Principled BSDF
+    /// (s = 2 × Specular IOR Level), and Cycles keeps the Fresnel curve's shape by the index
+    /// that gives the scaled F0; so does tessera: η' = (1 + √(s F0)) / (1 − √(s F0)). A
+    /// factor of 0 (Blender's Specular IOR Level 0, a diffuse wall) is no specular layer at
+    /// all, η' = 1; a factor of 1 is the index itself, bit for bit. Its colour and textures are
+    /// not read (said once).
+    fn specular_ior(&mut self, m: &gltf::Material, ior: f32) -> f32 {
+        let Some(spec) = m.specular() else {
+            return ior;
+        };
+        if spec.specular_texture().is_some() || spec.specular_color_texture().is_some() {
+            self.warn("reads KHR_materials_specular's factors, not its textures");
+        }
+        if spec.specular_color_factor() != [1.0; 3] {
+            self.warn("does not tint the specular layer by KHR_materials_specular's colour");
+        }
+        let s = spec.specular_factor();
+        if s == 1.0 || !s.is_finite() {
+            return ior;
+        }
+        let root = (((ior - 1.0) / (ior + 1.0)).powi(2) * s.clamp(0.0, 1.0)).sqrt();
+        (1.0 + root) / (1.0 - root)
     }
 
     /// A material's index of refraction (`KHR_materials_ior`), 1.5 when it gives none or one

@@ -44,6 +44,7 @@ const READ: &[&str] = &[
     "KHR_lights_punctual",
     "KHR_materials_emissive_strength",
     "KHR_materials_ior",
+    "KHR_materials_specular",
     "KHR_materials_transmission",
     "KHR_materials_volume",
     "KHR_mesh_quantization",
