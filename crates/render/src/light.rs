@@ -37,18 +37,17 @@ pub enum LightShape {
         /// Where it is.
         position: Vec3A,
     },
-    /// A spot light: a point light whose intensity falls from full inside the inner cone to
-    /// zero at the outer one, as glTF's KHR_lights_punctual defines (the square of a linear
-    /// ramp in the cosine).
+    /// A spot light: a point light whose intensity falls to zero at its outer cone, as
+    /// `falloff` says.
     Spot {
         /// Where it is.
         position: Vec3A,
         /// Unit direction it shines along.
         axis: Vec3A,
-        /// cos of the inner cone's half-angle.
-        cos_inner: f32,
         /// cos of the outer cone's half-angle.
         cos_outer: f32,
+        /// How the intensity falls off towards the outer cone.
+        falloff: Falloff,
     },
     /// Parallel light of irradiance [`Light::radiance`] (on a surface facing it) from
     /// infinitely far away.
@@ -242,10 +241,8 @@ impl Light {
             // its falloff), or irradiance times the scene's cross-section.
             LightShape::Point { .. } => return 4.0 * PI * sum,
             LightShape::Spot {
-                cos_inner,
-                cos_outer,
-                ..
-            } => return 2.0 * PI * (1.0 - 0.5 * (cos_inner + cos_outer)) * sum,
+                cos_outer, falloff, ..
+            } => return 2.0 * PI * (1.0 - falloff.cos_middle(*cos_outer)) * sum,
             LightShape::Directional { reach, .. } => return PI * reach * reach * sum,
             // Its irradiance on a surface facing it, L·π·sin²θ, through the cross-section.
             LightShape::Sun {
@@ -318,15 +315,15 @@ impl Light {
             LightShape::Spot {
                 position,
                 axis,
-                cos_inner,
                 cos_outer,
+                falloff,
             } => {
                 let (wi, d2) = dir_and_dist2(p, position)?;
-                let ramp = ((axis.dot(-wi) - cos_outer) / (cos_inner - cos_outer)).clamp(0.0, 1.0);
-                if ramp == 0.0 {
+                let f = falloff.at(axis.dot(-wi), cos_outer);
+                if f == 0.0 {
                     return None;
                 }
-                Some((position, wi, self.radiance * (ramp * ramp / d2)))
+                Some((position, wi, self.radiance * (f / d2)))
             }
             LightShape::Directional { towards, reach } => {
                 // Past the sphere of the scene's finite objects, wherever `p` is in it.
@@ -674,9 +671,83 @@ impl Lights {
     }
 }
 
+/// How a spot light's intensity falls off towards its outer cone, as a function of the cosine
+/// c of the angle off its axis.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Falloff {
+    /// glTF's `KHR_lights_punctual` (and a scene file's `inner_angle`): full inside the inner
+    /// cone, then the square of a linear ramp in c to zero at the outer one.
+    Gltf {
+        /// cos of the inner cone's half-angle.
+        cos_inner: f32,
+    },
+    /// Blender's spot blend, as Cycles renders it: t = (c − cos_outer) / w, clamped to [0, 1],
+    /// smoothed to t²(3 − 2t), over a width w = (1 − cos_outer) × blend; a blend of 0 is a hard
+    /// edge.
+    Blend {
+        /// w, in the cosine.
+        width: f32,
+    },
+}
+
+impl Falloff {
+    /// The factor at cosine `c` off the axis, for an outer cone of cosine `cos_outer`.
+    #[inline]
+    pub fn at(self, c: f32, cos_outer: f32) -> f32 {
+        match self {
+            Falloff::Gltf { cos_inner } => {
+                let ramp = ((c - cos_outer) / (cos_inner - cos_outer)).clamp(0.0, 1.0);
+                ramp * ramp
+            }
+            Falloff::Blend { width } => {
+                if !(c > cos_outer) {
+                    return 0.0;
+                }
+                let t = if width > 0.0 {
+                    ((c - cos_outer) / width).min(1.0)
+                } else {
+                    1.0
+                };
+                t * t * (3.0 - 2.0 * t)
+            }
+        }
+    }
+
+    /// The cosine halfway through the falloff, whose cone stands for the spot's in the
+    /// estimate of its power.
+    fn cos_middle(self, cos_outer: f32) -> f32 {
+        match self {
+            Falloff::Gltf { cos_inner } => 0.5 * (cos_inner + cos_outer),
+            Falloff::Blend { width } => cos_outer + 0.5 * width,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_spots_falloffs_are_gltfs_ramp_and_blenders_smoothstep() {
+        let cos_outer = 0.5;
+        let gltf = Falloff::Gltf { cos_inner: 0.9 };
+        assert_eq!(gltf.at(0.95, cos_outer), 1.0);
+        assert_eq!(
+            gltf.at(0.7, cos_outer),
+            0.25,
+            "the square of the ramp's 0.5"
+        );
+        assert_eq!(gltf.at(0.5, cos_outer), 0.0);
+        // Blender's blend: a smoothstep over (1 − c₀) × blend from the outer cone.
+        let soft = Falloff::Blend { width: 0.2 };
+        assert_eq!(soft.at(0.5, cos_outer), 0.0);
+        assert!((soft.at(0.6, cos_outer) - 0.5).abs() < 1e-6, "the smoothstep's middle");
+        assert_eq!(soft.at(0.75, cos_outer), 1.0);
+        // A blend of 0 is a hard edge: full just inside, nothing on it.
+        let hard = Falloff::Blend { width: 0.0 };
+        assert_eq!(hard.at(0.5001, cos_outer), 1.0);
+        assert_eq!(hard.at(0.5, cos_outer), 0.0);
+    }
 
     /// The two-compare form means exactly "positive and finite", subnormals and the largest
     /// float included.

@@ -229,6 +229,10 @@ pub struct LightDesc {
     pub inner_angle: Option<f32>,
     /// Half-angle where the intensity reaches zero, degrees (spot; default 45).
     pub outer_angle: Option<f32>,
+    /// Blender's spot blend in [0, 1] (spot, in place of `inner_angle`): the intensity rises
+    /// from the outer cone by a smoothstep over that fraction of 1 − cos(outer_angle), as Cycles
+    /// renders it; 0 is a hard edge.
+    pub blend: Option<f32>,
     /// Angular diameter, degrees (directional: a sun's disk; default 0, parallel light).
     pub angle: Option<f32>,
 }

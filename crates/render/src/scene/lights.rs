@@ -13,7 +13,7 @@ use super::{
     Environment, EnvironmentKind, KeyPath, LightDesc, LightKind, Limits, Primitive, SceneFile,
 };
 use crate::envmap::EnvMap;
-use crate::light::{Light, LightShape};
+use crate::light::{Falloff, Light, LightShape};
 use crate::texture::{self, ImageFormat};
 
 /// The radius of a sphere about the origin holding every finite object: what a light from
@@ -98,14 +98,15 @@ pub(super) fn punctual(l: &LightDesc, lp: &KeyPath, reach: f32) -> Result<Light,
                         "intensity",
                         "inner_angle",
                         "outer_angle",
+                        "blend",
                     ],
                 )?;
-                let (cos_inner, cos_outer) = spot_cones(l, &lp)?;
+                let (cos_outer, falloff) = spot_cones(l, &lp)?;
                 let shape = LightShape::Spot {
                     position: position(kind)?,
                     axis: direction(kind)?,
-                    cos_inner,
                     cos_outer,
+                    falloff,
                 };
                 (shape, power(l.intensity, kind, "intensity")?)
             }
@@ -126,11 +127,34 @@ pub(super) fn punctual(l: &LightDesc, lp: &KeyPath, reach: f32) -> Result<Light,
     }
 }
 
-/// A spot light's cones, as the cosines of their half-angles: `inner_angle` (0 unless given)
-/// from 0 to under 90 degrees, `outer_angle` (45 unless given) above it and at most 90.
-fn spot_cones(l: &LightDesc, lp: &KeyPath) -> Result<(f32, f32), Invalid> {
-    let inner = l.inner_angle.unwrap_or(0.0);
+/// A spot light's outer cone, as the cosine of its half-angle, and its falloff: `outer_angle`
+/// (45 unless given) at most 90 degrees, and either `blend` in [0, 1] or `inner_angle` (0
+/// unless given) from 0 to under `outer_angle`.
+fn spot_cones(l: &LightDesc, lp: &KeyPath) -> Result<(f32, Falloff), Invalid> {
+    // In f64, rounded once, as for rotations: every worker gets the same bits.
+    let cos = |deg: f32| f64::from(deg).to_radians().cos() as f32;
     let outer = l.outer_angle.unwrap_or(45.0);
+    if let Some(blend) = l.blend {
+        if l.inner_angle.is_some() {
+            return Err((
+                lp.key("blend"),
+                "give `blend` or `inner_angle`, not both".into(),
+            ));
+        }
+        if !(0.0..=1.0).contains(&blend) {
+            return Err((lp.key("blend"), format!("must be from 0 to 1, got {blend}")));
+        }
+        if !(outer > 0.0 && outer <= 90.0) {
+            return Err((
+                lp.key("outer_angle"),
+                format!("must be above 0 and at most 90 degrees, got {outer}"),
+            ));
+        }
+        let cos_outer = cos(outer);
+        let width = (1.0 - cos_outer) * blend;
+        return Ok((cos_outer, Falloff::Blend { width }));
+    }
+    let inner = l.inner_angle.unwrap_or(0.0);
     if !(0.0..90.0).contains(&inner) {
         return Err((
             lp.key("inner_angle"),
@@ -145,9 +169,12 @@ fn spot_cones(l: &LightDesc, lp: &KeyPath) -> Result<(f32, f32), Invalid> {
             ),
         ));
     }
-    // In f64, rounded once, as for rotations: every worker gets the same bits.
-    let cos = |deg: f32| f64::from(deg).to_radians().cos() as f32;
-    Ok((cos(inner), cos(outer)))
+    Ok((
+        cos(outer),
+        Falloff::Gltf {
+            cos_inner: cos(inner),
+        },
+    ))
 }
 
 /// A directional light shining `towards`, with `irradiance`: a sun, a disk `angle` degrees

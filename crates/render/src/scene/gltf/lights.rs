@@ -84,13 +84,23 @@ pub(in crate::scene) fn lights(
             irradiance: None,
             inner_angle: None,
             outer_angle: None,
+            blend: None,
             angle: None,
         };
         match g.kind {
             LightKind::Point => l.position = p,
             LightKind::Spot => {
                 (l.position, l.direction) = (p, d);
-                (l.inner_angle, l.outer_angle) = (Some(g.cone.0), Some(g.cone.1));
+                let (inner, outer) = g.cone;
+                l.outer_angle = Some(outer);
+                if inner <= outer && outer > 0.0 {
+                    // As Blender's importer reads the cones (its exporter writes inner =
+                    // outer × (1 − blend), so a hard-edged spot has inner = outer).
+                    l.blend = Some(1.0 - inner / outer);
+                } else {
+                    // Refused as the cones of a `[[lights]]` spot would be.
+                    l.inner_angle = Some(inner);
+                }
             }
             LightKind::Directional => {
                 (l.direction, l.irradiance, l.intensity) = (d, Some(g.power), None);

@@ -1,0 +1,109 @@
+"""Blender scenes that pin tessera's glTF light and emission units against Cycles.
+
+Run by tests/blender/run.sh with Blender as a Python module (PyPI's `bpy`):
+
+    python units.py -- OUT_DIR
+
+For each light kind (a point light, a spot with a hard edge and one with a soft blend, a sun,
+and an emissive quad) it builds the same small scene: a white diffuse floor (a Principled BSDF
+with Specular IOR Level 0, which Blender exports as KHR_materials_specular's factor 0) under
+that light, seen from above. It exports the scene with Blender's own glTF exporter (its
+default, photometric lighting mode) to OUT_DIR/KIND.glb and renders it with Cycles to
+OUT_DIR/KIND-cycles.exr: one bounce, no denoising, a one-pixel box filter (tessera's).
+"""
+
+import math
+import os
+import sys
+
+import bpy
+
+SIZE = 64
+SAMPLES = 256
+
+
+def setup():
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = SAMPLES
+    scene.cycles.use_denoising = False
+    scene.cycles.use_adaptive_sampling = False
+    scene.cycles.max_bounces = 1
+    scene.cycles.pixel_filter_type = "BOX"
+    scene.cycles.filter_width = 1.0
+    scene.render.resolution_x = SIZE
+    scene.render.resolution_y = SIZE
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    scene.render.image_settings.color_depth = "32"
+    scene.view_settings.view_transform = "Standard"
+    floor = bpy.data.materials.new("floor")
+    floor.use_nodes = True
+    p = floor.node_tree.nodes["Principled BSDF"]
+    p.inputs["Base Color"].default_value = (0.8, 0.8, 0.8, 1)
+    p.inputs["Roughness"].default_value = 1.0
+    p.inputs["Specular IOR Level"].default_value = 0.0
+    bpy.ops.mesh.primitive_plane_add(size=4, location=(0, 0, 0))
+    bpy.context.object.data.materials.append(floor)
+    cam = bpy.data.cameras.new("camera")
+    cam.lens = 35
+    co = bpy.data.objects.new("camera", cam)
+    co.location = (0, -3, 3)
+    co.rotation_euler = (math.radians(45), 0, 0)
+    scene.collection.objects.link(co)
+    scene.camera = co
+    scene.world = bpy.data.worlds.new("world")
+    scene.world.use_nodes = True
+    scene.world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
+    return scene
+
+
+def light(scene, kind, energy, **settings):
+    data = bpy.data.lights.new(kind.lower(), type=kind)
+    data.energy = energy
+    for k, v in settings.items():
+        setattr(data, k, v)
+    obj = bpy.data.objects.new(kind.lower(), data)
+    obj.location = (0, 0, 2)
+    scene.collection.objects.link(obj)
+    return obj
+
+
+def emitter(scene):
+    glow = bpy.data.materials.new("glow")
+    glow.use_nodes = True
+    p = glow.node_tree.nodes["Principled BSDF"]
+    p.inputs["Base Color"].default_value = (0, 0, 0, 1)
+    p.inputs["Specular IOR Level"].default_value = 0.0
+    p.inputs["Emission Color"].default_value = (1.0, 0.9, 0.7, 1)
+    p.inputs["Emission Strength"].default_value = 5.0
+    # A quad at 1.5 facing down at the floor.
+    bpy.ops.mesh.primitive_plane_add(size=1, location=(0, 0, 1.5), rotation=(math.pi, 0, 0))
+    bpy.context.object.data.materials.append(glow)
+
+
+SCENES = {
+    "point": lambda s: light(s, "POINT", 1000.0, shadow_soft_size=0.0),
+    "spot": lambda s: light(s, "SPOT", 1000.0, shadow_soft_size=0.0,
+                            spot_size=math.radians(60), spot_blend=0.0),
+    "spot-blend": lambda s: light(s, "SPOT", 1000.0, shadow_soft_size=0.0,
+                                  spot_size=math.radians(60), spot_blend=0.5),
+    "sun": lambda s: light(s, "SUN", 3.0, angle=0.0).rotation_euler.__setitem__(0, math.radians(30)),
+    "emission": emitter,
+}
+
+
+def main():
+    out = sys.argv[-1]
+    os.makedirs(out, exist_ok=True)
+    for name, build in SCENES.items():
+        scene = setup()
+        build(scene)
+        bpy.ops.export_scene.gltf(filepath=os.path.join(out, name + ".glb"),
+                                  export_lights=True, export_cameras=True)
+        scene.render.filepath = os.path.join(out, name + "-cycles.exr")
+        bpy.ops.render.render(write_still=True)
+
+
+main()
