@@ -91,5 +91,9 @@ pub use util::{files, lanes, math, sampling};
 /// bits cannot change unseen either. Revision 7 clamps each sample's AOV albedo into [0, 1]
 /// and normal components into [−1, 1] as they enter a sum (a normalised f32 normal can exceed
 /// 1 by an ulp, which the farm's bounds refused), which moves AOV bits by an ulp where they
-/// had exceeded; the pin hashes AOV renders too since.
-pub const IMAGE_REVISION: u32 = 7;
+/// had exceeded; the pin hashes AOV renders too since. Revision 8 reads a glTF file's punctual
+/// lights in its photometric units (candela and lux, over 683 lm/W), its spots' cones as
+/// Blender's blend, and `KHR_materials_specular`'s factor: the same file renders differently,
+/// though the bundled files, rewritten in candela, render the bits they did (the pin's hash is
+/// revision 7's).
+pub const IMAGE_REVISION: u32 = 8;

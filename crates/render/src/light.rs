@@ -741,7 +741,10 @@ mod tests {
         // Blender's blend: a smoothstep over (1 − c₀) × blend from the outer cone.
         let soft = Falloff::Blend { width: 0.2 };
         assert_eq!(soft.at(0.5, cos_outer), 0.0);
-        assert!((soft.at(0.6, cos_outer) - 0.5).abs() < 1e-6, "the smoothstep's middle");
+        assert!(
+            (soft.at(0.6, cos_outer) - 0.5).abs() < 1e-6,
+            "the smoothstep's middle"
+        );
         assert_eq!(soft.at(0.75, cos_outer), 1.0);
         // A blend of 0 is a hard edge: full just inside, nothing on it.
         let hard = Falloff::Blend { width: 0.0 };

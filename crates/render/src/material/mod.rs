@@ -191,17 +191,3 @@ impl MaterialKind {
         }
     }
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::scene::Material;
-
-    /// Every bounce reads a material: it stays as small as it was before the interface (a
-    /// texture index beside a diffuse albedo once made it 48 bytes, and a material 80).
-    #[test]
-    fn a_material_stays_small() {
-        assert_eq!(std::mem::size_of::<Bsdf>(), 32);
-        assert_eq!(std::mem::size_of::<Material>(), 64);
-    }
-}
