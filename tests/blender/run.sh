@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# tessera's glTF light and emission units against Cycles (#83): Blender as a Python module
+# tessera's glTF light and emission units, and its reading of a Blender camera's framing,
+# against Cycles (#83): Blender as a Python module
 # (PyPI's bpy 4.5, Python 3.11) builds small scenes, exports them with its own glTF exporter
 # and renders them with Cycles; tessera renders each export; every region's mean must agree
 # within 2% (tests/blender/compare.py). Sets up target/blender-venv on first use (a download
@@ -18,7 +19,8 @@ rm -rf "$out"
 status=0
 for glb in "$out"/*.glb; do
     name=$(basename "$glb" .glb)
-    target/release/tessera render "$glb" --spp 256 --resolution 64x64 --output "$out/$name-tessera.exr" >/dev/null
+    target/release/tessera render "$glb" --spp 256 --resolution "$(cat "$out/$name.size")" \
+        --output "$out/$name-tessera.exr" >/dev/null
     echo "$name:"
     "$venv/bin/python" tests/blender/compare.py -- "$out/$name-cycles.exr" "$out/$name-tessera.exr" 2>/dev/null | grep -E "region|off by" || status=1
     "$venv/bin/python" tests/blender/compare.py -- "$out/$name-cycles.exr" "$out/$name-tessera.exr" >/dev/null 2>&1 || status=1

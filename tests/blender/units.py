@@ -5,11 +5,13 @@ Run by tests/blender/run.sh with Blender as a Python module (PyPI's `bpy`):
     python units.py -- OUT_DIR
 
 For each light kind (a point light, a spot with a hard edge and one with a soft blend, a sun,
-and an emissive quad) it builds the same small scene: a white diffuse floor (a Principled BSDF
+and an emissive quad), and for a portrait and a landscape film (Blender's sensor fit, which its
+exporter turns into glTF's yfov and aspect ratio), it builds the same small scene: a white diffuse floor (a Principled BSDF
 with Specular IOR Level 0, which Blender exports as KHR_materials_specular's factor 0) under
 that light, seen from above. It exports the scene with Blender's own glTF exporter (its
 default, photometric lighting mode) to OUT_DIR/KIND.glb and renders it with Cycles to
-OUT_DIR/KIND-cycles.exr: one bounce, no denoising, a one-pixel box filter (tessera's).
+OUT_DIR/KIND-cycles.exr: one bounce, no denoising, a one-pixel box filter (tessera's); the
+film's size goes to OUT_DIR/KIND.size ("WxH") for tessera to render at.
 """
 
 import math
@@ -22,7 +24,7 @@ SIZE = 64
 SAMPLES = 256
 
 
-def setup():
+def setup(size):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.render.engine = "CYCLES"
@@ -33,8 +35,7 @@ def setup():
     scene.cycles.max_bounces = 1
     scene.cycles.pixel_filter_type = "BOX"
     scene.cycles.filter_width = 1.0
-    scene.render.resolution_x = SIZE
-    scene.render.resolution_y = SIZE
+    scene.render.resolution_x, scene.render.resolution_y = size
     scene.render.image_settings.file_format = "OPEN_EXR"
     scene.render.image_settings.color_depth = "32"
     scene.view_settings.view_transform = "Standard"
@@ -83,8 +84,12 @@ def emitter(scene):
     bpy.context.object.data.materials.append(glow)
 
 
+def point(scene):
+    light(scene, "POINT", 1000.0, shadow_soft_size=0.0)
+
+
 SCENES = {
-    "point": lambda s: light(s, "POINT", 1000.0, shadow_soft_size=0.0),
+    "point": point,
     "spot": lambda s: light(s, "SPOT", 1000.0, shadow_soft_size=0.0,
                             spot_size=math.radians(60), spot_blend=0.0),
     "spot-blend": lambda s: light(s, "SPOT", 1000.0, shadow_soft_size=0.0,
@@ -97,9 +102,13 @@ SCENES = {
 def main():
     out = sys.argv[-1]
     os.makedirs(out, exist_ok=True)
-    for name, build in SCENES.items():
-        scene = setup()
-        build(scene)
+    films = {name: (SIZE, SIZE) for name in SCENES}
+    films.update({"point-portrait": (48, 64), "point-landscape": (80, 48)})
+    for name, size in films.items():
+        scene = setup(size)
+        SCENES.get(name, point)(scene)
+        with open(os.path.join(out, name + ".size"), "w") as f:
+            f.write(f"{size[0]}x{size[1]}")
         bpy.ops.export_scene.gltf(filepath=os.path.join(out, name + ".glb"),
                                   export_lights=True, export_cameras=True)
         scene.render.filepath = os.path.join(out, name + "-cycles.exr")
