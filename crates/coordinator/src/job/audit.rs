@@ -8,7 +8,7 @@ use std::sync::Arc;
 use tessera_render::guide::SdTree;
 use tessera_render::{PixelRect, TileSums};
 
-use super::{add_noise, Job, Unit};
+use super::{add_noise, Job, TileAcc, Unit};
 use crate::store::{encode_sums, Op};
 
 /// The contributor of a batch no audit can take back: merged before this boot (whose workers
@@ -131,132 +131,17 @@ impl Job {
     /// sample from that epoch on: epochs double, so a liar caught in a job's last epoch
     /// costs about half of it, one that trained epoch 0 all of it.
     ///
-    /// Long because it is one pass over the job's accumulators that keeps the job's totals
-    /// (units and samples done, non-finite samples, noise, dirty tiles, pilots) in step with
-    /// each tile it folds again while that tile's accumulator is borrowed; a helper per step
-    /// would take half of the job's fields as arguments.
     pub fn take_back(&mut self, w: u64, kept: &dyn KeptUnits) -> TakenBack {
-        let id = self.rec.id;
-        let mut ops = Vec::new();
         let rewind = self.rewind_point(w);
         let keep_below = rewind.map_or(u32::MAX, |(_, b)| b);
-        let gone = |b: u32, s: &Source| s.worker == w || b >= keep_below;
-        // Units counted as done that go back, and units held for an audit that lose a copy.
-        let mut again: Vec<Unit> = Vec::new();
-        let mut held: Vec<Unit> = Vec::new();
-        self.audits.retain(|u, _| u.batch < keep_below);
-        for (u, hold) in &mut self.audits {
-            if hold.results.iter().any(|(k, ..)| *k == w) {
-                hold.results.retain(|(k, ..)| *k != w);
-                held.push(*u);
-            }
+        let held = self.drop_audit_copies(w, keep_below);
+        let mut back = Back::default();
+        for t in self.touched_tiles(w, keep_below) {
+            self.take_back_tile(t, (w, keep_below), kept, &mut back);
         }
-        self.audits.retain(|_, h| !h.results.is_empty());
-        let touched: Vec<u32> = self
-            .acc
-            .iter()
-            .filter(|(_, a)| {
-                a.next > keep_below
-                    || a.pending.range(keep_below..).next().is_some()
-                    || a.by
-                        .iter()
-                        .chain(a.pending_by.values())
-                        .any(|s| s.worker == w)
-            })
-            .map(|(t, _)| *t)
-            .collect();
-        for t in touched {
-            let Some(rect) = self.tiles.get(t) else {
-                continue;
-            };
-            let first = self.first_batches;
-            let pixel_bytes = self.pixel_bytes();
-            let Some(acc) = self.acc.get_mut(&t) else {
-                continue;
-            };
-            let mine: Vec<u32> = acc
-                .pending
-                .keys()
-                .filter(|b| {
-                    **b >= keep_below || acc.pending_by.get(b).is_some_and(|s| s.worker == w)
-                })
-                .copied()
-                .collect();
-            let mut lost = Vec::new();
-            for b in mine {
-                acc.pending_by.remove(&b);
-                if let Some(p) = acc.pending.remove(&b) {
-                    lost.push(p);
-                }
-                ops.push(Op::DelPending(id, t, b));
-                again.push(Unit { tile: t, batch: b });
-            }
-            if acc.next > keep_below || acc.by.iter().any(|s| s.worker == w) {
-                let mut copies = kept.kept(id, t, rect);
-                let old = acc.sums.take();
-                let old_next = acc.next;
-                let by = std::mem::take(&mut acc.by);
-                let mut total: Option<TileSums> = None;
-                let mut next = 0u32;
-                for (b, src) in (0..old_next).zip(by) {
-                    let copy = copies
-                        .remove(&b)
-                        .filter(|(serial, _)| !gone(b, &src) && src.matches(*serial));
-                    match copy {
-                        Some((_, s)) if next == b => {
-                            // Kept copies were checked when they were merged.
-                            let sum = total.get_or_insert_with(|| TileSums::empty(rect, 0));
-                            if sum.merge(&s).is_err() {
-                                again.push(Unit { tile: t, batch: b });
-                                continue;
-                            }
-                            acc.by.push(src);
-                            next += 1;
-                        }
-                        Some((_, s)) => {
-                            ops.push(Op::PutPending(id, t, b, encode_sums(&s)));
-                            acc.pending.insert(b, s);
-                            acc.pending_by.insert(b, src);
-                        }
-                        None => again.push(Unit { tile: t, batch: b }),
-                    }
-                }
-                self.nonfinite = self
-                    .nonfinite
-                    .saturating_sub(old.map_or(0, |o| o.nonfinite));
-                self.nonfinite += total.as_ref().map_or(0, |s| s.nonfinite);
-                self.nonfinite += acc
-                    .pending
-                    .iter()
-                    .filter(|(b, _)| **b < old_next)
-                    .map(|(_, p)| p.nonfinite)
-                    .sum::<u64>();
-                let noise = total.as_ref().map_or((0.0, 0.0, 0), |s| s.noise_parts());
-                add_noise(&mut self.noise_total, acc.noise, -1.0);
-                add_noise(&mut self.noise_total, noise, 1.0);
-                acc.noise = noise;
-                if self.dirty.insert(t) {
-                    self.dirty_bytes += rect.area() as u64 * pixel_bytes;
-                }
-                acc.sums = total.map(Arc::new);
-                acc.next = next;
-                if old_next >= first && next < first {
-                    self.pilots_in = self.pilots_in.saturating_sub(1);
-                    self.tiles_closed = self.tiles_closed.saturating_sub(1);
-                }
-            }
-            for p in lost {
-                self.nonfinite = self.nonfinite.saturating_sub(p.nonfinite);
-            }
-        }
+        let Back { mut ops, again } = back;
         let units = again.len() as u64;
-        for u in &again {
-            let area = self.tiles.get(u.tile).map_or(0, |r| r.area() as u64);
-            self.units_done = self.units_done.saturating_sub(1);
-            self.samples_done = self
-                .samples_done
-                .saturating_sub(area * self.batch_range(u.batch).len() as u64);
-        }
+        self.uncount(&again);
         let mut stale_leases = Vec::new();
         if let Some((epoch, first)) = rewind {
             ops.extend(self.rewind_to(epoch, first, &mut stale_leases));
@@ -271,6 +156,102 @@ impl Job {
             ops,
             units,
             stale_leases,
+        }
+    }
+
+    /// Drops worker `w`'s copies of units held for an audit, and every held unit from batch
+    /// `keep_below` on; returns the units that lost a copy but still hold one.
+    fn drop_audit_copies(&mut self, w: u64, keep_below: u32) -> Vec<Unit> {
+        let mut held = Vec::new();
+        self.audits.retain(|u, _| u.batch < keep_below);
+        for (u, hold) in &mut self.audits {
+            if hold.results.iter().any(|(k, ..)| *k == w) {
+                hold.results.retain(|(k, ..)| *k != w);
+                held.push(*u);
+            }
+        }
+        self.audits.retain(|_, h| !h.results.is_empty());
+        held
+    }
+
+    /// The tiles holding something worker `w` gave, or a batch from `keep_below` on.
+    fn touched_tiles(&self, w: u64, keep_below: u32) -> Vec<u32> {
+        self.acc
+            .iter()
+            .filter(|(_, a)| {
+                a.next > keep_below
+                    || a.pending.range(keep_below..).next().is_some()
+                    || a.by
+                        .iter()
+                        .chain(a.pending_by.values())
+                        .any(|s| s.worker == w)
+            })
+            .map(|(t, _)| *t)
+            .collect()
+    }
+
+    /// Takes back tile `t`'s results from worker `w` and from batch `keep_below` on: its early
+    /// ones dropped, its merged ones folded again from the others' kept copies, the job's
+    /// totals (non-finite samples, noise, dirty tiles, pilots) kept in step.
+    fn take_back_tile(
+        &mut self,
+        t: u32,
+        (w, keep_below): (u64, u32),
+        kept: &dyn KeptUnits,
+        back: &mut Back,
+    ) {
+        let id = self.rec.id;
+        let Some(rect) = self.tiles.get(t) else {
+            return;
+        };
+        let first = self.first_batches;
+        let pixel_bytes = self.pixel_bytes();
+        let Some(acc) = self.acc.get_mut(&t) else {
+            return;
+        };
+        let lost = drop_pending(acc, (id, t), (w, keep_below), back);
+        if acc.next > keep_below || acc.by.iter().any(|s| s.worker == w) {
+            let old = acc.sums.take();
+            let old_next = acc.next;
+            let gone = |b: u32, s: &Source| s.worker == w || b >= keep_below;
+            let (total, next) = refold(acc, kept.kept(id, t, rect), (id, t, rect), &gone, back);
+            self.nonfinite = self
+                .nonfinite
+                .saturating_sub(old.map_or(0, |o| o.nonfinite));
+            self.nonfinite += total.as_ref().map_or(0, |s| s.nonfinite);
+            self.nonfinite += acc
+                .pending
+                .iter()
+                .filter(|(b, _)| **b < old_next)
+                .map(|(_, p)| p.nonfinite)
+                .sum::<u64>();
+            let noise = total.as_ref().map_or((0.0, 0.0, 0), |s| s.noise_parts());
+            add_noise(&mut self.noise_total, acc.noise, -1.0);
+            add_noise(&mut self.noise_total, noise, 1.0);
+            acc.noise = noise;
+            if self.dirty.insert(t) {
+                self.dirty_bytes += rect.area() as u64 * pixel_bytes;
+            }
+            acc.sums = total.map(Arc::new);
+            acc.next = next;
+            if old_next >= first && next < first {
+                self.pilots_in = self.pilots_in.saturating_sub(1);
+                self.tiles_closed = self.tiles_closed.saturating_sub(1);
+            }
+        }
+        for p in lost {
+            self.nonfinite = self.nonfinite.saturating_sub(p.nonfinite);
+        }
+    }
+
+    /// Uncounts `again`'s units from the units and samples done.
+    fn uncount(&mut self, again: &[Unit]) {
+        for u in again {
+            let area = self.tiles.get(u.tile).map_or(0, |r| r.area() as u64);
+            self.units_done = self.units_done.saturating_sub(1);
+            self.samples_done = self
+                .samples_done
+                .saturating_sub(area * self.batch_range(u.batch).len() as u64);
         }
     }
 
@@ -327,4 +308,76 @@ impl Job {
         });
         ops
     }
+}
+
+/// What taking back a worker's results gives: store operations, and units to render again.
+#[derive(Default)]
+struct Back {
+    ops: Vec<Op>,
+    again: Vec<Unit>,
+}
+
+/// Drops tile `t`'s early results from worker `w` and from batch `keep_below` on; returns
+/// them (their non-finite samples are uncounted by the caller).
+fn drop_pending(
+    acc: &mut TileAcc,
+    (id, t): (u64, u32),
+    (w, keep_below): (u64, u32),
+    back: &mut Back,
+) -> Vec<TileSums> {
+    let mine: Vec<u32> = acc
+        .pending
+        .keys()
+        .filter(|b| **b >= keep_below || acc.pending_by.get(b).is_some_and(|s| s.worker == w))
+        .copied()
+        .collect();
+    let mut lost = Vec::new();
+    for b in mine {
+        acc.pending_by.remove(&b);
+        if let Some(p) = acc.pending.remove(&b) {
+            lost.push(p);
+        }
+        back.ops.push(Op::DelPending(id, t, b));
+        back.again.push(Unit { tile: t, batch: b });
+    }
+    lost
+}
+
+/// Folds tile `t`'s merged batches again, in batch order from zero, from the kept `copies`
+/// of those not `gone`, up to the first that is gone or has no copy; later kept batches wait
+/// as early results, the rest go back. Returns the sums and the first batch not folded.
+fn refold(
+    acc: &mut TileAcc,
+    mut copies: BTreeMap<u32, (u64, TileSums)>,
+    (id, t, rect): (u64, u32, PixelRect),
+    gone: &dyn Fn(u32, &Source) -> bool,
+    back: &mut Back,
+) -> (Option<TileSums>, u32) {
+    let by = std::mem::take(&mut acc.by);
+    let mut total: Option<TileSums> = None;
+    let mut next = 0u32;
+    for (b, src) in (0..acc.next).zip(by) {
+        let copy = copies
+            .remove(&b)
+            .filter(|(serial, _)| !gone(b, &src) && src.matches(*serial));
+        match copy {
+            Some((_, s)) if next == b => {
+                // Kept copies were checked when they were merged.
+                let sum = total.get_or_insert_with(|| TileSums::empty(rect, 0));
+                if sum.merge(&s).is_err() {
+                    back.again.push(Unit { tile: t, batch: b });
+                    continue;
+                }
+                acc.by.push(src);
+                next += 1;
+            }
+            Some((_, s)) => {
+                back.ops.push(Op::PutPending(id, t, b, encode_sums(&s)));
+                acc.pending.insert(b, s);
+                acc.pending_by.insert(b, src);
+            }
+            None => back.again.push(Unit { tile: t, batch: b }),
+        }
+    }
+    (total, next)
 }

@@ -4,6 +4,7 @@
 
 use glam::Vec3A;
 
+use super::desc::AlbedoDesc;
 use super::port::{At, Reading, Seen, Surface};
 use super::{Bsdf, Model};
 use crate::texture::TextureUse;
@@ -60,15 +61,6 @@ impl Diffuse {
 }
 
 impl Model for Diffuse {
-    fn samples_lights(&self) -> bool {
-        true
-    }
-    fn draws_choice(&self) -> bool {
-        false
-    }
-    fn has_two_sides(&self) -> bool {
-        false
-    }
     #[inline(always)]
     fn lanes(&self) -> Option<Vec3A> {
         match self.texture() {
@@ -94,8 +86,8 @@ pub(crate) fn read(r: &mut Reading<'_, '_>) -> Result<Bsdf, Invalid> {
     r.only("a diffuse material", &["albedo"])?;
     let a = required(r.desc.albedo.as_ref(), r.at, "a diffuse material", "albedo")?;
     Ok(Bsdf::Diffuse(match a {
-        super::desc::AlbedoDesc::Color(c) => Diffuse::new(color(*c, &r.key("albedo"), true)?),
-        super::desc::AlbedoDesc::Texture(file) => {
+        AlbedoDesc::Color(c) => Diffuse::new(color(*c, &r.key("albedo"), true)?),
+        AlbedoDesc::Texture(file) => {
             let path = r.key("albedo").key("texture");
             Diffuse::textured((r.textures)(file, &path, TextureUse::Color)?)
         }

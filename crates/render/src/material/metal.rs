@@ -18,12 +18,6 @@ impl Model for Metal {
     fn samples_lights(&self) -> bool {
         !self.is_smooth()
     }
-    fn draws_choice(&self) -> bool {
-        false
-    }
-    fn has_two_sides(&self) -> bool {
-        false
-    }
     #[inline(always)]
     fn scatter<'s, A: At<'s>>(&self, v: &mut A) -> Option<Ray> {
         vertex(&self.conductor(), v)

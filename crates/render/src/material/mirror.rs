@@ -20,12 +20,6 @@ impl Model for Mirror {
     fn samples_lights(&self) -> bool {
         false
     }
-    fn draws_choice(&self) -> bool {
-        false
-    }
-    fn has_two_sides(&self) -> bool {
-        false
-    }
     #[inline(always)]
     fn scatter<'s, A: At<'s>>(&self, v: &mut A) -> Option<Ray> {
         let path = v.path();

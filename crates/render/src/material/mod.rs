@@ -44,13 +44,20 @@ pub(crate) trait Model {
     /// keep that path in memory rather than in registers for every bounce.
     const FAR: bool = false;
     /// Whether a vertex on it samples lights (next-event estimation): false for a delta BSDF
-    /// (a mirror, smooth glass, a smooth metal), which no light sample can reach.
-    fn samples_lights(&self) -> bool;
+    /// (a mirror, smooth glass, a smooth metal), which no light sample can reach. The defaults
+    /// of this and the next two are an opaque reflector's.
+    fn samples_lights(&self) -> bool {
+        true
+    }
     /// Whether a vertex on it draws a choice number: glass's reflection or refraction, a
     /// layered material's lobe.
-    fn draws_choice(&self) -> bool;
+    fn draws_choice(&self) -> bool {
+        false
+    }
     /// Whether its back side scatters though the material is not declared two-sided.
-    fn has_two_sides(&self) -> bool;
+    fn has_two_sides(&self) -> bool {
+        false
+    }
     /// The albedo the eight-lane tracer shades it with, where that tracer models it (an
     /// untextured diffuse surface); `None` sends its scenes to the scalar tracer.
     fn lanes(&self) -> Option<Vec3A> {

@@ -7,6 +7,7 @@
 
 use glam::Vec2;
 
+use super::desc::{AlbedoDesc, ScalarDesc};
 use super::port::{leave, At, Lobe, Reading, Seen, Surface, Tables};
 use super::{Bsdf, Model};
 use crate::bsdf::pbr::{CoatTable, NormalMap, ScalarParam};
@@ -29,9 +30,6 @@ impl PbrRef {
 
 impl Model for PbrRef {
     const FAR: bool = true;
-    fn samples_lights(&self) -> bool {
-        true
-    }
     fn draws_choice(&self) -> bool {
         true
     }
@@ -142,19 +140,19 @@ pub(crate) fn read(r: &mut Reading<'_, '_>) -> Result<Bsdf, Invalid> {
     let textures = &mut *r.textures;
     let (base_color, base_texture) = match &m.base_color {
         None => (glam::Vec3A::ONE, None),
-        Some(super::desc::AlbedoDesc::Color(c)) => (color(*c, &mp.key("base_color"), true)?, None),
-        Some(super::desc::AlbedoDesc::Texture(file)) => {
+        Some(AlbedoDesc::Color(c)) => (color(*c, &mp.key("base_color"), true)?, None),
+        Some(AlbedoDesc::Texture(file)) => {
             let path = mp.key("base_color").key("texture");
             let t = textures(file, &path, TextureUse::Color)?;
             (glam::Vec3A::ONE, Some(t))
         }
     };
-    let mut scalar = |desc: &Option<super::desc::ScalarDesc>, key: &str, default: f32| {
+    let mut scalar = |desc: &Option<ScalarDesc>, key: &str, default: f32| {
         let path = mp.key(key);
         match desc {
             None => Ok(ScalarParam::constant(default)),
-            Some(super::desc::ScalarDesc::Value(x)) => Ok(ScalarParam::constant(unit(*x, &path)?)),
-            Some(super::desc::ScalarDesc::Texture {
+            Some(ScalarDesc::Value(x)) => Ok(ScalarParam::constant(unit(*x, &path)?)),
+            Some(ScalarDesc::Texture {
                 file,
                 channel,
                 factor,

@@ -2,6 +2,7 @@
 //! its arithmetic and the tables that make it too large to keep in every material: the scene
 //! keeps it in [`Tables`], and the material names it by index).
 
+use super::desc::AlbedoDesc;
 use super::port::{follow, At, Lobe, Reading, Seen, Surface, Tables};
 use super::{Bsdf, Model};
 use crate::bsdf::Plastic;
@@ -21,14 +22,8 @@ impl PlasticRef {
 
 impl Model for PlasticRef {
     const FAR: bool = true;
-    fn samples_lights(&self) -> bool {
-        true
-    }
     fn draws_choice(&self) -> bool {
         true
-    }
-    fn has_two_sides(&self) -> bool {
-        false
     }
     #[inline(always)]
     fn scatter<'s, A: At<'s>>(&self, v: &mut A) -> Option<Ray> {
@@ -79,8 +74,8 @@ pub(crate) fn read(r: &mut Reading<'_, '_>) -> Result<Bsdf, Invalid> {
     r.only(kind, &["albedo", "roughness", "ior"])?;
     let (m, mp) = (r.desc, r.at);
     let albedo = match required(m.albedo.as_ref(), mp, kind, "albedo")? {
-        super::desc::AlbedoDesc::Color(c) => color(*c, &mp.key("albedo"), true)?,
-        super::desc::AlbedoDesc::Texture(_) => {
+        AlbedoDesc::Color(c) => color(*c, &mp.key("albedo"), true)?,
+        AlbedoDesc::Texture(_) => {
             return Err((
                 mp.key("albedo").key("texture"),
                 "a plastic's albedo is a colour: textures are for diffuse materials".into(),

@@ -16,9 +16,6 @@ pub(crate) fn new(rd: RoughDielectric) -> Bsdf {
 
 impl Model for RoughDielectric {
     const FAR: bool = true;
-    fn samples_lights(&self) -> bool {
-        true
-    }
     fn draws_choice(&self) -> bool {
         true
     }

@@ -3,6 +3,7 @@
 //! glTF options and where the files the scene names come from, then built
 //! ([`Load::load`]) or only checked ([`Load::check`], what a coordinator admits a job by).
 
+use std::borrow::Cow;
 use std::path::Path;
 use std::sync::Mutex;
 
@@ -82,25 +83,48 @@ impl<'a> Load<'a> {
 
     /// Reads, parses, validates and builds the scene.
     pub fn load(self) -> Result<Scene, SceneError> {
+        if let (Source::File(path), None) = (self.source, self.assets) {
+            if is_gltf(path) {
+                return self.gltf_file(path);
+            }
+        }
+        let t = self.text()?;
+        let files = self.files(&t);
+        let place = |p: &KeyPath, m| locate(&t.text, t.format, &t.file, p, m);
         let (limits, shot) = (self.limits, self.shot);
-        match self.source {
-            Source::Text { text, format, file } => {
-                let files = self.assets.unwrap_or(&assets::NoAssets);
-                let place = |p: &KeyPath, m| locate(text, format, file, p, m);
-                from_text(text, format, file, limits, shot, files, None, &place)
-            }
+        from_text(
+            &t.text, t.format, &t.file, limits, shot, files, None, &place,
+        )
+    }
+
+    /// The scene's text: its own, a file's, or the scene a glTF file stands for.
+    fn text(&self) -> Result<Text<'a>, SceneError> {
+        Ok(match self.source {
+            Source::Text { text, format, file } => Text {
+                text: text.into(),
+                format,
+                file: file.into(),
+                beside: None,
+            },
             Source::File(path) => {
-                let file = path.display().to_string();
-                let beside = assets::DirAssets(path.parent().unwrap_or(Path::new("")).into());
-                if is_gltf(path) && self.assets.is_none() {
-                    return self.gltf_file(path, &file, &beside);
-                }
                 let gltf = self.gltf.cloned().unwrap_or_default();
-                let (text, format) = scene_source(path, &gltf, limits)?;
-                let files = self.assets.unwrap_or(&beside);
-                let place = |p: &KeyPath, m| locate(&text, format, &file, p, m);
-                from_text(&text, format, &file, limits, shot, files, None, &place)
+                let (text, format) = scene_source(path, &gltf, self.limits)?;
+                Text {
+                    text: text.into(),
+                    format,
+                    file: path.display().to_string().into(),
+                    beside: Some(beside(path)),
+                }
             }
+        })
+    }
+
+    /// Where the files the scene names come from: those given, else a file's directory.
+    fn files<'t>(&'t self, t: &'t Text<'a>) -> &'t dyn Assets {
+        match (self.assets, &t.beside) {
+            (Some(a), _) => a,
+            (None, Some(b)) => b,
+            (None, None) => &assets::NoAssets,
         }
     }
 
@@ -108,12 +132,9 @@ impl<'a> Load<'a> {
     /// it stands for (what a farm job of it carries), and is lent to the build that imports
     /// it. A file that cannot be read or parsed is left for the build to refuse, as any
     /// scene's file is.
-    fn gltf_file(
-        &self,
-        path: &Path,
-        file: &str,
-        beside: &assets::DirAssets,
-    ) -> Result<Scene, SceneError> {
+    fn gltf_file(&self, path: &Path) -> Result<Scene, SceneError> {
+        let file = &path.display().to_string();
+        let beside = &beside(path);
         let name = path
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -138,35 +159,11 @@ impl<'a> Load<'a> {
     /// no BVH built: what a coordinator admits a job by, at a fraction of the memory (an
     /// image's header gives its size; its pixels are the workers' to decode).
     pub fn check(self) -> Result<SceneCheck, SceneError> {
-        let (text, format, file);
-        let (owned, beside);
-        match self.source {
-            Source::Text {
-                text: t,
-                format: f,
-                file: n,
-            } => {
-                (text, format, file) = (t, f, n.to_string());
-                beside = None;
-            }
-            Source::File(path) => {
-                let gltf = self.gltf.cloned().unwrap_or_default();
-                let (t, f) = scene_source(path, &gltf, self.limits)?;
-                owned = t;
-                (text, format, file) = (owned.as_str(), f, path.display().to_string());
-                beside = Some(assets::DirAssets(
-                    path.parent().unwrap_or(Path::new("")).into(),
-                ));
-            }
-        }
-        let files: &dyn Assets = match (self.assets, &beside) {
-            (Some(a), _) => a,
-            (None, Some(b)) => b,
-            (None, None) => &assets::NoAssets,
-        };
-        let place = |p: &KeyPath, m| locate(text, format, &file, p, m);
-        let (limits, shot) = (self.limits, self.shot);
-        let assembled = assemble(text, format, &file, limits, shot, files, None, &place)?;
+        let t = self.text()?;
+        let text = &t.text;
+        let place = |p: &KeyPath, m| locate(text, t.format, &t.file, p, m);
+        let (limits, shot, files) = (self.limits, self.shot, self.files(&t));
+        let assembled = assemble(text, t.format, &t.file, limits, shot, files, None, &place)?;
         let (width, height) = assembled.film();
         let read = assembled.files_read().to_vec();
         Ok(SceneCheck {
@@ -177,6 +174,20 @@ impl<'a> Load<'a> {
             bounds: shape_bounds(assembled.prims()),
         })
     }
+}
+
+/// A scene's text, its syntax, the name errors give it, and the directory of the file it was
+/// read from.
+struct Text<'a> {
+    text: Cow<'a, str>,
+    format: Format,
+    file: Cow<'a, str>,
+    beside: Option<assets::DirAssets>,
+}
+
+/// The files beside the scene file at `path`.
+fn beside(path: &Path) -> assets::DirAssets {
+    assets::DirAssets(path.parent().unwrap_or(Path::new("")).into())
 }
 
 /// The files beside a glTF file, with that file's bytes already read: the build takes them

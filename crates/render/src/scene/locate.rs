@@ -5,6 +5,16 @@ use std::ops::Range;
 
 use super::{KeyPath, Seg};
 
+// JSON's brackets as bytes, named: the scanner below matches them by value.
+/// Opens an object.
+const OPEN_OBJECT: u8 = 0x7b;
+/// Closes an object.
+const CLOSE_OBJECT: u8 = 0x7d;
+/// Opens an array.
+const OPEN_ARRAY: u8 = 0x5b;
+/// Closes an array.
+const CLOSE_ARRAY: u8 = 0x5d;
+
 /// 1-based line and column (in characters) of byte `offset`.
 pub fn line_col(text: &str, offset: usize) -> (usize, usize) {
     let offset = offset.min(text.len());
@@ -84,7 +94,7 @@ pub fn json_span(text: &str, path: &KeyPath) -> Option<Range<usize>> {
     let mut best = Some(pos..pos);
     for seg in &path.0 {
         match (seg, b.get(pos)) {
-            (Seg::Key(k), Some(b'{')) => {
+            (Seg::Key(k), Some(&OPEN_OBJECT)) => {
                 pos = skip_ws(b, pos + 1);
                 let mut found = false;
                 while b.get(pos) == Some(&b'"') {
@@ -108,7 +118,7 @@ pub fn json_span(text: &str, path: &KeyPath) -> Option<Range<usize>> {
                     break;
                 }
             }
-            (Seg::Index(i), Some(b'[')) => {
+            (Seg::Index(i), Some(&OPEN_ARRAY)) => {
                 pos = skip_ws(b, pos + 1);
                 for _ in 0..*i {
                     pos = skip_ws(b, skip_value(b, pos)?);
@@ -145,9 +155,9 @@ fn skip_string(b: &[u8], mut i: usize) -> Option<usize> {
 }
 
 fn skip_value(b: &[u8], i: usize) -> Option<usize> {
-    match b.get(i)? {
+    match *b.get(i)? {
         b'"' => skip_string(b, i),
-        b'{' | b'[' => {
+        OPEN_OBJECT | OPEN_ARRAY => {
             let mut depth = 0usize;
             let mut j = i;
             while j < b.len() {
@@ -156,8 +166,8 @@ fn skip_value(b: &[u8], i: usize) -> Option<usize> {
                         j = skip_string(b, j)?;
                         continue;
                     }
-                    b'{' | b'[' => depth += 1,
-                    b'}' | b']' => {
+                    OPEN_OBJECT | OPEN_ARRAY => depth += 1,
+                    CLOSE_OBJECT | CLOSE_ARRAY => {
                         depth -= 1;
                         if depth == 0 {
                             return Some(j + 1);
@@ -171,7 +181,9 @@ fn skip_value(b: &[u8], i: usize) -> Option<usize> {
         }
         _ => {
             let mut j = i;
-            while j < b.len() && !matches!(b[j], b',' | b'}' | b']') && !b[j].is_ascii_whitespace()
+            while j < b.len()
+                && !matches!(b[j], b',' | CLOSE_OBJECT | CLOSE_ARRAY)
+                && !b[j].is_ascii_whitespace()
             {
                 j += 1;
             }
