@@ -491,6 +491,19 @@ fn punctual_light_errors_name_the_key() {
         "lights[0].outer_angle",
         "must be greater than inner_angle (30)",
     );
+    // Blender's blend: from 0 to 1, and in place of `inner_angle`.
+    check(
+        &light("type = \"spot\"\nposition = [0, 1, 0]\ndirection = [0, -1, 0]\nintensity = [1, 1, 1]\nblend = 1.5\n"),
+        18,
+        "lights[0].blend",
+        "must be from 0 to 1, got 1.5",
+    );
+    check(
+        &light("type = \"spot\"\nposition = [0, 1, 0]\ndirection = [0, -1, 0]\nintensity = [1, 1, 1]\nblend = 0.2\ninner_angle = 10\n"),
+        18,
+        "lights[0].blend",
+        "give `blend` or `inner_angle`, not both",
+    );
     check(
         &light("type = \"spot\"\nposition = [0, 1, 0]\ndirection = [0, -1, 0]\nintensity = [1, 1, 1]\nouter_angle = 120\n"),
         18,
