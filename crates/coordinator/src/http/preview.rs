@@ -14,7 +14,7 @@ use tessera_proto::ids::JobId;
 use tessera_render::output::{read_exr_rgb, tone_map, Preview};
 use tessera_render::PixelRect;
 
-use crate::job::{preview_step, relative_noise, Thumb, MAX_KEPT_TILE_NOISE};
+use crate::job::{preview_step, PreviewSource, Thumb, TileMeans, MAX_KEPT_TILE_NOISE};
 use crate::shared::Shared;
 use crate::store::JobPhase;
 
@@ -182,10 +182,7 @@ impl Previews {
     /// caller at a time takes it, and those who waited get it from the cache.
     async fn snapshot(&self, shared: &Arc<Shared>, id: JobId) -> Result<Arc<Cached>, NoPreview> {
         let mut jobs = self.jobs.lock().await;
-        let version = {
-            let core = shared.scheduler();
-            core.job(id).map(|j| (j.rec.phase, j.units_done))
-        };
+        let version = shared.scheduler().job(id).map(|j| j.preview_version());
         if let Some(c) = jobs.get(&id) {
             // Nothing merged since, or a fresh snapshot of a job still in the same phase: a
             // job that has just ended is shown as it ended, at once.
@@ -217,27 +214,19 @@ impl Previews {
 
 /// Takes a snapshot of job `id`: its merged means while it runs, its EXR once it is done.
 async fn take(shared: &Arc<Shared>, id: JobId) -> Result<Frame, NoPreview> {
-    let (phase, width, height, n_tiles, output, kept_noise) = {
+    let PreviewSource {
+        phase,
+        width,
+        height,
+        tiles: n_tiles,
+        output,
+        kept_noise,
+    } = {
         let core = shared.scheduler();
         if core.is_range(id) {
             return Err(NoPreview::Range);
         }
-        let job = core.job(id).ok_or(NoPreview::Unknown)?;
-        let kept_noise: Vec<(PixelRect, f32)> = job
-            .final_tile_noise
-            .iter()
-            .flatten()
-            .enumerate()
-            .filter_map(|(t, &rel)| Some((job.tiles.get(t as u32)?, rel)))
-            .collect();
-        (
-            job.rec.phase,
-            job.rec.width,
-            job.rec.height,
-            job.tiles.len() as u32,
-            job.rec.output_name.clone(),
-            kept_noise,
-        )
+        core.job(id).ok_or(NoPreview::Unknown)?.preview_source()
     };
     match phase {
         JobPhase::Active => {}
@@ -280,18 +269,17 @@ fn copy_tiles(
     let core = shared.scheduler();
     let job = core.job(id).ok_or(NoPreview::Unknown)?;
     for t in tiles {
-        let Some(rect) = job.tiles.get(t) else {
+        let Some((rect, rel, means)) = job.preview_tile(t) else {
             continue;
         };
-        let acc = job.acc.get(&t);
-        let rel = relative_noise(acc.map(|a| a.noise).unwrap_or_default());
         frame.tiles.push((rect, rel));
-        if let Some(thumb) = acc.and_then(|a| a.thumb.as_ref().filter(|_| a.sums.is_none())) {
-            frame.add_thumb(weights, thumb);
-            continue;
-        }
-        let Some(sums) = acc.and_then(|a| a.sums.as_ref()) else {
-            continue;
+        let sums = match means {
+            TileMeans::Empty => continue,
+            TileMeans::Thumb(thumb) => {
+                frame.add_thumb(weights, thumb);
+                continue;
+            }
+            TileMeans::Sums(sums) => sums,
         };
         for (i, (s, &k)) in sums.sum.iter().zip(&sums.count).enumerate() {
             let x = rect.x0 + i as u32 % rect.width;

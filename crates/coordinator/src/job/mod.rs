@@ -16,6 +16,7 @@ use crate::error::Refusal;
 
 mod audit;
 mod guide_epochs;
+mod preview;
 mod rate;
 mod resident;
 mod restore;
@@ -24,6 +25,7 @@ mod tiles;
 use crate::store::{encode_sums, JobPhase, JobRecord, Op};
 pub use audit::{same_bits, same_result, AuditHold, KeptUnits, Source, TakenBack, NOBODY};
 pub use guide_epochs::{Guide, Guiding};
+pub use preview::{PreviewSource, TileMeans};
 pub use rate::Rate;
 pub use resident::{preview_step, FrameTile, Snapshot, Thumb, MAX_DIRTY_BYTES, PREVIEW_EDGE};
 pub use tiles::{check_aov_sums, pixel_in_range, sums_in_range, TileGrid};

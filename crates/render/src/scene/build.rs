@@ -164,8 +164,13 @@ fn build_objects(
                     .into_iter()
                     .map(|l| (op.key("file"), name.clone(), l)),
             );
-            out.cameras
-                .extend(file.cameras.into_iter().map(|c| (op.key("file"), c)));
+            // Each camera placed at its own entry in the file, for errors about it.
+            let cameras_at = op.key("file").within(&name).key("cameras");
+            out.cameras.extend(
+                file.cameras
+                    .into_iter()
+                    .map(|c| (cameras_at.index(c.index), c)),
+            );
             out.warnings.extend(file.warnings);
             file.parts
         } else {

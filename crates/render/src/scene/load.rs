@@ -304,7 +304,7 @@ type Place<'a> = dyn Fn(&KeyPath, String) -> SceneError + 'a;
 /// the file itself, and another key is said in words.
 fn in_gltf(file: &str, path: &KeyPath, message: String) -> SceneError {
     let (path, message) = match path.split_file() {
-        Some((_, _, inner)) => (inner.to_string(), message),
+        Some((_, _, inner)) => (inner.pointer(), message),
         None => match path.to_string().as_str() {
             "" | "objects[0].file" | "objects[0]" => (String::new(), message),
             p => (String::new(), format!("{p}: {message}")),

@@ -141,7 +141,8 @@ pub struct SceneError {
     pub line: usize,
     /// 1-based column; 0 with line 0.
     pub column: usize,
-    /// Key path, e.g. `objects[3].radius`.
+    /// Key path, e.g. `objects[3].radius`; inside a glTF file loaded as the scene (line 0), a
+    /// JSON pointer (`/meshes/0/primitives/1/indices`), or empty for the file as a whole.
     pub path: String,
     /// What is wrong.
     pub message: String,
@@ -150,8 +151,12 @@ pub struct SceneError {
 impl fmt::Display for SceneError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         if self.line == 0 {
-            // Not a problem inside the text (the file could not be read).
-            return write!(f, "{}: {}", self.file, self.message);
+            // Not a problem at a line of the text: the file could not be read, or the problem
+            // is at a place in a binary or generated file (a glTF file's JSON pointer).
+            return match self.path.as_str() {
+                "" => write!(f, "{}: {}", self.file, self.message),
+                at => write!(f, "{}: {at}: {}", self.file, self.message),
+            };
         }
         write!(
             f,

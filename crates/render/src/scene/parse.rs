@@ -39,12 +39,12 @@ pub(super) fn locate(
     message: String,
 ) -> SceneError {
     // Inside a file the scene names: placed at the key that names it, the message saying
-    // where in that file.
+    // where in that file, as a JSON pointer.
     if let Some((key, name, inner)) = path.split_file() {
         let message = if inner.0.is_empty() {
             format!("{name}: {message}")
         } else {
-            format!("{name}: {inner}: {message}")
+            format!("{name}: {}: {message}", inner.pointer())
         };
         return locate(text, format, file, &key, message);
     }

@@ -51,6 +51,31 @@ impl KeyPath {
         Self(v)
     }
 
+    /// The path extended by every step of `rest` (a place found relative to where this path
+    /// points, such as a place in a file found before the file's key was known).
+    pub fn join(&self, rest: &KeyPath) -> Self {
+        let mut v = self.0.clone();
+        v.extend(rest.0.iter().cloned());
+        Self(v)
+    }
+
+    /// The path as a JSON pointer (RFC 6901: `/meshes/0/primitives/1`; `""` for the whole
+    /// document), the form glTF's own validator reports places in: a place inside a JSON
+    /// file is said the way tools for that file say it.
+    pub fn pointer(&self) -> String {
+        let mut out = String::new();
+        for s in &self.0 {
+            out.push('/');
+            match s {
+                Seg::Key(k) | Seg::File(k) => {
+                    out.push_str(&k.replace('~', "~0").replace('/', "~1"))
+                }
+                Seg::Index(n) => out.push_str(&n.to_string()),
+            }
+        }
+        out
+    }
+
     /// A path into a file ([`KeyPath::within`]) as its parts: the key in the scene, the file,
     /// and the place in the file (empty: the file as a whole). `None` for a place in the
     /// scene's own text.
@@ -194,7 +219,16 @@ mod tests {
         let (k, file, place) = inside.split_file().expect("a file");
         assert_eq!((k.to_string(), file), ("objects[0].file".into(), "m.gltf"));
         assert_eq!(place.to_string(), "materials[2]");
+        assert_eq!(place.pointer(), "/materials/2");
         let whole = key.within("m.gltf");
         assert!(whole.split_file().expect("a file").2 .0.is_empty());
+    }
+
+    #[test]
+    fn a_pointer_escapes_tilde_and_slash_and_is_empty_for_the_document() {
+        assert_eq!(KeyPath::default().pointer(), "");
+        let p = root("a/b").key("c~d").index(3).key("");
+        assert_eq!(p.pointer(), "/a~1b/c~0d/3/");
+        assert_eq!(root("x").join(&root("y").index(1)).pointer(), "/x/y/1");
     }
 }

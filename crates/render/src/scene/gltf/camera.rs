@@ -90,7 +90,7 @@ fn chosen<'c>(
     }
 }
 
-/// glTF camera `g` (read at `path`) on a film of `aspect`: perspective by its vertical field of
+/// glTF camera `g` (its place in its file `path`) on a film of `aspect`: perspective by its vertical field of
 /// view, or orthographic.
 fn placed(
     path: &KeyPath,
@@ -106,28 +106,20 @@ fn placed(
             .ok_or_else(|| {
                 (
                     path.clone(),
-                    format!(
-                        "glTF camera {}: an orthographic camera needs a positive ymag and a \
-                         non-degenerate node transform",
-                        g.index
-                    ),
+                    "an orthographic camera needs a positive ymag and a non-degenerate node \
+                     transform"
+                        .to_string(),
                 )
             });
     };
     let fov = 2.0 * ((0.5 * yfov).tan() * aspect).atan();
     if !(fov > 0.0 && fov < std::f32::consts::PI) {
-        return Err((
-            path.clone(),
-            format!("glTF camera {}: yfov {yfov} is out of range", g.index),
-        ));
+        return Err((path.clone(), format!("yfov {yfov} is out of range")));
     }
     Camera::look_at(g.eye, g.eye + g.forward, g.up, fov, w, h).ok_or_else(|| {
         (
             path.clone(),
-            format!(
-                "glTF camera {}: its node's transform is degenerate",
-                g.index
-            ),
+            "its node's transform is degenerate".to_string(),
         )
     })
 }

@@ -11,6 +11,8 @@ use base64::Engine as _;
 use gltf::accessor::{DataType, Dimensions};
 use gltf::Accessor;
 
+use crate::util::fields::{Invalid, KeyPath};
+
 /// A GLB container split into its JSON chunk and its optional BIN chunk.
 pub(super) fn split_glb(bytes: &[u8]) -> Result<(&[u8], Option<&[u8]>), String> {
     let word = |at: usize| -> Option<u32> {
@@ -107,27 +109,28 @@ fn view_bytes<'b>(
     offset: usize,
     count: usize,
     size: usize,
-    what: &str,
-) -> Result<(&'b [u8], usize), String> {
+    at: &KeyPath,
+) -> Result<(&'b [u8], usize), Invalid> {
+    let fail = |m: String| (at.clone(), m);
     let buffer = buffers
         .get(view.buffer().index())
-        .ok_or_else(|| format!("{what}: its buffer view names a missing buffer"))?;
+        .ok_or_else(|| fail("its buffer view names a missing buffer".into()))?;
     let (vo, vl) = (view.offset() as u64, view.length() as u64);
     let view_end = vo.checked_add(vl).filter(|&e| e <= buffer.len() as u64);
     let Some(view_end) = view_end else {
-        return Err(format!(
-            "{what}: buffer view {} covers bytes {vo}..{} of buffer {}, which holds {}",
+        return Err(fail(format!(
+            "buffer view {} covers bytes {vo}..{} of buffer {}, which holds {}",
             view.index(),
             vo.saturating_add(vl),
             view.buffer().index(),
             buffer.len()
-        ));
+        )));
     };
     let stride = view.stride().unwrap_or(size);
     if stride < size {
-        return Err(format!(
-            "{what}: a stride of {stride} bytes is shorter than its {size}-byte elements"
-        ));
+        return Err(fail(format!(
+            "a stride of {stride} bytes is shorter than its {size}-byte elements"
+        )));
     }
     if count == 0 {
         return Ok((&[], stride));
@@ -141,11 +144,11 @@ fn view_bytes<'b>(
             let start = (vo + offset as u64) as usize;
             Ok((&buffer[start..view_end as usize], stride))
         }
-        _ => Err(format!(
-            "{what}: {count} elements of {size} bytes every {stride} from byte {offset} \
+        _ => Err(fail(format!(
+            "{count} elements of {size} bytes every {stride} from byte {offset} \
              run past the end of buffer view {} ({vl} bytes)",
             view.index()
-        )),
+        ))),
     }
 }
 
@@ -178,19 +181,20 @@ fn width(d: Dimensions) -> usize {
 }
 
 /// An accessor's elements as arrays of `N` floats (its first `N` components; an accessor with
-/// fewer is refused), sparse substitutions applied. `what` names it in errors.
+/// fewer is refused), sparse substitutions applied. errors are placed at `at`, where the file reads it.
 pub(super) fn read_floats<const N: usize>(
     buffers: &[Vec<u8>],
     accessor: &Accessor,
-    what: &str,
-) -> Result<Vec<[f32; N]>, String> {
+    at: &KeyPath,
+) -> Result<Vec<[f32; N]>, Invalid> {
+    let fail = |m: String| (at.clone(), m);
     let ty = accessor.data_type();
     let comps = width(accessor.dimensions());
     if comps < N {
-        return Err(format!(
-            "{what} (accessor {}): {comps} components where {N} are needed",
+        return Err(fail(format!(
+            "accessor {}: {comps} components where {N} are needed",
             accessor.index()
-        ));
+        )));
     }
     let csize = ty.size();
     let size = comps * csize;
@@ -201,26 +205,26 @@ pub(super) fn read_floats<const N: usize>(
     };
     let mut out = match accessor.view() {
         Some(view) => {
-            let (bytes, stride) = view_bytes(buffers, &view, accessor.offset(), count, size, what)?;
+            let (bytes, stride) = view_bytes(buffers, &view, accessor.offset(), count, size, at)?;
             (0..count).map(|i| decode(&bytes[i * stride..])).collect()
         }
         // No view: zeros, which a sparse part may then replace.
         None => {
             if count > buffers.iter().map(Vec::len).sum::<usize>().max(1 << 20) {
-                return Err(format!(
-                    "{what} (accessor {}): {count} elements with no data behind them",
+                return Err(fail(format!(
+                    "accessor {}: {count} elements with no data behind them",
                     accessor.index()
-                ));
+                )));
             }
             vec![[0.0; N]; count]
         }
     };
     if let Some(sparse) = accessor.sparse() {
         let n = sparse.count();
-        let at = sparse_indices(buffers, &sparse, count, what)?;
+        let slots = sparse_indices(buffers, &sparse, count, at)?;
         let values = sparse.values();
-        let (bytes, stride) = view_bytes(buffers, &values.view(), values.offset(), n, size, what)?;
-        for (k, i) in at.into_iter().enumerate() {
+        let (bytes, stride) = view_bytes(buffers, &values.view(), values.offset(), n, size, at)?;
+        for (k, i) in slots.into_iter().enumerate() {
             out[i as usize] = decode(&bytes[k * stride..]);
         }
     }
@@ -232,8 +236,9 @@ fn sparse_indices(
     buffers: &[Vec<u8>],
     sparse: &gltf::accessor::sparse::Sparse,
     count: usize,
-    what: &str,
-) -> Result<Vec<u32>, String> {
+    at: &KeyPath,
+) -> Result<Vec<u32>, Invalid> {
+    let fail = |m: String| (at.clone(), m);
     use gltf::accessor::sparse::IndexType;
     let indices = sparse.indices();
     let size = match indices.index_type() {
@@ -242,7 +247,7 @@ fn sparse_indices(
         IndexType::U32 => 4,
     };
     let n = sparse.count();
-    let (bytes, stride) = view_bytes(buffers, &indices.view(), indices.offset(), n, size, what)?;
+    let (bytes, stride) = view_bytes(buffers, &indices.view(), indices.offset(), n, size, at)?;
     (0..n)
         .map(|k| {
             let b = &bytes[k * stride..];
@@ -252,9 +257,9 @@ fn sparse_indices(
                 _ => u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
             };
             if i as usize >= count {
-                return Err(format!(
-                    "{what}: sparse index {i} is past the accessor's {count} elements"
-                ));
+                return Err(fail(format!(
+                    "sparse index {i} is past the accessor's {count} elements"
+                )));
             }
             Ok(i)
         })
@@ -267,18 +272,19 @@ pub(super) fn read_indices(
     buffers: &[Vec<u8>],
     accessor: &Accessor,
     vertices: usize,
-    what: &str,
-) -> Result<Vec<u32>, String> {
+    at: &KeyPath,
+) -> Result<Vec<u32>, Invalid> {
+    let fail = |m: String| (at.clone(), m);
     let ok = matches!(
         accessor.data_type(),
         DataType::U8 | DataType::U16 | DataType::U32
     ) && accessor.dimensions() == Dimensions::Scalar
         && !accessor.normalized();
     if !ok {
-        return Err(format!(
-            "{what} (accessor {}): indices must be unsigned integer scalars",
+        return Err(fail(format!(
+            "accessor {}: indices must be unsigned integer scalars",
             accessor.index()
-        ));
+        )));
     }
     // u32 values above 2^24 do not survive f32, so indices are read as integers.
     let ty = accessor.data_type();
@@ -286,7 +292,7 @@ pub(super) fn read_indices(
     let count = accessor.count();
     let mut out: Vec<u32> = match accessor.view() {
         Some(view) => {
-            let (bytes, stride) = view_bytes(buffers, &view, accessor.offset(), count, size, what)?;
+            let (bytes, stride) = view_bytes(buffers, &view, accessor.offset(), count, size, at)?;
             (0..count)
                 .map(|i| {
                     let b = &bytes[i * stride..];
@@ -299,24 +305,24 @@ pub(super) fn read_indices(
                 .collect()
         }
         None => {
-            return Err(format!(
-                "{what} (accessor {}): indices with no buffer view",
+            return Err(fail(format!(
+                "accessor {}: indices with no buffer view",
                 accessor.index()
-            ))
+            )))
         }
     };
     if let Some(sparse) = accessor.sparse() {
-        let at = sparse_indices(buffers, &sparse, count, what)?;
+        let slots = sparse_indices(buffers, &sparse, count, at)?;
         let values = sparse.values();
         let (bytes, stride) = view_bytes(
             buffers,
             &values.view(),
             values.offset(),
-            at.len(),
+            slots.len(),
             size,
-            what,
+            at,
         )?;
-        for (k, i) in at.into_iter().enumerate() {
+        for (k, i) in slots.into_iter().enumerate() {
             let b = &bytes[k * stride..];
             out[i as usize] = match size {
                 1 => u32::from(b[0]),
@@ -326,10 +332,10 @@ pub(super) fn read_indices(
         }
     }
     if let Some(bad) = out.iter().find(|&&i| i as usize >= vertices) {
-        return Err(format!(
-            "{what} (accessor {}): index {bad} is past the {vertices} vertices",
+        return Err(fail(format!(
+            "accessor {}: index {bad} is past the {vertices} vertices",
             accessor.index()
-        ));
+        )));
     }
     Ok(out)
 }

@@ -8,6 +8,7 @@ use super::super::check::{root, Invalid};
 use super::super::lights::punctual;
 use super::super::{KeyPath, LightDesc, LightKind};
 use crate::light::Light;
+use crate::util::fields::Seg;
 
 /// Lumens per watt: glTF gives a punctual light's intensity in photometric units (candela for
 /// point and spot lights, lux for directional ones), tessera in radiometric ones (W/sr, W/m²).
@@ -107,12 +108,26 @@ pub(in crate::scene) fn lights(
             }
         }
         let light = punctual(&l, &root("lights").index(g.index), reach).map_err(|(at, m)| {
-            let at = at.to_string();
-            let key = at.strip_prefix("lights").unwrap_or(&at);
-            (
-                path.within(file),
-                format!("KHR_lights_punctual.lights{key}: {m}"),
-            )
+            // Checked as a `[[lights]]` entry, so the key is tessera's: said as glTF's.
+            let light = (path.within(file).key("extensions"))
+                .key("KHR_lights_punctual")
+                .key("lights")
+                .index(g.index);
+            let key = match at.0.last() {
+                Some(Seg::Key(k)) => match k.as_str() {
+                    "outer_angle" => Some("outerConeAngle"),
+                    "inner_angle" | "blend" => Some("innerConeAngle"),
+                    "intensity" | "irradiance" | "color" => Some(k.as_str()),
+                    _ => None,
+                },
+                _ => None,
+            };
+            match key {
+                Some(k) if k.ends_with("ConeAngle") => (light.key("spot").key(k), m),
+                Some("irradiance") => (light.key("intensity"), m),
+                Some(k) => (light.key(k), m),
+                None => (light, m),
+            }
         })?;
         lights.push(light);
     }

@@ -27,6 +27,8 @@ pub(super) type UvMap = [f32; 6];
 /// The materials of one glTF file, converted as primitives first use them.
 pub(in crate::scene) struct GltfMaterials<'d> {
     file: &'d str,
+    /// Where the file is, for errors placed inside it.
+    file_at: &'d KeyPath,
     dir: &'d str,
     root: &'d gltf::json::Root,
     buffers: &'d [Vec<u8>],
@@ -37,10 +39,10 @@ pub(in crate::scene) struct GltfMaterials<'d> {
 }
 
 impl<'d> GltfMaterials<'d> {
-    /// The materials of a document read from `file` in directory `dir`, with the scene's
-    /// replacements by material name.
+    /// The materials of a document read from `file` (placed at `file_at`) in directory `dir`,
+    /// with the scene's replacements by material name.
     pub(super) fn new(
-        file: &'d str,
+        (file, file_at): (&'d str, &'d KeyPath),
         dir: &'d str,
         root: &'d gltf::json::Root,
         buffers: &'d [Vec<u8>],
@@ -48,6 +50,7 @@ impl<'d> GltfMaterials<'d> {
     ) -> Self {
         Self {
             file,
+            file_at,
             dir,
             root,
             buffers,
@@ -73,7 +76,6 @@ impl<'d> GltfMaterials<'d> {
     }
 
     /// The scene's index of `m`, built at its first use.
-    #[allow(clippy::too_many_arguments)]
     pub(super) fn index(
         &mut self,
         m: &gltf::Material,
@@ -81,7 +83,6 @@ impl<'d> GltfMaterials<'d> {
         files: &mut SceneFiles,
         limits: &Limits,
         assets: &dyn Assets,
-        path: &KeyPath,
     ) -> Result<u32, Invalid> {
         if let Some(&i) = self.built.get(&m.index()) {
             return Ok(i);
@@ -90,24 +91,14 @@ impl<'d> GltfMaterials<'d> {
             self.built.insert(m.index(), i);
             return Ok(i);
         }
-        let what = match m.index() {
-            Some(i) => format!("materials[{i}]"),
-            None => "the default material".into(),
+        // The default material has no place of its own; its factors are glTF's defaults, so
+        // nothing in it can be wrong.
+        let at = match m.index() {
+            Some(i) => self.file_at.key("materials").index(i),
+            None => self.file_at.clone(),
         };
-        // Errors about one of its textures already name it (`materials[0].baseColorTexture`).
-        let within = |(p, e): Invalid| {
-            if e.starts_with(&what) {
-                (p, e)
-            } else {
-                (p, format!("{what}: {e}"))
-            }
-        };
-        let (material, absorption, pbr) = self
-            .convert(m, &what, files, limits, assets, path)
-            .map_err(within)?;
-        let alpha = self
-            .alpha(m, &what, files, limits, assets, path)
-            .map_err(within)?;
+        let (material, absorption, pbr) = self.convert(m, &at, files, limits, assets)?;
+        let alpha = self.alpha(m, &at, files, limits, assets)?;
         let mut material = material;
         if let Some(p) = pbr {
             material.bsdf = PbrRef::add(tables.kinds, p);
@@ -117,15 +108,7 @@ impl<'d> GltfMaterials<'d> {
             .emissive_texture()
             .filter(|_| material.emission != Vec3A::ZERO)
         {
-            let t = self.texture(
-                &info.texture(),
-                &format!("{what}.emissiveTexture"),
-                TextureUse::Color,
-                files,
-                limits,
-                assets,
-                path,
-            )?;
+            let t = self.texture(&info.texture(), TextureUse::Color, files, limits, assets)?;
             tables.emissive.push((i, t));
         }
         tables.materials.push(material);
@@ -139,17 +122,14 @@ impl<'d> GltfMaterials<'d> {
 
     /// One material: the runtime material (its BSDF a placeholder where a pbr material is
     /// returned beside it), its absorption inside, and the pbr material if it is one.
-    #[allow(clippy::too_many_arguments)]
     fn convert(
         &mut self,
         m: &gltf::Material,
-        what: &str,
+        at: &KeyPath,
         files: &mut SceneFiles,
         limits: &Limits,
         assets: &dyn Assets,
-        path: &KeyPath,
     ) -> Result<(Material, Vec3A, Option<PbrMaterial>), Invalid> {
-        let fail = |msg: String| (path.clone(), msg);
         let pbr = m.pbr_metallic_roughness();
         let [r, g, b, _] = pbr.base_color_factor();
         let base_color = Vec3A::new(unit(r), unit(g), unit(b));
@@ -157,9 +137,12 @@ impl<'d> GltfMaterials<'d> {
         let roughness = unit(pbr.roughness_factor());
         let factors = [r, g, b, pbr.metallic_factor(), pbr.roughness_factor()];
         if factors.iter().any(|x| !x.is_finite()) {
-            return Err(fail(format!("a factor is not finite: {factors:?}")));
+            return Err((
+                at.key("pbrMetallicRoughness"),
+                format!("a factor is not finite: {factors:?}"),
+            ));
         }
-        let emission = emission_of(m).map_err(fail)?;
+        let emission = emission_of(m).map_err(|e| (at.key("emissiveFactor"), e))?;
         let (set, map) = self.uv_map(m);
         if infos(m)
             .into_iter()
@@ -184,33 +167,25 @@ impl<'d> GltfMaterials<'d> {
                 let tinted = pbr.base_color_texture().is_some() || base_color != Vec3A::ONE;
                 let (material, sigma) = self
                     .volume_glass(&volume, (roughness, ior), tinted, emission)
-                    .map_err(fail)?;
+                    .map_err(|e| {
+                        let ext = at.key("extensions").key("KHR_materials_volume");
+                        (ext, e)
+                    })?;
                 return Ok((material, sigma, None));
             }
             self.warn("renders a volume that does not transmit fully, or is metallic or textured, as a thin wall");
         }
-        let mut texture = |t: Option<gltf::Texture>, key: &str, usage: TextureUse| {
-            t.map(|t| {
-                self.texture(
-                    &t,
-                    &format!("{what}.{key}"),
-                    usage,
-                    files,
-                    limits,
-                    assets,
-                    path,
-                )
-            })
-            .transpose()
+        // A texture's errors are its image's, placed there (`/images/3/uri`).
+        let mut texture = |t: Option<gltf::Texture>, usage: TextureUse| {
+            t.map(|t| self.texture(&t, usage, files, limits, assets))
+                .transpose()
         };
         let base_texture = texture(
             pbr.base_color_texture().map(|i| i.texture()),
-            "baseColorTexture",
             TextureUse::Color,
         )?;
         let mr = texture(
             pbr.metallic_roughness_texture().map(|i| i.texture()),
-            "metallicRoughnessTexture",
             TextureUse::Data,
         )?;
         let tx = texture(
@@ -218,22 +193,20 @@ impl<'d> GltfMaterials<'d> {
                 .as_ref()
                 .and_then(|t| t.transmission_texture())
                 .map(|i| i.texture()),
-            "transmissionTexture",
             TextureUse::Data,
         )?;
         let normal_map = match m.normal_texture() {
             Some(n) if !n.scale().is_finite() => {
                 let scale = n.scale();
-                return Err(fail(format!(
-                    "normalTexture.scale must be finite, got {scale}"
-                )));
+                return Err((
+                    at.key("normalTexture").key("scale"),
+                    format!("must be finite, got {scale}"),
+                ));
             }
-            Some(n) => {
-                texture(Some(n.texture()), "normalTexture", TextureUse::Data)?.map(|t| NormalMap {
-                    texture: t,
-                    scale: n.scale(),
-                })
-            }
+            Some(n) => texture(Some(n.texture()), TextureUse::Data)?.map(|t| NormalMap {
+                texture: t,
+                scale: n.scale(),
+            }),
             None => None,
         };
         // glTF packs roughness in green and metalness in blue.
@@ -317,7 +290,7 @@ impl<'d> GltfMaterials<'d> {
         let d = volume.attenuation_distance();
         if !c.is_finite() || !(d > 0.0) {
             return Err(format!(
-                "KHR_materials_volume: attenuation colour {:?} and distance {d} must be finite and positive",
+                "attenuation colour {:?} and distance {d} must be finite and positive",
                 c.to_array()
             ));
         }
@@ -339,15 +312,13 @@ impl<'d> GltfMaterials<'d> {
     /// A `MASK` or `BLEND` material's alpha test: the base colour factor's alpha times its
     /// texture's alpha channel; `None` for an opaque material, or one whose alpha is 1
     /// everywhere.
-    #[allow(clippy::too_many_arguments)]
     fn alpha(
         &mut self,
         m: &gltf::Material,
-        what: &str,
+        at: &KeyPath,
         files: &mut SceneFiles,
         limits: &Limits,
         assets: &dyn Assets,
-        path: &KeyPath,
     ) -> Result<Option<AlphaTest>, Invalid> {
         let cutoff = match m.alpha_mode() {
             gltf::material::AlphaMode::Opaque => return Ok(None),
@@ -357,20 +328,14 @@ impl<'d> GltfMaterials<'d> {
         let factor = m.pbr_metallic_roughness().base_color_factor()[3];
         if !factor.is_finite() || cutoff.is_some_and(|c| !c.is_finite()) {
             return Err((
-                path.clone(),
+                at.clone(),
                 "its alpha factor or cutoff is not finite".into(),
             ));
         }
         let texture = match m.pbr_metallic_roughness().base_color_texture() {
-            Some(info) => Some(self.texture(
-                &info.texture(),
-                &format!("{what}.baseColorTexture"),
-                TextureUse::Alpha,
-                files,
-                limits,
-                assets,
-                path,
-            )?),
+            Some(info) => {
+                Some(self.texture(&info.texture(), TextureUse::Alpha, files, limits, assets)?)
+            }
             None if factor >= 1.0 => return Ok(None),
             None => None,
         };
@@ -382,20 +347,18 @@ impl<'d> GltfMaterials<'d> {
     }
 
     /// A glTF texture's image, read once per use (colour or data) however many materials
-    /// name it.
-    #[allow(clippy::too_many_arguments)]
+    /// name it. Its errors are placed at the image (`/images/3`), where the fix goes.
     fn texture(
         &mut self,
         t: &gltf::Texture,
-        what: &str,
         usage: TextureUse,
         files: &mut SceneFiles,
         limits: &Limits,
         assets: &dyn Assets,
-        path: &KeyPath,
     ) -> Result<u32, Invalid> {
-        let fail = |msg: String| (path.clone(), format!("{what}: {msg}"));
         let image = t.source();
+        let at = self.file_at.key("images").index(image.index());
+        let fail = |msg: String| (at.clone(), msg);
         let wrap = |m: gltf::texture::WrappingMode| match m {
             gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
             gltf::texture::WrappingMode::ClampToEdge => Wrap::Clamp,
@@ -410,13 +373,12 @@ impl<'d> GltfMaterials<'d> {
                 "image/jpeg" => ImageFormat::Jpeg,
                 other => {
                     return Err(fail(format!(
-                        "images[{}] is {other}; tessera reads PNG and JPEG images",
-                        image.index()
+                        "is {other}; tessera reads PNG and JPEG images"
                     )))
                 }
             };
             let key = format!("{}#images[{}]", self.file, image.index());
-            files.embedded_texture(&key, path, format, bytes, usage, wrap)
+            files.embedded_texture(&key, &at, format, bytes, usage, wrap)
         };
         // From the JSON: the crate's `Image::source` unwraps what its validation does not check
         // (an image with neither a view nor a URI, a view without a MIME type).
@@ -435,35 +397,24 @@ impl<'d> GltfMaterials<'d> {
                             .get(o..o.checked_add(n)?)
                     })
                     .ok_or_else(|| {
-                        fail(format!(
-                            "images[{}]: its buffer view runs past the end of its buffer",
-                            image.index()
-                        ))
+                        fail("its buffer view runs past the end of its buffer".into())
                     })?;
-                let mime = mime_type.ok_or_else(|| {
-                    fail(format!(
-                        "images[{}]: an image in a buffer view needs a mimeType",
-                        image.index()
-                    ))
-                })?;
+                let mime = mime_type
+                    .ok_or_else(|| fail("an image in a buffer view needs a mimeType".into()))?;
                 embedded(mime, bytes, files)
             }
             (None, Some(uri)) => match data::data_uri(uri) {
                 Some(r) => {
-                    let (mime, bytes) = r.map_err(fail)?;
+                    let (mime, bytes) = r.map_err(|m| (at.key("uri"), m))?;
                     embedded(mime_type.unwrap_or(&mime), &bytes, files)
                 }
                 None => {
-                    let name = data::uri_file(self.dir, uri).map_err(fail)?;
-                    files
-                        .texture_wrapped(&name, path, limits, assets, usage, wrap)
-                        .map_err(|(p, m)| (p, format!("{what}: {m}")))
+                    let uri_at = at.key("uri");
+                    let name = data::uri_file(self.dir, uri).map_err(|m| (uri_at.clone(), m))?;
+                    files.texture_wrapped(&name, &uri_at, limits, assets, usage, wrap)
                 }
             },
-            (None, None) => Err(fail(format!(
-                "images[{}] has neither a bufferView nor a uri",
-                image.index()
-            ))),
+            (None, None) => Err(fail("has neither a bufferView nor a uri".into())),
         }
     }
 

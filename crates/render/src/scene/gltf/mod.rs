@@ -31,6 +31,7 @@ use crate::interaction::Transformed;
 use crate::material::Tables;
 use crate::mesh::{MeshInstance, TriMesh};
 use crate::shape::Shape;
+use crate::util::fields::root as json_root;
 
 pub(super) use camera::camera;
 pub(super) use entry::describe;
@@ -122,7 +123,8 @@ pub(crate) struct Lent {
 
 impl Lent {
     /// The file `name` whose bytes are `bytes`, parsed; or why it does not parse.
-    pub(crate) fn parse(name: &str, bytes: &[u8]) -> Result<Self, String> {
+    /// Errors are placed in the file, from its root.
+    pub(crate) fn parse(name: &str, bytes: &[u8]) -> Result<Self, Invalid> {
         let (doc, bin, warnings) = parse(bytes)?;
         Ok(Self {
             name: name.to_string(),
@@ -143,37 +145,69 @@ impl Lent {
     }
 }
 
+/// A place as gltf-json's validation writes it (`meshes[0].primitives[1]["POSITION"]`), as a
+/// key path.
+fn validated_path(p: &str) -> KeyPath {
+    let mut out = KeyPath::default();
+    let mut rest = p;
+    while !rest.is_empty() {
+        if let Some(r) = rest.strip_prefix("[\"") {
+            let (key, r) = r.split_once("\"]").unwrap_or((r, ""));
+            out = out.key(key);
+            rest = r;
+        } else if let Some(r) = rest.strip_prefix('[') {
+            let (n, r) = r.split_once(']').unwrap_or((r, ""));
+            out = match n.parse() {
+                Ok(i) => out.index(i),
+                Err(_) => out.key(n),
+            };
+            rest = r;
+        } else {
+            let r = rest.strip_prefix('.').unwrap_or(rest);
+            let end = r.find(['.', '[']).unwrap_or(r.len());
+            out = out.key(&r[..end]);
+            rest = &r[end..];
+        }
+    }
+    out
+}
+
 /// A primitive's mesh and whether it shades smooth; `None` for one without triangles.
 type Built = Option<(Arc<TriMesh>, bool)>;
 
 /// Parses `bytes` (a `.gltf` or `.glb`) and checks it: the JSON and its indices, and the
 /// extensions it requires.
-pub(crate) fn parse(bytes: &[u8]) -> Result<Parsed<'_>, String> {
+pub(crate) fn parse(bytes: &[u8]) -> Result<Parsed<'_>, Invalid> {
+    let whole = |m: String| (KeyPath::default(), m);
     let (json, bin) = if bytes.starts_with(b"glTF") {
-        data::split_glb(bytes)?
+        data::split_glb(bytes).map_err(whole)?
     } else {
         (bytes, None)
     };
-    let root: gltf::json::Root = serde_json::from_slice(json).map_err(|e| {
-        // glTF 1.0 differs in shape, so its files fail to parse: say why rather than where.
-        let version = serde_json::from_slice::<serde_json::Value>(json)
-            .ok()
-            .and_then(|v| v["asset"]["version"].as_str().map(str::to_string));
-        match version {
-            Some(v) if !v.starts_with("2.") => {
-                format!("glTF {v}; tessera reads glTF 2.0 (convert it, e.g. with gltf-pipeline)")
+    let root: gltf::json::Root = serde_json::from_slice(json)
+        .map_err(|e| {
+            // glTF 1.0 differs in shape, so its files fail to parse: say why rather than where.
+            let version = serde_json::from_slice::<serde_json::Value>(json)
+                .ok()
+                .and_then(|v| v["asset"]["version"].as_str().map(str::to_string));
+            match version {
+                Some(v) if !v.starts_with("2.") => {
+                    format!(
+                        "glTF {v}; tessera reads glTF 2.0 (convert it, e.g. with gltf-pipeline)"
+                    )
+                }
+                _ => format!("not valid glTF 2.0 JSON: {e}"),
             }
-            _ => format!("not valid glTF 2.0 JSON: {e}"),
-        }
-    })?;
+        })
+        .map_err(whole)?;
     if !root.asset.version.starts_with("2.") {
-        return Err(format!(
-            "glTF {}; tessera reads glTF 2.0",
-            root.asset.version
+        return Err((
+            json_root("asset").key("version"),
+            format!("glTF {}; tessera reads glTF 2.0", root.asset.version),
         ));
     }
     let mut warnings = Vec::new();
-    for ext in &root.extensions_required {
+    for (i, ext) in root.extensions_required.iter().enumerate() {
         if READ.contains(&ext.as_str()) {
             continue;
         }
@@ -183,8 +217,9 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<Parsed<'_>, String> {
             }
             _ => "",
         };
-        return Err(format!(
-            "requires the extension {ext}, which tessera does not read{hint}"
+        return Err((
+            json_root("extensionsRequired").index(i),
+            format!("requires the extension {ext}, which tessera does not read{hint}"),
         ));
     }
     for ext in &root.extensions_used {
@@ -193,9 +228,9 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<Parsed<'_>, String> {
         }
     }
     if root.nodes.len() > MAX_NODES {
-        return Err(format!(
-            "{} nodes, above the limit of {MAX_NODES}",
-            root.nodes.len()
+        return Err((
+            json_root("nodes"),
+            format!("{} nodes, above the limit of {MAX_NODES}", root.nodes.len()),
         ));
     }
     // gltf-json's own validation indexes `accessors` by a primitive's POSITION before it
@@ -204,11 +239,18 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<Parsed<'_>, String> {
         for (p, prim) in mesh.primitives.iter().enumerate() {
             for (semantic, index) in &prim.attributes {
                 if index.value() >= root.accessors.len() {
-                    return Err(format!(
-                        "meshes[{m}].primitives[{p}].attributes[{semantic:?}]: accessor {} does \
-                         not exist ({} accessors)",
-                        index.value(),
-                        root.accessors.len()
+                    return Err((
+                        json_root("meshes")
+                            .index(m)
+                            .key("primitives")
+                            .index(p)
+                            .key("attributes")
+                            .key(&semantic.to_string()),
+                        format!(
+                            "accessor {} does not exist ({} accessors)",
+                            index.value(),
+                            root.accessors.len()
+                        ),
                     ));
                 }
             }
@@ -219,7 +261,7 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<Parsed<'_>, String> {
         let path = path().to_string();
         // Required extensions were judged above, against what tessera reads.
         if first.is_none() && !path.starts_with("extensionsRequired") {
-            first = Some(format!("{path}: {error}"));
+            first = Some((validated_path(&path), error.to_string()));
         }
     });
     if let Some(e) = first {
@@ -245,7 +287,9 @@ pub(super) fn import(
     assets: &dyn Assets,
     path: &KeyPath,
 ) -> Result<Imported, Invalid> {
-    let fail = |m: String| (path.within(name), m);
+    // Every error below is placed inside the file, at the JSON it concerns.
+    let root = path.within(name);
+    let fail = |(at, m): Invalid| (root.join(&at), m);
     // Read even when lent: the file counts among the scene's files, and its hash in the
     // scene's.
     let bytes = files.read_file(name, path, limits, assets)?;
@@ -267,11 +311,19 @@ pub(super) fn import(
     files
         .take_instances(instances.saturating_sub(1), instances, limits, path)
         .map_err(|(p, m)| (p.within(name), m))?;
-    files.triangles_fit(declared, limits).map_err(fail)?;
+    files
+        .triangles_fit(declared, limits)
+        .map_err(|m| (root.clone(), m))?;
     let dir = dir_of(name);
-    let buffers = buffers(&doc, bin, dir, files, limits, assets, path).map_err(fail)?;
+    let buffers = buffers(&doc, bin, dir, files, limits, assets, &root)?;
     check_overrides(&doc, overrides, name, path)?;
-    let mut mats = GltfMaterials::new(name, dir, doc.as_json(), &buffers, overrides);
+    let mut mats = GltfMaterials::new(
+        (name, &root),
+        dir,
+        doc.as_json(),
+        &buffers,
+        overrides,
+    );
     let mut meshes: BTreeMap<(usize, usize), Built> = BTreeMap::new();
     let mut out = Imported {
         parts: Vec::new(),
@@ -302,9 +354,7 @@ pub(super) fn import(
                 skipped_modes += 1;
                 continue;
             }
-            let material = mats
-                .index(&prim.material(), tables, files, limits, assets, path)
-                .map_err(|(p, m)| (p.within(name), m))?;
+            let material = mats.index(&prim.material(), tables, files, limits, assets)?;
             let uv_map = mats.uv_map(&prim.material());
             // Only a normal map reads tangents, so only its meshes carry them.
             let tangents = tables.materials[material as usize]
@@ -312,11 +362,10 @@ pub(super) fn import(
                 .needs_tangents(tables.kinds);
             let key = (mesh.index(), prim.index());
             if let std::collections::btree_map::Entry::Vacant(e) = meshes.entry(key) {
-                let what = format!("meshes[{}].primitives[{}]", mesh.index(), prim.index());
-                let built = triangles(
-                    &prim, &buffers, uv_map, tangents, &what, files, limits, path,
-                )
-                .map_err(|(p, m)| (p.within(name), m))?;
+                let at = (root.key("meshes").index(mesh.index()))
+                    .key("primitives")
+                    .index(prim.index());
+                let built = triangles(&prim, &buffers, uv_map, tangents, &at, files, limits)?;
                 e.insert(built);
             }
             if let Some(Some((mesh, smooth))) = meshes.get(&key) {
@@ -423,30 +472,28 @@ fn buffers(
     files: &mut SceneFiles,
     limits: &Limits,
     assets: &dyn Assets,
-    path: &KeyPath,
-) -> Result<Vec<Vec<u8>>, String> {
+    root: &KeyPath,
+) -> Result<Vec<Vec<u8>>, Invalid> {
     doc.buffers()
         .map(|b| {
-            let what = format!("buffers[{}]", b.index());
+            let at = root.key("buffers").index(b.index());
+            let uri_at = at.key("uri");
             let bytes = match b.source() {
                 gltf::buffer::Source::Bin => bin
                     .take()
-                    .ok_or_else(|| format!("{what}: the file has no BIN chunk for it"))?,
+                    .ok_or_else(|| (at.clone(), "the file has no BIN chunk for it".into()))?,
                 gltf::buffer::Source::Uri(uri) => match data::data_uri(uri) {
-                    Some(r) => r.map_err(|m| format!("{what}: {m}"))?.1,
+                    Some(r) => r.map_err(|m| (uri_at.clone(), m))?.1,
                     None => {
-                        let file = data::uri_file(dir, uri).map_err(|m| format!("{what}: {m}"))?;
-                        files
-                            .read_file(&file, path, limits, assets)
-                            .map_err(|(_, m)| format!("{what}: {m}"))?
+                        let file = data::uri_file(dir, uri).map_err(|m| (uri_at.clone(), m))?;
+                        files.read_file(&file, &uri_at, limits, assets)?
                     }
                 },
             };
             if bytes.len() < b.length() {
-                return Err(format!(
-                    "{what}: declares {} bytes, but holds {}",
-                    b.length(),
-                    bytes.len()
+                return Err((
+                    at.key("byteLength"),
+                    format!("declares {} bytes, but holds {}", b.length(), bytes.len()),
                 ));
             }
             Ok(bytes)
@@ -457,7 +504,7 @@ fn buffers(
 /// The nodes of the scene the file shows (its `scene`, else its first, else every root node),
 /// each with its world transform. A node reached twice (a cycle, or a node with two parents)
 /// is an error: the graph must be a forest, and the walk then visits each node once.
-fn walk(doc: &gltf::Document, place: Affine3A) -> Result<Vec<(gltf::Node<'_>, Affine3A)>, String> {
+fn walk(doc: &gltf::Document, place: Affine3A) -> Result<Vec<(gltf::Node<'_>, Affine3A)>, Invalid> {
     let roots: Vec<gltf::Node> = match doc.default_scene().or_else(|| doc.scenes().next()) {
         Some(s) => s.nodes().collect(),
         None => {
@@ -476,17 +523,16 @@ fn walk(doc: &gltf::Document, place: Affine3A) -> Result<Vec<(gltf::Node<'_>, Af
         roots.into_iter().rev().map(|n| (n, place)).collect();
     while let Some((node, parent)) = stack.pop() {
         if std::mem::replace(&mut seen[node.index()], true) {
-            return Err(format!(
-                "nodes[{}] is reached twice: the node graph has a cycle or a node with two \
-                 parents",
-                node.index()
+            return Err((
+                json_root("nodes").index(node.index()),
+                "is reached twice: the node graph has a cycle or a node with two parents".into(),
             ));
         }
         let m = Mat4::from_cols_array_2d(&node.transform().matrix());
         if !m.is_finite() || m.row(3) != glam::Vec4::W {
-            return Err(format!(
-                "nodes[{}]: its transform is not a finite affine map",
-                node.index()
+            return Err((
+                json_root("nodes").index(node.index()),
+                "its transform is not a finite affine map".into(),
             ));
         }
         let world = parent * Affine3A::from_mat4(m);
@@ -504,7 +550,7 @@ fn camera_at(
     doc: &gltf::Document,
     camera: &gltf::Camera,
     world: &Affine3A,
-) -> Result<GltfCamera, String> {
+) -> Result<GltfCamera, Invalid> {
     // The crate's `Camera::projection` unwraps the values of the camera's type, which its
     // validation does not check are there.
     let json = &doc.as_json().cameras[camera.index()];
@@ -513,9 +559,9 @@ fn camera_at(
         gltf::json::validation::Checked::Valid(gltf::json::camera::Type::Perspective)
     );
     if perspective && json.perspective.is_none() || !perspective && json.orthographic.is_none() {
-        return Err(format!(
-            "cameras[{}]: its type's values (`perspective` or `orthographic`) are missing",
-            camera.index()
+        return Err((
+            json_root("cameras").index(camera.index()),
+            "its type's values (`perspective` or `orthographic`) are missing".into(),
         ));
     }
     Ok(GltfCamera {
@@ -536,21 +582,23 @@ fn camera_at(
     })
 }
 
-/// A primitive's per-vertex attribute `semantic` (labelled `label` in errors, its count in
-/// `unit`s): `None` where the primitive has none, else one value per position of `n`.
+/// A primitive's per-vertex attribute `semantic` (its count in `unit`s in errors, placed at
+/// the primitive `at`'s `attributes`): `None` where the primitive has none, else one value per
+/// position of `n`.
 fn attribute<const N: usize>(
     prim: &gltf::Primitive,
     buffers: &[Vec<u8>],
     semantic: gltf::Semantic,
-    (label, unit): (&str, &str),
+    (at, unit): (&KeyPath, &str),
     n: usize,
-) -> Result<Option<Vec<[f32; N]>>, String> {
+) -> Result<Option<Vec<[f32; N]>>, Invalid> {
     let Some(a) = prim.get(&semantic) else {
         return Ok(None);
     };
-    let v = data::read_floats::<N>(buffers, &a, label)?;
+    let at = at.key("attributes").key(&semantic.to_string());
+    let v = data::read_floats::<N>(buffers, &a, &at)?;
     if v.len() != n {
-        return Err(format!("{label}: {} {unit}for {n} positions", v.len()));
+        return Err((at, format!("{} {unit}for {n} positions", v.len())));
     }
     Ok(Some(v))
 }
@@ -563,53 +611,43 @@ fn triangles(
     buffers: &[Vec<u8>],
     (uv_set, uv_map): (u32, Option<material::UvMap>),
     tangents: bool,
-    what: &str,
+    at: &KeyPath,
     files: &mut SceneFiles,
     limits: &Limits,
-    path: &KeyPath,
 ) -> Result<Built, Invalid> {
-    let fail = |m: String| (path.clone(), m);
     let positions = prim
         .get(&gltf::Semantic::Positions)
-        .ok_or_else(|| fail(format!("{what}: has no POSITION")))?;
-    let positions =
-        data::read_floats::<3>(buffers, &positions, &format!("{what}.POSITION")).map_err(fail)?;
+        .ok_or_else(|| (at.key("attributes"), "has no POSITION".to_string()))?;
+    let positions_at = at.key("attributes").key("POSITION");
+    let positions = data::read_floats::<3>(buffers, &positions, &positions_at)?;
     if let Some(i) = positions
         .iter()
         .position(|p| !p.iter().all(|x| x.is_finite()))
     {
-        return Err(fail(format!(
-            "{what}.POSITION: vertex {i} is not finite: {:?}",
-            positions[i]
-        )));
+        return Err((
+            positions_at,
+            format!("vertex {i} is not finite: {:?}", positions[i]),
+        ));
     }
     let n = positions.len();
     let indices = match prim.indices() {
-        Some(a) => data::read_indices(buffers, &a, n, &format!("{what}.indices")).map_err(fail)?,
+        Some(a) => data::read_indices(buffers, &a, n, &at.key("indices"))?,
         None => (0..n as u32).collect(),
     };
     let corners = corners(prim.mode(), &indices);
     if corners.is_empty() {
         return Ok(None);
     }
-    files.take_triangles(corners.len(), limits, path)?;
-    let normals = attribute::<3>(
-        prim,
-        buffers,
-        gltf::Semantic::Normals,
-        (&format!("{what}.NORMAL"), "normals "),
-        n,
-    )
-    .map_err(fail)?
-    .unwrap_or_default();
+    files.take_triangles(corners.len(), limits, at)?;
+    let normals = attribute::<3>(prim, buffers, gltf::Semantic::Normals, (at, "normals "), n)?
+        .unwrap_or_default();
     let uvs = attribute::<2>(
         prim,
         buffers,
         gltf::Semantic::TexCoords(uv_set),
-        (&format!("{what}.TEXCOORD_{uv_set}"), ""),
+        (at, ""),
         n,
-    )
-    .map_err(fail)?
+    )?
     .unwrap_or_default();
     let p = |i: u32| Vec3A::from_array(positions[i as usize]);
     let tris: Vec<[Vec3A; 3]> = corners.iter().map(|c| c.map(p)).collect();
@@ -645,10 +683,7 @@ fn triangles(
     let tangents = if !tangents || uvs.is_empty() {
         Vec::new()
     } else {
-        let label = format!("{what}.TANGENT");
-        match attribute::<4>(prim, buffers, gltf::Semantic::Tangents, (&label, ""), n)
-            .map_err(fail)?
-        {
+        match attribute::<4>(prim, buffers, gltf::Semantic::Tangents, (at, ""), n)? {
             Some(v) => tangents::given(&v, &corners),
             None => tangents::mikktspace(&tris, &normals, &uvs),
         }
@@ -685,5 +720,18 @@ fn corners(mode: Mode, indices: &[u32]) -> Vec<[u32; 3]> {
             None => Vec::new(),
         },
         _ => Vec::new(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::validated_path;
+
+    #[test]
+    fn a_validation_path_reads_as_the_pointer_of_the_same_place() {
+        let p = validated_path(r#"meshes[0].primitives[12].attributes["TEXCOORD_0"]"#);
+        assert_eq!(p.pointer(), "/meshes/0/primitives/12/attributes/TEXCOORD_0");
+        assert_eq!(validated_path("asset").pointer(), "/asset");
+        assert_eq!(validated_path("").pointer(), "");
     }
 }
