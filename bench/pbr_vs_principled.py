@@ -3,10 +3,13 @@ differs from Mitsuba 3's `principled` (Burley's Disney BRDF as Mitsuba implement
 numerical quadrature of the two models' formulas, written out here from their definitions
 (docs/renderer.md, "glTF's material"; Mitsuba 3's src/bsdfs/principled.cpp):
 
-- tessera: f = F(o·h, η) D G₂ / (4 μo μi) + c S T(μo) T(μi), with G₂ the height-correlated
-  masking-shadowing, T(μ) = 1 − E(μ) the coat's transmittance (E the coat lobe's directional
-  albedo), S = 1 / ((1 − F̄) π η²) and F̄ = 2 ∫ E_inside(μ) μ dμ, the coat's reflectance from
-  inside (index 1/η, with total internal reflection);
+- tessera (its default, `distribution = "multiscatter_ggx"`): f = k(μo) F(o·h, η) D G₂ /
+  (4 μo μi) + c (1 − E_c(μo)) / π, with G₂ the height-correlated masking-shadowing,
+  k = 1 + F_ms (1 − E₁(μo)) / E₁(μo) Cycles' multiple-scattering compensation (E₁ the lobe's
+  albedo for a white Fresnel, Ē₁ its cosine-weighted mean, F_ms = F̄ Ē₁ / (1 − F̄ (1 − Ē₁)),
+  F̄ the dielectric Fresnel's cosine-weighted mean), and E_c(μ) = k(μ) E_ss(μ) the coat's
+  albedo (E_ss the specular lobe's): the base is albedo-scaled by what the coat leaves at the
+  view;
 - Mitsuba's principled at metallic 0, specular 0.5 (η = 1.5), no sheen, clearcoat,
   transmission or tint: f = F(o·h, η) D G₁(o) G₁(i) / (4 μo μi)
   + c/π [(1 − Fo/2)(1 − Fi/2) + Rr (Fo + Fi + Fo Fi (Rr − 1))], with F_x = (1 − μx)⁵ and
@@ -59,7 +62,8 @@ WI, DW = grid()
 
 
 def lobe(mu_o, alpha, eta, correlated):
-    """The specular lobe f·μi over the grid for the view at μo (in the xz plane)."""
+    """The specular lobe f·μi over the grid for the view at μo (in the xz plane); a white
+    Fresnel where `eta` is None."""
     o = np.array([np.sqrt(1 - mu_o * mu_o), 0.0, mu_o])
     h = WI + o
     h /= np.linalg.norm(h, axis=-1, keepdims=True)
@@ -69,7 +73,8 @@ def lobe(mu_o, alpha, eta, correlated):
         g = 1 / (1 + lam(alpha, mu_o) + lam(alpha, mu_i))
     else:
         g = 1 / (1 + lam(alpha, mu_o)) / (1 + lam(alpha, mu_i))
-    return fresnel(o_h, eta) * ggx(alpha, h[..., 2]) * g / (4 * mu_o), h, o
+    f = 1.0 if eta is None else fresnel(o_h, eta)
+    return f * ggx(alpha, h[..., 2]) * g / (4 * mu_o), h, o
 
 
 def albedo(mu_o, alpha, eta, correlated):
@@ -79,33 +84,33 @@ def albedo(mu_o, alpha, eta, correlated):
 def models(r, colours, angles):
     alpha = r * r
     mus = (np.arange(64) + 0.5) / 64
-    t_of = np.interp  # T(μ) tabulated over μ, as tessera's CoatTable is
-    t_tab = np.array([1 - albedo(m, alpha, ETA, True) for m in mus])
-    f_bar = 2 * np.mean([albedo(m, alpha, 1 / ETA, True) * m for m in mus])
-    s = 1 / ((1 - f_bar) * np.pi * ETA * ETA)
-    t_i = t_of(WI[..., 2], mus, t_tab)
+    e1 = np.array([albedo(m, alpha, None, True) for m in mus])
+    e1_bar = 2 * np.mean(e1 * mus)
+    f_bar = 2 * np.mean(fresnel(mus, ETA) * mus)
+    f_ms = f_bar * e1_bar / (1 - f_bar * (1 - e1_bar))
+    mu_i = WI[..., 2]
     out = {}
     for mu_o in angles:
         spec_t, _, _ = lobe(mu_o, alpha, ETA, True)
         spec_d, h, o = lobe(mu_o, alpha, ETA, False)
-        mu_i = WI[..., 2]
-        base_t = s * t_of(mu_o, mus, t_tab) * (t_i * mu_i).sum() * DW
+        e1_o = np.interp(mu_o, mus, e1)
+        e_c = spec_t.sum() * DW * (1 + f_ms * (1 - e1_o) / e1_o)
+        base_t = 1 - e_c
         fo, fi = (1 - mu_o) ** 5, (1 - mu_i) ** 5
         rr = 2 * r * (WI * h).sum(-1) ** 2
         disney = ((1 - fo / 2) * (1 - fi / 2) + rr * (fo + fi + fo * fi * (rr - 1))) / np.pi
         base_d = (disney * mu_i).sum() * DW
-        out[mu_o] = {c: (spec_t.sum() * DW + np.array(c) * base_t,
+        out[mu_o] = {c: (e_c + np.array(c) * base_t,
                          spec_d.sum() * DW + np.array(c) * base_d) for c in colours}
-    return out, f_bar, s
+    return out, f_ms, e1_bar
 
 
 def main():
     r = 0.5
     colours = [(0.8, 0.3, 0.2), (1.0, 1.0, 1.0)]
     angles = [float(np.cos(np.radians(a))) for a in (0, 30, 45, 60, 75, 85)]
-    res, f_bar, s = models(r, colours, angles)
-    print(f"roughness {r}, eta {ETA}: tessera's F_bar (inside) = {f_bar:.4f}, "
-          f"S = {s * np.pi:.4f}/pi")
+    res, f_ms, e1_bar = models(r, colours, angles)
+    print(f"roughness {r}, eta {ETA}: tessera's E1_bar = {e1_bar:.4f}, F_ms = {f_ms:.4f}")
     for c in colours:
         print(f"\nbase colour {c}")
         print("theta_o | tessera rho (R G B) | principled rho (R G B) | ratio (R G B)")

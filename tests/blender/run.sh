@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# tessera's glTF light and emission units, and its reading of a Blender camera's framing,
-# against Cycles (#83): Blender as a Python module
+# tessera's glTF light and emission units, its reading of a Blender camera's framing, and
+# its pbr material against Principled BSDFs (a default material, a rough blue, a rough gold
+# metal), against Cycles (#83): Blender as a Python module
 # (PyPI's bpy 4.5, Python 3.11) builds small scenes, exports them with its own glTF exporter
 # and renders them with Cycles; tessera renders each export; every region's mean must agree
 # within 2% (tests/blender/compare.py). Sets up target/blender-venv on first use (a download

@@ -5,7 +5,9 @@ Run by tests/blender/run.sh with Blender as a Python module (PyPI's `bpy`):
     python units.py -- OUT_DIR
 
 For each light kind (a point light, a spot with a hard edge and one with a soft blend, a sun,
-and an emissive quad), and for a portrait and a landscape film (Blender's sensor fit, which its
+and an emissive quad), for three Principled BSDFs with a glossy layer (Blender's default
+material, a rough blue one, and a rough gold metal) under a sun, for a closed box of such
+materials with every bounce counted, and for a portrait and a landscape film (Blender's sensor fit, which its
 exporter turns into glTF's yfov and aspect ratio), it builds the same small scene: a white diffuse floor (a Principled BSDF
 with Specular IOR Level 0, which Blender exports as KHR_materials_specular's factor 0) under
 that light, seen from above. It exports the scene with Blender's own glTF exporter (its
@@ -88,6 +90,68 @@ def point(scene):
     light(scene, "POINT", 1000.0, shadow_soft_size=0.0)
 
 
+def principled(**inputs):
+    """The floor's material replaced by a Principled BSDF with Blender's defaults (roughness
+    0.5, Specular IOR Level 0.5, IOR 1.5) but `inputs`, under a sun: its glossy layer and the
+    albedo-scaled base under it, as Cycles' multiscatter GGX renders them."""
+    def build(scene):
+        m = bpy.data.materials["floor"]
+        p = m.node_tree.nodes["Principled BSDF"]
+        p.inputs["Specular IOR Level"].default_value = 0.5
+        p.inputs["Roughness"].default_value = 0.5
+        for k, v in inputs.items():
+            p.inputs[k].default_value = v
+        sun = light(scene, "SUN", 3.0, angle=0.0)
+        sun.rotation_euler[0] = math.radians(-30)
+    return build
+
+
+def material(name, **inputs):
+    """A Principled BSDF with Blender's defaults but `inputs`."""
+    m = bpy.data.materials.new(name)
+    m.use_nodes = True
+    p = m.node_tree.nodes["Principled BSDF"]
+    for k, v in inputs.items():
+        p.inputs[k].default_value = v
+    return m
+
+
+def box(scene):
+    """The issue's box: walls of Blender's default material (two of them coloured), an
+    emissive panel under the ceiling, a rough gold ball and a blue one, seen from the open
+    front, every bounce counted (Cycles' limits raised to 64, its glossy filter and clamps
+    off; tessera's paths end by Russian roulette alone)."""
+    c = scene.cycles
+    c.max_bounces = c.diffuse_bounces = c.glossy_bounces = c.transmission_bounces = 64
+    c.blur_glossy = 0.0
+    c.sample_clamp_direct = c.sample_clamp_indirect = 0.0
+    floor = bpy.data.materials["floor"].node_tree.nodes["Principled BSDF"]
+    floor.inputs["Specular IOR Level"].default_value = 0.5
+    floor.inputs["Roughness"].default_value = 0.5
+    walls = [
+        ((0, 2, 2), (math.radians(90), 0, 0), material("back", **{"Base Color": (0.8, 0.8, 0.8, 1)})),
+        ((-2, 0, 2), (0, math.radians(90), 0), material("red", **{"Base Color": (0.8, 0.1, 0.1, 1)})),
+        ((2, 0, 2), (0, math.radians(90), 0), material("green", **{"Base Color": (0.1, 0.8, 0.1, 1)})),
+        ((0, 0, 4), (math.pi, 0, 0), material("ceiling", **{"Base Color": (0.8, 0.8, 0.8, 1)})),
+    ]
+    for location, rotation, m in walls:
+        bpy.ops.mesh.primitive_plane_add(size=4, location=location, rotation=rotation)
+        bpy.context.object.data.materials.append(m)
+    glow = material("panel", **{"Base Color": (0, 0, 0, 1), "Specular IOR Level": 0.0,
+                                "Emission Color": (1.0, 0.9, 0.8, 1), "Emission Strength": 10.0})
+    bpy.ops.mesh.primitive_plane_add(size=1, location=(0, 0, 3.95), rotation=(math.pi, 0, 0))
+    bpy.context.object.data.materials.append(glow)
+    gold = material("gold", **{"Base Color": (0.95, 0.7, 0.3, 1), "Metallic": 1.0,
+                               "Roughness": 0.4})
+    blue = material("blue", **{"Base Color": (0.1, 0.2, 0.8, 1)})
+    for location, radius, m in [((-0.8, 0.5, 0.7), 0.7, gold), ((0.9, -0.3, 0.6), 0.6, blue)]:
+        bpy.ops.mesh.primitive_uv_sphere_add(radius=radius, location=location)
+        bpy.ops.object.shade_smooth()
+        bpy.context.object.data.materials.append(m)
+    scene.camera.location = (0, -7, 2)
+    scene.camera.rotation_euler = (math.radians(90), 0, 0)
+
+
 SCENES = {
     "point": point,
     "spot": lambda s: light(s, "SPOT", 1000.0, shadow_soft_size=0.0,
@@ -96,6 +160,13 @@ SCENES = {
                                   spot_size=math.radians(60), spot_blend=0.5),
     "sun": lambda s: light(s, "SUN", 3.0, angle=0.0).rotation_euler.__setitem__(0, math.radians(30)),
     "emission": emitter,
+    # Blender's default material on the floor, a rough blue one and a rough gold metal, seen
+    # at 45° with the sun 30° past the zenith ahead of the camera: its glossy reflection comes
+    # towards the camera, 15° off the mirror direction.
+    "principled": principled(**{"Base Color": (0.8, 0.8, 0.8, 1)}),
+    "principled-blue": principled(**{"Base Color": (0.1, 0.2, 0.8, 1), "Roughness": 0.8}),
+    "principled-gold": principled(**{"Base Color": (0.95, 0.7, 0.3, 1), "Metallic": 1.0}),
+    "box": box,
 }
 
 

@@ -95,5 +95,6 @@ pub use util::{files, lanes, math, sampling};
 /// lights in its photometric units (candela and lux, over 683 lm/W), its spots' cones as
 /// Blender's blend, and `KHR_materials_specular`'s factor: the same file renders differently,
 /// though the bundled files, rewritten in candela, render the bits they did (the pin's hash is
-/// revision 7's).
-pub const IMAGE_REVISION: u32 = 8;
+/// revision 7's). Revision 9 makes the `pbr` material energy-preserving (multiple scattering
+/// given back, the base albedo-scaled under the coat): every pbr surface renders differently.
+pub const IMAGE_REVISION: u32 = 9;

@@ -409,20 +409,24 @@ fn normal_maps_read_in_the_files_tangents_or_mikktspaces_and_mirroring_keeps_the
     let mut short = with_tangents(quad(plain, true), &[[1.0, 0.0, 0.0, 1.0]; 4]);
     short["accessors"][3]["count"] = json!(3);
     let e = load(&short, &GltfOptions::default()).expect_err("refused");
-    assert!(e.contains("TANGENT: 3 for 4 positions"), "{e}");
+    assert!(
+        e.contains("/meshes/0/primitives/0/attributes/TANGENT: 3 for 4 positions"),
+        "{e}"
+    );
 }
 
 /// `KHR_materials_specular` as Blender writes it (`specularFactor` = 2 × Specular IOR Level):
-/// a factor of 0 is no specular layer, so a white dielectric base keeps all of the light head-on
-/// (Blender's diffuse walls); 0.5 halves the layer's F0, between that and no extension at all.
+/// a factor of 0 is no specular layer, so a grey dielectric base returns its own albedo
+/// head-on (Blender's diffuse walls); 0.5 halves the layer's F0, whose white reflection adds to
+/// the grey, between that and no extension at all.
 #[test]
 fn the_specular_factor_scales_the_dielectric_layer_as_blender_writes_it() {
     use tessera_render::bsdf::PbrBsdf;
     use tessera_render::material::pbr::PbrRef;
     use tessera_render::material::Bsdf;
     let albedo_head_on = |specular: Option<f32>| {
-        let mut material =
-            json!({"pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 0.5}});
+        let mut material = json!({"pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 0.5,
+                "baseColorFactor": [0.5, 0.5, 0.5, 1.0]}});
         if let Some(s) = specular {
             material["extensions"] = json!({"KHR_materials_specular": {"specularFactor": s}});
         }
@@ -446,7 +450,11 @@ fn the_specular_factor_scales_the_dielectric_layer_as_blender_writes_it() {
             })
             .expect("a pbr material");
         let m = s.tables().pbr(i);
-        let b = PbrBsdf::new(m.params(&s.textures, glam::Vec2::ZERO), &m.coat);
+        let b = PbrBsdf::new(
+            m.params(&s.textures, glam::Vec2::ZERO),
+            &m.coat,
+            m.distribution,
+        );
         let n = 64;
         let mut sum = 0.0f64;
         for k in 0..n * n {
@@ -463,11 +471,9 @@ fn the_specular_factor_scales_the_dielectric_layer_as_blender_writes_it() {
     let none = albedo_head_on(Some(0.0));
     let half = albedo_head_on(Some(0.5));
     let full = albedo_head_on(None);
-    eprintln!(
-        "white base, roughness 0.5, head-on albedo: factor 0 {none}, 0.5 {half}, none {full}"
-    );
-    assert!((none - 1.0).abs() < 1e-3, "no specular layer: {none}");
-    assert!(full < half && half < none, "{full} < {half} < {none}");
+    eprintln!("grey base, roughness 0.5, head-on albedo: factor 0 {none}, 0.5 {half}, none {full}");
+    assert!((none - 0.5).abs() < 1e-3, "no specular layer: {none}");
+    assert!(none < half && half < full, "{none} < {half} < {full}");
     // A factor of 1 is the extension's default: the index itself.
     assert_eq!(albedo_head_on(Some(1.0)), full);
 }

@@ -238,6 +238,12 @@ fn bad_pbr_materials_name_the_key() {
             "between 0 and 1",
         ),
         ("ior = 0", mesh, "materials.m.ior", "greater than 0"),
+        (
+            "distribution = \"beckmann\"",
+            sphere,
+            "materials.m.distribution",
+            "`multiscatter_ggx` or `ggx`",
+        ),
         ("ior = -1.5", mesh, "materials.m.ior", "greater than 0"),
         (
             "base_color = [1.2, 0, 0]",

@@ -6,6 +6,7 @@ use serde::de::Error as _;
 use serde::{Deserialize, Deserializer};
 
 use super::MaterialKind;
+use crate::bsdf::pbr::Distribution;
 use crate::util::fields::{maybe_three, unit, Invalid, KeyPath};
 
 /// Material description.
@@ -35,6 +36,9 @@ pub struct MaterialDesc {
     pub transmission: Option<ScalarDesc>,
     /// A tangent-space normal map (pbr), for meshes with texture coordinates.
     pub normal_map: Option<NormalMapDesc>,
+    /// The microfacet model (pbr): `multiscatter_ggx` (default: energy-preserving, Blender's
+    /// default) or `ggx` (single scattering: glTF's reference BRDF, Mitsuba's `principled`).
+    pub distribution: Option<Distribution>,
     /// A thin sheet rather than a solid (dielectric, smooth only): light reflects or passes
     /// straight through.
     pub thin: Option<bool>,
@@ -221,7 +225,7 @@ impl MaterialDesc {
 
     /// Which of the kind-specific keys it gives: each kind takes its own and refuses the rest
     /// (`emission`, `emission_texture` and `two_sided` apply to every kind).
-    pub(crate) fn kind_keys(&self) -> [(&'static str, bool); 14] {
+    pub(crate) fn kind_keys(&self) -> [(&'static str, bool); 15] {
         [
             ("albedo", self.albedo.is_some()),
             ("reflectance", self.reflectance.is_some()),
@@ -237,6 +241,7 @@ impl MaterialDesc {
             ("metallic", self.metallic.is_some()),
             ("transmission", self.transmission.is_some()),
             ("normal_map", self.normal_map.is_some()),
+            ("distribution", self.distribution.is_some()),
         ]
     }
 }

@@ -93,7 +93,7 @@ fn at<'s, S: Surface<'s>>(mat: &PbrMaterial, s: &S) -> (PbrParams, Shading) {
 fn vertex<'s, A: At<'s>>(material: &'s PbrMaterial, v: &mut A) -> Option<Ray> {
     let (params, at) = at(material, v);
     let at = &at;
-    let bsdf = PbrBsdf::new(params, &material.coat);
+    let bsdf = PbrBsdf::new(params, &material.coat, material.distribution);
     if !v.front() && !v.two_sided() && !bsdf.transmits() {
         // The back of a one-sided surface absorbs everything.
         return None;
@@ -134,6 +134,7 @@ pub(crate) fn read(r: &mut Reading<'_, '_>) -> Result<Bsdf, Invalid> {
         "transmission",
         "ior",
         "normal_map",
+        "distribution",
     ];
     r.only("a pbr material", &keys)?;
     let (m, mp) = (r.desc, r.at);
@@ -195,6 +196,7 @@ pub(crate) fn read(r: &mut Reading<'_, '_>) -> Result<Bsdf, Invalid> {
         transmission,
         normal_map,
         coat: CoatTable::shared(ior),
+        distribution: m.distribution.unwrap_or_default(),
     };
     Ok(PbrRef::add(r.tables, material))
 }

@@ -376,7 +376,7 @@ fn build_gltf(
         op,
         "a gltf object",
         &shape_keys(o),
-        &["file", "materials_map"],
+        &["file", "materials_map", "distribution"],
     )?;
     if o.material.is_some() {
         return Err((
@@ -405,7 +405,7 @@ fn build_gltf(
     super::gltf::import(
         file,
         xf,
-        &overrides,
+        (&overrides, o.distribution.unwrap_or_default()),
         tables,
         (files, lent),
         limits,
@@ -569,7 +569,7 @@ fn build_camera(desc: &SceneFile, w: u32, h: u32) -> Result<Camera, Invalid> {
 }
 
 /// Which of the keys that belong to some shapes only an object gives, for [`only`].
-fn shape_keys(o: &ObjectDesc) -> [(&'static str, bool); 10] {
+fn shape_keys(o: &ObjectDesc) -> [(&'static str, bool); 11] {
     [
         ("center", o.center.is_some()),
         ("radius", o.radius.is_some()),
@@ -581,6 +581,7 @@ fn shape_keys(o: &ObjectDesc) -> [(&'static str, bool); 10] {
         ("file", o.file.is_some()),
         ("smooth", o.smooth.is_some()),
         ("materials_map", o.materials_map.is_some()),
+        ("distribution", o.distribution.is_some()),
     ]
 }
 

@@ -291,6 +291,10 @@ pub struct ObjectDesc {
     /// PLY) or their own (glTF). `materials_override` is another name for it.
     #[serde(alias = "materials_override")]
     pub materials_map: Option<BTreeMap<String, String>>,
+    /// The microfacet model of a glTF file's metallic–roughness materials, which glTF does not
+    /// say: `multiscatter_ggx` (default, as Blender renders them) or `ggx` (glTF's reference
+    /// BRDF, single scattering).
+    pub distribution: Option<crate::bsdf::pbr::Distribution>,
     /// Object-to-world transform.
     pub transform: Option<TransformDesc>,
 }

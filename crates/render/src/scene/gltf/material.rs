@@ -13,7 +13,7 @@ use super::super::check::Invalid;
 use super::super::files::SceneFiles;
 use super::super::{AlphaTest, KeyPath, Limits, Material};
 use super::{data, MaterialTables};
-use crate::bsdf::pbr::{CoatTable, NormalMap, ScalarParam};
+use crate::bsdf::pbr::{CoatTable, Distribution, NormalMap, ScalarParam};
 use crate::bsdf::PbrMaterial;
 use crate::material::pbr::PbrRef;
 use crate::material::{glass, Bsdf};
@@ -33,6 +33,8 @@ pub(in crate::scene) struct GltfMaterials<'d> {
     root: &'d gltf::json::Root,
     buffers: &'d [Vec<u8>],
     overrides: &'d BTreeMap<String, u32>,
+    /// The microfacet model of its pbr materials (the scene's choice: glTF has none).
+    distribution: Distribution,
     /// By glTF material index (`None`: the default material), the scene's index.
     built: BTreeMap<Option<usize>, u32>,
     warnings: BTreeSet<String>,
@@ -40,13 +42,13 @@ pub(in crate::scene) struct GltfMaterials<'d> {
 
 impl<'d> GltfMaterials<'d> {
     /// The materials of a document read from `file` (placed at `file_at`) in directory `dir`,
-    /// with the scene's replacements by material name.
+    /// with the scene's replacements by material name and its microfacet model.
     pub(super) fn new(
         (file, file_at): (&'d str, &'d KeyPath),
         dir: &'d str,
         root: &'d gltf::json::Root,
         buffers: &'d [Vec<u8>],
-        overrides: &'d BTreeMap<String, u32>,
+        (overrides, distribution): (&'d BTreeMap<String, u32>, Distribution),
     ) -> Self {
         Self {
             file,
@@ -55,6 +57,7 @@ impl<'d> GltfMaterials<'d> {
             root,
             buffers,
             overrides,
+            distribution,
             built: BTreeMap::new(),
             warnings: BTreeSet::new(),
         }
@@ -222,6 +225,7 @@ impl<'d> GltfMaterials<'d> {
             transmission: param(factor, tx, 0),
             normal_map,
             coat: CoatTable::shared(self.specular_ior(m, ior)),
+            distribution: self.distribution,
         };
         let runtime = Material {
             bsdf: Bsdf::Pbr(PbrRef(u32::MAX)),

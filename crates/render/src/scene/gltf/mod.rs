@@ -27,6 +27,7 @@ use super::assets::Assets;
 use super::check::{degenerate, Invalid};
 use super::files::SceneFiles;
 use super::{KeyPath, Limits, Material};
+use crate::bsdf::pbr::Distribution;
 use crate::interaction::Transformed;
 use crate::material::Tables;
 use crate::mesh::{MeshInstance, TriMesh};
@@ -280,7 +281,7 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<Parsed<'_>, Invalid> {
 pub(super) fn import(
     name: &str,
     place: Affine3A,
-    overrides: &BTreeMap<String, u32>,
+    (overrides, distribution): (&BTreeMap<String, u32>, Distribution),
     tables: &mut MaterialTables,
     (files, lent): (&mut SceneFiles, Option<Lent>),
     limits: &Limits,
@@ -322,7 +323,7 @@ pub(super) fn import(
         dir,
         doc.as_json(),
         &buffers,
-        overrides,
+        (overrides, distribution),
     );
     let mut meshes: BTreeMap<(usize, usize), Built> = BTreeMap::new();
     let mut out = Imported {
