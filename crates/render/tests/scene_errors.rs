@@ -344,6 +344,13 @@ fn plastic_errors_name_the_key() {
         "materials.p.metal",
         "`metal` does not apply to a plastic material",
     );
+    // The microfacet model is the pbr material's (plastic's coat scatters once, as Mitsuba's).
+    check(
+        &plastic("albedo = [0.5, 0.5, 0.5]\ndistribution = \"ggx\"\n"),
+        16,
+        "materials.p.distribution",
+        "`distribution` does not apply to a plastic material",
+    );
 }
 
 #[test]
