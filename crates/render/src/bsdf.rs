@@ -1,10 +1,12 @@
 //! The BSDFs a material can have: Lambertian diffuse, a perfect mirror, a smooth
 //! dielectric with Fresnel reflection and refraction, rough or smooth metals ([`conductor`],
 //! on the GGX distribution of [`microfacet`]), rough glass ([`dielectric`]) and plastic
-//! ([`plastic`]), and glTF's metallic–roughness material ([`pbr`]): the arithmetic of the
-//! materials in [`crate::material`], which wrap them. Every function does its arithmetic in one
-//! fixed order, since the renderer's bits depend on it.
+//! ([`plastic`]), and glTF's metallic–roughness material ([`pbr`], compensated by the tables
+//! of [`albedo`]): the arithmetic of the materials in [`crate::material`], which wrap them.
+//! Every function does its arithmetic in one fixed order, since the renderer's bits depend on
+//! it.
 
+pub mod albedo;
 pub mod conductor;
 pub mod dielectric;
 pub mod microfacet;
