@@ -288,13 +288,18 @@ impl<'a> PbrBsdf<'a> {
         if !(o.z > 0.0) {
             return Vec3A::ZERO;
         }
+        self.eval_at(&self.view(o.z), o, i)
+    }
+
+    /// [`PbrBsdf::eval`] for `o` above the surface, its view `v` looked up already (`sample`
+    /// has it, and the tables need not be read twice per drawn direction).
+    fn eval_at(&self, v: &View, o: Vec3A, i: Vec3A) -> Vec3A {
         let PbrParams {
             base_color: c,
             metallic: m,
             transmission: t,
             ..
         } = self.p;
-        let v = self.view(o.z);
         let d = &self.distribution;
         if i.z > 0.0 {
             let base = c
@@ -307,7 +312,7 @@ impl<'a> PbrBsdf<'a> {
                 return base;
             };
             let rho = d.d(h) * d.g(o, i) / (4.0 * o.z);
-            base + self.reflectance(&v, o.dot(h).max(0.0)) * rho
+            base + self.reflectance(v, o.dot(h).max(0.0)) * rho
         } else if i.z < 0.0 && self.transmits() && !self.is_smooth() {
             let i = mirror(i);
             let Some(h) = half_vector(o, i) else {
@@ -401,7 +406,7 @@ impl<'a> PbrBsdf<'a> {
         }
         Some(PbrSample {
             wi: i,
-            weight: self.eval(o, i) / pdf,
+            weight: self.eval_at(&v, o, i) / pdf,
             pdf,
             delta: false,
         })
