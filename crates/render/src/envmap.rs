@@ -19,6 +19,12 @@
 //! texels, which is non-zero only where some corner is, and then ℓ > 0. Every number the
 //! sampler and the density use comes from basic f32 arithmetic and [`crate::util::math::atan2`]
 //! (no libm), so every worker gets the same bits.
+//!
+//! **Cost.** A path that escapes needs the radiance and, under MIS, the density along one
+//! direction, and a light sample needs a direction with both: each is one lookup of the cell
+//! ([`EnvMap::radiance_pdf`], [`EnvMap::sample`]), the density of every cell is a table, and a
+//! sample knows its own cell, so it finds its radiance with one arctangent rather than the two
+//! of mapping its direction back (docs/benchmarks/envmap-cost.md).
 
 use std::f32::consts::PI;
 
@@ -42,6 +48,9 @@ pub struct EnvMap {
     rows: Distribution1D,
     /// Each row's cells by ℓ (`None` for a row that is black throughout).
     columns: Vec<Option<Distribution1D>>,
+    /// Each cell's density in solid angle, P(row)·P(column | row)/Ω, row-major (W × (H − 1)):
+    /// the density of a direction is then one load once its cell is known.
+    cell_pdf: Vec<f32>,
     /// ∫ (R + G + B) dω over the sphere, for choosing between the map and other lights.
     power: f32,
 }
@@ -137,6 +146,7 @@ impl EnvMap {
             return Err(EnvMapError::TooBright);
         }
         let rows = Distribution1D::new(&row_weights).ok_or(EnvMapError::Black)?;
+        let cell_pdf = cell_densities(&rows, &columns, &cos_rows, width);
         let (s, c) = sin_cos_turn(rotate_turns.rem_euclid(1.0));
         Ok(Self {
             width,
@@ -146,6 +156,7 @@ impl EnvMap {
             cos_rows,
             rows,
             columns,
+            cell_pdf,
             power,
         })
     }
@@ -193,36 +204,63 @@ impl EnvMap {
         (j, (y - j as f32).clamp(0.0, 1.0))
     }
 
+    /// Where local direction `d` falls: its cell and the blend's fractions across it.
+    #[inline]
+    fn locate(&self, d: Vec3A) -> Blend {
+        let uv = Self::uv(d);
+        let (i, fx) = self.column(uv.x);
+        let (j, fy) = self.row(uv.y);
+        Blend { i, j, fx, fy }
+    }
+
+    /// The bilinear blend of cell (i, j)'s corner texels at fractions (fx, fy).
+    #[inline]
+    fn blend(&self, b: &Blend) -> Vec3A {
+        let i1 = if b.i + 1 == self.width { 0 } else { b.i + 1 };
+        let (top, bottom) = (b.j * self.width, (b.j + 1) * self.width);
+        let t = &self.texels;
+        let upper = t[top + b.i] * (1.0 - b.fx) + t[top + i1] * b.fx;
+        let lower = t[bottom + b.i] * (1.0 - b.fx) + t[bottom + i1] * b.fx;
+        upper * (1.0 - b.fy) + lower * b.fy
+    }
+
+    /// Density in solid angle of any direction in cell (i, j).
+    #[inline]
+    fn density(&self, b: &Blend) -> f32 {
+        self.cell_pdf[b.j * self.width + b.i]
+    }
+
     /// Radiance arriving from direction `d` (world space, unit): along a ray with direction
     /// `d` that escapes the scene.
     pub fn radiance(&self, d: Vec3A) -> Vec3A {
-        let uv = Self::uv(self.to_local(d));
-        let (i, fx) = self.column(uv.x);
-        let (j, fy) = self.row(uv.y);
-        let i1 = (i + 1) % self.width;
-        let (top, bottom) = (j * self.width, (j + 1) * self.width);
-        let t = &self.texels;
-        let upper = t[top + i] * (1.0 - fx) + t[top + i1] * fx;
-        let lower = t[bottom + i] * (1.0 - fx) + t[bottom + i1] * fx;
-        upper * (1.0 - fy) + lower * fy
+        self.blend(&self.locate(self.to_local(d)))
     }
 
-    /// Solid angle of a cell of row `j`.
-    fn cell_solid_angle(&self, j: usize) -> f32 {
-        (self.cos_rows[j] - self.cos_rows[j + 1]) * (2.0 * PI / self.width as f32)
+    /// [`EnvMap::radiance`] and [`EnvMap::pdf`] of `d` together, from one lookup: what a
+    /// BSDF-sampled ray that escapes needs under MIS.
+    pub fn radiance_pdf(&self, d: Vec3A) -> (Vec3A, f32) {
+        let b = self.locate(self.to_local(d));
+        (self.blend(&b), self.density(&b))
     }
 
-    /// A direction (world space, unit) from two uniform numbers, with its density in solid
-    /// angle; `None` where the density is not positive and finite (a cell too thin to hold
-    /// one in f32).
-    pub fn sample(&self, u: Vec2) -> Option<(Vec3A, f32)> {
+    /// A direction from two uniform numbers, with its density in solid angle and the
+    /// radiance arriving along it; `None` where the density is not positive and finite (a
+    /// cell too thin to hold one in f32).
+    pub fn sample(&self, u: Vec2) -> Option<EnvSample> {
         let (j, uy) = self.rows.sample_remap(u.y);
-        let columns = self.columns[j].as_ref()?;
-        let (i, ux) = columns.sample_remap(u.x);
-        let pdf = self.rows.pmf(j) * columns.pmf(i) / self.cell_solid_angle(j);
+        let (i, ux) = self.columns[j].as_ref()?.sample_remap(u.x);
+        let cell = Blend {
+            i,
+            j,
+            fx: ux,
+            fy: 0.0,
+        };
+        let pdf = self.density(&cell);
         if !(pdf > 0.0 && pdf.is_finite()) {
             return None;
         }
+        // Column i's cell spans texel centres i and i + 1: u = (i + ½ + ux)/W, so the blend
+        // across it is ux itself.
         let mut phi = (i as f32 + 0.5 + ux) / self.width as f32;
         if phi >= 1.0 {
             phi -= 1.0;
@@ -232,20 +270,61 @@ impl EnvMap {
         let sin = ((1.0 - cos) * (1.0 + cos)).max(0.0).sqrt();
         let (sin_phi, cos_phi) = sin_cos_turn(phi);
         let local = Vec3A::new(sin_phi * sin, cos, -cos_phi * sin);
-        Some((self.to_world(local), pdf))
+        // Down the cell the blend is linear in θ (rows sit at θ = πj/(H − 1)), which the
+        // uniform cos θ does not give: one arctangent finds it.
+        let y = atan2(sin, cos) * ((self.height - 1) as f32 / PI);
+        let fy = (y - j as f32).clamp(0.0, 1.0);
+        Some(EnvSample {
+            wi: self.to_world(local),
+            pdf,
+            radiance: self.blend(&Blend { fy, ..cell }),
+        })
     }
 
     /// The density in solid angle with which [`EnvMap::sample`] draws direction `d`.
     pub fn pdf(&self, d: Vec3A) -> f32 {
-        let uv = Self::uv(self.to_local(d));
         // The cell's corners are the texels at or before the direction in each axis.
-        let (i, _) = self.column(uv.x);
-        let (j, _) = self.row(uv.y);
-        match &self.columns[j] {
-            Some(c) => self.rows.pmf(j) * c.pmf(i) / self.cell_solid_angle(j),
-            None => 0.0,
-        }
+        self.density(&self.locate(self.to_local(d)))
     }
+}
+
+/// A direction drawn from a map ([`EnvMap::sample`]).
+#[derive(Clone, Copy, Debug)]
+pub struct EnvSample {
+    /// The direction towards the map (world space, unit).
+    pub wi: Vec3A,
+    /// Its density in solid angle.
+    pub pdf: f32,
+    /// The radiance arriving along it.
+    pub radiance: Vec3A,
+}
+
+/// A place on the map: cell (i, j) (its upper-left texel) and the fractions towards texels
+/// i + 1 and j + 1.
+#[derive(Clone, Copy)]
+struct Blend {
+    i: usize,
+    j: usize,
+    fx: f32,
+    fy: f32,
+}
+
+/// Each cell's density in solid angle, P(row)·P(column | row)/Ω (0 in a black row).
+fn cell_densities(
+    rows: &Distribution1D,
+    columns: &[Option<Distribution1D>],
+    cos_rows: &[f32],
+    width: usize,
+) -> Vec<f32> {
+    let mut pdf = Vec::with_capacity(columns.len() * width);
+    for (j, c) in columns.iter().enumerate() {
+        let omega = (cos_rows[j] - cos_rows[j + 1]) * (2.0 * PI / width as f32);
+        pdf.extend((0..width).map(|i| match c {
+            Some(c) => rows.pmf(j) * c.pmf(i) / omega,
+            None => 0.0,
+        }));
+    }
+    pdf
 }
 
 #[cfg(test)]
@@ -395,15 +474,44 @@ mod tests {
         let mut rng = HashRng::new(3);
         let n = 400_000;
         let (mut sum, mut off_edge) = (0.0f64, 0);
+        let mut worst_radiance = 0.0f32;
         for _ in 0..n {
             let u = Vec2::new(rng.next_f32(), rng.next_f32());
-            let (d, pdf) = m.sample(u).expect("map");
+            let EnvSample {
+                wi: d,
+                pdf,
+                radiance,
+            } = m.sample(u).expect("map");
             assert!((d.length() - 1.0).abs() < 1e-5);
             if (m.pdf(d) - pdf).abs() > 1e-3 * pdf {
                 off_edge += 1;
             }
-            sum += sum_rgb(m.radiance(d)) / f64::from(pdf);
+            // The sample's own radiance is the map's along its direction, but for rounding:
+            // of the direction, which moves the blend by an ulp or so of the cell, so measured
+            // against the cell's brightest corner (a wrong blend down the cell is off by a
+            // share of the corners' difference).
+            let by_direction = m.radiance(d);
+            let b = m.locate(m.to_local(d));
+            let corner = [
+                (b.i, b.j),
+                ((b.i + 1) % 16, b.j),
+                (b.i, b.j + 1),
+                ((b.i + 1) % 16, b.j + 1),
+            ]
+            .map(|(x, y)| m.texels[y * 16 + x].max_element())
+            .into_iter()
+            .fold(0.0f32, f32::max);
+            let err = (radiance - by_direction).abs().max_element() / corner;
+            worst_radiance = worst_radiance.max(err);
+            // One lookup gives what the two give.
+            let (l, p) = m.radiance_pdf(d);
+            assert_eq!((l, p.to_bits()), (by_direction, m.pdf(d).to_bits()));
+            sum += sum_rgb(radiance) / f64::from(pdf);
         }
+        assert!(
+            worst_radiance < 1e-4,
+            "sampled radiance off by {worst_radiance}"
+        );
         assert!(
             off_edge < n / 10_000,
             "{off_edge} samples disagree with pdf"

@@ -97,4 +97,7 @@ pub use util::{files, lanes, math, sampling};
 /// though the bundled files, rewritten in candela, render the bits they did (the pin's hash is
 /// revision 7's). Revision 9 makes the `pbr` material energy-preserving (multiple scattering
 /// given back, the base albedo-scaled under the coat): every pbr surface renders differently.
-pub const IMAGE_REVISION: u32 = 9;
+/// Revision 10 takes a light sample's radiance from the environment map's cell it was drawn in
+/// rather than from its direction mapped back (the same value but for rounding): every scene
+/// with a map renders differently by an ulp or so.
+pub const IMAGE_REVISION: u32 = 10;

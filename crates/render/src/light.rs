@@ -430,8 +430,8 @@ fn sample_sphere(
 fn surfaceless_sample(light: &Light, p: Vec3A, u: Vec2, pmf: f32) -> Option<LightSample> {
     let (wi, pdf, le, reach) = match &light.shape {
         LightShape::Environment { map, reach } => {
-            let (wi, pdf) = map.sample(u)?;
-            (wi, pdf, map.radiance(wi), *reach)
+            let s = map.sample(u)?;
+            (s.wi, s.pdf, s.radiance, *reach)
         }
         LightShape::Sun {
             towards,

@@ -123,7 +123,7 @@ fn the_sampler_passes_chi_square_against_its_density() {
             2.0,
             |rng| {
                 map.sample(Vec2::new(rng.next_f32(), rng.next_f32()))
-                    .map(|(d, _)| d)
+                    .map(|s| s.wi)
             },
             &|d| f64::from(map.pdf(d)),
         );

@@ -362,16 +362,17 @@ fn add_environment(
     light: u32,
     d: Vec3A,
 ) {
-    let w = match strategy {
-        _ if path.specular => 1.0,
-        Strategy::Bsdf => 1.0,
+    let (le, w) = match strategy {
+        _ if path.specular => (map.radiance(d), 1.0),
+        Strategy::Bsdf => (map.radiance(d), 1.0),
         Strategy::Mis => {
-            let light_pdf = scene.lights.selection(light as usize) * map.pdf(d);
-            power_heuristic(path.prev_pdf, light_pdf)
+            let (le, pdf) = map.radiance_pdf(d);
+            let light_pdf = scene.lights.selection(light as usize) * pdf;
+            (le, power_heuristic(path.prev_pdf, light_pdf))
         }
         Strategy::Nee => return,
     };
-    path.l += path.beta * map.radiance(d) * w;
+    path.l += path.beta * le * w;
 }
 
 /// The suns a ray that escapes the scene along `d` looks into, weighted as
