@@ -12,6 +12,7 @@ use glam::{Vec2, Vec3A};
 
 use super::fresnel_dielectric;
 use super::microfacet::{reflect_about, TrowbridgeReitz, SMOOTH_ALPHA};
+use crate::util::tabulate::tabulate;
 
 /// Roughness steps of the tables ([`grid_distribution`]).
 const ROUGHNESS_STEPS: usize = 33;
@@ -130,14 +131,10 @@ impl GgxAlbedo {
     pub fn get() -> &'static Self {
         static TABLE: OnceLock<GgxAlbedo> = OnceLock::new();
         TABLE.get_or_init(|| {
-            let mut e = Vec::with_capacity(ROUGHNESS_STEPS * MU_STEPS);
-            for j in 0..ROUGHNESS_STEPS {
-                let d = grid_distribution(j);
-                for k in 0..MU_STEPS {
-                    let mu = grid_mu(k);
-                    e.push(lobe_albedo(&d, mu, |_| 1.0).min(1.0));
-                }
-            }
+            let e = tabulate(ROUGHNESS_STEPS * MU_STEPS, |n| {
+                let (j, k) = (n / MU_STEPS, n % MU_STEPS);
+                lobe_albedo(&grid_distribution(j), grid_mu(k), |_| 1.0).min(1.0)
+            });
             let average = std::array::from_fn(|j| {
                 cosine_average(|mu| in_row(&e[j * MU_STEPS..(j + 1) * MU_STEPS], mu))
             });
@@ -174,14 +171,12 @@ impl CoatTable {
     /// The table for a coat of index `eta` (inside over outside), built by a fixed midpoint
     /// rule in basic arithmetic, so every worker builds the same one.
     pub fn new(eta: f32) -> Self {
-        let mut single = Vec::with_capacity(ROUGHNESS_STEPS * MU_STEPS);
-        for j in 0..ROUGHNESS_STEPS {
-            let d = grid_distribution(j);
-            for k in 0..MU_STEPS {
-                let mu = grid_mu(k);
-                single.push(lobe_albedo(&d, mu, |c| fresnel_dielectric(c, eta).0));
-            }
-        }
+        let single = tabulate(ROUGHNESS_STEPS * MU_STEPS, |n| {
+            let (j, k) = (n / MU_STEPS, n % MU_STEPS);
+            lobe_albedo(&grid_distribution(j), grid_mu(k), |c| {
+                fresnel_dielectric(c, eta).0
+            })
+        });
         let fresnel_average = cosine_average(|mu| fresnel_dielectric(mu, eta).0);
         let ggx = GgxAlbedo::get();
         let multiple = std::array::from_fn(|j| multiple_colour(fresnel_average, ggx.average[j]));

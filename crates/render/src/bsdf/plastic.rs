@@ -36,6 +36,7 @@ use glam::{Vec2, Vec3A};
 use super::fresnel_dielectric;
 use super::microfacet::{half_vector, reflect_about, TrowbridgeReitz};
 use crate::util::sampling::{cosine_hemisphere_pdf, square_to_cosine_hemisphere};
+use crate::util::tabulate::tabulate;
 
 /// Entries of the coat's transmittance table, over cos θ from 0 to 1 (Mitsuba's resolution).
 pub const TABLE: usize = 64;
@@ -77,21 +78,20 @@ impl Plastic {
     /// (α = roughness²; a mirror coat below the threshold of [`TrowbridgeReitz::is_smooth`]).
     pub fn new(albedo: Vec3A, roughness: f32, eta: f32) -> Self {
         let distribution = TrowbridgeReitz::from_roughness(roughness);
-        let transmittance = std::array::from_fn(|j| {
-            1.0 - coat_albedo(
-                &distribution,
-                j as f32 / (TABLE - 1) as f32,
-                eta,
-                QUADRATURE,
-            )
-        });
-        // F̄ = 2 ∫ R(μ, 1/η) μ dμ, by midpoints in μ.
+        // Both tables in one run over the cores: R(μ, η) at the TABLE incidences, then
+        // R(μ, 1/η)·μ at n midpoints for F̄ = 2 ∫ R(μ, 1/η) μ dμ, summed in order.
         let n = 4 * TABLE;
-        let mut inside = 0.0f64;
-        for k in 0..n {
-            let mu = (k as f32 + 0.5) / n as f32;
-            inside += f64::from(coat_albedo(&distribution, mu, 1.0 / eta, QUADRATURE) * mu);
-        }
+        let entries = tabulate(TABLE + n, |k| {
+            if k < TABLE {
+                let mu = k as f32 / (TABLE - 1) as f32;
+                1.0 - coat_albedo(&distribution, mu, eta, QUADRATURE)
+            } else {
+                let mu = ((k - TABLE) as f32 + 0.5) / n as f32;
+                coat_albedo(&distribution, mu, 1.0 / eta, QUADRATURE) * mu
+            }
+        });
+        let transmittance = std::array::from_fn(|j| entries[j]);
+        let inside: f64 = entries[TABLE..].iter().map(|&e| f64::from(e)).sum();
         let f_bar = (2.0 * inside / n as f64) as f32;
         let diffuse_scale = 1.0 / ((1.0 - f_bar) * std::f32::consts::PI * eta * eta);
         let mean = (albedo.x + albedo.y + albedo.z) / 3.0;
