@@ -456,3 +456,31 @@ fn imports_are_read_from_groups_paths_and_code_but_not_comments() {
     let got: Vec<String> = named(&text).into_iter().collect();
     assert_eq!(got, ["a", "b", "c", "d"]);
 }
+
+/// `unsafe_code` is denied workspace-wide and allowed in one file, the binding of Open Image
+/// Denoise's C API: an `allow` anywhere else (or `unsafe` in a crate that has no such file)
+/// would let unchecked memory access in unseen.
+#[test]
+fn only_the_denoiser_binding_allows_unsafe_code() {
+    let mut files = Vec::new();
+    rust_files(&crates_dir(), &mut files);
+    let allowing: Vec<String> = files
+        .iter()
+        .filter(|f| {
+            let text = std::fs::read_to_string(f).expect("read");
+            code(&text).contains("allow(unsafe_code)")
+        })
+        .map(|f| {
+            f.strip_prefix(crates_dir())
+                .expect("under crates/")
+                .display()
+                .to_string()
+        })
+        .collect();
+    assert_eq!(allowing, ["denoise/src/ffi.rs"]);
+    let manifest = std::fs::read_to_string(crates_dir().join("../Cargo.toml")).expect("read");
+    assert!(
+        manifest.contains("unsafe_code = \"deny\""),
+        "the workspace must deny unsafe code"
+    );
+}

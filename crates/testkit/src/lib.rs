@@ -68,3 +68,24 @@ mod tests {
         assert_eq!(got, "found");
     }
 }
+
+/// Installs Open Image Denoise where the project's binaries find it (`target/oidn/lib`), by
+/// the script a user runs (`scripts/install-oidn.sh`), once per test process; the script
+/// itself returns at once when it is installed and locks against concurrent installs. Panics,
+/// with the script's output, if it fails (it needs PyPI the first time).
+pub fn install_oidn() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let out = std::process::Command::new(root.join("scripts/install-oidn.sh"))
+            .current_dir(&root)
+            .output()
+            .expect("running scripts/install-oidn.sh");
+        assert!(
+            out.status.success(),
+            "scripts/install-oidn.sh failed: {}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    });
+}

@@ -1,0 +1,263 @@
+//! Denoising a rendered frame with Intel Open Image Denoise (OIDN), loaded at run time.
+//!
+//! The library is not linked: a build of tessera runs, renders and tests without it, and only
+//! a render that asks for denoising needs it. [`denoise`] loads it once per process from the
+//! first place that has it:
+//! 1. the directory in `TESSERA_OIDN_DIR`, if that is set (and then only there);
+//! 2. `oidn/lib/` beside the running executable or in one of its three parent directories:
+//!    `scripts/install-oidn.sh` puts it in `target/oidn/lib/`, which `target/release/tessera`
+//!    (and the test binaries under `target/release/deps/`) find; the Docker image puts it in
+//!    `/usr/local/oidn/lib/` beside `/usr/local/bin/tessera`;
+//! 3. the system's loader path (`libOpenImageDenoise.so.2`).
+//!
+//! The library must be OIDN 2 (its C ABI, checked by the device's `versionMajor`). Its CPU
+//! device, core and TBB are found by the library itself, next to it (`$ORIGIN`).
+//!
+//! Filtering follows OIDN's advice for noisy auxiliary images: the albedo and the normal are
+//! each denoised first, and the beauty is then filtered with them and `cleanAux` set, so the
+//! filter trusts them. The beauty is filtered as HDR (linear radiance) unless told otherwise.
+
+mod ffi;
+
+use std::fmt;
+
+pub use ffi::LIBRARY;
+
+/// How hard OIDN works: its `quality` parameter.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Quality {
+    /// For previews: the fastest filter.
+    Fast,
+    /// For interactive use.
+    Balanced,
+    /// For final frames (OIDN's default for the CPU).
+    #[default]
+    High,
+}
+
+impl Quality {
+    /// Parses `fast`, `balanced` or `high`.
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "fast" => Some(Self::Fast),
+            "balanced" => Some(Self::Balanced),
+            "high" => Some(Self::High),
+            _ => None,
+        }
+    }
+
+    /// The name [`Quality::parse`] reads.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Fast => "fast",
+            Self::Balanced => "balanced",
+            Self::High => "high",
+        }
+    }
+
+    /// OIDN's `OIDNQuality` value.
+    fn oidn(self) -> i32 {
+        match self {
+            Self::Fast => 4,
+            Self::Balanced => 5,
+            Self::High => 6,
+        }
+    }
+}
+
+impl fmt::Display for Quality {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// How to denoise.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Options {
+    /// OIDN's quality.
+    pub quality: Quality,
+    /// The beauty is linear radiance (any positive value); false for display-referred values
+    /// in [0, 1].
+    pub hdr: bool,
+    /// Threads for OIDN's CPU device (`None`: every core).
+    pub threads: Option<u32>,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            quality: Quality::High,
+            hdr: true,
+            threads: None,
+        }
+    }
+}
+
+/// A frame's images as the denoiser takes them: row-major RGB, `width` × `height`.
+#[derive(Clone, Copy, Debug)]
+pub struct Frame<'a> {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// The beauty (noisy radiance).
+    pub color: &'a [[f32; 3]],
+    /// The first hit's albedo, in [0, 1].
+    pub albedo: &'a [[f32; 3]],
+    /// The first hit's shading normal, components in [−1, 1] (any fixed space).
+    pub normal: &'a [[f32; 3]],
+}
+
+/// What [`denoise`] returns: the denoised beauty, and the auxiliary images it was filtered
+/// with (each denoised first, as OIDN advises for noisy ones).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Denoised {
+    /// The denoised beauty.
+    pub color: Vec<[f32; 3]>,
+    /// The prefiltered albedo.
+    pub albedo: Vec<[f32; 3]>,
+    /// The prefiltered normal.
+    pub normal: Vec<[f32; 3]>,
+}
+
+/// Why a frame was not denoised.
+#[derive(Clone, Debug, thiserror::Error)]
+pub enum DenoiseError {
+    /// The library is not where tessera looks.
+    #[error(
+        "denoising needs Intel Open Image Denoise 2 ({LIBRARY}), which was not found ({tried}); \
+         install it with scripts/install-oidn.sh (it unpacks Intel's build from PyPI's pyoidn \
+         wheel into target/oidn/lib), or set TESSERA_OIDN_DIR to a directory that holds it"
+    )]
+    Missing {
+        /// Where it looked, and why each place failed.
+        tried: String,
+    },
+    /// A library was found, but not one tessera can call.
+    #[error("{path}: {why}")]
+    Unusable {
+        /// The file loaded.
+        path: String,
+        /// What is wrong with it (a missing function, the wrong ABI version).
+        why: String,
+    },
+    /// OIDN refused or failed the filter.
+    #[error("Open Image Denoise: {0}")]
+    Filter(String),
+    /// The images do not make a frame.
+    #[error("cannot denoise: {0}")]
+    Input(String),
+}
+
+/// Denoises `frame` with OIDN's `RT` filter: the albedo and normal are filtered first, then the
+/// beauty with them (`cleanAux`). Non-finite beauty values (which a finished tessera frame
+/// never has) are taken as 0 rather than passed on, as OIDN's output would be undefined.
+pub fn denoise(frame: &Frame<'_>, options: &Options) -> Result<Denoised, DenoiseError> {
+    let n = check(frame)?;
+    let api = ffi::Api::get()?;
+    let color: Vec<[f32; 3]> = frame
+        .color
+        .iter()
+        .map(|p| p.map(|c| if c.is_finite() { c } else { 0.0 }))
+        .collect();
+    let mut out = Denoised {
+        color: vec![[0.0; 3]; n],
+        albedo: vec![[0.0; 3]; n],
+        normal: vec![[0.0; 3]; n],
+    };
+    let device = api.device(options.threads)?;
+    let size = (frame.width as usize, frame.height as usize);
+    let q = options.quality.oidn();
+    device.filter(
+        size,
+        &[("albedo", frame.albedo)],
+        &mut out.albedo,
+        &[("quality", q)],
+        &[],
+    )?;
+    device.filter(
+        size,
+        &[("normal", frame.normal)],
+        &mut out.normal,
+        &[("quality", q)],
+        &[],
+    )?;
+    device.filter(
+        size,
+        &[
+            ("color", &color),
+            ("albedo", &out.albedo),
+            ("normal", &out.normal),
+        ],
+        &mut out.color,
+        &[("quality", q)],
+        &[("hdr", options.hdr), ("cleanAux", true)],
+    )?;
+    Ok(out)
+}
+
+/// The version of the OIDN library [`denoise`] uses (e.g. 20501 for 2.5.1), loading it if
+/// need be.
+pub fn library_version() -> Result<i32, DenoiseError> {
+    Ok(ffi::Api::get()?.version())
+}
+
+/// The pixel count of a well-formed frame.
+fn check(frame: &Frame<'_>) -> Result<usize, DenoiseError> {
+    if frame.width == 0 || frame.height == 0 {
+        return Err(DenoiseError::Input(format!(
+            "the frame is {}×{}: there is nothing to denoise",
+            frame.width, frame.height
+        )));
+    }
+    let n = frame.width as usize * frame.height as usize;
+    for (what, len) in [
+        ("beauty", frame.color.len()),
+        ("albedo", frame.albedo.len()),
+        ("normal", frame.normal.len()),
+    ] {
+        if len != n {
+            return Err(DenoiseError::Input(format!(
+                "the {what} has {len} pixels, the {}×{} frame {n}",
+                frame.width, frame.height
+            )));
+        }
+    }
+    Ok(n)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn qualities_round_trip() {
+        for q in [Quality::Fast, Quality::Balanced, Quality::High] {
+            assert_eq!(Quality::parse(q.name()), Some(q));
+        }
+        assert_eq!(Quality::parse("best"), None);
+    }
+
+    #[test]
+    fn empty_and_mismatched_frames_are_refused_before_the_library_is_needed() {
+        let px = [[0.5f32; 3]; 4];
+        let frame = Frame {
+            width: 0,
+            height: 4,
+            color: &[],
+            albedo: &[],
+            normal: &[],
+        };
+        let e = denoise(&frame, &Options::default()).expect_err("empty");
+        assert!(e.to_string().contains("0×4"), "{e}");
+        let frame = Frame {
+            width: 2,
+            height: 2,
+            color: &px,
+            albedo: &px[..3],
+            normal: &px,
+        };
+        let e = denoise(&frame, &Options::default()).expect_err("short albedo");
+        assert!(e.to_string().contains("albedo has 3 pixels"), "{e}");
+    }
+}
