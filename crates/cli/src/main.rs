@@ -33,6 +33,7 @@ macro_rules! errln {
 mod args;
 #[cfg(feature = "bench")]
 mod bench;
+mod denoise;
 mod farm;
 mod render;
 mod terminal;

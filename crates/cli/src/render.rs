@@ -7,7 +7,9 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use indicatif::ProgressBar;
 use tessera_render::guiding::render_frame_guided;
-use tessera_render::output::{render_metadata, write_exr, write_png_preview, ExrChannels, Preview};
+use tessera_render::output::{
+    render_metadata, write_exr, write_exr_with_denoised, write_png_preview, ExrChannels, Preview,
+};
 use tessera_render::scene::{Limits, Scene};
 use tessera_render::{render_frame, RenderSettings, Tracer, DEFAULT_TILE};
 
@@ -35,6 +37,8 @@ pub struct RenderArgs {
     threads: Option<u32>,
     #[command(flatten)]
     preview: crate::args::PreviewArgs,
+    #[command(flatten)]
+    denoise: crate::denoise::DenoiseArgs,
     /// Add variance-of-the-mean channels (variance.R/G/B) to the EXR.
     #[arg(long)]
     variance: bool,
@@ -103,6 +107,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         max_resolution: args.max_resolution,
         ..Limits::default()
     };
+    let denoiser = args.denoise.denoiser(args.threads)?;
     let gltf = args.gltf.options(&args.scene)?;
     let scene = Scene::file(&args.scene, &limits)
         .gltf(&gltf)
@@ -111,12 +116,15 @@ pub fn run(args: RenderArgs) -> Result<()> {
     for w in &scene.warnings {
         errln!("warning: {w}");
     }
-    let settings = RenderSettings {
+    let mut settings = RenderSettings {
         tracer: args.tracer.to_tracer(),
         ..args
             .settings
             .to_settings(args.tile_size, scene.width, scene.height)
     };
+    if let Some(d) = &denoiser {
+        settings = d.settings(settings);
+    }
     let mut pool = rayon::ThreadPoolBuilder::new();
     if let Some(t) = args.threads {
         pool = pool.num_threads(t as usize);
@@ -151,17 +159,33 @@ pub fn run(args: RenderArgs) -> Result<()> {
     bar.finish_and_clear();
     let image = sums.finalize();
 
-    let meta = render_metadata(&scene.hash, &settings);
+    let mut meta = render_metadata(&scene.hash, &settings);
     let channels = ExrChannels {
         variance: args.variance,
         samples: args.sample_count,
         aovs: settings.aovs,
     };
-    write_exr(&args.output, &image, channels, &meta)?;
+    let mut denoise_note = String::new();
+    let mut shown = None;
+    match &denoiser {
+        None => write_exr(&args.output, &image, channels, &meta)?,
+        Some(d) => {
+            let start = Instant::now();
+            let planes = d.run(&image)?;
+            denoise_note = format!(", denoised in {:.2} s", start.elapsed().as_secs_f64());
+            meta.push(d.metadata());
+            write_exr_with_denoised(&args.output, &image, channels, &meta, &planes)?;
+            // The preview shows what the denoised layer holds.
+            shown = Some(tessera_render::film::Image {
+                rgb: planes.color,
+                ..image.clone()
+            });
+        }
+    }
     if let Some(p) = &args.preview.preview {
         write_png_preview(
             p,
-            &image,
+            shown.as_ref().unwrap_or(&image),
             Preview {
                 exposure: args.preview.exposure,
             },
@@ -180,7 +204,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     };
     let noise = noise_said(noise, rel, image.count.iter().any(|&k| k > 1));
     outln!(
-        "rendered {}×{} at {spp}{guide_note} in {:.2} s on {}: {:.2} Msamples/s, {noise}, {} non-finite samples dropped → {}",
+        "rendered {}×{} at {spp}{guide_note} in {:.2} s on {}: {:.2} Msamples/s, {noise}, {} non-finite samples dropped{denoise_note} → {}",
         scene.width,
         scene.height,
         secs,

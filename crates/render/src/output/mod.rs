@@ -111,6 +111,41 @@ pub fn write_exr(
         channels,
         metadata,
         std::iter::once(image),
+        None,
+        false,
+    )
+}
+
+/// A denoised frame: what `tessera render --denoise` adds to its EXR as the `denoised` layer
+/// (`denoised.R/G/B`), with the auxiliary images the filter used (`denoised.albedo.R/G/B`,
+/// `denoised.normal.X/Y/Z`). Row-major, the frame's size.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DenoisedPlanes {
+    /// The denoised beauty.
+    pub color: Vec<[f32; 3]>,
+    /// The albedo the filter used.
+    pub albedo: Vec<[f32; 3]>,
+    /// The normal the filter used.
+    pub normal: Vec<[f32; 3]>,
+}
+
+/// [`write_exr`] with the denoised layer after the image's own channels; the beauty and every
+/// other channel are written exactly as [`write_exr`] writes them.
+pub fn write_exr_with_denoised(
+    path: &Path,
+    image: &Image,
+    channels: ExrChannels,
+    metadata: &[(String, String)],
+    denoised: &DenoisedPlanes,
+) -> Result<(), OutputError> {
+    let size = (image.width, image.height);
+    rows::write(
+        path,
+        size,
+        channels,
+        metadata,
+        std::iter::once(image),
+        Some(denoised),
         false,
     )
 }

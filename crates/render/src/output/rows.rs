@@ -19,7 +19,7 @@ use exr::prelude::{
     WritableImage,
 };
 
-use super::{ExrChannels, OutputError};
+use super::{DenoisedPlanes, ExrChannels, OutputError};
 use crate::film::Image;
 use crate::util::files::{self, Access, Place};
 
@@ -37,7 +37,7 @@ pub fn write_new_exr_strips<S: Borrow<Image>>(
     metadata: &[(String, String)],
     strips: impl Iterator<Item = S>,
 ) -> Result<(), OutputError> {
-    write(path, size, channels, metadata, strips, true)
+    write(path, size, channels, metadata, strips, None, true)
 }
 
 /// One channel of the file, by what it holds.
@@ -49,11 +49,15 @@ enum Plane {
     Albedo(usize),
     Normal(usize),
     Depth,
+    Denoised(usize),
+    DenoisedAlbedo(usize),
+    DenoisedNormal(usize),
 }
 
 /// Channel names: the beauty's, then the AOVs' as OpenEXR's conventions and Blender's passes
-/// name them (`Z` is OpenEXR's standard name for depth).
-const NAMES: [(&str, Plane); 14] = [
+/// name them (`Z` is OpenEXR's standard name for depth), then the denoised layer with the
+/// auxiliary images its filter used.
+const NAMES: [(&str, Plane); 23] = [
     ("R", Plane::Rgb(0)),
     ("G", Plane::Rgb(1)),
     ("B", Plane::Rgb(2)),
@@ -68,22 +72,44 @@ const NAMES: [(&str, Plane); 14] = [
     ("normal.Y", Plane::Normal(1)),
     ("normal.Z", Plane::Normal(2)),
     ("Z", Plane::Depth),
+    ("denoised.R", Plane::Denoised(0)),
+    ("denoised.G", Plane::Denoised(1)),
+    ("denoised.B", Plane::Denoised(2)),
+    ("denoised.albedo.R", Plane::DenoisedAlbedo(0)),
+    ("denoised.albedo.G", Plane::DenoisedAlbedo(1)),
+    ("denoised.albedo.B", Plane::DenoisedAlbedo(2)),
+    ("denoised.normal.X", Plane::DenoisedNormal(0)),
+    ("denoised.normal.Y", Plane::DenoisedNormal(1)),
+    ("denoised.normal.Z", Plane::DenoisedNormal(2)),
 ];
 
-/// Writes the frame, replacing any file at `path` unless `no_clobber`.
+/// Writes the frame, with the denoised layer if `denoised` is given (whole-frame planes: a
+/// denoiser sees the frame at once), replacing any file at `path` unless `no_clobber`.
 pub(super) fn write<S: Borrow<Image>>(
     path: &Path,
     size: (u32, u32),
     channels: ExrChannels,
     metadata: &[(String, String)],
     strips: impl Iterator<Item = S>,
+    denoised: Option<&DenoisedPlanes>,
     no_clobber: bool,
 ) -> Result<(), OutputError> {
     let exr_error = |message: String| OutputError::Exr {
         path: path.to_path_buf(),
         message,
     };
-    let headers = headers(size, channels, metadata);
+    let n = size.0 as usize * size.1 as usize;
+    if let Some(d) = denoised {
+        if [d.color.len(), d.albedo.len(), d.normal.len()] != [n; 3] {
+            return Err(exr_error(format!(
+                "the denoised planes hold {}, {} and {} pixels for a frame of {n}",
+                d.color.len(),
+                d.albedo.len(),
+                d.normal.len()
+            )));
+        }
+    }
+    let headers = headers(size, channels, denoised.is_some(), metadata);
     let planes: Vec<Plane> = headers[0]
         .channels
         .list
@@ -110,6 +136,15 @@ pub(super) fn write<S: Borrow<Image>>(
         Place::Replace
     };
     let mut encoded: Option<exr::error::Error> = None;
+    // A line of a denoised plane, read from the whole frame by its row and first column.
+    let denoised_line = |line: exr::block::lines::LineRefMut<'_>,
+                         plane: fn(&DenoisedPlanes) -> &Vec<[f32; 3]>,
+                         c: usize| {
+        let Some(d) = denoised else { return Ok(()) };
+        let y = line.location.position.y();
+        let first = y * size.0 as usize + line.location.position.x();
+        line.write_samples(|x| plane(d)[first + x][c])
+    };
     let placed = files::place(path, how, Access::Shared, |w| {
         let result = exr::block::write(w, headers, true, |meta, chunk_writer| {
             let list = meta.headers[0].channels.clone();
@@ -139,6 +174,9 @@ pub(super) fn write<S: Borrow<Image>>(
                                 line.write_samples(|x| a.normal[at(x)][c])
                             }
                             (Plane::Depth, Some(a)) => line.write_samples(|x| a.depth[at(x)]),
+                            (Plane::Denoised(c), _) => denoised_line(line, |d| &d.color, c),
+                            (Plane::DenoisedAlbedo(c), _) => denoised_line(line, |d| &d.albedo, c),
+                            (Plane::DenoisedNormal(c), _) => denoised_line(line, |d| &d.normal, c),
                             // A strip without AOV planes is refused when pulled (`reach`).
                             (_, None) => Ok(()),
                         };
@@ -183,9 +221,11 @@ pub(super) fn write<S: Borrow<Image>>(
 fn headers(
     size: (u32, u32),
     channels: ExrChannels,
+    denoised: bool,
     metadata: &[(String, String)],
 ) -> exr::meta::Headers {
     let names = NAMES.iter().filter(|(_, p)| match p {
+        Plane::Denoised(_) | Plane::DenoisedAlbedo(_) | Plane::DenoisedNormal(_) => denoised,
         Plane::Rgb(_) => true,
         Plane::Variance(_) => channels.variance,
         Plane::Samples => channels.samples,
@@ -445,7 +485,7 @@ mod tests {
                     channels.variance,
                     channels.aovs.list()
                 ));
-                write(&path, (37, 53), channels, &meta, strips, true).expect("writes");
+                write(&path, (37, 53), channels, &meta, strips, None, true).expect("writes");
                 let got = std::fs::read(&path).expect("reads");
                 assert!(
                     got == want,
@@ -472,6 +512,7 @@ mod tests {
                 ExrChannels::default(),
                 &[],
                 strips.into_iter(),
+                None,
                 true,
             )
             .expect_err(name);

@@ -1,0 +1,114 @@
+//! `--denoise`: a denoised layer beside the unbiased beauty, by Intel Open Image Denoise
+//! (`tessera-denoise`). The render is the same whether or not it is denoised; the filter runs
+//! once on the finished frame.
+
+use anyhow::{Context, Result};
+use tessera_denoise::{Frame, Options, Quality};
+use tessera_render::film::Image;
+use tessera_render::output::DenoisedPlanes;
+use tessera_render::RenderSettings;
+
+/// `--denoise` and its options.
+#[derive(Debug, Clone, clap::Args)]
+pub struct DenoiseArgs {
+    /// Add a denoised image to the EXR as its own layer (denoised.R/G/B, with the albedo and
+    /// normal the filter used); the beauty (R, G, B) stays the unbiased render, bit for bit.
+    /// Uses Intel Open Image Denoise, which scripts/install-oidn.sh installs.
+    #[arg(long)]
+    pub denoise: bool,
+    /// The denoiser's quality: `fast` for previews, `high` for final frames.
+    #[arg(long, value_enum, default_value_t = QualityArg::High, requires = "denoise")]
+    pub denoise_quality: QualityArg,
+    /// The beauty is display-referred (in [0, 1]): filter it as LDR, not HDR.
+    #[arg(long, requires = "denoise")]
+    pub denoise_ldr: bool,
+}
+
+/// `--denoise-quality` values.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum QualityArg {
+    /// OIDN's fast filter.
+    Fast,
+    /// OIDN's balanced filter.
+    Balanced,
+    /// OIDN's high-quality filter.
+    High,
+}
+
+/// A denoiser, loaded and ready for the frame.
+#[derive(Debug)]
+pub struct Denoiser {
+    options: Options,
+    version: i32,
+}
+
+impl DenoiseArgs {
+    /// The denoiser, if `--denoise` was given: the library is loaded here, before anything is
+    /// rendered, so that a missing one fails at once. `threads` is the render's own limit.
+    pub fn denoiser(&self, threads: Option<u32>) -> Result<Option<Denoiser>> {
+        if !self.denoise {
+            return Ok(None);
+        }
+        let version = tessera_denoise::library_version().context("--denoise")?;
+        let quality = match self.denoise_quality {
+            QualityArg::Fast => Quality::Fast,
+            QualityArg::Balanced => Quality::Balanced,
+            QualityArg::High => Quality::High,
+        };
+        Ok(Some(Denoiser {
+            options: Options {
+                quality,
+                hdr: !self.denoise_ldr,
+                threads,
+            },
+            version,
+        }))
+    }
+}
+
+impl Denoiser {
+    /// Settings that also gather what the filter needs (the albedo and normal AOVs, which
+    /// leave the beauty's bits as they are).
+    pub fn settings(&self, mut settings: RenderSettings) -> RenderSettings {
+        settings.aovs.albedo = true;
+        settings.aovs.normal = true;
+        settings
+    }
+
+    /// The header entry that says how the denoised layer was made.
+    pub fn metadata(&self) -> (String, String) {
+        let v = self.version;
+        (
+            "denoise".to_string(),
+            format!(
+                "oidn {}.{}.{} {} {}",
+                v / 10000,
+                v / 100 % 100,
+                v % 100,
+                self.options.quality,
+                if self.options.hdr { "hdr" } else { "ldr" }
+            ),
+        )
+    }
+
+    /// Denoises the finished frame.
+    pub fn run(&self, image: &Image) -> Result<DenoisedPlanes> {
+        let aov = image
+            .aov
+            .as_ref()
+            .context("the render has no albedo and normal for the denoiser")?;
+        let frame = Frame {
+            width: image.width,
+            height: image.height,
+            color: &image.rgb,
+            albedo: &aov.albedo,
+            normal: &aov.normal,
+        };
+        let d = tessera_denoise::denoise(&frame, &self.options).context("denoising")?;
+        Ok(DenoisedPlanes {
+            color: d.color,
+            albedo: d.albedo,
+            normal: d.normal,
+        })
+    }
+}

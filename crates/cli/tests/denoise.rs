@@ -1,0 +1,188 @@
+//! `tessera render --denoise` through the real binary and the real Open Image Denoise, which
+//! the tests install as a user does (`scripts/install-oidn.sh`, into `target/oidn/lib`, where
+//! the built binary finds it).
+
+mod common;
+
+use std::path::Path;
+
+use common::{assert_clean_failure, repo, tessera};
+use tessera_render::output::{read_exr_channel, read_exr_metadata};
+
+fn render(out: &Path, extra: &[&str]) {
+    let scene = repo("scenes/cornell-box.toml");
+    let mut args = vec![
+        "render",
+        &scene,
+        "--resolution",
+        "64x64",
+        "--output",
+        out.to_str().expect("utf8"),
+    ];
+    args.extend(extra);
+    let r = tessera(&args);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+}
+
+fn rgb(path: &Path, layer: &str) -> Vec<[f32; 3]> {
+    let c = |n: &str| read_exr_channel(path, &format!("{layer}{n}")).expect(n);
+    let (r, g, b) = (c("R"), c("G"), c("B"));
+    (0..r.len()).map(|i| [r[i], g[i], b[i]]).collect()
+}
+
+fn rel_mse(a: &[[f32; 3]], reference: &[[f32; 3]]) -> f64 {
+    let mut sum = 0.0;
+    for (p, t) in a.iter().zip(reference) {
+        for c in 0..3 {
+            let d = f64::from(p[c] - t[c]);
+            sum += d * d / (f64::from(t[c]).powi(2) + 1e-2);
+        }
+    }
+    sum / (3 * a.len()) as f64
+}
+
+#[test]
+fn the_denoised_layer_is_added_and_the_beauty_keeps_its_bits() {
+    tessera_testkit::install_oidn();
+    let dir = tempfile::tempdir().expect("tmp");
+    let (plain, denoised) = (dir.path().join("plain.exr"), dir.path().join("d.exr"));
+    render(&plain, &["--spp", "8"]);
+    render(&denoised, &["--spp", "8", "--denoise"]);
+    for c in ["R", "G", "B"] {
+        let (a, b) = (
+            read_exr_channel(&plain, c).expect("plain"),
+            read_exr_channel(&denoised, c).expect("denoised file"),
+        );
+        assert!(
+            a.iter()
+                .map(|v| v.to_bits())
+                .eq(b.iter().map(|v| v.to_bits())),
+            "the beauty's channel {c} changed"
+        );
+    }
+    for c in [
+        "denoised.R",
+        "denoised.G",
+        "denoised.B",
+        "denoised.albedo.R",
+        "denoised.albedo.G",
+        "denoised.albedo.B",
+        "denoised.normal.X",
+        "denoised.normal.Y",
+        "denoised.normal.Z",
+        "albedo.R",
+        "normal.X",
+    ] {
+        let v = read_exr_channel(&denoised, c).unwrap_or_else(|e| panic!("{c}: {e}"));
+        assert_eq!(v.len(), 64 * 64, "{c}");
+        assert!(
+            v.iter().all(|x| x.is_finite()),
+            "{c} has a non-finite value"
+        );
+    }
+    assert!(read_exr_channel(&plain, "denoised.R").is_err());
+    let meta = read_exr_metadata(&denoised).expect("metadata");
+    assert!(
+        meta.iter().any(|m| m == "denoise=oidn 2.5.1 high hdr"),
+        "{meta:?}"
+    );
+    // Without --denoise nothing of it is there.
+    let plain_meta = read_exr_metadata(&plain).expect("metadata");
+    assert!(!plain_meta.iter().any(|m| m.starts_with("denoise=")));
+}
+
+#[test]
+fn a_denoised_frame_is_closer_to_the_converged_one_than_the_raw_frame() {
+    tessera_testkit::install_oidn();
+    let dir = tempfile::tempdir().expect("tmp");
+    let (reference, noisy) = (dir.path().join("ref.exr"), dir.path().join("noisy.exr"));
+    render(&reference, &["--spp", "1024"]);
+    render(&noisy, &["--spp", "16", "--denoise", "--seed", "7"]);
+    let truth = rgb(&reference, "");
+    let (raw, den) = (
+        rel_mse(&rgb(&noisy, ""), &truth),
+        rel_mse(&rgb(&noisy, "denoised."), &truth),
+    );
+    // A guard against a filter that stops helping (wrong inputs, a swapped image), not a
+    // measure of how well it does (docs/renderer.md has that).
+    assert!(
+        den < raw / 2.0,
+        "relMSE against 1024 spp: raw {raw}, denoised {den}"
+    );
+}
+
+#[test]
+fn denoised_files_are_the_same_bytes_on_any_number_of_threads_on_one_machine() {
+    tessera_testkit::install_oidn();
+    let dir = tempfile::tempdir().expect("tmp");
+    let (one, two) = (dir.path().join("1.exr"), dir.path().join("2.exr"));
+    render(&one, &["--spp", "4", "--denoise", "--threads", "1"]);
+    render(&two, &["--spp", "4", "--denoise", "--threads", "2"]);
+    assert!(
+        std::fs::read(&one).expect("1") == std::fs::read(&two).expect("2"),
+        "the files differ"
+    );
+}
+
+#[test]
+fn without_the_library_denoise_fails_at_once_saying_how_to_install_it() {
+    // The binary copied where no oidn/lib is beside it or above it: as on a machine where
+    // the script was never run.
+    let dir = tempfile::tempdir().expect("tmp");
+    let bin = dir.path().join("bin").join("tessera");
+    std::fs::create_dir_all(bin.parent().expect("parent")).expect("mkdir");
+    std::fs::copy(env!("CARGO_BIN_EXE_tessera"), &bin).expect("copy");
+    let out = dir.path().join("out.exr");
+    let r = std::process::Command::new(&bin)
+        .args([
+            "render",
+            &repo("scenes/cornell-box.toml"),
+            "--spp",
+            "1024",
+            "--denoise",
+            "--output",
+            out.to_str().expect("utf8"),
+        ])
+        .env_remove("TESSERA_OIDN_DIR")
+        .output()
+        .expect("run");
+    assert_clean_failure(
+        &r,
+        &[
+            "--denoise",
+            "libOpenImageDenoise.so.2",
+            "scripts/install-oidn.sh",
+        ],
+    );
+    assert!(!out.exists(), "nothing is rendered or written");
+    // The same binary renders without --denoise.
+    let r = std::process::Command::new(&bin)
+        .args([
+            "render",
+            &repo("scenes/cornell-box.toml"),
+            "--spp",
+            "1",
+            "--resolution",
+            "16x16",
+            "--output",
+            out.to_str().expect("utf8"),
+        ])
+        .output()
+        .expect("run");
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+}
+
+#[test]
+fn denoise_options_need_denoise() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("o.exr");
+    let scene = repo("scenes/cornell-box.toml");
+    for flags in [&["--denoise-quality", "fast"][..], &["--denoise-ldr"][..]] {
+        let mut args = vec!["render", &scene, "--output", out.to_str().expect("utf8")];
+        args.extend(flags);
+        assert_clean_failure(&tessera(&args), &["--denoise"]);
+    }
+    let mut args = vec!["render", &scene, "--output", out.to_str().expect("utf8")];
+    args.extend(["--denoise", "--denoise-quality", "best"]);
+    assert_clean_failure(&tessera(&args), &["best"]);
+}
