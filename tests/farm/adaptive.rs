@@ -23,6 +23,7 @@ async fn an_adaptive_job_gives_the_local_bits_across_a_coordinator_restart() {
             channels: Some(pb::OutputChannels {
                 variance: false,
                 sample_count: true,
+                denoise: None,
             }),
             ..submit_request_with(&text, &settings)
         })

@@ -53,6 +53,7 @@ async fn a_frame_written_in_bands_across_the_exr_blocks_is_the_local_render() {
             channels: Some(pb::OutputChannels {
                 variance: true,
                 sample_count: true,
+                denoise: None,
             }),
             ..submit_request(&text, 8, 4)
         },

@@ -50,19 +50,33 @@ impl DenoiseArgs {
             return Ok(None);
         }
         let version = tessera_denoise::library_version().context("--denoise")?;
-        let quality = match self.denoise_quality {
-            QualityArg::Fast => Quality::Fast,
-            QualityArg::Balanced => Quality::Balanced,
-            QualityArg::High => Quality::High,
-        };
         Ok(Some(Denoiser {
             options: Options {
-                quality,
+                quality: self.quality(),
                 hdr: !self.denoise_ldr,
                 threads,
             },
             version,
         }))
+    }
+}
+
+impl DenoiseArgs {
+    /// What `tessera submit` asks the farm for (the coordinator denoises; nothing is loaded
+    /// here).
+    pub fn proto(&self) -> Option<tessera_proto::v1::DenoiseOptions> {
+        self.denoise.then(|| tessera_proto::v1::DenoiseOptions {
+            quality: self.quality().name().to_string(),
+            ldr: self.denoise_ldr,
+        })
+    }
+
+    fn quality(&self) -> Quality {
+        match self.denoise_quality {
+            QualityArg::Fast => Quality::Fast,
+            QualityArg::Balanced => Quality::Balanced,
+            QualityArg::High => Quality::High,
+        }
     }
 }
 
@@ -77,18 +91,8 @@ impl Denoiser {
 
     /// The header entry that says how the denoised layer was made.
     pub fn metadata(&self) -> (String, String) {
-        let v = self.version;
-        (
-            "denoise".to_string(),
-            format!(
-                "oidn {}.{}.{} {} {}",
-                v / 10000,
-                v / 100 % 100,
-                v % 100,
-                self.options.quality,
-                if self.options.hdr { "hdr" } else { "ldr" }
-            ),
-        )
+        let entry = tessera_denoise::header_entry(self.version, &self.options);
+        ("denoise".to_string(), entry)
     }
 
     /// Denoises the finished frame.

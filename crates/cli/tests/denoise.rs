@@ -186,3 +186,103 @@ fn denoise_options_need_denoise() {
     args.extend(["--denoise", "--denoise-quality", "best"]);
     assert_clean_failure(&tessera(&args), &["best"]);
 }
+
+/// Runs `tessera` against the coordinator at `url`.
+fn at(args: &[&str], url: &str) -> std::process::Output {
+    common::tessera_at(args, url)
+}
+
+#[test]
+fn the_farm_denoises_once_after_the_last_merge_and_matches_render_denoise() {
+    tessera_testkit::install_oidn();
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, addr) = common::start_coordinator(
+        "127.0.0.1:0",
+        &dir.path().join("data"),
+        &["--lease-timeout", "5", "--denoise"],
+        std::process::Stdio::null(),
+    );
+    let url = format!("http://{addr}");
+    let _a = common::worker(&url, "a");
+    let _b = common::worker(&url, "b");
+    let scene = repo("scenes/cornell-box.toml");
+    let flags = [
+        "--spp",
+        "8",
+        "--batch",
+        "4",
+        "--resolution",
+        "64x48",
+        "--denoise",
+        "--denoise-quality",
+        "balanced",
+    ];
+    let farm = dir.path().join("farm.exr");
+    let mut args = vec!["submit", scene.as_str()];
+    args.extend(flags);
+    args.extend(["--wait", "--output", farm.to_str().expect("utf8")]);
+    let out = at(&args, &url);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let local = dir.path().join("local.exr");
+    let mut args = vec!["render", scene.as_str()];
+    args.extend(flags);
+    args.extend(["--output", local.to_str().expect("utf8")]);
+    let out = tessera(&args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        std::fs::read(&farm).expect("farm") == std::fs::read(&local).expect("local"),
+        "the farm's denoised EXR differs from render --denoise's"
+    );
+    let meta = read_exr_metadata(&farm).expect("metadata");
+    assert!(
+        meta.iter().any(|m| m == "denoise=oidn 2.5.1 balanced hdr"),
+        "{meta:?}"
+    );
+    // A bad quality is named, and refused before anything is stored.
+    let out = at(
+        &[
+            "submit",
+            scene.as_str(),
+            "--spp",
+            "1",
+            "--denoise",
+            "--denoise-quality",
+            "best",
+        ],
+        &url,
+    );
+    assert_clean_failure(&out, &["best"]);
+}
+
+#[test]
+fn a_coordinator_that_does_not_denoise_refuses_a_job_that_asks() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (_coord, url) = common::coordinator(&dir.path().join("data"));
+    let out = at(
+        &[
+            "submit",
+            &repo("scenes/cornell-box.toml"),
+            "--spp",
+            "1",
+            "--denoise",
+        ],
+        &url,
+    );
+    assert_clean_failure(&out, &["does not denoise", "--denoise"]);
+    // Nothing was admitted.
+    let list = at(&["status", "--json"], &url);
+    assert!(list.status.success());
+    assert!(
+        !String::from_utf8_lossy(&list.stdout).contains("cornell"),
+        "{}",
+        String::from_utf8_lossy(&list.stdout)
+    );
+}

@@ -102,6 +102,9 @@ pub struct Config {
     /// retry them) until a checkpoint commits: bounds the coordinator's memory when results
     /// arrive faster than its disk and CPU can store them.
     pub max_unstored_bytes: u64,
+    /// Denoise the frames of jobs that ask for it, here, after their last merge (the library
+    /// is loaded when the coordinator starts); off, such jobs are refused at submission.
+    pub denoise: bool,
 }
 
 /// Checkpoint interval unless configured: a crash costs at most this much of the farm's time
@@ -233,6 +236,7 @@ impl Config {
             checkpoint_interval: DEFAULT_CHECKPOINT_INTERVAL,
             evict_open_over: DEFAULT_EVICT_OPEN_OVER,
             max_unstored_bytes: DEFAULT_MAX_UNSTORED_BYTES,
+            denoise: false,
         }
     }
 

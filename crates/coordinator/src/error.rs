@@ -33,6 +33,9 @@ pub enum CoordinatorError {
     /// The gRPC server failed.
     #[error("gRPC server: {0}")]
     Transport(#[from] tonic::transport::Error),
+    /// Configured to denoise (`--denoise`), without a denoiser to run.
+    #[error("--denoise: {0}")]
+    Denoise(#[from] tessera_denoise::DenoiseError),
 }
 
 /// Why a state change could not be made durable. Cloned to every caller whose change was in

@@ -4,13 +4,17 @@
 use std::sync::Arc;
 
 use tessera_proto::ids::JobId;
-use tessera_render::output::{render_metadata, write_new_exr_strips, ExrChannels};
+use tessera_render::film::Image;
+use tessera_render::output::{
+    render_metadata, write_new_exr_strips, write_new_exr_strips_denoised, DenoisedPlanes,
+    ExrChannels,
+};
 use tessera_render::{NoiseSum, Strips};
 use tracing::{error, info, warn};
 
 use crate::job::FrameTile;
 use crate::shared::{durable, now_ms, Shared};
-use crate::store::JobPhase;
+use crate::store::{DenoiseRecord, JobPhase};
 
 /// Why a finished job's EXR could not be written.
 #[derive(Debug, thiserror::Error)]
@@ -27,6 +31,9 @@ enum FinishError {
     /// The task writing it panicked.
     #[error("{0}")]
     Task(#[from] tokio::task::JoinError),
+    /// The frame could not be denoised.
+    #[error("denoising: {0}")]
+    Denoise(#[from] tessera_denoise::DenoiseError),
 }
 
 /// Writes a finished job's EXR, then records it as done (or failed).
@@ -73,13 +80,26 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
         };
         // Never over another file: output names are unique among the coordinator's jobs, so a
         // file already there was put there by someone else, and is theirs.
-        let written = write_new_exr_strips(
-            &path,
-            (rec.width, rec.height),
-            channels,
-            &render_metadata(&rec.scene_hash, &settings),
-            strips,
-        );
+        let size = (rec.width, rec.height);
+        let mut metadata = render_metadata(&rec.scene_hash, &settings);
+        let written = match &rec.denoise {
+            None => write_new_exr_strips(&path, size, channels, &metadata, strips).map(drop),
+            Some(how) => {
+                // The filter sees the frame at once: it is gathered whole, checked, denoised,
+                // then written with its layer as `tessera render --denoise` writes it.
+                let frame = whole(strips);
+                if let Some(e) = unread.take() {
+                    return Err(e.into());
+                }
+                if let Some(e) = unfit.take() {
+                    return Err(e.into());
+                }
+                let (entry, planes) = denoise(&frame, how)?;
+                metadata.push(("denoise".to_string(), entry));
+                let strips = std::iter::once(&frame);
+                write_new_exr_strips_denoised(&path, size, channels, &metadata, strips, &planes)
+            }
+        };
         // A strip source that failed explains why the strips fell short.
         if let Some(e) = unread {
             return Err(e.into());
@@ -122,4 +142,55 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
         // long-polling for units.
         shared.bump_work();
     }
+}
+
+/// The strips of a frame as one image.
+fn whole(strips: impl Iterator<Item = Image>) -> Image {
+    let mut frame: Option<Image> = None;
+    for s in strips {
+        let Some(f) = &mut frame else {
+            frame = Some(s);
+            continue;
+        };
+        f.rgb.extend_from_slice(&s.rgb);
+        f.variance.extend_from_slice(&s.variance);
+        f.count.extend_from_slice(&s.count);
+        if let (Some(to), Some(from)) = (&mut f.aov, &s.aov) {
+            to.extend(from);
+        }
+        f.nonfinite += s.nonfinite;
+        f.height += s.height;
+    }
+    frame.unwrap_or_default()
+}
+
+/// A finished frame denoised as its job asked (every core of this machine: the result is the
+/// same on any number), with the header entry that says how.
+fn denoise(frame: &Image, how: &DenoiseRecord) -> Result<(String, DenoisedPlanes), FinishError> {
+    let options = tessera_denoise::Options {
+        quality: tessera_denoise::Quality::parse(&how.quality).unwrap_or_default(),
+        hdr: how.hdr,
+        threads: None,
+    };
+    let empty = Vec::new();
+    let aov = frame.aov.as_ref();
+    let d = tessera_denoise::denoise(
+        &tessera_denoise::Frame {
+            width: frame.width,
+            height: frame.height,
+            color: &frame.rgb,
+            albedo: aov.map_or(&empty, |a| &a.albedo),
+            normal: aov.map_or(&empty, |a| &a.normal),
+        },
+        &options,
+    )?;
+    let entry = tessera_denoise::header_entry(tessera_denoise::library_version()?, &options);
+    Ok((
+        entry,
+        DenoisedPlanes {
+            color: d.color,
+            albedo: d.albedo,
+            normal: d.normal,
+        },
+    ))
 }

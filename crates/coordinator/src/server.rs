@@ -66,6 +66,11 @@ pub async fn serve_when_ready(
     let dashboard = http
         .map(|l| crate::http::Dashboard::new(l, config.tls.as_ref()))
         .transpose()?;
+    if config.denoise {
+        // Loaded before the coordinator says it is up: a farm set to denoise without the
+        // library stops here, not at its first finished frame.
+        tessera_denoise::library_version()?;
+    }
     let (max_connections, idle) = (config.max_connections, config.idle_connection);
     let (shared, rx, to_finish) = Shared::open(config)?;
     let writer = tokio::spawn(writer(

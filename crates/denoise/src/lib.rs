@@ -196,6 +196,20 @@ pub fn denoise(frame: &Frame<'_>, options: &Options) -> Result<Denoised, Denoise
     Ok(out)
 }
 
+/// What a denoised EXR's header says of its filter (`oidn 2.5.1 high hdr`): the library's
+/// version and the options, which both decide the denoised bits. The local renderer and the
+/// farm write the same.
+pub fn header_entry(version: i32, options: &Options) -> String {
+    format!(
+        "oidn {}.{}.{} {} {}",
+        version / 10000,
+        version / 100 % 100,
+        version % 100,
+        options.quality,
+        if options.hdr { "hdr" } else { "ldr" }
+    )
+}
+
 /// The version of the OIDN library [`denoise`] uses (e.g. 20501 for 2.5.1), loading it if
 /// need be.
 pub fn library_version() -> Result<i32, DenoiseError> {
@@ -229,6 +243,16 @@ fn check(frame: &Frame<'_>) -> Result<usize, DenoiseError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_header_entry_names_version_and_options() {
+        let o = Options {
+            quality: Quality::Fast,
+            hdr: false,
+            threads: Some(3),
+        };
+        assert_eq!(header_entry(20501, &o), "oidn 2.5.1 fast ldr");
+    }
 
     #[test]
     fn qualities_round_trip() {

@@ -44,6 +44,11 @@ pub struct CoordinatorArgs {
     /// results arrive faster than its disk and CPU store them.
     #[arg(long, default_value_t = config::DEFAULT_MAX_UNSTORED_BYTES)]
     max_unstored_bytes: u64,
+    /// Denoise the frames of jobs submitted with --denoise, here, once each frame's last
+    /// result is merged (Intel Open Image Denoise, loaded at start: scripts/install-oidn.sh).
+    /// Without it such jobs are refused.
+    #[arg(long)]
+    denoise: bool,
     /// Default tile edge in pixels for jobs that do not choose one.
     #[arg(long, default_value_t = DEFAULT_TILE, value_parser = tile_range())]
     tile_size: u32,
@@ -277,6 +282,7 @@ fn coordinator_config(args: &CoordinatorArgs) -> Result<tessera_coordinator::Con
     config.asset_store_bytes = args.asset_store_bytes;
     config.evict_open_over = args.evict_open_over;
     config.max_unstored_bytes = args.max_unstored_bytes;
+    config.denoise = args.denoise;
     config.asset_retention = seconds("--asset-retention", args.asset_retention, 0.0..=1e9)?;
     config.limits.max_resolution = args.max_resolution;
     config.max_message_bytes = config

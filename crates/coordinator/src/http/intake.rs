@@ -72,6 +72,10 @@ pub(super) struct SubmitBody {
     /// Write the sample-count channel.
     #[serde(default)]
     sample_count: bool,
+    /// Add a denoised layer: `{"quality": "fast"|"balanced"|"high", "ldr": false}` (both
+    /// optional); the coordinator must have been started with `--denoise`.
+    #[serde(default)]
+    denoise: Option<DenoiseRequest>,
     /// The files the scene names, each uploaded first (`PUT /api/assets/{sha256}`): name as in
     /// the scene → SHA-256.
     #[serde(default)]
@@ -220,6 +224,10 @@ impl SubmitBody {
             channels: Some(pb::OutputChannels {
                 variance: self.variance,
                 sample_count: self.sample_count,
+                denoise: self.denoise.map(|d| pb::DenoiseOptions {
+                    quality: d.quality,
+                    ldr: d.ldr,
+                }),
             }),
             frames,
             assets: self
@@ -512,4 +520,16 @@ mod tests {
             .expect("unknown field");
         assert!(e.to_string().contains("unknown field `sp`"), "{e}");
     }
+}
+
+/// A submission's `denoise` object.
+#[derive(Debug, Default, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct DenoiseRequest {
+    /// `fast`, `balanced` or `high` (empty: `high`).
+    #[serde(default)]
+    quality: String,
+    /// Filter the beauty as LDR.
+    #[serde(default)]
+    ldr: bool,
 }

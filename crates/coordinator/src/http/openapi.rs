@@ -25,7 +25,7 @@ use super::{api, intake};
         api::list_workers, api::drain, api::release, intake::asset_status, intake::upload_asset
     ),
     components(schemas(
-        api::ApiError, intake::SubmitBody, intake::Submitted, api::PriorityBody, api::Retried,
+        api::ApiError, intake::SubmitBody, intake::DenoiseRequest, intake::Submitted, api::PriorityBody, api::Retried,
         LogPage, LogEntryView, LogLevel, intake::Held, api::Drained, api::Released, JobView,
         WorkerView
     )),

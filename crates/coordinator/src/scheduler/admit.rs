@@ -38,6 +38,8 @@ pub struct Admission {
     pub variance: bool,
     /// Write the sample-count channel.
     pub sample_count: bool,
+    /// Denoise the finished frame (checked by the caller: this coordinator denoises).
+    pub denoise: Option<crate::store::DenoiseRecord>,
     /// The frames of a frame-range job (`settings.frame` is then each frame's own); `None`
     /// for a job of one frame.
     pub frames: Option<FrameRange>,
@@ -189,6 +191,7 @@ impl Admission {
             priority: self.priority,
             variance: self.variance,
             sample_count: self.sample_count,
+            denoise: self.denoise.clone(),
             phase: JobPhase::Active,
             error: String::new(),
             submitted_ms: now_ms,

@@ -531,17 +531,25 @@ impl Service {
         stored: StoredScene,
     ) -> Result<(JobId, u64), Status> {
         let config = &self.shared.config;
+        let denoise = denoise_of(req.channels.as_ref(), config.denoise)?;
+        let mut settings = checked.settings;
+        if denoise.is_some() {
+            // What the filter takes besides the beauty, which they leave as it is.
+            settings.aovs.albedo = true;
+            settings.aovs.normal = true;
+        }
         let admission = Admission {
             scene_hash: scene.hash.clone(),
             scene: stored,
             width: scene.width,
             height: scene.height,
-            settings: checked.settings,
+            settings,
             tile_size: checked.tile_size,
             output_name: checked.output_name,
             priority: req.priority,
             variance: req.channels.as_ref().is_some_and(|c| c.variance),
             sample_count: req.channels.as_ref().is_some_and(|c| c.sample_count),
+            denoise,
             frames: checked.frames,
             after,
             require: req.require,
@@ -636,4 +644,33 @@ fn asset_names(refs: &[pb::AssetRef], max: usize) -> Result<BTreeMap<String, Str
         }
     }
     Ok(names)
+}
+
+/// A submission's denoising, checked: a known quality, and a coordinator that denoises (one
+/// that does not refuses the job rather than finish it without the layer it asked for).
+fn denoise_of(
+    channels: Option<&pb::OutputChannels>,
+    denoises: bool,
+) -> Result<Option<crate::store::DenoiseRecord>, Status> {
+    let Some(d) = channels.and_then(|c| c.denoise.as_ref()) else {
+        return Ok(None);
+    };
+    let quality = match d.quality.as_str() {
+        "" => tessera_denoise::Quality::High,
+        q => tessera_denoise::Quality::parse(q).ok_or_else(|| {
+            Status::invalid_argument(format!(
+                "channels.denoise.quality: {q:?} is not fast, balanced or high"
+            ))
+        })?,
+    };
+    if !denoises {
+        return Err(Status::failed_precondition(
+            "channels.denoise: this coordinator does not denoise (start it with --denoise, \
+             with Open Image Denoise installed: scripts/install-oidn.sh)",
+        ));
+    }
+    Ok(Some(crate::store::DenoiseRecord {
+        quality: quality.name().to_string(),
+        hdr: !d.ldr,
+    }))
 }

@@ -28,8 +28,8 @@ use keys::{audit_key, guide_key, job_key, log_key, pending_key, tile_key, unit_k
 
 pub use coalesce::Coalesced;
 pub use records::{
-    AuditRecord, GuidingRecord, JobPhase, JobRecord, LoadedJob, Op, RangeRef, StoredScene,
-    UnitFailure,
+    AuditRecord, DenoiseRecord, GuidingRecord, JobPhase, JobRecord, LoadedJob, Op, RangeRef,
+    StoredScene, UnitFailure,
 };
 pub use sums::{decode_sums, encode_sums, AOV_BYTES, PIXEL_BYTES};
 

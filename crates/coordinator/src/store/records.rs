@@ -163,6 +163,19 @@ pub struct JobRecord {
     /// admin may change the job.
     #[serde(default)]
     pub submitter: String,
+    /// Denoised after its last merge (`submit --denoise`): the filter's quality and whether
+    /// it filters as HDR (none for a job without, as in records written before denoising).
+    #[serde(default)]
+    pub denoise: Option<DenoiseRecord>,
+}
+
+/// How a job's frame is denoised, as its record keeps it.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct DenoiseRecord {
+    /// `fast`, `balanced` or `high`.
+    pub quality: String,
+    /// Filtered as HDR (linear radiance).
+    pub hdr: bool,
 }
 
 /// A guided job's epochs, as its record keeps them.

@@ -30,6 +30,7 @@ pub fn admission(name: Option<&str>, frames: Option<&str>, after: Option<JobId>)
         priority: 0,
         variance: false,
         sample_count: false,
+        denoise: None,
         frames: frames.map(|f| f.parse::<FrameRange>().expect("range")),
         after,
         require: Vec::new(),

@@ -296,7 +296,7 @@ impl TileSums {
 }
 
 /// A finished image.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Image {
     /// Width.
     pub width: u32,

@@ -11,7 +11,7 @@ use crate::util::files::{self, Access, Place};
 
 mod rows;
 
-pub use rows::write_new_exr_strips;
+pub use rows::{write_new_exr_strips, write_new_exr_strips_denoised};
 
 /// Errors writing or reading images.
 #[derive(Debug, thiserror::Error)]

@@ -40,6 +40,18 @@ pub fn write_new_exr_strips<S: Borrow<Image>>(
     write(path, size, channels, metadata, strips, None, true)
 }
 
+/// [`write_new_exr_strips`] with the denoised layer ([`super::write_exr_with_denoised`]).
+pub fn write_new_exr_strips_denoised<S: Borrow<Image>>(
+    path: &Path,
+    size: (u32, u32),
+    channels: ExrChannels,
+    metadata: &[(String, String)],
+    strips: impl Iterator<Item = S>,
+    denoised: &DenoisedPlanes,
+) -> Result<(), OutputError> {
+    write(path, size, channels, metadata, strips, Some(denoised), true)
+}
+
 /// One channel of the file, by what it holds.
 #[derive(Clone, Copy)]
 enum Plane {

@@ -56,6 +56,8 @@ pub struct SubmitArgs {
     /// Add a per-pixel sample-count channel to the EXR.
     #[arg(long)]
     sample_count: bool,
+    #[command(flatten)]
+    denoise: crate::denoise::DenoiseArgs,
     /// Render frames FIRST-LAST or FIRST-LAST:STEP of the scene's `[animation]` as one job,
     /// one EXR per frame (NAME.####.exr); the first frames finish first.
     #[arg(long, value_name = "FIRST-LAST[:STEP]", conflicts_with = "frame")]
@@ -277,6 +279,7 @@ fn request(
         channels: Some(pb::OutputChannels {
             variance: args.variance,
             sample_count: args.sample_count,
+            denoise: args.denoise.proto(),
         }),
         frames: args.frames.map(|r| pb::FrameRange {
             first: r.first,
