@@ -30,17 +30,6 @@ fn rgb(path: &Path, layer: &str) -> Vec<[f32; 3]> {
     (0..r.len()).map(|i| [r[i], g[i], b[i]]).collect()
 }
 
-fn rel_mse(a: &[[f32; 3]], reference: &[[f32; 3]]) -> f64 {
-    let mut sum = 0.0;
-    for (p, t) in a.iter().zip(reference) {
-        for c in 0..3 {
-            let d = f64::from(p[c] - t[c]);
-            sum += d * d / (f64::from(t[c]).powi(2) + 1e-2);
-        }
-    }
-    sum / (3 * a.len()) as f64
-}
-
 #[test]
 fn the_denoised_layer_is_added_and_the_beauty_keeps_its_bits() {
     tessera_testkit::install_oidn();
@@ -100,8 +89,8 @@ fn a_denoised_frame_is_closer_to_the_converged_one_than_the_raw_frame() {
     render(&noisy, &["--spp", "16", "--denoise", "--seed", "7"]);
     let truth = rgb(&reference, "");
     let (raw, den) = (
-        rel_mse(&rgb(&noisy, ""), &truth),
-        rel_mse(&rgb(&noisy, "denoised."), &truth),
+        tessera_testkit::rel_mse(&rgb(&noisy, ""), &truth),
+        tessera_testkit::rel_mse(&rgb(&noisy, "denoised."), &truth),
     );
     // A guard against a filter that stops helping (wrong inputs, a swapped image), not a
     // measure of how well it does (docs/renderer.md has that).
@@ -217,30 +206,8 @@ fn the_farm_denoises_once_after_the_last_merge_and_matches_render_denoise() {
         "--denoise-quality",
         "balanced",
     ];
-    let farm = dir.path().join("farm.exr");
-    let mut args = vec!["submit", scene.as_str()];
-    args.extend(flags);
-    args.extend(["--wait", "--output", farm.to_str().expect("utf8")]);
-    let out = at(&args, &url);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let local = dir.path().join("local.exr");
-    let mut args = vec!["render", scene.as_str()];
-    args.extend(flags);
-    args.extend(["--output", local.to_str().expect("utf8")]);
-    let out = tessera(&args);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(
-        std::fs::read(&farm).expect("farm") == std::fs::read(&local).expect("local"),
-        "the farm's denoised EXR differs from render --denoise's"
-    );
+    let farm =
+        common::assert_farm_file_is_render_file(dir.path(), &url, &scene, &flags, "denoised");
     let meta = read_exr_metadata(&farm).expect("metadata");
     assert!(
         meta.iter().any(|m| m == "denoise=oidn 2.5.1 balanced hdr"),

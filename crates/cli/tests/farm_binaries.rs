@@ -852,30 +852,7 @@ fn submit_guiding_matches_render_guiding() {
     let _b = worker(&url, "b");
     let scene = repo("scenes/caustic.toml");
     let flags = ["--guiding", "--spp", "16", "--batch", "4", "--seed", "5"];
-    let farm = dir.path().join("farm.exr");
-    let mut args = vec!["submit", scene.as_str()];
-    args.extend(flags);
-    args.extend(["--wait", "--output", farm.to_str().expect("utf8")]);
-    let out = tessera(&args, &url);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let local = dir.path().join("local.exr");
-    let mut args = vec!["render", scene.as_str()];
-    args.extend(flags);
-    args.extend(["--output", local.to_str().expect("utf8")]);
-    let out = tessera(&args, &url);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(
-        std::fs::read(&farm).expect("farm") == std::fs::read(&local).expect("local"),
-        "the farm's guided EXR differs from render's"
-    );
+    common::assert_farm_file_is_render_file(dir.path(), &url, &scene, &flags, "guided");
     for (extra, says) in [
         (["--noise-target", "0.05"], "--noise-target"),
         (["--frames", "1-2"], "--frames"),

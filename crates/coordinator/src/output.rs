@@ -148,18 +148,10 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
 fn whole(strips: impl Iterator<Item = Image>) -> Image {
     let mut frame: Option<Image> = None;
     for s in strips {
-        let Some(f) = &mut frame else {
-            frame = Some(s);
-            continue;
-        };
-        f.rgb.extend_from_slice(&s.rgb);
-        f.variance.extend_from_slice(&s.variance);
-        f.count.extend_from_slice(&s.count);
-        if let (Some(to), Some(from)) = (&mut f.aov, &s.aov) {
-            to.extend(from);
+        match &mut frame {
+            Some(f) => f.append(&s),
+            None => frame = Some(s),
         }
-        f.nonfinite += s.nonfinite;
-        f.height += s.height;
     }
     frame.unwrap_or_default()
 }

@@ -27,17 +27,6 @@ fn images(w: u32, h: u32) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
     (truth, noisy)
 }
 
-fn rel_mse(a: &[[f32; 3]], truth: &[[f32; 3]]) -> f64 {
-    let mut sum = 0.0;
-    for (p, t) in a.iter().zip(truth) {
-        for c in 0..3 {
-            let d = f64::from(p[c] - t[c]);
-            sum += d * d / (f64::from(t[c]).powi(2) + 1e-2);
-        }
-    }
-    sum / (3 * a.len()) as f64
-}
-
 #[test]
 fn the_installed_library_is_open_image_denoise_2_5_1() {
     tessera_testkit::install_oidn();
@@ -66,7 +55,10 @@ fn a_noisy_image_comes_out_closer_to_the_truth_and_the_same_on_any_thread_count(
         },
     )
     .expect("denoised");
-    let (before, after) = (rel_mse(&noisy, &truth), rel_mse(&one.color, &truth));
+    let (before, after) = (
+        tessera_testkit::rel_mse(&noisy, &truth),
+        tessera_testkit::rel_mse(&one.color, &truth),
+    );
     assert!(
         after < before / 5.0,
         "relMSE {before} before denoising, {after} after"
@@ -89,7 +81,7 @@ fn a_noisy_image_comes_out_closer_to_the_truth_and_the_same_on_any_thread_count(
         },
     )
     .expect("denoised");
-    assert!(rel_mse(&fast.color, &truth) < before);
+    assert!(tessera_testkit::rel_mse(&fast.color, &truth) < before);
 }
 
 #[test]

@@ -89,3 +89,16 @@ pub fn install_oidn() {
         );
     });
 }
+
+/// relMSE of an RGB image against a reference: each channel's squared error over
+/// (reference² + 0.01), averaged (the 0.01 keeps black pixels from dividing by zero).
+pub fn rel_mse(image: &[[f32; 3]], reference: &[[f32; 3]]) -> f64 {
+    let mut sum = 0.0;
+    for (p, t) in image.iter().zip(reference) {
+        for c in 0..3 {
+            let d = f64::from(p[c] - t[c]);
+            sum += d * d / (f64::from(t[c]).powi(2) + 1e-2);
+        }
+    }
+    sum / (3 * image.len()).max(1) as f64
+}

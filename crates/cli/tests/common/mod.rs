@@ -204,3 +204,37 @@ pub fn private_file(dir: &std::path::Path, name: &str, text: &str) -> PathBuf {
     std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o600)).expect("chmod");
     p
 }
+
+/// Submits `scene` with `flags` to the farm at `url` and waits for its EXR, renders it with
+/// `tessera render` and the same flags, and asserts the two files are the same bytes
+/// (`what` names the job in the failure); returns the farm's file.
+pub fn assert_farm_file_is_render_file(
+    dir: &std::path::Path,
+    url: &str,
+    scene: &str,
+    flags: &[&str],
+    what: &str,
+) -> PathBuf {
+    let run = |args: Vec<&str>| {
+        let out = tessera_at(&args, url);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    let (farm, local) = (dir.join("farm.exr"), dir.join("local.exr"));
+    let mut args = vec!["submit", scene];
+    args.extend(flags);
+    args.extend(["--wait", "--output", farm.to_str().expect("utf8")]);
+    run(args);
+    let mut args = vec!["render", scene];
+    args.extend(flags);
+    args.extend(["--output", local.to_str().expect("utf8")]);
+    run(args);
+    assert!(
+        std::fs::read(&farm).expect("farm") == std::fs::read(&local).expect("local"),
+        "the farm's {what} EXR differs from render's"
+    );
+    farm
+}

@@ -182,7 +182,7 @@ impl AovPlanes {
     }
 
     /// Appends `other`'s pixels.
-    pub fn extend(&mut self, other: &AovPlanes) {
+    pub(super) fn extend(&mut self, other: &AovPlanes) {
         self.albedo.extend_from_slice(&other.albedo);
         self.normal.extend_from_slice(&other.normal);
         self.depth.extend_from_slice(&other.depth);

@@ -315,6 +315,19 @@ pub struct Image {
 }
 
 impl Image {
+    /// Appends `strip`'s rows below this image's (of the same width): a frame put together
+    /// from the strips its writer takes.
+    pub fn append(&mut self, strip: &Image) {
+        self.rgb.extend_from_slice(&strip.rgb);
+        self.variance.extend_from_slice(&strip.variance);
+        self.count.extend_from_slice(&strip.count);
+        if let (Some(to), Some(from)) = (&mut self.aov, &strip.aov) {
+            to.extend(from);
+        }
+        self.nonfinite += strip.nonfinite;
+        self.height += strip.height;
+    }
+
     /// Noise summary: root-mean-square standard error of pixel means (luminance-weighted
     /// channels averaged), and the same relative to the mean pixel value.
     pub fn noise(&self) -> (f64, f64) {

@@ -210,15 +210,7 @@ pub fn assemble_image(
 ) -> Result<Image, MergeError> {
     let mut image = empty(width, 0, settings.aovs.any());
     for strip in Strips::new(settings, width, height, tiles) {
-        let strip = strip?;
-        image.rgb.extend_from_slice(&strip.rgb);
-        image.variance.extend_from_slice(&strip.variance);
-        image.count.extend_from_slice(&strip.count);
-        if let (Some(to), Some(from)) = (&mut image.aov, &strip.aov) {
-            to.extend(from);
-        }
-        image.nonfinite += strip.nonfinite;
-        image.height += strip.height;
+        image.append(&strip?);
     }
     if image.height != height {
         // Only a zero-width frame has no rows to give.

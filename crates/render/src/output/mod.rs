@@ -104,16 +104,7 @@ pub fn write_exr(
     channels: ExrChannels,
     metadata: &[(String, String)],
 ) -> Result<(), OutputError> {
-    let size = (image.width, image.height);
-    rows::write(
-        path,
-        size,
-        channels,
-        metadata,
-        std::iter::once(image),
-        None,
-        false,
-    )
+    write_whole(path, image, channels, metadata, None)
 }
 
 /// A denoised frame: what `tessera render --denoise` adds to its EXR as the `denoised` layer
@@ -138,16 +129,20 @@ pub fn write_exr_with_denoised(
     metadata: &[(String, String)],
     denoised: &DenoisedPlanes,
 ) -> Result<(), OutputError> {
+    write_whole(path, image, channels, metadata, Some(denoised))
+}
+
+/// A whole frame to a file, replacing any there.
+fn write_whole(
+    path: &Path,
+    image: &Image,
+    channels: ExrChannels,
+    metadata: &[(String, String)],
+    denoised: Option<&DenoisedPlanes>,
+) -> Result<(), OutputError> {
     let size = (image.width, image.height);
-    rows::write(
-        path,
-        size,
-        channels,
-        metadata,
-        std::iter::once(image),
-        Some(denoised),
-        false,
-    )
+    let frame = std::iter::once(image);
+    rows::write(path, size, channels, metadata, frame, denoised, false)
 }
 
 /// An RGB float image read from an EXR file.
