@@ -43,17 +43,28 @@ pub struct Denoiser {
 }
 
 impl DenoiseArgs {
-    /// The denoiser, if `--denoise` was given: the library is loaded here, before anything is
-    /// rendered, so that a missing one fails at once. `threads` is the render's own limit.
-    pub fn denoiser(&self, threads: Option<u32>) -> Result<Option<Denoiser>> {
-        if !self.denoise {
-            return Ok(None);
-        }
-        let version = tessera_denoise::library_version().context("--denoise")?;
+    /// The denoiser, if `--denoise` was given or else the scene file asks for one
+    /// (`[render] denoise`): the library is loaded here, before anything is rendered, so that
+    /// a missing one fails at once. `threads` is the render's own limit.
+    pub fn denoiser(
+        &self,
+        scene: Option<&tessera_render::scene::Denoise>,
+        threads: Option<u32>,
+    ) -> Result<Option<Denoiser>> {
+        let (quality, hdr, asked) = match (self.denoise, scene) {
+            (true, _) => (self.quality(), !self.denoise_ldr, "--denoise"),
+            (false, Some(s)) => (
+                Quality::parse(&s.quality).unwrap_or_default(),
+                s.hdr,
+                "the scene's [render] denoise",
+            ),
+            (false, None) => return Ok(None),
+        };
+        let version = tessera_denoise::library_version().context(asked)?;
         Ok(Some(Denoiser {
             options: Options {
-                quality: self.quality(),
-                hdr: !self.denoise_ldr,
+                quality,
+                hdr,
                 threads,
             },
             version,

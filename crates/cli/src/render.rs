@@ -107,7 +107,6 @@ pub fn run(args: RenderArgs) -> Result<()> {
         max_resolution: args.max_resolution,
         ..Limits::default()
     };
-    let denoiser = args.denoise.denoiser(args.threads)?;
     let gltf = args.gltf.options(&args.scene)?;
     let scene = Scene::file(&args.scene, &limits)
         .gltf(&gltf)
@@ -116,6 +115,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
     for w in &scene.warnings {
         errln!("warning: {w}");
     }
+    let denoiser = args
+        .denoise
+        .denoiser(scene.denoise.as_ref(), args.threads)?;
     let mut settings = RenderSettings {
         tracer: args.tracer.to_tracer(),
         ..args

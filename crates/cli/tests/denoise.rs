@@ -253,3 +253,30 @@ fn a_coordinator_that_does_not_denoise_refuses_a_job_that_asks() {
         String::from_utf8_lossy(&list.stdout)
     );
 }
+
+/// A scene with `[render] denoise` is denoised without the flag: as `render` asked with it,
+/// the same bytes; a farm that does not denoise refuses it naming the scene's key.
+#[test]
+fn a_scene_that_asks_to_be_denoised_is_denoised_without_the_flag() {
+    tessera_testkit::install_oidn();
+    let dir = tempfile::tempdir().expect("tmp");
+    let text = std::fs::read_to_string(repo("scenes/cornell-box.toml")).expect("scene");
+    let text = format!("{text}\n[render]\ndenoise = {{ quality = \"fast\" }}\n");
+    let scene = common::write(dir.path(), "asks.toml", &text);
+    let (by_scene, by_flag) = (dir.path().join("scene.exr"), dir.path().join("flag.exr"));
+    for (out, extra) in [
+        (&by_scene, &[][..]),
+        (&by_flag, &["--denoise", "--denoise-quality", "fast"][..]),
+    ] {
+        let mut args = vec!["render", &scene, "--spp", "2", "--resolution", "32x32"];
+        args.extend(extra);
+        args.extend(["--output", out.to_str().expect("utf8")]);
+        let r = tessera(&args);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    }
+    assert!(read_exr_channel(&by_scene, "denoised.R").is_ok());
+    assert!(std::fs::read(&by_scene).expect("a") == std::fs::read(&by_flag).expect("b"));
+    let (_coord, url) = common::coordinator(&dir.path().join("data"));
+    let out = at(&["submit", &scene, "--spp", "1"], &url);
+    assert_clean_failure(&out, &["the scene's [render] denoise", "does not denoise"]);
+}

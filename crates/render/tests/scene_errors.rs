@@ -574,3 +574,42 @@ fn punctual_light_errors_name_the_key() {
         "unknown variant `area`",
     );
 }
+
+/// `[render] denoise`: `true`, `false` or a table of a known quality and `ldr`; anything else
+/// is refused where it is written.
+#[test]
+fn render_denoise_is_a_switch_or_known_options() {
+    let scene = |render: &str| {
+        format!("{HEAD}[render]\n{render}\n[[objects]]\nshape = \"sphere\"\nmaterial = \"m\"\nradius = 1.0\n")
+    };
+    let load = |text: &str| {
+        Scene::text(text, Format::Toml, "s.toml", &Limits::default())
+            .load()
+            .unwrap_or_else(|e| panic!("{e}"))
+            .denoise
+    };
+    assert_eq!(load(&scene("max_depth = 3")), None);
+    assert_eq!(load(&scene("denoise = false")), None);
+    let on = load(&scene("denoise = true")).expect("on");
+    assert_eq!((on.quality.as_str(), on.hdr), ("high", true));
+    let fast = load(&scene("denoise = { quality = \"fast\", ldr = true }")).expect("on");
+    assert_eq!((fast.quality.as_str(), fast.hdr), ("fast", false));
+    check(
+        &scene("denoise = { quality = \"best\" }"),
+        14,
+        "render.denoise.quality",
+        "\"best\" is not fast, balanced or high",
+    );
+    check(
+        &scene("denoise = 3"),
+        14,
+        "render.denoise",
+        "true, false, or a table of `quality` and `ldr`",
+    );
+    check(
+        &scene("denoise = { strength = 2 }"),
+        14,
+        "render.denoise.strength",
+        "unknown field `strength`, expected `quality` or `ldr`",
+    );
+}

@@ -531,7 +531,7 @@ impl Service {
         stored: StoredScene,
     ) -> Result<(JobId, u64), Status> {
         let config = &self.shared.config;
-        let denoise = denoise_of(req.channels.as_ref(), config.denoise)?;
+        let denoise = denoise_of(req.channels.as_ref(), scene, config.denoise)?;
         let mut settings = checked.settings;
         if denoise.is_some() {
             // What the filter takes besides the beauty, which they leave as it is.
@@ -646,14 +646,23 @@ fn asset_names(refs: &[pb::AssetRef], max: usize) -> Result<BTreeMap<String, Str
     Ok(names)
 }
 
-/// A submission's denoising, checked: a known quality, and a coordinator that denoises (one
+/// A submission's denoising, checked: the request's, else the scene file's (`[render]
+/// denoise`, checked when it was read); a known quality, and a coordinator that denoises (one
 /// that does not refuses the job rather than finish it without the layer it asked for).
 fn denoise_of(
     channels: Option<&pb::OutputChannels>,
+    scene: &SceneCheck,
     denoises: bool,
 ) -> Result<Option<crate::store::DenoiseRecord>, Status> {
     let Some(d) = channels.and_then(|c| c.denoise.as_ref()) else {
-        return Ok(None);
+        return match &scene.denoise {
+            None => Ok(None),
+            Some(_) if !denoises => Err(not_denoising("the scene's [render] denoise")),
+            Some(s) => Ok(Some(crate::store::DenoiseRecord {
+                quality: s.quality.clone(),
+                hdr: s.hdr,
+            })),
+        };
     };
     let quality = match d.quality.as_str() {
         "" => tessera_denoise::Quality::High,
@@ -664,13 +673,18 @@ fn denoise_of(
         })?,
     };
     if !denoises {
-        return Err(Status::failed_precondition(
-            "channels.denoise: this coordinator does not denoise (start it with --denoise, \
-             with Open Image Denoise installed: scripts/install-oidn.sh)",
-        ));
+        return Err(not_denoising("channels.denoise"));
     }
     Ok(Some(crate::store::DenoiseRecord {
         quality: quality.name().to_string(),
         hdr: !d.ldr,
     }))
+}
+
+/// The refusal of a job that asks (at `what`) to be denoised by a coordinator that does not.
+fn not_denoising(what: &str) -> Status {
+    Status::failed_precondition(format!(
+        "{what}: this coordinator does not denoise (start it with --denoise, with Open Image \
+         Denoise installed: scripts/install-oidn.sh)"
+    ))
 }

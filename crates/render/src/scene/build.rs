@@ -47,6 +47,7 @@ pub(super) struct Assembled {
     reach: f32,
     files: SceneFiles,
     max_depth: Option<u32>,
+    denoise: Option<super::Denoise>,
     warnings: Vec<String>,
 }
 
@@ -100,6 +101,7 @@ pub(super) fn assemble(
         reach,
         files,
         max_depth: desc.render.max_depth,
+        denoise: denoise(desc.render.denoise.as_ref())?,
         warnings: objects.warnings,
     })
 }
@@ -255,6 +257,11 @@ impl Assembled {
         &self.prims
     }
 
+    /// `[render] denoise`, checked.
+    pub(super) fn denoise(&self) -> Option<&super::Denoise> {
+        self.denoise.as_ref()
+    }
+
     /// The files read so far (name and SHA-256).
     pub(super) fn files_read(&self) -> &[(String, String)] {
         &self.files.read
@@ -303,6 +310,7 @@ impl Assembled {
             lights: Lights::new(self.lights),
             environment,
             max_depth: self.max_depth,
+            denoise: self.denoise,
             hash: String::new(),
             files: Vec::new(),
             textures,
@@ -475,6 +483,24 @@ fn build_mesh(
 }
 
 /// The film's size, within the limits.
+/// `[render] denoise`, checked: a known quality.
+fn denoise(d: Option<&super::format::DenoiseDesc>) -> Result<Option<super::Denoise>, Invalid> {
+    let Some(d) = d.filter(|d| d.on) else {
+        return Ok(None);
+    };
+    let quality = d.quality.as_deref().unwrap_or("high");
+    if !["fast", "balanced", "high"].contains(&quality) {
+        return Err((
+            root("render").key("denoise").key("quality"),
+            format!("{quality:?} is not fast, balanced or high"),
+        ));
+    }
+    Ok(Some(super::Denoise {
+        quality: quality.to_string(),
+        hdr: !d.ldr,
+    }))
+}
+
 fn film_size(desc: &SceneFile, limits: &Limits) -> Result<(u32, u32), Invalid> {
     let fp = root("film");
     let (w, h) = (desc.film.width, desc.film.height);

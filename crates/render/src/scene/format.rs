@@ -156,6 +156,58 @@ pub struct FilmDesc {
 pub struct RenderDesc {
     /// Maximum number of bounces; unlimited (Russian roulette ends paths) when absent.
     pub max_depth: Option<u32>,
+    /// Add a denoised layer: `true`, or a table of the filter's options.
+    pub denoise: Option<DenoiseDesc>,
+}
+
+/// `[render] denoise`: `true` (`false` is the same as leaving it out), or
+/// `{ quality = "fast" | "balanced" | "high", ldr = true }`.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct DenoiseDesc {
+    /// Asked for (`false` only from `denoise = false`).
+    pub on: bool,
+    /// The filter's quality, unchecked.
+    pub quality: Option<String>,
+    /// Filter as LDR.
+    pub ldr: bool,
+}
+
+impl<'de> Deserialize<'de> for DenoiseDesc {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        /// The options' table, as written.
+        #[derive(Deserialize)]
+        #[serde(deny_unknown_fields)]
+        struct Options {
+            quality: Option<String>,
+            #[serde(default)]
+            ldr: bool,
+        }
+        struct Either;
+        impl<'de> serde::de::Visitor<'de> for Either {
+            type Value = DenoiseDesc;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("true, false, or a table of `quality` and `ldr`")
+            }
+            fn visit_bool<E: serde::de::Error>(self, on: bool) -> Result<DenoiseDesc, E> {
+                Ok(DenoiseDesc {
+                    on,
+                    ..DenoiseDesc::default()
+                })
+            }
+            fn visit_map<M: serde::de::MapAccess<'de>>(
+                self,
+                m: M,
+            ) -> Result<DenoiseDesc, M::Error> {
+                let o = Options::deserialize(serde::de::value::MapAccessDeserializer::new(m))?;
+                Ok(DenoiseDesc {
+                    on: true,
+                    quality: o.quality,
+                    ldr: o.ldr,
+                })
+            }
+        }
+        d.deserialize_any(Either)
+    }
 }
 
 /// Environment kinds.

@@ -172,6 +172,7 @@ impl<'a> Load<'a> {
             height,
             files: read,
             bounds: shape_bounds(assembled.prims()),
+            denoise: assembled.denoise().cloned(),
         })
     }
 }

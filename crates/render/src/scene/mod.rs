@@ -233,6 +233,8 @@ pub struct Scene {
     pub environment: Option<Environment>,
     /// Bounce limit, if any.
     pub max_depth: Option<u32>,
+    /// The denoising the scene file asks for (`[render] denoise`), if any.
+    pub denoise: Option<Denoise>,
     /// The scene's content address, hex: the SHA-256 of its text, and of the files it read
     /// where it read any ([`assets::scene_hash`]).
     pub hash: String,
@@ -270,6 +272,18 @@ pub struct SceneCheck {
     pub files: Vec<(String, String)>,
     /// The box around its bounded shapes ([`crate::guiding::guide_bounds`]).
     pub bounds: [[f32; 3]; 2],
+    /// The denoising the scene file asks for ([`Scene::denoise`]).
+    pub denoise: Option<Denoise>,
+}
+
+/// A scene file's `[render] denoise`, checked: what `tessera render` and the farm do when no
+/// flag says otherwise.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Denoise {
+    /// `fast`, `balanced` or `high`.
+    pub quality: String,
+    /// Filter as HDR (linear radiance); false for `ldr = true`.
+    pub hdr: bool,
 }
 
 /// The box around the bounded ones of `prims` (an infinite plane is left out).
