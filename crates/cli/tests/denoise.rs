@@ -185,13 +185,10 @@ fn at(args: &[&str], url: &str) -> std::process::Output {
 fn the_farm_denoises_once_after_the_last_merge_and_matches_render_denoise() {
     tessera_testkit::install_oidn();
     let dir = tempfile::tempdir().expect("tmp");
-    let (_coord, addr) = common::start_coordinator(
-        "127.0.0.1:0",
+    let (_coord, url, dashboard) = common::coordinator_with_dashboard(
         &dir.path().join("data"),
         &["--lease-timeout", "5", "--denoise"],
-        std::process::Stdio::null(),
     );
-    let url = format!("http://{addr}");
     let _a = common::worker(&url, "a");
     let _b = common::worker(&url, "b");
     let scene = repo("scenes/cornell-box.toml");
@@ -213,6 +210,29 @@ fn the_farm_denoises_once_after_the_last_merge_and_matches_render_denoise() {
         meta.iter().any(|m| m == "denoise=oidn 2.5.1 balanced hdr"),
         "{meta:?}"
     );
+    // The dashboard shows the finished job's denoised image, and says why a job without one
+    // has none.
+    let job = meta
+        .iter()
+        .find_map(|m| m.strip_prefix("job="))
+        .map(str::to_string);
+    let listed = at(&["status", "--json"], &url);
+    let text = String::from_utf8_lossy(&listed.stdout);
+    let id = job.unwrap_or_else(|| {
+        let at = text.find("job-").expect("a job id");
+        text[at..at + 10].to_string()
+    });
+    let (status, body) = http_get(
+        &dashboard,
+        &format!("/api/jobs/{id}/preview.png?view=denoised"),
+    );
+    assert_eq!(status, 200, "{}", String::from_utf8_lossy(&body));
+    assert!(body.starts_with(b"\x89PNG"), "not a PNG");
+    let (plain, _) = http_get(
+        &dashboard,
+        &format!("/api/jobs/{id}/preview.png?view=color"),
+    );
+    assert_eq!(plain, 200);
     // A bad quality is named, and refused before anything is stored.
     let out = at(
         &[
@@ -279,4 +299,29 @@ fn a_scene_that_asks_to_be_denoised_is_denoised_without_the_flag() {
     let (_coord, url) = common::coordinator(&dir.path().join("data"));
     let out = at(&["submit", &scene, "--spp", "1"], &url);
     assert_clean_failure(&out, &["the scene's [render] denoise", "does not denoise"]);
+}
+
+/// A GET of `path` from the HTTP server at `base` (`http://host:port`): status and body.
+fn http_get(base: &str, path: &str) -> (u16, Vec<u8>) {
+    use std::io::{Read, Write};
+    let host = base.trim_start_matches("http://");
+    let mut conn = std::net::TcpStream::connect(host).expect("connect");
+    write!(
+        conn,
+        "GET {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n"
+    )
+    .expect("request");
+    let mut raw = Vec::new();
+    conn.read_to_end(&mut raw).expect("response");
+    let split = raw
+        .windows(4)
+        .position(|w| w == b"\r\n\r\n")
+        .expect("headers end");
+    let head = String::from_utf8_lossy(&raw[..split]).to_string();
+    let status = head
+        .split_whitespace()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .expect("status");
+    (status, raw[split + 4..].to_vec())
 }

@@ -552,7 +552,8 @@ struct PreviewQuery {
     /// Exposure in stops (0 by default).
     #[serde(default)]
     exposure: f32,
-    /// `color` (the default) or `noise` (each tile's relative noise).
+    /// `color` (the default), `noise` (each tile's relative noise) or `denoised` (a finished
+    /// job's denoised layer).
     #[serde(default)]
     view: Option<String>,
 }
@@ -574,9 +575,10 @@ async fn preview_png(
     let view = match q.view.as_deref() {
         None | Some("color") => View::Color,
         Some("noise") => View::Noise,
+        Some("denoised") => View::Denoised,
         Some(v) => {
             return refused(tonic::Status::invalid_argument(format!(
-                "view {:?}: expected color or noise",
+                "view {:?}: expected color, noise or denoised",
                 crate::error::truncate(v)
             )))
         }

@@ -11,7 +11,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use tessera_proto::ids::JobId;
-use tessera_render::output::{read_exr_rgb, tone_map, Preview};
+use tessera_render::output::{read_exr_channel, read_exr_rgb, tone_map, Preview};
 use tessera_render::PixelRect;
 
 use crate::job::{preview_step, PreviewSource, Thumb, TileMeans, MAX_KEPT_TILE_NOISE};
@@ -39,6 +39,8 @@ pub enum View {
     Color,
     /// Each tile coloured by its relative noise (blue low, red high), shaded by the image.
     Noise,
+    /// A finished job's denoised image (`submit --denoise`), tone-mapped.
+    Denoised,
 }
 
 /// Why there is no preview.
@@ -62,6 +64,9 @@ struct Frame {
     rgb: Vec<[f32; 3]>,
     /// Per tile: its rectangle and relative noise (NaN where it has no samples yet).
     tiles: Vec<(PixelRect, f32)>,
+    /// The denoised layer's means, averaged down as `rgb` is: a finished job's that was
+    /// denoised (`submit --denoise`), none otherwise.
+    denoised: Option<Vec<[f32; 3]>>,
 }
 
 impl Frame {
@@ -76,9 +81,21 @@ impl Frame {
                 step,
                 rgb: vec![[0.0; 3]; n],
                 tiles: Vec::new(),
+                denoised: None,
             },
             vec![0; n],
         )
+    }
+
+    /// A whole `width` × `height` image averaged down to its preview.
+    fn down(width: u32, height: u32, rgb: &[[f32; 3]]) -> Self {
+        let (mut frame, mut weights) = Frame::new(width, height);
+        for (i, p) in rgb.iter().enumerate() {
+            let (x, y) = ((i % width as usize) as u32, (i / width as usize) as u32);
+            frame.add(&mut weights, x, y, *p);
+        }
+        frame.finish(&weights);
+        frame
     }
 
     /// Adds the full-resolution pixel (x, y)'s mean to its preview pixel.
@@ -158,6 +175,12 @@ impl Previews {
             return Err(NoPreview::Gone(format!(
                 "{id} has ended and its per-tile noise is not kept (it ended before the \
                  coordinator's last start, or has more than {MAX_KEPT_TILE_NOISE} tiles)"
+            )));
+        }
+        if view == View::Denoised && cached.frame.denoised.is_none() {
+            return Err(NoPreview::Gone(format!(
+                "{id} has no denoised image (it was not submitted with --denoise, or has not \
+                 finished)"
             )));
         }
         // Tenths of a stop: finer steps look the same and would only fill the cache.
@@ -299,12 +322,16 @@ fn copy_tiles(
 /// A finished job's frame from its EXR.
 fn from_exr(path: &std::path::Path) -> Result<Frame, NoPreview> {
     let img = read_exr_rgb(path).map_err(|e| NoPreview::Failed(e.to_string()))?;
-    let (mut frame, mut weights) = Frame::new(img.width as u32, img.height as u32);
-    for (i, p) in img.rgb.iter().enumerate() {
-        let (x, y) = ((i % img.width) as u32, (i / img.width) as u32);
-        frame.add(&mut weights, x, y, *p);
+    let (w, h) = (img.width as u32, img.height as u32);
+    let mut frame = Frame::down(w, h, &img.rgb);
+    // A file without the layer (most jobs') simply has no denoised view.
+    let layer = ["R", "G", "B"].map(|c| read_exr_channel(path, &format!("denoised.{c}")).ok());
+    if let [Some(r), Some(g), Some(b)] = layer {
+        let rgb: Vec<[f32; 3]> = (0..r.len()).map(|i| [r[i], g[i], b[i]]).collect();
+        if rgb.len() == img.rgb.len() {
+            frame.denoised = Some(Frame::down(w, h, &rgb).rgb);
+        }
     }
-    frame.finish(&weights);
     Ok(frame)
 }
 
@@ -331,7 +358,11 @@ fn heat(rel: f32) -> [f32; 3] {
 
 /// The PNG of `frame` in `view`.
 fn encode(frame: &Frame, exposure: f32, view: View) -> Result<Vec<u8>, NoPreview> {
-    let mut rgb = tone_map(&frame.rgb, Preview { exposure });
+    let shown = match (view, &frame.denoised) {
+        (View::Denoised, Some(d)) => d,
+        _ => &frame.rgb,
+    };
+    let mut rgb = tone_map(shown, Preview { exposure });
     if view == View::Noise {
         let w = frame.width as usize;
         for &(rect, rel) in &frame.tiles {

@@ -244,10 +244,18 @@ function jobView(j) {
     const expoLabel = el("span", { id: "exposure-value" }, `${preview.exposure} EV`);
     expo.addEventListener("input", () => { preview.exposure = Number(expo.value); expoLabel.textContent = `${preview.exposure} EV`; preview.lastLoad = 0; refresh(); });
     const toggle = el("button", { id: "view-toggle" }, preview.view === "noise" ? "Show image" : "Show noise");
-    toggle.addEventListener("click", () => { preview.view = preview.view === "noise" ? "color" : "noise"; toggle.textContent = preview.view === "noise" ? "Show image" : "Show noise"; preview.lastLoad = 0; refresh(); });
+    // A finished job submitted with --denoise also has its denoised image; any other job
+    // answers this view with a note saying why not.
+    const denoised = el("button", { id: "denoised-toggle" }, preview.view === "denoised" ? "Show image" : "Show denoised");
+    const relabel = () => {
+      toggle.textContent = preview.view === "noise" ? "Show image" : "Show noise";
+      denoised.textContent = preview.view === "denoised" ? "Show image" : "Show denoised";
+    };
+    toggle.addEventListener("click", () => { preview.view = preview.view === "noise" ? "color" : "noise"; relabel(); preview.lastLoad = 0; refresh(); });
+    denoised.addEventListener("click", () => { preview.view = preview.view === "denoised" ? "color" : "denoised"; relabel(); preview.lastLoad = 0; refresh(); });
     box = el("div", { class: "preview-col" },
       el("div", { class: "preview" }, img),
-      el("div", { class: "controls" }, el("label", { for: "exposure" }, "Exposure"), expo, expoLabel, toggle, el("span", { id: "preview-note", class: "muted" }, "")));
+      el("div", { class: "controls" }, el("label", { for: "exposure" }, "Exposure"), expo, expoLabel, toggle, denoised, el("span", { id: "preview-note", class: "muted" }, "")));
   }
   return [el("h1", {}, `${j.job_id} `, el("span", { class: "muted" }, j.scene)), el("div", { class: "job" }, box, el("div", {}, ...side))];
 }
