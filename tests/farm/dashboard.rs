@@ -265,7 +265,11 @@ async fn the_preview_shows_the_merged_sums_then_the_exr() {
     assert_ne!(noise, px, "the noise view is the image");
     let r = get(addr, &format!("/api/jobs/{job}/preview.png?view=x")).await;
     assert_eq!(r.status, 400);
-    assert!(r.text().contains("expected color or noise"), "{}", r.text());
+    assert!(
+        r.text().contains("expected color, noise or denoised"),
+        "{}",
+        r.text()
+    );
     // Hostile or odd parameters: refused with the reason, or read as the default; no panic.
     for (query, status) in [
         ("exposure=1e39", 200),
