@@ -306,6 +306,61 @@ fn bench_guiding_measures_guided_renders_beside_unguided_ones() {
     );
 }
 
+/// `bench --denoise` measures a denoised render right after each raw point, as a series of
+/// its own, whose relMSE at 16 and 64 spp is below the raw render's (the Cornell box, cut to
+/// 64²).
+#[test]
+fn bench_denoise_measures_denoised_renders_beside_raw_ones() {
+    tessera_testkit::install_oidn();
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("out");
+    std::fs::create_dir(&out).expect("mkdir");
+    let text = std::fs::read_to_string(repo("scenes/cornell-box.toml")).expect("scene");
+    let scene = write(
+        dir.path(),
+        "box.toml",
+        &text
+            .replace("width = 256", "width = 64")
+            .replace("height = 256", "height = 64"),
+    );
+    let cache = dir.path().join("cache");
+    let r = tessera(&[
+        "bench",
+        "--scene",
+        &scene,
+        "--max-spp",
+        "64",
+        "--seeds",
+        "1",
+        "--reference-spp",
+        "1024",
+        "--cache",
+        cache.to_str().expect("utf8"),
+        "--out",
+        out.to_str().expect("utf8"),
+        "--name",
+        "d",
+        "--denoise",
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let csv = std::fs::read_to_string(out.join("d.csv")).expect("csv");
+    let relmse = |renderer: &str, spp: u32| -> f64 {
+        let row = csv
+            .lines()
+            .find(|l| l.starts_with(&format!("{renderer},box,{spp},")))
+            .unwrap_or_else(|| panic!("no {renderer} row at {spp} spp: {csv}"));
+        row.rsplit(',')
+            .next()
+            .expect("relmse")
+            .parse()
+            .expect("a number")
+    };
+    for spp in [16, 64] {
+        let (raw, denoised) = (relmse("tessera", spp), relmse("tessera-denoised", spp));
+        assert!(denoised < raw, "{spp} spp: raw {raw}, denoised {denoised}");
+    }
+}
+
 #[test]
 fn loadtest_runs_simulated_workers_against_a_coordinator_and_reports_what_it_measured() {
     let dir = tempfile::tempdir().expect("tmp");

@@ -15,6 +15,7 @@
 //! The parts: [`peer`] (CSV rows and the peer protocol), [`stats`], [`report`] and [`plot`].
 
 mod adaptive;
+mod denoised;
 mod guiding_cost;
 pub mod load;
 mod peer;
@@ -90,6 +91,11 @@ pub struct BenchArgs {
     /// and the time each needs for the same relMSE (NAME-guiding.md).
     #[arg(long)]
     guiding: bool,
+    /// Also measure denoising: after each uniform point, the same scene, spp and seed
+    /// rendered with the denoiser's AOVs and denoised (Intel Open Image Denoise, which
+    /// scripts/install-oidn.sh installs), timed whole, as renderer `tessera-denoised`.
+    #[arg(long)]
+    denoise: bool,
     /// Tile edge, in pixels, of the adaptive renders' noise decisions.
     #[arg(long, default_value_t = 32, value_parser = crate::args::tile_range())]
     adaptive_tile: u32,
@@ -242,6 +248,10 @@ pub fn run(args: BenchArgs) -> Result<()> {
     if !args.out.is_dir() {
         bail!("output directory {} does not exist", args.out.display());
     }
+    if args.denoise {
+        // Before anything is measured: a missing library fails the run at once.
+        tessera_denoise::library_version().context("--denoise")?;
+    }
     let (scenes, names) = scene_list(&args)?;
     let given = given_references(&args, &names)?;
     let peer_rows = read_peer_rows(&args.peers)?;
@@ -386,6 +396,11 @@ fn measure_scene(
                 m.keep(guiding_cost::measure(
                     &scene, name, &settings, &reference, pool,
                 ));
+            }
+            if args.denoise {
+                m.keep(denoised::measure(
+                    &scene, name, &settings, &reference, pool,
+                )?);
             }
             if let Some(peer) = peer.as_deref_mut() {
                 for row in peer.measure(name, spp, settings.seed)? {

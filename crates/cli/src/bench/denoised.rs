@@ -1,0 +1,61 @@
+//! `tessera bench --denoise`: the denoised curve beside the raw one, in the same run. After
+//! each of tessera's uniform points the same scene, spp and seed is rendered with the albedo
+//! and normal the denoiser takes, and denoised (Intel Open Image Denoise, `high`, HDR), timed
+//! whole (render, AOVs and filter), as renderer `tessera-denoised`: the report and plot carry
+//! it as a series of its own, against the raw render's and the peer's.
+
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use tessera_render::output::RgbImage;
+use tessera_render::scene::Scene;
+use tessera_render::{render_frame, RenderSettings};
+
+use super::peer::Row;
+use super::stats::rel_mse;
+
+/// The renderer name of denoised rows.
+pub(super) const RENDERER: &str = "tessera-denoised";
+
+/// One timed render of `scene` (named `name`) with `settings`, denoised.
+pub(super) fn measure(
+    scene: &Scene,
+    name: &str,
+    settings: &RenderSettings,
+    reference: &RgbImage,
+    pool: &rayon::ThreadPool,
+) -> Result<Row> {
+    let mut settings = settings.clone();
+    settings.aovs.albedo = true;
+    settings.aovs.normal = true;
+    let options = tessera_denoise::Options {
+        threads: Some(pool.current_num_threads() as u32),
+        ..tessera_denoise::Options::default()
+    };
+    let start = Instant::now();
+    let mut img = pool
+        .install(|| render_frame(scene, &settings, &|_| {}))
+        .finalize();
+    let aov = img.aov.as_ref().context("the render has no AOVs")?;
+    let frame = tessera_denoise::Frame {
+        width: img.width,
+        height: img.height,
+        color: &img.rgb,
+        albedo: &aov.albedo,
+        normal: &aov.normal,
+    };
+    let denoised = tessera_denoise::denoise(&frame, &options).context("--denoise")?;
+    let seconds = start.elapsed().as_secs_f64();
+    img.rgb = denoised.color;
+    let samples = scene.width as f64 * scene.height as f64 * settings.spp as f64;
+    Ok(Row {
+        renderer: RENDERER.into(),
+        scene: name.to_string(),
+        spp: settings.spp,
+        seed: settings.seed,
+        threads: pool.current_num_threads(),
+        seconds,
+        msamples_per_s: samples / seconds / 1e6,
+        relmse: rel_mse(&img, reference),
+    })
+}
