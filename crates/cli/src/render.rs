@@ -6,6 +6,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use indicatif::ProgressBar;
+use tessera_render::film::Image;
 use tessera_render::guiding::render_frame_guided;
 use tessera_render::output::{
     render_metadata, write_exr, write_exr_with_denoised, write_png_preview, ExrChannels, Preview,
@@ -161,38 +162,8 @@ pub fn run(args: RenderArgs) -> Result<()> {
     bar.finish_and_clear();
     let image = sums.finalize();
 
-    let mut meta = render_metadata(&scene.hash, &settings);
-    let channels = ExrChannels {
-        variance: args.variance,
-        samples: args.sample_count,
-        aovs: settings.aovs,
-    };
-    let mut denoise_note = String::new();
-    let mut shown = None;
-    match &denoiser {
-        None => write_exr(&args.output, &image, channels, &meta)?,
-        Some(d) => {
-            let start = Instant::now();
-            let planes = d.run(&image)?;
-            denoise_note = format!(", denoised in {:.2} s", start.elapsed().as_secs_f64());
-            meta.push(d.metadata());
-            write_exr_with_denoised(&args.output, &image, channels, &meta, &planes)?;
-            // The preview shows what the denoised layer holds.
-            shown = Some(tessera_render::film::Image {
-                rgb: planes.color,
-                ..image.clone()
-            });
-        }
-    }
-    if let Some(p) = &args.preview.preview {
-        write_png_preview(
-            p,
-            shown.as_ref().unwrap_or(&image),
-            Preview {
-                exposure: args.preview.exposure,
-            },
-        )?;
-    }
+    let meta = render_metadata(&scene.hash, &settings);
+    let denoise_note = write_outputs(&args, &image, &settings, meta, denoiser.as_ref())?;
     let (noise, rel) = image.noise();
     let samples = done.load(Ordering::Relaxed);
     let spp = match settings.adaptive {
@@ -223,6 +194,46 @@ pub fn run(args: RenderArgs) -> Result<()> {
         errln!("warning: {line}");
     }
     Ok(())
+}
+
+/// Writes the EXR (with its denoised layer, if asked) and the preview (of the denoised image,
+/// if there is one); returns what the summary line says of denoising.
+fn write_outputs(
+    args: &RenderArgs,
+    image: &Image,
+    settings: &RenderSettings,
+    mut meta: Vec<(String, String)>,
+    denoiser: Option<&crate::denoise::Denoiser>,
+) -> Result<String> {
+    let channels = ExrChannels {
+        variance: args.variance,
+        samples: args.sample_count,
+        aovs: settings.aovs,
+    };
+    let mut note = String::new();
+    let mut shown = None;
+    match denoiser {
+        None => write_exr(&args.output, image, channels, &meta)?,
+        Some(d) => {
+            let start = Instant::now();
+            let planes = d.run(image)?;
+            note = format!(", denoised in {:.2} s", start.elapsed().as_secs_f64());
+            meta.push(d.metadata());
+            write_exr_with_denoised(&args.output, image, channels, &meta, &planes)?;
+            // The preview shows what the denoised layer holds.
+            shown = Some(Image {
+                rgb: planes.color,
+                ..image.clone()
+            });
+        }
+    }
+    if let Some(p) = &args.preview.preview {
+        let preview = Preview {
+            exposure: args.preview.exposure,
+        };
+        write_png_preview(p, shown.as_ref().unwrap_or(image), preview)?;
+    }
+    Ok(note)
 }
 
 /// The summary line's noise: σ of the pixel means and its share of the mean, or, where no

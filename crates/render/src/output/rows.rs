@@ -110,16 +110,8 @@ pub(super) fn write<S: Borrow<Image>>(
         path: path.to_path_buf(),
         message,
     };
-    let n = size.0 as usize * size.1 as usize;
     if let Some(d) = denoised {
-        if [d.color.len(), d.albedo.len(), d.normal.len()] != [n; 3] {
-            return Err(exr_error(format!(
-                "the denoised planes hold {}, {} and {} pixels for a frame of {n}",
-                d.color.len(),
-                d.albedo.len(),
-                d.normal.len()
-            )));
-        }
+        check_denoised(d, size).map_err(exr_error)?;
     }
     let headers = headers(size, channels, denoised.is_some(), metadata);
     let planes: Vec<Plane> = headers[0]
@@ -226,6 +218,19 @@ pub(super) fn write<S: Borrow<Image>>(
             source,
         }),
     }
+}
+
+/// Refuses denoised planes that are not the frame's size.
+fn check_denoised(d: &DenoisedPlanes, size: (u32, u32)) -> Result<(), String> {
+    let n = size.0 as usize * size.1 as usize;
+    let lens = [d.color.len(), d.albedo.len(), d.normal.len()];
+    if lens == [n; 3] {
+        return Ok(());
+    }
+    Err(format!(
+        "the denoised planes hold {}, {} and {} pixels for a frame of {n}",
+        lens[0], lens[1], lens[2]
+    ))
 }
 
 /// The headers the `exr` crate's image writer gives a layer of these channels: inferred from a
@@ -441,6 +446,56 @@ mod tests {
                     .collect(),
             }),
         }
+    }
+
+    /// The denoised layer goes in as given, its planes read by row and column from the
+    /// whole frame whatever the strips, and planes not the frame's size are refused.
+    #[test]
+    fn the_denoised_layer_is_written_by_pixel_and_checked_for_size() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let frame = image(9, 31);
+        let n = 9 * 31;
+        let plane = |k: f32| -> Vec<[f32; 3]> {
+            (0..n)
+                .map(|i| [i as f32 * k, 1.0 + k, -(i as f32)])
+                .collect()
+        };
+        let d = DenoisedPlanes {
+            color: plane(0.5),
+            albedo: plane(0.25),
+            normal: plane(-1.0),
+        };
+        let path = dir.path().join("d.exr");
+        let strips = vec![rows_of(&frame, 0, 17), rows_of(&frame, 17, 31)];
+        let channels = ExrChannels::default();
+        write(&path, (9, 31), channels, &[], strips.iter(), Some(&d), true).expect("writes");
+        for (name, plane, c) in [
+            ("denoised.R", &d.color, 0),
+            ("denoised.B", &d.color, 2),
+            ("denoised.albedo.G", &d.albedo, 1),
+            ("denoised.normal.Z", &d.normal, 2),
+        ] {
+            let got = super::super::read_exr_channel(&path, name).expect(name);
+            let want: Vec<f32> = plane.iter().map(|p| p[c]).collect();
+            assert_eq!(got, want, "{name}");
+        }
+        let short = DenoisedPlanes {
+            albedo: plane(0.0)[1..].to_vec(),
+            ..d
+        };
+        let path = dir.path().join("short.exr");
+        let err = write(
+            &path,
+            (9, 31),
+            channels,
+            &[],
+            strips.iter(),
+            Some(&short),
+            true,
+        )
+        .expect_err("short");
+        assert!(err.to_string().contains("denoised planes hold"), "{err}");
+        assert!(!path.exists());
     }
 
     fn rows_of(image: &Image, from: u32, to: u32) -> Image {
