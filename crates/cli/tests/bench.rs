@@ -20,6 +20,32 @@ fn tiny_bench_scene(dir: &Path) -> String {
     )
 }
 
+/// Runs `tessera bench` on `scene` at 4 … `max_spp` spp, one seed, a reference of `ref_spp`
+/// cached under `dir/cache`, its reports named `name` in `out`, with `extra` flags; fails on
+/// a failed run.
+fn bench(dir: &Path, scene: &str, (max_spp, ref_spp): (&str, &str), name: &str, extra: &str) {
+    let (out, cache) = (dir.join("out"), dir.join("cache"));
+    let r = tessera(&[
+        "bench",
+        "--scene",
+        scene,
+        "--max-spp",
+        max_spp,
+        "--seeds",
+        "1",
+        "--reference-spp",
+        ref_spp,
+        "--cache",
+        cache.to_str().expect("utf8"),
+        "--out",
+        out.to_str().expect("utf8"),
+        "--name",
+        name,
+        extra,
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+}
+
 // Long because it is one scenario, its steps in the order they happen to the farm (each
 // step's state is the next one's start); split into functions, that order would be hidden.
 #[test]
@@ -267,26 +293,7 @@ fn bench_guiding_measures_guided_renders_beside_unguided_ones() {
     let scene = tiny_bench_scene(dir.path());
     let out = dir.path().join("out");
     std::fs::create_dir(&out).expect("mkdir");
-    let cache = dir.path().join("cache");
-    let r = tessera(&[
-        "bench",
-        "--scene",
-        &scene,
-        "--max-spp",
-        "64",
-        "--seeds",
-        "1",
-        "--reference-spp",
-        "64",
-        "--cache",
-        cache.to_str().expect("utf8"),
-        "--out",
-        out.to_str().expect("utf8"),
-        "--name",
-        "g",
-        "--guiding",
-    ]);
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    bench(dir.path(), &scene, ("64", "64"), "g", "--guiding");
     let csv = std::fs::read_to_string(out.join("g.csv")).expect("csv");
     // 4, 16 and 64 spp, each unguided and guided.
     for renderer in ["tessera", "tessera-guided"] {
@@ -323,26 +330,7 @@ fn bench_denoise_measures_denoised_renders_beside_raw_ones() {
             .replace("width = 256", "width = 64")
             .replace("height = 256", "height = 64"),
     );
-    let cache = dir.path().join("cache");
-    let r = tessera(&[
-        "bench",
-        "--scene",
-        &scene,
-        "--max-spp",
-        "64",
-        "--seeds",
-        "1",
-        "--reference-spp",
-        "1024",
-        "--cache",
-        cache.to_str().expect("utf8"),
-        "--out",
-        out.to_str().expect("utf8"),
-        "--name",
-        "d",
-        "--denoise",
-    ]);
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    bench(dir.path(), &scene, ("64", "1024"), "d", "--denoise");
     let csv = std::fs::read_to_string(out.join("d.csv")).expect("csv");
     let relmse = |renderer: &str, spp: u32| -> f64 {
         let row = csv

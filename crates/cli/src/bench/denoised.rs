@@ -47,15 +47,14 @@ pub(super) fn measure(
     let denoised = tessera_denoise::denoise(&frame, &options).context("--denoise")?;
     let seconds = start.elapsed().as_secs_f64();
     img.rgb = denoised.color;
-    let samples = scene.width as f64 * scene.height as f64 * settings.spp as f64;
-    Ok(Row {
-        renderer: RENDERER.into(),
-        scene: name.to_string(),
-        spp: settings.spp,
-        seed: settings.seed,
-        threads: pool.current_num_threads(),
+    let relmse = rel_mse(&img, reference);
+    let threads = pool.current_num_threads();
+    Ok(Row::timed(
+        RENDERER,
+        (scene, name),
+        &settings,
+        threads,
         seconds,
-        msamples_per_s: samples / seconds / 1e6,
-        relmse: rel_mse(&img, reference),
-    })
+        relmse,
+    ))
 }

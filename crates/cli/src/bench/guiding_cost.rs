@@ -32,17 +32,9 @@ pub(super) fn measure(
     let start = Instant::now();
     let frame = pool.install(|| render_frame_guided(scene, settings, &|_| {}));
     let seconds = start.elapsed().as_secs_f64();
-    let samples = scene.width as f64 * scene.height as f64 * settings.spp as f64;
-    Row {
-        renderer: RENDERER.into(),
-        scene: name.to_string(),
-        spp: settings.spp,
-        seed: settings.seed,
-        threads: pool.current_num_threads(),
-        seconds,
-        msamples_per_s: samples / seconds / 1e6,
-        relmse: rel_mse(&frame.sums.finalize(), reference),
-    }
+    let relmse = rel_mse(&frame.sums.finalize(), reference);
+    let threads = pool.current_num_threads();
+    Row::timed(RENDERER, (scene, name), settings, threads, seconds, relmse)
 }
 
 /// The guiding report: per scene and spp, guided against unguided, the mean over seeds, the

@@ -23,6 +23,29 @@ pub(super) struct Row {
 pub(super) const CSV_HEADER: &str = "renderer,scene,spp,seed,threads,seconds,msamples_per_s,relmse";
 
 impl Row {
+    /// tessera's row for one timed render of `scene` (named `name`) with `settings` on
+    /// `threads` threads: `seconds` for it, and its relMSE.
+    pub(super) fn timed(
+        renderer: &str,
+        (scene, name): (&tessera_render::scene::Scene, &str),
+        settings: &tessera_render::RenderSettings,
+        threads: usize,
+        seconds: f64,
+        relmse: f64,
+    ) -> Self {
+        let samples = scene.width as f64 * scene.height as f64 * settings.spp as f64;
+        Row {
+            renderer: renderer.into(),
+            scene: name.to_string(),
+            spp: settings.spp,
+            seed: settings.seed,
+            threads,
+            seconds,
+            msamples_per_s: samples / seconds / 1e6,
+            relmse,
+        }
+    }
+
     pub(super) fn to_csv(&self) -> String {
         format!(
             "{},{},{},{},{},{:.6},{:.4},{:.6e}",
