@@ -466,7 +466,7 @@ mod tests {
             normal: plane(-1.0),
         };
         let path = dir.path().join("d.exr");
-        let strips = vec![rows_of(&frame, 0, 17), rows_of(&frame, 17, 31)];
+        let strips = [rows_of(&frame, 0, 17), rows_of(&frame, 17, 31)];
         let channels = ExrChannels::default();
         write(&path, (9, 31), channels, &[], strips.iter(), Some(&d), true).expect("writes");
         for (name, plane, c) in [
