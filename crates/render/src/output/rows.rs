@@ -114,18 +114,7 @@ pub(super) fn write<S: Borrow<Image>>(
         check_denoised(d, size).map_err(exr_error)?;
     }
     let headers = headers(size, channels, denoised.is_some(), metadata);
-    let planes: Vec<Plane> = headers[0]
-        .channels
-        .list
-        .iter()
-        .map(|c| {
-            NAMES
-                .iter()
-                .find(|(n, _)| c.name.eq(n))
-                .map(|(_, p)| *p)
-                .expect("every channel is one of NAMES")
-        })
-        .collect();
+    let planes = planes_of(&headers);
     let mut rows = Rows {
         strips,
         held: VecDeque::new(),
@@ -140,15 +129,6 @@ pub(super) fn write<S: Borrow<Image>>(
         Place::Replace
     };
     let mut encoded: Option<exr::error::Error> = None;
-    // A line of a denoised plane, read from the whole frame by its row and first column.
-    let denoised_line = |line: exr::block::lines::LineRefMut<'_>,
-                         plane: fn(&DenoisedPlanes) -> &Vec<[f32; 3]>,
-                         c: usize| {
-        let Some(d) = denoised else { return Ok(()) };
-        let y = line.location.position.y();
-        let first = y * size.0 as usize + line.location.position.x();
-        line.write_samples(|x| plane(d)[first + x][c])
-    };
     let placed = files::place(path, how, Access::Shared, |w| {
         let result = exr::block::write(w, headers, true, |meta, chunk_writer| {
             let list = meta.headers[0].channels.clone();
@@ -158,32 +138,10 @@ pub(super) fn write<S: Borrow<Image>>(
                 rows.forget_above(top);
                 UncompressedBlock::collect_block_data_from_lines(&list, index, |line| {
                     let y = line.location.position.y() as u32;
-                    let x0 = line.location.position.x();
                     let plane = planes[line.location.channel];
                     // A row the strips did not reach stays zero; the write then fails below.
                     if let Some(row) = rows.row(y) {
-                        let at = |x: usize| row.1 + x0 + x;
-                        let _ = match (plane, &row.0.aov) {
-                            (Plane::Rgb(c), _) => line.write_samples(|x| row.0.rgb[at(x)][c]),
-                            (Plane::Variance(c), _) => {
-                                line.write_samples(|x| row.0.variance[at(x)][c])
-                            }
-                            (Plane::Samples, _) => {
-                                line.write_samples(|x| row.0.count[at(x)] as f32)
-                            }
-                            (Plane::Albedo(c), Some(a)) => {
-                                line.write_samples(|x| a.albedo[at(x)][c])
-                            }
-                            (Plane::Normal(c), Some(a)) => {
-                                line.write_samples(|x| a.normal[at(x)][c])
-                            }
-                            (Plane::Depth, Some(a)) => line.write_samples(|x| a.depth[at(x)]),
-                            (Plane::Denoised(c), _) => denoised_line(line, |d| &d.color, c),
-                            (Plane::DenoisedAlbedo(c), _) => denoised_line(line, |d| &d.albedo, c),
-                            (Plane::DenoisedNormal(c), _) => denoised_line(line, |d| &d.normal, c),
-                            // A strip without AOV planes is refused when pulled (`reach`).
-                            (_, None) => Ok(()),
-                        };
+                        write_line(line, plane, row, denoised, size.0);
                     }
                 })
             });
@@ -218,6 +176,47 @@ pub(super) fn write<S: Borrow<Image>>(
             source,
         }),
     }
+}
+
+/// Each channel of the file's header, by what it holds.
+fn planes_of(headers: &exr::meta::Headers) -> Vec<Plane> {
+    let list = &headers[0].channels.list;
+    let plane = |name: &exr::prelude::Text| {
+        NAMES
+            .iter()
+            .find(|(n, _)| name.eq(n))
+            .map(|(_, p)| *p)
+            .expect("every channel is one of NAMES")
+    };
+    list.iter().map(|c| plane(&c.name)).collect()
+}
+
+/// One line of `plane`: from `row` (a strip and the index of the line's row in it) for the
+/// strips' planes, from the whole `denoised` frame (`width` wide) by row and column for its.
+fn write_line(
+    line: exr::block::lines::LineRefMut<'_>,
+    plane: Plane,
+    (strip, first): (&Image, usize),
+    denoised: Option<&DenoisedPlanes>,
+    width: u32,
+) {
+    let (x0, y) = (line.location.position.x(), line.location.position.y());
+    let at = |x: usize| first + x0 + x;
+    let whole = |x: usize| y * width as usize + x0 + x;
+    let _ = match (plane, &strip.aov, denoised) {
+        (Plane::Rgb(c), _, _) => line.write_samples(|x| strip.rgb[at(x)][c]),
+        (Plane::Variance(c), _, _) => line.write_samples(|x| strip.variance[at(x)][c]),
+        (Plane::Samples, _, _) => line.write_samples(|x| strip.count[at(x)] as f32),
+        (Plane::Albedo(c), Some(a), _) => line.write_samples(|x| a.albedo[at(x)][c]),
+        (Plane::Normal(c), Some(a), _) => line.write_samples(|x| a.normal[at(x)][c]),
+        (Plane::Depth, Some(a), _) => line.write_samples(|x| a.depth[at(x)]),
+        (Plane::Denoised(c), _, Some(d)) => line.write_samples(|x| d.color[whole(x)][c]),
+        (Plane::DenoisedAlbedo(c), _, Some(d)) => line.write_samples(|x| d.albedo[whole(x)][c]),
+        (Plane::DenoisedNormal(c), _, Some(d)) => line.write_samples(|x| d.normal[whole(x)][c]),
+        // A strip without AOV planes is refused when pulled (`reach`); denoised channels are
+        // in the header only when the planes are given.
+        _ => Ok(()),
+    };
 }
 
 /// Refuses denoised planes that are not the frame's size.
