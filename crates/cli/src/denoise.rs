@@ -3,7 +3,7 @@
 //! once on the finished frame.
 
 use anyhow::{Context, Result};
-use tessera_denoise::{Frame, Options, Quality};
+use tessera_denoise::{Options, Quality};
 use tessera_render::film::Image;
 use tessera_render::output::DenoisedPlanes;
 use tessera_render::RenderSettings;
@@ -95,8 +95,7 @@ impl Denoiser {
     /// Settings that also gather what the filter needs (the albedo and normal AOVs, which
     /// leave the beauty's bits as they are).
     pub fn settings(&self, mut settings: RenderSettings) -> RenderSettings {
-        settings.aovs.albedo = true;
-        settings.aovs.normal = true;
+        tessera_denoise::gather_inputs(&mut settings);
         settings
     }
 
@@ -108,22 +107,6 @@ impl Denoiser {
 
     /// Denoises the finished frame.
     pub fn run(&self, image: &Image) -> Result<DenoisedPlanes> {
-        let aov = image
-            .aov
-            .as_ref()
-            .context("the render has no albedo and normal for the denoiser")?;
-        let frame = Frame {
-            width: image.width,
-            height: image.height,
-            color: &image.rgb,
-            albedo: &aov.albedo,
-            normal: &aov.normal,
-        };
-        let d = tessera_denoise::denoise(&frame, &self.options).context("denoising")?;
-        Ok(DenoisedPlanes {
-            color: d.color,
-            albedo: d.albedo,
-            normal: d.normal,
-        })
+        tessera_denoise::denoise_image(image, &self.options).context("denoising")
     }
 }

@@ -164,25 +164,7 @@ fn denoise(frame: &Image, how: &DenoiseRecord) -> Result<(String, DenoisedPlanes
         hdr: how.hdr,
         threads: None,
     };
-    let empty = Vec::new();
-    let aov = frame.aov.as_ref();
-    let d = tessera_denoise::denoise(
-        &tessera_denoise::Frame {
-            width: frame.width,
-            height: frame.height,
-            color: &frame.rgb,
-            albedo: aov.map_or(&empty, |a| &a.albedo),
-            normal: aov.map_or(&empty, |a| &a.normal),
-        },
-        &options,
-    )?;
+    let planes = tessera_denoise::denoise_image(frame, &options)?;
     let entry = tessera_denoise::header_entry(tessera_denoise::library_version()?, &options);
-    Ok((
-        entry,
-        DenoisedPlanes {
-            color: d.color,
-            albedo: d.albedo,
-            normal: d.normal,
-        },
-    ))
+    Ok((entry, planes))
 }

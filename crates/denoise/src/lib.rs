@@ -21,6 +21,9 @@ mod ffi;
 
 use std::fmt;
 
+use tessera_render::film::Image;
+use tessera_render::output::DenoisedPlanes;
+
 pub use ffi::LIBRARY;
 
 /// How hard OIDN works: its `quality` parameter.
@@ -208,6 +211,35 @@ pub fn header_entry(version: i32, options: &Options) -> String {
         options.quality,
         if options.hdr { "hdr" } else { "ldr" }
     )
+}
+
+/// Makes a render gather what [`denoise_image`] takes besides the beauty: the albedo and
+/// normal AOVs, which leave the beauty's bits as they are.
+pub fn gather_inputs(settings: &mut tessera_render::RenderSettings) {
+    settings.aovs.albedo = true;
+    settings.aovs.normal = true;
+}
+
+/// Denoises a finished render ([`denoise`] of its beauty with its albedo and normal AOVs,
+/// which it must have), as the EXR's denoised layer takes it: what `tessera render --denoise`,
+/// the farm and the bench all run.
+pub fn denoise_image(image: &Image, options: &Options) -> Result<DenoisedPlanes, DenoiseError> {
+    let aov = image.aov.as_ref().ok_or_else(|| {
+        DenoiseError::Input("the render has no albedo and normal for the filter".into())
+    })?;
+    let frame = Frame {
+        width: image.width,
+        height: image.height,
+        color: &image.rgb,
+        albedo: &aov.albedo,
+        normal: &aov.normal,
+    };
+    let d = denoise(&frame, options)?;
+    Ok(DenoisedPlanes {
+        color: d.color,
+        albedo: d.albedo,
+        normal: d.normal,
+    })
 }
 
 /// The version of the OIDN library [`denoise`] uses (e.g. 20501 for 2.5.1), loading it if

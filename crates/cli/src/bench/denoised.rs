@@ -26,8 +26,7 @@ pub(super) fn measure(
     pool: &rayon::ThreadPool,
 ) -> Result<Row> {
     let mut settings = settings.clone();
-    settings.aovs.albedo = true;
-    settings.aovs.normal = true;
+    tessera_denoise::gather_inputs(&mut settings);
     let options = tessera_denoise::Options {
         threads: Some(pool.current_num_threads() as u32),
         ..tessera_denoise::Options::default()
@@ -36,15 +35,7 @@ pub(super) fn measure(
     let mut img = pool
         .install(|| render_frame(scene, &settings, &|_| {}))
         .finalize();
-    let aov = img.aov.as_ref().context("the render has no AOVs")?;
-    let frame = tessera_denoise::Frame {
-        width: img.width,
-        height: img.height,
-        color: &img.rgb,
-        albedo: &aov.albedo,
-        normal: &aov.normal,
-    };
-    let denoised = tessera_denoise::denoise(&frame, &options).context("--denoise")?;
+    let denoised = tessera_denoise::denoise_image(&img, &options).context("--denoise")?;
     let seconds = start.elapsed().as_secs_f64();
     img.rgb = denoised.color;
     let relmse = rel_mse(&img, reference);

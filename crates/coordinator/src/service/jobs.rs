@@ -534,9 +534,7 @@ impl Service {
         let denoise = denoise_of(req.channels.as_ref(), scene, config.denoise)?;
         let mut settings = checked.settings;
         if denoise.is_some() {
-            // What the filter takes besides the beauty, which they leave as it is.
-            settings.aovs.albedo = true;
-            settings.aovs.normal = true;
+            tessera_denoise::gather_inputs(&mut settings);
         }
         let admission = Admission {
             scene_hash: scene.hash.clone(),
