@@ -7,7 +7,9 @@ Run by tests/blender/run.sh with Blender as a Python module (PyPI's `bpy`):
 For each light kind (a point light, a spot with a hard edge and one with a soft blend, a sun,
 and an emissive quad), for three Principled BSDFs with a glossy layer (Blender's default
 material, a rough blue one, and a rough gold metal) under a sun, for a closed box of such
-materials with every bounce counted, and for a portrait and a landscape film (Blender's sensor fit, which its
+materials with every bounce counted, for a rectangular and a disk area light and a floor under a world map turned by a Mapping node
+(which glTF cannot carry: these go through the add-on's exporter, blender/tessera/export.py, to
+OUT_DIR/KIND.0001.toml placing OUT_DIR/KIND.0001.glb), and for a portrait and a landscape film (Blender's sensor fit, which its
 exporter turns into glTF's yfov and aspect ratio), it builds the same small scene: a white diffuse floor (a Principled BSDF
 with Specular IOR Level 0, which Blender exports as KHR_materials_specular's factor 0) under
 that light, seen from above. It exports the scene with Blender's own glTF exporter (its
@@ -21,6 +23,10 @@ import os
 import sys
 
 import bpy
+
+# The add-on's exporter, for what glTF cannot carry (area lights, the world).
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "blender"))
+from tessera import export as addon_export  # noqa: E402
 
 SIZE = 64
 SAMPLES = 256
@@ -152,6 +158,46 @@ def box(scene):
     scene.camera.rotation_euler = (math.radians(90), 0, 0)
 
 
+def area(shape, **size):
+    """An area light 2.5 above the floor (out of the camera's view: Cycles does not show a
+    light's back, tessera's emitting shape would), turned 30° about the vertical."""
+    def build(scene):
+        obj = light(scene, "AREA", 300.0, shape=shape, **size)
+        obj.location.z = 2.5
+        obj.rotation_euler[2] = math.radians(30)
+    return build
+
+
+def world(scene):
+    """The floor under an equirectangular sky turned 30° by a Mapping node, seen low enough
+    that the sky fills the top of the frame: a turn the wrong way shows as the wrong part of
+    the sky (its brightness varies by 5× around the horizon)."""
+    scene.camera.location = (0, -3, 1)
+    scene.camera.rotation_euler = (math.radians(80), 0, 0)
+    w, h = 64, 32
+    image = bpy.data.images.new("sky", w, h, float_buffer=True)
+    pixels = []
+    for j in range(h):
+        for i in range(w):
+            glow = (0.55 + 0.45 * math.sin(2 * math.pi * (i + 0.5) / w)) * (1 + 0.3 * j / h)
+            pixels += [glow, 0.9 * glow, 0.7 * glow, 1.0]
+    image.pixels = pixels
+    image.filepath_raw = os.path.join(sys.argv[-1], "sky.exr")
+    image.file_format = "OPEN_EXR"
+    image.save()
+    # Blender writes the file with its view transform applied: render the file, as tessera does.
+    image = bpy.data.images.load(image.filepath_raw)
+    tree = scene.world.node_tree
+    env = tree.nodes.new("ShaderNodeTexEnvironment")
+    env.image = image
+    mapping = tree.nodes.new("ShaderNodeMapping")
+    mapping.inputs["Rotation"].default_value = (0, 0, math.radians(30))
+    tree.links.new(tree.nodes.new("ShaderNodeTexCoord").outputs["Generated"], mapping.inputs["Vector"])
+    tree.links.new(mapping.outputs["Vector"], env.inputs["Vector"])
+    tree.links.new(env.outputs["Color"], tree.nodes["Background"].inputs["Color"])
+    tree.nodes["Background"].inputs["Strength"].default_value = 1.0
+
+
 SCENES = {
     "point": point,
     "spot": lambda s: light(s, "SPOT", 1000.0, shadow_soft_size=0.0,
@@ -167,7 +213,12 @@ SCENES = {
     "principled-blue": principled(**{"Base Color": (0.1, 0.2, 0.8, 1), "Roughness": 0.8}),
     "principled-gold": principled(**{"Base Color": (0.95, 0.7, 0.3, 1), "Metallic": 1.0}),
     "box": box,
+    # Through the add-on's exporter (a TOML scene placing the glTF file).
+    "area": area("RECTANGLE", size=1.0, size_y=0.5),
+    "area-disk": area("DISK", size=1.0),
+    "world": world,
 }
+ADDON_SCENES = ("area", "area-disk", "world")
 
 
 def main():
@@ -180,8 +231,11 @@ def main():
         SCENES.get(name, point)(scene)
         with open(os.path.join(out, name + ".size"), "w") as f:
             f.write(f"{size[0]}x{size[1]}")
-        bpy.ops.export_scene.gltf(filepath=os.path.join(out, name + ".glb"),
-                                  export_lights=True, export_cameras=True)
+        if name in ADDON_SCENES:
+            addon_export.export(scene, out, name, [scene.frame_current], None)
+        else:
+            bpy.ops.export_scene.gltf(filepath=os.path.join(out, name + ".glb"),
+                                      export_lights=True, export_cameras=True)
         scene.render.filepath = os.path.join(out, name + "-cycles.exr")
         bpy.ops.render.render(write_still=True)
 

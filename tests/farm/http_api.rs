@@ -245,8 +245,20 @@ async fn with_a_token_the_api_answers_401_in_json_and_a_bearer_passes() {
         .await;
     let addr = coord.http.expect("dashboard");
     let r = http(addr, "POST", "/api/jobs", &[], r#"{"scene": "", "spp": 1}"#).await;
-    refused(&r, 401, "unauthenticated");
+    let missing = refused(&r, 401, "unauthenticated");
+    assert!(missing.contains("requires a token"), "{missing}");
     assert!(r.header("www-authenticate").is_some());
+    // A wrong token is told apart from none (the Blender add-on shows this text).
+    let r = http(
+        addr,
+        "GET",
+        "/api/jobs",
+        &[("authorization", "Bearer not-the-token")],
+        "",
+    )
+    .await;
+    let wrong = refused(&r, 401, "unauthenticated");
+    assert!(wrong.starts_with("wrong token"), "{wrong}");
     let bearer = format!("Bearer {}", token.expose());
     let r = http(
         addr,

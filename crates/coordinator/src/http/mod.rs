@@ -273,11 +273,14 @@ async fn check(State(app): State<App>, req: Request, next: Next) -> Response {
             .and_then(|v| v.to_str().ok())
             .is_some_and(|a| a.contains("text/html"));
         if api && !browser {
-            let mut r = api::error(
-                StatusCode::UNAUTHORIZED,
-                "unauthenticated",
-                "this coordinator requires a token: send Authorization: Bearer TOKEN",
-            );
+            // Said apart, as gRPC says them: a person who sent a token needs to hear that it
+            // is the wrong one, not that one is needed.
+            let message = if req.headers().contains_key(header::AUTHORIZATION) {
+                "wrong token: the coordinator knows no such token"
+            } else {
+                "this coordinator requires a token: send Authorization: Bearer TOKEN"
+            };
+            let mut r = api::error(StatusCode::UNAUTHORIZED, "unauthenticated", message);
             r.headers_mut().insert(
                 header::WWW_AUTHENTICATE,
                 HeaderValue::from_static("Bearer realm=\"tessera\""),
