@@ -132,6 +132,14 @@ def check_failures(addon, prefs, url, token):
     assert s.error.startswith("cannot reach the coordinator at http://127.0.0.1:9"), s.error
     print(f"addon: no coordinator: {s.error}")
     prefs.address = url
+    # The farm's refusal of the scene, in its words (addon.sh starts it with --max-spp 1000).
+    scene.tessera.samples = 5000
+    bpy.ops.tessera.render()
+    s = addon.SUBMISSIONS[-1]
+    run_timer(addon, s)
+    assert s.error.startswith(f"frame {scene.frame_current}: invalid_argument:") and "5000" in s.error, s.error
+    print(f"addon: too many samples: {s.error}")
+    scene.tessera.samples = SAMPLES
     # A world tessera does not read is refused before anything is sent.
     tree = scene.world.node_tree
     sky = tree.nodes.new("ShaderNodeTexSky")

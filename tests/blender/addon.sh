@@ -22,7 +22,7 @@ scripts/build-blender-addon.sh "$out/tessera-blender.zip" >/dev/null
 
 token=addon-test-token
 TESSERA_TOKEN=$token "$T" coordinator --listen 127.0.0.1:0 --http 127.0.0.1:0 \
-    --denoise --data-dir "$out/farm" >"$out/coord.out" 2>"$out/coord.err" &
+    --denoise --max-spp 1000 --data-dir "$out/farm" >"$out/coord.out" 2>"$out/coord.err" &
 farm=("$!")
 trap 'kill "${farm[@]}" 2>/dev/null || true' EXIT
 for _ in $(seq 100); do grep -q "dashboard on" "$out/coord.out" && break; sleep 0.1; done
