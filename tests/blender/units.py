@@ -7,7 +7,7 @@ Run by tests/blender/run.sh with Blender as a Python module (PyPI's `bpy`):
 For each light kind (a point light, a spot with a hard edge and one with a soft blend, a sun,
 and an emissive quad), for three Principled BSDFs with a glossy layer (Blender's default
 material, a rough blue one, and a rough gold metal) under a sun, for a closed box of such
-materials with every bounce counted, for a rectangular and a disk area light and a floor under a world map turned by a Mapping node
+materials with every bounce counted, for a camera whose clip start cuts away a wall before it, for a rectangular and a disk area light and a floor under a world map turned by a Mapping node
 (which glTF cannot carry: these go through the add-on's exporter, blender/tessera/export.py, to
 OUT_DIR/KIND.0001.toml placing OUT_DIR/KIND.0001.glb), and for a portrait and a landscape film (Blender's sensor fit, which its
 exporter turns into glTF's yfov and aspect ratio), it builds the same small scene: a white diffuse floor (a Principled BSDF
@@ -168,6 +168,18 @@ def area(shape, **size):
     return build
 
 
+def clip(scene):
+    """The point light's floor seen past a strip of wall just ahead of the camera, which hides
+    the top of the frame unless the camera's clip start (1 m, exported as glTF's znear) cuts it
+    away, as an interior is filmed from behind its wall."""
+    point(scene)
+    bpy.ops.mesh.primitive_plane_add(size=1, location=(0, -2.5, 2.8), rotation=(math.radians(90), 0, 0))
+    wall = bpy.context.object
+    wall.scale = (4, 1, 1)
+    wall.data.materials.append(bpy.data.materials["floor"])
+    scene.camera.data.clip_start = 1.0
+
+
 def world(scene):
     """The floor under an equirectangular sky turned 30° by a Mapping node, seen low enough
     that the sky fills the top of the frame: a turn the wrong way shows as the wrong part of
@@ -213,6 +225,7 @@ SCENES = {
     "principled-blue": principled(**{"Base Color": (0.1, 0.2, 0.8, 1), "Roughness": 0.8}),
     "principled-gold": principled(**{"Base Color": (0.95, 0.7, 0.3, 1), "Metallic": 1.0}),
     "box": box,
+    "clip": clip,
     # Through the add-on's exporter (a TOML scene placing the glTF file).
     "area": area("RECTANGLE", size=1.0, size_y=0.5),
     "area-disk": area("DISK", size=1.0),

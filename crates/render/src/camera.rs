@@ -10,6 +10,10 @@
 //!
 //! An orthographic camera (glTF's) moves the ray's origin over the film instead, by the same
 //! basis scaled to the film's size in world units, and keeps its direction.
+//!
+//! A near clipping distance (glTF's `znear`, Blender's clip start) starts each ray on the
+//! plane that far ahead of the eye instead of at the eye, so that what lies nearer is not seen:
+//! the way to look into a room from behind its wall.
 
 use glam::Vec3A;
 
@@ -26,6 +30,8 @@ pub struct Camera {
     height: f32,
     /// Parallel rays from points of the film (`right` and `up` are then world lengths).
     orthographic: bool,
+    /// Depth of the near clipping plane along `forward`; 0 for none.
+    near: f32,
 }
 
 /// The camera's trigonometry in f64, rounded once to f32. The f32 library functions are chosen
@@ -60,6 +66,7 @@ impl Camera {
             width: width as f32,
             height: height as f32,
             orthographic: false,
+            near: 0.0,
         }
     }
 
@@ -85,6 +92,7 @@ impl Camera {
             width: width as f32,
             height: height as f32,
             orthographic: false,
+            near: 0.0,
         })
     }
 
@@ -114,7 +122,19 @@ impl Camera {
             width: width as f32,
             height: height as f32,
             orthographic: true,
+            near: 0.0,
         })
+    }
+
+    /// The camera with its near clipping plane `near` world units ahead of the eye, along the
+    /// view axis; 0 (or anything not finite and positive) clips nothing.
+    pub fn with_near(self, near: f32) -> Self {
+        let near = if near.is_finite() && near > 0.0 {
+            near
+        } else {
+            0.0
+        };
+        Self { near, ..self }
     }
 
     /// Primary ray through film point (x, y).
@@ -122,11 +142,18 @@ impl Camera {
     pub fn ray(&self, x: f32, y: f32) -> Ray {
         if self.orthographic {
             let film = self.right * (x - 0.5 * self.width) + self.up * (0.5 * self.height - y);
-            return Ray::new(self.eye + film, self.forward);
+            return Ray::new(self.eye + film + self.forward * self.near, self.forward);
         }
         let d =
             self.forward + self.right * (x - 0.5 * self.width) + self.up * (0.5 * self.height - y);
-        Ray::new(self.eye, d.normalize())
+        // `d` is one unit deep along the axis (`right` and `up` are across it), so `near · d`
+        // is on the clipping plane. Without clipping the origin keeps the eye's bits.
+        let o = if self.near > 0.0 {
+            self.eye + d * self.near
+        } else {
+            self.eye
+        };
+        Ray::new(o, d.normalize())
     }
 }
 
@@ -149,6 +176,33 @@ mod tests {
         );
         // Row 0 is the top: its rays point up.
         assert!(c.ray(2.5, 0.5).d.y > 0.0);
+    }
+
+    #[test]
+    fn a_near_plane_starts_rays_on_it_and_leaves_their_directions() {
+        let eye = Vec3A::new(1.0, 2.0, 3.0);
+        let c = Camera::look_at(eye, Vec3A::new(1.0, 2.0, 0.0), Vec3A::Y, 1.2, 8, 6).unwrap();
+        let clipped = c.clone().with_near(0.5);
+        for (x, y) in [(4.0, 3.0), (0.0, 0.0), (8.0, 6.0), (1.25, 5.5)] {
+            let (r, k) = (c.ray(x, y), clipped.ray(x, y));
+            // Without a plane the origin is the eye's bits; with one, half a unit deep.
+            assert_eq!(r.o, eye);
+            assert_eq!(k.d, r.d);
+            assert!(((k.o - eye).dot(-Vec3A::Z) - 0.5).abs() < 1e-6, "{:?}", k.o);
+            assert!(
+                (k.o - eye).cross(r.d).length() < 1e-6,
+                "off the ray: {:?}",
+                k.o
+            );
+        }
+        // Not finite or not positive: no plane.
+        for near in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+            assert_eq!(c.clone().with_near(near).ray(1.0, 1.0).o, eye);
+        }
+        let o = Camera::orthographic(eye, -Vec3A::Z, Vec3A::Y, (2.0, 1.5), 8, 6)
+            .unwrap()
+            .with_near(2.0);
+        assert!((o.ray(4.0, 3.0).o - Vec3A::new(1.0, 2.0, 1.0)).length() < 1e-6);
     }
 
     #[test]

@@ -99,5 +99,8 @@ pub use util::{files, lanes, math, sampling};
 /// given back, the base albedo-scaled under the coat): every pbr surface renders differently.
 /// Revision 10 takes a light sample's radiance from the environment map's cell it was drawn in
 /// rather than from its direction mapped back (the same value but for rounding): every scene
-/// with a map renders differently by an ulp or so.
-pub const IMAGE_REVISION: u32 = 10;
+/// with a map renders differently by an ulp or so. Revision 11 clips a glTF camera's view at
+/// its `znear` (camera rays start on the near plane, as Blender's clip start): every glTF
+/// file's camera rays start a little ahead of the eye, so its renders differ by rounding, and
+/// what lies nearer than `znear` is no longer seen.
+pub const IMAGE_REVISION: u32 = 11;

@@ -103,6 +103,7 @@ fn placed(
         // ratio to the camera's height (glTF's xmag is a hint).
         let (_, ymag) = g.mag;
         return Camera::orthographic(g.eye, g.forward, g.up, (ymag * aspect, ymag), w, h)
+            .map(|c| c.with_near(g.near))
             .ok_or_else(|| {
                 (
                     path.clone(),
@@ -116,12 +117,14 @@ fn placed(
     if !(fov > 0.0 && fov < std::f32::consts::PI) {
         return Err((path.clone(), format!("yfov {yfov} is out of range")));
     }
-    Camera::look_at(g.eye, g.eye + g.forward, g.up, fov, w, h).ok_or_else(|| {
-        (
-            path.clone(),
-            "its node's transform is degenerate".to_string(),
-        )
-    })
+    Camera::look_at(g.eye, g.eye + g.forward, g.up, fov, w, h)
+        .map(|c| c.with_near(g.near))
+        .ok_or_else(|| {
+            (
+                path.clone(),
+                "its node's transform is degenerate".to_string(),
+            )
+        })
 }
 
 /// A camera that frames the bounds of `prims` (planes left out) from slightly above, 40°

@@ -73,6 +73,8 @@ pub(crate) struct GltfCamera {
     pub(crate) yfov: Option<f32>,
     /// An orthographic camera's half-width and half-height in world units.
     pub(crate) mag: (f32, f32),
+    /// The near clipping plane's depth in world units (`znear` through the node's scale).
+    pub(crate) near: f32,
 }
 
 /// What one glTF file adds to a scene.
@@ -580,6 +582,11 @@ fn camera_at(
             .orthographic
             .as_ref()
             .map_or((0.0, 0.0), |o| (o.xmag.abs(), o.ymag.abs())),
+        near: match (&json.perspective, &json.orthographic) {
+            (Some(p), _) if perspective => p.znear,
+            (_, Some(o)) if !perspective => o.znear,
+            _ => 0.0,
+        } * world.transform_vector3a(Vec3A::NEG_Z).length(),
     })
 }
 
