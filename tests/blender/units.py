@@ -6,7 +6,7 @@ Run by tests/blender/run.sh with Blender as a Python module (PyPI's `bpy`):
 
 For each light kind (a point light, a spot with a hard edge and one with a soft blend, a sun,
 and an emissive quad), for three Principled BSDFs with a glossy layer (Blender's default
-material, a rough blue one, and a rough gold metal) under a sun, for a closed box of such
+material, a rough blue one, and a rough gold metal) and two under a Coat under a sun, for a closed box of such
 materials with every bounce counted, for a camera whose clip start cuts away a wall before it, for a rectangular and a disk area light and a floor under a world map turned by a Mapping node
 (which glTF cannot carry: these go through the add-on's exporter, blender/tessera/export.py, to
 OUT_DIR/KIND.0001.toml placing OUT_DIR/KIND.0001.glb), and for a portrait and a landscape film (Blender's sensor fit, which its
@@ -224,6 +224,13 @@ SCENES = {
     "principled": principled(**{"Base Color": (0.8, 0.8, 0.8, 1)}),
     "principled-blue": principled(**{"Base Color": (0.1, 0.2, 0.8, 1), "Roughness": 0.8}),
     "principled-gold": principled(**{"Base Color": (0.95, 0.7, 0.3, 1), "Metallic": 1.0}),
+    # A rough blue under Blender's Coat (exported as KHR_materials_clearcoat), and Blender's
+    # default material under half a glossy one. (Blender's default Coat Roughness, 0.03, is
+    # under tessera's mirror threshold: docs/blender.md.)
+    "principled-coat": principled(**{"Base Color": (0.1, 0.2, 0.8, 1), "Roughness": 0.6,
+                                     "Coat Weight": 1.0, "Coat Roughness": 0.3}),
+    "principled-coat-glossy": principled(**{"Base Color": (0.8, 0.8, 0.8, 1), "Coat Weight": 0.5,
+                                            "Coat Roughness": 0.1}),
     "box": box,
     "clip": clip,
     # Through the add-on's exporter (a TOML scene placing the glTF file).

@@ -512,6 +512,8 @@ fn pbr_params(roughness: f32, metallic: f32, transmission: f32, c: Vec3A) -> Pbr
         metallic,
         roughness,
         transmission,
+        clearcoat: 0.0,
+        clearcoat_roughness: 0.0,
     }
 }
 

@@ -477,3 +477,94 @@ fn the_specular_factor_scales_the_dielectric_layer_as_blender_writes_it() {
     // A factor of 1 is the extension's default: the index itself.
     assert_eq!(albedo_head_on(Some(1.0)), full);
 }
+
+/// `KHR_materials_clearcoat` as Blender writes it (Coat Weight and Coat Roughness as factors):
+/// the coat is read, so a grey base under it returns more head-on than without; a weight of 0
+/// is no coat, bit for bit; its textures are warned about; a factor out of [0, 1] is refused at
+/// its key.
+#[test]
+fn the_clearcoat_extension_is_read_as_blender_writes_it() {
+    use tessera_render::material::pbr::PbrRef;
+    use tessera_render::material::Bsdf;
+    let load_coat = |coat: Option<Value>| {
+        let mut material = json!({"pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 0.5,
+                "baseColorFactor": [0.5, 0.5, 0.5, 1.0]}});
+        if let Some(c) = coat {
+            material["extensions"] = json!({ "KHR_materials_clearcoat": c });
+        }
+        let gltf = triangle_doc(
+            &QUAD,
+            &[0, 1, 2],
+            json!({
+                "extensionsUsed": ["KHR_materials_clearcoat"],
+                "materials": [material],
+                "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]}],
+            }),
+        );
+        load(&gltf, &GltfOptions::default())
+    };
+    let albedo_head_on = |coat: Option<Value>| {
+        let s = load_coat(coat).expect("loads");
+        let i = s
+            .materials
+            .iter()
+            .find_map(|m| match m.bsdf {
+                Bsdf::Pbr(PbrRef(i)) => Some(i),
+                _ => None,
+            })
+            .expect("a pbr material");
+        let m = s.tables().pbr(i);
+        let b = m.bsdf(m.params(&s.textures, glam::Vec2::ZERO));
+        let n = 64;
+        let mut sum = 0.0f64;
+        for k in 0..n * n {
+            let u = glam::Vec2::new(
+                ((k % n) as f32 + 0.5) / n as f32,
+                ((k / n) as f32 + 0.5) / n as f32,
+            );
+            if let Some(x) = b.sample(Vec3A::Z, u, ((k * 7919) % (n * n)) as f32 / (n * n) as f32) {
+                sum += f64::from(x.weight.x);
+            }
+        }
+        (sum / (n * n) as f64, s.warnings)
+    };
+    let (none, warnings) = albedo_head_on(None);
+    assert!(warnings.is_empty(), "{warnings:?}");
+    let (zero, _) = albedo_head_on(Some(
+        json!({"clearcoatFactor": 0.0, "clearcoatRoughnessFactor": 0.2}),
+    ));
+    assert_eq!(zero, none, "a weight of 0 is no coat");
+    let (coated, warnings) = albedo_head_on(Some(
+        json!({"clearcoatFactor": 1.0, "clearcoatRoughnessFactor": 0.1}),
+    ));
+    assert!(warnings.is_empty(), "{warnings:?}");
+    eprintln!("grey base, head-on albedo: no coat {none}, coat {coated}");
+    assert!(
+        coated > none + 0.01,
+        "the coat reflects: {coated} vs {none}"
+    );
+    let (_, warnings) = albedo_head_on(Some(
+        json!({"clearcoatFactor": 1.0, "clearcoatTexture": {"index": 0}}),
+    ));
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.contains("KHR_materials_clearcoat's factors, not its textures")),
+        "{warnings:?}"
+    );
+    for (coat, key) in [
+        (json!({"clearcoatFactor": 1.5}), "clearcoatFactor"),
+        (
+            json!({"clearcoatFactor": 1.0, "clearcoatRoughnessFactor": "rough"}),
+            "clearcoatRoughnessFactor",
+        ),
+    ] {
+        let e = load_coat(Some(coat)).expect_err("out of range").to_string();
+        assert!(
+            e.contains(&format!(
+                "/materials/0/extensions/KHR_materials_clearcoat/{key}"
+            )) && e.contains("[0, 1]"),
+            "{e}"
+        );
+    }
+}

@@ -246,6 +246,24 @@ fn bad_pbr_materials_name_the_key() {
         ),
         ("ior = -1.5", mesh, "materials.m.ior", "greater than 0"),
         (
+            "clearcoat = 1.5",
+            mesh,
+            "materials.m.clearcoat",
+            "between 0 and 1",
+        ),
+        (
+            "clearcoat = 1\nclearcoat_roughness = -1",
+            mesh,
+            "materials.m.clearcoat_roughness",
+            "between 0 and 1",
+        ),
+        (
+            "clearcoat_roughness = 2",
+            mesh,
+            "materials.m.clearcoat_roughness",
+            "between 0 and 1",
+        ),
+        (
             "base_color = [1.2, 0, 0]",
             mesh,
             "materials.m.base_color",

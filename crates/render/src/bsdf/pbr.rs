@@ -46,6 +46,12 @@
 //! Scaling by the view alone makes the lobes non-reciprocal, as in Cycles; a path tracer only
 //! ever evaluates them with o towards the camera.
 //!
+//! **Clear coat** (`KHR_materials_clearcoat`, Blender's Coat): a second dielectric GGX layer of
+//! index 1.5, weight w_cc and its own roughness, over everything above, layered the same way:
+//! its lobe w_cc F(o·h) k_cc ρ_cc cos θi on top, and all of the rest scaled by what it leaves,
+//! 1 − w_cc E_cc(μo). A white material keeps all its energy under it too, w_cc E_cc +
+//! (1 − w_cc E_cc)·1 = 1, and a material without one (w_cc = 0) is the one above, bit for bit.
+//!
 //! `distribution = "ggx"` leaves the compensation out (k = 1, w = 1): glTF's reference BRDF,
 //! Mitsuba's `principled`, and Blender's "GGX".
 //!
@@ -53,8 +59,8 @@
 //! as μ ([`CoatTable`], shared by every material of one index; [`GgxAlbedo`], by all) and
 //! interpolated.
 //!
-//! Sampling picks one of three lobes: the GGX reflection (visible normals), the base's cosine
-//! hemisphere, or the mirrored GGX lobe for transmission, with probabilities proportional to an
+//! Sampling picks one of four lobes: the clear coat, the GGX reflection (visible normals), the
+//! base's cosine hemisphere, or the mirrored GGX lobe for transmission, with probabilities proportional to an
 //! estimate of each lobe's albedo at o; the density is the mixture's, so any lobe's direction
 //! is weighed against all of them. Below the mirror threshold the reflection and transmission
 //! lobes are deltas (the mirror direction, and straight through), which light sampling cannot
@@ -95,6 +101,10 @@ pub struct PbrParams {
     pub roughness: f32,
     /// Transmission, in [0, 1].
     pub transmission: f32,
+    /// The clear coat's weight, in [0, 1] (0: none).
+    pub clearcoat: f32,
+    /// The clear coat's perceptual roughness, in [0, 1].
+    pub clearcoat_roughness: f32,
 }
 
 /// The BSDF at one point: [`PbrParams`] with the coat's table.
@@ -105,6 +115,36 @@ pub struct PbrBsdf<'a> {
     coat: &'a CoatTable,
     /// The white lobe's albedo table, where the material is compensated and not smooth.
     ms: Option<&'static GgxAlbedo>,
+    /// The clear coat, where the material has one.
+    clearcoat: Option<Clearcoat<'a>>,
+}
+
+/// A clear coat: its weight, microfacets, the index-1.5 layer's table, and the white lobe's
+/// albedo table where it is compensated and not smooth.
+#[derive(Clone, Copy, Debug)]
+struct Clearcoat<'a> {
+    weight: f32,
+    roughness: f32,
+    distribution: TrowbridgeReitz,
+    table: &'a CoatTable,
+    ms: Option<&'static GgxAlbedo>,
+}
+
+impl Clearcoat<'_> {
+    /// w_cc E_cc(μo) and the compensation k_cc(μo): what the coat reflects of the light from
+    /// the view, and the scale of its lobe.
+    fn at(&self, mu: f32) -> (f32, f32) {
+        let r = self.roughness;
+        let single = self.table.single(r, self.distribution.is_smooth(), mu);
+        let scale = match self.ms {
+            Some(g) => {
+                let e1 = g.e(r, mu).max(1e-3);
+                1.0 + self.table.multiple(r) * (1.0 - e1) / e1
+            }
+            None => 1.0,
+        };
+        (self.weight * single * scale, scale)
+    }
 }
 
 /// A direction drawn from a [`PbrBsdf`].
@@ -152,6 +192,10 @@ struct View {
     coat_scale: f32,
     /// The metal's compensation per channel (1 without).
     metal_scale: Vec3A,
+    /// w_cc E_cc(μo), what the clear coat reflects (0 without one).
+    clearcoat: f32,
+    /// The clear coat's compensation k_cc(μo).
+    clearcoat_scale: f32,
 }
 
 impl View {
@@ -178,6 +222,7 @@ impl View {
 /// material is black from that side.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Lobes {
+    clearcoat: f32,
     reflect: f32,
     base: f32,
     through: f32,
@@ -195,6 +240,30 @@ impl<'a> PbrBsdf<'a> {
             distribution: d,
             coat,
             ms,
+            clearcoat: None,
+        }
+    }
+
+    /// The BSDF under its clear coat (of weight and roughness `p.clearcoat` and
+    /// `p.clearcoat_roughness`), `table` the index-1.5 layer's; itself where the weight is 0.
+    pub fn with_clearcoat(self, table: &'a CoatTable, distribution: Distribution) -> Self {
+        let weight = self.p.clearcoat;
+        if !(weight > 0.0) {
+            return self;
+        }
+        let roughness = self.p.clearcoat_roughness;
+        let d = TrowbridgeReitz::from_roughness(roughness);
+        let ms =
+            (distribution == Distribution::MultiscatterGgx && !d.is_smooth()).then(GgxAlbedo::get);
+        Self {
+            clearcoat: Some(Clearcoat {
+                weight: weight.min(1.0),
+                roughness,
+                distribution: d,
+                table,
+                ms,
+            }),
+            ..self
         }
     }
 
@@ -219,12 +288,15 @@ impl<'a> PbrBsdf<'a> {
     fn view(&self, mu: f32) -> View {
         let r = self.p.roughness;
         let single = self.coat.single(r, self.is_smooth(), mu);
+        let (clearcoat, clearcoat_scale) = self.clearcoat.map_or((0.0, 1.0), |c| c.at(mu));
         let Some(g) = self.ms else {
             return View {
                 single,
                 e1: 1.0,
                 coat_scale: 1.0,
                 metal_scale: Vec3A::ONE,
+                clearcoat,
+                clearcoat_scale,
             };
         };
         let e1 = g.e(r, mu).max(1e-3);
@@ -238,6 +310,8 @@ impl<'a> PbrBsdf<'a> {
             e1,
             coat_scale: 1.0 + self.coat.multiple(r) * missing,
             metal_scale: Vec3A::ONE + Vec3A::new(fms(f.x), fms(f.y), fms(f.z)) * missing,
+            clearcoat,
+            clearcoat_scale,
         }
     }
 
@@ -264,22 +338,44 @@ impl<'a> PbrBsdf<'a> {
         let lum = mean(c);
         let floor = if self.coat.eta() != 1.0 { 1e-3 } else { 0.0 };
         let left = (1.0 - v.coat()).max(0.0);
-        let reflect = (m + (1.0 - m) * v.coat()).max(floor);
-        let base = (1.0 - m) * (1.0 - t) * left * lum;
-        let through = (1.0 - m) * t * left * lum;
-        let sum = reflect + base + through;
+        // Under a clear coat, each lobe below gets what the coat leaves.
+        let under = 1.0 - v.clearcoat;
+        let reflect = (m + (1.0 - m) * v.coat()).max(floor) * under;
+        let base = (1.0 - m) * (1.0 - t) * left * lum * under;
+        let through = (1.0 - m) * t * left * lum * under;
+        let clearcoat = v.clearcoat;
+        let sum = clearcoat + reflect + base + through;
         if !(sum > 0.0) {
             return Lobes {
+                clearcoat: 0.0,
                 reflect: 0.0,
                 base: 0.0,
                 through: 0.0,
             };
         }
         Lobes {
+            clearcoat: clearcoat / sum,
             reflect: reflect / sum,
             base: base / sum,
             through: through / sum,
         }
+    }
+
+    /// The clear coat's lobe, f cos θi, for i above the surface (0 without a rough coat).
+    #[inline]
+    fn clearcoat_lobe(&self, v: &View, o: Vec3A, i: Vec3A) -> f32 {
+        let Some(c) = &self.clearcoat else {
+            return 0.0;
+        };
+        let d = &c.distribution;
+        if d.is_smooth() {
+            return 0.0;
+        }
+        let Some(h) = half_vector(o, i) else {
+            return 0.0;
+        };
+        let f = fresnel_dielectric(o.dot(h).clamp(0.0, 1.0), c.table.eta()).0;
+        c.weight * f * v.clearcoat_scale * d.d(h) * d.g(o, i) / (4.0 * o.z)
     }
 
     /// f(o, i) |cos θi| of the lobes light sampling can find (all but the smooth ones), in the
@@ -294,6 +390,20 @@ impl<'a> PbrBsdf<'a> {
     /// [`PbrBsdf::eval`] for `o` above the surface, its view `v` looked up already (`sample`
     /// has it, and the tables need not be read twice per drawn direction).
     fn eval_at(&self, v: &View, o: Vec3A, i: Vec3A) -> Vec3A {
+        let below = self.eval_below(v, o, i);
+        if self.clearcoat.is_none() {
+            return below;
+        }
+        let coat = if i.z > 0.0 {
+            self.clearcoat_lobe(v, o, i)
+        } else {
+            0.0
+        };
+        below * (1.0 - v.clearcoat) + Vec3A::splat(coat)
+    }
+
+    /// What lies under the clear coat (all of the material without one), f cos θi.
+    fn eval_below(&self, v: &View, o: Vec3A, i: Vec3A) -> Vec3A {
         let PbrParams {
             base_color: c,
             metallic: m,
@@ -342,7 +452,13 @@ impl<'a> PbrBsdf<'a> {
             } else {
                 self.distribution.reflection_pdf(o, i)
             };
-            l.reflect * glossy + l.base * cosine_hemisphere_pdf(i.z)
+            let coat = match &self.clearcoat {
+                Some(c) if l.clearcoat > 0.0 && !c.distribution.is_smooth() => {
+                    l.clearcoat * c.distribution.reflection_pdf(o, i)
+                }
+                _ => 0.0,
+            };
+            coat + l.reflect * glossy + l.base * cosine_hemisphere_pdf(i.z)
         } else if i.z < 0.0 && l.through > 0.0 && !smooth {
             l.through * self.distribution.reflection_pdf(o, mirror(i))
         } else {
@@ -359,11 +475,28 @@ impl<'a> PbrBsdf<'a> {
         let v = self.view(o.z);
         let l = self.lobes(&v);
         let smooth = self.is_smooth();
-        let i = if u_lobe < l.reflect {
+        let under = 1.0 - v.clearcoat;
+        let i = if u_lobe < l.clearcoat {
+            let c = self.clearcoat.as_ref()?;
+            if c.distribution.is_smooth() {
+                let f = fresnel_dielectric(o.z, c.table.eta()).0;
+                return Some(PbrSample {
+                    wi: Vec3A::new(-o.x, -o.y, o.z),
+                    weight: Vec3A::splat(c.weight * f / l.clearcoat),
+                    pdf: 0.0,
+                    delta: true,
+                });
+            }
+            let i = reflect_about(o, c.distribution.sample_visible(o, u));
+            if !(i.z > 0.0) {
+                return None;
+            }
+            i
+        } else if u_lobe < l.clearcoat + l.reflect {
             if smooth {
                 return Some(PbrSample {
                     wi: Vec3A::new(-o.x, -o.y, o.z),
-                    weight: self.reflectance(&v, o.z) / l.reflect,
+                    weight: self.reflectance(&v, o.z) * under / l.reflect,
                     pdf: 0.0,
                     delta: true,
                 });
@@ -373,7 +506,7 @@ impl<'a> PbrBsdf<'a> {
                 return None;
             }
             i
-        } else if u_lobe < l.reflect + l.base || l.through == 0.0 {
+        } else if u_lobe < l.clearcoat + l.reflect + l.base || l.through == 0.0 {
             if l.base == 0.0 {
                 return None;
             }
@@ -389,7 +522,7 @@ impl<'a> PbrBsdf<'a> {
                 let f = fresnel_dielectric(o.z, self.coat.eta()).0;
                 return Some(PbrSample {
                     wi: -o,
-                    weight: c * ((1.0 - m) * t * (1.0 - f) / l.through),
+                    weight: c * ((1.0 - m) * t * (1.0 - f) * under / l.through),
                     pdf: 0.0,
                     delta: true,
                 });
@@ -472,7 +605,34 @@ pub struct PbrMaterial {
     pub coat: Arc<CoatTable>,
     /// The microfacet model.
     pub distribution: Distribution,
+    /// A clear coat, where the material has one.
+    pub clearcoat: Option<ClearcoatParams>,
 }
+
+/// A `pbr` material's clear coat (`KHR_materials_clearcoat`).
+#[derive(Clone, Debug)]
+pub struct ClearcoatParams {
+    /// Its weight.
+    pub weight: ScalarParam,
+    /// Its perceptual roughness.
+    pub roughness: ScalarParam,
+    /// The index-1.5 layer's table.
+    pub table: Arc<CoatTable>,
+}
+
+impl ClearcoatParams {
+    /// A clear coat of `weight` and `roughness`, untextured.
+    pub fn new(weight: ScalarParam, roughness: ScalarParam) -> Self {
+        Self {
+            weight,
+            roughness,
+            table: CoatTable::shared(CLEARCOAT_IOR),
+        }
+    }
+}
+
+/// The clear coat's index, glTF's (`KHR_materials_clearcoat`) and Blender's default.
+pub const CLEARCOAT_IOR: f32 = 1.5;
 
 impl PbrMaterial {
     /// Whether any parameter or the normal map is read from a texture (which needs texture
@@ -483,6 +643,10 @@ impl PbrMaterial {
             || self.roughness.texture.is_some()
             || self.transmission.texture.is_some()
             || self.normal_map.is_some()
+            || self
+                .clearcoat
+                .as_ref()
+                .is_some_and(|c| c.weight.texture.is_some() || c.roughness.texture.is_some())
     }
 
     /// The parameters at texture coordinates `uv`.
@@ -499,6 +663,24 @@ impl PbrMaterial {
             metallic: self.metallic.at(textures, uv),
             roughness: self.roughness.at(textures, uv),
             transmission: self.transmission.at(textures, uv),
+            clearcoat: self
+                .clearcoat
+                .as_ref()
+                .map_or(0.0, |c| c.weight.at(textures, uv)),
+            clearcoat_roughness: self
+                .clearcoat
+                .as_ref()
+                .map_or(0.0, |c| c.roughness.at(textures, uv)),
+        }
+    }
+
+    /// The BSDF at a point of parameters `p` (from [`PbrMaterial::params`]).
+    #[inline]
+    pub fn bsdf(&self, p: PbrParams) -> PbrBsdf<'_> {
+        let b = PbrBsdf::new(p, &self.coat, self.distribution);
+        match &self.clearcoat {
+            Some(c) => b.with_clearcoat(&c.table, self.distribution),
+            None => b,
         }
     }
 

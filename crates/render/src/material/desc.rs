@@ -36,6 +36,10 @@ pub struct MaterialDesc {
     pub transmission: Option<ScalarDesc>,
     /// A tangent-space normal map (pbr), for meshes with texture coordinates.
     pub normal_map: Option<NormalMapDesc>,
+    /// A clear coat's weight in [0, 1] (pbr; default 0, none): a number or a texture.
+    pub clearcoat: Option<ScalarDesc>,
+    /// The clear coat's roughness in [0, 1] (pbr; default 0): a number or a texture.
+    pub clearcoat_roughness: Option<ScalarDesc>,
     /// The microfacet model (pbr): `multiscatter_ggx` (default: energy-preserving, Blender's
     /// default) or `ggx` (single scattering: glTF's reference BRDF, Mitsuba's `principled`).
     pub distribution: Option<Distribution>,

@@ -10,8 +10,8 @@ use glam::Vec2;
 use super::desc::{AlbedoDesc, ScalarDesc};
 use super::port::{leave, At, Lobe, Reading, Seen, Surface, Tables};
 use super::{Bsdf, Model};
-use crate::bsdf::pbr::{CoatTable, NormalMap, ScalarParam};
-use crate::bsdf::{PbrBsdf, PbrMaterial, PbrParams};
+use crate::bsdf::pbr::{ClearcoatParams, CoatTable, NormalMap, ScalarParam};
+use crate::bsdf::{PbrMaterial, PbrParams};
 use crate::interaction::Shading;
 use crate::texture::TextureUse;
 use crate::util::fields::{color, positive, unit, Invalid};
@@ -93,7 +93,7 @@ fn at<'s, S: Surface<'s>>(mat: &PbrMaterial, s: &S) -> (PbrParams, Shading) {
 fn vertex<'s, A: At<'s>>(material: &'s PbrMaterial, v: &mut A) -> Option<Ray> {
     let (params, at) = at(material, v);
     let at = &at;
-    let bsdf = PbrBsdf::new(params, &material.coat, material.distribution);
+    let bsdf = material.bsdf(params);
     if !v.front() && !v.two_sided() && !bsdf.transmits() {
         // The back of a one-sided surface absorbs everything.
         return None;
@@ -125,7 +125,7 @@ fn vertex<'s, A: At<'s>>(material: &'s PbrMaterial, v: &mut A) -> Option<Ray> {
 }
 
 /// `type = "pbr"`: glTF's defaults (white, metallic 1, roughness 1, no transmission, index
-/// 1.5), each parameter a number in [0, 1] or a texture, and a normal map.
+/// 1.5, no clear coat), each parameter a number in [0, 1] or a texture, and a normal map.
 pub(crate) fn read(r: &mut Reading<'_, '_>) -> Result<Bsdf, Invalid> {
     let keys = [
         "base_color",
@@ -135,6 +135,8 @@ pub(crate) fn read(r: &mut Reading<'_, '_>) -> Result<Bsdf, Invalid> {
         "ior",
         "normal_map",
         "distribution",
+        "clearcoat",
+        "clearcoat_roughness",
     ];
     r.only("a pbr material", &keys)?;
     let (m, mp) = (r.desc, r.at);
@@ -175,6 +177,17 @@ pub(crate) fn read(r: &mut Reading<'_, '_>) -> Result<Bsdf, Invalid> {
     let metallic = scalar(&m.metallic, "metallic", 1.0)?;
     let roughness = scalar(&m.roughness, "roughness", 1.0)?;
     let transmission = scalar(&m.transmission, "transmission", 0.0)?;
+    // A coat of weight 0 is none: the material renders as it would without the key.
+    let clearcoat = match &m.clearcoat {
+        None | Some(ScalarDesc::Value(0.0)) => None,
+        Some(_) => Some(ClearcoatParams::new(
+            scalar(&m.clearcoat, "clearcoat", 0.0)?,
+            scalar(&m.clearcoat_roughness, "clearcoat_roughness", 0.0)?,
+        )),
+    };
+    if clearcoat.is_none() && m.clearcoat_roughness.is_some() {
+        scalar(&m.clearcoat_roughness, "clearcoat_roughness", 0.0)?;
+    }
     let ior = positive(m.ior.unwrap_or(1.5), &mp.key("ior"))?;
     let normal_map = match &m.normal_map {
         None => None,
@@ -197,6 +210,7 @@ pub(crate) fn read(r: &mut Reading<'_, '_>) -> Result<Bsdf, Invalid> {
         normal_map,
         coat: CoatTable::shared(ior),
         distribution: m.distribution.unwrap_or_default(),
+        clearcoat,
     };
     Ok(PbrRef::add(r.tables, material))
 }

@@ -13,7 +13,7 @@ use super::super::check::Invalid;
 use super::super::files::SceneFiles;
 use super::super::{AlphaTest, KeyPath, Limits, Material};
 use super::{data, MaterialTables};
-use crate::bsdf::pbr::{CoatTable, Distribution, NormalMap, ScalarParam};
+use crate::bsdf::pbr::{ClearcoatParams, CoatTable, Distribution, NormalMap, ScalarParam};
 use crate::bsdf::PbrMaterial;
 use crate::material::pbr::PbrRef;
 use crate::material::{glass, Bsdf};
@@ -226,6 +226,7 @@ impl<'d> GltfMaterials<'d> {
             normal_map,
             coat: CoatTable::shared(self.specular_ior(m, ior)),
             distribution: self.distribution,
+            clearcoat: self.clearcoat_of(m, at)?,
         };
         let runtime = Material {
             bsdf: Bsdf::Pbr(PbrRef(u32::MAX)),
@@ -233,6 +234,44 @@ impl<'d> GltfMaterials<'d> {
             two_sided: m.double_sided(),
         };
         Ok((runtime, Vec3A::ZERO, Some(material)))
+    }
+
+    /// The material's `KHR_materials_clearcoat` (Blender's Coat): its weight and roughness
+    /// factors, each in [0, 1]; none where the weight is 0. Its textures, and the coat's own
+    /// normal map, are not read (said once).
+    fn clearcoat_of(
+        &mut self,
+        m: &gltf::Material,
+        at: &KeyPath,
+    ) -> Result<Option<ClearcoatParams>, Invalid> {
+        let Some(ext) = m.extension_value("KHR_materials_clearcoat") else {
+            return Ok(None);
+        };
+        let at = at.key("extensions").key("KHR_materials_clearcoat");
+        let factor = |key: &str| match ext.get(key) {
+            None => Ok(0.0),
+            Some(v) => v
+                .as_f64()
+                .filter(|x| (0.0..=1.0).contains(x))
+                .map(|x| x as f32)
+                .ok_or_else(|| (at.key(key), format!("must be a number in [0, 1], got {v}"))),
+        };
+        let weight = factor("clearcoatFactor")?;
+        let roughness = factor("clearcoatRoughnessFactor")?;
+        let textures = [
+            "clearcoatTexture",
+            "clearcoatRoughnessTexture",
+            "clearcoatNormalTexture",
+        ];
+        if textures.iter().any(|k| ext.get(k).is_some()) {
+            self.warn("reads KHR_materials_clearcoat's factors, not its textures");
+        }
+        Ok((weight > 0.0).then(|| {
+            ClearcoatParams::new(
+                ScalarParam::constant(weight),
+                ScalarParam::constant(roughness),
+            )
+        }))
     }
 
     /// The index of the dielectric layer's reflection under `KHR_materials_specular`, for a

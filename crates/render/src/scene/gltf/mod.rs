@@ -44,6 +44,7 @@ pub(super) use material::GltfMaterials;
 /// The extensions whose data tessera reads, which a file may therefore require.
 const READ: &[&str] = &[
     "KHR_lights_punctual",
+    "KHR_materials_clearcoat",
     "KHR_materials_emissive_strength",
     "KHR_materials_ior",
     "KHR_materials_specular",
