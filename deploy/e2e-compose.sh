@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
 # End-to-end test of deploy/docker-compose.yml with real containers:
+#   check the image's `tessera render --denoise` (Open Image Denoise in the image);
 #   run the README's compose commands verbatim, in an empty environment, and compare the EXR;
 #   then build the image (base images from deploy/airgap-base-images.sh when none can be pulled),
 #   bring up a coordinator and 3 workers with a token, submit the Cornell box from the host CLI,
@@ -59,6 +60,11 @@ trap readme_cleanup EXIT
 # own `up --build` then finds it current, as it would for a user who built it before.
 docker-compose -f deploy/docker-compose.yml build -q
 echo "== [$((SECONDS / 60))m$((SECONDS % 60))s] the image is built"
+# The image carries Open Image Denoise where the binary looks for it (/usr/local/oidn/lib).
+docker run --rm -v "$PWD/scenes:/scenes:ro" tessera:local render /scenes/cornell-box.toml \
+  --spp 2 --resolution 32x32 --denoise --output /tmp/denoised.exr >/dev/null \
+  || { echo "the image's tessera cannot denoise" >&2; exit 1; }
+echo "== [$((SECONDS / 60))m$((SECONDS % 60))s] the image's tessera render --denoise works"
 printf '%s\n' "$README_BLOCK" | sed 's/^/  $ /'
 timeout 1200 env -i PATH="$PATH" HOME="$HOME" ${DOCKER_HOST:+DOCKER_HOST="$DOCKER_HOST"} \
   bash -euo pipefail -c "$README_BLOCK" \
