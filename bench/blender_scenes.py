@@ -33,6 +33,10 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "blender"))
 from tessera import export as addon_export  # noqa: E402
 
+# The Principled BSDF helper the units test builds its scenes with.
+sys.path.insert(0, os.path.join(HERE, "..", "tests", "blender"))
+from units import material  # noqa: E402
+
 SIZE = (128, 128)
 SKY_SIZE = (1024, 512)
 
@@ -91,15 +95,6 @@ def setup():
     scene.world.use_nodes = True
     scene.world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
     return scene
-
-
-def material(name, **inputs):
-    m = bpy.data.materials.new(name)
-    m.use_nodes = True
-    p = m.node_tree.nodes["Principled BSDF"]
-    for k, v in inputs.items():
-        p.inputs[k].default_value = v
-    return m
 
 
 def diffuse(name, rgb):

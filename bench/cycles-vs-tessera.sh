@@ -27,17 +27,14 @@ while [ $# -gt 0 ]; do
     esac
 done
 venv=target/blender-venv
-if [ ! -x "$venv/bin/python" ]; then
-    python3.11 -m venv "$venv"
-    "$venv/bin/pip" install --quiet "bpy==4.5.*"
-fi
+tests/blender/bpy-venv.sh
 cargo build --release -q -p tessera-cli --features bench
 T=target/release/tessera
 dir=target/bench-cache/blender
 "$venv/bin/python" bench/blender_scenes.py -- "$dir" >"$dir.log" 2>&1 || { cat "$dir.log" >&2; exit 1; }
 scenes=(blender-interior blender-metals-glass blender-textured)
 # References are cached by what makes the scenes (a .blend file is not byte-reproducible).
-key=$(cat bench/blender_scenes.py blender/tessera/export.py | sha256sum | cut -c1-12)
+key=$(cat bench/blender_scenes.py tests/blender/units.py blender/tessera/export.py | sha256sum | cut -c1-12)
 args=()
 refs=()
 for s in "${scenes[@]}"; do

@@ -29,6 +29,8 @@ import time
 import bpy
 import numpy as np
 
+from peer_protocol import requests
+
 
 def open_scene(scenes, name):
     path = os.path.join(scenes, name + ".blend")
@@ -76,15 +78,7 @@ def serve(a):
     threads = os.cpu_count()
     with tempfile.TemporaryDirectory() as tmp:
         out = os.path.join(tmp, "render.exr")
-        for line in sys.stdin:
-            fields = line.split()
-            try:
-                name, spp, seed = fields[0], int(fields[1]), int(fields[2])
-                if len(fields) != 3 or spp < 1 or seed < 0:
-                    raise ValueError
-            except (ValueError, IndexError):
-                print(f"error: expected `SCENE SPP SEED`, got {line.strip()!r}", flush=True)
-                continue
+        for name, spp, seed in requests():
             if name in refs and spp <= a.max_spp:
                 if name not in loaded:
                     loaded[name] = read_rgb(refs[name])
@@ -100,7 +94,6 @@ def serve(a):
                 h, w, _ = img.shape
                 rate = w * h * spp / seconds / 1e6
                 print(f"cycles,{name},{spp},{seed},{threads},{seconds:.6f},{rate:.4f},{relmse(img, ref):.6e}", flush=True)
-            print("done", flush=True)
 
 
 def main():

@@ -65,6 +65,8 @@ import time
 
 import numpy as np
 
+from peer_protocol import requests
+
 
 SCENES = ("cornell-box", "glass-mirror", "mesh-glass", "metals-box", "envmap-balls", "materials", "pbr-metals",
           "gltf-metals", "gltf-glass", "gltf-big", "mesh-million", "mesh-million-analytic")
@@ -438,15 +440,7 @@ def serve(mi, a, references):
         raise SystemExit(f"none of the variants {a.variants} runs here")
     refs = dict(references)
     peers = {}  # (variant, scene) -> Peer, made at the first request for it
-    for line in sys.stdin:
-        fields = line.split()
-        try:
-            name, spp, seed = fields[0], int(fields[1]), int(fields[2])
-            if len(fields) != 3 or spp < 1 or seed < 0:
-                raise ValueError
-        except (ValueError, IndexError):
-            print(f"error: expected `SCENE SPP SEED`, got {line.strip()!r}", flush=True)
-            continue
+    for name, spp, seed in requests():
         if name in refs:
             for v in variants:
                 if (v, name) not in peers:
@@ -454,7 +448,6 @@ def serve(mi, a, references):
                 peer = peers[(v, name)]
                 if spp <= peer.max_spp:
                     print(peer.measure(spp, seed), flush=True)
-        print("done", flush=True)
 
 
 def main():

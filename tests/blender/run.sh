@@ -10,10 +10,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 venv=target/blender-venv
-if [ ! -x "$venv/bin/python" ]; then
-    python3.11 -m venv "$venv"
-    "$venv/bin/pip" install --quiet "bpy==4.5.*"
-fi
+tests/blender/bpy-venv.sh
 cargo build --release --workspace -q
 out=target/blender-units
 rm -rf "$out"

@@ -260,4 +260,5 @@ def main():
         bpy.ops.render.render(write_still=True)
 
 
-main()
+if __name__ == "__main__":
+    main()

@@ -6,6 +6,8 @@
 
 mod common;
 
+use common::bsdf::{check_draw, incident, pbr_albedo, pbr_draws, u2};
+
 use glam::{Vec2, Vec3A};
 use tessera_render::bsdf::microfacet::{half_vector, reflect_about, TrowbridgeReitz};
 use tessera_render::bsdf::{Conductor, Fresnel};
@@ -14,15 +16,6 @@ use tessera_render::sampling::HashRng;
 /// Roughnesses (α = r²) and incident angles every test here sweeps.
 const ROUGHNESS: [f32; 4] = [0.3, 0.5, 0.8, 1.0];
 const THETA_O_DEG: [f32; 3] = [0.0, 45.0, 80.0];
-
-fn incident(deg: f32) -> Vec3A {
-    let t = deg.to_radians();
-    Vec3A::new(t.sin(), 0.0, t.cos())
-}
-
-fn u2(rng: &mut HashRng) -> Vec2 {
-    Vec2::new(rng.next_f32(), rng.next_f32())
-}
 
 fn white(roughness: f32) -> Conductor {
     Conductor {
@@ -549,17 +542,9 @@ fn pbr_sample_agrees_with_eval_and_pdf_and_reflection_is_reciprocal() {
         let coat = CoatTable::new(ior);
         for (r, m, t) in PBR_CASES {
             let b = PbrBsdf::new(pbr_params(r, m, t, Vec3A::new(0.9, 0.4, 0.1)), &coat, MS);
-            for _ in 0..5_000 {
-                let o = tessera_render::sampling::square_to_cosine_hemisphere(u2(&mut rng));
-                let c = rng.next_f32();
-                let Some(s) = b.sample(o, u2(&mut rng), c) else {
-                    continue;
-                };
+            for (o, s) in pbr_draws(&b, &mut rng, 5_000) {
                 let case = format!("η {ior} r={r} m={m} t={t}");
-                assert!(
-                    s.weight.is_finite() && s.weight.min_element() >= 0.0,
-                    "{case}: {s:?}"
-                );
+                check_draw(&case, &b, o, &s);
                 if s.delta {
                     let mirror = Vec3A::new(-o.x, -o.y, o.z);
                     let through = -o;
@@ -571,18 +556,6 @@ fn pbr_sample_agrees_with_eval_and_pdf_and_reflection_is_reciprocal() {
                     );
                     continue;
                 }
-                let (pdf, f) = (b.pdf(o, s.wi), b.eval(o, s.wi));
-                assert!(
-                    (s.pdf - pdf).abs() <= 1e-4 * pdf,
-                    "{case}: pdf {} vs {pdf}",
-                    s.pdf
-                );
-                let want = f / pdf;
-                assert!(
-                    (s.weight - want).abs().max_element() <= 1e-4 * want.max_element() + 1e-7,
-                    "{case}: weight {} vs {want}",
-                    s.weight
-                );
                 // A single-scattering metal is reciprocal; the compensation and the base,
                 // scaled by the view (as Cycles and glTF's appendix do), are not.
                 if s.wi.z > 0.0 && m == 1.0 {
@@ -597,26 +570,6 @@ fn pbr_sample_agrees_with_eval_and_pdf_and_reflection_is_reciprocal() {
             }
         }
     }
-}
-
-/// E[weight] over the sampler (delta lobes included) at incidence `o`, with its standard
-/// error.
-fn pbr_albedo(b: &PbrBsdf<'_>, o: Vec3A, n: usize) -> (f64, f64) {
-    let mut rng = HashRng::new(3);
-    let (mut sum, mut sq) = (0.0f64, 0.0f64);
-    for _ in 0..n {
-        let c = rng.next_f32();
-        let w = b
-            .sample(o, u2(&mut rng), c)
-            .map_or(0.0, |s| f64::from(s.weight.x));
-        sum += w;
-        sq += w * w;
-    }
-    let mean = sum / n as f64;
-    (
-        mean,
-        ((sq / n as f64 - mean * mean).max(0.0) / n as f64).sqrt(),
-    )
 }
 
 /// A white material returns all the light that arrives, at every roughness, metallic and
@@ -639,13 +592,13 @@ fn pbr_white_furnace() {
         for deg in [0.0f32, 45.0, 80.0, 89.0] {
             let o = incident(deg);
             let case = format!("r={r} m={m} t={t} θo={deg}°");
-            let (mean, se) = pbr_albedo(&b, o, 200_000);
+            let (mean, se) = pbr_albedo(&b, o, 200_000, 3);
             worst = worst.max((mean - 1.0).abs());
             assert!(
                 (mean - 1.0).abs() <= 4.0 * se + 3e-3,
                 "{case}: albedo {mean} ± {se}"
             );
-            let (mean, se) = pbr_albedo(&single, o, 200_000);
+            let (mean, se) = pbr_albedo(&single, o, 200_000, 3);
             // (The quadrature does not resolve a lobe much narrower than its steps.)
             if m == 1.0 && r >= 0.5 {
                 let want = albedo_quadrature(&white(r), o, 256);
@@ -693,7 +646,7 @@ fn the_specifications_fresnel_mix_gains_energy_at_grazing_views() {
     assert!(albedo > 1.05, "the specification's albedo {albedo}");
     let coat = CoatTable::new(1.5);
     let ours = PbrBsdf::new(pbr_params(0.5, 0.0, 0.0, Vec3A::ONE), &coat, MS);
-    let (mean, se) = pbr_albedo(&ours, o, 200_000);
+    let (mean, se) = pbr_albedo(&ours, o, 200_000, 3);
     assert!(mean <= 1.0 + 4.0 * se, "ours {mean} ± {se}");
     eprintln!("at 85°: the specification's {albedo:.3}, ours {mean:.3}");
 }

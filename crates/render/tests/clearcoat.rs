@@ -6,21 +6,14 @@
 
 mod common;
 
-use glam::{Vec2, Vec3A};
+use common::bsdf::{check_draw, incident, pbr_albedo, pbr_draws, u2};
+
+use glam::Vec3A;
 use tessera_render::bsdf::pbr::{CoatTable, Distribution};
 use tessera_render::bsdf::{PbrBsdf, PbrParams};
 use tessera_render::sampling::HashRng;
 
 const MS: Distribution = Distribution::MultiscatterGgx;
-
-fn incident(deg: f32) -> Vec3A {
-    let t = deg.to_radians();
-    Vec3A::new(t.sin(), 0.0, t.cos())
-}
-
-fn u2(rng: &mut HashRng) -> Vec2 {
-    Vec2::new(rng.next_f32(), rng.next_f32())
-}
 
 /// Base roughness, metallic, transmission; then the coat's weight and roughness.
 fn params((r, m, t): (f32, f32, f32), (w, rc): (f32, f32), c: Vec3A) -> PbrParams {
@@ -43,25 +36,6 @@ fn coated<'a>(
     PbrBsdf::new(p, base, d).with_clearcoat(cc, d)
 }
 
-/// E[weight] (red) over the sampler, delta lobes included, with its standard error.
-fn albedo(b: &PbrBsdf<'_>, o: Vec3A, n: usize) -> (f64, f64) {
-    let mut rng = HashRng::new(5);
-    let (mut sum, mut sq) = (0.0f64, 0.0f64);
-    for _ in 0..n {
-        let c = rng.next_f32();
-        let w = b
-            .sample(o, u2(&mut rng), c)
-            .map_or(0.0, |s| f64::from(s.weight.x));
-        sum += w;
-        sq += w * w;
-    }
-    let mean = sum / n as f64;
-    (
-        mean,
-        ((sq / n as f64 - mean * mean).max(0.0) / n as f64).sqrt(),
-    )
-}
-
 const BASES: [(f32, f32, f32); 5] = [
     (0.0, 0.0, 0.0),
     (0.3, 0.0, 0.0),
@@ -81,14 +55,14 @@ fn a_white_material_under_a_clear_coat_keeps_all_its_energy() {
             for deg in [0.0f32, 45.0, 80.0, 89.0] {
                 let o = incident(deg);
                 let case = format!("base {b:?} coat {coat:?} θo={deg}°");
-                let (mean, se) = albedo(&bsdf, o, 200_000);
+                let (mean, se) = pbr_albedo(&bsdf, o, 200_000, 5);
                 worst = worst.max((mean - 1.0).abs());
                 assert!(
                     (mean - 1.0).abs() <= 4.0 * se + 3e-3,
                     "{case}: albedo {mean} ± {se}"
                 );
                 // Single scattering loses what bounces between facets, never gains.
-                let (mean, se) = albedo(&single, o, 100_000);
+                let (mean, se) = pbr_albedo(&single, o, 100_000, 5);
                 assert!(mean <= 1.0 + 4.0 * se + 3e-3, "{case} ggx: {mean} ± {se}");
             }
         }
@@ -135,37 +109,16 @@ fn samples_under_a_coat_agree_with_eval_and_pdf() {
     for b in BASES {
         for coat in [(1.0, 0.0), (0.6, 0.2), (1.0, 0.9)] {
             let bsdf = coated(params(b, coat, Vec3A::new(0.9, 0.4, 0.1)), &base, &cc, MS);
-            for _ in 0..5_000 {
-                let o = tessera_render::sampling::square_to_cosine_hemisphere(u2(&mut rng));
-                let c = rng.next_f32();
-                let Some(s) = bsdf.sample(o, u2(&mut rng), c) else {
-                    continue;
-                };
+            for (o, s) in pbr_draws(&bsdf, &mut rng, 5_000) {
                 let case = format!("base {b:?} coat {coat:?}");
-                assert!(
-                    s.weight.is_finite() && s.weight.min_element() >= 0.0,
-                    "{case}: {s:?}"
-                );
+                check_draw(&case, &bsdf, o, &s);
                 if s.delta {
                     let mirror = Vec3A::new(-o.x, -o.y, o.z);
                     let smooth_base = b.0 == 0.0;
                     let ok = (s.wi - mirror).length() < 1e-6 && (coat.1 == 0.0 || smooth_base)
                         || (s.wi + o).length() < 1e-6 && smooth_base;
                     assert!(ok, "{case}: a delta where no lobe is smooth: {s:?}");
-                    continue;
                 }
-                let (pdf, f) = (bsdf.pdf(o, s.wi), bsdf.eval(o, s.wi));
-                assert!(
-                    (s.pdf - pdf).abs() <= 1e-4 * pdf,
-                    "{case}: pdf {} vs {pdf}",
-                    s.pdf
-                );
-                let want = f / pdf;
-                assert!(
-                    (s.weight - want).abs().max_element() <= 1e-4 * want.max_element() + 1e-7,
-                    "{case}: weight {} vs {want}",
-                    s.weight
-                );
             }
         }
     }
@@ -208,7 +161,7 @@ fn a_smooth_coat_over_a_lambertian_base_reflects_fresnel_and_passes_the_rest() {
         );
         let f = tessera_render::bsdf::fresnel_dielectric(o.z, 1.5).0;
         let want = f64::from(f + (1.0 - f) * c);
-        let (mean, se) = albedo(&bsdf, o, 200_000);
+        let (mean, se) = pbr_albedo(&bsdf, o, 200_000, 5);
         assert!(
             (mean - want).abs() <= 4.0 * se + 1e-3,
             "θo={deg}°: {mean} ± {se}, want {want}"

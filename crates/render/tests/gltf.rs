@@ -73,10 +73,11 @@ fn the_sample_scene_reads_its_camera_lights_materials_and_instances() {
         "{}",
         point.radiance
     );
-    // The camera's node: at (0, 2.2, 6.2), looking down 18°.
+    // The camera's node: at (0, 2.2, 6.2), looking down 18°; the middle ray starts on the
+    // near plane, znear = 0.1 along it.
     let ray = scene.camera.ray(640.0, 360.0);
     assert!(
-        (ray.o - Vec3A::new(0.0, 2.2, 6.2)).length() < 1e-5,
+        (ray.o - Vec3A::new(0.0, 2.2, 6.2) - ray.d.normalize() * 0.1).length() < 1e-5,
         "{:?}",
         ray.o
     );
@@ -496,11 +497,11 @@ fn cameras_are_picked_by_name_or_index_and_framed_without_one() {
         ],
     });
     let gltf = triangle_doc(&QUAD, &[0, 1, 2, 0, 2, 3], cams);
+    // Every camera looks down −z, and its rays start on its near plane, znear = 0.1 ahead:
+    // the eye is that much behind.
     let eye = |s: &Scene| {
-        s.camera
-            .ray(0.5 * s.width as f32, 0.5 * s.height as f32)
-            .o
-            .z
+        let o = s.camera.ray(0.5 * s.width as f32, 0.5 * s.height as f32).o;
+        ((o.z + 0.1) * 1000.0).round() / 1000.0
     };
     // The lowest index by default, with its aspect ratio.
     let s = load(&gltf, &GltfOptions::default()).expect("ok");
@@ -528,7 +529,7 @@ fn cameras_are_picked_by_name_or_index_and_framed_without_one() {
     let (a, b) = (flat.camera.ray(0.0, 0.0), flat.camera.ray(1280.0, 1280.0));
     assert_eq!((a.d, b.d), (Vec3A::NEG_Z, Vec3A::NEG_Z));
     assert!(
-        near(a.o, Vec3A::new(-1.0, 1.0, 7.0)) && near(b.o, Vec3A::new(1.0, -1.0, 7.0)),
+        near(a.o, Vec3A::new(-1.0, 1.0, 6.9)) && near(b.o, Vec3A::new(1.0, -1.0, 6.9)),
         "{} {}",
         a.o,
         b.o

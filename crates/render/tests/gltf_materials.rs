@@ -415,15 +415,41 @@ fn normal_maps_read_in_the_files_tangents_or_mikktspaces_and_mirroring_keeps_the
     );
 }
 
+/// The head-on albedo (red) of `s`'s first pbr material, untextured: its BSDF's weights over a
+/// 64² grid of the square and a spread of lobe choices.
+fn head_on_albedo(s: &Scene) -> f64 {
+    use tessera_render::material::pbr::PbrRef;
+    use tessera_render::material::Bsdf;
+    let i = s
+        .materials
+        .iter()
+        .find_map(|m| match m.bsdf {
+            Bsdf::Pbr(PbrRef(i)) => Some(i),
+            _ => None,
+        })
+        .expect("a pbr material");
+    let m = s.tables().pbr(i);
+    let b = m.bsdf(m.params(&s.textures, glam::Vec2::ZERO));
+    let n = 64;
+    let mut sum = 0.0f64;
+    for k in 0..n * n {
+        let u = glam::Vec2::new(
+            ((k % n) as f32 + 0.5) / n as f32,
+            ((k / n) as f32 + 0.5) / n as f32,
+        );
+        if let Some(x) = b.sample(Vec3A::Z, u, ((k * 7919) % (n * n)) as f32 / (n * n) as f32) {
+            sum += f64::from(x.weight.x);
+        }
+    }
+    sum / (n * n) as f64
+}
+
 /// `KHR_materials_specular` as Blender writes it (`specularFactor` = 2 × Specular IOR Level):
 /// a factor of 0 is no specular layer, so a grey dielectric base returns its own albedo
 /// head-on (Blender's diffuse walls); 0.5 halves the layer's F0, whose white reflection adds to
 /// the grey, between that and no extension at all.
 #[test]
 fn the_specular_factor_scales_the_dielectric_layer_as_blender_writes_it() {
-    use tessera_render::bsdf::PbrBsdf;
-    use tessera_render::material::pbr::PbrRef;
-    use tessera_render::material::Bsdf;
     let albedo_head_on = |specular: Option<f32>| {
         let mut material = json!({"pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 0.5,
                 "baseColorFactor": [0.5, 0.5, 0.5, 1.0]}});
@@ -441,32 +467,7 @@ fn the_specular_factor_scales_the_dielectric_layer_as_blender_writes_it() {
         );
         let s = load(&gltf, &GltfOptions::default()).expect("loads");
         assert!(s.warnings.is_empty(), "{:?}", s.warnings);
-        let i = s
-            .materials
-            .iter()
-            .find_map(|m| match m.bsdf {
-                Bsdf::Pbr(PbrRef(i)) => Some(i),
-                _ => None,
-            })
-            .expect("a pbr material");
-        let m = s.tables().pbr(i);
-        let b = PbrBsdf::new(
-            m.params(&s.textures, glam::Vec2::ZERO),
-            &m.coat,
-            m.distribution,
-        );
-        let n = 64;
-        let mut sum = 0.0f64;
-        for k in 0..n * n {
-            let u = glam::Vec2::new(
-                ((k % n) as f32 + 0.5) / n as f32,
-                ((k / n) as f32 + 0.5) / n as f32,
-            );
-            if let Some(x) = b.sample(Vec3A::Z, u, ((k * 7919) % (n * n)) as f32 / (n * n) as f32) {
-                sum += f64::from(x.weight.x);
-            }
-        }
-        sum / (n * n) as f64
+        head_on_albedo(&s)
     };
     let none = albedo_head_on(Some(0.0));
     let half = albedo_head_on(Some(0.5));
@@ -484,8 +485,6 @@ fn the_specular_factor_scales_the_dielectric_layer_as_blender_writes_it() {
 /// its key.
 #[test]
 fn the_clearcoat_extension_is_read_as_blender_writes_it() {
-    use tessera_render::material::pbr::PbrRef;
-    use tessera_render::material::Bsdf;
     let load_coat = |coat: Option<Value>| {
         let mut material = json!({"pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 0.5,
                 "baseColorFactor": [0.5, 0.5, 0.5, 1.0]}});
@@ -505,28 +504,7 @@ fn the_clearcoat_extension_is_read_as_blender_writes_it() {
     };
     let albedo_head_on = |coat: Option<Value>| {
         let s = load_coat(coat).expect("loads");
-        let i = s
-            .materials
-            .iter()
-            .find_map(|m| match m.bsdf {
-                Bsdf::Pbr(PbrRef(i)) => Some(i),
-                _ => None,
-            })
-            .expect("a pbr material");
-        let m = s.tables().pbr(i);
-        let b = m.bsdf(m.params(&s.textures, glam::Vec2::ZERO));
-        let n = 64;
-        let mut sum = 0.0f64;
-        for k in 0..n * n {
-            let u = glam::Vec2::new(
-                ((k % n) as f32 + 0.5) / n as f32,
-                ((k / n) as f32 + 0.5) / n as f32,
-            );
-            if let Some(x) = b.sample(Vec3A::Z, u, ((k * 7919) % (n * n)) as f32 / (n * n) as f32) {
-                sum += f64::from(x.weight.x);
-            }
-        }
-        (sum / (n * n) as f64, s.warnings)
+        (head_on_albedo(&s), s.warnings)
     };
     let (none, warnings) = albedo_head_on(None);
     assert!(warnings.is_empty(), "{warnings:?}");

@@ -1,6 +1,7 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code, missing_docs)]
 
+pub mod bsdf;
 pub mod chi2;
 pub mod gltf;
 
