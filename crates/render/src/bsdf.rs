@@ -12,6 +12,7 @@ pub mod dielectric;
 pub mod microfacet;
 pub mod pbr;
 pub mod plastic;
+pub mod sheen;
 
 use glam::{Vec2, Vec3A};
 

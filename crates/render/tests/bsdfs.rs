@@ -507,6 +507,8 @@ fn pbr_params(roughness: f32, metallic: f32, transmission: f32, c: Vec3A) -> Pbr
         transmission,
         clearcoat: 0.0,
         clearcoat_roughness: 0.0,
+        sheen_color: Vec3A::ZERO,
+        sheen_roughness: 0.0,
     }
 }
 

@@ -546,3 +546,67 @@ fn the_clearcoat_extension_is_read_as_blender_writes_it() {
         );
     }
 }
+
+/// `KHR_materials_sheen` as Blender writes it (Sheen Weight × Tint as the colour, Sheen
+/// Roughness): read, so a grey base under a white sheen returns more head-on than without; a
+/// black sheen is none, bit for bit; textures warned about; a bad factor refused at its key.
+#[test]
+fn the_sheen_extension_is_read() {
+    let load_sheen = |sheen: Option<Value>| {
+        let mut material = json!({"pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 0.5,
+                "baseColorFactor": [0.5, 0.5, 0.5, 1.0]}});
+        if let Some(x) = sheen {
+            material["extensions"] = json!({ "KHR_materials_sheen": x });
+        }
+        let gltf = triangle_doc(
+            &QUAD,
+            &[0, 1, 2],
+            json!({
+                "extensionsUsed": ["KHR_materials_sheen"],
+                "materials": [material],
+                "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]}],
+            }),
+        );
+        load(&gltf, &GltfOptions::default())
+    };
+    let albedo = |sheen: Option<Value>| {
+        let s = load_sheen(sheen).expect("loads");
+        (head_on_albedo(&s), s.warnings)
+    };
+    let (none, warnings) = albedo(None);
+    assert!(warnings.is_empty(), "{warnings:?}");
+    let (black, _) = albedo(Some(
+        json!({"sheenColorFactor": [0, 0, 0], "sheenRoughnessFactor": 0.5}),
+    ));
+    assert_eq!(black, none, "a black sheen is none");
+    let (white, warnings) = albedo(Some(
+        json!({"sheenColorFactor": [1, 1, 1], "sheenRoughnessFactor": 0.5}),
+    ));
+    assert!(warnings.is_empty(), "{warnings:?}");
+    assert!(
+        white > none + 0.005,
+        "the sheen reflects: {white} vs {none}"
+    );
+    let (_, warnings) = albedo(Some(
+        json!({"sheenColorFactor": [1, 1, 1], "sheenColorTexture": {"index": 0}}),
+    ));
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.contains("KHR_materials_sheen's factors, not its textures")),
+        "{warnings:?}"
+    );
+    for (x, key) in [
+        (json!({"sheenColorFactor": [1, 2, 0]}), "sheenColorFactor"),
+        (json!({"sheenColorFactor": [1, 1]}), "sheenColorFactor"),
+        (json!({"sheenRoughnessFactor": -1}), "sheenRoughnessFactor"),
+    ] {
+        let e = load_sheen(Some(x)).expect_err("refused").to_string();
+        assert!(
+            e.contains(&format!(
+                "/materials/0/extensions/KHR_materials_sheen/{key}"
+            )),
+            "{e}"
+        );
+    }
+}

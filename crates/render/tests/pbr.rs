@@ -258,6 +258,18 @@ fn bad_pbr_materials_name_the_key() {
             "between 0 and 1",
         ),
         (
+            "sheen_color = [1, 1.5, 0]",
+            mesh,
+            "materials.m.sheen_color",
+            "",
+        ),
+        (
+            "sheen_color = [1, 1, 1]\nsheen_roughness = 3",
+            mesh,
+            "materials.m.sheen_roughness",
+            "between 0 and 1",
+        ),
+        (
             "clearcoat_roughness = 2",
             mesh,
             "materials.m.clearcoat_roughness",

@@ -15,11 +15,11 @@ use super::microfacet::{reflect_about, TrowbridgeReitz, SMOOTH_ALPHA};
 use crate::util::tabulate::tabulate;
 
 /// Roughness steps of the tables ([`grid_distribution`]).
-const ROUGHNESS_STEPS: usize = 33;
+pub(super) const ROUGHNESS_STEPS: usize = 33;
 /// Incidence steps of the tables, even in √μ (cos θ = (k / (MU_STEPS − 1))²): the albedos
 /// change fastest towards grazing, where an even grid in μ left a white rough metal 1% short at
 /// 89°.
-const MU_STEPS: usize = 32;
+pub(super) const MU_STEPS: usize = 32;
 /// Midpoints in μ for an average over the hemisphere.
 const AVERAGE_STEPS: usize = 8192;
 
@@ -35,7 +35,7 @@ fn row(r: f32) -> (usize, f32) {
 /// A table over (roughness, μ), row-major in roughness, at roughness `r` and μ `mu`, by
 /// bilinear interpolation.
 #[inline]
-fn bilinear(table: &[f32], r: f32, mu: f32) -> f32 {
+pub(super) fn bilinear(table: &[f32], r: f32, mu: f32) -> f32 {
     let (j, wr) = row(r);
     let at = |j: usize| in_row(&table[j * MU_STEPS..(j + 1) * MU_STEPS], mu);
     at(j) * (1.0 - wr) + at(j + 1) * wr
@@ -63,7 +63,7 @@ fn grid_distribution(j: usize) -> TrowbridgeReitz {
 
 /// The μ of the tables' column `k`.
 #[inline]
-fn grid_mu(k: usize) -> f32 {
+pub(super) fn grid_mu(k: usize) -> f32 {
     let x = k as f32 / (MU_STEPS - 1) as f32;
     x * x
 }

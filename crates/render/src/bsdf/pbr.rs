@@ -74,6 +74,7 @@ use super::albedo::multiple_colour;
 pub use super::albedo::{CoatTable, GgxAlbedo};
 use super::fresnel_dielectric;
 use super::microfacet::{half_vector, reflect_about, TrowbridgeReitz};
+use super::sheen::Sheen;
 use crate::mesh::UvFrame;
 use crate::texture::Texture;
 use crate::util::sampling::{cosine_hemisphere_pdf, square_to_cosine_hemisphere};
@@ -105,6 +106,10 @@ pub struct PbrParams {
     pub clearcoat: f32,
     /// The clear coat's perceptual roughness, in [0, 1].
     pub clearcoat_roughness: f32,
+    /// The sheen's colour, linear RGB in [0, 1] (black: none).
+    pub sheen_color: Vec3A,
+    /// The sheen's perceptual roughness, in [0, 1].
+    pub sheen_roughness: f32,
 }
 
 /// The BSDF at one point: [`PbrParams`] with the coat's table.
@@ -117,6 +122,8 @@ pub struct PbrBsdf<'a> {
     ms: Option<&'static GgxAlbedo>,
     /// The clear coat, where the material has one.
     clearcoat: Option<Clearcoat<'a>>,
+    /// The sheen over the base, where the material has one.
+    sheen: Option<Sheen>,
 }
 
 /// A clear coat: its weight, microfacets, the index-1.5 layer's table, and the white lobe's
@@ -196,6 +203,8 @@ struct View {
     clearcoat: f32,
     /// The clear coat's compensation k_cc(μo).
     clearcoat_scale: f32,
+    /// max(c) E_sheen(μo), what the sheen takes from the base (0 without one).
+    sheen: f32,
 }
 
 impl View {
@@ -223,6 +232,7 @@ impl View {
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Lobes {
     clearcoat: f32,
+    sheen: f32,
     reflect: f32,
     base: f32,
     through: f32,
@@ -241,6 +251,19 @@ impl<'a> PbrBsdf<'a> {
             coat,
             ms,
             clearcoat: None,
+            sheen: None,
+        }
+    }
+
+    /// The BSDF with its sheen (of colour `p.sheen_color` and roughness `p.sheen_roughness`)
+    /// over the base; itself where the colour is black.
+    pub fn with_sheen(self) -> Self {
+        match Sheen::new(self.p.sheen_color, self.p.sheen_roughness) {
+            Some(sheen) => Self {
+                sheen: Some(sheen),
+                ..self
+            },
+            None => self,
         }
     }
 
@@ -289,6 +312,7 @@ impl<'a> PbrBsdf<'a> {
         let r = self.p.roughness;
         let single = self.coat.single(r, self.is_smooth(), mu);
         let (clearcoat, clearcoat_scale) = self.clearcoat.map_or((0.0, 1.0), |c| c.at(mu));
+        let sheen = self.sheen.map_or(0.0, |s| s.albedo(mu));
         let Some(g) = self.ms else {
             return View {
                 single,
@@ -297,6 +321,7 @@ impl<'a> PbrBsdf<'a> {
                 metal_scale: Vec3A::ONE,
                 clearcoat,
                 clearcoat_scale,
+                sheen,
             };
         };
         let e1 = g.e(r, mu).max(1e-3);
@@ -312,6 +337,7 @@ impl<'a> PbrBsdf<'a> {
             metal_scale: Vec3A::ONE + Vec3A::new(fms(f.x), fms(f.y), fms(f.z)) * missing,
             clearcoat,
             clearcoat_scale,
+            sheen,
         }
     }
 
@@ -338,16 +364,19 @@ impl<'a> PbrBsdf<'a> {
         let lum = mean(c);
         let floor = if self.coat.eta() != 1.0 { 1e-3 } else { 0.0 };
         let left = (1.0 - v.coat()).max(0.0);
-        // Under a clear coat, each lobe below gets what the coat leaves.
-        let under = 1.0 - v.clearcoat;
+        // Under a clear coat, each lobe below gets what the coat leaves; under a sheen, what
+        // the sheen leaves of that.
+        let sheen = v.sheen * (1.0 - v.clearcoat);
+        let under = (1.0 - v.clearcoat) * (1.0 - v.sheen);
         let reflect = (m + (1.0 - m) * v.coat()).max(floor) * under;
         let base = (1.0 - m) * (1.0 - t) * left * lum * under;
         let through = (1.0 - m) * t * left * lum * under;
         let clearcoat = v.clearcoat;
-        let sum = clearcoat + reflect + base + through;
+        let sum = clearcoat + sheen + reflect + base + through;
         if !(sum > 0.0) {
             return Lobes {
                 clearcoat: 0.0,
+                sheen: 0.0,
                 reflect: 0.0,
                 base: 0.0,
                 through: 0.0,
@@ -355,6 +384,7 @@ impl<'a> PbrBsdf<'a> {
         }
         Lobes {
             clearcoat: clearcoat / sum,
+            sheen: sheen / sum,
             reflect: reflect / sum,
             base: base / sum,
             through: through / sum,
@@ -402,8 +432,18 @@ impl<'a> PbrBsdf<'a> {
         below * (1.0 - v.clearcoat) + Vec3A::splat(coat)
     }
 
-    /// What lies under the clear coat (all of the material without one), f cos θi.
+    /// What lies under the clear coat (all of the material without one), f cos θi: the sheen
+    /// over the base, where there is one.
     fn eval_below(&self, v: &View, o: Vec3A, i: Vec3A) -> Vec3A {
+        let base = self.eval_base(v, o, i);
+        match &self.sheen {
+            None => base,
+            Some(s) => base * (1.0 - v.sheen) + s.eval(o, i),
+        }
+    }
+
+    /// The base's lobes (under any sheen and clear coat), f cos θi.
+    fn eval_base(&self, v: &View, o: Vec3A, i: Vec3A) -> Vec3A {
         let PbrParams {
             base_color: c,
             metallic: m,
@@ -458,7 +498,8 @@ impl<'a> PbrBsdf<'a> {
                 }
                 _ => 0.0,
             };
-            coat + l.reflect * glossy + l.base * cosine_hemisphere_pdf(i.z)
+            let cosine = l.base + l.sheen;
+            coat + l.reflect * glossy + cosine * cosine_hemisphere_pdf(i.z)
         } else if i.z < 0.0 && l.through > 0.0 && !smooth {
             l.through * self.distribution.reflection_pdf(o, mirror(i))
         } else {
@@ -475,7 +516,7 @@ impl<'a> PbrBsdf<'a> {
         let v = self.view(o.z);
         let l = self.lobes(&v);
         let smooth = self.is_smooth();
-        let under = 1.0 - v.clearcoat;
+        let under = (1.0 - v.clearcoat) * (1.0 - v.sheen);
         let i = if u_lobe < l.clearcoat {
             let c = self.clearcoat.as_ref()?;
             if c.distribution.is_smooth() {
@@ -492,7 +533,9 @@ impl<'a> PbrBsdf<'a> {
                 return None;
             }
             i
-        } else if u_lobe < l.clearcoat + l.reflect {
+        } else if u_lobe < l.clearcoat + l.sheen {
+            square_to_cosine_hemisphere(u)
+        } else if u_lobe < l.clearcoat + l.sheen + l.reflect {
             if smooth {
                 return Some(PbrSample {
                     wi: Vec3A::new(-o.x, -o.y, o.z),
@@ -506,7 +549,7 @@ impl<'a> PbrBsdf<'a> {
                 return None;
             }
             i
-        } else if u_lobe < l.clearcoat + l.reflect + l.base || l.through == 0.0 {
+        } else if u_lobe < l.clearcoat + l.sheen + l.reflect + l.base || l.through == 0.0 {
             if l.base == 0.0 {
                 return None;
             }
@@ -607,6 +650,8 @@ pub struct PbrMaterial {
     pub distribution: Distribution,
     /// A clear coat, where the material has one.
     pub clearcoat: Option<ClearcoatParams>,
+    /// A sheen (`KHR_materials_sheen`): its colour and roughness, where the material has one.
+    pub sheen: Option<(Vec3A, f32)>,
 }
 
 /// A `pbr` material's clear coat (`KHR_materials_clearcoat`).
@@ -671,13 +716,18 @@ impl PbrMaterial {
                 .clearcoat
                 .as_ref()
                 .map_or(0.0, |c| c.roughness.at(textures, uv)),
+            sheen_color: self.sheen.map_or(Vec3A::ZERO, |s| s.0),
+            sheen_roughness: self.sheen.map_or(0.0, |s| s.1),
         }
     }
 
     /// The BSDF at a point of parameters `p` (from [`PbrMaterial::params`]).
     #[inline]
     pub fn bsdf(&self, p: PbrParams) -> PbrBsdf<'_> {
-        let b = PbrBsdf::new(p, &self.coat, self.distribution);
+        let mut b = PbrBsdf::new(p, &self.coat, self.distribution);
+        if self.sheen.is_some() {
+            b = b.with_sheen();
+        }
         match &self.clearcoat {
             Some(c) => b.with_clearcoat(&c.table, self.distribution),
             None => b,

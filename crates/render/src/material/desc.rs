@@ -40,6 +40,11 @@ pub struct MaterialDesc {
     pub clearcoat: Option<ScalarDesc>,
     /// The clear coat's roughness in [0, 1] (pbr; default 0): a number or a texture.
     pub clearcoat_roughness: Option<ScalarDesc>,
+    /// A sheen's colour, each channel in [0, 1] (pbr; default black, none).
+    #[serde(default, deserialize_with = "maybe_three")]
+    pub sheen_color: Option<[f32; 3]>,
+    /// The sheen's roughness in [0, 1] (pbr; default 0).
+    pub sheen_roughness: Option<f32>,
     /// The microfacet model (pbr): `multiscatter_ggx` (default: energy-preserving, Blender's
     /// default) or `ggx` (single scattering: glTF's reference BRDF, Mitsuba's `principled`).
     pub distribution: Option<Distribution>,

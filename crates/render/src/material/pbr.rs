@@ -137,6 +137,8 @@ pub(crate) fn read(r: &mut Reading<'_, '_>) -> Result<Bsdf, Invalid> {
         "distribution",
         "clearcoat",
         "clearcoat_roughness",
+        "sheen_color",
+        "sheen_roughness",
     ];
     r.only("a pbr material", &keys)?;
     let (m, mp) = (r.desc, r.at);
@@ -201,6 +203,13 @@ pub(crate) fn read(r: &mut Reading<'_, '_>) -> Result<Bsdf, Invalid> {
             Some(NormalMap { texture, scale })
         }
     };
+    let sheen_roughness = unit(m.sheen_roughness.unwrap_or(0.0), &mp.key("sheen_roughness"))?;
+    let sheen = match m.sheen_color {
+        None => None,
+        Some(c) => Some(color(c, &mp.key("sheen_color"), true)?),
+    }
+    .filter(|c| c.max_element() > 0.0)
+    .map(|c| (c, sheen_roughness));
     let material = PbrMaterial {
         base_color,
         base_texture,
@@ -211,6 +220,7 @@ pub(crate) fn read(r: &mut Reading<'_, '_>) -> Result<Bsdf, Invalid> {
         coat: CoatTable::shared(ior),
         distribution: m.distribution.unwrap_or_default(),
         clearcoat,
+        sheen,
     };
     Ok(PbrRef::add(r.tables, material))
 }

@@ -227,6 +227,7 @@ impl<'d> GltfMaterials<'d> {
             coat: CoatTable::shared(self.specular_ior(m, ior)),
             distribution: self.distribution,
             clearcoat: self.clearcoat_of(m, at)?,
+            sheen: self.sheen_of(m, at)?,
         };
         let runtime = Material {
             bsdf: Bsdf::Pbr(PbrRef(u32::MAX)),
@@ -272,6 +273,53 @@ impl<'d> GltfMaterials<'d> {
                 ScalarParam::constant(roughness),
             )
         }))
+    }
+
+    /// The material's `KHR_materials_sheen` (Blender's Sheen): its colour and roughness
+    /// factors, each in [0, 1]; none where the colour is black. Its textures are not read
+    /// (said once).
+    fn sheen_of(
+        &mut self,
+        m: &gltf::Material,
+        at: &KeyPath,
+    ) -> Result<Option<(Vec3A, f32)>, Invalid> {
+        let Some(ext) = m.extension_value("KHR_materials_sheen") else {
+            return Ok(None);
+        };
+        let at = at.key("extensions").key("KHR_materials_sheen");
+        let unit_at = |v: &serde_json::Value, key: &str| {
+            v.as_f64()
+                .filter(|x| (0.0..=1.0).contains(x))
+                .map(|x| x as f32)
+                .ok_or_else(|| (at.key(key), format!("must be a number in [0, 1], got {v}")))
+        };
+        let color = match ext.get("sheenColorFactor") {
+            None => Vec3A::ZERO,
+            Some(v) => match v.as_array().map(Vec::as_slice) {
+                Some([r, g, b]) => Vec3A::new(
+                    unit_at(r, "sheenColorFactor")?,
+                    unit_at(g, "sheenColorFactor")?,
+                    unit_at(b, "sheenColorFactor")?,
+                ),
+                _ => {
+                    return Err((
+                        at.key("sheenColorFactor"),
+                        format!("must be three numbers in [0, 1], got {v}"),
+                    ))
+                }
+            },
+        };
+        let roughness = match ext.get("sheenRoughnessFactor") {
+            None => 0.0,
+            Some(v) => unit_at(v, "sheenRoughnessFactor")?,
+        };
+        if ["sheenColorTexture", "sheenRoughnessTexture"]
+            .iter()
+            .any(|k| ext.get(k).is_some())
+        {
+            self.warn("reads KHR_materials_sheen's factors, not its textures");
+        }
+        Ok((color.max_element() > 0.0).then_some((color, roughness)))
     }
 
     /// The index of the dielectric layer's reflection under `KHR_materials_specular`, for a

@@ -1,8 +1,8 @@
-//! The `pbr` material's clear coat (`KHR_materials_clearcoat`, Blender's Coat): white
-//! furnaces at every coat and base roughness (a white material under a coat keeps all its
-//! energy), a chi-square test of the directions drawn under a rough coat, `sample` against
-//! `eval` and `pdf` at every draw, a coat of weight 0 being no coat bit for bit, and the
-//! layering's value on a Lambertian base.
+//! The `pbr` material's layers over its base: the clear coat (`KHR_materials_clearcoat`,
+//! Blender's Coat) and the sheen (`KHR_materials_sheen`). White furnaces at every coat, sheen
+//! and base roughness (a white material under them keeps all its energy), chi-square tests of
+//! the directions drawn, `sample` against `eval` and `pdf` at every draw, a layer of weight 0
+//! (or a black sheen) being no layer bit for bit, and the coat's value on a Lambertian base.
 
 mod common;
 
@@ -24,7 +24,28 @@ fn params((r, m, t): (f32, f32, f32), (w, rc): (f32, f32), c: Vec3A) -> PbrParam
         transmission: t,
         clearcoat: w,
         clearcoat_roughness: rc,
+        sheen_color: Vec3A::ZERO,
+        sheen_roughness: 0.0,
     }
+}
+
+/// `p` under a sheen of colour `c` and roughness `r`.
+fn sheened(p: PbrParams, c: Vec3A, r: f32) -> PbrParams {
+    PbrParams {
+        sheen_color: c,
+        sheen_roughness: r,
+        ..p
+    }
+}
+
+/// The BSDF of `p` with its sheen and clear coat.
+fn layered<'a>(
+    p: PbrParams,
+    base: &'a CoatTable,
+    cc: &'a CoatTable,
+    d: Distribution,
+) -> PbrBsdf<'a> {
+    PbrBsdf::new(p, base, d).with_sheen().with_clearcoat(cc, d)
 }
 
 fn coated<'a>(
@@ -166,5 +187,98 @@ fn a_smooth_coat_over_a_lambertian_base_reflects_fresnel_and_passes_the_rest() {
             (mean - want).abs() <= 4.0 * se + 1e-3,
             "θo={deg}°: {mean} ± {se}, want {want}"
         );
+    }
+}
+
+#[test]
+fn a_white_material_under_a_white_sheen_keeps_all_its_energy() {
+    let (base, cc) = (CoatTable::new(1.5), CoatTable::new(1.5));
+    let mut worst = 0f64;
+    for b in [
+        (0.3, 0.0, 0.0),
+        (0.8, 0.0, 0.0),
+        (0.5, 1.0, 0.0),
+        (0.5, 0.0, 1.0),
+    ] {
+        for sheen in [0.3f32, 0.6, 1.0] {
+            for coat in [(0.0, 0.0), (1.0, 0.3)] {
+                let p = sheened(params(b, coat, Vec3A::ONE), Vec3A::ONE, sheen);
+                let bsdf = layered(p, &base, &cc, MS);
+                for deg in [0.0f32, 45.0, 80.0] {
+                    let o = incident(deg);
+                    let case = format!("base {b:?} sheen {sheen} coat {coat:?} θo={deg}°");
+                    let (mean, se) = pbr_albedo(&bsdf, o, 200_000, 7);
+                    worst = worst.max((mean - 1.0).abs());
+                    assert!(
+                        (mean - 1.0).abs() <= 4.0 * se + 5e-3,
+                        "{case}: albedo {mean} ± {se}"
+                    );
+                }
+            }
+        }
+    }
+    eprintln!("white furnace under a white sheen: worst |albedo − 1| {worst:.4}");
+}
+
+#[test]
+fn directions_under_a_sheen_follow_their_density_and_agree_with_eval() {
+    let (base, cc) = (CoatTable::new(1.5), CoatTable::new(1.5));
+    let cases = [
+        ((0.6, 0.0, 0.0), (0.0, 0.0), 0.5f32),
+        ((0.4, 0.0, 1.0), (1.0, 0.4), 0.8),
+        ((0.5, 1.0, 0.0), (0.0, 0.0), 0.3),
+    ];
+    let tests = (cases.len() * 3) as f64;
+    let mut rng = HashRng::new(31);
+    for (b, coat, sheen) in cases {
+        let p = sheened(
+            params(b, coat, Vec3A::new(0.8, 0.5, 0.2)),
+            Vec3A::new(0.9, 0.6, 0.7),
+            sheen,
+        );
+        let bsdf = layered(p, &base, &cc, MS);
+        for deg in [0.0f32, 45.0, 80.0] {
+            let o = incident(deg);
+            let mut rng_u = HashRng::new(37);
+            common::chi2::chi_square_with_failures(
+                &format!("sheen {sheen} coat {coat:?} over {b:?} θo={deg}°"),
+                tests,
+                |rng| {
+                    let c = rng_u.next_f32();
+                    bsdf.sample(o, u2(rng), c)
+                        .filter(|s| !s.delta)
+                        .map(|s| s.wi)
+                },
+                &|i| bsdf.pdf(o, i) as f64,
+            );
+        }
+        for (o, s) in pbr_draws(&bsdf, &mut rng, 5_000) {
+            check_draw(&format!("sheen {sheen} over {b:?}"), &bsdf, o, &s);
+        }
+    }
+}
+
+/// A black sheen is no sheen: the same samples, values and densities, bit for bit.
+#[test]
+fn a_black_sheen_is_no_sheen_bit_for_bit() {
+    let (base, cc) = (CoatTable::new(1.5), CoatTable::new(1.5));
+    let mut rng = HashRng::new(41);
+    for b in BASES {
+        let p = sheened(
+            params(b, (0.5, 0.3), Vec3A::new(0.7, 0.6, 0.2)),
+            Vec3A::ZERO,
+            0.5,
+        );
+        let (plain, black) = (coated(p, &base, &cc, MS), layered(p, &base, &cc, MS));
+        for _ in 0..2_000 {
+            let o = tessera_render::sampling::square_to_cosine_hemisphere(u2(&mut rng));
+            let (u, c) = (u2(&mut rng), rng.next_f32());
+            assert_eq!(
+                format!("{:?}", plain.sample(o, u, c)),
+                format!("{:?}", black.sample(o, u, c))
+            );
+            let i = tessera_render::sampling::square_to_cosine_hemisphere(u);
+            assert_eq!(plain.eval(o, i).to_array(), black.eval(o, i).to_array());
+        }
     }
 }
