@@ -15,6 +15,9 @@ from .client import FarmError
 
 # How often a running submission asks the coordinator for its jobs' states.
 POLL_S = 1.0
+# How long a submission keeps asking a coordinator it cannot reach (one that restarts keeps its
+# jobs) before it gives up watching; the jobs go on either way.
+UNREACHABLE_S = 300.0
 
 
 class FrameJob:
@@ -85,6 +88,8 @@ class Submission:
             self._post("error", str(e))
         except OSError as e:
             self._post("error", f"cannot read or write a file: {e}")
+        except Exception as e:  # a reply the add-on did not expect: say so rather than hang
+            self._post("error", f"unexpected reply from the coordinator: {e!r}")
         finally:
             self._post("finished")
 
@@ -113,8 +118,19 @@ class Submission:
             self._post("submitted", frame.number, reply["job_id"])
         return jobs
 
+    def _status(self, job_id, since):
+        """The job's status; `None` while the coordinator cannot be reached (for up to
+        UNREACHABLE_S from `since`, the first failure), as while it restarts."""
+        try:
+            return self.farm.status(job_id)
+        except FarmError as e:
+            if not str(e).startswith("cannot reach") or time.monotonic() - since > UNREACHABLE_S:
+                raise
+            return None
+
     def _watch(self, jobs):
         running = dict(jobs)
+        lost = None
         while running:
             if self._cancel.is_set():
                 for job_id in running.values():
@@ -122,7 +138,12 @@ class Submission:
                 self._post("error", "cancelled")
                 return
             for number, job_id in list(running.items()):
-                status = self.farm.status(job_id)
+                status = self._status(job_id, lost or time.monotonic())
+                if status is None:
+                    lost = lost or time.monotonic()
+                    self._post("progress", number, "coordinator unreachable, retrying", None, None)
+                    break
+                lost = None
                 self._post("progress", number, status["state"], status["units_done"], status["units_total"])
                 if status["state"] == "done":
                     path = os.path.join(self.output_dir, f"{self.stem}.{number:04d}.exr")
@@ -157,7 +178,9 @@ class Submission:
                 by_number[args[0]].state = "queued"
             elif kind == "progress":
                 f = by_number[args[0]]
-                f.state, f.units_done, f.units_total = args[1], args[2], args[3]
+                f.state = args[1]
+                if args[2] is not None:
+                    f.units_done, f.units_total = args[2], args[3]
             elif kind == "saved":
                 by_number[args[0]].path = args[1]
                 on_saved(args[1])

@@ -60,6 +60,7 @@ def main():
         f.write("".join(f"{toml} {exr}\n" for toml, exr in lines))
 
     check_failures(addon, prefs, url, token)
+    check_reconnect(addon, out)
     print("addon: ok")
 
 
@@ -150,6 +151,51 @@ def check_failures(addon, prefs, url, token):
     except RuntimeError as e:
         assert "Sky Texture" in str(e) and "Environment Texture" in str(e), e
         print(f"addon: a sky texture: {str(e).strip()}")
+
+
+class Restarting:
+    """A coordinator that cannot be reached for its first two status requests (as while it
+    restarts), then reports the job done."""
+
+    def __init__(self, client):
+        self.client, self.asked = client, 0
+
+    def upload(self, path):
+        return "0" * 64
+
+    def submit(self, body):
+        return {"job_id": "job-000042"}
+
+    def status(self, job_id):
+        self.asked += 1
+        if self.asked <= 2:
+            raise self.client.FarmError("cannot reach the coordinator at http://x: connection refused")
+        return {"state": "done", "units_done": 4, "units_total": 4, "error": ""}
+
+    def output(self, job_id):
+        return b"exr"
+
+    def cancel(self, job_id):
+        pass
+
+
+def check_reconnect(addon, out):
+    """A coordinator that is unreachable for a while (restarting) is asked again, not given up
+    on: the submission ends with its frame saved."""
+    folder = os.path.join(out, "reconnect")
+    os.makedirs(folder, exist_ok=True)
+    with open(os.path.join(folder, "f.toml"), "w") as f:
+        f.write("version = 1\n")
+    frame = addon.export.Frame(7, "f.toml", [])
+    farm = Restarting(addon.client)
+    s = addon.jobs.Submission(farm, folder, [frame], 1, folder, "r")
+    addon.jobs.POLL_S = 0.01
+    s.start()
+    assert s.wait(30), "the submission did not end"
+    s.apply_events(lambda path: None)
+    assert not s.error and s.frames[0].state == "done", (s.error, s.frames[0].state)
+    assert farm.asked == 3 and os.path.getsize(os.path.join(folder, "r.0007.exr")) == 3
+    print("addon: a coordinator unreachable for two polls is asked again; the frame is saved")
 
 
 def build_scene(out):
