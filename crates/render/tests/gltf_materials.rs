@@ -415,6 +415,26 @@ fn normal_maps_read_in_the_files_tangents_or_mikktspaces_and_mirroring_keeps_the
     );
 }
 
+/// A one-triangle glTF file whose grey dielectric material (base 0.5, roughness 0.5) carries
+/// the material extension `name` with `value`, if any, loaded.
+fn grey_with(name: &str, value: Option<Value>) -> Result<Scene, String> {
+    let mut material = json!({"pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 0.5,
+            "baseColorFactor": [0.5, 0.5, 0.5, 1.0]}});
+    if let Some(v) = value {
+        material["extensions"] = json!({ name: v });
+    }
+    let gltf = triangle_doc(
+        &QUAD,
+        &[0, 1, 2],
+        json!({
+            "extensionsUsed": [name],
+            "materials": [material],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]}],
+        }),
+    );
+    load(&gltf, &GltfOptions::default())
+}
+
 /// The head-on albedo (red) of `s`'s first pbr material, untextured: its BSDF's weights over a
 /// 64² grid of the square and a spread of lobe choices.
 fn head_on_albedo(s: &Scene) -> f64 {
@@ -451,21 +471,8 @@ fn head_on_albedo(s: &Scene) -> f64 {
 #[test]
 fn the_specular_factor_scales_the_dielectric_layer_as_blender_writes_it() {
     let albedo_head_on = |specular: Option<f32>| {
-        let mut material = json!({"pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 0.5,
-                "baseColorFactor": [0.5, 0.5, 0.5, 1.0]}});
-        if let Some(s) = specular {
-            material["extensions"] = json!({"KHR_materials_specular": {"specularFactor": s}});
-        }
-        let gltf = triangle_doc(
-            &QUAD,
-            &[0, 1, 2],
-            json!({
-                "extensionsUsed": ["KHR_materials_specular"],
-                "materials": [material],
-                "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]}],
-            }),
-        );
-        let s = load(&gltf, &GltfOptions::default()).expect("loads");
+        let value = specular.map(|s| json!({ "specularFactor": s }));
+        let s = grey_with("KHR_materials_specular", value).expect("loads");
         assert!(s.warnings.is_empty(), "{:?}", s.warnings);
         head_on_albedo(&s)
     };
@@ -485,23 +492,7 @@ fn the_specular_factor_scales_the_dielectric_layer_as_blender_writes_it() {
 /// its key.
 #[test]
 fn the_clearcoat_extension_is_read_as_blender_writes_it() {
-    let load_coat = |coat: Option<Value>| {
-        let mut material = json!({"pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 0.5,
-                "baseColorFactor": [0.5, 0.5, 0.5, 1.0]}});
-        if let Some(c) = coat {
-            material["extensions"] = json!({ "KHR_materials_clearcoat": c });
-        }
-        let gltf = triangle_doc(
-            &QUAD,
-            &[0, 1, 2],
-            json!({
-                "extensionsUsed": ["KHR_materials_clearcoat"],
-                "materials": [material],
-                "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]}],
-            }),
-        );
-        load(&gltf, &GltfOptions::default())
-    };
+    let load_coat = |coat: Option<Value>| grey_with("KHR_materials_clearcoat", coat);
     let albedo_head_on = |coat: Option<Value>| {
         let s = load_coat(coat).expect("loads");
         (head_on_albedo(&s), s.warnings)
@@ -552,23 +543,7 @@ fn the_clearcoat_extension_is_read_as_blender_writes_it() {
 /// black sheen is none, bit for bit; textures warned about; a bad factor refused at its key.
 #[test]
 fn the_sheen_extension_is_read() {
-    let load_sheen = |sheen: Option<Value>| {
-        let mut material = json!({"pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 0.5,
-                "baseColorFactor": [0.5, 0.5, 0.5, 1.0]}});
-        if let Some(x) = sheen {
-            material["extensions"] = json!({ "KHR_materials_sheen": x });
-        }
-        let gltf = triangle_doc(
-            &QUAD,
-            &[0, 1, 2],
-            json!({
-                "extensionsUsed": ["KHR_materials_sheen"],
-                "materials": [material],
-                "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]}],
-            }),
-        );
-        load(&gltf, &GltfOptions::default())
-    };
+    let load_sheen = |sheen: Option<Value>| grey_with("KHR_materials_sheen", sheen);
     let albedo = |sheen: Option<Value>| {
         let s = load_sheen(sheen).expect("loads");
         (head_on_albedo(&s), s.warnings)

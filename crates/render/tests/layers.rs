@@ -105,21 +105,27 @@ fn directions_under_a_rough_coat_follow_their_density() {
     let tests = (cases.len() * 3) as f64;
     for (b, coat) in cases {
         let bsdf = coated(params(b, coat, Vec3A::new(0.8, 0.5, 0.2)), &base, &cc, MS);
-        for deg in [0.0f32, 45.0, 80.0] {
-            let o = incident(deg);
-            let mut rng_u = HashRng::new(17);
-            common::chi2::chi_square_with_failures(
-                &format!("clear coat {coat:?} over {b:?} θo={deg}°"),
-                tests,
-                |rng| {
-                    let c = rng_u.next_f32();
-                    bsdf.sample(o, u2(rng), c)
-                        .filter(|s| !s.delta)
-                        .map(|s| s.wi)
-                },
-                &|i| bsdf.pdf(o, i) as f64,
-            );
-        }
+        chi_square(&format!("clear coat {coat:?} over {b:?}"), &bsdf, tests);
+    }
+}
+
+/// The directions `bsdf` draws (its deltas counted as failures) against its density, at
+/// incidences of 0°, 45° and 80°; `tests` in all, for the significance level.
+fn chi_square(name: &str, bsdf: &PbrBsdf<'_>, tests: f64) {
+    for deg in [0.0f32, 45.0, 80.0] {
+        let o = incident(deg);
+        let mut rng_u = HashRng::new(17);
+        common::chi2::chi_square_with_failures(
+            &format!("{name} θo={deg}°"),
+            tests,
+            |rng| {
+                let c = rng_u.next_f32();
+                bsdf.sample(o, u2(rng), c)
+                    .filter(|s| !s.delta)
+                    .map(|s| s.wi)
+            },
+            &|i| bsdf.pdf(o, i) as f64,
+        );
     }
 }
 
@@ -237,21 +243,11 @@ fn directions_under_a_sheen_follow_their_density_and_agree_with_eval() {
             sheen,
         );
         let bsdf = layered(p, &base, &cc, MS);
-        for deg in [0.0f32, 45.0, 80.0] {
-            let o = incident(deg);
-            let mut rng_u = HashRng::new(37);
-            common::chi2::chi_square_with_failures(
-                &format!("sheen {sheen} coat {coat:?} over {b:?} θo={deg}°"),
-                tests,
-                |rng| {
-                    let c = rng_u.next_f32();
-                    bsdf.sample(o, u2(rng), c)
-                        .filter(|s| !s.delta)
-                        .map(|s| s.wi)
-                },
-                &|i| bsdf.pdf(o, i) as f64,
-            );
-        }
+        chi_square(
+            &format!("sheen {sheen} coat {coat:?} over {b:?}"),
+            &bsdf,
+            tests,
+        );
         for (o, s) in pbr_draws(&bsdf, &mut rng, 5_000) {
             check_draw(&format!("sheen {sheen} over {b:?}"), &bsdf, o, &s);
         }
