@@ -7,7 +7,8 @@ Run by tests/blender/run.sh with Blender as a Python module (PyPI's `bpy`):
 For each light kind (a point light, a spot with a hard edge and one with a soft blend, a sun,
 and an emissive quad), for three Principled BSDFs with a glossy layer (Blender's default
 material, a rough blue one, and a rough gold metal) and two under a Coat under a sun, for a closed box of such
-materials with every bounce counted, for a camera whose clip start cuts away a wall before it, for a rectangular and a disk area light and a floor under a world map turned by a Mapping node
+materials with every bounce counted, for a camera whose clip start cuts away a wall before it and one whose clip end cuts away the
+far floor, for a rectangular and a disk area light and a floor under a world map turned by a Mapping node
 (which glTF cannot carry: these go through the add-on's exporter, blender/tessera/export.py, to
 OUT_DIR/KIND.0001.toml placing OUT_DIR/KIND.0001.glb), and for a portrait and a landscape film (Blender's sensor fit, which its
 exporter turns into glTF's yfov and aspect ratio), it builds the same small scene: a white diffuse floor (a Principled BSDF
@@ -180,6 +181,13 @@ def clip(scene):
     scene.camera.data.clip_start = 1.0
 
 
+def clip_far(scene):
+    """The point light's floor with the camera's clip end (exported as glTF's zfar) cutting
+    away its far half, where the (black) world shows instead."""
+    point(scene)
+    scene.camera.data.clip_end = 4.0
+
+
 def world(scene):
     """The floor under an equirectangular sky turned 30° by a Mapping node, seen low enough
     that the sky fills the top of the frame: a turn the wrong way shows as the wrong part of
@@ -233,6 +241,7 @@ SCENES = {
                                             "Coat Roughness": 0.1}),
     "box": box,
     "clip": clip,
+    "clip-far": clip_far,
     # Through the add-on's exporter (a TOML scene placing the glTF file).
     "area": area("RECTANGLE", size=1.0, size_y=0.5),
     "area-disk": area("DISK", size=1.0),

@@ -68,8 +68,11 @@ pub fn first_hit(scene: &Scene, x: u32, y: u32, sampler: &PixelSampler) -> First
         normal: Vec3A::ZERO,
         depth: None,
     };
+    let mut t_max = scene.camera.far_t(ray.d);
     for bounce in 0..=MAX_SPECULAR {
-        let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
+        let found = scene.intersect(&ray, t_max);
+        t_max = f32::INFINITY;
+        let Some(hit) = found else {
             return out;
         };
         if bounce == 0 {

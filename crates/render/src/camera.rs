@@ -13,7 +13,9 @@
 //!
 //! A near clipping distance (glTF's `znear`, Blender's clip start) starts each ray on the
 //! plane that far ahead of the eye instead of at the eye, so that what lies nearer is not seen:
-//! the way to look into a room from behind its wall.
+//! the way to look into a room from behind its wall. A far clipping distance (glTF's `zfar`,
+//! Blender's clip end) ends a camera ray's first segment on the plane that far ahead: what lies
+//! beyond is not seen, and the ray sees the environment there instead.
 
 use glam::Vec3A;
 
@@ -32,6 +34,8 @@ pub struct Camera {
     orthographic: bool,
     /// Depth of the near clipping plane along `forward`; 0 for none.
     near: f32,
+    /// Depth of the far clipping plane along `forward`; infinite for none.
+    far: f32,
 }
 
 /// The camera's trigonometry in f64, rounded once to f32. The f32 library functions are chosen
@@ -67,6 +71,7 @@ impl Camera {
             height: height as f32,
             orthographic: false,
             near: 0.0,
+            far: f32::INFINITY,
         }
     }
 
@@ -93,6 +98,7 @@ impl Camera {
             height: height as f32,
             orthographic: false,
             near: 0.0,
+            far: f32::INFINITY,
         })
     }
 
@@ -123,6 +129,7 @@ impl Camera {
             height: height as f32,
             orthographic: true,
             near: 0.0,
+            far: f32::INFINITY,
         })
     }
 
@@ -135,6 +142,37 @@ impl Camera {
             0.0
         };
         Self { near, ..self }
+    }
+
+    /// The camera with its far clipping plane `far` world units ahead of the eye, along the
+    /// view axis; anything not finite, or not beyond the near plane, clips nothing.
+    pub fn with_far(self, far: f32) -> Self {
+        let far = if far.is_finite() && far > self.near {
+            far
+        } else {
+            f32::INFINITY
+        };
+        Self { far, ..self }
+    }
+
+    /// Whether the camera clips what lies far away.
+    pub fn clips_far(&self) -> bool {
+        self.far.is_finite()
+    }
+
+    /// How far a primary ray of (normalised) direction `d` may travel from its origin before
+    /// it passes the far plane; infinite without one.
+    #[inline]
+    pub fn far_t(&self, d: Vec3A) -> f32 {
+        if !self.clips_far() {
+            return f32::INFINITY;
+        }
+        let along = d.dot(self.forward);
+        if along > 0.0 {
+            (self.far - self.near) / along
+        } else {
+            f32::INFINITY
+        }
     }
 
     /// Primary ray through film point (x, y).
@@ -204,6 +242,26 @@ mod tests {
             .expect("a basis")
             .with_near(2.0);
         assert!((o.ray(4.0, 3.0).o - Vec3A::new(1.0, 2.0, 1.0)).length() < 1e-6);
+    }
+
+    #[test]
+    fn a_far_plane_limits_the_first_segment_to_its_depth() {
+        let eye = Vec3A::new(0.0, 0.0, 3.0);
+        let c = Camera::look_at(eye, Vec3A::ZERO, Vec3A::Y, 1.2, 8, 6)
+            .expect("a basis")
+            .with_near(0.5)
+            .with_far(10.0);
+        assert!(c.clips_far());
+        for (x, y) in [(4.0, 3.0), (0.0, 0.0), (8.0, 6.0)] {
+            let r = c.ray(x, y);
+            // The far plane's point on this ray is 10 deep along the axis (−z).
+            let end = r.o + r.d * c.far_t(r.d);
+            assert!(((eye - end).dot(Vec3A::Z) - 10.0).abs() < 1e-4, "{end:?}");
+        }
+        // No plane, or one not beyond the near plane: nothing is clipped.
+        let open = c.clone().with_far(f32::INFINITY);
+        assert!(!open.clips_far() && open.far_t(Vec3A::NEG_Z) == f32::INFINITY);
+        assert!(!c.with_far(0.25).clips_far());
     }
 
     #[test]

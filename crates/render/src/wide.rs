@@ -134,6 +134,7 @@ impl<'a> Wide<'a> {
             || settings.strategy != Strategy::Mis
             || scene.environment.is_some()
             || scene.max_depth.is_some()
+            || scene.camera.clips_far()
             || !scene.is_one_leaf()
             // Its bounce shades with the geometric normal.
             || scene.has_shading_normals()

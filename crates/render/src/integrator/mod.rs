@@ -57,7 +57,8 @@ pub fn sample_pixel_with<'a, G: Guiding<'a>>(
 ) -> Vec3A {
     let [jx, jy, lx, ly] = sampler.get4(0);
     let ray = scene.camera.ray(x as f32 + jx, y as f32 + jy);
-    trace(scene, settings, ray, sampler, [lx, ly], guiding)
+    let far = scene.camera.far_t(ray.d);
+    trace(scene, settings, (ray, far), sampler, [lx, ly], guiding)
 }
 
 /// Radiance arriving at the camera along `ray`, for a path that starts at `ray` rather than at
@@ -69,7 +70,14 @@ pub fn radiance(
     sampler: &PixelSampler,
 ) -> Vec3A {
     let [_, _, lx, ly] = sampler.get4(0);
-    trace(scene, settings, ray, sampler, [lx, ly], &mut NoGuide)
+    trace(
+        scene,
+        settings,
+        (ray, f32::INFINITY),
+        sampler,
+        [lx, ly],
+        &mut NoGuide,
+    )
 }
 
 /// [`radiance`], given the first vertex's light-sample point `light_uv` (group 0's last two
@@ -85,7 +93,7 @@ pub fn radiance(
 fn trace<'a, G: Guiding<'a>>(
     scene: &Scene,
     settings: &RenderSettings,
-    mut ray: Ray,
+    (mut ray, mut t_max): (Ray, f32),
     sampler: &PixelSampler,
     mut light_uv: [f32; 2],
     guiding: &mut G,
@@ -94,7 +102,9 @@ fn trace<'a, G: Guiding<'a>>(
     let mut path = Path::from_camera(ray.o);
     let mut depth = 0u32;
     loop {
-        let found = scene.intersect(&ray, f32::INFINITY);
+        // The first segment ends at the camera's far plane, if it has one; the rest do not.
+        let found = scene.intersect(&ray, t_max);
+        t_max = f32::INFINITY;
         if setup.absorbing && path.medium != Vec3A::ZERO {
             path.beta *= absorbed(path.medium, found.map_or(f32::INFINITY, |h| h.t));
         }

@@ -103,7 +103,7 @@ fn placed(
         // ratio to the camera's height (glTF's xmag is a hint).
         let (_, ymag) = g.mag;
         return Camera::orthographic(g.eye, g.forward, g.up, (ymag * aspect, ymag), w, h)
-            .map(|c| c.with_near(g.near))
+            .map(|c| c.with_near(g.near).with_far(g.far))
             .ok_or_else(|| {
                 (
                     path.clone(),
@@ -118,7 +118,7 @@ fn placed(
         return Err((path.clone(), format!("yfov {yfov} is out of range")));
     }
     Camera::look_at(g.eye, g.eye + g.forward, g.up, fov, w, h)
-        .map(|c| c.with_near(g.near))
+        .map(|c| c.with_near(g.near).with_far(g.far))
         .ok_or_else(|| {
             (
                 path.clone(),

@@ -77,6 +77,8 @@ pub(crate) struct GltfCamera {
     pub(crate) mag: (f32, f32),
     /// The near clipping plane's depth in world units (`znear` through the node's scale).
     pub(crate) near: f32,
+    /// The far clipping plane's depth in world units (`zfar`; infinite where absent).
+    pub(crate) far: f32,
 }
 
 /// What one glTF file adds to a scene.
@@ -588,6 +590,11 @@ fn camera_at(
             (Some(p), _) if perspective => p.znear,
             (_, Some(o)) if !perspective => o.znear,
             _ => 0.0,
+        } * world.transform_vector3a(Vec3A::NEG_Z).length(),
+        far: match (&json.perspective, &json.orthographic) {
+            (Some(p), _) if perspective => p.zfar.unwrap_or(f32::INFINITY),
+            (_, Some(o)) if !perspective => o.zfar,
+            _ => f32::INFINITY,
         } * world.transform_vector3a(Vec3A::NEG_Z).length(),
     })
 }
