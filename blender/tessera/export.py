@@ -277,10 +277,11 @@ def area_lights(scene, folder):
             continue
         radiance = [float(c) * light.energy / (math.pi * area) for c in light.color]
         name = "blender_light_" + str(len(text))
-        # The light's front is its −Z: turned half a turn about X, tessera's +Z-facing shape.
-        rows = [[m[r][0], -m[r][1], -m[r][2], m[r][3]] for r in range(3)]
+        # The light's front is its −Z: turned half a turn about X, tessera's +Z-facing shape; a
+        # disk's unit mesh is also scaled to the light's half-sizes.
+        sx, sy = (w / 2, h / 2) if disk else (1.0, 1.0)
+        rows = [[m[r][0] * sx, -m[r][1] * sy, -m[r][2], m[r][3]] for r in range(3)]
         if disk:
-            rows = [[m[r][0] * w / 2, -m[r][1] * h / 2, -m[r][2], m[r][3]] for r in range(3)]
             shape = 'shape = "mesh"\nfile = "disk.obj"\n'
             if "disk.obj" not in files:
                 write_disk(os.path.join(folder, "disk.obj"))

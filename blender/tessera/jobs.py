@@ -26,7 +26,7 @@ class FrameJob:
     def __init__(self, number):
         self.number = number
         self.job_id = ""
-        self.state = "exporting"
+        self.state = "uploading"
         self.units_done = 0
         self.units_total = 0
         self.error = ""
@@ -51,8 +51,6 @@ class Submission:
         self._thread = threading.Thread(target=self._run, name="tessera-submission", daemon=True)
 
     def start(self):
-        for f in self.frames:
-            f.state = "uploading"
         self._thread.start()
 
     def cancel(self):

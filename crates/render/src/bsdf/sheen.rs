@@ -31,6 +31,8 @@ pub struct Sheen {
     color: Vec3A,
     roughness: f32,
     inv_alpha: f32,
+    /// Looked up once here rather than at every evaluation.
+    table: &'static SheenAlbedo,
 }
 
 impl Sheen {
@@ -44,6 +46,7 @@ impl Sheen {
             color,
             roughness,
             inv_alpha: 1.0 / (roughness * roughness).max(MIN_ALPHA),
+            table: SheenAlbedo::get(),
         })
     }
 
@@ -56,7 +59,7 @@ impl Sheen {
     /// max(c) E(μo): the share of the light from the view the sheen takes from the base.
     #[inline]
     pub fn albedo(&self, mu: f32) -> f32 {
-        self.color.max_element().min(1.0) * SheenAlbedo::get().e(self.roughness, mu)
+        self.color.max_element().min(1.0) * self.table.e(self.roughness, mu)
     }
 }
 

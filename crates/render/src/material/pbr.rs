@@ -180,16 +180,10 @@ pub(crate) fn read(r: &mut Reading<'_, '_>) -> Result<Bsdf, Invalid> {
     let roughness = scalar(&m.roughness, "roughness", 1.0)?;
     let transmission = scalar(&m.transmission, "transmission", 0.0)?;
     // A coat of weight 0 is none: the material renders as it would without the key.
-    let clearcoat = match &m.clearcoat {
-        None | Some(ScalarDesc::Value(0.0)) => None,
-        Some(_) => Some(ClearcoatParams::new(
-            scalar(&m.clearcoat, "clearcoat", 0.0)?,
-            scalar(&m.clearcoat_roughness, "clearcoat_roughness", 0.0)?,
-        )),
-    };
-    if clearcoat.is_none() && m.clearcoat_roughness.is_some() {
-        scalar(&m.clearcoat_roughness, "clearcoat_roughness", 0.0)?;
-    }
+    let clearcoat_weight = scalar(&m.clearcoat, "clearcoat", 0.0)?;
+    let clearcoat_roughness = scalar(&m.clearcoat_roughness, "clearcoat_roughness", 0.0)?;
+    let clearcoat = (clearcoat_weight.factor > 0.0)
+        .then(|| ClearcoatParams::new(clearcoat_weight, clearcoat_roughness));
     let ior = positive(m.ior.unwrap_or(1.5), &mp.key("ior"))?;
     let normal_map = match &m.normal_map {
         None => None,

@@ -249,16 +249,8 @@ impl<'d> GltfMaterials<'d> {
             return Ok(None);
         };
         let at = at.key("extensions").key("KHR_materials_clearcoat");
-        let factor = |key: &str| match ext.get(key) {
-            None => Ok(0.0),
-            Some(v) => v
-                .as_f64()
-                .filter(|x| (0.0..=1.0).contains(x))
-                .map(|x| x as f32)
-                .ok_or_else(|| (at.key(key), format!("must be a number in [0, 1], got {v}"))),
-        };
-        let weight = factor("clearcoatFactor")?;
-        let roughness = factor("clearcoatRoughnessFactor")?;
+        let weight = unit_factor(ext, &at, "clearcoatFactor")?;
+        let roughness = unit_factor(ext, &at, "clearcoatRoughnessFactor")?;
         let textures = [
             "clearcoatTexture",
             "clearcoatRoughnessTexture",
@@ -287,32 +279,24 @@ impl<'d> GltfMaterials<'d> {
             return Ok(None);
         };
         let at = at.key("extensions").key("KHR_materials_sheen");
-        let unit_at = |v: &serde_json::Value, key: &str| {
-            v.as_f64()
-                .filter(|x| (0.0..=1.0).contains(x))
-                .map(|x| x as f32)
-                .ok_or_else(|| (at.key(key), format!("must be a number in [0, 1], got {v}")))
-        };
-        let color = match ext.get("sheenColorFactor") {
+        let key = "sheenColorFactor";
+        let color = match ext.get(key) {
             None => Vec3A::ZERO,
             Some(v) => match v.as_array().map(Vec::as_slice) {
                 Some([r, g, b]) => Vec3A::new(
-                    unit_at(r, "sheenColorFactor")?,
-                    unit_at(g, "sheenColorFactor")?,
-                    unit_at(b, "sheenColorFactor")?,
+                    unit_number(r, &at, key)?,
+                    unit_number(g, &at, key)?,
+                    unit_number(b, &at, key)?,
                 ),
                 _ => {
                     return Err((
-                        at.key("sheenColorFactor"),
+                        at.key(key),
                         format!("must be three numbers in [0, 1], got {v}"),
                     ))
                 }
             },
         };
-        let roughness = match ext.get("sheenRoughnessFactor") {
-            None => 0.0,
-            Some(v) => unit_at(v, "sheenRoughnessFactor")?,
-        };
+        let roughness = unit_factor(ext, &at, "sheenRoughnessFactor")?;
         if ["sheenColorTexture", "sheenRoughnessTexture"]
             .iter()
             .any(|k| ext.get(k).is_some())
@@ -565,4 +549,18 @@ fn emission_of(m: &gltf::Material) -> Result<Vec3A, String> {
         ));
     }
     Ok(emission)
+}
+
+/// An extension's factor `key` (0 where absent), which must be a number in [0, 1]; refused at
+/// `at`'s `key` otherwise.
+fn unit_factor(ext: &serde_json::Value, at: &KeyPath, key: &str) -> Result<f32, Invalid> {
+    ext.get(key).map_or(Ok(0.0), |v| unit_number(v, at, key))
+}
+
+/// `v` as a number in [0, 1], or the error at `at`'s `key`.
+fn unit_number(v: &serde_json::Value, at: &KeyPath, key: &str) -> Result<f32, Invalid> {
+    v.as_f64()
+        .filter(|x| (0.0..=1.0).contains(x))
+        .map(|x| x as f32)
+        .ok_or_else(|| (at.key(key), format!("must be a number in [0, 1], got {v}")))
 }
