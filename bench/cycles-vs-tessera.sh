@@ -11,24 +11,27 @@
 #      renderer's relMSE against its own reference, and writes docs/benchmarks/NAME.{md,csv,svg};
 #   4. the two references' region means, tessera's over Cycles', appended to NAME.md.
 # Usage: bench/cycles-vs-tessera.sh [--max-spp N] [--seeds K] [--reference-spp R] [--name NAME]
+#        [--out DIR]   (the report's folder, default docs/benchmarks)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 max_spp=1024
 seeds=2
 reference_spp=4096
 name=cycles-$(date -u +%Y-%m-%d)
+outdir=docs/benchmarks
 while [ $# -gt 0 ]; do
     case $1 in
         --max-spp) max_spp=$2; shift 2 ;;
         --seeds) seeds=$2; shift 2 ;;
         --reference-spp) reference_spp=$2; shift 2 ;;
         --name) name=$2; shift 2 ;;
+        --out) outdir=$2; shift 2 ;;
         *) echo "unknown argument $1" >&2; exit 2 ;;
     esac
 done
 venv=target/blender-venv
 tests/blender/bpy-venv.sh
-cargo build --release -q -p tessera-cli --features bench
+cargo build --release -q --workspace --features tessera-cli/bench
 T=target/release/tessera
 dir=target/bench-cache/blender
 "$venv/bin/python" bench/blender_scenes.py -- "$dir" >"$dir.log" 2>&1 || { cat "$dir.log" >&2; exit 1; }
@@ -47,11 +50,12 @@ for s in "${scenes[@]}"; do
     args+=(--scene "$dir/$s/$s.toml" --reference "$s=$tessera_ref")
     refs+=(--reference "$s=$cycles_ref")
 done
-"$T" bench "${args[@]}" --max-spp "$max_spp" --seeds "$seeds" --name "$name" \
+mkdir -p "$outdir"
+"$T" bench "${args[@]}" --max-spp "$max_spp" --seeds "$seeds" --name "$name" --out "$outdir" \
     --peer-command "$venv/bin/python bench/cycles_peer.py --scenes $dir --serve ${refs[*]}"
 dirty=$(git diff --quiet HEAD || echo " plus uncommitted changes")
 blender=$("$venv/bin/python" -c 'import bpy; print(bpy.app.version_string)' 2>/dev/null | tail -1)
-python3 - "docs/benchmarks/$name.md" <<PY
+python3 - "$outdir/$name.md" <<PY
 import sys
 path = sys.argv[1]
 lines = open(path).read().split("\n")
@@ -73,5 +77,5 @@ PY
         "$venv/bin/python" bench/region_means.py -- "$s" "$dir/$s-$key-cycles-$reference_spp.exr" \
             "$dir/$s-$key-tessera-$reference_spp.exr" 2>/dev/null | grep -v "^Read\|^Info"
     done
-} >>"docs/benchmarks/$name.md"
-echo "wrote docs/benchmarks/$name.md"
+} >>"$outdir/$name.md"
+echo "wrote $outdir/$name.md"
