@@ -151,6 +151,25 @@ def check_failures(addon, prefs, url, token):
     except RuntimeError as e:
         assert "Sky Texture" in str(e) and "Environment Texture" in str(e), e
         print(f"addon: a sky texture: {str(e).strip()}")
+    # So are a narrowed area light and a scene without a camera, each in words.
+    tree.nodes.remove(sky)
+    light = next(o for o in scene.objects if o.type == "LIGHT")
+    light.data.spread = 1.0
+    refused(f"the area light {light.name!r} has a spread under 180°")
+    light.data.spread = 3.14159265
+    scene.camera = None
+    refused("the scene has no active camera")
+
+
+def refused(words):
+    """Pressing the button is refused before anything is sent, saying `words`."""
+    try:
+        bpy.ops.tessera.render()
+    except RuntimeError as e:
+        assert words in str(e), e
+        print(f"addon: refused: {str(e).strip()}")
+        return
+    raise AssertionError(f"not refused: {words}")
 
 
 class Restarting:
