@@ -34,6 +34,7 @@ tests/blender/bpy-venv.sh
 cargo build --release -q --workspace --features tessera-cli/bench
 T=target/release/tessera
 dir=target/bench-cache/blender
+mkdir -p "$dir"
 "$venv/bin/python" bench/blender_scenes.py -- "$dir" >"$dir.log" 2>&1 || { cat "$dir.log" >&2; exit 1; }
 scenes=(blender-interior blender-metals-glass blender-textured)
 # References are cached by what makes the scenes (a .blend file is not byte-reproducible).
