@@ -90,11 +90,13 @@ fn bench_writes_csv_markdown_and_plot_with_peer_ratios() {
         .lines()
         .filter(|l| l.starts_with("tessera,tiny,"))
         .map(|l| {
-            l.rsplit(',')
-                .next()
-                .expect("relmse")
-                .parse()
-                .expect("number")
+            let f: Vec<&str> = l.split(',').collect();
+            assert_eq!(f.len(), 9, "{l}");
+            // relMSE and FLIP, each finite and positive.
+            let e: f64 = f[7].parse().expect("relmse");
+            let flip: f64 = f[8].parse().expect("flip");
+            assert!(flip.is_finite() && flip > 0.0 && flip < 1.0, "{l}");
+            e
         })
         .collect();
     assert!(ours.iter().all(|e| e.is_finite() && *e > 0.0), "{csv}");
@@ -332,21 +334,36 @@ fn bench_denoise_measures_denoised_renders_beside_raw_ones() {
     );
     bench(dir.path(), &scene, ("64", "1024"), "d", "--denoise");
     let csv = std::fs::read_to_string(out.join("d.csv")).expect("csv");
-    let relmse = |renderer: &str, spp: u32| -> f64 {
+    // Column 7 is relMSE, 8 FLIP.
+    let error = |renderer: &str, spp: u32, column: usize| -> f64 {
         let row = csv
             .lines()
             .find(|l| l.starts_with(&format!("{renderer},box,{spp},")))
             .unwrap_or_else(|| panic!("no {renderer} row at {spp} spp: {csv}"));
-        row.rsplit(',')
-            .next()
-            .expect("relmse")
+        row.split(',')
+            .nth(column)
+            .expect("column")
             .parse()
             .expect("a number")
     };
     for spp in [16, 64] {
-        let (raw, denoised) = (relmse("tessera", spp), relmse("tessera-denoised", spp));
-        assert!(denoised < raw, "{spp} spp: raw {raw}, denoised {denoised}");
+        for (column, what) in [(7, "relMSE"), (8, "FLIP")] {
+            let (raw, denoised) = (
+                error("tessera", spp, column),
+                error("tessera-denoised", spp, column),
+            );
+            assert!(
+                denoised < raw,
+                "{what} at {spp} spp: raw {raw}, denoised {denoised}"
+            );
+        }
     }
+    let md = std::fs::read_to_string(out.join("d.md")).expect("md");
+    assert!(
+        md.contains("## Perceptual error (FLIP) by spp")
+            && md.contains("| box | tessera-denoised |"),
+        "{md}"
+    );
 }
 
 #[test]

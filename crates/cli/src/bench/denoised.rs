@@ -12,7 +12,7 @@ use tessera_render::scene::Scene;
 use tessera_render::{render_frame, RenderSettings};
 
 use super::peer::Row;
-use super::stats::rel_mse;
+use super::stats::errors;
 
 /// The renderer name of denoised rows.
 pub(super) const RENDERER: &str = "tessera-denoised";
@@ -38,14 +38,12 @@ pub(super) fn measure(
     let denoised = tessera_denoise::denoise_image(&img, &options).context("--denoise")?;
     let seconds = start.elapsed().as_secs_f64();
     img.rgb = denoised.color;
-    let relmse = rel_mse(&img, reference);
     let threads = pool.current_num_threads();
     Ok(Row::timed(
         RENDERER,
         (scene, name),
         &settings,
-        threads,
-        seconds,
-        relmse,
+        (threads, seconds),
+        errors(&img, reference),
     ))
 }

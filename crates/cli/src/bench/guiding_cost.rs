@@ -16,7 +16,7 @@ use tessera_render::RenderSettings;
 
 use super::adaptive::uniform_time_to;
 use super::peer::Row;
-use super::stats::{rel_mse, series};
+use super::stats::{errors, series};
 
 /// The renderer name of guided rows.
 pub(super) const RENDERER: &str = "tessera-guided";
@@ -32,9 +32,15 @@ pub(super) fn measure(
     let start = Instant::now();
     let frame = pool.install(|| render_frame_guided(scene, settings, &|_| {}));
     let seconds = start.elapsed().as_secs_f64();
-    let relmse = rel_mse(&frame.sums.finalize(), reference);
     let threads = pool.current_num_threads();
-    Row::timed(RENDERER, (scene, name), settings, threads, seconds, relmse)
+    let img = frame.sums.finalize();
+    Row::timed(
+        RENDERER,
+        (scene, name),
+        settings,
+        (threads, seconds),
+        errors(&img, reference),
+    )
 }
 
 /// The guiding report: per scene and spp, guided against unguided, the mean over seeds, the

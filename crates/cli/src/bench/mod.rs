@@ -36,7 +36,6 @@ use tessera_render::{render_frame, RenderSettings};
 
 use peer::{PeerCommand, Row, CSV_HEADER};
 use report::{measured_clock_ghz, report};
-use stats::rel_mse;
 
 /// Arguments of `tessera bench`.
 #[derive(Debug, clap::Args)]
@@ -381,17 +380,13 @@ fn measure_scene(
             let sums = pool.install(|| render_frame(&scene, &settings, &|_| {}));
             let seconds = start.elapsed().as_secs_f64();
             let img = sums.finalize();
-            let samples = scene.width as f64 * scene.height as f64 * spp as f64;
-            m.keep(Row {
-                renderer: "tessera".into(),
-                scene: name.clone(),
-                spp,
-                seed: settings.seed,
-                threads: m.threads,
-                seconds,
-                msamples_per_s: samples / seconds / 1e6,
-                relmse: rel_mse(&img, &reference),
-            });
+            m.keep(Row::timed(
+                "tessera",
+                (&scene, name),
+                &settings,
+                (m.threads, seconds),
+                stats::errors(&img, &reference),
+            ));
             if args.guiding {
                 m.keep(guiding_cost::measure(
                     &scene, name, &settings, &reference, pool,

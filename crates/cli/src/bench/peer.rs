@@ -18,20 +18,25 @@ pub(super) struct Row {
     pub(super) seconds: f64,
     pub(super) msamples_per_s: f64,
     pub(super) relmse: f64,
+    /// Mean FLIP against the reference ([`super::stats::flip`]), where the renderer's row
+    /// has one: tessera's always, a peer's when it writes the column.
+    pub(super) flip: Option<f64>,
 }
 
-pub(super) const CSV_HEADER: &str = "renderer,scene,spp,seed,threads,seconds,msamples_per_s,relmse";
+/// The CSV columns; a peer may leave out the last (`flip`), or leave it empty.
+pub(super) const CSV_HEADER: &str =
+    "renderer,scene,spp,seed,threads,seconds,msamples_per_s,relmse,flip";
 
 impl Row {
     /// tessera's row for one timed render of `scene` (named `name`) with `settings` on
-    /// `threads` threads: `seconds` for it, and its relMSE.
+    /// `threads` threads: `seconds` for it, and its relMSE and FLIP against the reference
+    /// ([`super::stats::errors`]).
     pub(super) fn timed(
         renderer: &str,
         (scene, name): (&tessera_render::scene::Scene, &str),
         settings: &tessera_render::RenderSettings,
-        threads: usize,
-        seconds: f64,
-        relmse: f64,
+        (threads, seconds): (usize, f64),
+        (relmse, flip): (f64, f64),
     ) -> Self {
         let samples = scene.width as f64 * scene.height as f64 * settings.spp as f64;
         Row {
@@ -43,12 +48,13 @@ impl Row {
             seconds,
             msamples_per_s: samples / seconds / 1e6,
             relmse,
+            flip: Some(flip),
         }
     }
 
     pub(super) fn to_csv(&self) -> String {
         format!(
-            "{},{},{},{},{},{:.6},{:.4},{:.6e}",
+            "{},{},{},{},{},{:.6},{:.4},{:.6e},{}",
             self.renderer,
             self.scene,
             self.spp,
@@ -56,16 +62,17 @@ impl Row {
             self.threads,
             self.seconds,
             self.msamples_per_s,
-            self.relmse
+            self.relmse,
+            self.flip.map_or(String::new(), |f| format!("{f:.6e}"))
         )
     }
 
     /// One CSV row; `at` says where it came from (`FILE:LINE`) for the error.
     pub(super) fn parse(line: &str, at: &str) -> Result<Self> {
         let f: Vec<&str> = line.split(',').map(str::trim).collect();
-        if f.len() != 8 {
+        if f.len() != 8 && f.len() != 9 {
             bail!(
-                "{}: expected 8 comma-separated fields ({CSV_HEADER}), found {}",
+                "{}: expected 8 or 9 comma-separated fields ({CSV_HEADER}), found {}",
                 at,
                 f.len()
             );
@@ -91,6 +98,10 @@ impl Row {
             seconds: num(5, "seconds")?,
             msamples_per_s: num(6, "msamples_per_s")?,
             relmse: num(7, "relmse")?,
+            flip: match f.get(8) {
+                None | Some(&"") => None,
+                Some(_) => Some(num(8, "flip")?),
+            },
         };
         if row.renderer.is_empty() || row.scene.is_empty() || row.seconds <= 0.0 || row.spp == 0 {
             bail!(
@@ -240,9 +251,20 @@ mod tests {
             seconds: 1.5,
             msamples_per_s: 2.8,
             relmse: 1.25e-3,
+            flip: Some(0.125),
         };
         let back = Row::parse(&r.to_csv(), "p.csv:2").expect("parses");
         assert_eq!((back.spp, back.seed, back.relmse), (64, 2, 1.25e-3));
+        assert_eq!(back.flip, Some(0.125));
+        // A peer that measures no FLIP leaves the column out, or empty.
+        let no_flip = Row { flip: None, ..r };
+        let line = no_flip.to_csv();
+        assert!(line.ends_with(','), "{line}");
+        assert_eq!(Row::parse(&line, "p.csv:4").expect("empty").flip, None);
+        let eight = line.trim_end_matches(',');
+        assert_eq!(Row::parse(eight, "p.csv:5").expect("eight").flip, None);
+        let e = Row::parse(&format!("{eight},-1"), "p.csv:6").expect_err("negative");
+        assert!(e.to_string().contains("flip"), "{e}");
         let e = Row::parse("a,b,1,2", "p.csv:7").expect_err("short");
         assert!(e.to_string().contains("p.csv:7"), "{e}");
         let e = Row::parse("a,b,4,1,2,NaN,1,1", "p.csv:3").expect_err("nan");

@@ -1,6 +1,7 @@
 //! The report: the machine it ran on (measured clock, vector extensions) and the markdown
 //! tables of speed and equal-time error against each peer.
 
+use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
 use std::path::Path;
 use std::time::Instant;
@@ -230,6 +231,8 @@ pub(super) fn report(
     }
     summary_section(&mut md, &all);
     by_spp_section(&mut md, &all);
+    flip_section(&mut md, rows);
+    denoise_goal_section(&mut md, &all, rows);
     let _ = writeln!(md, "## All points\n");
     let _ = writeln!(
         md,
@@ -386,4 +389,111 @@ mod tests {
         assert_eq!(shell_quote("it's"), "'it'\\''s'");
         assert_eq!(shell_quote(""), "''");
     }
+}
+
+/// Mean FLIP over seeds per (scene, renderer) and spp, for the rows that carry one.
+fn flip_means(rows: &[Row]) -> BTreeMap<(String, String), BTreeMap<u32, f64>> {
+    let mut acc: BTreeMap<(String, String), BTreeMap<u32, (f64, usize)>> = BTreeMap::new();
+    for r in rows {
+        if let Some(f) = r.flip {
+            let e = acc
+                .entry((r.scene.clone(), r.renderer.clone()))
+                .or_default()
+                .entry(r.spp)
+                .or_default();
+            *e = (e.0 + f, e.1 + 1);
+        }
+    }
+    acc.into_iter()
+        .map(|(k, by)| {
+            (
+                k,
+                by.into_iter()
+                    .map(|(spp, (s, n))| (spp, s / n as f64))
+                    .collect(),
+            )
+        })
+        .collect()
+}
+
+/// The perceptual error beside relMSE: mean FLIP by spp, where the renderer measured it.
+fn flip_section(md: &mut String, rows: &[Row]) {
+    let means = flip_means(rows);
+    let spps: BTreeSet<u32> = means.values().flat_map(|m| m.keys().copied()).collect();
+    if spps.is_empty() {
+        return;
+    }
+    let _ = writeln!(md, "\n## Perceptual error (FLIP) by spp\n");
+    let _ = writeln!(
+        md,
+        "Mean FLIP (NVIDIA's LDR FLIP, 0 = identical, 67 pixels per degree) of each image against \
+         the reference, both tone-mapped as `--preview` maps them (ACES, sRGB): what a viewer \
+         sees of the error, where relMSE weighs every pixel's. Renderers without the column \
+         measured none.\n"
+    );
+    let head: Vec<String> = spps.iter().map(|s| format!("{s} spp")).collect();
+    let _ = writeln!(
+        md,
+        "| scene | renderer | {} |\n|---|---|{}",
+        head.join(" | "),
+        "---:|".repeat(spps.len())
+    );
+    for ((scene, renderer), by) in &means {
+        let cells: Vec<String> = spps
+            .iter()
+            .map(|s| by.get(s).map_or("".into(), |f| format!("{f:.4}")))
+            .collect();
+        let _ = writeln!(md, "| {scene} | {renderer} | {} |", cells.join(" | "));
+    }
+    let _ = writeln!(md);
+}
+
+/// #82's goal, where the run has the points: the denoised image at 16 spp against the raw one
+/// at 512, which the ladder of powers of 4 does not render; error falling as 1/spp puts it at
+/// the geometric mean of 256 and 1024 spp.
+fn denoise_goal_section(md: &mut String, all: &Series, rows: &[Row]) {
+    let flips = flip_means(rows);
+    let mut lines = Vec::new();
+    for ((scene, renderer), points) in all {
+        if renderer != super::denoised::RENDERER {
+            continue;
+        }
+        let raw_key = (scene.clone(), "tessera".to_string());
+        let (Some(d16), Some(raw)) = (points.get(&16), all.get(&raw_key)) else {
+            continue;
+        };
+        let (Some(r256), Some(r1024)) = (raw.get(&256), raw.get(&1024)) else {
+            continue;
+        };
+        let raw512 = (r256.1 * r1024.1).sqrt();
+        let flip =
+            |key: &(String, String), spp: u32| flips.get(key).and_then(|m| m.get(&spp)).copied();
+        let d_key = (scene.clone(), renderer.clone());
+        let flips = match (flip(&d_key, 16), flip(&raw_key, 256), flip(&raw_key, 1024)) {
+            (Some(d), Some(a), Some(b)) => format!("{d:.4} | {:.4}", (a * b).sqrt()),
+            _ => "— | —".into(),
+        };
+        let met = if d16.1 < raw512 { "yes" } else { "no" };
+        lines.push(format!(
+            "| {scene} | {:.3e} | {raw512:.3e} | {met} | {flips} |",
+            d16.1
+        ));
+    }
+    if lines.is_empty() {
+        return;
+    }
+    let _ = writeln!(md, "\n## Denoised at 16 spp against raw at 512 spp\n");
+    let _ = writeln!(
+        md,
+        "The raw render at 512 spp is the geometric mean of its 256 and 1024 spp points (error \
+         falling as 1/spp), for relMSE and FLIP alike.\n"
+    );
+    let _ = writeln!(
+        md,
+        "| scene | relMSE denoised 16 | relMSE raw 512 | lower | FLIP denoised 16 | FLIP raw 512 |\n|---|---:|---:|---|---:|---:|"
+    );
+    for l in lines {
+        let _ = writeln!(md, "{l}");
+    }
+    let _ = writeln!(md);
 }

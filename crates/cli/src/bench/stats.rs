@@ -3,7 +3,7 @@
 
 use std::collections::BTreeMap;
 
-use tessera_render::output::RgbImage;
+use tessera_render::output::{tone_map, Preview, RgbImage};
 use tessera_render::Image;
 
 use super::peer::Row;
@@ -18,6 +18,36 @@ pub(super) fn rel_mse(img: &Image, reference: &RgbImage) -> f64 {
         }
     }
     sum / (3 * img.rgb.len()) as f64
+}
+
+/// Mean FLIP (NVIDIA's perceptual difference, LDR, Andersson et al. 2020) of `img` against
+/// `reference` as both are seen on a display: each tone-mapped as `tessera render --preview`
+/// maps it (ACES, then sRGB, 8 bits), at FLIP's default 67 pixels per degree (a 0.7 m
+/// viewing distance from a 4K monitor 0.7 m wide). 0 is identical; relMSE weighs every
+/// pixel's error, FLIP what a viewer sees of it (blur, lost texture, noise), which is what
+/// denoising trades.
+pub(super) fn flip(img: &Image, reference: &RgbImage) -> f64 {
+    let (w, h) = (img.width, img.height);
+    debug_assert_eq!(
+        (w as usize, h as usize),
+        (reference.width, reference.height)
+    );
+    let shown = |rgb: &[[f32; 3]]| {
+        let codes = tone_map(rgb, Preview { exposure: 0.0 });
+        nv_flip::FlipImageRgb8::with_data(w, h, &codes)
+    };
+    let map = nv_flip::flip(
+        shown(&reference.rgb),
+        shown(&img.rgb),
+        nv_flip::DEFAULT_PIXELS_PER_DEGREE,
+    );
+    let errors = map.to_vec();
+    errors.iter().map(|&e| f64::from(e)).sum::<f64>() / errors.len().max(1) as f64
+}
+
+/// [`rel_mse`] and [`flip`] of `img` against `reference`, for a row.
+pub(super) fn errors(img: &Image, reference: &RgbImage) -> (f64, f64) {
+    (rel_mse(img, reference), flip(img, reference))
 }
 
 /// Per (scene, renderer, spp): mean seconds, mean relMSE, mean Msamples/s over seeds.
