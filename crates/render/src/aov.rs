@@ -18,6 +18,7 @@
 //! | rough metal | its reflectance head-on, F(0°) |
 //! | rough glass | 1 |
 //! | pbr | its base colour (its texel, if textured); the normal is the normal map's |
+//! | an emitter, seen from where it emits | its radiance's colour, largest channel 1 |
 //! | nothing met (sky, or more than [`MAX_SPECULAR`] delta bounces) | 0 |
 //!
 //! Depth is the distance along the camera ray to the first surface it meets, mirror or not
@@ -85,6 +86,13 @@ pub fn first_hit(scene: &Scene, x: u32, y: u32, sampler: &PixelSampler) -> First
         let sp = prim.shape.surface(&ray, hit.t, hit.part);
         let mat = &scene.materials[prim.material as usize];
         let (front, at) = Shading::facing(&sp, -ray.d, shading_normals);
+        if let Some(albedo) = emitter_albedo(scene, (&ray, &hit, prim, &sp)) {
+            return FirstHit {
+                albedo,
+                normal: at.ns,
+                depth: out.depth,
+            };
+        }
         let seen = Seen {
             scene,
             ray: &ray,
@@ -118,6 +126,21 @@ pub fn first_hit(scene: &Scene, x: u32, y: u32, sampler: &PixelSampler) -> First
         ray = next;
     }
     out
+}
+
+/// The albedo recorded where the camera sees an emitter: its radiance's colour, scaled so that
+/// its largest channel is 1. A lamp usually reflects like what surrounds it (the Cornell box's
+/// panel is the ceiling's white), and its own albedo then gave the denoiser no edge between
+/// the two: the filter blurred the ceiling's dark seam around the panel into the light. The
+/// emitted colour draws that edge (docs/renderer.md, "Denoising"). `None` where nothing is
+/// emitted towards the ray (the back of a one-sided lamp), which records its material.
+fn emitter_albedo(scene: &Scene, at: (&Ray, &Hit, &Primitive, &SurfacePoint)) -> Option<Vec3A> {
+    if at.2.light == u32::MAX {
+        return None;
+    }
+    let le = scene.emitted(at).1;
+    let peak = le.max_element();
+    (peak > 0.0 && peak.is_finite()).then(|| le / peak)
 }
 
 /// A surface the AOV pass meets, as a material sees it.

@@ -102,5 +102,8 @@ pub use util::{files, lanes, math, sampling};
 /// with a map renders differently by an ulp or so. Revision 11 clips a glTF camera's view at
 /// its `znear` (camera rays start on the near plane, as Blender's clip start): every glTF
 /// file's camera rays start a little ahead of the eye, so its renders differ by rounding, and
-/// what lies nearer than `znear` is no longer seen.
-pub const IMAGE_REVISION: u32 = 11;
+/// what lies nearer than `znear` is no longer seen. Revision 12 records an emitter's colour
+/// (its radiance, largest channel 1) as the albedo AOV where the camera sees it from the side
+/// it emits to, in place of its material's albedo: the beauty keeps its bits, the albedo AOV
+/// of every scene with a visible lamp changes.
+pub const IMAGE_REVISION: u32 = 12;

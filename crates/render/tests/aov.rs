@@ -82,6 +82,32 @@ fn a_mirror_shows_the_albedo_it_reflects_and_the_depth_of_the_mirror() {
 }
 
 #[test]
+fn a_lamp_seen_from_its_front_records_its_emitted_colour_and_from_behind_its_material() {
+    // Two one-sided rect lamps of the white material, emission (4, 2, 1): the left one faces
+    // the camera (front normal +z towards it), the right one faces away.
+    let lamps = "[materials.lamp]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n\
+                 emission = [4, 2, 1]\n\
+                 [[objects]]\nshape = \"rect\"\nmaterial = \"lamp\"\nsize = [4, 4]\n\
+                 transform = { translate = [-2.2, 0, 0] }\n\
+                 [[objects]]\nshape = \"rect\"\nmaterial = \"lamp\"\nsize = [4, 4]\n\
+                 transform.matrix = [[-1, 0, 0, 2.2], [0, 1, 0, 0], [0, 0, -1, 0], [0, 0, 0, 1]]\n";
+    let sc = scene(&format!(
+        "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 0, 6]\ntarget = [0, 0, 0]\nfov = 40\n\
+         [film]\nwidth = 8\nheight = 8\n{lamps}"
+    ));
+    let img = render(&sc, &with_aovs(4, 4));
+    let aov = img.aov.as_ref().expect("AOV planes");
+    let (left, right) = (3 * 8 + 1, 3 * 8 + 6);
+    // The emitted colour with its largest channel 1: an edge for the denoiser against a
+    // surround of the lamp's own albedo.
+    assert_eq!(aov.albedo[left], [1.0, 0.5, 0.25]);
+    // Nothing is emitted backwards: the back records what its material does.
+    assert_ne!(aov.albedo[right], [1.0, 0.5, 0.25]);
+    let beauty = img.rgb[right];
+    assert_eq!(beauty, [0.0; 3], "the lamp's back emits nothing");
+}
+
+#[test]
 fn a_ray_that_meets_nothing_has_no_albedo_no_normal_and_infinite_depth() {
     let sc = scene(
         "version = 1\n[camera]\nmodel = \"look_at\"\neye = [0, 0, 0]\ntarget = [0, 0, 1]\nfov = 20\n\

@@ -181,8 +181,9 @@ fn middle(scene: &tessera_render::scene::Scene, rows: u32) -> PixelRect {
 /// of glass-mirror (since revision 6: before, guided bits could change unseen), and since
 /// revision 7 the AOVs of the glTF sample (smooth normals, a normal map) and the textured scene,
 /// and since revision 10 the material showcase (an environment map, every material kind, packed
-/// and normal-map textures), whose map's bits were not pinned before.
-const PINNED: (u32, u64) = (11, 0xd552_cc82_08c8_94cd);
+/// and normal-map textures), whose map's bits were not pinned before, and since revision 12 the
+/// ellipsoid's AOVs over its whole frame (its lamp in view).
+const PINNED: (u32, u64) = (12, 0x46c7_8e07_744a_5fa4);
 
 /// The bits the renderer returns are pinned to [`tessera_render::IMAGE_REVISION`]: a change
 /// that alters them must bump the revision (and update the hash here), because the farm refuses
@@ -272,6 +273,15 @@ radius = 0.3
             &render_tile(scene, &aovs, middle(scene, 4), 0..4),
         );
     }
+    // The ellipsoid's whole frame, whose lamp the camera sees (revision 12 records an
+    // emitter's colour as its albedo).
+    let whole = PixelRect {
+        x0: 0,
+        y0: 0,
+        width: scenes[6].width,
+        height: scenes[6].height,
+    };
+    sums_hash(&mut hash, &render_tile(&scenes[6], &aovs, whole, 0..4));
     assert_eq!(
         (tessera_render::IMAGE_REVISION, hash),
         PINNED,

@@ -269,12 +269,7 @@ fn emission<'a, G: Guiding<'a>>(
     guiding: &mut G,
     depth: u32,
 ) {
-    let li = (prim.light + hit.part * prim.light_stride) as usize;
-    let light = &scene.lights.lights[li];
-    let mut le = light.emitted(sp.n, -ray.d);
-    if let Some(t) = &light.texture {
-        le *= t.texture.lookup(prim.shape.uv(ray, hit.part));
-    }
+    let (li, le) = scene.emitted((ray, hit, prim, sp));
     if le != Vec3A::ZERO {
         let before = path.l;
         add_emitted(path, scene, strategy, li, le, sp);

@@ -323,6 +323,23 @@ impl Scene {
         self.intersect(ray, t_max).is_some()
     }
 
+    /// The radiance an emitting primitive's surface point `sp`, hit as `hit` by `ray`, sends
+    /// back along the ray (its emission texture's texel included), with the index of the
+    /// light it belongs to. For a primitive whose `light` is set.
+    #[inline]
+    pub(crate) fn emitted(
+        &self,
+        (ray, hit, prim, sp): (&Ray, &Hit, &Primitive, &crate::interaction::SurfacePoint),
+    ) -> (usize, Vec3A) {
+        let li = (prim.light + hit.part * prim.light_stride) as usize;
+        let light = &self.lights.lights[li];
+        let mut le = light.emitted(sp.n, -ray.d);
+        if let Some(t) = &light.texture {
+            le *= t.texture.lookup(prim.shape.uv(ray, hit.part));
+        }
+        (li, le)
+    }
+
     /// Whether the whole scene is one BVH leaf with nothing unbounded: the scenes whose
     /// queries the packet tests answer ([`Accel::is_one_leaf`]).
     pub fn is_one_leaf(&self) -> bool {
