@@ -36,11 +36,13 @@ for spec in "materials textures=96,72,64,64 reflections=16,190,64,48" "caustic c
     done
 done
 out=docs/benchmarks/$name
+# Before the report is opened for writing, which would itself count as a change.
+dirty=$(git diff --quiet HEAD || echo ' plus uncommitted changes')
 {
     echo "# Where denoising loses detail ($(date -u +%Y-%m-%d))"
     echo
     echo "Made by \`bench/denoise-crops.sh --name $name --reference-spp $reference_spp\` at commit"
-    echo "$(git rev-parse --short HEAD)$(git diff --quiet HEAD || echo ' plus uncommitted changes') on: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //'), $(nproc) cores."
+    echo "$(git rev-parse --short HEAD)$dirty on: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //'), $(nproc) cores."
     echo
     echo "Each row of [$name.png]($name.png) is one crop, enlarged 3×: tessera's reference"
     echo "($reference_spp spp) | the raw render at 16 spp | the same render denoised (Open Image Denoise,"
