@@ -328,7 +328,10 @@ fn read_peer_rows(files: &[PathBuf]) -> Result<Vec<Row>> {
         let text =
             std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
         for (i, line) in text.lines().enumerate() {
-            if i == 0 && line.trim() == CSV_HEADER || line.trim().is_empty() {
+            // The header as written now, or without the `flip` column peers may leave out.
+            let header =
+                line.trim() == CSV_HEADER || Some(line.trim()) == CSV_HEADER.strip_suffix(",flip");
+            if i == 0 && header || line.trim().is_empty() {
                 continue;
             }
             rows.push(Row::parse(line, &format!("{}:{}", file.display(), i + 1))?);
