@@ -14,17 +14,12 @@ max_spp=1024
 seeds=1
 reference_spp=4096
 . bench/peer-env.sh
-[ "$have_python" = 1 ] || { echo "bench/denoise.sh needs python3 for Mitsuba 3" >&2; exit 1; }
-[ -n "$llvm" ] || { echo "bench/denoise.sh needs Debian's libllvm19 for Mitsuba's llvm_ad_rgb" >&2; exit 1; }
+need_mitsuba bench/denoise.sh
 scripts/install-oidn.sh >/dev/null
 refs=()
 for scene in materials gltf-metals; do
     ref=target/bench-cache/mitsuba-$scene-256-$reference_spp.exr
-    if [ ! -s "$ref" ]; then
-        target/bench-venv/bin/python bench/mitsuba_peer.py --variants llvm_ad_rgb \
-            --make-reference "$scene=$ref.tmp.exr" --reference-spp "$reference_spp"
-        mv "$ref.tmp.exr" "$ref"
-    fi
+    mitsuba_reference "$scene" "$reference_spp" "$ref"
     refs+=(--reference "$scene=$ref")
 done
 target/release/tessera bench --denoise --scene scenes/cornell-box.toml --scene scenes/materials.toml \

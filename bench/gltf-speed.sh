@@ -15,8 +15,7 @@ max_spp=256
 seeds=2
 reference_spp=8192
 . bench/peer-env.sh
-[ "$have_python" = 1 ] || { echo "gltf-speed needs python3 for Mitsuba 3" >&2; exit 1; }
-[ -n "$llvm" ] || { echo "gltf-speed needs Debian's libllvm19 for Mitsuba's llvm_ad_rgb" >&2; exit 1; }
+need_mitsuba gltf-speed
 refs=()
 serve_refs=
 big=target/bench-cache/gltf-big
@@ -26,11 +25,7 @@ for scene in gltf-metals gltf-glass gltf-big; do
     file=scenes/$scene.toml
     [ "$scene" = gltf-big ] && file=$big/gltf-big.toml
     ref=target/bench-cache/mitsuba-$scene-256-$reference_spp.exr
-    if [ ! -s "$ref" ]; then
-        target/bench-venv/bin/python bench/mitsuba_peer.py --variants llvm_ad_rgb \
-            --make-reference "$scene=$ref.tmp.exr" --reference-spp "$reference_spp"
-        mv "$ref.tmp.exr" "$ref"
-    fi
+    mitsuba_reference "$scene" "$reference_spp" "$ref"
     refs+=(--scene "$file" --reference "$scene=$ref")
     serve_refs="$serve_refs --reference $scene=$ref"
 done

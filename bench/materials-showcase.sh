@@ -16,14 +16,9 @@ max_spp=256
 seeds=2
 reference_spp=4096
 . bench/peer-env.sh
-[ "$have_python" = 1 ] || { echo "materials-showcase needs python3 for Mitsuba 3" >&2; exit 1; }
-[ -n "$llvm" ] || { echo "materials-showcase needs Debian's libllvm19 for Mitsuba's llvm_ad_rgb" >&2; exit 1; }
+need_mitsuba materials-showcase
 ref=target/bench-cache/mitsuba-materials-$reference_spp.exr
-if [ ! -s "$ref" ]; then
-    target/bench-venv/bin/python bench/mitsuba_peer.py --variants llvm_ad_rgb \
-        --make-reference "materials=$ref.tmp.exr" --reference-spp "$reference_spp"
-    mv "$ref.tmp.exr" "$ref"
-fi
+mitsuba_reference materials "$reference_spp" "$ref"
 target/release/tessera bench --scene scenes/materials.toml --max-spp "$max_spp" --seeds "$seeds" \
     --reference-spp "$reference_spp" --name materials-showcase \
     --peer-command "target/bench-venv/bin/python bench/mitsuba_peer.py --serve --variants llvm_ad_rgb \

@@ -14,8 +14,7 @@ max_spp=256
 seeds=2
 reference_spp=4096
 . bench/peer-env.sh
-[ "$have_python" = 1 ] || { echo "no python3: Mitsuba, the peer and the reference, cannot run" >&2; exit 1; }
-[ -n "$llvm" ] || { echo "no libLLVM.so.19.1: Mitsuba's llvm_ad_rgb cannot run" >&2; exit 1; }
+need_mitsuba mesh-speed
 dir=target/bench-cache/mesh-million
 [ -s "$dir/bumpy-sphere.ply" ] && [ -s "$dir/mesh-million-emissive.toml" ] ||
     target/bench-venv/bin/python bench/make_million.py "$dir"
@@ -23,11 +22,7 @@ scene_args=()
 refs=()
 for name in mesh-million mesh-million-analytic; do
     ref=target/bench-cache/mitsuba-$name-$reference_spp.exr
-    if [ ! -s "$ref" ]; then
-        target/bench-venv/bin/python bench/mitsuba_peer.py --variants llvm_ad_rgb \
-            --make-reference "$name=$ref.tmp.exr" --reference-spp "$reference_spp"
-        mv "$ref.tmp.exr" "$ref"
-    fi
+    mitsuba_reference "$name" "$reference_spp" "$ref"
     scene_args+=(--scene "$dir/$name.toml" --reference "$name=$ref")
     refs+=("--reference $name=$ref")
 done

@@ -29,3 +29,20 @@ if command -v python3 >/dev/null; then
     fi
     [ -n "$llvm" ] && export DRJIT_LIBLLVM_PATH="$llvm"
 fi
+
+# need_mitsuba WHO: ends the script that sourced this (WHO names it) unless Mitsuba's
+# llvm_ad_rgb can run here.
+need_mitsuba() {
+    [ "$have_python" = 1 ] || { echo "$1 needs python3 for Mitsuba 3" >&2; exit 1; }
+    [ -n "$llvm" ] || { echo "$1 needs Debian's libllvm19 for Mitsuba's llvm_ad_rgb" >&2; exit 1; }
+}
+
+# mitsuba_reference SCENE SPP FILE: Mitsuba's llvm_ad_rgb reference of SCENE at SPP, rendered
+# into FILE unless FILE is already there (references are cached across runs; a run cut short
+# leaves only FILE.tmp.exr behind, never a partial FILE).
+mitsuba_reference() {
+    [ -s "$3" ] && return 0
+    target/bench-venv/bin/python bench/mitsuba_peer.py --variants llvm_ad_rgb \
+        --make-reference "$1=$3.tmp.exr" --reference-spp "$2"
+    mv "$3.tmp.exr" "$3"
+}

@@ -135,10 +135,11 @@ pub fn first_hit(scene: &Scene, x: u32, y: u32, sampler: &PixelSampler) -> First
 /// emitted colour draws that edge (docs/renderer.md, "Denoising"). `None` where nothing is
 /// emitted towards the ray (the back of a one-sided lamp), which records its material.
 fn emitter_albedo(scene: &Scene, at: (&Ray, &Hit, &Primitive, &SurfacePoint)) -> Option<Vec3A> {
-    if at.2.light == u32::MAX {
+    let (_, _, prim, _) = at;
+    if prim.light == u32::MAX {
         return None;
     }
-    let le = scene.emitted(at).1;
+    let (_, le) = scene.emitted(at);
     let peak = le.max_element();
     (peak > 0.0 && peak.is_finite()).then(|| le / peak)
 }

@@ -231,8 +231,9 @@ pub(super) fn report(
     }
     summary_section(&mut md, &all);
     by_spp_section(&mut md, &all);
-    flip_section(&mut md, rows);
-    denoise_goal_section(&mut md, &all, rows);
+    let flips = flip_means(rows);
+    flip_section(&mut md, &flips);
+    denoise_goal_section(&mut md, &all, &flips);
     let _ = writeln!(md, "## All points\n");
     let _ = writeln!(
         md,
@@ -391,8 +392,11 @@ mod tests {
     }
 }
 
-/// Mean FLIP over seeds per (scene, renderer) and spp, for the rows that carry one.
-fn flip_means(rows: &[Row]) -> BTreeMap<(String, String), BTreeMap<u32, f64>> {
+/// Mean FLIP over seeds per (scene, renderer) and spp.
+type FlipMeans = BTreeMap<(String, String), BTreeMap<u32, f64>>;
+
+/// [`FlipMeans`] of the rows that carry a FLIP.
+fn flip_means(rows: &[Row]) -> FlipMeans {
     let mut acc: BTreeMap<(String, String), BTreeMap<u32, (f64, usize)>> = BTreeMap::new();
     for r in rows {
         if let Some(f) = r.flip {
@@ -417,8 +421,7 @@ fn flip_means(rows: &[Row]) -> BTreeMap<(String, String), BTreeMap<u32, f64>> {
 }
 
 /// The perceptual error beside relMSE: mean FLIP by spp, where the renderer measured it.
-fn flip_section(md: &mut String, rows: &[Row]) {
-    let means = flip_means(rows);
+fn flip_section(md: &mut String, means: &FlipMeans) {
     let spps: BTreeSet<u32> = means.values().flat_map(|m| m.keys().copied()).collect();
     if spps.is_empty() {
         return;
@@ -438,7 +441,7 @@ fn flip_section(md: &mut String, rows: &[Row]) {
         head.join(" | "),
         "---:|".repeat(spps.len())
     );
-    for ((scene, renderer), by) in &means {
+    for ((scene, renderer), by) in means {
         let cells: Vec<String> = spps
             .iter()
             .map(|s| by.get(s).map_or("".into(), |f| format!("{f:.4}")))
@@ -451,8 +454,7 @@ fn flip_section(md: &mut String, rows: &[Row]) {
 /// #82's goal, where the run has the points: the denoised image at 16 spp against the raw one
 /// at 512, which the ladder of powers of 4 does not render; error falling as 1/spp puts it at
 /// the geometric mean of 256 and 1024 spp.
-fn denoise_goal_section(md: &mut String, all: &Series, rows: &[Row]) {
-    let flips = flip_means(rows);
+fn denoise_goal_section(md: &mut String, all: &Series, flips: &FlipMeans) {
     let mut lines = Vec::new();
     for ((scene, renderer), points) in all {
         if renderer != super::denoised::RENDERER {
@@ -469,13 +471,13 @@ fn denoise_goal_section(md: &mut String, all: &Series, rows: &[Row]) {
         let flip =
             |key: &(String, String), spp: u32| flips.get(key).and_then(|m| m.get(&spp)).copied();
         let d_key = (scene.clone(), renderer.clone());
-        let flips = match (flip(&d_key, 16), flip(&raw_key, 256), flip(&raw_key, 1024)) {
+        let flip_cells = match (flip(&d_key, 16), flip(&raw_key, 256), flip(&raw_key, 1024)) {
             (Some(d), Some(a), Some(b)) => format!("{d:.4} | {:.4}", (a * b).sqrt()),
             _ => "— | —".into(),
         };
         let met = if d16.1 < raw512 { "yes" } else { "no" };
         lines.push(format!(
-            "| {scene} | {:.3e} | {raw512:.3e} | {met} | {flips} |",
+            "| {scene} | {:.3e} | {raw512:.3e} | {met} | {flip_cells} |",
             d16.1
         ));
     }
