@@ -199,6 +199,7 @@ fuzz_target!(|data: &[u8]| {
                             },
                             memory_bytes: [0, 8 << 30, u64::MAX][usize::from(arg / 64 % 3)],
                             draining: arg & 0x40 != 0 && arg & 0x80 != 0,
+                            denoise_version: i32::from(arg & 0x10 != 0) * 20501,
                         }))
                         .await;
                     if let Ok(r) = r {

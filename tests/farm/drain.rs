@@ -31,6 +31,7 @@ async fn a_drained_worker_is_told_keeps_its_unit_and_stays_drained_across_a_rest
             cpu_features: vec!["avx2".into()],
             tags: vec!["pool=fast".into()],
             draining: false,
+            denoise_version: 0,
         })
         .await
         .expect("register")
@@ -97,6 +98,7 @@ async fn a_drained_worker_is_told_keeps_its_unit_and_stays_drained_across_a_rest
             version: "0".into(),
             image_revision: IMAGE_REVISION,
             draining: true,
+            denoise_version: 0,
             ..Default::default()
         })
         .await

@@ -16,6 +16,7 @@ mod checkpoints;
 mod connections;
 mod control;
 mod dashboard;
+mod denoise_workers;
 mod drain;
 mod forged_results;
 mod frames;

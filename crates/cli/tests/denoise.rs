@@ -144,6 +144,14 @@ fn without_the_library_denoise_fails_at_once_saying_how_to_install_it() {
         ],
     );
     assert!(!out.exists(), "nothing is rendered or written");
+    // A worker asked to denoise does not start without it either (nor register: the URL
+    // leads nowhere, and the library is checked first).
+    let r = std::process::Command::new(&bin)
+        .args(["worker", "--coordinator", "http://127.0.0.1:9", "--denoise"])
+        .env_remove("TESSERA_OIDN_DIR")
+        .output()
+        .expect("run");
+    assert_clean_failure(&r, &["libOpenImageDenoise.so.2", "scripts/install-oidn.sh"]);
     // The same binary renders without --denoise.
     let r = std::process::Command::new(&bin)
         .args([
@@ -249,33 +257,95 @@ fn the_farm_denoises_once_after_the_last_merge_and_matches_render_denoise() {
     assert_clean_failure(&out, &["best"]);
 }
 
+/// A coordinator that does not denoise lends the finished frame to a worker started with
+/// `--denoise` (the real library, in its own process): the same bytes as `tessera render
+/// --denoise`; until such a worker joins, the job says what it waits for.
 #[test]
-fn a_coordinator_that_does_not_denoise_refuses_a_job_that_asks() {
+fn a_worker_that_denoises_finishes_the_frame_for_a_coordinator_that_does_not() {
+    tessera_testkit::install_oidn();
     let dir = tempfile::tempdir().expect("tmp");
     let (_coord, url) = common::coordinator(&dir.path().join("data"));
-    let out = at(
+    let _renders = common::worker(&url, "renders");
+    let scene = repo("scenes/cornell-box.toml");
+    let submitted = at(
         &[
             "submit",
-            &repo("scenes/cornell-box.toml"),
+            &scene,
             "--spp",
-            "1",
+            "4",
+            "--resolution",
+            "32x24",
             "--denoise",
         ],
         &url,
     );
-    assert_clean_failure(&out, &["does not denoise", "--denoise"]);
-    // Nothing was admitted.
-    let list = at(&["status", "--json"], &url);
-    assert!(list.status.success());
     assert!(
-        !String::from_utf8_lossy(&list.stdout).contains("cornell"),
+        submitted.status.success(),
         "{}",
-        String::from_utf8_lossy(&list.stdout)
+        String::from_utf8_lossy(&submitted.stderr)
     );
+    let status = || String::from_utf8_lossy(&at(&["status", "--json"], &url).stdout).to_string();
+    assert!(
+        eventually(|| status().contains("waiting for a worker that denoises")),
+        "the job never said it waits for a denoising worker: {}",
+        status()
+    );
+    let log = dir.path().join("denoiser.log");
+    let _denoises = common::worker_with(&url, "denoises", &["--denoise"], &log);
+    assert!(
+        eventually(|| {
+            let w = at(&["workers"], &url);
+            String::from_utf8_lossy(&w.stdout).contains("denoise")
+        }),
+        "tessera workers does not show the denoise tag"
+    );
+    // The waiting job finishes, and a second one matches render --denoise byte for byte.
+    let flags = [
+        "--spp",
+        "8",
+        "--batch",
+        "4",
+        "--resolution",
+        "64x48",
+        "--denoise",
+        "--denoise-quality",
+        "balanced",
+    ];
+    let farm = common::assert_farm_file_is_render_file(
+        dir.path(),
+        &url,
+        &scene,
+        &flags,
+        "worker-denoised",
+    );
+    let meta = read_exr_metadata(&farm).expect("metadata");
+    assert!(
+        meta.iter().any(|m| m == "denoise=oidn 2.5.1 balanced hdr"),
+        "{meta:?}"
+    );
+    assert!(
+        eventually(|| !status().contains("\"running\"")),
+        "{}",
+        status()
+    );
+    let log = std::fs::read_to_string(&log).expect("log");
+    assert_eq!(log.matches("denoised job-").count(), 2, "{log}");
+}
+
+/// Whether `check` holds within a minute, polled.
+fn eventually(mut check: impl FnMut() -> bool) -> bool {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    while std::time::Instant::now() < deadline {
+        if check() {
+            return true;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    false
 }
 
 /// A scene with `[render] denoise` is denoised without the flag: as `render` asked with it,
-/// the same bytes; a farm that does not denoise refuses it naming the scene's key.
+/// the same bytes.
 #[test]
 fn a_scene_that_asks_to_be_denoised_is_denoised_without_the_flag() {
     tessera_testkit::install_oidn();
@@ -296,9 +366,6 @@ fn a_scene_that_asks_to_be_denoised_is_denoised_without_the_flag() {
     }
     assert!(read_exr_channel(&by_scene, "denoised.R").is_ok());
     assert!(std::fs::read(&by_scene).expect("a") == std::fs::read(&by_flag).expect("b"));
-    let (_coord, url) = common::coordinator(&dir.path().join("data"));
-    let out = at(&["submit", &scene, "--spp", "1"], &url);
-    assert_clean_failure(&out, &["the scene's [render] denoise", "does not denoise"]);
 }
 
 /// A GET of `path` from the HTTP server at `base` (`http://host:port`): status and body.

@@ -103,7 +103,8 @@ pub struct Config {
     /// arrive faster than its disk and CPU can store them.
     pub max_unstored_bytes: u64,
     /// Denoise the frames of jobs that ask for it, here, after their last merge (the library
-    /// is loaded when the coordinator starts); off, such jobs are refused at submission.
+    /// is loaded when the coordinator starts); off, they are lent to workers that denoise
+    /// (the coordinator's `denoise` module), and wait for one.
     pub denoise: bool,
 }
 

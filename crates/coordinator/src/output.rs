@@ -9,12 +9,12 @@ use tessera_render::output::{
     render_metadata, write_new_exr_strips, write_new_exr_strips_denoised, DenoisedPlanes,
     ExrChannels,
 };
-use tessera_render::{NoiseSum, Strips};
+use tessera_render::{NoiseSum, RenderSettings, Strips};
 use tracing::{error, info, warn};
 
 use crate::job::FrameTile;
 use crate::shared::{durable, now_ms, Shared};
-use crate::store::{DenoiseRecord, JobPhase};
+use crate::store::{DenoiseRecord, JobPhase, JobRecord};
 
 /// Why a finished job's EXR could not be written.
 #[derive(Debug, thiserror::Error)]
@@ -34,6 +34,9 @@ enum FinishError {
     /// The frame could not be denoised.
     #[error("denoising: {0}")]
     Denoise(#[from] tessera_denoise::DenoiseError),
+    /// The frame could not be kept for a denoising worker.
+    #[error("keeping the frame for a denoising worker: {0}")]
+    Keep(std::io::Error),
 }
 
 /// Writes a finished job's EXR, then records it as done (or failed).
@@ -56,6 +59,10 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
     let dir = shared.config.output_dir();
     let path = dir.join(&rec.output_name);
     let store = shared.store.clone();
+    // A job that asks to be denoised on a coordinator that does not denoise is finished by a
+    // worker that does ([`crate::denoise`]): its frame is kept for one.
+    let here = shared.config.denoise;
+    let keeper = shared.clone();
     let written = tokio::task::spawn_blocking(move || -> Result<_, FinishError> {
         // Tiles the store holds are read back one at a time, as the strips take them, and
         // each strip of rows is dropped once the encoder has compressed it: writing a frame
@@ -73,15 +80,11 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
         let strips = Strips::new(&settings, rec.width, rec.height, sums)
             .map_while(|s| s.map_err(|e| unfit = Some(e)).ok())
             .inspect(|s| noise.add(s));
-        let channels = ExrChannels {
-            variance: rec.variance,
-            samples: rec.sample_count,
-            aovs: settings.aovs,
-        };
+        let channels = channels_of(&rec, &settings);
         // Never over another file: output names are unique among the coordinator's jobs, so a
         // file already there was put there by someone else, and is theirs.
         let size = (rec.width, rec.height);
-        let mut metadata = render_metadata(&rec.scene_hash, &settings);
+        let metadata = render_metadata(&rec.scene_hash, &settings);
         let written = match &rec.denoise {
             None => write_new_exr_strips(&path, size, channels, &metadata, strips).map(drop),
             Some(how) => {
@@ -94,10 +97,13 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
                 if let Some(e) = unfit.take() {
                     return Err(e.into());
                 }
+                if !here {
+                    crate::denoise::park(&keeper, JobId(rec.id), &frame)
+                        .map_err(FinishError::Keep)?;
+                    return Ok(None);
+                }
                 let (entry, planes) = denoise(&frame, how)?;
-                metadata.push(("denoise".to_string(), entry));
-                let strips = std::iter::once(&frame);
-                write_new_exr_strips_denoised(&path, size, channels, &metadata, strips, &planes)
+                return write_denoised(&path, &rec, &settings, &frame, (entry, &planes)).map(Some);
             }
         };
         // A strip source that failed explains why the strips fell short.
@@ -108,11 +114,64 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
             return Err(e.into());
         }
         written?;
-        Ok((noise.noise(), noise.black()))
+        Ok(Some((noise.noise(), noise.black())))
     })
     .await
     .map_err(FinishError::from)
     .and_then(|r| r);
+    if let Ok(None) = written {
+        info!("{id} rendered; its frame waits for a worker that denoises");
+        shared.bump_work();
+        shared.bump_changed();
+        return;
+    }
+    record_written(&shared, id, written.map(Option::unwrap_or_default), started).await;
+}
+
+/// Which channels a job's EXR holds.
+fn channels_of(rec: &JobRecord, settings: &RenderSettings) -> ExrChannels {
+    ExrChannels {
+        variance: rec.variance,
+        samples: rec.sample_count,
+        aovs: settings.aovs,
+    }
+}
+
+/// Writes a whole frame with its denoised layer (`entry` is the header's account of the
+/// filter): the same bytes `tessera render --denoise` writes. Returns the frame's noise and
+/// whether it is black.
+fn write_denoised(
+    path: &std::path::Path,
+    rec: &JobRecord,
+    settings: &RenderSettings,
+    frame: &Image,
+    (entry, planes): (String, &DenoisedPlanes),
+) -> Result<((f64, f64), bool), FinishError> {
+    let mut metadata = render_metadata(&rec.scene_hash, settings);
+    metadata.push(("denoise".to_string(), entry));
+    let size = (rec.width, rec.height);
+    let channels = channels_of(rec, settings);
+    write_new_exr_strips_denoised(
+        path,
+        size,
+        channels,
+        &metadata,
+        std::iter::once(frame),
+        planes,
+    )?;
+    let mut noise = NoiseSum::default();
+    noise.add(frame);
+    Ok((noise.noise(), noise.black()))
+}
+
+/// Ends job `id` as its EXR's writing went: done with the frame's noise, or failed.
+async fn record_written(
+    shared: &Arc<Shared>,
+    id: JobId,
+    written: Result<((f64, f64), bool), FinishError>,
+    started: std::time::Instant,
+) {
+    let dir = shared.config.output_dir();
     let (rx, releases) = {
         let mut scheduler = shared.scheduler();
         let releases = scheduler.has_dependents(id);
@@ -144,6 +203,46 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
     }
 }
 
+/// Writes the EXR of a frame a worker denoised (`planes`, under `claim`) from the frame kept
+/// for it, and ends its job; returns whether the file was written.
+pub(crate) async fn finish_denoised(
+    shared: Arc<Shared>,
+    claim: crate::scheduler::DenoiseClaim,
+    frame: Image,
+    planes: DenoisedPlanes,
+) -> bool {
+    let Ok(_one_at_a_time) = shared.finishing.acquire().await else {
+        return false;
+    };
+    let started = std::time::Instant::now();
+    let id = claim.job;
+    let Some((rec, settings)) = shared
+        .scheduler()
+        .job(id)
+        .filter(|j| j.finishing && j.rec.phase == JobPhase::Active)
+        .map(|j| (j.rec.clone(), j.settings()))
+    else {
+        crate::denoise::forget(&shared.config.data_dir, id);
+        return false;
+    };
+    let path = shared.config.output_dir().join(&rec.output_name);
+    let written = tokio::task::spawn_blocking(move || {
+        let options = options_of(rec.denoise.as_ref().unwrap_or(&DenoiseRecord {
+            quality: claim.options.quality.clone(),
+            hdr: claim.options.hdr,
+        }));
+        let entry = tessera_denoise::header_entry(claim.version, &options);
+        write_denoised(&path, &rec, &settings, &frame, (entry, &planes))
+    })
+    .await
+    .map_err(FinishError::from)
+    .and_then(|r| r);
+    let ok = written.is_ok();
+    record_written(&shared, id, written, started).await;
+    crate::denoise::forget(&shared.config.data_dir, id);
+    ok
+}
+
 /// The strips of a frame as one image.
 fn whole(strips: impl Iterator<Item = Image>) -> Image {
     let mut frame: Option<Image> = None;
@@ -159,12 +258,17 @@ fn whole(strips: impl Iterator<Item = Image>) -> Image {
 /// A finished frame denoised as its job asked (every core of this machine: the result is the
 /// same on any number), with the header entry that says how.
 fn denoise(frame: &Image, how: &DenoiseRecord) -> Result<(String, DenoisedPlanes), FinishError> {
-    let options = tessera_denoise::Options {
-        quality: tessera_denoise::Quality::parse(&how.quality).unwrap_or_default(),
-        hdr: how.hdr,
-        threads: None,
-    };
+    let options = options_of(how);
     let planes = tessera_denoise::denoise_image(frame, &options)?;
     let entry = tessera_denoise::header_entry(tessera_denoise::library_version()?, &options);
     Ok((entry, planes))
+}
+
+/// The filter's options as a job's record keeps them (every core of the machine).
+fn options_of(how: &DenoiseRecord) -> tessera_denoise::Options {
+    tessera_denoise::Options {
+        quality: tessera_denoise::Quality::parse(&how.quality).unwrap_or_default(),
+        hdr: how.hdr,
+        threads: None,
+    }
 }

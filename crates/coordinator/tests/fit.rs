@@ -31,6 +31,7 @@ fn caps(tags: &[&str], cpu: &[&str], memory_bytes: u64) -> Capabilities {
         memory_bytes,
         cpu_features: cpu.iter().map(|s| s.to_string()).collect(),
         tags: tags.iter().map(|s| s.to_string()).collect(),
+        denoise_version: 0,
     }
 }
 

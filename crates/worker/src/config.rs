@@ -33,6 +33,9 @@ pub struct Config {
     /// Memory to report, in bytes (default: what the machine, or its container's limit,
     /// allows).
     pub memory_bytes: Option<u64>,
+    /// Denoise finished frames for the coordinator too (Open Image Denoise is loaded at start;
+    /// without it the worker does not start).
+    pub denoise: bool,
 }
 
 impl Config {
@@ -50,6 +53,7 @@ impl Config {
             cache_bytes: DEFAULT_CACHE_BYTES,
             tags: Vec::new(),
             memory_bytes: None,
+            denoise: false,
         }
     }
 }
@@ -63,6 +67,9 @@ pub enum WorkerError {
     /// The coordinator URL is not usable (the error names it).
     #[error(transparent)]
     Url(#[from] tessera_proto::client::ClientError),
+    /// `--denoise`, and the library is not there (the error says how to install it).
+    #[error(transparent)]
+    Denoise(#[from] tessera_denoise::DenoiseError),
     /// The render threads could not start.
     #[error("starting the render threads: {0}")]
     Threads(String),

@@ -27,9 +27,14 @@
 //! seconds at most), and says goodbye. It reports what it registers with: memory, CPU features
 //! and its operator's tags, which jobs' requirements match; and sends its warnings about units
 //! to the coordinator with its heartbeats (`tessera logs`).
+//!
+//! Started with `--denoise` ([`Config::denoise`]), it loads Open Image Denoise first and also
+//! denoises finished frames the coordinator lends it, one at a time beside its rendering
+//! (`denoise.rs`).
 
 mod cache;
 mod config;
+mod denoise;
 mod guide_cache;
 mod memory;
 mod pipeline;
@@ -72,11 +77,17 @@ pub async fn run(
             .max_encoding_message_size(config.max_message_bytes);
     let pool = render_pool(config.threads)?;
     let memory_bytes = config.memory_bytes.unwrap_or_else(memory::available);
+    // Loaded before registering: a worker that says it denoises can.
+    let denoise_version = if config.denoise {
+        tessera_denoise::library_version()?
+    } else {
+        0
+    };
     let session = Session::new(
         client,
         config.clone(),
         pool.current_num_threads() as u32,
-        memory_bytes,
+        (memory_bytes, denoise_version),
         watch::channel(false),
     );
     let worker = Arc::new(Worker::new(session, pool));
@@ -99,6 +110,9 @@ pub async fn run(
         mut render,
         mut submit,
     } = Pipeline::start(&worker);
+    let _denoise = config
+        .denoise
+        .then(|| Task::spawn(denoise::run(worker.clone())));
     let mut stop = session.stop.clone();
     // The fetcher only ends by itself when the coordinator refused us for good.
     let refused = tokio::select! {

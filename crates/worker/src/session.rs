@@ -46,6 +46,8 @@ pub(crate) struct Session {
     /// What it tells the coordinator it has.
     pub(crate) memory_bytes: u64,
     pub(crate) cpu_features: Vec<String>,
+    /// The Open Image Denoise version it loaded (0: it does not denoise).
+    pub(crate) denoise_version: i32,
     /// Why the coordinator refused this worker for good, if it did.
     pub(crate) refused: Mutex<Option<String>>,
 }
@@ -56,7 +58,7 @@ impl Session {
         client: WorkersClient<InterceptedService<Channel, Bearer>>,
         config: Config,
         cores: u32,
-        memory_bytes: u64,
+        (memory_bytes, denoise_version): (u64, i32),
         (stop_tx, stop): (watch::Sender<bool>, watch::Receiver<bool>),
     ) -> Self {
         Self {
@@ -74,6 +76,7 @@ impl Session {
             log_lines: Mutex::new(std::collections::VecDeque::new()),
             memory_bytes,
             cpu_features: tessera_proto::tags::cpu_features(),
+            denoise_version,
             refused: Mutex::new(None),
         }
     }
@@ -161,6 +164,7 @@ impl Session {
                 cpu_features: self.cpu_features.clone(),
                 tags: self.config.tags.clone(),
                 draining: self.draining.load(Ordering::Relaxed),
+                denoise_version: self.denoise_version,
             };
             match self.client.clone().register(req).await {
                 Ok(r) => {

@@ -46,7 +46,8 @@ pub struct CoordinatorArgs {
     max_unstored_bytes: u64,
     /// Denoise the frames of jobs submitted with --denoise, here, once each frame's last
     /// result is merged (Intel Open Image Denoise, loaded at start: scripts/install-oidn.sh).
-    /// Without it such jobs are refused.
+    /// Without it such frames are denoised by workers started with --denoise, and wait for
+    /// one.
     #[arg(long)]
     denoise: bool,
     /// Default tile edge in pixels for jobs that do not choose one.
@@ -194,6 +195,12 @@ pub struct WorkerArgs {
     /// container's limit if lower).
     #[arg(long, env = "TESSERA_WORKER_MEMORY", value_name = "SIZE", value_parser = crate::args::memory_size)]
     memory: Option<u64>,
+    /// Also denoise finished frames of jobs submitted with --denoise, when the coordinator
+    /// does not denoise them itself (Intel Open Image Denoise, loaded at start: the worker
+    /// does not start without it; scripts/install-oidn.sh installs it). Shown as the tag
+    /// `denoise` by `tessera workers`.
+    #[arg(long)]
+    denoise: bool,
 }
 
 /// Runs `tessera coordinator`.
@@ -359,6 +366,7 @@ pub fn worker(args: WorkerArgs) -> Result<()> {
         .map_err(anyhow::Error::msg)?;
     config.tags = args.tags;
     config.memory_bytes = args.memory;
+    config.denoise = args.denoise;
     if let Some(dir) = args.cache_dir {
         config.cache_dir = dir;
     }

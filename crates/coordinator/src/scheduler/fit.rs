@@ -28,6 +28,9 @@ pub struct Capabilities {
     pub cpu_features: Vec<String>,
     /// Its operator tags.
     pub tags: Vec<String>,
+    /// The Open Image Denoise version it loaded (0: it does not denoise), for frames that
+    /// wait to be denoised ([`super::denoise`]).
+    pub denoise_version: i32,
 }
 
 impl Capabilities {

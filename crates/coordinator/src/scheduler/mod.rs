@@ -11,6 +11,7 @@
 //! - [`fit`]: workers' capabilities against jobs' requirements, and draining.
 //! - [`audit`]: units rendered twice, the referee, and convictions.
 //! - [`admit`]: admission of new jobs and restore at start-up.
+//! - [`denoise`]: finished frames waiting for a worker to denoise them.
 //! - [`view`]: the read model the API and the dashboard both answer from.
 //!
 //! This file keeps what ties them together: the state, the merge of a result
@@ -25,6 +26,7 @@ mod admit;
 mod after;
 mod audit;
 mod control;
+mod denoise;
 mod failures;
 mod fit;
 mod forget;
@@ -56,6 +58,7 @@ use crate::store::{JobPhase, JobRecord, Op};
 use audit::audit_excludes;
 
 pub use admit::{Admission, AdmissionLimits, Asked, Checked};
+pub use denoise::{DenoiseClaim, FAIL_DENOISE_AFTER};
 pub use fit::Capabilities;
 pub use leases::Lease;
 pub use logs::{add_stored, JobLines, JobLog, LogLine, LogQuery, Reported, MAX_LINES_PER_CALL};
@@ -219,6 +222,8 @@ pub struct Scheduler {
     /// Store changes made where no caller takes them (a lapse that fails a frame, noticed
     /// while leasing); the server's ticker commits them ([`Scheduler::take_deferred`]).
     deferred: Vec<Op>,
+    /// Finished frames waiting for a worker to denoise them ([`denoise`]).
+    denoising: BTreeMap<JobId, denoise::Waiting>,
 }
 
 /// What a worker returns for one unit: its sums, and for a guided job's unit of a training
@@ -262,6 +267,7 @@ impl Scheduler {
             log_seq: 0,
             lapses: HashMap::new(),
             deferred: Vec::new(),
+            denoising: BTreeMap::new(),
         }
     }
 
@@ -492,6 +498,9 @@ impl Scheduler {
                 self.jobs
                     .get(m)
                     .is_some_and(|j| j.rec.phase == JobPhase::Active && !j.finishing)
+                    // A frame waiting for a denoising worker may wait long (for good, if none
+                    // comes): it can be cancelled.
+                    || self.denoising.contains_key(m)
             })
             .collect();
         if live.is_empty() {
@@ -655,6 +664,7 @@ impl Scheduler {
             w.disputes.retain(|(j, _)| *j != id);
         }
         self.lapses.retain(|&(j, _), _| j != id);
+        self.denoising.remove(&id);
         // A failed job's scene is kept for `tessera retry` ([`retry`]).
         job.retryable = phase == JobPhase::Failed && !self.policy.retry_window.is_zero();
         let mut ops = vec![Op::PutJob(job.rec.clone()), Op::DropSums(id.0)];

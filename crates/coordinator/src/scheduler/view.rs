@@ -94,6 +94,7 @@ impl Scheduler {
                     memory_bytes: w.caps.memory_bytes,
                     cpu_features: w.caps.cpu_features.clone(),
                     tags: w.caps.tags.clone(),
+                    denoise_version: w.caps.denoise_version,
                 }
             })
             .collect()
@@ -195,9 +196,11 @@ impl Scheduler {
             retries: rec.retries,
             retryable: job.retryable,
             submitter: rec.submitter.clone(),
-            waiting: (job.is_live() && !self.held(job.id()))
-                .then(|| self.waiting(rec, now))
-                .flatten(),
+            waiting: self.denoise_waiting(job.id(), now).or_else(|| {
+                (job.is_live() && !self.held(job.id()))
+                    .then(|| self.waiting(rec, now))
+                    .flatten()
+            }),
         }
     }
 

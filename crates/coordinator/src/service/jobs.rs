@@ -137,6 +137,7 @@ impl Jobs for Service {
             self.shared.queue_write(ops)
         };
         durable(rx).await.map_err(internal)?;
+        crate::denoise::sweep(&self.shared);
         info!("{id} cancelled");
         self.shared.bump_changed();
         Ok(Response::new(pb::CancelJobResponse {
@@ -531,7 +532,7 @@ impl Service {
         stored: StoredScene,
     ) -> Result<(JobId, u64), Status> {
         let config = &self.shared.config;
-        let denoise = denoise_of(req.channels.as_ref(), scene, config.denoise)?;
+        let denoise = denoise_of(req.channels.as_ref(), scene)?;
         let mut settings = checked.settings;
         if denoise.is_some() {
             tessera_denoise::gather_inputs(&mut settings);
@@ -645,22 +646,18 @@ fn asset_names(refs: &[pb::AssetRef], max: usize) -> Result<BTreeMap<String, Str
 }
 
 /// A submission's denoising, checked: the request's, else the scene file's (`[render]
-/// denoise`, checked when it was read); a known quality, and a coordinator that denoises (one
-/// that does not refuses the job rather than finish it without the layer it asked for).
+/// denoise`, checked when it was read), with a known quality. Every coordinator takes it: one
+/// started with `--denoise` denoises the frame itself, another lends it to a worker that
+/// denoises ([`crate::denoise`]), and the job waits for one, saying so.
 fn denoise_of(
     channels: Option<&pb::OutputChannels>,
     scene: &SceneCheck,
-    denoises: bool,
 ) -> Result<Option<crate::store::DenoiseRecord>, Status> {
     let Some(d) = channels.and_then(|c| c.denoise.as_ref()) else {
-        return match &scene.denoise {
-            None => Ok(None),
-            Some(_) if !denoises => Err(not_denoising("the scene's [render] denoise")),
-            Some(s) => Ok(Some(crate::store::DenoiseRecord {
-                quality: s.quality.clone(),
-                hdr: s.hdr,
-            })),
-        };
+        return Ok(scene.denoise.as_ref().map(|s| crate::store::DenoiseRecord {
+            quality: s.quality.clone(),
+            hdr: s.hdr,
+        }));
     };
     let quality = match d.quality.as_str() {
         "" => tessera_denoise::Quality::High,
@@ -670,19 +667,8 @@ fn denoise_of(
             ))
         })?,
     };
-    if !denoises {
-        return Err(not_denoising("channels.denoise"));
-    }
     Ok(Some(crate::store::DenoiseRecord {
         quality: quality.name().to_string(),
         hdr: !d.ldr,
     }))
-}
-
-/// The refusal of a job that asks (at `what`) to be denoised by a coordinator that does not.
-fn not_denoising(what: &str) -> Status {
-    Status::failed_precondition(format!(
-        "{what}: this coordinator does not denoise (start it with --denoise, with Open Image \
-         Denoise installed: scripts/install-oidn.sh)"
-    ))
 }

@@ -41,7 +41,7 @@ pub struct Service {
 
 type Stream_<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send>>;
 
-fn internal(e: CommitError) -> Status {
+pub(crate) fn internal(e: CommitError) -> Status {
     Status::internal(format!("coordinator state store: {e}"))
 }
 
@@ -78,7 +78,7 @@ fn may_change(
 
 /// The credential a worker call quotes. A malformed one is as unknown as a wrong one, and
 /// gets the same answer (register again).
-fn credential(s: &str) -> Result<WorkerCredential, Status> {
+pub(crate) fn credential(s: &str) -> Result<WorkerCredential, Status> {
     s.parse().map_err(|e: BadId| {
         tessera_proto::reason::unknown_worker(format!(
             "unknown worker {:?} (the coordinator may have restarted): register again",

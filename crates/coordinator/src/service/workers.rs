@@ -74,6 +74,7 @@ impl Workers for Service {
                 memory_bytes: req.memory_bytes,
                 cpu_features: req.cpu_features,
                 tags: req.tags.clone(),
+                denoise_version: req.denoise_version.max(0),
             },
         );
         if req.draining {
@@ -328,6 +329,45 @@ impl Workers for Service {
                 .map(|(name, sha256)| pb::AssetRef { name, sha256 })
                 .collect(),
         }))
+    }
+
+    type DenoiseStream = Stream_<pb::DenoiseDown>;
+
+    async fn denoise(
+        &self,
+        request: Request<tonic::Streaming<pb::DenoiseUp>>,
+    ) -> Result<Response<Self::DenoiseStream>, Status> {
+        let mut inbound = request.into_inner();
+        let hello = match inbound.message().await? {
+            Some(pb::DenoiseUp {
+                msg: Some(pb::denoise_up::Msg::Hello(h)),
+            }) => h,
+            _ => {
+                return Err(Status::invalid_argument(
+                    "a Denoise stream opens with hello (the worker id)",
+                ))
+            }
+        };
+        // An unknown worker, or one that does not denoise, is refused by the call itself
+        // rather than later on the stream, so that it learns why at once.
+        {
+            let cred = credential(&hello.worker_id)?;
+            let mut core = self.shared.scheduler();
+            let w = core.touch_worker(&cred, Instant::now())?;
+            if core.worker(w).is_none_or(|x| x.caps.denoise_version <= 0) {
+                return Err(Status::failed_precondition(
+                    "this worker did not register as one that denoises (start it with --denoise)",
+                ));
+            }
+        }
+        let (tx, rx) = mpsc::channel(4);
+        tokio::spawn(crate::denoise::serve(
+            self.shared.clone(),
+            hello,
+            inbound,
+            tx,
+        ));
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
     }
 
     type FetchAssetStream = Stream_<pb::AssetChunk>;

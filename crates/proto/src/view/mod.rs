@@ -650,6 +650,7 @@ mod tests {
             cpu_features: vec!["avx2".into()],
             tags: vec!["pool=fast".into()],
             draining: false,
+            denoise_version: 20501,
         };
         let v = WorkerView::try_from(&wire).expect("a view");
         assert_eq!(v.state, WorkerState::Suspect);

@@ -103,6 +103,9 @@ pub struct WorkerView {
     pub cpu_features: Vec<String>,
     /// Its operator tags.
     pub tags: Vec<String>,
+    /// The Open Image Denoise version it denoises finished frames with (20501 for 2.5.1;
+    /// 0: it does not denoise).
+    pub denoise_version: i32,
 }
 
 impl From<&WorkerView> for pb::WorkerInfo {
@@ -128,6 +131,7 @@ impl From<&WorkerView> for pb::WorkerInfo {
             cpu_features: v.cpu_features.clone(),
             tags: v.tags.clone(),
             draining: v.state == WorkerState::Draining,
+            denoise_version: v.denoise_version,
         }
     }
 }
@@ -162,6 +166,7 @@ impl TryFrom<&pb::WorkerInfo> for WorkerView {
             memory_bytes: w.memory_bytes,
             cpu_features: w.cpu_features.clone(),
             tags: w.tags.clone(),
+            denoise_version: w.denoise_version,
         })
     }
 }

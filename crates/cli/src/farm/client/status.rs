@@ -437,11 +437,7 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
                 } else {
                     tessera_proto::tags::memory_words(w.memory_bytes).replace(' ', "")
                 },
-                if w.tags.is_empty() {
-                    "-".to_string()
-                } else {
-                    printable(&w.tags.join(","))
-                },
+                worker_tags(w),
                 w.host.as_deref().map_or("-".to_string(), printable)
             );
         }
@@ -457,4 +453,18 @@ pub fn workers(args: WorkersArgs) -> Result<()> {
         }
         Ok(())
     })
+}
+
+/// A worker's TAGS column: its operator tags, and `denoise` for one that denoises finished
+/// frames (`tessera worker --denoise`).
+fn worker_tags(w: &WorkerView) -> String {
+    let mut tags = w.tags.clone();
+    if w.denoise_version > 0 {
+        tags.push("denoise".to_string());
+    }
+    if tags.is_empty() {
+        "-".to_string()
+    } else {
+        printable(&tags.join(","))
+    }
 }
