@@ -340,3 +340,33 @@ async fn a_waiting_frame_survives_a_restart_and_can_be_cancelled() {
     assert!(s.down.message().await.expect("end").is_none());
     c.stop().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_frame_the_filter_fails_on_three_times_fails_its_job_saying_why() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let data = dir.path().join("data");
+    let c = Coordinator::start(&data, Duration::from_secs(5)).await;
+    let mut client = c.client().await;
+    let _renders = worker(&c.url(), "renders");
+    let job = submit_job(&mut client, denoised_request()).await;
+    wait_until_waiting(&mut client, &job, "waiting for a worker that denoises").await;
+    let (mut w, id) = denoiser(&c.url()).await;
+    for k in 1..=3 {
+        let (s, _, _) = claim(&mut w, &id).await;
+        s.up.send(up(pb::denoise_up::Msg::Failed(format!("boom {k}"))))
+            .await
+            .expect("failed");
+        assert!(end(s).await.expect("closed").is_none());
+    }
+    let done = wait(&mut client, &job).await;
+    assert_eq!(done.state, pb::JobState::Failed as i32);
+    assert!(
+        done.error
+            .contains("denoising failed 3 times; the last worker said: boom 3"),
+        "{}",
+        done.error
+    );
+    let kept = std::fs::read_dir(data.join("denoise")).map_or(0, |d| d.count());
+    assert_eq!(kept, 0);
+    c.stop().await;
+}

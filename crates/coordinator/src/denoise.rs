@@ -313,17 +313,28 @@ async fn serve_inner(
         }),
     };
     let send = |m: pb::denoise_down::Msg| pb::DenoiseDown { msg: Some(m) };
-    if tx
-        .send(Ok(send(pb::denoise_down::Msg::Unit(unit))))
-        .await
-        .is_err()
-    {
-        return Ok(());
+    // A worker that holds the stream open and sends nothing would hold the frame for good.
+    let limit = claim_limit(frame.rgb.len(), shared.config.lease_timeout);
+    let until = tokio::time::Instant::now() + limit;
+    let late = || {
+        Status::deadline_exceeded(format!(
+            "{}: not denoised within {} s; it goes to another worker",
+            claim.job,
+            limit.as_secs()
+        ))
+    };
+    let unit = send(pb::denoise_down::Msg::Unit(unit));
+    match tokio::time::timeout_at(until, tx.send(Ok(unit))).await {
+        Err(_) => return Err(late()),
+        Ok(Err(_)) => return Ok(()),
+        Ok(Ok(())) => {}
     }
     for chunk in input.chunks(CHUNK_BYTES) {
         let msg = send(pb::denoise_down::Msg::Input(chunk.to_vec()));
-        if tx.send(Ok(msg)).await.is_err() {
-            return Ok(());
+        match tokio::time::timeout_at(until, tx.send(Ok(msg))).await {
+            Err(_) => return Err(late()),
+            Ok(Err(_)) => return Ok(()),
+            Ok(Ok(())) => {}
         }
     }
     drop(input);
@@ -331,10 +342,11 @@ async fn serve_inner(
     let want = frame.rgb.len() * 9 * 4;
     let mut output: Vec<u8> = Vec::new();
     while output.len() < want {
-        let msg = match inbound.message().await {
-            Ok(Some(m)) => m,
+        let msg = match tokio::time::timeout_at(until, inbound.message()).await {
+            Err(_) => return Err(late()),
+            Ok(Ok(Some(m))) => m,
             // The worker went away: the claim goes back (`Claimed`).
-            Ok(None) | Err(_) => return Ok(()),
+            Ok(Ok(None) | Err(_)) => return Ok(()),
         };
         match msg.msg {
             Some(pb::denoise_up::Msg::Output(bytes)) => {
@@ -397,6 +409,14 @@ async fn serve_inner(
     }));
     let _ = tx.send(Ok(msg)).await;
     Ok(())
+}
+
+/// How long a worker may hold a frame of `pixels`: a minute for every megapixel (Open Image
+/// Denoise's `high` took 9 s a megapixel on two cores of the development machine), and two
+/// lease times besides for the transfers.
+fn claim_limit(pixels: usize, lease: Duration) -> Duration {
+    let megapixels = pixels.div_ceil(1_000_000) as u32;
+    Duration::from_secs(60) * megapixels.max(1) + lease * 2
 }
 
 /// A worker's output as planes: exactly three of `n` pixels, every value finite.

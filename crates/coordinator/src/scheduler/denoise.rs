@@ -149,7 +149,7 @@ impl Scheduler {
             return Vec::new();
         }
         let error = format!(
-            "denoising failed on {} workers; the last said: {why}",
+            "denoising failed {} times; the last worker said: {why}",
             q.failures
         );
         self.end_job(id, JobPhase::Failed, error, now_ms)
