@@ -264,7 +264,8 @@ fn the_farm_denoises_once_after_the_last_merge_and_matches_render_denoise() {
 fn a_worker_that_denoises_finishes_the_frame_for_a_coordinator_that_does_not() {
     tessera_testkit::install_oidn();
     let dir = tempfile::tempdir().expect("tmp");
-    let (_coord, url) = common::coordinator(&dir.path().join("data"));
+    let (_coord, url, dashboard) =
+        common::coordinator_with_dashboard(&dir.path().join("data"), &["--lease-timeout", "5"]);
     let _renders = common::worker(&url, "renders");
     let scene = repo("scenes/cornell-box.toml");
     let submitted = at(
@@ -290,6 +291,25 @@ fn a_worker_that_denoises_finishes_the_frame_for_a_coordinator_that_does_not() {
         "the job never said it waits for a denoising worker: {}",
         status()
     );
+    // While it waits, the dashboard shows the rendered frame, and a denoised preview made
+    // on the coordinator (which finds the library here).
+    let text = status();
+    let at_job = text.find("job-").expect("a job id");
+    let id = &text[at_job..at_job + 10];
+    for view in ["color", "denoised"] {
+        let (code, body) = http_get(
+            &dashboard,
+            &format!("/api/jobs/{id}/preview.png?view={view}"),
+        );
+        assert_eq!(code, 200, "{view}: {}", String::from_utf8_lossy(&body));
+        let mut png = png::Decoder::new(std::io::Cursor::new(body))
+            .read_info()
+            .expect("a PNG");
+        let mut px = vec![0; png.output_buffer_size()];
+        png.next_frame(&mut px).expect("pixels");
+        let lit = px.iter().filter(|&&v| v > 0).count();
+        assert!(lit > px.len() / 2, "the {view} preview is mostly black");
+    }
     let log = dir.path().join("denoiser.log");
     let _denoises = common::worker_with(&url, "denoises", &["--denoise"], &log);
     assert!(

@@ -14,7 +14,7 @@ use tessera_proto::ids::JobId;
 use tessera_render::output::{read_exr_channel, read_exr_rgb, tone_map, Preview};
 use tessera_render::PixelRect;
 
-use crate::job::{preview_step, PreviewSource, Thumb, TileMeans, MAX_KEPT_TILE_NOISE};
+use crate::job::{aov_means, preview_step, PreviewSource, Thumb, TileMeans, MAX_KEPT_TILE_NOISE};
 use crate::shared::Shared;
 use crate::store::JobPhase;
 
@@ -39,7 +39,8 @@ pub enum View {
     Color,
     /// Each tile coloured by its relative noise (blue low, red high), shaded by the image.
     Noise,
-    /// A finished job's denoised image (`submit --denoise`), tone-mapped.
+    /// The denoised image of a job submitted with `--denoise`, tone-mapped: a finished job's
+    /// layer, or, while it runs, its preview filtered here (see [`Previews::png`]).
     Denoised,
 }
 
@@ -67,6 +68,10 @@ struct Frame {
     /// The denoised layer's means, averaged down as `rgb` is: a finished job's that was
     /// denoised (`submit --denoise`), none otherwise.
     denoised: Option<Vec<[f32; 3]>>,
+    /// A running job's albedo and normal means, averaged down as `rgb` is, when it gathers
+    /// them (a job submitted with `--denoise`), and how it is denoised: what a live denoised
+    /// preview is filtered with.
+    aux: Option<(Vec<[[f32; 3]; 2]>, crate::store::DenoiseRecord)>,
 }
 
 impl Frame {
@@ -82,6 +87,7 @@ impl Frame {
                 rgb: vec![[0.0; 3]; n],
                 tiles: Vec::new(),
                 denoised: None,
+                aux: None,
             },
             vec![0; n],
         )
@@ -109,6 +115,15 @@ impl Frame {
         }
     }
 
+    /// Adds the full-resolution pixel (x, y)'s albedo and normal means to its preview pixel
+    /// (after [`Frame::add`] of its colour, which counts it).
+    fn add_aux(&mut self, x: u32, y: u32, m: [[f32; 3]; 2]) {
+        let i = (y / self.step) as usize * self.width as usize + (x / self.step) as usize;
+        if let Some(p) = self.aux.as_mut().and_then(|(a, _)| a.get_mut(i)) {
+            add_pair(p, &m);
+        }
+    }
+
     /// Adds a tile's kept means ([`Thumb`], made at this preview's step) to their preview
     /// pixels.
     fn add_thumb(&mut self, weights: &mut [u32], t: &Thumb) {
@@ -123,6 +138,12 @@ impl Frame {
                     p[c] += s[c];
                 }
                 *w += k;
+            }
+            if let (Some(p), Some(m)) = (
+                self.aux.as_mut().and_then(|(a, _)| a.get_mut(i)),
+                t.aux.get(j),
+            ) {
+                add_pair(p, m);
             }
         }
     }
@@ -139,6 +160,23 @@ impl Frame {
                     *c /= k as f32;
                 }
             }
+        }
+        if let Some((aux, _)) = &mut self.aux {
+            for (p, &k) in aux.iter_mut().zip(weights) {
+                if k > 1 {
+                    for c in p.as_flattened_mut() {
+                        *c /= k as f32;
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn add_pair(to: &mut [[f32; 3]; 2], from: &[[f32; 3]; 2]) {
+    for (a, b) in to.iter_mut().zip(from) {
+        for c in 0..3 {
+            a[c] += b[c];
         }
     }
 }
@@ -159,7 +197,22 @@ struct Cached {
 #[derive(Default)]
 pub struct Previews {
     jobs: tokio::sync::Mutex<HashMap<JobId, Arc<Cached>>>,
+    /// Running jobs' denoised previews: when each was made, what it cost, and the image.
+    live: tokio::sync::Mutex<HashMap<JobId, Live>>,
 }
+
+/// A running job's preview as the filter gave it.
+struct Live {
+    made: Instant,
+    cost: Duration,
+    rgb: Arc<Vec<[f32; 3]>>,
+}
+
+/// The least time between two denoised previews of one running job, and the share of its
+/// time the coordinator may spend filtering them: one is made again only once ten times what
+/// the last one cost has passed.
+const LIVE_INTERVAL: Duration = Duration::from_secs(2);
+const LIVE_COST_SHARE: u32 = 10;
 
 impl Previews {
     /// The PNG of job `id` at `exposure` stops in `view`.
@@ -177,12 +230,15 @@ impl Previews {
                  coordinator's last start, or has more than {MAX_KEPT_TILE_NOISE} tiles)"
             )));
         }
-        if view == View::Denoised && cached.frame.denoised.is_none() {
-            return Err(NoPreview::Gone(format!(
-                "{id} has no denoised image (it was not submitted with --denoise, or has not \
-                 finished)"
-            )));
-        }
+        let live = match (view, &cached.frame.denoised, &cached.frame.aux) {
+            (View::Denoised, None, Some(_)) => Some(self.live(id, &cached).await?),
+            (View::Denoised, None, None) => {
+                return Err(NoPreview::Gone(format!(
+                    "{id} has no denoised image (it was not submitted with --denoise)"
+                )))
+            }
+            _ => None,
+        };
         // Tenths of a stop: finer steps look the same and would only fill the cache.
         let key = ((exposure.clamp(-20.0, 20.0) * 10.0).round() as i32, view);
         let mut pngs = cached.pngs.lock().await;
@@ -190,15 +246,55 @@ impl Previews {
             return Ok(p.clone());
         }
         let frame = cached.frame.clone();
-        let png = tokio::task::spawn_blocking(move || encode(&frame, key.0 as f32 / 10.0, view))
-            .await
-            .map_err(|e| NoPreview::Failed(e.to_string()))??;
+        let png = tokio::task::spawn_blocking(move || {
+            encode(
+                &frame,
+                live.as_deref().map(Vec::as_slice),
+                key.0 as f32 / 10.0,
+                view,
+            )
+        })
+        .await
+        .map_err(|e| NoPreview::Failed(e.to_string()))??;
         let png = Arc::new(png);
         if pngs.len() >= PNGS_PER_SNAPSHOT {
             pngs.clear();
         }
         pngs.insert(key, png.clone());
         Ok(png)
+    }
+
+    /// Job `id`'s running preview, denoised on this machine (Open Image Denoise at `fast`,
+    /// on the preview's pixels: a picture of where the frame is going, not its final denoised
+    /// layer): the last one made while it is recent (see [`LIVE_COST_SHARE`]), else one of
+    /// `cached`. Without the library here, none, saying so.
+    async fn live(&self, id: JobId, cached: &Cached) -> Result<Arc<Vec<[f32; 3]>>, NoPreview> {
+        let mut live = self.live.lock().await;
+        if let Some(l) = live.get(&id) {
+            if l.made.elapsed() < LIVE_INTERVAL.max(l.cost * LIVE_COST_SHARE) {
+                return Ok(l.rgb.clone());
+            }
+        }
+        let frame = Arc::clone(&cached.frame);
+        let started = Instant::now();
+        let rgb = tokio::task::spawn_blocking(move || denoise_preview(&frame))
+            .await
+            .map_err(|e| NoPreview::Failed(e.to_string()))??;
+        let rgb = Arc::new(rgb);
+        if live.len() >= KEPT && !live.contains_key(&id) {
+            if let Some(oldest) = live.iter().min_by_key(|(_, l)| l.made).map(|(k, _)| *k) {
+                live.remove(&oldest);
+            }
+        }
+        live.insert(
+            id,
+            Live {
+                made: Instant::now(),
+                cost: started.elapsed(),
+                rgb: rgb.clone(),
+            },
+        );
+        Ok(rgb)
     }
 
     /// The job's snapshot: the cached one while it is fresh (or nothing changed), else a new one. One
@@ -244,6 +340,7 @@ async fn take(shared: &Arc<Shared>, id: JobId) -> Result<Frame, NoPreview> {
         tiles: n_tiles,
         output,
         kept_noise,
+        denoise,
     } = {
         let core = shared.scheduler();
         if core.is_range(id) {
@@ -268,6 +365,9 @@ async fn take(shared: &Arc<Shared>, id: JobId) -> Result<Frame, NoPreview> {
         }
     }
     let (mut frame, mut weights) = Frame::new(width, height);
+    if let Some(how) = denoise {
+        frame.aux = Some((vec![[[0.0; 3]; 2]; frame.rgb.len()], how));
+    }
     let mut first = 0;
     while first < n_tiles {
         let last = (first + TILES_PER_LOCK).min(n_tiles);
@@ -314,6 +414,9 @@ fn copy_tiles(
                 [0.0; 3]
             };
             frame.add(weights, x, y, m);
+            if let Some(aov) = &sums.aov {
+                frame.add_aux(x, y, aov_means(aov, i));
+            }
         }
     }
     Ok(())
@@ -333,6 +436,40 @@ fn from_exr(path: &std::path::Path) -> Result<Frame, NoPreview> {
         }
     }
     Ok(frame)
+}
+
+/// A running frame's preview filtered with its albedo and normal.
+fn denoise_preview(frame: &Frame) -> Result<Vec<[f32; 3]>, NoPreview> {
+    let Some((aux, how)) = &frame.aux else {
+        return Err(NoPreview::Gone(
+            "no albedo and normal to denoise with".into(),
+        ));
+    };
+    let albedo: Vec<[f32; 3]> = aux.iter().map(|a| a[0]).collect();
+    let normal: Vec<[f32; 3]> = aux.iter().map(|a| a[1]).collect();
+    let options = tessera_denoise::Options {
+        quality: tessera_denoise::Quality::Fast,
+        hdr: how.hdr,
+        threads: None,
+    };
+    let input = tessera_denoise::Frame {
+        width: frame.width,
+        height: frame.height,
+        color: &frame.rgb,
+        albedo: &albedo,
+        normal: &normal,
+    };
+    match tessera_denoise::denoise(&input, &options) {
+        Ok(d) => Ok(d.color),
+        Err(
+            e @ (tessera_denoise::DenoiseError::Missing { .. }
+            | tessera_denoise::DenoiseError::Unusable { .. }),
+        ) => Err(NoPreview::Gone(format!(
+            "a running job's denoised preview is made by the coordinator, which cannot load \
+             Open Image Denoise ({e}); the finished frame has its denoised layer"
+        ))),
+        Err(e) => Err(NoPreview::Failed(e.to_string())),
+    }
 }
 
 /// Relative noise mapped to a colour: log scale from 0.1% (blue) to 100% (red).
@@ -357,9 +494,15 @@ fn heat(rel: f32) -> [f32; 3] {
 }
 
 /// The PNG of `frame` in `view`.
-fn encode(frame: &Frame, exposure: f32, view: View) -> Result<Vec<u8>, NoPreview> {
-    let shown = match (view, &frame.denoised) {
-        (View::Denoised, Some(d)) => d,
+fn encode(
+    frame: &Frame,
+    live: Option<&[[f32; 3]]>,
+    exposure: f32,
+    view: View,
+) -> Result<Vec<u8>, NoPreview> {
+    let shown = match (view, live, &frame.denoised) {
+        (View::Denoised, Some(d), _) => d,
+        (View::Denoised, None, Some(d)) => d,
         _ => &frame.rgb,
     };
     let mut rgb = tone_map(shown, Preview { exposure });

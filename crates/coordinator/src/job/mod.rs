@@ -27,7 +27,9 @@ pub use audit::{same_bits, same_result, AuditHold, KeptUnits, Source, TakenBack,
 pub use guide_epochs::{Guide, Guiding};
 pub use preview::{PreviewSource, TileMeans};
 pub use rate::Rate;
-pub use resident::{preview_step, FrameTile, Snapshot, Thumb, MAX_DIRTY_BYTES, PREVIEW_EDGE};
+pub use resident::{
+    aov_means, preview_step, FrameTile, Snapshot, Thumb, MAX_DIRTY_BYTES, PREVIEW_EDGE,
+};
 pub use tiles::{check_aov_sums, pixel_in_range, sums_in_range, TileGrid};
 
 /// One work unit: a tile and a batch of sample indices.

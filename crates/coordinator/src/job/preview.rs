@@ -24,6 +24,8 @@ pub struct PreviewSource {
     /// Per tile, its rectangle and relative noise when it ended (empty while it runs, or
     /// where the noise was not kept).
     pub kept_noise: Vec<(PixelRect, f32)>,
+    /// How it asked to be denoised (`submit --denoise`), if it did.
+    pub denoise: Option<crate::store::DenoiseRecord>,
 }
 
 /// One tile's means as memory holds them.
@@ -53,6 +55,7 @@ impl Job {
             height: self.rec.height,
             tiles: self.tiles.len() as u32,
             output: self.rec.output_name.clone(),
+            denoise: self.rec.denoise.clone(),
             kept_noise,
         }
     }

@@ -59,6 +59,9 @@ pub struct Thumb {
     pub sum: Vec<[f32; 3]>,
     /// Full-resolution pixels in each sum.
     pub count: Vec<u32>,
+    /// Sums of the albedo and normal AOVs' means, as `sum` (empty for a job without them):
+    /// what a denoised preview of a running job is filtered with.
+    pub aux: Vec<[[f32; 3]; 2]>,
 }
 
 impl Thumb {
@@ -76,6 +79,11 @@ impl Thumb {
             width,
             sum: vec![[0.0; 3]; n],
             count: vec![0; n],
+            aux: if sums.aov.is_some() {
+                vec![[[0.0; 3]; 2]; n]
+            } else {
+                Vec::new()
+            },
         };
         for (i, (s, &k)) in sums.sum.iter().zip(&sums.count).enumerate() {
             let x = r.x0 + i as u32 % r.width;
@@ -88,9 +96,27 @@ impl Thumb {
                 }
             }
             thumb.count[j] += 1;
+            if let (Some(aov), Some(t)) = (&sums.aov, thumb.aux.get_mut(j)) {
+                let m = aov_means(aov, i);
+                for (a, b) in t.iter_mut().zip(m) {
+                    for c in 0..3 {
+                        a[c] += b[c];
+                    }
+                }
+            }
         }
         thumb
     }
+}
+
+/// Pixel `i`'s mean albedo and mean normal from AOV sums (black where no sample was summed).
+pub fn aov_means(aov: &tessera_render::film::AovSums, i: usize) -> [[f32; 3]; 2] {
+    let k = aov.count.get(i).copied().unwrap_or(0);
+    if k == 0 {
+        return [[0.0; 3]; 2];
+    }
+    let mean = |v: Option<&[f64; 3]>| v.map_or([0.0; 3], |s| s.map(|c| (c / f64::from(k)) as f32));
+    [mean(aov.albedo.get(i)), mean(aov.normal.get(i))]
 }
 
 /// Dirty tiles' sums as they were at a checkpoint: (job, tile, sums), none for a tile whose
@@ -271,17 +297,23 @@ impl Job {
     /// store), and where the store holds the rest.
     pub fn take_frame_tiles(&mut self) -> Vec<FrameTile> {
         let tiles = self.tiles;
+        let step = preview_step(self.rec.width, self.rec.height);
         (0..tiles.len() as u32)
             .filter_map(|t| {
                 let rect = tiles.get(t)?;
                 let acc = self.acc.get_mut(&t);
                 Some(match acc {
                     Some(a) if a.sums.is_none() && a.thumb.is_some() => FrameTile::Stored(t, rect),
-                    Some(a) => FrameTile::Here(
-                        a.sums
+                    Some(a) => {
+                        let sums = a
+                            .sums
                             .take()
-                            .map_or_else(|| TileSums::empty(rect, 0), Arc::unwrap_or_clone),
-                    ),
+                            .map_or_else(|| TileSums::empty(rect, 0), Arc::unwrap_or_clone);
+                        // The preview keeps showing the frame while it is written, or while
+                        // it waits for a worker to denoise it.
+                        a.thumb = Some(Thumb::of(&sums, step));
+                        FrameTile::Here(sums)
+                    }
                     None => FrameTile::Here(TileSums::empty(rect, 0)),
                 })
             })

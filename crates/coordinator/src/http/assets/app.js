@@ -244,8 +244,9 @@ function jobView(j) {
     const expoLabel = el("span", { id: "exposure-value" }, `${preview.exposure} EV`);
     expo.addEventListener("input", () => { preview.exposure = Number(expo.value); expoLabel.textContent = `${preview.exposure} EV`; preview.lastLoad = 0; refresh(); });
     const toggle = el("button", { id: "view-toggle" }, preview.view === "noise" ? "Show image" : "Show noise");
-    // A finished job submitted with --denoise also has its denoised image; any other job
-    // answers this view with a note saying why not.
+    // A job submitted with --denoise also has its denoised image: while it runs, its preview
+    // filtered by the coordinator (where it has the library); once done, the EXR's layer. Any
+    // other job answers this view with a note saying why not.
     const denoised = el("button", { id: "denoised-toggle" }, preview.view === "denoised" ? "Show image" : "Show denoised");
     const relabel = () => {
       toggle.textContent = preview.view === "noise" ? "Show image" : "Show noise";
