@@ -568,3 +568,92 @@ fn the_dashboard_fits_1280_px_and_a_cancelled_job_shows_no_broken_picture() {
         "the workers page clips its Drain button at 1280 px: {fit}"
     );
 }
+
+/// The dashboard's submit form, as an artist uses it: a scene that names a mesh, chosen with
+/// the mesh, denoised. The coordinator names the file the scene needs, the page uploads the
+/// chosen file of that name and submits again; without it, the page says which file to add.
+#[test]
+fn a_job_submitted_from_the_dashboard_uploads_its_files_and_is_denoised() {
+    tessera_testkit::install_oidn();
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (_coordinator, grpc, dash) =
+        coordinator_with_dashboard(&dir.path().join("data"), &["--denoise"]);
+    let _worker = Proc(
+        Command::new(BIN)
+            .args(["worker", "--coordinator", &grpc, "--threads", "1"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start worker"),
+    );
+    let profile = tempfile::tempdir().expect("profile");
+    let mut cdp = Cdp::launch(profile.path());
+    cdp.navigate(&format!("{dash}/"));
+    wait_for("the submit form", || {
+        (cdp.eval("document.getElementById('submit-files') !== null") == true).then_some(())
+    });
+    let choose = |cdp: &mut Cdp, files: &[String]| {
+        let input = cdp.call(
+            "Runtime.evaluate",
+            json!({ "expression": "document.getElementById('submit-files')" }),
+        );
+        let object = input["result"]["objectId"].clone();
+        cdp.call(
+            "DOM.setFileInputFiles",
+            json!({ "files": files, "objectId": object }),
+        );
+    };
+    // The browser reads files by their real paths (no `..`).
+    let real = |p: &str| {
+        std::fs::canonicalize(repo(p))
+            .expect("a file of the repository")
+            .display()
+            .to_string()
+    };
+    let (scene, mesh) = (
+        real("scenes/cornell-mesh.toml"),
+        real("scenes/meshes/cube.obj"),
+    );
+    // Without the mesh: the page names it.
+    choose(&mut cdp, std::slice::from_ref(&scene));
+    cdp.eval(
+        "document.getElementById('submit').open = true; \
+         document.getElementById('submit-spp').value = '4'; \
+         document.getElementById('submit-denoise').checked = true; \
+         document.getElementById('submit-quality').value = 'fast'; \
+         document.getElementById('submit-go').click(); true",
+    );
+    let said = wait_for("the page to say what is missing", || {
+        let v = cdp.eval(
+            "(() => { const n = document.getElementById('submit-note'); \
+             return n && n.className === 'error' ? n.textContent : null; })()",
+        );
+        v.as_str().map(str::to_string)
+    });
+    assert!(said.contains("choose cube.obj too"), "{said}");
+    // With it: uploaded, submitted, and the page goes to the job.
+    choose(&mut cdp, &[scene, mesh]);
+    cdp.eval("document.getElementById('submit-go').click(); true");
+    let job = wait_for("the job's page", || {
+        let v = cdp.eval("location.pathname");
+        v.as_str()
+            .and_then(|p| p.strip_prefix("/jobs/"))
+            .map(str::to_string)
+    });
+    wait_for("the job to finish", || {
+        (cdp.eval(&format!(
+            "fetch('/api/jobs/{job}').then(r => r.json()).then(j => j.state)"
+        )) == "done")
+            .then_some(())
+    });
+    let exr = fetch_in_page(&mut cdp, &format!("'/api/jobs/{job}/output.exr'"));
+    let path = dir.path().join("submitted.exr");
+    std::fs::write(&path, exr).expect("write");
+    let denoised = tessera_render::output::read_exr_channel(&path, "denoised.R").expect("layer");
+    assert_eq!(denoised.len(), 256 * 256);
+    let meta = tessera_render::output::read_exr_metadata(&path).expect("metadata");
+    assert!(
+        meta.iter().any(|m| m == "denoise=oidn 2.5.1 fast hdr"),
+        "{meta:?}"
+    );
+}

@@ -73,7 +73,8 @@ pub(super) struct SubmitBody {
     #[serde(default)]
     sample_count: bool,
     /// Add a denoised layer: `{"quality": "fast"|"balanced"|"high", "ldr": false}` (both
-    /// optional); the coordinator must have been started with `--denoise`.
+    /// optional); made by a coordinator started with `--denoise`, else by a worker started
+    /// with `--denoise` (the job waits for one).
     #[serde(default)]
     denoise: Option<DenoiseRequest>,
     /// The files the scene names, each uploaded first (`PUT /api/assets/{sha256}`): name as in

@@ -118,6 +118,111 @@ function flag(checks) {
   return el("span", { class: "flag", title: checks.map((c) => c.message).join("\n") }, " flagged: " + [...new Set(checks.map((c) => c.code))].join(", "));
 }
 
+// ---- submitting a job
+
+// The submit form, built once and moved (not rebuilt) on each refresh, so that what is typed
+// into it and the files chosen stay.
+let submitForm = null;
+
+// SHA-256 of a file's bytes, as hex (the coordinator stores files by it).
+async function sha256(bytes) {
+  if (!crypto.subtle) throw new Error("uploading files needs the dashboard over https or on localhost (the browser's hashing is off elsewhere); use tessera submit");
+  const d = await crypto.subtle.digest("SHA-256", bytes);
+  return Array.from(new Uint8Array(d), (b) => b.toString(16).padStart(2, "0")).join("");
+}
+
+// Uploads one chosen file and returns its hash.
+async function uploadFile(file) {
+  const bytes = await file.arrayBuffer();
+  const sha = await sha256(bytes);
+  await api(`/api/assets/${sha}?offset=0&total=${bytes.byteLength}`, { method: "PUT", body: bytes });
+  return sha;
+}
+
+const SCENE_EXT = /\.(toml|json|gltf|glb)$/i;
+const MISSING = /`([^`]+)` is not among the files sent with the job/;
+
+// Submits the form's job: the scene (the first chosen file that is a scene: TOML, JSON or
+// glTF), then, as the coordinator names each file the scene needs, the chosen file of that
+// name, uploaded. Returns the new job's id.
+async function submitJob(form, say) {
+  const chosen = Array.from(form.querySelector("#submit-files").files);
+  const scene = chosen.find((f) => SCENE_EXT.test(f.name));
+  if (!scene) throw new Error("choose the scene file (.toml, .json, .gltf or .glb), and the files it names");
+  const spp = Number(form.querySelector("#submit-spp").value);
+  if (!Number.isInteger(spp) || spp < 1) throw new Error("samples per pixel: a whole number of at least 1");
+  const ext = scene.name.split(".").pop().toLowerCase();
+  const body = { spp, scene_name: scene.name, files: {} };
+  if (ext === "gltf" || ext === "glb") {
+    say(`uploading ${scene.name}…`);
+    body.format = "gltf";
+    body.scene = scene.name;
+    body.files[scene.name] = await uploadFile(scene);
+  } else {
+    body.format = ext;
+    body.scene = await scene.text();
+  }
+  const frames = form.querySelector("#submit-frames").value.trim();
+  if (frames) body.frames = frames;
+  const name = form.querySelector("#submit-name").value.trim();
+  if (name) body.name = name;
+  const priority = Number(form.querySelector("#submit-priority").value || "0");
+  if (!Number.isInteger(priority)) throw new Error("priority: a whole number");
+  body.priority = priority;
+  if (form.querySelector("#submit-denoise").checked) {
+    body.denoise = { quality: form.querySelector("#submit-quality").value };
+  }
+  // Each refusal names the next file the scene needs; a scene names at most a few hundred.
+  for (let tries = 0; tries < 512; tries++) {
+    say("submitting…");
+    try {
+      return (await api("/api/jobs", { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) })).job_id;
+    } catch (e) {
+      const m = MISSING.exec(e.message);
+      if (!m) throw e;
+      const wanted = m[1];
+      const base = wanted.split("/").pop();
+      const file = chosen.find((f) => f.name === base);
+      if (!file || body.files[wanted]) throw new Error(`${e.message}: choose ${base} too`);
+      say(`uploading ${wanted}…`);
+      body.files[wanted] = await uploadFile(file);
+    }
+  }
+  throw new Error("the scene names too many files");
+}
+
+function submitBox() {
+  if (submitForm) return submitForm;
+  const note = el("span", { id: "submit-note", class: "muted" });
+  const say = (t, bad = false) => { note.textContent = t; note.className = bad ? "error" : "muted"; };
+  const quality = el("select", { id: "submit-quality", "aria-label": "Denoise quality" },
+    el("option", { value: "fast" }, "fast"), el("option", { value: "balanced" }, "balanced"), el("option", { value: "high", selected: "" }, "high"));
+  const go = el("button", { id: "submit-go", type: "submit" }, "Submit");
+  const form = el("form", { id: "submit-form" },
+    el("label", {}, "Scene and its files ", el("input", { id: "submit-files", type: "file", multiple: "" })),
+    el("label", {}, "Samples per pixel ", el("input", { id: "submit-spp", type: "number", min: "1", step: "1", value: "64" })),
+    el("label", {}, "Frames ", el("input", { id: "submit-frames", type: "text", placeholder: "1-240:2", size: "9" })),
+    el("label", {}, "Output name ", el("input", { id: "submit-name", type: "text", placeholder: "shot.exr", size: "12" })),
+    el("label", {}, "Priority ", el("input", { id: "submit-priority", type: "number", step: "1", value: "0" })),
+    el("label", {}, el("input", { id: "submit-denoise", type: "checkbox" }), " Denoise"), quality,
+    go, note);
+  form.addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    go.disabled = true;
+    try {
+      const id = await submitJob(form, say);
+      say(`submitted ${id}`);
+      location.href = `/jobs/${id}`;
+    } catch (e) {
+      say(e.message, true);
+    } finally {
+      go.disabled = false;
+    }
+  });
+  submitForm = el("details", { id: "submit" }, el("summary", {}, "Submit a job"), form);
+  return submitForm;
+}
+
 function jobsView(jobs) {
   const rows = jobs.map((j) => el("tr", { "data-job": j.job_id },
     el("td", {}, el("a", { href: `/jobs/${j.job_id}` }, j.job_id)),
@@ -133,6 +238,7 @@ function jobsView(jobs) {
   ));
   return [
     el("h1", {}, "Jobs ", el("span", { class: "muted" }, `(${jobs.length})`)),
+    submitBox(),
     jobs.length === 0 ? el("p", { class: "muted" }, "No jobs yet: tessera submit SCENE --spp N") :
     el("div", { class: "scroll" }, el("table", { id: "jobs" },
       el("thead", {}, el("tr", {}, ...["Job", "Scene", "State", "Progress", "Samples", "Msamples/s", "Noise", "ETA", "Priority", ""].map((h, i) => el("th", { class: i >= 4 && i <= 8 ? "num" : "" }, h)))),
