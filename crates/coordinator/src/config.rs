@@ -255,6 +255,11 @@ impl Config {
             .unwrap_or_else(|| self.data_dir.join("output"))
     }
 
+    /// Where finished frames wait for a worker to denoise them (`DATA_DIR/denoise`).
+    pub fn kept_frames_dir(&self) -> PathBuf {
+        self.data_dir.join("denoise")
+    }
+
     /// Where the output named `name` is (or will be) written.
     pub fn output_path(&self, name: &str) -> PathBuf {
         self.output_dir().join(name)

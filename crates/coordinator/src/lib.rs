@@ -27,8 +27,8 @@
 //! - [`scheduler`]: workers, leases, queues, speculation, quarantine and admission.
 //! - [`output`]: output names, and the EXR written when a job's last unit is in.
 //! - `shared` (the scheduler behind its lock, and the commit writer), `ingest` (a worker's
-//!   result from its arrival to its merge), `denoise` (finished frames lent to workers that
-//!   denoise), `service` (the gRPC handlers, which parse the
+//!   result from its arrival to its merge), `kept` (finished frames kept for a denoising
+//!   worker) and `denoise` (the stream that lends them), `service` (the gRPC handlers, which parse the
 //!   wire into typed values and call the scheduler or `ingest`), `conn`
 //!   (connection limits) and [`server`] (TLS, auth, wiring: [`serve`]).
 //! - [`metrics`] (timings and the Prometheus text) and `http` (the dashboard and `/metrics`,
@@ -38,6 +38,7 @@ mod conn;
 mod denoise;
 mod http;
 mod ingest;
+mod kept;
 mod referee;
 mod service;
 mod shared;

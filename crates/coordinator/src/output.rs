@@ -60,7 +60,7 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
     let path = dir.join(&rec.output_name);
     let store = shared.store.clone();
     // A job that asks to be denoised on a coordinator that does not denoise is finished by a
-    // worker that does ([`crate::denoise`]): its frame is kept for one.
+    // worker that does (`denoise.rs`): its frame is kept for one ([`crate::kept`]).
     let here = shared.config.denoise;
     let keeper = shared.clone();
     let written = tokio::task::spawn_blocking(move || -> Result<_, FinishError> {
@@ -98,8 +98,7 @@ pub(crate) async fn finish_job(shared: Arc<Shared>, id: JobId) {
                     return Err(e.into());
                 }
                 if !here {
-                    crate::denoise::park(&keeper, JobId(rec.id), &frame)
-                        .map_err(FinishError::Keep)?;
+                    crate::kept::park(&keeper, JobId(rec.id), &frame).map_err(FinishError::Keep)?;
                     return Ok(None);
                 }
                 let (entry, planes) = denoise(&frame, how)?;
@@ -222,7 +221,7 @@ pub(crate) async fn finish_denoised(
         .filter(|j| j.finishing && j.rec.phase == JobPhase::Active)
         .map(|j| (j.rec.clone(), j.settings()))
     else {
-        crate::denoise::forget(&shared.config.data_dir, id);
+        crate::kept::forget(&shared.config, id);
         return false;
     };
     let path = shared.config.output_dir().join(&rec.output_name);
@@ -239,7 +238,7 @@ pub(crate) async fn finish_denoised(
     .and_then(|r| r);
     let ok = written.is_ok();
     record_written(&shared, id, written, started).await;
-    crate::denoise::forget(&shared.config.data_dir, id);
+    crate::kept::forget(&shared.config, id);
     ok
 }
 

@@ -73,8 +73,8 @@ impl Shared {
             config.asset_store_bytes,
         )?);
         // Frames kept for denoising workers are gathered again from the store by the jobs
-        // restored as finishing ([`crate::denoise`]); what a crash left is stale.
-        let _ = std::fs::remove_dir_all(crate::denoise::dir(&config.data_dir));
+        // restored as finishing; what a crash left is stale.
+        let _ = std::fs::remove_dir_all(config.kept_frames_dir());
         let epoch = store.next_epoch()?;
         let mut scheduler = Scheduler::new(
             epoch,

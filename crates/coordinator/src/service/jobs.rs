@@ -137,7 +137,7 @@ impl Jobs for Service {
             self.shared.queue_write(ops)
         };
         durable(rx).await.map_err(internal)?;
-        crate::denoise::sweep(&self.shared);
+        crate::kept::sweep(&self.shared);
         info!("{id} cancelled");
         self.shared.bump_changed();
         Ok(Response::new(pb::CancelJobResponse {

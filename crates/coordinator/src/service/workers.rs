@@ -350,8 +350,8 @@ impl Workers for Service {
         };
         // An unknown worker, or one that does not denoise, is refused by the call itself
         // rather than later on the stream, so that it learns why at once.
+        let cred = credential(&hello.worker_id)?;
         {
-            let cred = credential(&hello.worker_id)?;
             let mut core = self.shared.scheduler();
             let w = core.touch_worker(&cred, Instant::now())?;
             if core.worker(w).is_none_or(|x| x.caps.denoise_version <= 0) {
@@ -363,7 +363,7 @@ impl Workers for Service {
         let (tx, rx) = mpsc::channel(4);
         tokio::spawn(crate::denoise::serve(
             self.shared.clone(),
-            hello,
+            (cred, hello.wait_ms),
             inbound,
             tx,
         ));
