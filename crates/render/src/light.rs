@@ -128,18 +128,14 @@ impl MeshLight {
         (i, crate::mesh::triangle::sample_uniform(ux, u.y))
     }
 
-    /// A point uniformly distributed by area: (point, its front normal).
+    /// A point uniformly distributed by area: (point, its front normal, the bound on its
+    /// rounding error), the triangle picked once for all three.
     #[inline]
-    pub fn sample(&self, u: Vec2) -> (Vec3A, Vec3A) {
+    pub fn sample(&self, u: Vec2) -> (Vec3A, Vec3A, Vec3A) {
         let (i, b) = self.pick(u);
         let LightTriangle { p: [p0, p1, p2], n } = self.tris[i];
-        (p0 * b[0] + p1 * b[1] + p2 * b[2], n)
-    }
-
-    fn point_error(&self, u: Vec2) -> Vec3A {
-        let (i, b) = self.pick(u);
-        let [p0, p1, p2] = self.tris[i].p;
-        crate::mesh::triangle::point_error(b, p0, p1, p2)
+        let err = crate::mesh::triangle::point_error(b, p0, p1, p2);
+        (p0 * b[0] + p1 * b[1] + p2 * b[2], n, err)
     }
 }
 
@@ -178,6 +174,20 @@ impl EmissionTexture {
         let [a, c, d] = self.uvs.get(i).copied().unwrap_or_default();
         self.texture.lookup(a * b[0] + c * b[1] + d * b[2])
     }
+}
+
+/// A point sampled on an area light ([`Light::sample`]), before the light is chosen.
+struct AreaSample {
+    /// The point.
+    x: Vec3A,
+    /// Its normal.
+    n: Vec3A,
+    /// The bound on its rounding error.
+    err: Vec3A,
+    /// Unit direction from the shading point to it.
+    wi: Vec3A,
+    /// Density in solid angle, without selection.
+    pdf: f32,
 }
 
 /// A sampled point on a light.
@@ -334,36 +344,37 @@ impl Light {
         }
     }
 
-    /// Rounding-error bound of a point `x` that [`Light::sample`] produced from `u`.
-    #[inline]
-    fn point_error(&self, x: Vec3A, u: Vec2) -> Vec3A {
-        match &self.shape {
-            LightShape::Quad(q) => q.point_error(u.x, u.y),
-            LightShape::Sphere { center, .. } => sphere_point_error(*center, x - *center),
-            LightShape::Mesh(m) => m.point_error(u),
-            _ => Vec3A::ZERO,
-        }
-    }
-
-    /// Samples a point as seen from `p`: (point, its normal, unit direction from `p`, density in
-    /// solid angle without selection).
+    /// Samples a point as seen from `p`: the point, its normal, unit direction from `p`,
+    /// density in solid angle without selection, and the bound on the point's rounding error
+    /// (found in the same arm as the point: a second match on the shape, and a mesh light's
+    /// second pick of its triangle, cost every light sample).
     ///
     /// Inlined for quads, whose sample is a few operations: called, it cost the integrator a
     /// call and the reloads of a dozen spilled registers after it. Spheres stay a call.
     /// Always: with the punctual lights' arm, LLVM stopped inlining it of its own accord.
     #[inline(always)]
-    fn sample(&self, p: Vec3A, u: Vec2) -> Option<(Vec3A, Vec3A, Vec3A, f32)> {
+    fn sample(&self, p: Vec3A, u: Vec2) -> Option<AreaSample> {
         match &self.shape {
             LightShape::Quad(q) => {
                 let x = q.point(u.x, u.y);
                 let (wi, pdf) = area_to_solid_angle(p, x, q.normal, q.area)?;
-                Some((x, q.normal, wi, pdf))
+                Some(AreaSample {
+                    x,
+                    n: q.normal,
+                    err: q.point_error(u.x, u.y),
+                    wi,
+                    pdf,
+                })
             }
-            LightShape::Sphere { center, radius } => sample_sphere(*center, *radius, p, u),
+            LightShape::Sphere { center, radius } => {
+                let (x, n, wi, pdf) = sample_sphere(*center, *radius, p, u)?;
+                let err = sphere_point_error(*center, x - *center);
+                Some(AreaSample { x, n, err, wi, pdf })
+            }
             LightShape::Mesh(m) => {
-                let (x, n) = m.sample(u);
+                let (x, n, err) = m.sample(u);
                 let (wi, pdf) = area_to_solid_angle(p, x, n, m.area)?;
-                Some((x, n, wi, pdf))
+                Some(AreaSample { x, n, err, wi, pdf })
             }
             _ => None,
         }
@@ -588,18 +599,20 @@ impl Lights {
         if !light.is_area() {
             return surfaceless_sample(light, p, u, dist.pmf(i));
         }
-        let (x, n, wi, pdf) = light.sample(p, u)?;
+        let AreaSample { x, n, err, wi, pdf } = light.sample(p, u)?;
         let pdf = pdf * dist.pmf(i);
         if !positive_finite(pdf) {
             return None;
         }
         let mut le = light.emitted(n, -wi);
-        if let (Some(t), LightShape::Mesh(m)) = (&light.texture, &light.shape) {
-            le *= t.at_sample(m, u);
+        if let Some(t) = &light.texture {
+            if let LightShape::Mesh(m) = &light.shape {
+                le *= t.at_sample(m, u);
+            }
         }
         let towards = if n.dot(-wi) >= 0.0 { n } else { -n };
         Some(LightSample {
-            p: offset_ray_origin(x, light.point_error(x, u), towards),
+            p: offset_ray_origin(x, err, towards),
             wi,
             le,
             pdf,
