@@ -18,7 +18,7 @@ use crate::accel::bvh8::Bvh8;
 use crate::accel::pages::PagedArray;
 use crate::interaction::{transformed_box, SurfacePoint, Transformed};
 use crate::util::math::{Aabb, Ray};
-use triangle::{Tri4, WoopRay};
+use triangle::{Tri4, TriangleHit, WoopRay};
 
 /// A triangle mesh in its own (object) space, with its BVH. The triangles are stored once,
 /// four to a group in SIMD lanes ([`Tri4`]) in the BVH's leaf order, so that a leaf's
@@ -153,24 +153,43 @@ impl TriMesh {
         self.slots().map(|s| self.triangle(s))
     }
 
-    /// Closest hit of an object-space ray with t in (0, t_max): (t, slot).
+    /// Closest hit of an object-space ray with t in (0, t_max): (t, slot). Its barycentrics
+    /// are kept for this thread's next [`TriMesh::barycentrics`] of the same ray and slot.
     #[inline]
     pub fn intersect(&self, ray: &Ray, t_max: f32) -> Option<(f32, u32)> {
-        let mut best = None;
+        let mut best: Option<(TriangleHit, u32)> = None;
         let r = WoopRay::new(ray.o, ray.d);
         let groups = self.groups.as_slice();
         self.bvh
             .traverse(ray.o, ray.d.recip(), t_max, |start, count, mut t_max| {
                 let start = start as usize;
                 for (i, group) in groups[start..start + count as usize].iter().enumerate() {
-                    if let Some((t, lane)) = triangle::intersect4(&r, group, t_max) {
-                        t_max = t;
-                        best = Some((t, ((start + i) * 4 + lane) as u32));
+                    if let Some((hit, lane)) = triangle::intersect4(&r, group, t_max) {
+                        t_max = hit.t;
+                        best = Some((hit, ((start + i) * 4 + lane) as u32));
                     }
                 }
                 t_max
             });
-        best
+        let (hit, slot) = best?;
+        LAST_HIT.set(Some(LastHit::new(self, ray, slot, hit.b)));
+        Some((hit.t, slot))
+    }
+
+    /// The barycentrics of a hit [`TriMesh::intersect`] found along object-space `ray` at
+    /// `slot`: the ones it found, kept for this thread, when they are this ray's and slot's
+    /// (the hit a path shades is the last one found, almost always), else the same test
+    /// again, which gives the same bits.
+    #[inline]
+    fn barycentrics(&self, ray: &Ray, slot: u32) -> [f32; 3] {
+        let key = LastHit::new(self, ray, slot, [0.0; 3]);
+        if let Some(last) = LAST_HIT.get() {
+            if last.same_hit(&key) {
+                return last.b;
+            }
+        }
+        let [p0, p1, p2] = self.triangle(slot);
+        triangle::intersect(ray.o, ray.d, p0, p1, p2, f32::INFINITY).map_or([1.0 / 3.0; 3], |h| h.b)
     }
 
     /// Whether an object-space ray hits any triangle with t in (0, t_max).
@@ -217,6 +236,42 @@ impl TriMesh {
         let n = self.normals.get(slot as usize)?;
         Some(n[0] * b[0] + n[1] * b[1] + n[2] * b[2])
     }
+}
+
+/// The last closest hit a [`TriMesh::intersect`] on this thread found, keyed by what decides
+/// its barycentrics: the mesh, the triangle's slot and the object-space ray, bit for bit.
+/// Shading the hit needs them three times (the point, its texture coordinates, the normal
+/// map's frame), and finding them again cost a whole triangle test each time. A key that does
+/// not match (another ray's hit, another thread's) only means the test runs again, so the
+/// pixels cannot depend on it.
+#[derive(Clone, Copy)]
+struct LastHit {
+    mesh: usize,
+    slot: u32,
+    ray: [u32; 6],
+    b: [f32; 3],
+}
+
+impl LastHit {
+    #[inline(always)]
+    fn new(mesh: &TriMesh, ray: &Ray, slot: u32, b: [f32; 3]) -> Self {
+        let (o, d) = (ray.o.to_array(), ray.d.to_array());
+        Self {
+            mesh: std::ptr::from_ref(mesh) as usize,
+            slot,
+            ray: [o[0], o[1], o[2], d[0], d[1], d[2]].map(f32::to_bits),
+            b,
+        }
+    }
+
+    #[inline(always)]
+    fn same_hit(&self, other: &Self) -> bool {
+        self.mesh == other.mesh && self.slot == other.slot && self.ray == other.ray
+    }
+}
+
+thread_local! {
+    static LAST_HIT: std::cell::Cell<Option<LastHit>> = const { std::cell::Cell::new(None) };
 }
 
 /// Texture coordinates at a hit and how the surface moves with them.
@@ -267,10 +322,9 @@ impl MeshInstance {
     pub fn surface(&self, r: &Ray, part: u32) -> SurfacePoint {
         let lr = self.xf.ray_to_object(r);
         let [p0, p1, p2] = self.mesh.triangle(part);
-        // The same test on the same inputs, so the same hit; its barycentrics give the point
-        // from the vertices (not o + t·d, whose error grows with the distance travelled).
-        let b = triangle::intersect(lr.o, lr.d, p0, p1, p2, f32::INFINITY)
-            .map_or([1.0 / 3.0; 3], |h| h.b);
+        // The hit's barycentrics give the point from the vertices (not o + t·d, whose error
+        // grows with the distance travelled).
+        let b = self.mesh.barycentrics(&lr, part);
         let p = p0 * b[0] + p1 * b[1] + p2 * b[2];
         let n_obj = self.mesh.front_normal(part, self.smooth);
         let n = self.xf.normal_to_world(n_obj);
@@ -298,10 +352,7 @@ impl MeshInstance {
         let Some(uv) = self.mesh.uvs.get(part as usize) else {
             return Vec2::ZERO;
         };
-        let lr = self.xf.ray_to_object(r);
-        let [p0, p1, p2] = self.mesh.triangle(part);
-        let b = triangle::intersect(lr.o, lr.d, p0, p1, p2, f32::INFINITY)
-            .map_or([1.0 / 3.0; 3], |h| h.b);
+        let b = self.mesh.barycentrics(&self.xf.ray_to_object(r), part);
         uv[0] * b[0] + uv[1] * b[1] + uv[2] * b[2]
     }
 
@@ -312,10 +363,8 @@ impl MeshInstance {
     #[inline(never)]
     pub fn uv_frame(&self, r: &Ray, part: u32) -> Option<UvFrame> {
         let uv = self.mesh.uvs.get(part as usize)?;
-        let lr = self.xf.ray_to_object(r);
+        let b = self.mesh.barycentrics(&self.xf.ray_to_object(r), part);
         let [p0, p1, p2] = self.mesh.triangle(part);
-        let b = triangle::intersect(lr.o, lr.d, p0, p1, p2, f32::INFINITY)
-            .map_or([1.0 / 3.0; 3], |h| h.b);
         let at = uv[0] * b[0] + uv[1] * b[1] + uv[2] * b[2];
         // [p1 − p0, p2 − p0] = [∂p/∂u, ∂p/∂v] · [[du1, du2], [dv1, dv2]], inverted.
         let (d1, d2) = (uv[1] - uv[0], uv[2] - uv[0]);
@@ -448,6 +497,48 @@ pub(crate) mod tests {
             }
         }
         assert_eq!(rays, 40_000);
+    }
+
+    /// The barycentrics a hit is shaded with are the triangle test's, bit for bit, whether
+    /// they come from the hit this thread found last or from testing again (another ray's hit
+    /// found since, another mesh's, another slot asked).
+    #[test]
+    fn kept_barycentrics_are_the_tests_own_and_a_stale_key_tests_again() {
+        let tris = lumpy_sphere(12, 24);
+        let (a, b) = (
+            TriMesh::new(tris.clone(), Vec::new(), Vec::new()),
+            TriMesh::new(tris.clone(), Vec::new(), Vec::new()),
+        );
+        let mut rng = HashRng::new(9);
+        let mut v = move || Vec3A::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
+        let exact = |ray: &Ray, slot: u32| {
+            let [p0, p1, p2] = a.triangle(slot);
+            let h = triangle::intersect(ray.o, ray.d, p0, p1, p2, f32::INFINITY).expect("hit");
+            h.b.map(f32::to_bits)
+        };
+        let bits = |x: [f32; 3]| x.map(f32::to_bits);
+        let mut checked = 0;
+        for _ in 0..2000 {
+            let (r1, r2) = (Ray::new(v() * 0.5, v()), Ray::new(v() * 0.5, v()));
+            let (Some((_, s1)), Some((_, s2))) = (
+                a.intersect(&r1, f32::INFINITY),
+                a.intersect(&r2, f32::INFINITY),
+            ) else {
+                continue;
+            };
+            // Kept: r2's hit, the last one found.
+            assert_eq!(bits(a.barycentrics(&r2, s2)), exact(&r2, s2));
+            // Stale for r1 (r2's is kept), for another mesh, and for another slot.
+            assert_eq!(bits(a.barycentrics(&r1, s1)), exact(&r1, s1));
+            assert_eq!(bits(b.barycentrics(&r2, s2)), exact(&r2, s2));
+            let other = (s2 + 1) % (tris.len() as u32);
+            let [p0, p1, p2] = a.triangle(other);
+            let again = triangle::intersect(r2.o, r2.d, p0, p1, p2, f32::INFINITY)
+                .map_or([1.0 / 3.0; 3], |h| h.b);
+            assert_eq!(bits(a.barycentrics(&r2, other)), bits(again));
+            checked += 1;
+        }
+        assert!(checked > 1000, "{checked}");
     }
 
     /// The BVH finds what testing every triangle finds (closest t), and the parallel build

@@ -244,11 +244,12 @@ impl Lanes for Vec4 {
     }
 }
 
-/// The closest of four triangles along a prepared ray with t in (0, t_max): (t, lane). Each
-/// lane's answer is [`intersect_prepared`]'s, bit for bit, and ties go to a lane fixed by the
-/// triangles and the ray alone (the lowest of those f32 decided, else the lowest of the rest).
+/// The closest of four triangles along a prepared ray with t in (0, t_max): its hit (t and
+/// barycentrics) and lane. Each lane's answer is [`intersect_prepared`]'s, bit for bit, and
+/// ties go to a lane fixed by the triangles and the ray alone (the lowest of those f32
+/// decided, else the lowest of the rest).
 #[inline]
-pub fn intersect4(r: &WoopRay, tri: &Tri4, t_max: f32) -> Option<(f32, usize)> {
+pub fn intersect4(r: &WoopRay, tri: &Tri4, t_max: f32) -> Option<(TriangleHit, usize)> {
     let [kx, ky, kz] = r.k;
     let (ox, oy, oz) = (
         Vec4::splat(r.o[0]),
@@ -281,7 +282,7 @@ pub fn intersect4(r: &WoopRay, tri: &Tri4, t_max: f32) -> Option<(f32, usize)> {
     let pos = e0.cmpgt(zero) & e1.cmpgt(zero) & e2.cmpgt(zero);
     let inside = certain & (neg | pos);
     let uncertain = (!certain).bitmask();
-    let mut best: Option<(f32, usize)> = None;
+    let mut best: Option<(TriangleHit, usize)> = None;
     if inside.any() {
         let det = e0 + e1 + e2;
         let max3 = |a: Vec4, b: Vec4, c: Vec4| a.abs().max(b.abs()).max(c.abs());
@@ -310,9 +311,15 @@ pub fn intersect4(r: &WoopRay, tri: &Tri4, t_max: f32) -> Option<(f32, usize)> {
         let mask = hit.bitmask();
         if mask != 0 {
             let t = t.to_array();
+            // The one-lane test's weights, e·(1/det), in every lane at once.
+            let b = [e0 * inv_det, e1 * inv_det, e2 * inv_det].map(|v| v.to_array());
             for lane in (0..4).filter(|l| mask >> l & 1 == 1) {
-                if best.is_none_or(|(bt, _)| t[lane] < bt) {
-                    best = Some((t[lane], lane));
+                if best.is_none_or(|(bh, _)| t[lane] < bh.t) {
+                    let hit = TriangleHit {
+                        t: t[lane],
+                        b: [b[0][lane], b[1][lane], b[2][lane]],
+                    };
+                    best = Some((hit, lane));
                 }
             }
         }
@@ -332,14 +339,14 @@ fn uncertain_lanes(
     tri: &Tri4,
     t_max: f32,
     lanes: u32,
-    mut best: Option<(f32, usize)>,
-) -> Option<(f32, usize)> {
+    mut best: Option<(TriangleHit, usize)>,
+) -> Option<(TriangleHit, usize)> {
     for lane in (0..4).filter(|l| lanes >> l & 1 == 1) {
         let p = tri.lane(lane);
         // Strictly nearer than the best so far, so an earlier answer wins a tie.
-        let limit = best.map_or(t_max, |(t, _)| t);
+        let limit = best.map_or(t_max, |(h, _)| h.t);
         if let Some(h) = intersect_prepared(r, p, limit) {
-            best = Some((h.t, lane));
+            best = Some((h, lane));
         }
     }
     best
@@ -469,9 +476,14 @@ mod tests {
                     _ => Some((t, l)),
                 });
             let four = intersect4(&r, &Tri4::new(&tris), t_max);
-            assert_eq!(four.map(|h| h.0.to_bits()), nearest.map(|h| h.0.to_bits()));
-            if let Some((_, lane)) = four {
-                assert_eq!(lanes[lane].map(|h| h.t), four.map(|h| h.0));
+            assert_eq!(
+                four.map(|h| h.0.t.to_bits()),
+                nearest.map(|h| h.0.to_bits())
+            );
+            if let Some((hit, lane)) = four {
+                // The lane's whole hit, weights included, to the bit.
+                let bits = |h: TriangleHit| (h.t.to_bits(), h.b.map(f32::to_bits));
+                assert_eq!(lanes[lane].map(bits), Some(bits(hit)));
                 hits += 1;
             }
             // The scalar entry point is the same test.
@@ -510,7 +522,8 @@ mod tests {
         assert!(intersect(o, dir, a, c, d, t0).is_some());
         let r = WoopRay::new(o, dir);
         assert_eq!(
-            intersect4(&r, &Tri4::new(&[[a, b, c], [a, c, d]]), f32::INFINITY),
+            intersect4(&r, &Tri4::new(&[[a, b, c], [a, c, d]]), f32::INFINITY)
+                .map(|(h, l)| (h.t, l)),
             Some((t1, 1))
         );
     }
