@@ -60,7 +60,7 @@ class TesseraSettings(bpy.types.PropertyGroup):
     )
     denoise: bpy.props.EnumProperty(
         name="Denoise",
-        description="Add a denoised layer (Open Image Denoise), on a coordinator started with --denoise",
+        description="Add a denoised layer (Open Image Denoise), made by a coordinator or a worker started with --denoise",
         items=[
             ("OFF", "Off", "No denoised layer"),
             ("fast", "Fast", "Open Image Denoise, fast quality"),
