@@ -197,8 +197,9 @@ struct Cached {
 #[derive(Default)]
 pub struct Previews {
     jobs: tokio::sync::Mutex<HashMap<JobId, Arc<Cached>>>,
-    /// Running jobs' denoised previews: when each was made, what it cost, and the image.
-    live: tokio::sync::Mutex<HashMap<JobId, Live>>,
+    /// Running jobs' denoised previews: when each was made, what it cost, and the image;
+    /// and when the coordinator may filter the next one, whatever the job.
+    live: tokio::sync::Mutex<(HashMap<JobId, Live>, Option<Instant>)>,
 }
 
 /// A running job's preview as the filter gave it.
@@ -210,7 +211,8 @@ struct Live {
 
 /// The least time between two denoised previews of one running job, and the share of its
 /// time the coordinator may spend filtering them: one is made again only once ten times what
-/// the last one cost has passed.
+/// the last one cost has passed, for that job and for any job (a client that asks for many
+/// jobs' in turn gets each job's last one, or none yet, rather than the coordinator's cores).
 const LIVE_INTERVAL: Duration = Duration::from_secs(2);
 const LIVE_COST_SHARE: u32 = 10;
 
@@ -269,11 +271,21 @@ impl Previews {
     /// layer): the last one made while it is recent (see [`LIVE_COST_SHARE`]), else one of
     /// `cached`. Without the library here, none, saying so.
     async fn live(&self, id: JobId, cached: &Cached) -> Result<Arc<Vec<[f32; 3]>>, NoPreview> {
-        let mut live = self.live.lock().await;
+        let mut guard = self.live.lock().await;
+        let (live, next) = &mut *guard;
+        let busy = next.is_some_and(|t| Instant::now() < t);
         if let Some(l) = live.get(&id) {
-            if l.made.elapsed() < LIVE_INTERVAL.max(l.cost * LIVE_COST_SHARE) {
+            if busy || l.made.elapsed() < LIVE_INTERVAL.max(l.cost * LIVE_COST_SHARE) {
                 return Ok(l.rgb.clone());
             }
+        } else if let (true, Some(t)) = (busy, *next) {
+            return Err(NoPreview::Gone(format!(
+                "the coordinator spends at most a tenth of its time on denoised previews; this \
+                 job's is made in {:.0} s",
+                t.saturating_duration_since(Instant::now())
+                    .as_secs_f64()
+                    .ceil()
+            )));
         }
         let frame = Arc::clone(&cached.frame);
         let started = Instant::now();
@@ -286,11 +298,13 @@ impl Previews {
                 live.remove(&oldest);
             }
         }
+        let cost = started.elapsed();
+        *next = Some(Instant::now() + cost * LIVE_COST_SHARE);
         live.insert(
             id,
             Live {
                 made: Instant::now(),
-                cost: started.elapsed(),
+                cost,
                 rgb: rgb.clone(),
             },
         );
