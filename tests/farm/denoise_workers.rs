@@ -120,6 +120,36 @@ async fn end(mut s: Stream) -> Result<Option<pb::DenoiseDown>, tonic::Status> {
     s.down.message().await
 }
 
+/// A coordinator that does not denoise, a worker that renders, and a job that asks to be
+/// denoised.
+struct Farm {
+    dir: tempfile::TempDir,
+    data: PathBuf,
+    c: Coordinator,
+    client: Client,
+    _renders: tokio::task::JoinHandle<()>,
+    job: String,
+}
+
+impl Farm {
+    async fn with_a_job() -> Self {
+        let dir = tempfile::tempdir().expect("tmp");
+        let data = dir.path().join("data");
+        let c = Coordinator::start(&data, Duration::from_secs(5)).await;
+        let mut client = c.client().await;
+        let _renders = worker(&c.url(), "renders");
+        let job = submit_job(&mut client, denoised_request()).await;
+        Self {
+            dir,
+            data,
+            c,
+            client,
+            _renders,
+            job,
+        }
+    }
+}
+
 async fn waiting(client: &mut Client, job: &str) -> String {
     job_status(client, job).await.waiting
 }
@@ -133,12 +163,14 @@ async fn wait_until_waiting(client: &mut Client, job: &str, words: &str) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_frame_waits_for_a_denoising_worker_whose_output_is_checked_then_written() {
-    let dir = tempfile::tempdir().expect("tmp");
-    let data = dir.path().join("data");
-    let c = Coordinator::start(&data, Duration::from_secs(5)).await;
-    let mut client = c.client().await;
-    let _renders = worker(&c.url(), "renders");
-    let job = submit_job(&mut client, denoised_request()).await;
+    let Farm {
+        dir,
+        data,
+        c,
+        mut client,
+        _renders,
+        job,
+    } = Farm::with_a_job().await;
     // Rendered, the frame waits, and says for what.
     wait_until_waiting(
         &mut client,
@@ -343,12 +375,14 @@ async fn a_waiting_frame_survives_a_restart_and_can_be_cancelled() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_frame_the_filter_fails_on_three_times_fails_its_job_saying_why() {
-    let dir = tempfile::tempdir().expect("tmp");
-    let data = dir.path().join("data");
-    let c = Coordinator::start(&data, Duration::from_secs(5)).await;
-    let mut client = c.client().await;
-    let _renders = worker(&c.url(), "renders");
-    let job = submit_job(&mut client, denoised_request()).await;
+    let Farm {
+        dir: _dir,
+        data,
+        c,
+        mut client,
+        _renders,
+        job,
+    } = Farm::with_a_job().await;
     wait_until_waiting(&mut client, &job, "waiting for a worker that denoises").await;
     let (mut w, id) = denoiser(&c.url()).await;
     for k in 1..=3 {

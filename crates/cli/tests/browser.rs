@@ -578,14 +578,7 @@ fn a_job_submitted_from_the_dashboard_uploads_its_files_and_is_denoised() {
     let dir = tempfile::tempdir().expect("tempdir");
     let (_coordinator, grpc, dash) =
         coordinator_with_dashboard(&dir.path().join("data"), &["--denoise"]);
-    let _worker = Proc(
-        Command::new(BIN)
-            .args(["worker", "--coordinator", &grpc, "--threads", "1"])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("start worker"),
-    );
+    let _worker = common::worker(&grpc, "render-node-1");
     let profile = tempfile::tempdir().expect("profile");
     let mut cdp = Cdp::launch(profile.path());
     cdp.navigate(&format!("{dash}/"));

@@ -185,6 +185,19 @@ fn denoise_options_need_denoise() {
 }
 
 /// Runs `tessera` against the coordinator at `url`.
+/// The flags of the farm tests' denoised job, which `tessera render` is given too.
+const FARM_FLAGS: [&str; 9] = [
+    "--spp",
+    "8",
+    "--batch",
+    "4",
+    "--resolution",
+    "64x48",
+    "--denoise",
+    "--denoise-quality",
+    "balanced",
+];
+
 fn at(args: &[&str], url: &str) -> std::process::Output {
     common::tessera_at(args, url)
 }
@@ -200,19 +213,8 @@ fn the_farm_denoises_once_after_the_last_merge_and_matches_render_denoise() {
     let _a = common::worker(&url, "a");
     let _b = common::worker(&url, "b");
     let scene = repo("scenes/cornell-box.toml");
-    let flags = [
-        "--spp",
-        "8",
-        "--batch",
-        "4",
-        "--resolution",
-        "64x48",
-        "--denoise",
-        "--denoise-quality",
-        "balanced",
-    ];
     let farm =
-        common::assert_farm_file_is_render_file(dir.path(), &url, &scene, &flags, "denoised");
+        common::assert_farm_file_is_render_file(dir.path(), &url, &scene, &FARM_FLAGS, "denoised");
     let meta = read_exr_metadata(&farm).expect("metadata");
     assert!(
         meta.iter().any(|m| m == "denoise=oidn 2.5.1 balanced hdr"),
@@ -320,22 +322,11 @@ fn a_worker_that_denoises_finishes_the_frame_for_a_coordinator_that_does_not() {
         "tessera workers does not show the denoise tag"
     );
     // The waiting job finishes, and a second one matches render --denoise byte for byte.
-    let flags = [
-        "--spp",
-        "8",
-        "--batch",
-        "4",
-        "--resolution",
-        "64x48",
-        "--denoise",
-        "--denoise-quality",
-        "balanced",
-    ];
     let farm = common::assert_farm_file_is_render_file(
         dir.path(),
         &url,
         &scene,
-        &flags,
+        &FARM_FLAGS,
         "worker-denoised",
     );
     let meta = read_exr_metadata(&farm).expect("metadata");
