@@ -51,11 +51,28 @@ impl Wrap {
         }
     }
 
-    /// Texel index `i` of a row or column of `n`.
-    #[inline]
+    /// Texel index `i` of a row or column of `n`. A lookup's taps lie within one copy of the
+    /// image of its edges (its coordinate is wrapped first), so repeating them is a compare and
+    /// an add, not the 64-bit division `rem_euclid` is: four of those a lookup cost more than
+    /// the filter (the same index either way; any other `i` still takes the division).
+    #[inline(always)]
     fn texel(self, i: i64, n: usize) -> usize {
         match self {
-            Wrap::Repeat => i.rem_euclid(n as i64) as usize,
+            Wrap::Repeat => {
+                let n = n as i64;
+                let j = if i < 0 {
+                    i + n
+                } else if i >= n {
+                    i - n
+                } else {
+                    i
+                };
+                if (0..n).contains(&j) {
+                    j as usize
+                } else {
+                    i.rem_euclid(n) as usize
+                }
+            }
             // A filter tap past the edge reads the edge (mirroring at the edge reads it too).
             Wrap::Clamp | Wrap::Mirror => i.clamp(0, n as i64 - 1) as usize,
         }
@@ -207,6 +224,20 @@ impl Texture {
         self.texels[y * self.width + x]
     }
 
+    /// The four taps of a bilinear lookup whose top-left tap is (x0, y0): each axis wrapped
+    /// once, not once per tap.
+    #[inline(always)]
+    fn taps(&self, x0: i64, y0: i64) -> [Vec3A; 4] {
+        let [wx, wy] = self.wrap;
+        let (xa, xb) = (wx.texel(x0, self.width), wx.texel(x0 + 1, self.width));
+        let (ya, yb) = (
+            wy.texel(y0, self.height) * self.width,
+            wy.texel(y0 + 1, self.height) * self.width,
+        );
+        let t = &self.texels;
+        [t[ya + xa], t[ya + xb], t[yb + xa], t[yb + xb]]
+    }
+
     /// The bilinearly filtered value at `uv` (texel centres at half-integers; u right, v up).
     #[inline]
     pub fn lookup(&self, uv: Vec2) -> Vec3A {
@@ -220,9 +251,9 @@ impl Texture {
         let y = (1.0 - v) * self.height as f64 - 0.5;
         let (x0, y0) = (x.floor(), y.floor());
         let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
-        let (x0, y0) = (x0 as i64, y0 as i64);
-        let top = self.texel(x0, y0) * (1.0 - fx) + self.texel(x0 + 1, y0) * fx;
-        let bottom = self.texel(x0, y0 + 1) * (1.0 - fx) + self.texel(x0 + 1, y0 + 1) * fx;
+        let [a, b, c, d] = self.taps(x0 as i64, y0 as i64);
+        let top = a * (1.0 - fx) + b * fx;
+        let bottom = c * (1.0 - fx) + d * fx;
         top * (1.0 - fy) + bottom * fy
     }
 }
@@ -538,6 +569,24 @@ pub enum TextureUse {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Repeat's compare-and-add gives `rem_euclid`'s index for every tap, near the image and
+    /// far from it, and clamping its own.
+    #[test]
+    fn a_wrapped_tap_is_the_euclidean_remainder() {
+        for n in [1usize, 2, 3, 7, 64, 1000] {
+            let n64 = n as i64;
+            let far = [i64::MIN + 1, -5 * n64 - 3, 3 * n64 + 1, i64::MAX];
+            for i in (-2 * n64 - 2..2 * n64 + 2).chain(far) {
+                assert_eq!(
+                    Wrap::Repeat.texel(i, n),
+                    i.rem_euclid(n64) as usize,
+                    "{i} of {n}"
+                );
+                assert_eq!(Wrap::Clamp.texel(i, n), i.clamp(0, n64 - 1) as usize);
+            }
+        }
+    }
 
     #[test]
     fn the_budget_is_shared_in_bytes_and_refuses_what_can_never_fit() {
