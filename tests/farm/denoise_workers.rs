@@ -404,3 +404,50 @@ async fn a_frame_the_filter_fails_on_three_times_fails_its_job_saying_why() {
     assert_eq!(kept, 0);
     c.stop().await;
 }
+
+/// A worker gets one stream at a time, and a frame it lost goes to another denoiser first: one
+/// worker that takes frames and drops them cannot keep a frame from the others.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn one_stream_a_worker_and_a_lost_frame_goes_to_another_denoiser_first() {
+    let Farm {
+        dir: _dir,
+        c,
+        mut client,
+        _renders,
+        job,
+        ..
+    } = Farm::with_a_job().await;
+    wait_until_waiting(&mut client, &job, "waiting for a worker that denoises").await;
+    let (mut w, id) = denoiser(&c.url()).await;
+    // The frame waits, so the first stream claims it at once.
+    let held = open(&mut w, &id, 10_000).await.expect("open");
+    let e = open(&mut w, &id, 0)
+        .await
+        .err()
+        .expect("a second stream is refused");
+    assert_eq!(e.code(), Code::ResourceExhausted, "{e:?}");
+    // Dropped: the frame is lost by `w` (its stream is closed before the frame waits again).
+    drop(held);
+    wait_until_waiting(
+        &mut client,
+        &job,
+        "waiting for a denoising worker to take it",
+    )
+    .await;
+    let (mut other, other_id) = denoiser(&c.url()).await;
+    // While another denoiser may take it, `w` is offered nothing.
+    let mut s = open(&mut w, &id, 300).await.expect("open");
+    assert!(
+        s.down.message().await.expect("end").is_none(),
+        "lent again to the worker that lost it"
+    );
+    let (s, unit, input) = claim(&mut other, &other_id).await;
+    assert_eq!(unit.job_id, job);
+    send(&s, &input).await;
+    assert!(end(s).await.expect("outcome").is_some());
+    assert_eq!(
+        wait(&mut client, &job).await.state,
+        pb::JobState::Done as i32
+    );
+    c.stop().await;
+}

@@ -43,42 +43,65 @@ fn plane_bytes(planes: &[&[[f32; 3]]]) -> Vec<u8> {
 }
 
 /// The denoising worker's side of one `Denoise` stream, served until the frame it claimed is
-/// written or the stream ends: `cred` (from its hello) asking for a frame within `wait_ms`;
-/// what the coordinator sends goes to `tx`.
+/// written or the stream ends: `stream`, worker w's stream and its token (the handler opened
+/// it), `cred` (from its hello) asking for a frame within `wait_ms`; what the coordinator
+/// sends goes to `tx`.
 pub(crate) async fn serve(
     shared: Arc<Shared>,
-    (cred, wait_ms): (WorkerCredential, u32),
+    (stream, cred, wait_ms): ((u64, u64), WorkerCredential, u32),
     mut inbound: Streaming<pb::DenoiseUp>,
     tx: mpsc::Sender<Result<pb::DenoiseDown, Status>>,
 ) {
-    let result = serve_inner(&shared, (cred, wait_ms), &mut inbound, &tx).await;
+    let _open = Open(&shared, stream);
+    let result = serve_inner(&shared, (stream, cred, wait_ms), &mut inbound, &tx).await;
     if let Err(status) = result {
         let _ = tx.send(Err(status)).await;
     }
 }
 
-/// Takes the claim back unless the output was taken: whatever ends the stream early.
+/// Closes a worker's stream however its task ends; closed earlier (before the last message
+/// the worker waits for), so that the worker's next stream is never refused as a second one.
+struct Open<'a>(&'a Shared, (u64, u64));
+
+impl Open<'_> {
+    fn close(&self) {
+        let (w, token) = self.1;
+        self.0.scheduler().close_denoise_stream(w, token);
+    }
+}
+
+impl Drop for Open<'_> {
+    fn drop(&mut self) {
+        self.close();
+    }
+}
+
+/// Takes the claim back unless the output was taken: whatever ends the stream early. The
+/// stream is closed first, so that a worker that learns the frame waits again may open
+/// another at once.
 struct Claimed<'a> {
-    shared: &'a Shared,
+    open: Open<'a>,
     claim: DenoiseClaim,
     done: bool,
 }
 
 impl Drop for Claimed<'_> {
     fn drop(&mut self) {
+        self.open.close();
         if !self.done {
-            self.shared
+            let shared = self.open.0;
+            shared
                 .scheduler()
                 .unclaim_denoise(self.claim.job, self.claim.token);
-            self.shared.bump_work();
-            self.shared.bump_changed();
+            shared.bump_work();
+            shared.bump_changed();
         }
     }
 }
 
 async fn serve_inner(
     shared: &Arc<Shared>,
-    (cred, wait_ms): (WorkerCredential, u32),
+    (stream, cred, wait_ms): ((u64, u64), WorkerCredential, u32),
     inbound: &mut Streaming<pb::DenoiseUp>,
     tx: &mpsc::Sender<Result<pb::DenoiseDown, Status>>,
 ) -> Result<(), Status> {
@@ -96,12 +119,21 @@ async fn serve_inner(
             break (w, c);
         }
         let left = deadline.saturating_duration_since(Instant::now());
-        if left.is_zero() || tokio::time::timeout(left, work.changed()).await.is_err() {
+        if left.is_zero() {
             return Ok(());
+        }
+        tokio::select! {
+            woke = tokio::time::timeout(left, work.changed()) => {
+                if woke.is_err() {
+                    return Ok(());
+                }
+            }
+            // The worker went away while it waited: its stream closes now, not at the wait's end.
+            () = tx.closed() => return Ok(()),
         }
     };
     let mut claimed = Claimed {
-        shared,
+        open: Open(shared, stream),
         claim,
         done: false,
     };
@@ -230,6 +262,7 @@ async fn serve_inner(
     if !shared.scheduler().holds_denoise(w, claim.job, claim.token) {
         // Cancelled while the worker filtered it.
         claimed.done = true;
+        drop(claimed);
         let msg = send(pb::denoise_down::Msg::Outcome(pb::DenoiseOutcome {
             written: false,
         }));
@@ -239,6 +272,7 @@ async fn serve_inner(
     claimed.done = true;
     let written =
         crate::output::finish_denoised(shared.clone(), claim.clone(), frame, planes).await;
+    drop(claimed);
     let msg = send(pb::denoise_down::Msg::Outcome(pb::DenoiseOutcome {
         written,
     }));

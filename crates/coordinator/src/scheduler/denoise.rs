@@ -25,10 +25,23 @@ pub const FAIL_DENOISE_AFTER: u32 = 3;
 pub(super) struct Waiting {
     /// The worker denoising it now and its claim's token.
     claim: Option<(u64, u64)>,
+    /// Workers whose claim on it ended without its output (a broken stream, a lapse, a
+    /// failure): it goes to them again only when no other denoiser may take it, so that one
+    /// worker that takes frames and never answers cannot hold a frame back from the others.
+    lost_by: Vec<u64>,
     /// Times the filter failed on it.
     failures: u32,
     /// The last failure's message.
     last_failure: String,
+}
+
+impl Waiting {
+    /// Worker `w`'s claim ended without the output.
+    fn lost(&mut self, w: u64) {
+        if !self.lost_by.contains(&w) {
+            self.lost_by.push(w);
+        }
+    }
 }
 
 /// A frame a worker has claimed: what its stream needs to serve it.
@@ -58,6 +71,25 @@ impl Scheduler {
             self.denoising.entry(id).or_default();
         }
         ok
+    }
+
+    /// Opens worker `w`'s one `Denoise` stream, returning its token; `None` while it has one
+    /// open (a worker filters one frame at a time, and a stream that waits holds a task: one
+    /// is all it needs).
+    pub fn open_denoise_stream(&mut self, w: u64) -> Option<u64> {
+        if self.denoise_streams.contains_key(&w) {
+            return None;
+        }
+        self.next_lease += 1;
+        self.denoise_streams.insert(w, self.next_lease);
+        Some(self.next_lease)
+    }
+
+    /// Closes worker `w`'s `Denoise` stream `token` (not a later one of the same worker).
+    pub fn close_denoise_stream(&mut self, w: u64, token: u64) {
+        if self.denoise_streams.get(&w) == Some(&token) {
+            self.denoise_streams.remove(&w);
+        }
     }
 
     /// Whether job `id`'s frame waits for (or is being denoised by) a worker.
@@ -91,11 +123,28 @@ impl Scheduler {
             .map(|(&n, _)| n)
             .collect();
         for q in self.denoising.values_mut() {
-            if q.claim.is_some_and(|(holder, _)| dead.contains(&holder)) {
+            if let Some((holder, _)) = q.claim.filter(|(h, _)| dead.contains(h)) {
                 q.claim = None;
+                q.lost(holder);
             }
         }
-        let Some((&id, q)) = self.denoising.iter_mut().find(|(_, q)| q.claim.is_none()) else {
+        let denoisers: Vec<u64> = self
+            .workers
+            .iter()
+            .filter(|(_, x)| {
+                x.caps.denoise_version > 0
+                    && x.alive(now, lease_time)
+                    && !x.draining
+                    && !x.quarantined
+                    && x.convicted.is_none()
+            })
+            .map(|(&n, _)| n)
+            .collect();
+        let for_w = |q: &Waiting| {
+            q.claim.is_none()
+                && (!q.lost_by.contains(&w) || denoisers.iter().all(|d| q.lost_by.contains(d)))
+        };
+        let Some((&id, q)) = self.denoising.iter_mut().find(|(_, q)| for_w(q)) else {
             return Ok(None);
         };
         let Some(job) = self.jobs.get(&id) else {
@@ -127,8 +176,9 @@ impl Scheduler {
     /// waits again. A claim that is no longer this one's is left alone.
     pub fn unclaim_denoise(&mut self, id: JobId, token: u64) {
         if let Some(q) = self.denoising.get_mut(&id) {
-            if q.claim.is_some_and(|(_, t)| t == token) {
+            if let Some((holder, _)) = q.claim.filter(|&(_, t)| t == token) {
                 q.claim = None;
+                q.lost(holder);
             }
         }
     }
@@ -139,10 +189,11 @@ impl Scheduler {
         let Some(q) = self.denoising.get_mut(&id) else {
             return Vec::new();
         };
-        if q.claim.is_none_or(|(_, t)| t != token) {
+        let Some((holder, _)) = q.claim.filter(|&(_, t)| t == token) else {
             return Vec::new();
-        }
+        };
         q.claim = None;
+        q.lost(holder);
         q.failures += 1;
         q.last_failure = why.to_string();
         if q.failures < FAIL_DENOISE_AFTER {

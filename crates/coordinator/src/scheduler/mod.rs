@@ -224,6 +224,8 @@ pub struct Scheduler {
     deferred: Vec<Op>,
     /// Finished frames waiting for a worker to denoise them ([`denoise`]).
     denoising: BTreeMap<JobId, denoise::Waiting>,
+    /// Workers with a `Denoise` stream open, and each stream's token.
+    denoise_streams: BTreeMap<u64, u64>,
 }
 
 /// What a worker returns for one unit: its sums, and for a guided job's unit of a training
@@ -268,6 +270,7 @@ impl Scheduler {
             lapses: HashMap::new(),
             deferred: Vec::new(),
             denoising: BTreeMap::new(),
+            denoise_streams: BTreeMap::new(),
         }
     }
 

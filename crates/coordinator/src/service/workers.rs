@@ -351,7 +351,7 @@ impl Workers for Service {
         // An unknown worker, or one that does not denoise, is refused by the call itself
         // rather than later on the stream, so that it learns why at once.
         let cred = credential(&hello.worker_id)?;
-        {
+        let stream = {
             let mut core = self.shared.scheduler();
             let w = core.touch_worker(&cred, Instant::now())?;
             if core.worker(w).is_none_or(|x| x.caps.denoise_version <= 0) {
@@ -359,11 +359,17 @@ impl Workers for Service {
                     "this worker did not register as one that denoises (start it with --denoise)",
                 ));
             }
-        }
+            let Some(token) = core.open_denoise_stream(w) else {
+                return Err(Status::resource_exhausted(
+                    "this worker has a Denoise stream open already: one at a time",
+                ));
+            };
+            (w, token)
+        };
         let (tx, rx) = mpsc::channel(4);
         tokio::spawn(crate::denoise::serve(
             self.shared.clone(),
-            (cred, hello.wait_ms),
+            (stream, cred, hello.wait_ms),
             inbound,
             tx,
         ));
