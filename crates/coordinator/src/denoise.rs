@@ -23,7 +23,7 @@ use tokio::sync::mpsc;
 use tonic::{Status, Streaming};
 use tracing::{info, warn};
 
-use crate::kept::{forget, frame_path, read_frame, triples};
+use crate::kept::{forget, frame_path, read_frame};
 use crate::scheduler::DenoiseClaim;
 use crate::shared::{durable, now_ms, Shared};
 
@@ -32,15 +32,6 @@ pub(crate) const CHUNK_BYTES: usize = 1 << 20;
 
 /// Longest a stream waits for a frame before it ends empty (the worker opens another).
 const MAX_WAIT: Duration = Duration::from_secs(30);
-
-/// Little-endian bytes of planes of triples, one after the other.
-fn plane_bytes(planes: &[&[[f32; 3]]]) -> Vec<u8> {
-    planes
-        .iter()
-        .flat_map(|p| p.as_flattened())
-        .flat_map(|x| x.to_le_bytes())
-        .collect()
-}
 
 /// The denoising worker's side of one `Denoise` stream, served until the frame it claimed is
 /// written or the stream ends: `stream`, worker w's stream and its token (the handler opened
@@ -105,32 +96,8 @@ async fn serve_inner(
     inbound: &mut Streaming<pb::DenoiseUp>,
     tx: &mpsc::Sender<Result<pb::DenoiseDown, Status>>,
 ) -> Result<(), Status> {
-    let deadline = Instant::now() + Duration::from_millis(u64::from(wait_ms)).min(MAX_WAIT);
-    let mut work = shared.work.subscribe();
-    let (w, claim) = loop {
-        work.borrow_and_update();
-        let (w, claim) = {
-            let mut core = shared.scheduler();
-            let now = Instant::now();
-            let w = core.touch_worker(&cred, now)?;
-            (w, core.claim_denoise(w, now)?)
-        };
-        if let Some(c) = claim {
-            break (w, c);
-        }
-        let left = deadline.saturating_duration_since(Instant::now());
-        if left.is_zero() {
-            return Ok(());
-        }
-        tokio::select! {
-            woke = tokio::time::timeout(left, work.changed()) => {
-                if woke.is_err() {
-                    return Ok(());
-                }
-            }
-            // The worker went away while it waited: its stream closes now, not at the wait's end.
-            () = tx.closed() => return Ok(()),
-        }
+    let Some((w, claim)) = wait_for_frame(shared, &cred, wait_ms, tx).await? else {
+        return Ok(());
     };
     let mut claimed = Claimed {
         open: Open(shared, stream),
@@ -139,35 +106,102 @@ async fn serve_inner(
     };
     let claim = claimed.claim.clone();
     shared.bump_changed();
-    let path = frame_path(&shared.config, claim.job);
-    let frame = {
-        let path = path.clone();
-        tokio::task::spawn_blocking(move || read_frame(&path))
-            .await
-            .map_err(|e| Status::internal(e.to_string()))?
+    // A worker that holds the stream open and sends nothing would hold the frame for good.
+    let pixels = claim.size.0 as usize * claim.size.1 as usize;
+    let limit = claim_limit(pixels, shared.config.lease_timeout);
+    let until = tokio::time::Instant::now() + limit;
+    let late = || {
+        Status::deadline_exceeded(format!(
+            "{}: not denoised within {} s; it goes to another worker",
+            claim.job,
+            limit.as_secs()
+        ))
     };
-    let frame = match frame {
-        Ok(f) => f,
-        Err(e) => {
-            // The frame stays queued; a restart gathers it again from the store.
-            warn!(
-                "{}: the finished frame kept for denoising ({}) cannot be read: {e}",
-                claim.job,
-                path.display()
-            );
-            return Err(Status::unavailable(format!(
-                "{}: its frame cannot be read now",
-                claim.job
-            )));
+    if !lend(shared, &claim, tx, until).await.ok_or_else(late)?? {
+        return Ok(());
+    }
+    info!("{} lent to a worker to denoise", claim.job);
+    let output = match receive_output(&claim, inbound, until)
+        .await
+        .ok_or_else(late)?
+    {
+        Received::Output(bytes) => bytes,
+        Received::Gone => return Ok(()),
+        Received::Failed(why) => return filter_failed(shared, &mut claimed, &why).await,
+        Received::Surplus(e) => {
+            shared.scheduler().refuse_result(w);
+            return Err(e);
+        }
+        Received::Invalid(e) => return Err(e),
+    };
+    let planes = match to_planes(&output, pixels) {
+        Ok(p) => p,
+        Err(why) => {
+            shared.scheduler().refuse_result(w);
+            return Err(Status::invalid_argument(format!("{}: {why}", claim.job)));
         }
     };
-    let Some(aov) = &frame.aov else {
-        return Err(Status::internal(format!(
-            "{}: the kept frame has no albedo and normal",
-            claim.job
-        )));
+    drop(output);
+    // The claim ends here either way; the stream closes before the worker hears the outcome.
+    let holds = shared.scheduler().holds_denoise(w, claim.job, claim.token);
+    claimed.done = true;
+    drop(claimed);
+    // Not held: the job was cancelled while the worker filtered it.
+    let written = holds && crate::output::finish_denoised(shared.clone(), claim, planes).await;
+    let outcome = pb::denoise_down::Msg::Outcome(pb::DenoiseOutcome { written });
+    let _ = tx.send(Ok(pb::DenoiseDown { msg: Some(outcome) })).await;
+    Ok(())
+}
+
+/// Waits up to `wait_ms` for a frame that worker `cred` may claim, and claims it: the
+/// worker's number and the claim, or `None` when no frame came or the worker went away.
+async fn wait_for_frame(
+    shared: &Shared,
+    cred: &WorkerCredential,
+    wait_ms: u32,
+    tx: &mpsc::Sender<Result<pb::DenoiseDown, Status>>,
+) -> Result<Option<(u64, DenoiseClaim)>, Status> {
+    let deadline = Instant::now() + Duration::from_millis(u64::from(wait_ms)).min(MAX_WAIT);
+    let mut work = shared.work.subscribe();
+    loop {
+        work.borrow_and_update();
+        {
+            let mut core = shared.scheduler();
+            let now = Instant::now();
+            let w = core.touch_worker(cred, now)?;
+            if let Some(c) = core.claim_denoise(w, now)? {
+                return Ok(Some((w, c)));
+            }
+        }
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return Ok(None);
+        }
+        tokio::select! {
+            woke = tokio::time::timeout(left, work.changed()) => {
+                if woke.is_err() {
+                    return Ok(None);
+                }
+            }
+            // The worker went away while it waited: its stream closes now, not at the wait's end.
+            () = tx.closed() => return Ok(None),
+        }
+    }
+}
+
+/// Sends the claimed frame's unit and its beauty, albedo and normal, read from the kept frame
+/// (which is let go before the worker's answer: the write reads it again, one frame at a
+/// time). `Some(false)` if the worker went away, `None` past `until`.
+async fn lend(
+    shared: &Shared,
+    claim: &DenoiseClaim,
+    tx: &mpsc::Sender<Result<pb::DenoiseDown, Status>>,
+    until: tokio::time::Instant,
+) -> Option<Result<bool, Status>> {
+    let input = match kept_input(shared, claim).await {
+        Ok(input) => input,
+        Err(e) => return Some(Err(e)),
     };
-    let input = plane_bytes(&[&frame.rgb, &aov.albedo, &aov.normal]);
     let unit = pb::DenoiseUnit {
         job_id: claim.job.to_string(),
         width: claim.size.0,
@@ -177,112 +211,129 @@ async fn serve_inner(
             ldr: !claim.options.hdr,
         }),
     };
-    let send = |m: pb::denoise_down::Msg| pb::DenoiseDown { msg: Some(m) };
-    // A worker that holds the stream open and sends nothing would hold the frame for good.
-    let limit = claim_limit(frame.rgb.len(), shared.config.lease_timeout);
-    let until = tokio::time::Instant::now() + limit;
-    let late = || {
-        Status::deadline_exceeded(format!(
-            "{}: not denoised within {} s; it goes to another worker",
-            claim.job,
-            limit.as_secs()
-        ))
-    };
-    let unit = send(pb::denoise_down::Msg::Unit(unit));
-    match tokio::time::timeout_at(until, tx.send(Ok(unit))).await {
-        Err(_) => return Err(late()),
-        Ok(Err(_)) => return Ok(()),
-        Ok(Ok(())) => {}
-    }
-    for chunk in input.chunks(CHUNK_BYTES) {
-        let msg = send(pb::denoise_down::Msg::Input(chunk.to_vec()));
-        match tokio::time::timeout_at(until, tx.send(Ok(msg))).await {
-            Err(_) => return Err(late()),
-            Ok(Err(_)) => return Ok(()),
-            Ok(Ok(())) => {}
+    let messages = std::iter::once(pb::denoise_down::Msg::Unit(unit)).chain(
+        input
+            .chunks(CHUNK_BYTES)
+            .map(|c| pb::denoise_down::Msg::Input(c.to_vec())),
+    );
+    for m in messages {
+        let sent = tokio::time::timeout_at(until, tx.send(Ok(pb::DenoiseDown { msg: Some(m) })));
+        if sent.await.ok()?.is_err() {
+            return Some(Ok(false));
         }
     }
-    drop(input);
-    info!("{} lent to a worker to denoise", claim.job);
-    let want = frame.rgb.len() * 9 * 4;
+    Some(Ok(true))
+}
+
+/// The claimed frame's beauty, albedo and normal as the stream carries them.
+async fn kept_input(shared: &Shared, claim: &DenoiseClaim) -> Result<Vec<u8>, Status> {
+    let path = frame_path(&shared.config, claim.job);
+    let read = {
+        let path = path.clone();
+        tokio::task::spawn_blocking(move || read_frame(&path))
+            .await
+            .map_err(|e| Status::internal(e.to_string()))?
+    };
+    let frame = read.map_err(|e| {
+        // The frame stays queued; a restart gathers it again from the store.
+        warn!(
+            "{}: the finished frame kept for denoising ({}) cannot be read: {e}",
+            claim.job,
+            path.display()
+        );
+        Status::unavailable(format!("{}: its frame cannot be read now", claim.job))
+    })?;
+    let aov = frame.aov.as_ref().ok_or_else(|| {
+        Status::internal(format!(
+            "{}: the kept frame has no albedo and normal",
+            claim.job
+        ))
+    })?;
+    Ok(tessera_denoise::planes_to_bytes(&[
+        &frame.rgb,
+        &aov.albedo,
+        &aov.normal,
+    ]))
+}
+
+/// What a worker answered to a lent frame.
+enum Received {
+    /// All of its output's bytes (their size is the frame's; their values are not checked).
+    Output(Vec<u8>),
+    /// Its filter failed, saying why.
+    Failed(String),
+    /// It sent more output than the frame holds: a bad result.
+    Surplus(Status),
+    /// It broke the protocol otherwise (a second hello).
+    Invalid(Status),
+    /// It went away.
+    Gone,
+}
+
+/// Reads the worker's answer to the lent frame; `None` past `until`.
+async fn receive_output(
+    claim: &DenoiseClaim,
+    inbound: &mut Streaming<pb::DenoiseUp>,
+    until: tokio::time::Instant,
+) -> Option<Received> {
+    let want = claim.size.0 as usize * claim.size.1 as usize * 36;
     let mut output: Vec<u8> = Vec::new();
     while output.len() < want {
-        let msg = match tokio::time::timeout_at(until, inbound.message()).await {
-            Err(_) => return Err(late()),
-            Ok(Ok(Some(m))) => m,
-            // The worker went away: the claim goes back (`Claimed`).
-            Ok(Ok(None) | Err(_)) => return Ok(()),
+        let Ok(Some(msg)) = tokio::time::timeout_at(until, inbound.message())
+            .await
+            .ok()?
+        else {
+            return Some(Received::Gone);
         };
         match msg.msg {
-            Some(pb::denoise_up::Msg::Output(bytes)) => {
-                if output.len() + bytes.len() > want {
-                    shared.scheduler().refuse_result(w);
-                    return Err(Status::invalid_argument(format!(
-                        "{}: more output than the frame's {want} bytes (three planes of \
-                         {}×{}×3 f32)",
-                        claim.job, claim.size.0, claim.size.1
-                    )));
-                }
+            Some(pb::denoise_up::Msg::Output(bytes)) if output.len() + bytes.len() <= want => {
                 output.extend_from_slice(&bytes);
             }
-            Some(pb::denoise_up::Msg::Failed(why)) => {
-                let why = crate::error::truncate(&why);
-                warn!("{}: a worker's filter failed: {why}", claim.job);
-                let ops = {
-                    let mut core = shared.scheduler();
-                    core.denoise_failed(claim.job, claim.token, &why, now_ms())
-                };
-                claimed.done = true;
-                if !ops.is_empty() {
-                    forget(&shared.config, claim.job);
-                    let rx = shared.queue_write(ops);
-                    durable(rx)
-                        .await
-                        .map_err(|e| Status::internal(format!("coordinator state store: {e}")))?;
-                }
-                shared.bump_work();
-                shared.bump_changed();
-                return Ok(());
+            Some(pb::denoise_up::Msg::Output(_)) => {
+                return Some(Received::Surplus(Status::invalid_argument(format!(
+                    "{}: more output than the frame's {want} bytes (three planes of {}×{}×3 f32)",
+                    claim.job, claim.size.0, claim.size.1
+                ))));
             }
+            Some(pb::denoise_up::Msg::Failed(why)) => return Some(Received::Failed(why)),
             Some(pb::denoise_up::Msg::Hello(_)) | None => {
-                return Err(Status::invalid_argument(
+                return Some(Received::Invalid(Status::invalid_argument(
                     "a Denoise stream's hello comes first and once; then only output or failed",
-                ));
+                )));
             }
         }
     }
-    let planes = match to_planes(&output, frame.rgb.len()) {
-        Ok(p) => p,
-        Err(why) => {
-            shared.scheduler().refuse_result(w);
-            return Err(Status::invalid_argument(format!("{}: {why}", claim.job)));
-        }
-    };
-    drop(output);
-    if !shared.scheduler().holds_denoise(w, claim.job, claim.token) {
-        // Cancelled while the worker filtered it.
-        claimed.done = true;
-        drop(claimed);
-        let msg = send(pb::denoise_down::Msg::Outcome(pb::DenoiseOutcome {
-            written: false,
-        }));
-        let _ = tx.send(Ok(msg)).await;
-        return Ok(());
-    }
+    Some(Received::Output(output))
+}
+
+/// The worker's filter failed on the claimed frame: it waits again, or its job fails after
+/// [`crate::scheduler::FAIL_DENOISE_AFTER`] failures.
+async fn filter_failed(
+    shared: &Shared,
+    claimed: &mut Claimed<'_>,
+    why: &str,
+) -> Result<(), Status> {
+    let job = claimed.claim.job;
+    let why = crate::error::truncate(why);
+    warn!("{job}: a worker's filter failed: {why}");
+    let ops = shared
+        .scheduler()
+        .denoise_failed(job, claimed.claim.token, &why, now_ms());
     claimed.done = true;
-    let written =
-        crate::output::finish_denoised(shared.clone(), claim.clone(), frame, planes).await;
-    drop(claimed);
-    let msg = send(pb::denoise_down::Msg::Outcome(pb::DenoiseOutcome {
-        written,
-    }));
-    let _ = tx.send(Ok(msg)).await;
+    if !ops.is_empty() {
+        forget(&shared.config, job);
+        durable(shared.queue_write(ops))
+            .await
+            .map_err(|e| Status::internal(format!("coordinator state store: {e}")))?;
+    }
+    shared.bump_work();
+    shared.bump_changed();
     Ok(())
 }
 
-/// How long a worker may hold a frame of `pixels`: a minute for every megapixel (Open Image
-/// Denoise's `high` took 9 s a megapixel on two cores of the development machine), and two
-/// lease times besides for the transfers.
+/// How long a worker may hold a frame of `pixels`: a minute for every megapixel (several times
+/// what Open Image Denoise's `high` takes on two cores: docs/renderer.md), and two lease times
+/// besides for the transfers.
 fn claim_limit(pixels: usize, lease: Duration) -> Duration {
     let megapixels = pixels.div_ceil(1_000_000) as u32;
     Duration::from_secs(60) * megapixels.max(1) + lease * 2
@@ -290,30 +341,29 @@ fn claim_limit(pixels: usize, lease: Duration) -> Duration {
 
 /// A worker's output as planes: exactly three of `n` pixels, every value finite.
 fn to_planes(bytes: &[u8], n: usize) -> Result<DenoisedPlanes, String> {
-    if bytes.len() != n * 9 * 4 {
+    let Some(mut planes) = tessera_denoise::planes_from_bytes(bytes, n, 3) else {
         return Err(format!(
             "the output is {} bytes; three planes of {n} pixels are {}",
             bytes.len(),
-            n * 36
+            n.saturating_mul(36)
         ));
-    }
-    let v: Vec<f32> = bytes
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
-    if let Some(k) = v.iter().position(|x| !x.is_finite()) {
-        let plane = ["denoised beauty", "albedo", "normal"][k / (3 * n)];
-        let pixel = k % (3 * n) / 3;
-        return Err(format!(
-            "the output's {plane} is not finite at pixel {pixel} ({})",
-            v[k]
-        ));
-    }
-    let mut planes = v.chunks_exact(3 * n).map(|p| triples(p.to_vec()));
-    let (Some(color), Some(albedo), Some(normal)) = (planes.next(), planes.next(), planes.next())
-    else {
-        return Err("the output does not hold three planes".into());
     };
+    for (plane, name) in planes.iter().zip(["denoised beauty", "albedo", "normal"]) {
+        if let Some((pixel, v)) = plane
+            .iter()
+            .enumerate()
+            .find_map(|(i, p)| p.iter().find(|c| !c.is_finite()).map(|c| (i, *c)))
+        {
+            return Err(format!(
+                "the output's {name} is not finite at pixel {pixel} ({v})"
+            ));
+        }
+    }
+    let (normal, albedo, color) = (
+        planes.pop().unwrap_or_default(),
+        planes.pop().unwrap_or_default(),
+        planes.pop().unwrap_or_default(),
+    );
     Ok(DenoisedPlanes {
         color,
         albedo,

@@ -169,7 +169,7 @@ impl Reader<'_> {
     }
 }
 
-pub(crate) fn triples(v: Vec<f32>) -> Vec<[f32; 3]> {
+fn triples(v: Vec<f32>) -> Vec<[f32; 3]> {
     v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
 }
 

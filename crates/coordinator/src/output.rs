@@ -203,11 +203,11 @@ async fn record_written(
 }
 
 /// Writes the EXR of a frame a worker denoised (`planes`, under `claim`) from the frame kept
-/// for it, and ends its job; returns whether the file was written.
+/// for it (read here, under the one-frame-at-a-time permit), and ends its job; returns whether
+/// the file was written.
 pub(crate) async fn finish_denoised(
     shared: Arc<Shared>,
     claim: crate::scheduler::DenoiseClaim,
-    frame: Image,
     planes: DenoisedPlanes,
 ) -> bool {
     let Ok(_one_at_a_time) = shared.finishing.acquire().await else {
@@ -225,7 +225,9 @@ pub(crate) async fn finish_denoised(
         return false;
     };
     let path = shared.config.output_dir().join(&rec.output_name);
+    let kept = crate::kept::frame_path(&shared.config, id);
     let written = tokio::task::spawn_blocking(move || {
+        let frame = crate::kept::read_frame(&kept).map_err(FinishError::Keep)?;
         let options = options_of(rec.denoise.as_ref().unwrap_or(&DenoiseRecord {
             quality: claim.options.quality.clone(),
             hdr: claim.options.hdr,

@@ -242,6 +242,36 @@ pub fn denoise_image(image: &Image, options: &Options) -> Result<DenoisedPlanes,
     })
 }
 
+/// Planes of RGB triples as a `Workers.Denoise` stream carries them: every value a
+/// little-endian f32, row-major, one plane after another. The coordinator and the worker both
+/// write and read the stream with these two.
+pub fn planes_to_bytes(planes: &[&[[f32; 3]]]) -> Vec<u8> {
+    planes
+        .iter()
+        .flat_map(|p| p.as_flattened())
+        .flat_map(|x| x.to_le_bytes())
+        .collect()
+}
+
+/// [`planes_to_bytes`] read back as `k` planes of `n` pixels; `None` unless `bytes` is exactly
+/// that long.
+pub fn planes_from_bytes(bytes: &[u8], n: usize, k: usize) -> Option<Vec<Vec<[f32; 3]>>> {
+    if n.checked_mul(12)?.checked_mul(k)? != bytes.len() {
+        return None;
+    }
+    let value = |c: &[u8]| f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+    Some(
+        (0..k)
+            .map(|p| {
+                bytes[p * n * 12..(p + 1) * n * 12]
+                    .chunks_exact(12)
+                    .map(|c| [value(&c[0..4]), value(&c[4..8]), value(&c[8..12])])
+                    .collect()
+            })
+            .collect(),
+    )
+}
+
 /// The version of the OIDN library [`denoise`] uses (e.g. 20501 for 2.5.1), loading it if
 /// need be.
 pub fn library_version() -> Result<i32, DenoiseError> {
@@ -284,6 +314,26 @@ mod tests {
             threads: Some(3),
         };
         assert_eq!(header_entry(20501, &o), "oidn 2.5.1 fast ldr");
+    }
+
+    #[test]
+    fn planes_survive_the_stream_bit_for_bit_and_a_wrong_length_is_refused() {
+        let a = [[1.5f32, -0.0, f32::MIN_POSITIVE], [f32::NAN, 2.0, 3.0]];
+        let b = [[4.0f32, 5.0, 6.0], [7.0, 8.0, f32::INFINITY]];
+        let bytes = planes_to_bytes(&[&a, &b]);
+        assert_eq!(bytes.len(), 2 * 2 * 12);
+        let back = planes_from_bytes(&bytes, 2, 2).expect("two planes");
+        let bits = |p: &[[f32; 3]]| {
+            p.as_flattened()
+                .iter()
+                .map(|x| x.to_bits())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(bits(&back[0]), bits(&a));
+        assert_eq!(bits(&back[1]), bits(&b));
+        assert!(planes_from_bytes(&bytes[1..], 2, 2).is_none());
+        assert!(planes_from_bytes(&bytes, 2, 3).is_none());
+        assert!(planes_from_bytes(&bytes, usize::MAX, 2).is_none());
     }
 
     #[test]

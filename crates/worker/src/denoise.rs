@@ -61,7 +61,6 @@ pub(crate) async fn run(worker: Arc<Worker>) {
 async fn serve_one(worker: &Worker, id: &str) -> Result<(), tonic::Status> {
     let session = worker.session();
     let (tx, rx) = mpsc::channel(4);
-    let up = |m: pb::denoise_up::Msg| pb::DenoiseUp { msg: Some(m) };
     let hello = pb::DenoiseHello {
         worker_id: id.to_string(),
         wait_ms: WAIT_MS,
@@ -73,68 +72,24 @@ async fn serve_one(worker: &Worker, id: &str) -> Result<(), tonic::Status> {
         .denoise(ReceiverStream::new(rx))
         .await?
         .into_inner();
-    let Some(first) = down.message().await? else {
-        // No frame waited.
+    let Some((unit, input)) = receive_frame(&mut down).await? else {
         return Ok(());
     };
-    let Some(pb::denoise_down::Msg::Unit(unit)) = first.msg else {
-        return Err(tonic::Status::internal(
-            "a Denoise stream began without its unit",
-        ));
-    };
-    let (width, height) = (unit.width, unit.height);
-    let n = width as usize * height as usize;
-    let want = n.checked_mul(36).ok_or_else(|| {
-        tonic::Status::internal(format!("a {width}×{height} frame is too large to denoise"))
-    })?;
-    let mut input = Vec::with_capacity(want);
-    while input.len() < want {
-        match down.message().await? {
-            Some(pb::DenoiseDown {
-                msg: Some(pb::denoise_down::Msg::Input(b)),
-            }) if input.len() + b.len() <= want => input.extend_from_slice(&b),
-            Some(_) => {
-                return Err(tonic::Status::internal(
-                    "a Denoise stream's input is malformed",
-                ))
-            }
-            None => return Ok(()),
-        }
-    }
-    let options = unit.options.unwrap_or_default();
+    let options = unit.options.clone().unwrap_or_default();
     let quality = tessera_denoise::Quality::parse(&options.quality).unwrap_or_default();
     let opts = tessera_denoise::Options {
         quality,
         hdr: !options.ldr,
         threads: session.config.threads.map(|t| t as u32),
     };
+    let (width, height) = (unit.width, unit.height);
     info!("denoising {} ({width}×{height}, {quality})", unit.job_id);
     let started = std::time::Instant::now();
-    let filtered = tokio::task::spawn_blocking(move || {
-        let planes: Vec<Vec<[f32; 3]>> = input
-            .chunks_exact(n * 12)
-            .map(|p| {
-                p.chunks_exact(12)
-                    .map(|c| {
-                        let f = |k: usize| f32::from_le_bytes([c[k], c[k + 1], c[k + 2], c[k + 3]]);
-                        [f(0), f(4), f(8)]
-                    })
-                    .collect()
-            })
-            .collect();
-        let frame = tessera_denoise::Frame {
-            width,
-            height,
-            color: &planes[0],
-            albedo: &planes[1],
-            normal: &planes[2],
-        };
-        tessera_denoise::denoise(&frame, &opts)
-    })
-    .await
-    .map_err(|e| tonic::Status::internal(e.to_string()))?;
+    let filtered = tokio::task::spawn_blocking(move || filter((width, height), &input, &opts))
+        .await
+        .map_err(|e| tonic::Status::internal(e.to_string()))?;
     let out = match filtered {
-        Ok(d) => d,
+        Ok(out) => out,
         Err(e) => {
             warn!("denoising {} failed: {e}", unit.job_id);
             let _ = tx
@@ -144,13 +99,7 @@ async fn serve_one(worker: &Worker, id: &str) -> Result<(), tonic::Status> {
             return Ok(());
         }
     };
-    let bytes: Vec<u8> = [&out.color, &out.albedo, &out.normal]
-        .iter()
-        .flat_map(|p| p.as_flattened())
-        .flat_map(|x| x.to_le_bytes())
-        .collect();
-    drop(out);
-    for chunk in bytes.chunks(CHUNK_BYTES) {
+    for chunk in out.chunks(CHUNK_BYTES) {
         if tx
             .send(up(pb::denoise_up::Msg::Output(chunk.to_vec())))
             .await
@@ -181,4 +130,74 @@ async fn serve_one(worker: &Worker, id: &str) -> Result<(), tonic::Status> {
     // stream under the coordinator before it wrote the frame.
     drop(tx);
     Ok(())
+}
+
+fn up(m: pb::denoise_up::Msg) -> pb::DenoiseUp {
+    pb::DenoiseUp { msg: Some(m) }
+}
+
+/// The frame a stream lends, with all its input's bytes; `None` when no frame came (the
+/// coordinator had none within the wait) or the stream ended before its input was in.
+async fn receive_frame(
+    down: &mut tonic::Streaming<pb::DenoiseDown>,
+) -> Result<Option<(pb::DenoiseUnit, Vec<u8>)>, tonic::Status> {
+    let Some(first) = down.message().await? else {
+        return Ok(None);
+    };
+    let Some(pb::denoise_down::Msg::Unit(unit)) = first.msg else {
+        return Err(tonic::Status::internal(
+            "a Denoise stream began without its unit",
+        ));
+    };
+    let (width, height) = (unit.width, unit.height);
+    let want = (width as usize)
+        .checked_mul(height as usize)
+        .and_then(|n| n.checked_mul(36))
+        .ok_or_else(|| {
+            tonic::Status::internal(format!("a {width}×{height} frame is too large to denoise"))
+        })?;
+    let mut input = Vec::with_capacity(want);
+    while input.len() < want {
+        match down.message().await? {
+            Some(pb::DenoiseDown {
+                msg: Some(pb::denoise_down::Msg::Input(b)),
+            }) if input.len() + b.len() <= want => input.extend_from_slice(&b),
+            Some(_) => {
+                return Err(tonic::Status::internal(
+                    "a Denoise stream's input is malformed",
+                ))
+            }
+            None => return Ok(None),
+        }
+    }
+    Ok(Some((unit, input)))
+}
+
+/// Filters a lent frame's input (beauty, albedo, normal) into the output the stream carries
+/// back (denoised beauty, albedo, normal).
+fn filter(
+    (width, height): (u32, u32),
+    input: &[u8],
+    opts: &tessera_denoise::Options,
+) -> Result<Vec<u8>, tessera_denoise::DenoiseError> {
+    let n = width as usize * height as usize;
+    let planes = tessera_denoise::planes_from_bytes(input, n, 3).ok_or_else(|| {
+        tessera_denoise::DenoiseError::Input(format!(
+            "{} bytes of input for a {width}×{height} frame",
+            input.len()
+        ))
+    })?;
+    let frame = tessera_denoise::Frame {
+        width,
+        height,
+        color: &planes[0],
+        albedo: &planes[1],
+        normal: &planes[2],
+    };
+    let out = tessera_denoise::denoise(&frame, opts)?;
+    Ok(tessera_denoise::planes_to_bytes(&[
+        &out.color,
+        &out.albedo,
+        &out.normal,
+    ]))
 }
