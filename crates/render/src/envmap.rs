@@ -28,7 +28,7 @@
 
 use std::f32::consts::PI;
 
-use glam::{Vec2, Vec3A};
+use glam::{Vec2, Vec3A, Vec4};
 
 use crate::util::math::{atan2, luminance};
 use crate::util::sampling::{sin_cos_turn, Distribution1D};
@@ -38,8 +38,12 @@ use crate::util::sampling::{sin_cos_turn, Distribution1D};
 pub struct EnvMap {
     width: usize,
     height: usize,
-    /// Radiance (the image times the scene's intensity), row-major, row 0 at the zenith.
-    texels: Vec<Vec3A>,
+    /// Radiance (the image times the scene's intensity) in x, y, z, row-major, row 0 at the
+    /// zenith; in w the density in solid angle of the cell whose upper-left corner the texel
+    /// is, P(row)·P(column | row)/Ω (0 in the last row and in black rows). The density shares
+    /// the texel's cache line (and the lane `Vec3A` leaves unused): a large map's lookup
+    /// waits on memory once for both.
+    texels: Vec<Vec4>,
     /// (sin, cos) of the rotation about +y that takes the map's frame to the world's.
     rotation: (f32, f32),
     /// cos θ_j of each row of texels.
@@ -48,9 +52,6 @@ pub struct EnvMap {
     rows: Distribution1D,
     /// Each row's cells by ℓ (`None` for a row that is black throughout).
     columns: Vec<Option<Distribution1D>>,
-    /// Each cell's density in solid angle, P(row)·P(column | row)/Ω, row-major (W × (H − 1)):
-    /// the density of a direction is then one load once its cell is known.
-    cell_pdf: Vec<f32>,
     /// ∫ (R + G + B) dω over the sphere, for choosing between the map and other lights.
     power: f32,
 }
@@ -107,7 +108,11 @@ impl EnvMap {
             let (x, y) = (k % width, k / width);
             return Err(EnvMapError::BadTexel { x, y, what });
         }
-        let texels: Vec<Vec3A> = texels.iter().map(|t| *t * intensity).collect();
+        // The w lanes get the cells' densities once the distributions are built.
+        let mut texels: Vec<Vec4> = texels
+            .iter()
+            .map(|t| (*t * intensity).extend(0.0))
+            .collect();
         if texels.iter().any(|t| !t.is_finite()) {
             let k = texels.iter().position(|t| !t.is_finite()).unwrap_or(0);
             let (x, y) = (k % width, k / width);
@@ -121,7 +126,10 @@ impl EnvMap {
         let cos_rows: Vec<f32> = (0..height)
             .map(|j| sin_cos_turn(j as f32 / (2 * (height - 1)) as f32).1)
             .collect();
-        let lum: Vec<f32> = texels.iter().map(|t| luminance(*t).max(0.0)).collect();
+        let lum: Vec<f32> = texels
+            .iter()
+            .map(|t| luminance(Vec3A::from_vec4(*t)).max(0.0))
+            .collect();
         let mut row_weights = Vec::with_capacity(height - 1);
         let mut columns = Vec::with_capacity(height - 1);
         let mut power = 0.0f64;
@@ -146,7 +154,7 @@ impl EnvMap {
             return Err(EnvMapError::TooBright);
         }
         let rows = Distribution1D::new(&row_weights).ok_or(EnvMapError::Black)?;
-        let cell_pdf = cell_densities(&rows, &columns, &cos_rows, width);
+        set_cell_densities(&mut texels, &rows, &columns, &cos_rows, width);
         let (s, c) = sin_cos_turn(rotate_turns.rem_euclid(1.0));
         Ok(Self {
             width,
@@ -156,7 +164,6 @@ impl EnvMap {
             cos_rows,
             rows,
             columns,
-            cell_pdf,
             power,
         })
     }
@@ -218,16 +225,16 @@ impl EnvMap {
     fn blend(&self, b: &Blend) -> Vec3A {
         let i1 = if b.i + 1 == self.width { 0 } else { b.i + 1 };
         let (top, bottom) = (b.j * self.width, (b.j + 1) * self.width);
-        let t = &self.texels;
-        let upper = t[top + b.i] * (1.0 - b.fx) + t[top + i1] * b.fx;
-        let lower = t[bottom + b.i] * (1.0 - b.fx) + t[bottom + i1] * b.fx;
+        let t = |k: usize| Vec3A::from_vec4(self.texels[k]);
+        let upper = t(top + b.i) * (1.0 - b.fx) + t(top + i1) * b.fx;
+        let lower = t(bottom + b.i) * (1.0 - b.fx) + t(bottom + i1) * b.fx;
         upper * (1.0 - b.fy) + lower * b.fy
     }
 
     /// Density in solid angle of any direction in cell (i, j).
     #[inline]
     fn density(&self, b: &Blend) -> f32 {
-        self.cell_pdf[b.j * self.width + b.i]
+        self.texels[b.j * self.width + b.i].w
     }
 
     /// Radiance arriving from direction `d` (world space, unit): along a ray with direction
@@ -309,22 +316,28 @@ struct Blend {
     fy: f32,
 }
 
-/// Each cell's density in solid angle, P(row)·P(column | row)/Ω (0 in a black row).
-fn cell_densities(
+/// Each cell's density in solid angle, P(row)·P(column | row)/Ω (0 in a black row), into the
+/// w lane of its upper-left texel.
+fn set_cell_densities(
+    texels: &mut [Vec4],
     rows: &Distribution1D,
     columns: &[Option<Distribution1D>],
     cos_rows: &[f32],
     width: usize,
-) -> Vec<f32> {
-    let mut pdf = Vec::with_capacity(columns.len() * width);
-    for (j, c) in columns.iter().enumerate() {
+) {
+    for (j, (c, row)) in columns
+        .iter()
+        .zip(texels.chunks_exact_mut(width))
+        .enumerate()
+    {
         let omega = (cos_rows[j] - cos_rows[j + 1]) * (2.0 * PI / width as f32);
-        pdf.extend((0..width).map(|i| match c {
-            Some(c) => rows.pmf(j) * c.pmf(i) / omega,
-            None => 0.0,
-        }));
+        for (i, t) in row.iter_mut().enumerate() {
+            t.w = match c {
+                Some(c) => rows.pmf(j) * c.pmf(i) / omega,
+                None => 0.0,
+            };
+        }
     }
-    pdf
 }
 
 #[cfg(test)]
@@ -498,7 +511,7 @@ mod tests {
                 (b.i, b.j + 1),
                 ((b.i + 1) % 16, b.j + 1),
             ]
-            .map(|(x, y)| m.texels[y * 16 + x].max_element())
+            .map(|(x, y)| Vec3A::from_vec4(m.texels[y * 16 + x]).max_element())
             .into_iter()
             .fold(0.0f32, f32::max);
             let err = (radiance - by_direction).abs().max_element() / corner;
