@@ -191,7 +191,7 @@ async fn lease_call(ctx: &Worker, stop: &mut watch::Receiver<bool>, attempt: &mu
             }
         }
         Err(e) => {
-            if *attempt == 0 || *attempt % 10 == 0 {
+            if *attempt == 0 || attempt.is_multiple_of(10) {
                 warn!(
                     "leasing from {}: {}",
                     ctx.session.config.coordinator,
@@ -396,7 +396,7 @@ async fn hand_back_queued(ctx: &Worker, rx: &mut mpsc::Receiver<Ready>) {
 /// Sends results, retrying through network errors.
 async fn submitter(ctx: Arc<Worker>, mut rx: mpsc::UnboundedReceiver<Done>) {
     while let Some(done) = rx.recv().await {
-        let mut attempt = 0;
+        let mut attempt = 0u32;
         let started = std::time::Instant::now();
         loop {
             let sent_as = ctx.session.id();
@@ -430,7 +430,7 @@ async fn submitter(ctx: Arc<Worker>, mut rx: mpsc::UnboundedReceiver<Done>) {
                     }
                 }
                 Err(e) if transient(&e) => {
-                    if attempt == 0 || attempt % 10 == 0 {
+                    if attempt == 0 || attempt.is_multiple_of(10) {
                         warn!("sending a result: {}; retrying", e.message());
                     }
                     // Keep retrying during shutdown too, but not past the grace period

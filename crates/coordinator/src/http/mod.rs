@@ -331,7 +331,7 @@ fn foreign_host(req: &Request, allowed: &[String]) -> Option<String> {
         .parse::<std::net::IpAddr>()
         .is_ok();
     let local = name == "localhost" || name.ends_with(".localhost");
-    if ip || local || allowed.iter().any(|a| *a == name) {
+    if ip || local || allowed.contains(&name) {
         return None;
     }
     Some(crate::error::truncate(&host))
