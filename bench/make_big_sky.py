@@ -1,11 +1,14 @@
 """Writes two 4096 x 2048 HDR skies and envmap-balls scenes under them, for measuring what a
 full-size map costs (scenes/textures/sky.exr is 64 x 32, which stays in cache):
 
-    target/bench-cache/big-sky/cloudy.toml  a blue sky with 16-texel cloud blocks, no sun
-    target/bench-cache/big-sky/sun.toml     the same sky with a sun of 32 x 32 texels that
-                                            holds about 70% of the map's power
+    target/bench-cache/big-sky/envmap-balls-4k-cloudy.toml  a blue sky with 16-texel cloud
+                                                            blocks, no sun (cloudy.exr)
+    target/bench-cache/big-sky/envmap-balls-4k-sun.toml     the same sky with a sun of 32 x 32
+                                                            texels that holds about 70% of the
+                                                            map's power (sun.exr)
 
-Needs NumPy and OpenEXR (the bench venv: bench/peer-env.sh). Run from the repository root:
+Needs NumPy and Mitsuba 3, whose Bitmap writes the EXR (the bench venv: bench/peer-env.sh).
+Run from the repository root:
 
     python bench/make_big_sky.py
 """
@@ -13,7 +16,6 @@ import os
 import re
 
 import numpy as np
-import OpenEXR
 
 W, H = 4096, 2048
 OUT = "target/bench-cache/big-sky"
@@ -41,14 +43,17 @@ def sky(sun):
 
 
 def main():
+    import mitsuba as mi
+
+    mi.set_variant("scalar_rgb")
     os.makedirs(OUT, exist_ok=True)
     base = open("scenes/envmap-balls.toml").read()
     for name, sun in [("cloudy", False), ("sun", True)]:
-        header = {"type": OpenEXR.scanlineimage, "compression": OpenEXR.ZIP_COMPRESSION}
-        OpenEXR.File(header, {"RGB": sky(sun)}).write(f"{OUT}/{name}.exr")
+        mi.Bitmap(sky(sun), pixel_format=mi.Bitmap.PixelFormat.RGB).write(f"{OUT}/{name}.exr")
         scene = re.sub(r'file = "textures/sky.exr"', f'file = "{name}.exr"', base)
-        open(f"{OUT}/{name}.toml", "w").write(scene)
-        print(f"{OUT}/{name}.toml")
+        toml = f"{OUT}/envmap-balls-4k-{name}.toml"
+        open(toml, "w").write(scene)
+        print(toml)
 
 
 if __name__ == "__main__":

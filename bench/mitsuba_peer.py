@@ -69,9 +69,13 @@ from peer_protocol import requests
 
 
 SCENES = ("cornell-box", "glass-mirror", "mesh-glass", "metals-box", "envmap-balls", "materials", "pbr-metals",
-          "gltf-metals", "gltf-glass", "gltf-big", "mesh-million", "mesh-million-analytic")
+          "gltf-metals", "gltf-glass", "gltf-big", "mesh-million", "mesh-million-analytic",
+          "envmap-balls-4k-cloudy", "envmap-balls-4k-sun")
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+# bench/make_big_sky.py's 4096 x 2048 skies, by the scene that uses each.
+BIG_SKIES = {f"envmap-balls-4k-{k}": os.path.join(HERE, "..", "target", "bench-cache", "big-sky", f"{k}.exr")
+             for k in ("cloudy", "sun")}
 MESHES = os.path.join(HERE, "..", "scenes", "meshes")
 
 
@@ -126,8 +130,8 @@ def mesh_glass(mi, d):
                        "bsdf": {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0}}
 
 
-def envmap_balls(mi):
-    """scenes/envmap-balls.toml: its own camera, no box."""
+def envmap_balls(mi, sky=None):
+    """scenes/envmap-balls.toml: its own camera, no box; `sky` another map in sky.exr's place."""
     T = mi.ScalarTransform4f
 
     def rgb(v):
@@ -142,7 +146,8 @@ def envmap_balls(mi):
                    "to_world": T().look_at(origin=[0.0, 0.6, 4.0], target=[0.0, -0.45, 0.0],
                                            up=[0.0, 1.0, 0.0]),
                    "film": {"type": "hdrfilm"}},
-        "sky": {"type": "envmap", "filename": os.path.join(HERE, "..", "scenes", "textures", "sky.exr"),
+        "sky": {"type": "envmap",
+                "filename": sky or os.path.join(HERE, "..", "scenes", "textures", "sky.exr"),
                 "to_world": T().rotate([0, 1, 0], 30.0)},
         "ground": {"type": "rectangle",
                    "to_world": T([[10, 0, 0, 0], [0, 0, 10, -1], [0, -10, 0, 0], [0, 0, 0, 1]]),
@@ -271,7 +276,7 @@ def scene_dict(mi, name, size):
     elif name == "pbr-metals":
         d = pbr_metals(mi)
     else:
-        d = envmap_balls(mi) if name == "envmap-balls" else mi.cornell_box()
+        d = envmap_balls(mi, BIG_SKIES.get(name)) if name.startswith("envmap-balls") else mi.cornell_box()
     if name == "glass-mirror":
         # scenes/glass-mirror.toml: the box, lit as before, with two balls for the cuboids.
         del d["small-box"], d["large-box"]
@@ -314,7 +319,7 @@ def scene_dict(mi, name, size):
         d["sphere"] = {"type": "sphere", "center": [0, -0.5, 0], "radius": 0.45,
                        "bsdf": {"type": "ref", "id": "white"}}
     elif name not in ("cornell-box", "envmap-balls", "materials", "pbr-metals", "gltf-metals",
-                      "gltf-glass", "gltf-big"):
+                      "gltf-glass", "gltf-big", *BIG_SKIES):
         raise SystemExit(f"no Mitsuba counterpart for scene {name!r}; known: {SCENES}")
     d["sensor"]["film"].update(width=size, height=size, rfilter={"type": "box"})
     d["sensor"]["sampler"] = {"type": "independent", "sample_count": 4}
