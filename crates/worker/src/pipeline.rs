@@ -191,7 +191,7 @@ async fn lease_call(ctx: &Worker, stop: &mut watch::Receiver<bool>, attempt: &mu
             }
         }
         Err(e) => {
-            if *attempt == 0 || attempt.is_multiple_of(10) {
+            if attempt.is_multiple_of(10) {
                 warn!(
                     "leasing from {}: {}",
                     ctx.session.config.coordinator,
@@ -430,7 +430,7 @@ async fn submitter(ctx: Arc<Worker>, mut rx: mpsc::UnboundedReceiver<Done>) {
                     }
                 }
                 Err(e) if transient(&e) => {
-                    if attempt == 0 || attempt.is_multiple_of(10) {
+                    if attempt.is_multiple_of(10) {
                         warn!("sending a result: {}; retrying", e.message());
                     }
                     // Keep retrying during shutdown too, but not past the grace period
