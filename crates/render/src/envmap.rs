@@ -12,8 +12,10 @@
 //! latitude [θ_j, θ_{j+1}] by a slice of longitude 2π/W. Radiance over a cell is the bilinear
 //! blend of its four corner texels, whose mean luminance ℓ is the blend's mean over the cell.
 //! A cell is chosen with probability proportional to ℓ · Ω (its solid angle Ω = (2π/W)(cos θ_j
-//! − cos θ_{j+1})), a row by the marginal and then a column by that row's conditional, and the
-//! direction is uniform in solid angle inside it (longitude uniform, cos θ uniform). The
+//! − cos θ_{j+1})), a row by the marginal (inverting its cdf) and then a column by that row's
+//! conditional (inverting its cdf too, or, on a full-size map, from an alias table in constant
+//! time: [`ALIAS_MIN_WIDTH`]), and the direction is uniform in solid angle inside it (longitude
+//! uniform, cos θ uniform). The
 //! density is then constant over a cell, p = P(cell)/Ω — no 1/sin θ, so no singularity at the
 //! poles — and it is positive wherever the radiance is: radiance is a blend of non-negative
 //! texels, which is non-zero only where some corner is, and then ℓ > 0. Every number the
@@ -31,7 +33,9 @@ use std::f32::consts::PI;
 use glam::{Vec2, Vec3A, Vec4};
 
 use crate::util::math::{atan2, luminance};
-use crate::util::sampling::{sin_cos_turn, Distribution1D};
+use crate::util::sampling::{
+    alias_bin, push_alias_entries, sin_cos_turn, AliasEntry, Distribution1D,
+};
 
 /// An equirectangular environment map, ready to evaluate and sample.
 #[derive(Clone, Debug)]
@@ -48,10 +52,11 @@ pub struct EnvMap {
     rotation: (f32, f32),
     /// cos θ_j of each row of texels.
     cos_rows: Vec<f32>,
-    /// Rows of cells (H − 1), by their share of ℓ·Ω.
+    /// Rows of cells (H − 1), by their share of ℓ·Ω: by inversion, which keeps the sampler's
+    /// stratification in latitude, where a sky changes most.
     rows: Distribution1D,
-    /// Each row's cells by ℓ (`None` for a row that is black throughout).
-    columns: Vec<Option<Distribution1D>>,
+    /// Each row's cells by ℓ.
+    columns: Columns,
     /// ∫ (R + G + B) dω over the sphere, for choosing between the map and other lights.
     power: f32,
 }
@@ -131,10 +136,11 @@ impl EnvMap {
             .map(|t| luminance(Vec3A::from_vec4(*t)).max(0.0))
             .collect();
         let mut row_weights = Vec::with_capacity(height - 1);
-        let mut columns = Vec::with_capacity(height - 1);
+        let alias = width >= ALIAS_MIN_WIDTH;
+        let (mut inverted, mut entries) = (Vec::new(), Vec::new());
         let mut power = 0.0f64;
-        let mut cell = vec![0.0f32; width];
-        for j in 0..height - 1 {
+        let mut cells = vec![0.0f32; (height - 1) * width];
+        for (j, cell) in cells.chunks_exact_mut(width).enumerate() {
             let band = (cos_rows[j] - cos_rows[j + 1]).max(0.0);
             let (top, bottom) = (j * width, (j + 1) * width);
             let mut row_sum = 0.0f64;
@@ -147,14 +153,32 @@ impl EnvMap {
                 power += 0.25 * f64::from(rgb.x + rgb.y + rgb.z) * f64::from(band);
             }
             row_weights.push((row_sum * f64::from(band)) as f32);
-            columns.push(Distribution1D::new(&cell));
+            if !alias {
+                inverted.push(Distribution1D::new(cell));
+            } else if !push_alias_entries(cell, &mut entries) {
+                entries.resize(entries.len() + width, AliasEntry::default());
+            }
         }
         let power = (power * 2.0 * std::f64::consts::PI / width as f64) as f32;
         if !power.is_finite() || row_weights.iter().any(|w| !w.is_finite()) {
             return Err(EnvMapError::TooBright);
         }
         let rows = Distribution1D::new(&row_weights).ok_or(EnvMapError::Black)?;
-        set_cell_densities(&mut texels, &rows, &columns, &cos_rows, width);
+        set_cell_densities(&mut texels, &rows, &cells, &cos_rows, width);
+        let columns = if alias {
+            Columns::Alias(
+                entries
+                    .iter()
+                    .enumerate()
+                    .map(|(k, alias)| CellEntry {
+                        alias: *alias,
+                        pdf: [texels[k].w, texels[k - k % width + alias.alias()].w],
+                    })
+                    .collect(),
+            )
+        } else {
+            Columns::Inverted(inverted)
+        };
         let (s, c) = sin_cos_turn(rotate_turns.rem_euclid(1.0));
         Ok(Self {
             width,
@@ -254,15 +278,32 @@ impl EnvMap {
     /// radiance arriving along it; `None` where the density is not positive and finite (a
     /// cell too thin to hold one in f32).
     pub fn sample(&self, u: Vec2) -> Option<EnvSample> {
+        let d = self.sample_direction(u)?;
+        Some(EnvSample {
+            wi: d.wi,
+            pdf: d.pdf,
+            radiance: self.radiance_at(&d.point),
+        })
+    }
+
+    /// [`EnvMap::sample`] without the radiance, which [`EnvMap::radiance_at`] gives for the
+    /// draw's point when it is wanted: a light sample behind the surface or in shadow never
+    /// reads the texels, which on a full-size map are a wait on memory each.
+    #[inline]
+    pub fn sample_direction(&self, u: Vec2) -> Option<EnvDraw> {
         let (j, uy) = self.rows.sample_remap(u.y);
-        let (i, ux) = self.columns[j].as_ref()?.sample_remap(u.x);
-        let cell = Blend {
-            i,
-            j,
-            fx: ux,
-            fy: 0.0,
+        let (i, ux, pdf) = match &self.columns {
+            Columns::Inverted(rows) => {
+                let (i, ux) = rows.get(j)?.as_ref()?.sample_remap(u.x);
+                (i, ux, self.texels[j * self.width + i].w)
+            }
+            Columns::Alias(cells) => {
+                let (bin, f) = alias_bin(self.width, u.x);
+                let entry = cells.get(j * self.width + bin)?;
+                let (i, ux, kept) = entry.alias.pick(bin, f);
+                (i, ux, if kept { entry.pdf[0] } else { entry.pdf[1] })
+            }
         };
-        let pdf = self.density(&cell);
         if !(pdf > 0.0 && pdf.is_finite()) {
             return None;
         }
@@ -277,14 +318,34 @@ impl EnvMap {
         let sin = ((1.0 - cos) * (1.0 + cos)).max(0.0).sqrt();
         let (sin_phi, cos_phi) = sin_cos_turn(phi);
         let local = Vec3A::new(sin_phi * sin, cos, -cos_phi * sin);
-        // Down the cell the blend is linear in θ (rows sit at θ = πj/(H − 1)), which the
-        // uniform cos θ does not give: one arctangent finds it.
-        let y = atan2(sin, cos) * ((self.height - 1) as f32 / PI);
-        let fy = (y - j as f32).clamp(0.0, 1.0);
-        Some(EnvSample {
+        Some(EnvDraw {
             wi: self.to_world(local),
             pdf,
-            radiance: self.blend(&Blend { fy, ..cell }),
+            point: MapPoint {
+                i: i as u32,
+                j: j as u32,
+                fx: ux,
+                sin,
+                cos,
+            },
+        })
+    }
+
+    /// The radiance arriving along a draw of [`EnvMap::sample_direction`] (`point` is its own).
+    /// Out of line: a light sample's radiance is read at every material's next-event site, and
+    /// inlined into each it crowded the instruction cache (docs/benchmarks/envmap-alias-2026-11-30.md).
+    #[inline(never)]
+    pub fn radiance_at(&self, point: &MapPoint) -> Vec3A {
+        let (i, j) = (point.i as usize, point.j as usize);
+        // Down the cell the blend is linear in θ (rows sit at θ = πj/(H − 1)), which the
+        // uniform cos θ does not give: one arctangent finds it.
+        let y = atan2(point.sin, point.cos) * ((self.height - 1) as f32 / PI);
+        let fy = (y - j as f32).clamp(0.0, 1.0);
+        self.blend(&Blend {
+            i,
+            j,
+            fx: point.fx,
+            fy,
         })
     }
 
@@ -306,6 +367,57 @@ pub struct EnvSample {
     pub radiance: Vec3A,
 }
 
+/// A direction drawn from a map without its radiance ([`EnvMap::sample_direction`]).
+#[derive(Clone, Copy, Debug)]
+pub struct EnvDraw {
+    /// The direction towards the map (world space, unit).
+    pub wi: Vec3A,
+    /// Its density in solid angle.
+    pub pdf: f32,
+    /// Where on the map it is, for [`EnvMap::radiance_at`].
+    pub point: MapPoint,
+}
+
+/// Where a draw landed on its map: its cell, the blend's fraction across it, and the sine and
+/// cosine of its angle from the zenith, from which the fraction down the cell follows.
+#[derive(Clone, Copy, Debug)]
+pub struct MapPoint {
+    i: u32,
+    j: u32,
+    fx: f32,
+    sin: f32,
+    cos: f32,
+}
+
+/// Maps at least this wide draw a row's column from an alias table; narrower ones invert the
+/// row's cdf. A narrow row's search stays in cache and is cheap, and inversion keeps the
+/// sampler's stratification in longitude (nearby numbers, nearby directions), which the alias
+/// table gives up: on the bundled 64 × 32 sky the alias table measured a few percent more
+/// error per sample and no faster. A full-size map's row (1K texels and up) is a walk through
+/// memory to search, where the alias table reads one entry
+/// (docs/benchmarks/envmap-alias-2026-11-30.md).
+const ALIAS_MIN_WIDTH: usize = 512;
+
+/// How a row's column is drawn ([`ALIAS_MIN_WIDTH`]).
+#[derive(Clone, Debug)]
+enum Columns {
+    /// Each row's cdf (`None` for a row that is black throughout).
+    Inverted(Vec<Option<Distribution1D>>),
+    /// W alias entries a row (a black row's never read), each with the densities of the two
+    /// cells it can give: a light sample reads one entry, and no texel until its radiance is
+    /// wanted.
+    Alias(Vec<CellEntry>),
+}
+
+/// A cell's alias entry in its row's table, with the densities of the cell itself and of its
+/// alias: all a draw's density needs, in one read.
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(16))]
+struct CellEntry {
+    alias: AliasEntry,
+    pdf: [f32; 2],
+}
+
 /// A place on the map: cell (i, j) (its upper-left texel) and the fractions towards texels
 /// i + 1 and j + 1.
 #[derive(Clone, Copy)]
@@ -317,24 +429,28 @@ struct Blend {
 }
 
 /// Each cell's density in solid angle, P(row)·P(column | row)/Ω (0 in a black row), into the
-/// w lane of its upper-left texel.
+/// w lane of its upper-left texel; `cells` holds each row's weights ℓ. P(column | row) is the
+/// cell's share of its row's sum in f64, rounded once.
 fn set_cell_densities(
     texels: &mut [Vec4],
     rows: &Distribution1D,
-    columns: &[Option<Distribution1D>],
+    cells: &[f32],
     cos_rows: &[f32],
     width: usize,
 ) {
-    for (j, (c, row)) in columns
-        .iter()
+    for (j, (c, row)) in cells
+        .chunks_exact(width)
         .zip(texels.chunks_exact_mut(width))
         .enumerate()
     {
         let omega = (cos_rows[j] - cos_rows[j + 1]) * (2.0 * PI / width as f32);
-        for (i, t) in row.iter_mut().enumerate() {
-            t.w = match c {
-                Some(c) => rows.pmf(j) * c.pmf(i) / omega,
-                None => 0.0,
+        let total: f64 = c.iter().map(|&w| f64::from(w.max(0.0))).sum();
+        for (&w, t) in c.iter().zip(row) {
+            t.w = if total > 0.0 {
+                let pmf = (f64::from(w.max(0.0)) / total) as f32;
+                rows.pmf(j) * pmf / omega
+            } else {
+                0.0
             };
         }
     }

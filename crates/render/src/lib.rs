@@ -105,5 +105,8 @@ pub use util::{files, lanes, math, sampling};
 /// what lies nearer than `znear` is no longer seen. Revision 12 records an emitter's colour
 /// (its radiance, largest channel 1) as the albedo AOV where the camera sees it from the side
 /// it emits to, in place of its material's albedo: the beauty keeps its bits, the albedo AOV
-/// of every scene with a visible lamp changes.
-pub const IMAGE_REVISION: u32 = 12;
+/// of every scene with a visible lamp changes. Revision 13 draws an environment map's column
+/// from an alias table rather than by inverting the row's cdf (constant time on a full-size
+/// map): the same density, but a number draws another direction, so every scene with a map
+/// renders differently.
+pub const IMAGE_REVISION: u32 = 13;

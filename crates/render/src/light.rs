@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 use glam::{Vec2, Vec3A};
 
-use crate::envmap::EnvMap;
+use crate::envmap::{EnvMap, MapPoint};
 
 use crate::shape::{sphere_point_error, sphere_roots, sphere_roots_f64, Parallelogram};
 use crate::util::math::{offset_ray_origin, Frame, Ray};
@@ -192,13 +192,13 @@ struct AreaSample {
 
 /// A sampled point on a light.
 #[derive(Clone, Copy, Debug)]
-pub struct LightSample {
+pub struct LightSample<'a> {
     /// The point, moved off the light towards the shading point for the shadow ray.
     pub p: Vec3A,
     /// Unit direction from the shading point to the light.
     pub wi: Vec3A,
-    /// Emitted radiance towards the shading point (0 from a one-sided light's back).
-    pub le: Vec3A,
+    /// Emitted radiance towards the shading point ([`LightSample::le`]).
+    le: Emitted<'a>,
     /// Density in solid angle at the shading point, light selection included; for a punctual
     /// light, its selection probability alone (the direction is a delta).
     pub pdf: f32,
@@ -208,7 +208,35 @@ pub struct LightSample {
     pub distant: bool,
 }
 
-impl LightSample {
+/// A light sample's radiance: known, or an environment map's at the draw, read only once the
+/// sample is known to count (in front of the surface and unoccluded): on a full-size map the
+/// texels are a wait on memory.
+#[derive(Clone, Copy, Debug)]
+enum Emitted<'a> {
+    Known(Vec3A),
+    Map(&'a EnvMap, MapPoint),
+}
+
+impl LightSample<'_> {
+    /// Emitted radiance towards the shading point (0 from a one-sided light's back).
+    #[inline]
+    pub fn le(&self) -> Vec3A {
+        match self.le {
+            Emitted::Known(le) => le,
+            Emitted::Map(map, point) => map.radiance_at(&point),
+        }
+    }
+
+    /// Whether the sample may carry light: false where its radiance is known to be zero. A
+    /// map's draw always may (its cell has a positive density, so a corner of it is lit).
+    #[inline]
+    pub fn may_emit(&self) -> bool {
+        match self.le {
+            Emitted::Known(le) => le != Vec3A::ZERO,
+            Emitted::Map(..) => true,
+        }
+    }
+
     /// The shadow ray from `from` and the t it must be clear to: short of the sampled point,
     /// or, towards a light at infinity, all the way. A finite segment there would end past
     /// the scene's finite objects but let an infinite plane's far part through: from a ball
@@ -438,11 +466,11 @@ fn sample_sphere(
 /// with probability `pmf`. Out of line, so that [`Lights::sample`] stays small enough to inline
 /// into the integrator.
 #[inline(never)]
-fn surfaceless_sample(light: &Light, p: Vec3A, u: Vec2, pmf: f32) -> Option<LightSample> {
+fn surfaceless_sample(light: &Light, p: Vec3A, u: Vec2, pmf: f32) -> Option<LightSample<'_>> {
     let (wi, pdf, le, reach) = match &light.shape {
         LightShape::Environment { map, reach } => {
-            let s = map.sample(u)?;
-            (s.wi, s.pdf, s.radiance, *reach)
+            let d = map.sample_direction(u)?;
+            (d.wi, d.pdf, Emitted::Map(map, d.point), *reach)
         }
         LightShape::Sun {
             towards,
@@ -453,7 +481,7 @@ fn surfaceless_sample(light: &Light, p: Vec3A, u: Vec2, pmf: f32) -> Option<Ligh
             let local = square_to_uniform_cone(u, *one_minus_cos);
             let wi = Frame::from_normal(*towards).to_world(local).normalize();
             let pdf = 1.0 / (2.0 * PI * one_minus_cos);
-            (wi, pdf, light.radiance, *reach)
+            (wi, pdf, Emitted::Known(light.radiance), *reach)
         }
         _ => return delta_sample(light, p, pmf),
     };
@@ -473,12 +501,12 @@ fn surfaceless_sample(light: &Light, p: Vec3A, u: Vec2, pmf: f32) -> Option<Ligh
 }
 
 /// A punctual light's sample from `p`, selected with probability `pmf`.
-fn delta_sample(light: &Light, p: Vec3A, pmf: f32) -> Option<LightSample> {
+fn delta_sample(light: &Light, p: Vec3A, pmf: f32) -> Option<LightSample<'_>> {
     let (x, wi, le) = light.sample_delta(p)?;
     Some(LightSample {
         p: x,
         wi,
-        le,
+        le: Emitted::Known(le),
         pdf: pmf,
         delta: true,
         distant: matches!(light.shape, LightShape::Directional { .. }),
@@ -565,7 +593,7 @@ impl Lights {
 
     /// Picks a punctual light by power among the punctual ones: what rendering with BSDF
     /// sampling alone still needs, since no ray finds them.
-    pub fn sample_delta(&self, p: Vec3A, u_select: f32) -> Option<LightSample> {
+    pub fn sample_delta(&self, p: Vec3A, u_select: f32) -> Option<LightSample<'_>> {
         let (dist, index) = self.delta.as_ref()?;
         let k = dist.sample(u_select);
         delta_sample(&self.lights[index[k] as usize], p, dist.pmf(k))
@@ -592,7 +620,7 @@ impl Lights {
     /// Picks a light and a point on it as seen from `p`. Always inlined, as it was before
     /// punctual lights, whose case is a call: inlined, it costs the area lights nothing.
     #[inline(always)]
-    pub fn sample(&self, p: Vec3A, u_select: f32, u: Vec2) -> Option<LightSample> {
+    pub fn sample(&self, p: Vec3A, u_select: f32, u: Vec2) -> Option<LightSample<'_>> {
         let dist = self.select.as_ref()?;
         let i = dist.sample(u_select);
         let light = &self.lights[i];
@@ -614,7 +642,7 @@ impl Lights {
         Some(LightSample {
             p: offset_ray_origin(x, err, towards),
             wi,
-            le,
+            le: Emitted::Known(le),
             pdf,
             delta: false,
             distant: false,

@@ -182,8 +182,9 @@ fn middle(scene: &tessera_render::scene::Scene, rows: u32) -> PixelRect {
 /// revision 7 the AOVs of the glTF sample (smooth normals, a normal map) and the textured scene,
 /// and since revision 10 the material showcase (an environment map, every material kind, packed
 /// and normal-map textures), whose map's bits were not pinned before, and since revision 12 the
-/// ellipsoid's AOVs over its whole frame (its lamp in view).
-const PINNED: (u32, u64) = (12, 0x46c7_8e07_744a_5fa4);
+/// ellipsoid's AOVs over its whole frame (its lamp in view), and since revision 13 a sphere under
+/// a map wide enough for alias tables.
+const PINNED: (u32, u64) = (13, 0xa844_4c58_c12c_00b5);
 
 /// The bits the renderer returns are pinned to [`tessera_render::IMAGE_REVISION`]: a change
 /// that alters them must bump the revision (and update the hash here), because the farm refuses
@@ -282,6 +283,55 @@ radius = 0.3
         height: scenes[6].height,
     };
     sums_hash(&mut hash, &render_tile(&scenes[6], &aovs, whole, 0..4));
+    // A map wide enough to draw its columns from alias tables (revision 13), under which the
+    // bundled scenes' 64-wide sky never comes.
+    let (w, h) = (512, 6);
+    let texels: Vec<glam::Vec3A> = (0..w * h)
+        .map(|k| {
+            let (x, y) = ((k % w) as f32, (k / w) as f32);
+            glam::Vec3A::new(1.0 + (x * 0.05).sin(), 0.5 + 0.1 * y, 0.2 + 0.001 * x)
+                * if k == 3 * w / 2 { 500.0 } else { 1.0 }
+        })
+        .collect();
+    let wide = common::scene_with_files(
+        r#"
+version = 1
+[camera]
+model = "look_at"
+eye = [0.0, 0.5, 4.0]
+up = [0.0, 1.0, 0.0]
+target = [0.0, 0.0, 0.0]
+fov = 40.0
+[film]
+width = 48
+height = 32
+[environment]
+type = "map"
+file = "sky.exr"
+rotate = 20.0
+[materials.a]
+type = "diffuse"
+albedo = [0.7, 0.6, 0.5]
+[[objects]]
+shape = "sphere"
+material = "a"
+center = [0.0, 0.0, 0.0]
+radius = 1.0
+"#,
+        &[("sky.exr", &common::exr_bytes(w, h, &texels))],
+    );
+    for strategy in [Strategy::Mis, Strategy::Nee] {
+        let settings = RenderSettings {
+            seed: 3,
+            spp: 8,
+            strategy,
+            ..RenderSettings::default()
+        };
+        sums_hash(
+            &mut hash,
+            &render_tile(&wide, &settings, middle(&wide, 8), 0..8),
+        );
+    }
     assert_eq!(
         (tessera_render::IMAGE_REVISION, hash),
         PINNED,

@@ -615,7 +615,7 @@ fn samplers_at_the_domain_edges_stay_finite() {
                 for &b in &edges {
                     if let Some(ls) = sc.lights.sample(p, s, Vec2::new(a, b)) {
                         assert!(
-                            ls.p.is_finite() && ls.wi.is_finite() && ls.le.is_finite(),
+                            ls.p.is_finite() && ls.wi.is_finite() && ls.le().is_finite(),
                             "{p:?} {ls:?}"
                         );
                         assert!(ls.pdf > 0.0 && ls.pdf.is_finite(), "{p:?} {ls:?}");

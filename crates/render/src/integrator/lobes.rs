@@ -38,7 +38,7 @@ pub(super) fn reflected_light<E, P>(
         } else {
             1.0
         };
-        path.l += path.beta * ls.le * f * (w / ls.pdf);
+        path.l += path.beta * ls.le() * f * (w / ls.pdf);
     }
 }
 
@@ -65,7 +65,7 @@ pub(super) fn two_sided_light<E, P>(
     let side = if cos > 0.0 { at.n } else { -at.n };
     // The geometric normal must put the light on the side the shading one does.
     let reachable = !at.shaded || at.n.dot(ls.wi) * side.dot(at.n) > 0.0;
-    if !(cos != 0.0 && reachable && ls.le != Vec3A::ZERO) {
+    if !(cos != 0.0 && reachable && ls.may_emit()) {
         return;
     }
     let p_out = offset_ray_origin(sp.p, sp.err, side);
@@ -80,5 +80,5 @@ pub(super) fn two_sided_light<E, P>(
     } else {
         1.0
     };
-    path.l += path.beta * ls.le * (f * w / ls.pdf);
+    path.l += path.beta * ls.le() * (f * w / ls.pdf);
 }

@@ -454,7 +454,7 @@ fn direct_light(
     } else {
         1.0
     };
-    Some((ls.le, cos * std::f32::consts::FRAC_1_PI * w / ls.pdf))
+    Some((ls.le(), cos * std::f32::consts::FRAC_1_PI * w / ls.pdf))
 }
 
 /// A light sample for next-event estimation from `p`: any light, or under BSDF sampling alone
@@ -466,7 +466,7 @@ fn sample_light(
     p: Vec3A,
     u_select: f32,
     u_point: Vec2,
-) -> Option<LightSample> {
+) -> Option<LightSample<'_>> {
     if strategy == Strategy::Bsdf {
         scene.lights.sample_delta(p, u_select)
     } else {
@@ -478,19 +478,19 @@ fn sample_light(
 /// direction against the shading normal; `None` when it is behind the surface, occluded or
 /// dark.
 #[inline(always)]
-fn visible_light(
-    scene: &Scene,
+fn visible_light<'s>(
+    scene: &'s Scene,
     strategy: Strategy,
     sp: &SurfacePoint,
     at: &Shading,
     p_out: Vec3A,
     (u_select, u_point): (f32, Vec2),
-) -> Option<(LightSample, f32)> {
+) -> Option<(LightSample<'s>, f32)> {
     let ls = sample_light(scene, strategy, sp.p, u_select, u_point)?;
     let cos = at.ns.dot(ls.wi);
     // A light behind the geometric surface is unreachable, whatever the shading normal says.
     let reachable = !at.shaded || at.n.dot(ls.wi) > 0.0;
-    if !(cos > 0.0 && reachable && ls.le != Vec3A::ZERO) {
+    if !(cos > 0.0 && reachable && ls.may_emit()) {
         return None;
     }
     let (shadow, t_max) = ls.shadow_ray(p_out);

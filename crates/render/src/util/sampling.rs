@@ -497,6 +497,133 @@ impl Distribution1D {
     }
 }
 
+/// One bin of an alias table ([`AliasTable`]): the share of the bin's 1/n that keeps its own
+/// index, and the index the rest of it gives.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AliasEntry {
+    keep: f32,
+    alias: u32,
+}
+
+/// A discrete distribution sampled in constant time by Walker's alias method (Vose's
+/// construction): one number picks one of n equal bins, and the rest of it either keeps the
+/// bin's own index or takes its alias. Where [`Distribution1D`]'s inversion searches its cdf
+/// (a walk through a large table, with a branch the predictor cannot guess at every step),
+/// this reads one entry; it gives up inversion's order (nearby numbers may pick far entries),
+/// which costs nothing where the entries are many more than the samples that meet them (the
+/// columns of an environment map's row: [`crate::envmap`]).
+#[derive(Clone, Debug)]
+pub struct AliasTable {
+    entries: Vec<AliasEntry>,
+}
+
+impl AliasTable {
+    /// Builds from non-negative weights; `None` if they are all zero or sum past f64.
+    pub fn new(weights: &[f32]) -> Option<Self> {
+        let mut entries = Vec::with_capacity(weights.len());
+        push_alias_entries(weights, &mut entries).then_some(Self { entries })
+    }
+
+    /// An index for `u` in [0, 1), never one of zero weight, and `u` stretched back over
+    /// [0, 1) within the share of it that picked the index.
+    #[inline]
+    pub fn sample_remap(&self, u: f32) -> (usize, f32) {
+        sample_alias(&self.entries, u)
+    }
+}
+
+/// Appends the alias entries of `weights` (one per weight) to `out`; false, appending nothing,
+/// if the weights are all zero or their sum is not finite. The construction is basic f64
+/// arithmetic in a fixed order, so every worker builds the same table.
+pub fn push_alias_entries(weights: &[f32], out: &mut Vec<AliasEntry>) -> bool {
+    let n = weights.len();
+    let total: f64 = weights.iter().map(|&w| f64::from(w.max(0.0))).sum();
+    if !(total > 0.0) || !total.is_finite() || u32::try_from(n).is_err() {
+        return false;
+    }
+    // Each bin's weight in units of the mean: a bin below one is filled from one above it.
+    let mut scaled: Vec<f64> = weights
+        .iter()
+        .map(|&w| f64::from(w.max(0.0)) * n as f64 / total)
+        .collect();
+    let start = out.len();
+    out.extend((0..n).map(|i| AliasEntry {
+        keep: 1.0,
+        alias: i as u32,
+    }));
+    let entries = &mut out[start..];
+    let (mut small, mut large): (Vec<usize>, Vec<usize>) = (0..n).partition(|&i| scaled[i] < 1.0);
+    while let (Some(&s), Some(&l)) = (small.last(), large.last()) {
+        small.pop();
+        entries[s] = AliasEntry {
+            keep: scaled[s] as f32,
+            alias: l as u32,
+        };
+        scaled[l] = (scaled[l] + scaled[s]) - 1.0;
+        if scaled[l] < 1.0 {
+            large.pop();
+            small.push(l);
+        }
+    }
+    // What is left is one bin's worth but for rounding, and keeps its own index; a bin of zero
+    // weight left by rounding gives the heaviest bin instead, so it is never drawn.
+    let heaviest = (0..n).fold(0, |b, i| if weights[i] > weights[b] { i } else { b });
+    for i in small.into_iter().chain(large) {
+        entries[i] = if weights[i] > 0.0 {
+            AliasEntry {
+                keep: 1.0,
+                alias: i as u32,
+            }
+        } else {
+            AliasEntry {
+                keep: 0.0,
+                alias: heaviest as u32,
+            }
+        };
+    }
+    true
+}
+
+/// Samples the alias entries of one distribution ([`push_alias_entries`]): the index for `u`
+/// in [0, 1) and `u` stretched back over [0, 1) within the share that picked it.
+#[inline]
+pub fn sample_alias(entries: &[AliasEntry], u: f32) -> (usize, f32) {
+    let (k, f) = alias_bin(entries.len(), u);
+    let (index, rest, _) = entries[k].pick(k, f);
+    (index, rest)
+}
+
+/// The bin of `n` that `u` in [0, 1) falls in, and where in it (in [0, 1)).
+#[inline]
+pub fn alias_bin(n: usize, u: f32) -> (usize, f32) {
+    let x = u * n as f32;
+    let k = (x as usize).min(n - 1);
+    (k, (x - k as f32).min(ONE_MINUS_EPSILON))
+}
+
+impl AliasEntry {
+    /// The index the bin gives when it does not keep its own.
+    #[inline]
+    pub fn alias(&self) -> usize {
+        self.alias as usize
+    }
+
+    /// For bin `k` (whose entry this is) and the place `f` in it: the index drawn, `f`
+    /// stretched back over [0, 1) within its share, and whether the bin kept its own index.
+    /// Without a branch on which of the two it gives: that is a coin toss for the predictor.
+    #[inline]
+    pub fn pick(&self, k: usize, f: f32) -> (usize, f32, bool) {
+        let kept = f < self.keep;
+        let index = if kept { k } else { self.alias as usize };
+        let (num, den) = if kept {
+            (f, self.keep)
+        } else {
+            (f - self.keep, 1.0 - self.keep)
+        };
+        (index, (num / den).clamp(0.0, ONE_MINUS_EPSILON), kept)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -743,6 +870,83 @@ mod tests {
             .expect("non-zero")
             .guide
             .is_empty());
+    }
+
+    /// The alias table draws each index in proportion to its weight (Pearson's chi-square over
+    /// the indices, for equal, skewed, zero-run and decaying weights), never one of zero weight,
+    /// and the number it gives back is uniform inside the index it picked (chi-square of the
+    /// remainders of one index over 16 bins), including at the domain's end.
+    #[test]
+    fn alias_table_draws_in_proportion_and_remaps_uniformly() {
+        let mut rng = HashRng::new(11);
+        let n = 64;
+        let equal = vec![1.0f32; n];
+        let skewed: Vec<f32> = (0..n)
+            .map(|i| if i % 13 == 0 { 1e3 } else { rng.next_f32() })
+            .collect();
+        let zeros: Vec<f32> = (0..n)
+            .map(|i| {
+                if (i / 5) % 2 == 0 {
+                    0.0
+                } else {
+                    1.0 + (i % 7) as f32
+                }
+            })
+            .collect();
+        let decaying: Vec<f32> = (0..n).map(|i| (-(i as f32) / 4.0).exp()).collect();
+        let samples = 400_000;
+        for weights in [equal, skewed, zeros, decaying] {
+            let table = AliasTable::new(&weights).expect("non-zero");
+            let total: f64 = weights.iter().map(|&w| f64::from(w)).sum();
+            let mut counts = vec![0u32; n];
+            let heaviest = (0..n).fold(0, |b, i| if weights[i] > weights[b] { i } else { b });
+            let mut rem = [0u32; 16];
+            for _ in 0..samples {
+                let (i, r) = table.sample_remap(rng.next_f32());
+                assert!(weights[i] > 0.0, "picked {i} of zero weight");
+                assert!((0.0..1.0).contains(&r));
+                counts[i] += 1;
+                if i == heaviest {
+                    rem[(r * 16.0) as usize] += 1;
+                }
+            }
+            // Cells expected below 5 draws are pooled, as the chi-square test asks.
+            let (mut chi2, mut dof, mut pool_o, mut pool_e) = (0.0, 0usize, 0.0, 0.0);
+            for (c, &w) in counts.iter().zip(&weights) {
+                let e = f64::from(w) / total * samples as f64;
+                if e < 5.0 {
+                    (pool_o, pool_e) = (pool_o + f64::from(*c), pool_e + e);
+                    continue;
+                }
+                chi2 += (f64::from(*c) - e).powi(2) / e;
+                dof += 1;
+            }
+            if pool_e > 0.0 {
+                chi2 += (pool_o - pool_e).powi(2) / pool_e;
+                dof += 1;
+            }
+            // Under 99.9% of chi-square's with dof − 1 degrees of freedom (Wilson–Hilferty).
+            let k = (dof - 1) as f64;
+            let bound = k * (1.0 - 2.0 / (9.0 * k) + 3.09 * (2.0 / (9.0 * k)).sqrt()).powi(3);
+            assert!(
+                chi2 < bound,
+                "chi-square {chi2} over {bound} for {weights:?}"
+            );
+            let e = f64::from(rem.iter().sum::<u32>()) / 16.0;
+            let chi2: f64 = rem.iter().map(|&o| (f64::from(o) - e).powi(2) / e).sum();
+            assert!(chi2 < 37.7, "remainders {rem:?}");
+        }
+        let t = AliasTable::new(&[0.0, 2.0, 0.0, 1.0]).expect("non-zero");
+        let (i, r) = t.sample_remap(ONE_MINUS_EPSILON);
+        assert!(i == 1 || i == 3);
+        assert!(r < 1.0);
+        assert!(AliasTable::new(&[0.0, 0.0]).is_none());
+        assert!(AliasTable::new(&[f32::MAX; 4]).is_some());
+        // A single weight is its own table.
+        assert_eq!(
+            AliasTable::new(&[5.0]).expect("one").sample_remap(0.3),
+            (0, 0.3)
+        );
     }
 
     #[test]

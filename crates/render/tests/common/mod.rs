@@ -14,6 +14,19 @@ use tessera_render::sampling::PixelSampler;
 use tessera_render::scene::{Format, Limits, Scene};
 use tessera_render::{render_frame, Image, RenderSettings, Strategy};
 
+/// `texels` (row-major, `w` wide) as an RGB float EXR file's bytes.
+pub fn exr_bytes(w: usize, h: usize, texels: &[glam::Vec3A]) -> Vec<u8> {
+    use exr::prelude::*;
+    let pixels = SpecificChannels::rgb(|p: Vec2<usize>| {
+        let t = texels[p.y() * w + p.x()];
+        (t.x, t.y, t.z)
+    });
+    let image = Image::from_channels((w, h), pixels);
+    let mut out = std::io::Cursor::new(Vec::new());
+    image.write().to_buffered(&mut out).expect("write exr");
+    out.into_inner()
+}
+
 pub fn repo_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
