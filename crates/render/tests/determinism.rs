@@ -186,14 +186,9 @@ fn middle(scene: &tessera_render::scene::Scene, rows: u32) -> PixelRect {
 /// a map wide enough for alias tables.
 const PINNED: (u32, u64) = (13, 0xa844_4c58_c12c_00b5);
 
-/// The bits the renderer returns are pinned to [`tessera_render::IMAGE_REVISION`]: a change
-/// that alters them must bump the revision (and update the hash here), because the farm refuses
-/// to mix results of different revisions and can only do that if the number changes with the
-/// bits. This is also a check that a render gives the same bits on every machine CI runs on.
-#[test]
-fn the_image_revision_pins_the_bits() {
-    let ellipsoid = common::scene(
-        r#"
+/// The camera, film and diffuse material `a` of the pin's own scenes (an ellipsoid, a ball
+/// under a wide map).
+const PIN_VIEW: &str = r#"
 version = 1
 [camera]
 model = "look_at"
@@ -204,12 +199,21 @@ fov = 40.0
 [film]
 width = 48
 height = 32
+[materials.a]
+type = "diffuse"
+albedo = [0.7, 0.6, 0.5]"#;
+
+/// The bits the renderer returns are pinned to [`tessera_render::IMAGE_REVISION`]: a change
+/// that alters them must bump the revision (and update the hash here), because the farm refuses
+/// to mix results of different revisions and can only do that if the number changes with the
+/// bits. This is also a check that a render gives the same bits on every machine CI runs on.
+#[test]
+fn the_image_revision_pins_the_bits() {
+    let ellipsoid = common::scene(&format!(
+        r#"{PIN_VIEW}
 [environment]
 type = "constant"
 radiance = [0.6, 0.7, 0.8]
-[materials.a]
-type = "diffuse"
-albedo = [0.7, 0.6, 0.5]
 [materials.lamp]
 type = "diffuse"
 albedo = [0.5, 0.5, 0.5]
@@ -223,8 +227,8 @@ shape = "sphere"
 material = "lamp"
 center = [1.5, 1.5, 1.0]
 radius = 0.3
-"#,
-    );
+"#
+    ));
     let scenes = [
         load("cornell-box.toml"),
         load("spheres.toml"),
@@ -237,19 +241,24 @@ radius = 0.3
         load("materials.toml"),
     ];
     let mut hash = 0xcbf2_9ce4_8422_2325u64;
-    for scene in &scenes {
-        for strategy in [Strategy::Mis, Strategy::Bsdf, Strategy::Nee] {
+    // Eight samples of a strip through the middle, under each of `strategies`.
+    let strips = |hash: &mut u64, scene: &tessera_render::scene::Scene, strategies: &[Strategy]| {
+        for &strategy in strategies {
             let settings = RenderSettings {
                 seed: 3,
                 spp: 8,
                 strategy,
                 ..RenderSettings::default()
             };
-            sums_hash(
-                &mut hash,
-                &render_tile(scene, &settings, middle(scene, 8), 0..8),
-            );
+            sums_hash(hash, &render_tile(scene, &settings, middle(scene, 8), 0..8));
         }
+    };
+    for scene in &scenes {
+        strips(
+            &mut hash,
+            scene,
+            &[Strategy::Mis, Strategy::Bsdf, Strategy::Nee],
+        );
     }
     // Guided renders too (epochs, guides, each leaf's α, turning off from epoch 3): glass-mirror
     // at 16 spp has guided epochs and an unguided one after.
@@ -294,44 +303,22 @@ radius = 0.3
         })
         .collect();
     let wide = common::scene_with_files(
-        r#"
-version = 1
-[camera]
-model = "look_at"
-eye = [0.0, 0.5, 4.0]
-up = [0.0, 1.0, 0.0]
-target = [0.0, 0.0, 0.0]
-fov = 40.0
-[film]
-width = 48
-height = 32
+        &format!(
+            r#"{PIN_VIEW}
 [environment]
 type = "map"
 file = "sky.exr"
 rotate = 20.0
-[materials.a]
-type = "diffuse"
-albedo = [0.7, 0.6, 0.5]
 [[objects]]
 shape = "sphere"
 material = "a"
 center = [0.0, 0.0, 0.0]
 radius = 1.0
-"#,
+"#
+        ),
         &[("sky.exr", &common::exr_bytes(w, h, &texels))],
     );
-    for strategy in [Strategy::Mis, Strategy::Nee] {
-        let settings = RenderSettings {
-            seed: 3,
-            spp: 8,
-            strategy,
-            ..RenderSettings::default()
-        };
-        sums_hash(
-            &mut hash,
-            &render_tile(&wide, &settings, middle(&wide, 8), 0..8),
-        );
-    }
+    strips(&mut hash, &wide, &[Strategy::Mis, Strategy::Nee]);
     assert_eq!(
         (tessera_render::IMAGE_REVISION, hash),
         PINNED,
