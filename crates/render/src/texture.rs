@@ -520,6 +520,9 @@ fn decode_8_16(
     Ok((w as usize, h as usize, texels))
 }
 
+/// Decodes on every core (exr's own thread pool; each pixel is written once, so the texels are
+/// the same whatever the threads): a full-size HDRI's compressed blocks are most of a scene's
+/// load, on every worker for every job (docs/benchmarks/envmap-alias-2026-11-30.md).
 fn decode_exr(bytes: &[u8], max_texels: u64) -> Result<Decoded, String> {
     use exr::prelude::*;
     let image = read()
@@ -545,7 +548,6 @@ fn decode_exr(bytes: &[u8], max_texels: u64) -> Result<Decoded, String> {
         )
         .first_valid_layer()
         .all_attributes()
-        .non_parallel()
         .from_buffered(Cursor::new(bytes))
         .map_err(|e| format!("not a readable EXR image: {e}"))?;
     let (w, h, texels) = image.layer_data.channel_data.pixels;
