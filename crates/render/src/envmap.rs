@@ -137,16 +137,21 @@ impl EnvMap {
             .collect();
         let mut row_weights = Vec::with_capacity(height - 1);
         let alias = width >= ALIAS_MIN_WIDTH;
-        let (mut inverted, mut entries) = (Vec::new(), Vec::new());
+        // A wide map's entries go straight into the cells (their densities once the rows'
+        // distribution is known) through one row's scratch: no second table of the map's size.
+        let (mut inverted, mut entries, mut row) = (Vec::new(), Vec::new(), Vec::new());
+        if alias {
+            entries.reserve_exact((height - 1) * width);
+        }
         let mut power = 0.0f64;
-        let mut cells = vec![0.0f32; (height - 1) * width];
-        for (j, cell) in cells.chunks_exact_mut(width).enumerate() {
+        let mut cell = vec![0.0f32; width];
+        for j in 0..height - 1 {
             let band = (cos_rows[j] - cos_rows[j + 1]).max(0.0);
             let (top, bottom) = (j * width, (j + 1) * width);
             let mut row_sum = 0.0f64;
-            for (i, c) in cell.iter_mut().enumerate() {
+            cell_weights(&lum, j, &mut cell);
+            for (i, c) in cell.iter().enumerate() {
                 let i1 = (i + 1) % width;
-                *c = 0.25 * (lum[top + i] + lum[top + i1] + lum[bottom + i] + lum[bottom + i1]);
                 row_sum += f64::from(*c);
                 let rgb =
                     texels[top + i] + texels[top + i1] + texels[bottom + i] + texels[bottom + i1];
@@ -154,9 +159,16 @@ impl EnvMap {
             }
             row_weights.push((row_sum * f64::from(band)) as f32);
             if !alias {
-                inverted.push(Distribution1D::new(cell));
-            } else if !push_alias_entries(cell, &mut entries) {
-                entries.resize(entries.len() + width, AliasEntry::default());
+                inverted.push(Distribution1D::new(&cell));
+            } else {
+                row.clear();
+                if !push_alias_entries(&cell, &mut row) {
+                    row.resize(width, AliasEntry::default());
+                }
+                entries.extend(row.iter().map(|&alias| CellEntry {
+                    alias,
+                    pdf: [0.0; 2],
+                }));
             }
         }
         let power = (power * 2.0 * std::f64::consts::PI / width as f64) as f32;
@@ -164,18 +176,13 @@ impl EnvMap {
             return Err(EnvMapError::TooBright);
         }
         let rows = Distribution1D::new(&row_weights).ok_or(EnvMapError::Black)?;
-        set_cell_densities(&mut texels, &rows, &cells, &cos_rows, width);
+        set_cell_densities(&mut texels, &rows, &lum, &cos_rows, width);
+        drop(lum);
         let columns = if alias {
-            Columns::Alias(
-                entries
-                    .iter()
-                    .enumerate()
-                    .map(|(k, alias)| CellEntry {
-                        alias: *alias,
-                        pdf: [texels[k].w, texels[k - k % width + alias.alias()].w],
-                    })
-                    .collect(),
-            )
+            for (k, e) in entries.iter_mut().enumerate() {
+                e.pdf = [texels[k].w, texels[k - k % width + e.alias.alias()].w];
+            }
+            Columns::Alias(entries)
         } else {
             Columns::Inverted(inverted)
         };
@@ -428,21 +435,31 @@ struct Blend {
     fy: f32,
 }
 
+/// Row `j`'s cell weights ℓ (the mean luminance of each cell's four corners) into `cell`, from
+/// the texels' luminances `lum`: computed again where needed rather than kept, a table the size
+/// of the map.
+fn cell_weights(lum: &[f32], j: usize, cell: &mut [f32]) {
+    let width = cell.len();
+    let (top, bottom) = (j * width, (j + 1) * width);
+    for (i, c) in cell.iter_mut().enumerate() {
+        let i1 = (i + 1) % width;
+        *c = 0.25 * (lum[top + i] + lum[top + i1] + lum[bottom + i] + lum[bottom + i1]);
+    }
+}
+
 /// Each cell's density in solid angle, P(row)·P(column | row)/Ω (0 in a black row), into the
-/// w lane of its upper-left texel; `cells` holds each row's weights ℓ. P(column | row) is the
+/// w lane of its upper-left texel, from the texels' luminances `lum`. P(column | row) is the
 /// cell's share of its row's sum in f64, rounded once.
 fn set_cell_densities(
     texels: &mut [Vec4],
     rows: &Distribution1D,
-    cells: &[f32],
+    lum: &[f32],
     cos_rows: &[f32],
     width: usize,
 ) {
-    for (j, (c, row)) in cells
-        .chunks_exact(width)
-        .zip(texels.chunks_exact_mut(width))
-        .enumerate()
-    {
+    let mut c = vec![0.0f32; width];
+    for (j, row) in texels.chunks_exact_mut(width).take(rows.len()).enumerate() {
+        cell_weights(lum, j, &mut c);
         let omega = (cos_rows[j] - cos_rows[j + 1]) * (2.0 * PI / width as f32);
         let total: f64 = c.iter().map(|&w| f64::from(w.max(0.0))).sum();
         for (&w, t) in c.iter().zip(row) {
