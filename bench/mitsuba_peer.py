@@ -70,12 +70,16 @@ from peer_protocol import requests
 
 SCENES = ("cornell-box", "glass-mirror", "mesh-glass", "metals-box", "envmap-balls", "materials", "pbr-metals",
           "gltf-metals", "gltf-glass", "gltf-big", "mesh-million", "mesh-million-analytic",
-          "envmap-balls-4k-cloudy", "envmap-balls-4k-sun")
+          "envmap-balls-4k-cloudy", "envmap-balls-4k-sun", "envmap-balls-wide")
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 # bench/make_big_sky.py's 4096 x 2048 skies, by the scene that uses each.
 BIG_SKIES = {f"envmap-balls-4k-{k}": os.path.join(HERE, "..", "target", "bench-cache", "big-sky", f"{k}.exr")
              for k in ("cloudy", "sun")}
+# envmap-balls under other skies than sky.exr, by scene: the big ones and
+# scenes/envmap-balls-wide.toml's 512-wide one (bench/make_sky.py --wide).
+SKIES = {**BIG_SKIES,
+         "envmap-balls-wide": os.path.join(HERE, "..", "scenes", "textures", "sky-wide.exr")}
 MESHES = os.path.join(HERE, "..", "scenes", "meshes")
 
 
@@ -276,7 +280,7 @@ def scene_dict(mi, name, size):
     elif name == "pbr-metals":
         d = pbr_metals(mi)
     else:
-        d = envmap_balls(mi, BIG_SKIES.get(name)) if name.startswith("envmap-balls") else mi.cornell_box()
+        d = envmap_balls(mi, SKIES.get(name)) if name.startswith("envmap-balls") else mi.cornell_box()
     if name == "glass-mirror":
         # scenes/glass-mirror.toml: the box, lit as before, with two balls for the cuboids.
         del d["small-box"], d["large-box"]
@@ -319,7 +323,7 @@ def scene_dict(mi, name, size):
         d["sphere"] = {"type": "sphere", "center": [0, -0.5, 0], "radius": 0.45,
                        "bsdf": {"type": "ref", "id": "white"}}
     elif name not in ("cornell-box", "envmap-balls", "materials", "pbr-metals", "gltf-metals",
-                      "gltf-glass", "gltf-big", *BIG_SKIES):
+                      "gltf-glass", "gltf-big", *SKIES):
         raise SystemExit(f"no Mitsuba counterpart for scene {name!r}; known: {SCENES}")
     d["sensor"]["film"].update(width=size, height=size, rfilter={"type": "box"})
     d["sensor"]["sampler"] = {"type": "independent", "sample_count": 4}
