@@ -15,9 +15,8 @@
 //! − cos θ_{j+1})), a row by the marginal (inverting its cdf) and then a column by that row's
 //! conditional (inverting its cdf too, or, on a full-size map, from an alias table in constant
 //! time: [`ALIAS_MIN_WIDTH`]), and the direction is uniform in solid angle inside it (longitude
-//! uniform, cos θ uniform). The
-//! density is then constant over a cell, p = P(cell)/Ω — no 1/sin θ, so no singularity at the
-//! poles — and it is positive wherever the radiance is: radiance is a blend of non-negative
+//! uniform, cos θ uniform). The density is then constant over a cell, p = P(cell)/Ω — no
+//! 1/sin θ, so no singularity at the poles — and it is positive wherever the radiance is: radiance is a blend of non-negative
 //! texels, which is non-zero only where some corner is, and then ℓ > 0. Every number the
 //! sampler and the density use comes from basic f32 arithmetic and [`crate::util::math::atan2`]
 //! (no libm), so every worker gets the same bits.
@@ -32,10 +31,9 @@ use std::f32::consts::PI;
 
 use glam::{Vec2, Vec3A, Vec4};
 
+use crate::util::distribution::{alias_bin, push_alias_entries, AliasEntry, Distribution1D};
 use crate::util::math::{atan2, luminance};
-use crate::util::sampling::{
-    alias_bin, push_alias_entries, sin_cos_turn, AliasEntry, Distribution1D,
-};
+use crate::util::sampling::sin_cos_turn;
 
 /// An equirectangular environment map, ready to evaluate and sample.
 #[derive(Clone, Debug)]
