@@ -107,6 +107,11 @@ pub use util::{files, lanes, math, sampling};
 /// it emits to, in place of its material's albedo: the beauty keeps its bits, the albedo AOV
 /// of every scene with a visible lamp changes. Revision 13 draws an environment map's column
 /// from an alias table rather than by inverting the row's cdf (constant time on a full-size
-/// map): the same density, but a number draws another direction, so every scene with a map
-/// renders differently.
-pub const IMAGE_REVISION: u32 = 13;
+/// map): the same density, but a number draws another direction, so every scene with a map at
+/// least 512 texels wide renders differently. Revision 14 merges the meshes a scene places
+/// once into one world-space mesh under one BVH (`crate::mesh::TriMesh::merged`): their
+/// triangles are tested in world space, so every scene with two such meshes renders
+/// differently by rounding; and it makes every smooth mesh's interpolated shading normal unit,
+/// which under an identity transform (every merged mesh's) it was not: an identity-placed
+/// smooth mesh renders differently where its normals bend most.
+pub const IMAGE_REVISION: u32 = 14;

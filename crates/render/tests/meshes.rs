@@ -461,6 +461,67 @@ fn a_textured_quad_under_a_sky_shows_the_decoded_texels() {
     assert_eq!(img.nonfinite, 0);
 }
 
+/// Meshes placed once share one world-space mesh and BVH, and each triangle's hits still
+/// name its own object: two quads of different albedo side by side (one moved and turned to
+/// its place), each a flat diffuse square facing the camera under a uniform sky L, show ρ·L
+/// each. A mesh placed twice keeps its own mesh (instancing), and so does a mirrored one.
+#[test]
+fn meshes_placed_once_merge_and_each_keeps_its_material() {
+    let obj = "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nf 1 2 3 4\n";
+    let text = format!(
+        "{}[environment]\ntype = \"constant\"\nradiance = [1, 1, 1]\n\
+         [materials.dark]\ntype = \"diffuse\"\nalbedo = [0.2, 0.3, 0.4]\n\
+         [materials.light]\ntype = \"diffuse\"\nalbedo = [0.9, 0.7, 0.5]\n\
+         [[objects]]\nshape = \"mesh\"\nfile = \"quad.obj\"\nmaterial = \"dark\"\n\
+         transform = {{ translate = [-1, 0, 0] }}\n\
+         [[objects]]\nshape = \"mesh\"\nfile = \"other.obj\"\nmaterial = \"light\"\n\
+         transform = {{ rotate = {{ axis = [0, 0, 1], degrees = 90 }}, translate = [1, 0, 0] }}\n\
+         [[objects]]\nshape = \"mesh\"\nfile = \"twice.obj\"\nmaterial = \"light\"\n\
+         transform = {{ translate = [0, 0, -5] }}\n\
+         [[objects]]\nshape = \"mesh\"\nfile = \"twice.obj\"\nmaterial = \"light\"\n\
+         transform = {{ translate = [0, 3, -5] }}\n\
+         [[objects]]\nshape = \"mesh\"\nfile = \"mirrored.obj\"\nmaterial = \"light\"\n\
+         transform = {{ scale = [-1, 1, 1], translate = [0, -3, -5] }}\n",
+        head(32, "[0, 0, 2.5]", "[0, 0, 0]", 90)
+    );
+    let files = [
+        ("quad.obj", obj.as_bytes()),
+        ("other.obj", obj.as_bytes()),
+        ("twice.obj", obj.as_bytes()),
+        ("mirrored.obj", obj.as_bytes()),
+    ];
+    let s = scene_with_files(&text, &files);
+    let mesh = |i: usize| match &s.prims[i].shape {
+        Shape::Mesh(m) => Arc::clone(&m.mesh),
+        other => panic!("object {i} is {other:?}"),
+    };
+    assert!(mesh(0).is_merged() && Arc::ptr_eq(&mesh(0), &mesh(1)));
+    assert_eq!(mesh(0).len(), 4, "the two quads' triangles, once each");
+    assert!(Arc::ptr_eq(&mesh(2), &mesh(3)) && !mesh(2).is_merged());
+    assert!(!mesh(4).is_merged());
+    let img = render(
+        &s,
+        &RenderSettings {
+            spp: 64,
+            seed: 4,
+            ..RenderSettings::default()
+        },
+    );
+    // The film spans x in [−2.5, 2.5] at the quads' depth: the left quad covers pixels 3 to
+    // 15, the right one 16 to 28, both rows 10 to 22.
+    for (x0, albedo) in [(6, [0.2, 0.3, 0.4]), (20, [0.9, 0.7, 0.5])] {
+        let (mean, se) = common::region_stats(&img, x0, 12, 6, 8);
+        for c in 0..3 {
+            assert!(
+                (mean[c] - albedo[c]).abs() <= 3.0 * se[c] + 1e-4,
+                "pixels from x = {x0}, channel {c}: {} against the albedo {}",
+                mean[c],
+                albedo[c]
+            );
+        }
+    }
+}
+
 /// What a texture can get wrong, named at its key.
 #[test]
 fn texture_errors_name_the_key() {

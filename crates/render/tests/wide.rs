@@ -131,6 +131,40 @@ fn lanes_give_the_scalar_bits_with_mesh_boxes() {
     );
 }
 
+/// The same box with each cube from a file of its own, placed once each, so that the two
+/// are merged into one world-space mesh whose hits name their own boxes (the small one made
+/// green, so that a hit naming the other box would show): the lanes' hits must name them too.
+#[test]
+fn lanes_give_the_scalar_bits_with_merged_mesh_boxes() {
+    let root = common::repo_root().join("scenes");
+    let text = std::fs::read_to_string(root.join("cornell-mesh.toml")).expect("scene");
+    let text = text
+        .replacen(r#"file = "meshes/cube.obj""#, r#"file = "large.obj""#, 1)
+        .replacen(
+            "file = \"meshes/cube.obj\"\nmaterial = \"white\"",
+            "file = \"small.obj\"\nmaterial = \"green\"",
+            1,
+        );
+    let cube = std::fs::read(root.join("meshes/cube.obj")).expect("cube");
+    let scene = common::scene_with_files(&text, &[("large.obj", &cube), ("small.obj", &cube)]);
+    let merged = scene
+        .prims
+        .iter()
+        .filter(|p| matches!(&p.shape, tessera_render::shape::Shape::Mesh(m) if m.mesh.is_merged()))
+        .count();
+    assert_eq!(merged, 2, "both boxes in one mesh");
+    let settings = RenderSettings {
+        seed: 12,
+        ..RenderSettings::default()
+    };
+    assert!(Wide::new(&scene, &settings).is_some());
+    let (count, lit) = compare(&scene, &settings, 0..9);
+    assert!(
+        count > 5_000 && lit > count / 2,
+        "{count} samples, {lit} lit"
+    );
+}
+
 /// A two-sided light seen from both sides, two-sided walls, and a light that is a box's face
 /// away from the camera (so paths reach its back and the light's far side).
 #[test]

@@ -2,6 +2,10 @@
 //! ([`crate::accel::bvh`]), whose leaves hold quads four at a time in SIMD lanes ([`leaf`]),
 //! plus the unbounded primitives (planes) tested one by one. Closest-hit and any-hit queries
 //! for one ray, and the packet versions the many-path tracer asks for scenes of one leaf.
+//!
+//! Objects merged into one world-space mesh ([`crate::mesh::TriMesh::merged`]) each keep their
+//! primitive, for their material and surface, but the structure holds the mesh once, under
+//! the first of them, and a hit on it names the primitive its triangle came from.
 
 pub mod leaf;
 
@@ -19,14 +23,29 @@ pub struct Accel {
     bvh: Bvh,
     leaves: Leaves,
     unbounded: Vec<u32>,
+    /// Whether some primitive is part of a merged mesh, whose hits name their owners: only
+    /// then does a hit look at its primitive's shape to find them.
+    merged: bool,
 }
 
 impl Accel {
     /// Builds the structure over `prims` (indices into it are what hits name).
     pub fn build(prims: &[Primitive]) -> Self {
         let bounds: Vec<Aabb> = prims.iter().map(|p| p.shape.bounds()).collect();
-        let (bounded, unbounded): (Vec<u32>, Vec<u32>) =
-            (0..prims.len() as u32).partition(|&i| bounds[i as usize].is_finite());
+        // A merged mesh is tested once, under the first primitive that holds it.
+        let mut merged_meshes: Vec<*const crate::mesh::TriMesh> = Vec::new();
+        let mut held = |i: u32| match &prims[i as usize].shape {
+            Shape::Mesh(m) if m.mesh.is_merged() => {
+                let mesh = std::sync::Arc::as_ptr(&m.mesh);
+                let first = !merged_meshes.contains(&mesh);
+                merged_meshes.push(mesh);
+                first
+            }
+            _ => true,
+        };
+        let (bounded, unbounded): (Vec<u32>, Vec<u32>) = (0..prims.len() as u32)
+            .filter(|&i| held(i))
+            .partition(|&i| bounds[i as usize].is_finite());
         let bvh = Bvh::build(&bounds, &bounded);
         let shapes: Vec<&Shape> = prims.iter().map(|p| &p.shape).collect();
         let leaves = Leaves::build(&shapes, bvh.order(), bvh.leaves());
@@ -34,6 +53,20 @@ impl Accel {
             bvh,
             leaves,
             unbounded,
+            merged: !merged_meshes.is_empty(),
+        }
+    }
+
+    /// The primitive a hit on `prim`'s `part` names: its owner's, where `prim` holds a
+    /// merged mesh.
+    #[inline(always)]
+    fn owner(&self, prims: &[Primitive], prim: u32, part: u32) -> u32 {
+        if !self.merged {
+            return prim;
+        }
+        match &prims[prim as usize].shape {
+            Shape::Mesh(m) => m.mesh.owner(part).unwrap_or(prim),
+            _ => prim,
         }
     }
 
@@ -59,7 +92,10 @@ impl Accel {
                 None => t_max,
             }
         });
-        best
+        best.map(|h| Hit {
+            prim: self.owner(prims, h.prim, h.part),
+            ..h
+        })
     }
 
     /// [`Accel::intersect`] with t_max = ∞ for the lanes of `r` set in `active`, for a scene
@@ -107,6 +143,14 @@ impl Accel {
                     }
                 },
             )
+            .map(|mut h| {
+                if self.merged {
+                    for lane in (0..N).filter(|lane| h.hit >> lane & 1 == 1) {
+                        h.prim[lane] = self.owner(prims, h.prim[lane], h.part[lane]);
+                    }
+                }
+                h
+            })
             .unwrap_or(LaneHits {
                 hit: 0,
                 t: [0.0; N],

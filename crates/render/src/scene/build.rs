@@ -281,6 +281,7 @@ impl Assembled {
                 mean,
             }));
         }
+        super::merge::merge_meshes(&mut self.prims);
         let accel = Accel::build(&self.prims);
         let environment = self.environment.finish(self.reach, &mut self.lights)?;
         // A normal map bends shading normals too.

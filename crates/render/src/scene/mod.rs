@@ -18,6 +18,7 @@ mod lights;
 mod load;
 mod locate;
 mod materials;
+mod merge;
 mod parse;
 
 use parse::hex;
