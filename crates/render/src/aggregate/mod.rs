@@ -26,6 +26,10 @@ pub struct Accel {
     /// Whether some primitive is part of a merged mesh, whose hits name their owners: only
     /// then does a hit look at its primitive's shape to find them.
     merged: bool,
+    /// The scene's one primitive, where it is a mesh and there is nothing else (every mesh of
+    /// a glTF file merged, say): the mesh's own tree is then the scene's, and the top level
+    /// would only test the same box again before handing the ray to it.
+    only_mesh: Option<u32>,
 }
 
 impl Accel {
@@ -46,6 +50,10 @@ impl Accel {
         let (bounded, unbounded): (Vec<u32>, Vec<u32>) = (0..prims.len() as u32)
             .filter(|&i| held(i))
             .partition(|&i| bounds[i as usize].is_finite());
+        let only_mesh = match (bounded.as_slice(), unbounded.is_empty()) {
+            (&[p], true) => matches!(prims[p as usize].shape, Shape::Mesh(_)).then_some(p),
+            _ => None,
+        };
         let bvh = Bvh::build(&bounds, &bounded);
         let shapes: Vec<&Shape> = prims.iter().map(|p| &p.shape).collect();
         let leaves = Leaves::build(&shapes, bvh.order(), bvh.leaves());
@@ -54,6 +62,7 @@ impl Accel {
             leaves,
             unbounded,
             merged: !merged_meshes.is_empty(),
+            only_mesh,
         }
     }
 
@@ -74,6 +83,11 @@ impl Accel {
     #[inline]
     pub fn intersect(&self, prims: &[Primitive], ray: &Ray, t_max: f32) -> Option<Hit> {
         let test = |p: u32, t_max: f32| prims[p as usize].shape.intersect(ray, t_max);
+        if let Some(p) = self.only_mesh {
+            let (t, part) = test(p, t_max)?;
+            let prim = self.owner(prims, p, part);
+            return Some(Hit { t, prim, part });
+        }
         let mut best: Option<Hit> = None;
         let mut t = t_max;
         for &p in &self.unbounded {
@@ -202,6 +216,9 @@ impl Accel {
     #[inline]
     pub fn occluded(&self, prims: &[Primitive], ray: &Ray, t_max: f32) -> bool {
         let blocks = |p: u32| prims[p as usize].shape.blocks(ray, t_max);
+        if let Some(p) = self.only_mesh {
+            return blocks(p);
+        }
         if self.unbounded.iter().any(|&p| blocks(p)) {
             return true;
         }
