@@ -42,7 +42,9 @@ impl Accel {
             Shape::Mesh(m) if m.mesh.is_merged() => {
                 let mesh = std::sync::Arc::as_ptr(&m.mesh);
                 let first = !merged_meshes.contains(&mesh);
-                merged_meshes.push(mesh);
+                if first {
+                    merged_meshes.push(mesh);
+                }
                 first
             }
             _ => true,

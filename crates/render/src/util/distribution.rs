@@ -240,6 +240,39 @@ mod tests {
         assert!((d.pmf(3) - 0.75).abs() < 1e-6);
     }
 
+    /// The weights a distribution meets, `n` of each shape: equal; random with a `spike` every
+    /// `every` entries; runs of `zero_run` zeros between runs of small integers; and
+    /// e^(−i/`decay`), a tail that falls to almost nothing.
+    fn weight_shapes(
+        rng: &mut HashRng,
+        n: usize,
+        (every, spike): (usize, f32),
+        zero_run: usize,
+        decay: f32,
+    ) -> [Vec<f32>; 4] {
+        let equal = vec![1.0f32; n];
+        let skewed = (0..n)
+            .map(|i| {
+                if i % every == 0 {
+                    spike
+                } else {
+                    rng.next_f32()
+                }
+            })
+            .collect();
+        let zeros = (0..n)
+            .map(|i| {
+                if (i / zero_run) % 2 == 0 {
+                    0.0
+                } else {
+                    1.0 + (i % 7) as f32
+                }
+            })
+            .collect();
+        let decaying = (0..n).map(|i| (-(i as f32) / decay).exp()).collect();
+        [equal, skewed, zeros, decaying]
+    }
+
     /// The guide table picks the entry the binary search picks, for every kind of weights a
     /// mesh light can have (equal, skewed by 10⁶, long runs of zeros), at the slices' edges
     /// and at the cdf's own values and their neighbours, where rounding decides.
@@ -247,21 +280,7 @@ mod tests {
     fn guided_search_picks_what_the_binary_search_picks() {
         let mut rng = HashRng::new(3);
         let n = 5000;
-        let equal = vec![1.0f32; n];
-        let skewed: Vec<f32> = (0..n)
-            .map(|i| if i % 97 == 0 { 1e6 } else { rng.next_f32() })
-            .collect();
-        let zeros: Vec<f32> = (0..n)
-            .map(|i| {
-                if (i / 300) % 2 == 0 {
-                    0.0
-                } else {
-                    1.0 + (i % 7) as f32
-                }
-            })
-            .collect();
-        let tiny_tail: Vec<f32> = (0..n).map(|i| (-(i as f32) / 200.0).exp()).collect();
-        for weights in [equal, skewed, zeros, tiny_tail] {
+        for weights in weight_shapes(&mut rng, n, (97, 1e6), 300, 200.0) {
             let d = Distribution1D::new(&weights).expect("non-zero");
             assert_eq!(d.guide.len(), n);
             let mut plain = d.clone();
@@ -292,22 +311,8 @@ mod tests {
     fn alias_table_draws_in_proportion_and_remaps_uniformly() {
         let mut rng = HashRng::new(11);
         let n = 64;
-        let equal = vec![1.0f32; n];
-        let skewed: Vec<f32> = (0..n)
-            .map(|i| if i % 13 == 0 { 1e3 } else { rng.next_f32() })
-            .collect();
-        let zeros: Vec<f32> = (0..n)
-            .map(|i| {
-                if (i / 5) % 2 == 0 {
-                    0.0
-                } else {
-                    1.0 + (i % 7) as f32
-                }
-            })
-            .collect();
-        let decaying: Vec<f32> = (0..n).map(|i| (-(i as f32) / 4.0).exp()).collect();
         let samples = 400_000;
-        for weights in [equal, skewed, zeros, decaying] {
+        for weights in weight_shapes(&mut rng, n, (13, 1e3), 5, 4.0) {
             let mut table = Vec::new();
             assert!(push_alias_entries(&weights, &mut table));
             let total: f64 = weights.iter().map(|&w| f64::from(w)).sum();
