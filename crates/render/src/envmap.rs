@@ -10,14 +10,19 @@
 //!
 //! **Sampling.** The texels' centres cut the sphere into W × (H − 1) cells, each a band of
 //! latitude [θ_j, θ_{j+1}] by a slice of longitude 2π/W. Radiance over a cell is the bilinear
-//! blend of its four corner texels, whose mean luminance ℓ is the blend's mean over the cell.
-//! A cell is chosen with probability proportional to ℓ · Ω (its solid angle Ω = (2π/W)(cos θ_j
-//! − cos θ_{j+1})), a row by the marginal (inverting its cdf) and then a column by that row's
-//! conditional (inverting its cdf too, or, on a full-size map, from an alias table in constant
-//! time: [`ALIAS_MIN_WIDTH`]), and the direction is uniform in solid angle inside it (longitude
-//! uniform, cos θ uniform). The density is then constant over a cell, p = P(cell)/Ω — no
-//! 1/sin θ, so no singularity at the poles — and it is positive wherever the radiance is: radiance is a blend of non-negative
-//! texels, which is non-zero only where some corner is, and then ℓ > 0. Every number the
+//! blend of its four corner texels. Each texel is weighted by its luminance less the map's
+//! mean over the sphere, where that is positive (MIS compensation: `compensated_luminance`),
+//! and a cell's weight ℓ is the mean of its corners' weights, the compensated blend's mean
+//! over the cell. A cell is chosen with probability proportional to ℓ · Ω (its solid angle Ω =
+//! (2π/W)(cos θ_j − cos θ_{j+1})), a row by the marginal (inverting its cdf) and then a column
+//! by that row's conditional (inverting its cdf too, or, on a full-size map, from an alias
+//! table in constant time: [`ALIAS_MIN_WIDTH`]), and the direction is uniform in solid angle
+//! inside it (longitude uniform, cos θ uniform). The density is then constant over a cell, p =
+//! P(cell)/Ω — no 1/sin θ, so no singularity at the poles — and it is positive wherever the
+//! radiance stands above the map's mean. Where it is 0 (the dim, broad part of a sky), light
+//! sampling cannot draw the direction and BSDF sampling covers it alone: the integrator's MIS
+//! weights give it the whole there, and `--strategy nee` counts an escaping ray there in full
+//! (the one place it counts one). Every number the
 //! sampler and the density use comes from basic f32 arithmetic and [`crate::util::math::atan2`]
 //! (no libm), so every worker gets the same bits.
 //!
@@ -42,7 +47,8 @@ pub struct EnvMap {
     height: usize,
     /// Radiance (the image times the scene's intensity) in x, y, z, row-major, row 0 at the
     /// zenith; in w the density in solid angle of the cell whose upper-left corner the texel
-    /// is, P(row)·P(column | row)/Ω (0 in the last row and in black rows). The density shares
+    /// is, P(row)·P(column | row)/Ω (0 in the last row and in rows with nothing above the
+    /// map's mean). The density shares
     /// the texel's cache line (and the lane `Vec3A` leaves unused): a large map's lookup
     /// waits on memory once for both.
     texels: Vec<Vec4>,
@@ -129,10 +135,7 @@ impl EnvMap {
         let cos_rows: Vec<f32> = (0..height)
             .map(|j| sin_cos_turn(j as f32 / (2 * (height - 1)) as f32).1)
             .collect();
-        let lum: Vec<f32> = texels
-            .iter()
-            .map(|t| luminance(Vec3A::from_vec4(*t)).max(0.0))
-            .collect();
+        let lum = compensated_luminance(&texels, width, &cos_rows);
         let mut row_weights = Vec::with_capacity(height - 1);
         let alias = width >= ALIAS_MIN_WIDTH;
         // A wide map's entries go straight into the cells (their densities once the rows'
@@ -436,6 +439,35 @@ struct Blend {
 /// Row `j`'s cell weights ℓ (the mean luminance of each cell's four corners) into `cell`, from
 /// the texels' luminances `lum`: computed again where needed rather than kept, a table the size
 /// of the map.
+/// The luminance a light sample draws texels by: each texel's less the map's mean over the
+/// sphere, where positive, and 0 elsewhere (MIS compensation: Karlík et al. 2019, as pbrt-v4's
+/// image light draws samples for the path tracer). Light samples are always combined with
+/// BSDF samples, which already find the broad, dim part of a sky well, so the light's samples
+/// are spent on what stands out; a direction no light sample can draw (density 0) is then left
+/// to BSDF sampling alone, whose MIS weight there is 1. A map with nothing above its mean
+/// (a uniform one) keeps plain luminance.
+fn compensated_luminance(texels: &[Vec4], width: usize, cos_rows: &[f32]) -> Vec<f32> {
+    let lum: Vec<f32> = texels
+        .iter()
+        .map(|t| luminance(Vec3A::from_vec4(*t)).max(0.0))
+        .collect();
+    // The mean of the blend over the sphere: each cell's mean luminance by its solid angle.
+    let mut cell = vec![0.0f32; width];
+    let mut integral = 0.0f64;
+    for j in 0..cos_rows.len() - 1 {
+        cell_weights(&lum, j, &mut cell);
+        let band = f64::from((cos_rows[j] - cos_rows[j + 1]).max(0.0));
+        integral += cell.iter().map(|&c| f64::from(c)).sum::<f64>() * band;
+    }
+    let mean = (integral / (2.0 * width as f64)) as f32;
+    let above: Vec<f32> = lum.iter().map(|&l| (l - mean).max(0.0)).collect();
+    if above.iter().any(|&l| l > 0.0) {
+        above
+    } else {
+        lum
+    }
+}
+
 fn cell_weights(lum: &[f32], j: usize, cell: &mut [f32]) {
     let width = cell.len();
     let (top, bottom) = (j * width, (j + 1) * width);
@@ -580,7 +612,8 @@ mod tests {
 
     /// The sampler's own density agrees with `pdf` at the directions it draws (but for the
     /// few that land on a cell's edge, where rounding may put them in the neighbour), and the
-    /// estimate ∫ L dω ≈ mean(L/p) converges to the integral by quadrature.
+    /// estimate mean(L/p) converges to ∫ L dω over the directions it can draw (p > 0), by
+    /// quadrature: what compensation leaves to BSDF sampling is the rest of the integral.
     #[test]
     fn samples_carry_the_density_pdf_gives_and_integrate_the_radiance() {
         let t = map(16, 9, |x, y| {
@@ -595,7 +628,7 @@ mod tests {
         let sum_rgb = |l: Vec3A| f64::from(l.x + l.y + l.z);
         // Midpoint quadrature in (φ, cos θ), which is uniform in solid angle.
         let k = 1500;
-        let mut want = 0.0f64;
+        let (mut want, mut drawable) = (0.0f64, 0.0f64);
         for a in 0..k {
             let cos = 1.0 - 2.0 * (a as f64 + 0.5) / k as f64;
             let sin = (1.0 - cos * cos).sqrt();
@@ -607,9 +640,18 @@ mod tests {
                     (sin * phi.sin()) as f32,
                 );
                 want += sum_rgb(m.radiance(d));
+                if m.pdf(d) > 0.0 {
+                    drawable += sum_rgb(m.radiance(d));
+                }
             }
         }
         want *= 4.0 * std::f64::consts::PI / (2 * k * k) as f64;
+        drawable *= 4.0 * std::f64::consts::PI / (2 * k * k) as f64;
+        // The spike and its cells are drawable, the dim rest of the map mostly not.
+        assert!(
+            drawable > 0.5 * want && drawable < 0.98 * want,
+            "{drawable} of {want}"
+        );
         assert!(
             (want - f64::from(m.power())).abs() < 0.05 * want,
             "{want} vs {}",
@@ -661,6 +703,35 @@ mod tests {
             "{off_edge} samples disagree with pdf"
         );
         let est = sum / n as f64;
-        assert!((est - want).abs() < 0.01 * want, "{est} vs {want}");
+        assert!(
+            (est - drawable).abs() < 0.01 * drawable,
+            "{est} vs {drawable}"
+        );
+    }
+
+    /// Light samples go only to what stands above the map's mean: on a dim sky with one
+    /// bright texel, the cells around the bright one are drawable and a dim cell is not; a
+    /// uniform map (nothing above its mean) is drawn uniformly, 1/4π everywhere.
+    #[test]
+    fn light_samples_skip_what_lies_below_the_maps_mean() {
+        let t = map(16, 9, |x, y| {
+            Vec3A::splat(if (x, y) == (5, 3) { 100.0 } else { 0.5 })
+        });
+        let m = EnvMap::new(16, 9, &t, 1.0, 0.0).expect("map");
+        let density = |i: usize, j: usize| m.texels[j * 16 + i].w;
+        for (i, j) in [(4, 2), (5, 2), (4, 3), (5, 3)] {
+            assert!(
+                density(i, j) > 0.0,
+                "cell ({i}, {j}) touches the bright texel"
+            );
+        }
+        for (i, j) in [(0, 0), (12, 6), (7, 3), (5, 4)] {
+            assert_eq!(density(i, j), 0.0, "cell ({i}, {j}) is all below the mean");
+        }
+        let u = EnvMap::new(16, 9, &map(16, 9, |_, _| Vec3A::ONE), 1.0, 0.0).expect("map");
+        let want = 1.0 / (4.0 * PI);
+        for d in [Vec3A::Y, Vec3A::X, Vec3A::new(0.0, -0.6, 0.8)] {
+            assert!((u.pdf(d) - want).abs() < 1e-4 * want, "{}", u.pdf(d));
+        }
     }
 }

@@ -113,5 +113,9 @@ pub use util::{files, lanes, math, sampling};
 /// triangles are tested in world space, so every scene with two such meshes renders
 /// differently by rounding; and it makes every smooth mesh's interpolated shading normal unit,
 /// which under an identity transform (every merged mesh's) it was not: an identity-placed
-/// smooth mesh renders differently where its normals bend most.
-pub const IMAGE_REVISION: u32 = 14;
+/// smooth mesh renders differently where its normals bend most. Revision 15 draws an
+/// environment map's light samples by its luminance less its mean (MIS compensation, as
+/// pbrt-v4's image light): another density, so every scene with a non-uniform map renders
+/// differently (with less noise), and under `--strategy nee` a ray that escapes into the map's
+/// dim part now counts there.
+pub const IMAGE_REVISION: u32 = 15;

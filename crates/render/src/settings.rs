@@ -16,7 +16,9 @@ pub enum Strategy {
     /// BSDF sampling only: emitters count only when a path happens to hit them. Punctual
     /// lights, which no path can hit, are still light-sampled.
     Bsdf,
-    /// Light sampling only at diffuse vertices (emitters reached by a diffuse bounce count 0).
+    /// Light sampling only at diffuse vertices (emitters reached by a diffuse bounce count 0,
+    /// but for an environment map's directions that its light samples never draw, which count
+    /// in full: [`crate::envmap::EnvMap`]).
     Nee,
 }
 

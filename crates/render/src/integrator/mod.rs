@@ -356,8 +356,9 @@ fn add_emitted(
 }
 
 /// What an environment map (light `light`) gives a path that escapes along `d`: weighted
-/// against light sampling as an emitter hit by a BSDF-sampled ray is ([`add_emitted`]). Out
-/// of line: only scenes with a map reach it.
+/// against light sampling as an emitter hit by a BSDF-sampled ray is ([`add_emitted`]), but in
+/// full under light sampling alone where light sampling cannot draw `d`. Out of line: only
+/// scenes with a map reach it.
 #[inline(never)]
 fn add_environment(
     path: &mut Path,
@@ -375,7 +376,12 @@ fn add_environment(
             let light_pdf = scene.lights.selection(light as usize) * pdf;
             (le, power_heuristic(path.prev_pdf, light_pdf))
         }
-        Strategy::Nee => return,
+        // Light sampling draws the map only where it stands above its mean
+        // (`EnvMap`'s MIS compensation): elsewhere this ray is the only estimate.
+        Strategy::Nee => match map.radiance_pdf(d) {
+            (le, pdf) if pdf == 0.0 => (le, 1.0),
+            _ => return,
+        },
     };
     path.l += path.beta * le * w;
 }
