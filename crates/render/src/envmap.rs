@@ -436,16 +436,13 @@ struct Blend {
     fy: f32,
 }
 
-/// Row `j`'s cell weights ℓ (the mean luminance of each cell's four corners) into `cell`, from
-/// the texels' luminances `lum`: computed again where needed rather than kept, a table the size
-/// of the map.
 /// The luminance a light sample draws texels by: each texel's less the map's mean over the
 /// sphere, where positive, and 0 elsewhere (MIS compensation: Karlík et al. 2019, as pbrt-v4's
-/// image light draws samples for the path tracer). Light samples are always combined with
+/// image light draws samples for the path tracer). Under MIS light samples are combined with
 /// BSDF samples, which already find the broad, dim part of a sky well, so the light's samples
 /// are spent on what stands out; a direction no light sample can draw (density 0) is then left
-/// to BSDF sampling alone, whose MIS weight there is 1. A map with nothing above its mean
-/// (a uniform one) keeps plain luminance.
+/// to BSDF sampling alone, whose MIS weight there is 1 (and which `--strategy nee` counts
+/// there). A map with nothing above its mean (a uniform one) keeps plain luminance.
 fn compensated_luminance(texels: &[Vec4], width: usize, cos_rows: &[f32]) -> Vec<f32> {
     let lum: Vec<f32> = texels
         .iter()
@@ -468,6 +465,9 @@ fn compensated_luminance(texels: &[Vec4], width: usize, cos_rows: &[f32]) -> Vec
     }
 }
 
+/// Row `j`'s cell weights ℓ (the mean weight of each cell's four corners) into `cell`, from
+/// the texels' weights `lum`: computed again where needed rather than kept, a table the size
+/// of the map.
 fn cell_weights(lum: &[f32], j: usize, cell: &mut [f32]) {
     let width = cell.len();
     let (top, bottom) = (j * width, (j + 1) * width);

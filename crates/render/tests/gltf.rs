@@ -380,12 +380,12 @@ fn bad_files_are_refused_with_one_line_naming_the_place() {
     let dir = tempfile::tempdir().expect("tempdir");
     std::fs::write(
         dir.path().join("model.gltf"),
-        serde_json::to_vec(&bad).unwrap(),
+        serde_json::to_vec(&bad).expect("json"),
     )
-    .unwrap();
+    .expect("write the glTF file");
     let scene = "version = 1\n[camera]\nmodel = \"gltf\"\n\n[film]\nwidth = 8\nheight = 8\n\n\
                  [[objects]]\nshape = \"gltf\"\nfile = \"model.gltf\"\n";
-    std::fs::write(dir.path().join("s.toml"), scene).unwrap();
+    std::fs::write(dir.path().join("s.toml"), scene).expect("write the scene file");
     let e = Scene::file(&dir.path().join("s.toml"), &Limits::default())
         .load()
         .expect_err("refused")

@@ -379,7 +379,7 @@ fn add_environment(
         // Light sampling draws the map only where it stands above its mean
         // (`EnvMap`'s MIS compensation): elsewhere this ray is the only estimate.
         Strategy::Nee => match map.radiance_pdf(d) {
-            (le, pdf) if pdf == 0.0 => (le, 1.0),
+            (le, 0.0) => (le, 1.0),
             _ => return,
         },
     };

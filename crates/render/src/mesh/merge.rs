@@ -119,8 +119,7 @@ mod tests {
                 true,
             ),
         ];
-        let owners: Vec<(&MeshInstance, u32)> =
-            parts.iter().zip([7, 3, 11]).map(|(p, o)| (p, o)).collect();
+        let owners: Vec<(&MeshInstance, u32)> = parts.iter().zip([7, 3, 11]).collect();
         let merged = Arc::new(TriMesh::merged(&owners));
         assert!(merged.is_merged());
         assert_eq!(

@@ -262,7 +262,7 @@ mod tests {
             .collect();
         let zeros = (0..n)
             .map(|i| {
-                if (i / zero_run) % 2 == 0 {
+                if (i / zero_run).is_multiple_of(2) {
                     0.0
                 } else {
                     1.0 + (i % 7) as f32
