@@ -444,7 +444,7 @@ struct Blend {
 /// to BSDF sampling alone, whose MIS weight there is 1 (and which `--strategy nee` counts
 /// there). A map with nothing above its mean (a uniform one) keeps plain luminance.
 fn compensated_luminance(texels: &[Vec4], width: usize, cos_rows: &[f32]) -> Vec<f32> {
-    let lum: Vec<f32> = texels
+    let mut lum: Vec<f32> = texels
         .iter()
         .map(|t| luminance(Vec3A::from_vec4(*t)).max(0.0))
         .collect();
@@ -457,12 +457,13 @@ fn compensated_luminance(texels: &[Vec4], width: usize, cos_rows: &[f32]) -> Vec
         integral += cell.iter().map(|&c| f64::from(c)).sum::<f64>() * band;
     }
     let mean = (integral / (2.0 * width as f64)) as f32;
-    let above: Vec<f32> = lum.iter().map(|&l| (l - mean).max(0.0)).collect();
-    if above.iter().any(|&l| l > 0.0) {
-        above
-    } else {
-        lum
+    // In place: a full-size map's luminance is tens of megabytes, not worth a second copy.
+    if lum.iter().any(|&l| l - mean > 0.0) {
+        for l in &mut lum {
+            *l = (*l - mean).max(0.0);
+        }
     }
+    lum
 }
 
 /// Row `j`'s cell weights ℓ (the mean weight of each cell's four corners) into `cell`, from
