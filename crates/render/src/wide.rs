@@ -1,10 +1,15 @@
-//! Many paths at a time, the whole bounce in SIMD lanes, for the scenes whose bounce is the
-//! same few operations everywhere: diffuse surfaces, one parallelogram light, one BVH leaf
-//! (the Cornell box). Every lane does exactly the scalar trace's arithmetic on its own numbers
+//! Many paths at a time, the whole bounce in SIMD lanes, for the scenes whose bounce is mostly
+//! the same few operations: diffuse surfaces, one parallelogram light, one BVH leaf (the
+//! Cornell box). Every lane does exactly the scalar trace's arithmetic on its own numbers
 //! (no fused multiply-add, no sums across lanes; see [`crate::util::lanes`]), so a sample's value is
 //! [`crate::integrator::sample_pixel`]'s, bit for bit, whichever lane it runs in and however
 //! many lanes there are; the pinned render hashes test that. A lane whose path ends takes the
 //! next sample of the run, which goes on from one pixel to the next, so the lanes stay busy.
+//!
+//! A vertex on a material the lanes do not model (a mirror, glass, a metal) is the scalar
+//! trace's own step, run on that lane's path alone and put back into the lanes
+//! (`Wide::leave_in_lane`): the diffuse walls around a glass ball still shade together, and
+//! the ball costs what it costs the scalar trace.
 //!
 //! Eight lanes by default: two 128-bit registers per number, whose independent work keeps more
 //! of the core busy than one does, compiled also for AVX2 and AVX-512 encodings chosen at run
@@ -14,9 +19,12 @@ use std::ops::Range;
 
 use glam::Vec3A;
 
-use crate::integrator::{RenderSettings, Strategy};
+use crate::integrator::{NoGuide, RenderSettings, Setup, Strategy};
+use crate::interaction::{Hit, SurfacePoint};
 use crate::light::LightShape;
+use crate::material::port::Path;
 use crate::packet::Rays;
+use crate::primitive::Primitive;
 use crate::scene::Scene;
 use crate::shape::{Parallelogram, Shape};
 use crate::util::lanes::{dot, splat3, transpose3, v3, F, M, V3};
@@ -29,6 +37,8 @@ use crate::util::sampling::{
 pub struct Wide<'a> {
     scene: &'a Scene,
     settings: &'a RenderSettings,
+    /// The scalar trace's decisions, for the lanes whose material it steps.
+    setup: Setup,
     light: Parallelogram,
     pmf: f32,
     radiance: Vec3A,
@@ -99,6 +109,9 @@ struct Vertices<const N: usize> {
     u_rr: F<N>,
     /// The lanes shaded.
     shade: u32,
+    /// The lanes the scalar step moved on this bounce, whose state the shaded lanes' update
+    /// leaves as it is.
+    stepped: u32,
 }
 
 /// The paths in the lanes, between bounces.
@@ -110,6 +123,10 @@ struct Lanes<const N: usize> {
     prev_pdf: [f32; N],
     prev_p: [[f32; N]; 3],
     light_uv: [[f32; N]; 2],
+    /// The product of η² over the refractions so far (`Path::eta_scale`).
+    eta: [f32; N],
+    /// The lanes whose last bounce was specular, or the camera's.
+    specular: u32,
     depth: [u32; N],
     /// Where the lane's value goes in the output.
     slot: [usize; N],
@@ -123,7 +140,7 @@ impl<'a> Wide<'a> {
     /// The many-path tracer for `scene`, if its bounce is one this module models, eight paths
     /// at a time.
     pub fn new(scene: &'a Scene, settings: &'a RenderSettings) -> Option<Self> {
-        let diffuse = scene.materials.iter().all(|m| m.bsdf.lanes().is_some());
+        let diffuse = scene.materials.iter().any(|m| m.bsdf.lanes().is_some());
         let [light] = scene.lights.lights.as_slice() else {
             return None;
         };
@@ -138,12 +155,16 @@ impl<'a> Wide<'a> {
             || !scene.is_one_leaf()
             // Its bounce shades with the geometric normal.
             || scene.has_shading_normals()
+            // Its queries know neither cut-outs nor media.
+            || scene.has_cutouts()
+            || scene.has_absorption()
         {
             return None;
         }
         Some(Self {
             scene,
             settings,
+            setup: Setup::new(scene, settings),
             light: q.clone(),
             // The one light's selection probability, as `Lights::sample` multiplies it in.
             pmf: scene.lights.pdf_scale(),
@@ -221,6 +242,8 @@ impl<'a> Wide<'a> {
             prev_pdf: [0.0; N],
             prev_p: [[0.0; N]; 3],
             light_uv: [[0.0; N]; 2],
+            eta: [1.0; N],
+            specular: 0,
             depth: [0; N],
             slot: [0; N],
             run: [0; N],
@@ -256,6 +279,8 @@ impl<'a> Wide<'a> {
                 s.prev_pdf[lane] = 0.0;
                 s.light_uv[0][lane] = lx;
                 s.light_uv[1][lane] = ly;
+                s.eta[lane] = 1.0;
+                s.specular |= 1 << lane;
                 s.depth[lane] = 0;
                 s.slot[lane] = slot;
                 s.active |= 1 << lane;
@@ -304,7 +329,7 @@ impl<'a> Wide<'a> {
         let mut err = [Vec3A::ZERO; N];
         let mut albedo = [Vec3A::ZERO; N];
         let mut u = [[0.0f32; N]; 5];
-        let mut shade = 0u32;
+        let (mut shade, mut stepped) = (0u32, 0u32);
         for lane in 0..N {
             if s.active >> lane & 1 == 0 {
                 continue;
@@ -329,8 +354,9 @@ impl<'a> Wide<'a> {
                 if le != Vec3A::ZERO {
                     let beta = lane3(&s.beta, lane);
                     let mut l = lane3(&s.l, lane);
-                    if s.depth[lane] == 0 {
-                        // The camera's "bounce" is specular: emitters seen directly count in full.
+                    if s.specular >> lane & 1 == 1 {
+                        // Light sampling could not have found it (the camera's "bounce" is
+                        // specular too): it counts in full.
                         l += beta * le;
                     } else {
                         let prev_p = lane3(&s.prev_p, lane);
@@ -340,15 +366,23 @@ impl<'a> Wide<'a> {
                     set3(&mut s.l, lane, l);
                 }
             }
+            let Some(a) = mat.bsdf.lanes() else {
+                let hit = Hit {
+                    t,
+                    prim: hits.prim[lane],
+                    part,
+                };
+                if self.leave_in_lane(s, out, lane, (ray, &hit, prim, &sp)) {
+                    stepped |= 1 << lane;
+                }
+                continue;
+            };
             let front = sp.n.dot(wo) >= 0.0;
             if !front && !mat.two_sided {
                 finish(s, out, lane);
                 continue;
             }
             let nn = if front { sp.n } else { -sp.n };
-            let Some(a) = mat.bsdf.lanes() else {
-                unreachable!("Wide::new admits only scenes whose materials it models")
-            };
             let depth = s.depth[lane];
             let [u0, u1, nlx, nly] = s.sampler[lane].get4(1 + 2 * depth);
             let u_rr = if depth + 1 >= settings.rr_depth {
@@ -382,7 +416,59 @@ impl<'a> Wide<'a> {
             light_u: [lx, ly],
             u_rr,
             shade,
+            stepped,
         })
+    }
+
+    /// Lane `lane`'s vertex at `here`, on a material the lanes do not model: the scalar
+    /// trace's step ([`Setup::leave`]) on the lane's path, taken out of the lanes and put
+    /// back. Returns whether the path goes on; one that ends is written to `out`. Out of line,
+    /// so that the diffuse bounce's loop stays as small as the Cornell box had it.
+    #[inline(never)]
+    fn leave_in_lane<const N: usize>(
+        &self,
+        s: &mut Lanes<N>,
+        out: &mut [Vec3A],
+        lane: usize,
+        here: (&Ray, &Hit, &Primitive, &SurfacePoint),
+    ) -> bool {
+        let mut path = Path {
+            l: lane3(&s.l, lane),
+            beta: lane3(&s.beta, lane),
+            eta_scale: s.eta[lane],
+            specular: s.specular >> lane & 1 == 1,
+            prev_pdf: s.prev_pdf[lane],
+            prev_p: lane3(&s.prev_p, lane),
+            medium: Vec3A::ZERO,
+        };
+        let mut light_uv = [s.light_uv[0][lane], s.light_uv[1][lane]];
+        let mut depth = s.depth[lane];
+        let sampler = s.sampler[lane];
+        let next = self.setup.leave(
+            self.scene,
+            here,
+            &sampler,
+            &mut light_uv,
+            &mut path,
+            &mut NoGuide,
+            &mut depth,
+        );
+        set3(&mut s.l, lane, path.l);
+        let Some(next) = next else {
+            finish(s, out, lane);
+            return false;
+        };
+        set3(&mut s.o, lane, next.o);
+        set3(&mut s.d, lane, next.d);
+        set3(&mut s.beta, lane, path.beta);
+        set3(&mut s.prev_p, lane, path.prev_p);
+        s.prev_pdf[lane] = path.prev_pdf;
+        s.eta[lane] = path.eta_scale;
+        s.specular = s.specular & !(1 << lane) | u32::from(path.specular) << lane;
+        s.light_uv[0][lane] = light_uv[0];
+        s.light_uv[1][lane] = light_uv[1];
+        s.depth[lane] = depth;
+        true
     }
 
     /// Next-event estimation at the vertices: `Lights::sample` for the one parallelogram
@@ -488,7 +574,9 @@ impl<'a> Wide<'a> {
             roulette |= (shaded & u32::from(*depth >= settings.rr_depth)) << lane;
         }
         if roulette != 0 {
-            let m = beta[0].max(beta[1].max(beta[2]));
+            // `Path::survives_roulette`: η² undone (1 until a path has refracted).
+            let eta = F(s.eta);
+            let m = (beta[0] * eta).max((beta[1] * eta).max(beta[2] * eta));
             let q = (m / settings.rr_threshold).min(F::splat(0.95));
             let rr = M::from_bits(roulette);
             alive &= !(roulette & !u_rr.cmplt(q).bits());
@@ -496,19 +584,34 @@ impl<'a> Wide<'a> {
         }
         let len = dot(&wi, &wi).sqrt();
         // Whole vectors, not lane by lane: every lane still active after this bounce was
-        // shaded in it, and the others are refilled before they are read again. (A vector load
-        // of numbers stored one float at a time waits for the stores to retire.)
-        s.o = v3(|c| p_out[c].0);
-        s.d = v3(|c| (wi[c] / len).0);
-        s.beta = v3(|c| beta[c].0);
-        s.prev_pdf = prev_pdf.0;
-        s.prev_p = v3(|c| p[c].0);
+        // shaded in it or stepped by the scalar trace (whose lanes are kept), and the others
+        // are refilled before they are read again. (A vector load of numbers stored one float
+        // at a time waits for the stores to retire.)
+        let kept = v.stepped;
+        for c in 0..3 {
+            store(&mut s.o[c], p_out[c], kept);
+            store(&mut s.d[c], wi[c] / len, kept);
+            store(&mut s.beta[c], beta[c], kept);
+            store(&mut s.prev_p[c], p[c], kept);
+        }
+        store(&mut s.prev_pdf, prev_pdf, kept);
+        s.specular &= !shade;
         s.depth = depth;
         let ended = shade & !alive;
         for lane in (0..N).filter(|lane| ended >> lane & 1 == 1) {
             finish(s, out, lane);
         }
     }
+}
+
+/// `v` into `dst`, but for the lanes in `kept`.
+#[inline(always)]
+fn store<const N: usize>(dst: &mut [f32; N], v: F<N>, kept: u32) {
+    *dst = if kept == 0 {
+        v.0
+    } else {
+        F::select(M::from_bits(kept), F(*dst), v).0
+    };
 }
 
 /// A lane's path has ended: its value goes to its slot, and the lane is free.

@@ -114,7 +114,6 @@ fn trace<'a, G: Guiding<'a>>(
         };
         let prim = &scene.prims[hit.prim as usize];
         let sp = prim.shape.surface(&ray, hit.t, hit.part);
-        let mat = &scene.materials[prim.material as usize];
         if prim.light != u32::MAX {
             emission(
                 &mut path,
@@ -128,33 +127,19 @@ fn trace<'a, G: Guiding<'a>>(
         if scene.max_depth.is_some_and(|m| depth >= m) {
             break;
         }
-        let (front, at) = Shading::facing(&sp, -ray.d, setup.shading_normals);
-        if !front && !mat.two_sided && !mat.bsdf.has_two_sides() {
-            // The back of a one-sided surface absorbs everything.
-            break;
-        }
-        let (u, u_rr) = setup.numbers(mat, sampler, &mut light_uv, guiding, depth);
-        let v = Vertex {
+        let here = (&ray, &hit, prim, &sp);
+        let Some(next) = setup.leave(
             scene,
-            strategy: setup.strategy,
-            ray: &ray,
-            hit: &hit,
-            prim,
-            mat,
-            sp: &sp,
-            at: &at,
-            front,
-            absorbing: setup.absorbing,
-        };
-        let Some(next) = scatter(&v, &mut path, u, guiding, depth) else {
+            here,
+            sampler,
+            &mut light_uv,
+            &mut path,
+            guiding,
+            &mut depth,
+        ) else {
             break;
         };
-        path.prev_p = sp.p;
-        depth += 1;
-        if depth >= settings.rr_depth && !path.survives_roulette(settings, u_rr) {
-            break;
-        }
-        ray = Ray::new(next.o, next.d.normalize());
+        ray = next;
     }
     if let Some(g) = guiding.path() {
         g.finish(path.l);
@@ -165,7 +150,7 @@ fn trace<'a, G: Guiding<'a>>(
 /// What a scene and the settings decide once for every path: which side tests, media and
 /// estimators its vertices need.
 #[derive(Clone, Copy)]
-struct Setup {
+pub(crate) struct Setup {
     /// Only smooth meshes have shading normals; other scenes skip their side tests (a branch
     /// that always goes one way) rather than pay for them at every bounce.
     shading_normals: bool,
@@ -178,11 +163,12 @@ struct Setup {
     /// Lights in the scene: with one, a vertex draws no selection number.
     lights: usize,
     rr_depth: u32,
+    rr_threshold: f32,
 }
 
 impl Setup {
     #[inline(always)]
-    fn new(scene: &Scene, settings: &RenderSettings) -> Self {
+    pub(crate) fn new(scene: &Scene, settings: &RenderSettings) -> Self {
         let strategy = if scene.lights.is_empty() {
             Strategy::Bsdf
         } else {
@@ -195,7 +181,53 @@ impl Setup {
             light_sampling: strategy != Strategy::Bsdf || scene.lights.has_delta(),
             lights: scene.lights.lights.len(),
             rr_depth: settings.rr_depth,
+            rr_threshold: settings.rr_threshold,
         }
+    }
+
+    /// The rest of a path's visit to the surface point `here` (after what an emitter there
+    /// gives it): the material scatters the path, Russian roulette follows, and the next ray
+    /// is returned; `None` ends the path. `depth` counts the bounce. The scalar trace and the
+    /// lanes of the many-path tracer whose material it does not model in lanes
+    /// ([`crate::wide`]) both run this one function, so a sample has the same bits in either.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    pub(crate) fn leave<'a, G: Guiding<'a>>(
+        &self,
+        scene: &Scene,
+        (ray, hit, prim, sp): (&Ray, &Hit, &Primitive, &SurfacePoint),
+        sampler: &PixelSampler,
+        light_uv: &mut [f32; 2],
+        path: &mut Path,
+        guiding: &mut G,
+        depth: &mut u32,
+    ) -> Option<Ray> {
+        let mat = &scene.materials[prim.material as usize];
+        let (front, at) = Shading::facing(sp, -ray.d, self.shading_normals);
+        if !front && !mat.two_sided && !mat.bsdf.has_two_sides() {
+            // The back of a one-sided surface absorbs everything.
+            return None;
+        }
+        let (u, u_rr) = self.numbers(mat, sampler, light_uv, guiding, *depth);
+        let v = Vertex {
+            scene,
+            strategy: self.strategy,
+            ray,
+            hit,
+            prim,
+            mat,
+            sp,
+            at: &at,
+            front,
+            absorbing: self.absorbing,
+        };
+        let next = scatter(&v, path, u, guiding, *depth)?;
+        path.prev_p = sp.p;
+        *depth += 1;
+        if *depth >= self.rr_depth && !path.survives_roulette(self.rr_threshold, u_rr) {
+            return None;
+        }
+        Some(Ray::new(next.o, next.d.normalize()))
     }
 
     /// The numbers the vertex at `depth` on `mat` draws, and Russian roulette's after it;
@@ -298,8 +330,8 @@ impl Path {
     /// Russian roulette with `u_rr`: false ends the path (probability 1 − q); a survivor's
     /// throughput is divided by q, which keeps the estimate unbiased.
     #[inline(always)]
-    fn survives_roulette(&mut self, settings: &RenderSettings, u_rr: f32) -> bool {
-        let q = ((self.beta * self.eta_scale).max_element() / settings.rr_threshold).min(0.95);
+    fn survives_roulette(&mut self, rr_threshold: f32, u_rr: f32) -> bool {
+        let q = ((self.beta * self.eta_scale).max_element() / rr_threshold).min(0.95);
         if !(u_rr < q) {
             return false;
         }

@@ -354,6 +354,13 @@ impl Scene {
         self.shading_normals
     }
 
+    /// Whether any material cuts its surface out by an alpha texture: then a closest hit may
+    /// be passed through, which only the scalar queries know ([`Scene::intersect`]).
+    #[inline]
+    pub fn has_cutouts(&self) -> bool {
+        !self.alpha.is_empty()
+    }
+
     /// Whether any material absorbs inside (coloured glass): only then do paths track the
     /// medium they travel in.
     #[inline]
