@@ -1,6 +1,5 @@
 //! Many paths at a time, the whole bounce in SIMD lanes, for the scenes whose bounce is mostly
-//! the same few operations: diffuse surfaces, one parallelogram light, one BVH leaf (the
-//! Cornell box). Every lane does exactly the scalar trace's arithmetic on its own numbers
+//! the same few operations: diffuse surfaces and one parallelogram light (the Cornell box). Every lane does exactly the scalar trace's arithmetic on its own numbers
 //! (no fused multiply-add, no sums across lanes; see [`crate::util::lanes`]), so a sample's value is
 //! [`crate::integrator::sample_pixel`]'s, bit for bit, whichever lane it runs in and however
 //! many lanes there are; the pinned render hashes test that. A lane whose path ends takes the
@@ -9,7 +8,9 @@
 //! A vertex on a material the lanes do not model (a mirror, glass, a metal) is the scalar
 //! trace's own step, run on that lane's path alone and put back into the lanes
 //! (`Wide::leave_in_lane`): the diffuse walls around a glass ball still shade together, and
-//! the ball costs what it costs the scalar trace.
+//! the ball costs what it costs the scalar trace. Likewise a smooth mesh's point whose shading
+//! normal is not its geometric one. A scene that is one BVH leaf (the Cornell box) answers the
+//! lanes' ray queries in lanes; any other asks the scene lane by lane.
 //!
 //! Eight lanes by default: two 128-bit registers per number, whose independent work keeps more
 //! of the core busy than one does, compiled also for AVX2 and AVX-512 encodings chosen at run
@@ -23,7 +24,7 @@ use crate::integrator::{NoGuide, RenderSettings, Setup, Strategy};
 use crate::interaction::{Hit, SurfacePoint};
 use crate::light::LightShape;
 use crate::material::port::Path;
-use crate::packet::Rays;
+use crate::packet::{LaneHits, Rays};
 use crate::primitive::Primitive;
 use crate::scene::Scene;
 use crate::shape::{Parallelogram, Shape};
@@ -44,6 +45,14 @@ pub struct Wide<'a> {
     radiance: Vec3A,
     two_sided: bool,
     emits: bool,
+    /// Whether the lanes' queries go to the one leaf's packet tests.
+    one_leaf: bool,
+    /// Whether the scene needs more than the Cornell box's bounce: a vertex that may be the
+    /// scalar step's (a material the lanes do not shade, a bent shading normal), after which
+    /// a path may have refracted or a lane be kept out of the shaded lanes' update, or queries
+    /// asked lane by lane. The tracer is compiled for both answers (`GENERAL`), so that the
+    /// Cornell box's bounce pays for none of it.
+    general: bool,
     lanes: usize,
 }
 
@@ -152,9 +161,6 @@ impl<'a> Wide<'a> {
             || scene.environment.is_some()
             || scene.max_depth.is_some()
             || scene.camera.clips_far()
-            || !scene.is_one_leaf()
-            // Its bounce shades with the geometric normal.
-            || scene.has_shading_normals()
             // Its queries know neither cut-outs nor media.
             || scene.has_cutouts()
             || scene.has_absorption()
@@ -171,6 +177,10 @@ impl<'a> Wide<'a> {
             radiance: light.radiance,
             two_sided: light.two_sided,
             emits: light.radiance != Vec3A::ZERO,
+            one_leaf: scene.is_one_leaf(),
+            general: !scene.is_one_leaf()
+                || scene.has_shading_normals()
+                || scene.materials.iter().any(|m| m.bsdf.lanes().is_none()),
             lanes: 8,
         })
     }
@@ -210,14 +220,20 @@ impl<'a> Wide<'a> {
     /// The values of every run's samples, into `out`: run by run, each in index order.
     pub fn trace(&self, runs: &[PixelRun], out: &mut Vec<Vec3A>) {
         match self.lanes {
-            4 => self.trace_lanes::<4>(runs, out),
-            16 => self.trace_lanes::<16>(runs, out),
+            4 if self.general => self.trace_lanes::<4, true>(runs, out),
+            4 => self.trace_lanes::<4, false>(runs, out),
+            16 if self.general => self.trace_lanes::<16, true>(runs, out),
+            16 => self.trace_lanes::<16, false>(runs, out),
             _ => trace8(self, runs, out),
         }
     }
 
     #[inline(always)]
-    fn trace_lanes<const N: usize>(&self, runs: &[PixelRun], out: &mut Vec<Vec3A>) {
+    fn trace_lanes<const N: usize, const GENERAL: bool>(
+        &self,
+        runs: &[PixelRun],
+        out: &mut Vec<Vec3A>,
+    ) {
         out.clear();
         out.resize(runs.iter().map(|r| r.samples.len()).sum(), Vec3A::ZERO);
         let Some(first) = runs.first() else {
@@ -279,7 +295,9 @@ impl<'a> Wide<'a> {
                 s.prev_pdf[lane] = 0.0;
                 s.light_uv[0][lane] = lx;
                 s.light_uv[1][lane] = ly;
-                s.eta[lane] = 1.0;
+                if GENERAL {
+                    s.eta[lane] = 1.0;
+                }
                 s.specular |= 1 << lane;
                 s.depth[lane] = 0;
                 s.slot[lane] = slot;
@@ -290,26 +308,31 @@ impl<'a> Wide<'a> {
             if s.active == 0 {
                 return;
             }
-            self.bounce(&mut s, &light, out);
+            self.bounce::<N, GENERAL>(&mut s, &light, out);
         }
     }
 
     /// One bounce of every active lane: its closest hit, emission, light sample and next ray.
     #[inline(always)]
-    fn bounce<const N: usize>(&self, s: &mut Lanes<N>, light: &LightLanes<N>, out: &mut [Vec3A]) {
-        let Some(v) = self.shade_hits(s, out) else {
+    fn bounce<const N: usize, const GENERAL: bool>(
+        &self,
+        s: &mut Lanes<N>,
+        light: &LightLanes<N>,
+        out: &mut [Vec3A],
+    ) {
+        let Some(v) = self.shade_hits::<N, GENERAL>(s, out) else {
             return;
         };
         let p_out = offset_ray_origin_lanes(&v.p, &v.err, &v.n);
-        self.direct_light(s, light, &v, &p_out);
-        self.continue_paths(s, &v, p_out, out);
+        self.direct_light::<N, GENERAL>(s, light, &v, &p_out);
+        self.continue_paths::<N, GENERAL>(s, &v, p_out, out);
     }
 
     /// Intersects the active lanes' rays, adds what emitters they hit give (weighted against
     /// light sampling), ends the paths that leave the scene or hit a back face, and returns the
     /// vertices of the others, in lanes; `None` if no lane has one.
     #[inline(always)]
-    fn shade_hits<const N: usize>(
+    fn shade_hits<const N: usize, const GENERAL: bool>(
         &self,
         s: &mut Lanes<N>,
         out: &mut [Vec3A],
@@ -317,12 +340,16 @@ impl<'a> Wide<'a> {
         let scene = self.scene;
         let settings = self.settings;
         let ray_of = |lane| Ray::new(lane3(&s.o, lane), lane3(&s.d, lane));
-        let hits = scene.accel().intersect_lanes(
-            &scene.prims,
-            &Rays::from_lanes(load3(&s.o), load3(&s.d)),
-            ray_of,
-            s.active,
-        );
+        let hits = if !GENERAL || self.one_leaf {
+            scene.accel().intersect_lanes(
+                &scene.prims,
+                &Rays::from_lanes(load3(&s.o), load3(&s.d)),
+                ray_of,
+                s.active,
+            )
+        } else {
+            closest_by_lane(scene, s.active, ray_of)
+        };
         // Per lane as whole vectors, turned into lanes afterwards (`lanes::transpose3`).
         let mut p = [Vec3A::ZERO; N];
         let mut n = [Vec3A::ZERO; N];
@@ -366,7 +393,12 @@ impl<'a> Wide<'a> {
                     set3(&mut s.l, lane, l);
                 }
             }
-            let Some(a) = mat.bsdf.lanes() else {
+            // A point whose shading normal bends away from the geometric one (`Shading::facing`).
+            let shaded = GENERAL && scene.has_shading_normals() && sp.ns != sp.n;
+            let Some(a) = mat.bsdf.lanes().filter(|_| !shaded) else {
+                if !GENERAL {
+                    unreachable!("a scene with a vertex the lanes do not shade is general");
+                }
                 let hit = Hit {
                     t,
                     prim: hits.prim[lane],
@@ -474,7 +506,7 @@ impl<'a> Wide<'a> {
     /// Next-event estimation at the vertices: `Lights::sample` for the one parallelogram
     /// light, a shadow ray, and the power heuristic against BSDF sampling.
     #[inline(always)]
-    fn direct_light<const N: usize>(
+    fn direct_light<const N: usize, const GENERAL: bool>(
         &self,
         s: &mut Lanes<N>,
         light: &LightLanes<N>,
@@ -517,13 +549,17 @@ impl<'a> Wide<'a> {
             let po = v3(|c| p_out[c].0);
             let sda = v3(|c| sd[c].0);
             let shadow = |lane| Ray::new(lane3(&po, lane), lane3(&sda, lane));
-            let blocked = scene.accel().occluded_lanes(
-                &scene.prims,
-                &Rays::from_lanes(p_out, sd),
-                shadow,
-                nee,
-                1.0 - 1e-4,
-            );
+            let blocked = if !GENERAL || self.one_leaf {
+                scene.accel().occluded_lanes(
+                    &scene.prims,
+                    &Rays::from_lanes(p_out, sd),
+                    shadow,
+                    nee,
+                    1.0 - 1e-4,
+                )
+            } else {
+                blocked_by_lane(scene, nee, shadow)
+            };
             let add = nee & !blocked;
             if add != 0 {
                 let mask = M::from_bits(add);
@@ -543,7 +579,7 @@ impl<'a> Wide<'a> {
     /// The next direction at each vertex, cosine-weighted (f·cos/pdf = ρ), then Russian
     /// roulette; the lanes' paths move on, and those that end are written to `out`.
     #[inline(always)]
-    fn continue_paths<const N: usize>(
+    fn continue_paths<const N: usize, const GENERAL: bool>(
         &self,
         s: &mut Lanes<N>,
         v: &Vertices<N>,
@@ -574,9 +610,13 @@ impl<'a> Wide<'a> {
             roulette |= (shaded & u32::from(*depth >= settings.rr_depth)) << lane;
         }
         if roulette != 0 {
-            // `Path::survives_roulette`: η² undone (1 until a path has refracted).
-            let eta = F(s.eta);
-            let m = (beta[0] * eta).max((beta[1] * eta).max(beta[2] * eta));
+            let m = if GENERAL {
+                // `Path::survives_roulette`: η² undone (1 until a path has refracted).
+                let eta = F(s.eta);
+                (beta[0] * eta).max((beta[1] * eta).max(beta[2] * eta))
+            } else {
+                beta[0].max(beta[1].max(beta[2]))
+            };
             let q = (m / settings.rr_threshold).min(F::splat(0.95));
             let rr = M::from_bits(roulette);
             alive &= !(roulette & !u_rr.cmplt(q).bits());
@@ -587,7 +627,7 @@ impl<'a> Wide<'a> {
         // shaded in it or stepped by the scalar trace (whose lanes are kept), and the others
         // are refilled before they are read again. (A vector load of numbers stored one float
         // at a time waits for the stores to retire.)
-        let kept = v.stepped;
+        let kept = if GENERAL { v.stepped } else { 0 };
         for c in 0..3 {
             store(&mut s.o[c], p_out[c], kept);
             store(&mut s.d[c], wi[c] / len, kept);
@@ -602,6 +642,41 @@ impl<'a> Wide<'a> {
             finish(s, out, lane);
         }
     }
+}
+
+/// The closest hits of the lanes in `active`, asked of the scene one ray at a time, for a scene
+/// the packet tests do not answer. Out of line, as the Cornell box never calls it.
+#[inline(never)]
+fn closest_by_lane<const N: usize>(
+    scene: &Scene,
+    active: u32,
+    ray: impl Fn(usize) -> Ray,
+) -> LaneHits<N> {
+    let mut hits = LaneHits {
+        hit: 0,
+        t: [0.0; N],
+        prim: [0; N],
+        part: [0; N],
+    };
+    for lane in (0..N).filter(|lane| active >> lane & 1 == 1) {
+        if let Some(h) = scene.intersect(&ray(lane), f32::INFINITY) {
+            hits.hit |= 1 << lane;
+            hits.t[lane] = h.t;
+            hits.prim[lane] = h.prim;
+            hits.part[lane] = h.part;
+        }
+    }
+    hits
+}
+
+/// Which of the shadow rays of the lanes in `lanes` something blocks (t in (0, 1 − 10⁻⁴), as
+/// `LightSample::shadow_ray` sets it), asked of the scene one ray at a time.
+#[inline(never)]
+fn blocked_by_lane(scene: &Scene, lanes: u32, ray: impl Fn(usize) -> Ray) -> u32 {
+    (0..32)
+        .filter(|lane| lanes >> lane & 1 == 1)
+        .filter(|&lane| scene.occluded(&ray(lane), 1.0 - 1e-4))
+        .fold(0, |bits, lane| bits | 1 << lane)
 }
 
 /// `v` into `dst`, but for the lanes in `kept`.
@@ -629,5 +704,9 @@ fn finish<const N: usize>(s: &mut Lanes<N>, out: &mut [Vec3A], lane: usize) {
 /// multiply and an add: Rust never contracts them, and the lanes never call `mul_add`.
 #[multiversion::multiversion(targets("x86_64+avx512f+avx512vl+avx2", "x86_64+avx2"))]
 fn trace8<'a>(wide: &Wide<'a>, runs: &[PixelRun], out: &mut Vec<Vec3A>) {
-    wide.trace_lanes::<8>(runs, out);
+    if wide.general {
+        wide.trace_lanes::<8, true>(runs, out);
+    } else {
+        wide.trace_lanes::<8, false>(runs, out);
+    }
 }

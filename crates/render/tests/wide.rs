@@ -259,6 +259,47 @@ fn lanes_give_the_scalar_bits_with_metals_and_textures() {
     }
 }
 
+/// The glass-and-meshes room under a rectangle light, its floor an infinite plane: a scene
+/// that is not one BVH leaf (its queries go lane by lane), with smooth meshes whose points
+/// shade with a bent normal (the scalar step's, lane by lane), a smooth glass mesh and flat
+/// diffuse walls.
+#[test]
+fn lanes_give_the_scalar_bits_with_smooth_meshes_and_a_plane() {
+    let root = common::repo_root().join("scenes");
+    let text = std::fs::read_to_string(root.join("mesh-glass.toml")).expect("scene");
+    let lamp_at = text.find("[[objects]] # lamp").expect("the lamp");
+    let lamp_end = lamp_at + text[lamp_at..].find("\n\n").expect("the lamp's end");
+    let text = format!(
+        "{}{}{}",
+        &text[..lamp_at],
+        "[[objects]]\nshape = \"rect\"\nmaterial = \"light\"\n\
+         transform.matrix = [[0.23, 0, 0, 0], [0, 0, -0.19, 0.99], [0, 0.19, 0, 0.01], [0, 0, 0, 1]]",
+        &text[lamp_end..]
+    )
+    .replacen(
+        "shape = \"rect\"\nmaterial = \"white\"\ntransform.matrix = [[1, 0, 0, 0], [0, 0, 1, -1], [0, -1, 0, 0], [0, 0, 0, 1]]",
+        "shape = \"plane\"\nmaterial = \"white\"\npoint = [0.0, -1.0, 0.0]\nnormal = [0.0, 1.0, 0.0]",
+        1,
+    );
+    assert!(
+        text.contains("\"plane\"") && !text.contains("lamp.obj"),
+        "{text}"
+    );
+    let sphere = std::fs::read(root.join("meshes/icosphere.ply")).expect("mesh");
+    let scene = common::scene_with_files(&text, &[("meshes/icosphere.ply", &sphere)]);
+    assert!(!scene.is_one_leaf() && scene.has_shading_normals());
+    let settings = RenderSettings {
+        seed: 15,
+        ..RenderSettings::default()
+    };
+    assert!(Wide::new(&scene, &settings).is_some());
+    let (count, lit) = compare(&scene, &settings, 0..9);
+    assert!(
+        count > 5_000 && lit > count / 2,
+        "{count} samples, {lit} lit"
+    );
+}
+
 /// The scenes whose bounce the lanes do not model go one path at a time.
 #[test]
 fn other_scenes_and_strategies_go_one_path_at_a_time() {
