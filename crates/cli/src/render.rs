@@ -62,11 +62,14 @@ pub struct RenderArgs {
 /// `--tracer` values.
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
 pub enum TracerArg {
-    /// The many-path tracer where it applies, else one path at a time.
+    /// The many-path tracer where it pays (a scene lit by one rectangle light), else one
+    /// path at a time.
     Auto,
     /// One path at a time.
     Scalar,
-    /// The many-path tracer, 4 lanes.
+    /// The many-path tracer, 4 lanes, wherever it can run (any lights; one path at a time
+    /// only for scenes it cannot run: no diffuse surface, cut-outs, coloured glass, a depth
+    /// limit, a far plane, `--strategy bsdf|nee`).
     Lanes4,
     /// The many-path tracer, 8 lanes.
     Lanes8,

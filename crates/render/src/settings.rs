@@ -96,13 +96,13 @@ pub const DEFAULT_TILE: u32 = 128;
 /// identity and never travels to workers: it exists to time the tracers against each other.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Tracer {
-    /// The many-path tracer for scenes whose bounce it models, the scalar one for the rest.
+    /// The many-path tracer where it pays (`Wide::new`), the scalar one for the rest.
     #[default]
     Auto,
     /// One path at a time, always.
     Scalar,
-    /// The many-path tracer with this many lanes (4, 8 or 16) where it applies; other counts,
-    /// and other scenes, trace one path at a time.
+    /// The many-path tracer with this many lanes (4, 8 or 16) wherever it can run
+    /// (`Wide::anywhere`); other counts, and other scenes, trace one path at a time.
     Lanes(usize),
 }
 

@@ -84,7 +84,9 @@ pub fn render_tile(
     let wide = match settings.tracer {
         Tracer::Scalar => None,
         Tracer::Auto => crate::wide::Wide::new(scene, settings),
-        Tracer::Lanes(n) => crate::wide::Wide::new(scene, settings).and_then(|w| w.with_lanes(n)),
+        Tracer::Lanes(n) => {
+            crate::wide::Wide::anywhere(scene, settings).and_then(|w| w.with_lanes(n))
+        }
     };
     let nonfinite: u64 = out
         .sum

@@ -1,5 +1,6 @@
 //! Many paths at a time, the whole bounce in SIMD lanes, for the scenes whose bounce is mostly
-//! the same few operations: diffuse surfaces and one parallelogram light (the Cornell box). Every lane does exactly the scalar trace's arithmetic on its own numbers
+//! the same few operations: diffuse surfaces and one parallelogram light (the Cornell box).
+//! Every lane does exactly the scalar trace's arithmetic on its own numbers
 //! (no fused multiply-add, no sums across lanes; see [`crate::util::lanes`]), so a sample's value is
 //! [`crate::integrator::sample_pixel`]'s, bit for bit, whichever lane it runs in and however
 //! many lanes there are; the pinned render hashes test that. A lane whose path ends takes the
@@ -10,7 +11,11 @@
 //! (`Wide::leave_in_lane`): the diffuse walls around a glass ball still shade together, and
 //! the ball costs what it costs the scalar trace. Likewise a smooth mesh's point whose shading
 //! normal is not its geometric one. A scene that is one BVH leaf (the Cornell box) answers the
-//! lanes' ray queries in lanes; any other asks the scene lane by lane.
+//! lanes' ray queries in lanes; any other asks the scene lane by lane. Under any lights but
+//! one parallelogram the diffuse lanes sample them lane by lane too (`Wide::light_in_lane`),
+//! and a path that leaves the scene finds its sky lane by lane (`Wide::escape_in_lane`): the
+//! tracer then runs ([`Wide::anywhere`], `--tracer lanes8`) but does not pay, so the default
+//! ([`Wide::new`]) leaves those scenes to the scalar trace.
 //!
 //! Eight lanes by default: two 128-bit registers per number, whose independent work keeps more
 //! of the core busy than one does, compiled also for AVX2 and AVX-512 encodings chosen at run
@@ -18,10 +23,10 @@
 
 use std::ops::Range;
 
-use glam::Vec3A;
+use glam::{Vec2, Vec3A};
 
-use crate::integrator::{NoGuide, RenderSettings, Setup, Strategy};
-use crate::interaction::{Hit, SurfacePoint};
+use crate::integrator::{diffuse_light, escape, NoGuide, RenderSettings, Setup, Strategy};
+use crate::interaction::{Hit, Shading, SurfacePoint};
 use crate::light::LightShape;
 use crate::material::port::Path;
 use crate::packet::{LaneHits, Rays};
@@ -29,7 +34,9 @@ use crate::primitive::Primitive;
 use crate::scene::Scene;
 use crate::shape::{Parallelogram, Shape};
 use crate::util::lanes::{dot, splat3, transpose3, v3, F, M, V3};
-use crate::util::math::{frame_from_normal_lanes, gamma, offset_ray_origin_lanes, Ray};
+use crate::util::math::{
+    frame_from_normal_lanes, gamma, offset_ray_origin, offset_ray_origin_lanes, Ray,
+};
 use crate::util::sampling::{
     power_heuristic, power_heuristic_lanes, square_to_cosine_hemisphere_lanes, PixelSampler,
 };
@@ -40,11 +47,13 @@ pub struct Wide<'a> {
     settings: &'a RenderSettings,
     /// The scalar trace's decisions, for the lanes whose material it steps.
     setup: Setup,
-    light: Parallelogram,
-    pmf: f32,
-    radiance: Vec3A,
-    two_sided: bool,
-    emits: bool,
+    /// The scene's light, where it is one parallelogram: the lanes sample it in lanes. Any
+    /// other set of lights is sampled lane by lane, by the scalar trace's code.
+    quad: Option<QuadLight>,
+    /// Whether a vertex draws a number to pick one of several lights.
+    picks_light: bool,
+    /// Whether a path that leaves the scene finds an environment or a sun.
+    escapes: bool,
     /// Whether the lanes' queries go to the one leaf's packet tests.
     one_leaf: bool,
     /// Whether the scene needs more than the Cornell box's bounce: a vertex that may be the
@@ -54,6 +63,16 @@ pub struct Wide<'a> {
     /// Cornell box's bounce pays for none of it.
     general: bool,
     lanes: usize,
+}
+
+/// The one parallelogram light the lanes sample.
+struct QuadLight {
+    shape: Parallelogram,
+    /// Its selection probability, as `Lights::sample` multiplies it in.
+    pmf: f32,
+    radiance: Vec3A,
+    two_sided: bool,
+    emits: bool,
 }
 
 /// Samples `samples` of pixel (`x`, `y`), for [`Wide::trace`]; `sampler` is the pixel's
@@ -79,6 +98,8 @@ struct LightLanes<const N: usize> {
     area: F<N>,
     pmf: F<N>,
     radiance: V3<N>,
+    two_sided: bool,
+    emits: bool,
 }
 
 /// Lane `lane` of three lanes as a vector.
@@ -146,19 +167,37 @@ struct Lanes<const N: usize> {
 }
 
 impl<'a> Wide<'a> {
-    /// The many-path tracer for `scene`, if its bounce is one this module models, eight paths
-    /// at a time.
+    /// The many-path tracer for `scene` where it pays, eight paths at a time: where its one
+    /// light is a parallelogram, which the lanes sample together. Elsewhere the lanes would
+    /// sample the lights one by one, and measured slower than the scalar trace on scenes lit
+    /// by a sky (docs/renderer.md).
     pub fn new(scene: &'a Scene, settings: &'a RenderSettings) -> Option<Self> {
+        Self::anywhere(scene, settings).filter(|w| w.quad.is_some())
+    }
+
+    /// The many-path tracer for `scene` wherever it can run, whatever the lights: what
+    /// `--tracer lanes4|lanes8|lanes16` asks for, and the same bits as the scalar trace
+    /// everywhere. It needs a diffuse material (what it shades in lanes), MIS, and none of
+    /// cut-outs, coloured glass, a depth limit or a camera's far plane.
+    pub fn anywhere(scene: &'a Scene, settings: &'a RenderSettings) -> Option<Self> {
         let diffuse = scene.materials.iter().any(|m| m.bsdf.lanes().is_some());
-        let [light] = scene.lights.lights.as_slice() else {
-            return None;
-        };
-        let LightShape::Quad(q) = &light.shape else {
-            return None;
+        let quad = match scene.lights.lights.as_slice() {
+            [light] => match &light.shape {
+                LightShape::Quad(q) => Some(QuadLight {
+                    shape: q.clone(),
+                    pmf: scene.lights.pdf_scale(),
+                    radiance: light.radiance,
+                    two_sided: light.two_sided,
+                    emits: light.radiance != Vec3A::ZERO,
+                }),
+                _ => None,
+            },
+            _ => None,
         };
         if !diffuse
             || settings.strategy != Strategy::Mis
-            || scene.environment.is_some()
+            // Without lights the scalar trace counts every emitter in full (BSDF sampling).
+            || scene.lights.is_empty()
             || scene.max_depth.is_some()
             || scene.camera.clips_far()
             // Its queries know neither cut-outs nor media.
@@ -171,16 +210,15 @@ impl<'a> Wide<'a> {
             scene,
             settings,
             setup: Setup::new(scene, settings),
-            light: q.clone(),
-            // The one light's selection probability, as `Lights::sample` multiplies it in.
-            pmf: scene.lights.pdf_scale(),
-            radiance: light.radiance,
-            two_sided: light.two_sided,
-            emits: light.radiance != Vec3A::ZERO,
+            picks_light: scene.lights.lights.len() > 1,
+            escapes: scene.environment.is_some() || !scene.lights.suns().is_empty(),
             one_leaf: scene.is_one_leaf(),
-            general: !scene.is_one_leaf()
+            general: quad.is_none()
+                || scene.environment.is_some()
+                || !scene.is_one_leaf()
                 || scene.has_shading_normals()
                 || scene.materials.iter().any(|m| m.bsdf.lanes().is_none()),
+            quad,
             lanes: 8,
         })
     }
@@ -240,16 +278,17 @@ impl<'a> Wide<'a> {
             return;
         };
         let scene = self.scene;
-        let q = &self.light;
-        let light = LightLanes::<N> {
-            p0: splat3(q.p0),
-            e1: splat3(q.e1),
-            e2: splat3(q.e2),
-            normal: splat3(q.normal),
-            area: F::splat(q.area),
-            pmf: F::splat(self.pmf),
-            radiance: splat3(self.radiance),
-        };
+        let light = self.quad.as_ref().map(|q| LightLanes::<N> {
+            p0: splat3(q.shape.p0),
+            e1: splat3(q.shape.e1),
+            e2: splat3(q.shape.e2),
+            normal: splat3(q.shape.normal),
+            area: F::splat(q.shape.area),
+            pmf: F::splat(q.pmf),
+            radiance: splat3(q.radiance),
+            two_sided: q.two_sided,
+            emits: q.emits,
+        });
         let mut s = Lanes::<N> {
             o: [[0.0; N]; 3],
             d: [[0.0; N]; 3],
@@ -308,7 +347,7 @@ impl<'a> Wide<'a> {
             if s.active == 0 {
                 return;
             }
-            self.bounce::<N, GENERAL>(&mut s, &light, out);
+            self.bounce::<N, GENERAL>(&mut s, light.as_ref(), out);
         }
     }
 
@@ -317,14 +356,17 @@ impl<'a> Wide<'a> {
     fn bounce<const N: usize, const GENERAL: bool>(
         &self,
         s: &mut Lanes<N>,
-        light: &LightLanes<N>,
+        light: Option<&LightLanes<N>>,
         out: &mut [Vec3A],
     ) {
         let Some(v) = self.shade_hits::<N, GENERAL>(s, out) else {
             return;
         };
         let p_out = offset_ray_origin_lanes(&v.p, &v.err, &v.n);
-        self.direct_light::<N, GENERAL>(s, light, &v, &p_out);
+        // Without it the lanes sampled their lights one by one as they shaded the hits.
+        if let Some(light) = light {
+            self.direct_light::<N, GENERAL>(s, light, &v, &p_out);
+        }
         self.continue_paths::<N, GENERAL>(s, &v, p_out, out);
     }
 
@@ -362,12 +404,20 @@ impl<'a> Wide<'a> {
                 continue;
             }
             if hits.hit >> lane & 1 == 0 {
+                if GENERAL && self.escapes {
+                    self.escape_in_lane(s, lane);
+                }
                 finish(s, out, lane);
                 continue;
             }
             let ray = &Ray::new(lane3(&s.o, lane), lane3(&s.d, lane));
-            let (t, part) = (hits.t[lane], hits.part[lane]);
-            let prim = &scene.prims[hits.prim[lane] as usize];
+            let hit = Hit {
+                t: hits.t[lane],
+                prim: hits.prim[lane],
+                part: hits.part[lane],
+            };
+            let (t, part) = (hit.t, hit.part);
+            let prim = &scene.prims[hit.prim as usize];
             // Quads, most of a room's hits, without the call and the match on the shape.
             let sp = match &prim.shape {
                 Shape::Parallelogram(q) => q.surface(ray, t),
@@ -376,8 +426,13 @@ impl<'a> Wide<'a> {
             let mat = &scene.materials[prim.material as usize];
             let wo = -ray.d;
             if prim.light != u32::MAX {
-                let li = (prim.light + part) as usize;
-                let le = scene.lights.lights[li].emitted(sp.n, wo);
+                let (li, le) = if GENERAL {
+                    // Mesh lights' triangles, emission textures.
+                    scene.emitted((ray, &hit, prim, &sp))
+                } else {
+                    let li = (prim.light + part) as usize;
+                    (li, scene.lights.lights[li].emitted(sp.n, wo))
+                };
                 if le != Vec3A::ZERO {
                     let beta = lane3(&s.beta, lane);
                     let mut l = lane3(&s.l, lane);
@@ -399,11 +454,6 @@ impl<'a> Wide<'a> {
                 if !GENERAL {
                     unreachable!("a scene with a vertex the lanes do not shade is general");
                 }
-                let hit = Hit {
-                    t,
-                    prim: hits.prim[lane],
-                    part,
-                };
                 if self.leave_in_lane(s, out, lane, (ray, &hit, prim, &sp)) {
                     stepped |= 1 << lane;
                 }
@@ -417,11 +467,17 @@ impl<'a> Wide<'a> {
             let nn = if front { sp.n } else { -sp.n };
             let depth = s.depth[lane];
             let [u0, u1, nlx, nly] = s.sampler[lane].get4(1 + 2 * depth);
-            let u_rr = if depth + 1 >= settings.rr_depth {
-                s.sampler[lane].get4(2 + 2 * depth)[2]
-            } else {
-                0.0
-            };
+            // `Setup::numbers` for a diffuse vertex that samples a light.
+            let [u_select, _, u_rr, _] =
+                if depth + 1 >= settings.rr_depth || (GENERAL && self.picks_light) {
+                    s.sampler[lane].get4(2 + 2 * depth)
+                } else {
+                    [0.0; 4]
+                };
+            if GENERAL && self.quad.is_none() {
+                let u_light = Vec2::new(s.light_uv[0][lane], s.light_uv[1][lane]);
+                self.light_in_lane(s, lane, &sp, wo, a, (u_select, u_light));
+            }
             u[0][lane] = u0;
             u[1][lane] = u1;
             u[2][lane] = s.light_uv[0][lane];
@@ -452,6 +508,45 @@ impl<'a> Wide<'a> {
         })
     }
 
+    /// What lane `lane`'s path finds as it leaves the scene (an environment, suns): the scalar
+    /// trace's `escape`.
+    #[inline(never)]
+    fn escape_in_lane<const N: usize>(&self, s: &mut Lanes<N>, lane: usize) {
+        let mut path = lane_path(s, lane);
+        let d = lane3(&s.d, lane);
+        escape(
+            &mut path,
+            self.scene,
+            Strategy::Mis,
+            d,
+            &mut NoGuide,
+            s.depth[lane],
+        );
+        set3(&mut s.l, lane, path.l);
+    }
+
+    /// Next-event estimation at lane `lane`'s diffuse vertex `sp` (albedo `albedo`, the path
+    /// leaving towards `wo`) for lights the lanes do not sample in lanes: the scalar trace's
+    /// (`integrator::diffuse_light`), with the numbers `u`.
+    #[inline(never)]
+    fn light_in_lane<const N: usize>(
+        &self,
+        s: &mut Lanes<N>,
+        lane: usize,
+        sp: &SurfacePoint,
+        wo: Vec3A,
+        albedo: Vec3A,
+        u: (f32, Vec2),
+    ) {
+        // Only points that shade with their geometric normal reach here.
+        let (_, at) = Shading::facing(sp, wo, false);
+        let p_out = offset_ray_origin(sp.p, sp.err, at.n);
+        if let Some((le, f)) = diffuse_light(self.scene, Strategy::Mis, sp, &at, p_out, u) {
+            let l = lane3(&s.l, lane) + lane3(&s.beta, lane) * albedo * le * f;
+            set3(&mut s.l, lane, l);
+        }
+    }
+
     /// Lane `lane`'s vertex at `here`, on a material the lanes do not model: the scalar
     /// trace's step ([`Setup::leave`]) on the lane's path, taken out of the lanes and put
     /// back. Returns whether the path goes on; one that ends is written to `out`. Out of line,
@@ -464,15 +559,7 @@ impl<'a> Wide<'a> {
         lane: usize,
         here: (&Ray, &Hit, &Primitive, &SurfacePoint),
     ) -> bool {
-        let mut path = Path {
-            l: lane3(&s.l, lane),
-            beta: lane3(&s.beta, lane),
-            eta_scale: s.eta[lane],
-            specular: s.specular >> lane & 1 == 1,
-            prev_pdf: s.prev_pdf[lane],
-            prev_p: lane3(&s.prev_p, lane),
-            medium: Vec3A::ZERO,
-        };
+        let mut path = lane_path(s, lane);
         let mut light_uv = [s.light_uv[0][lane], s.light_uv[1][lane]];
         let mut depth = s.depth[lane];
         let sampler = s.sampler[lane];
@@ -530,10 +617,10 @@ impl<'a> Wide<'a> {
         let neg_wi: V3<N> = v3(|c| -wi[c]);
         let n_dot = dot(&light.normal, &neg_wi);
         let facing = n_dot.cmpgt(F::ZERO);
-        let lit = if self.two_sided {
-            M::splat(self.emits)
+        let lit = if light.two_sided {
+            M::splat(light.emits)
         } else {
-            facing & M::splat(self.emits)
+            facing & M::splat(light.emits)
         };
         let towards_front = n_dot.cmpge(F::ZERO);
         let towards: V3<N> = v3(|c| F::select(towards_front, light.normal[c], -light.normal[c]));
@@ -641,6 +728,20 @@ impl<'a> Wide<'a> {
         for lane in (0..N).filter(|lane| ended >> lane & 1 == 1) {
             finish(s, out, lane);
         }
+    }
+}
+
+/// Lane `lane`'s path as the scalar trace holds it.
+#[inline(always)]
+fn lane_path<const N: usize>(s: &Lanes<N>, lane: usize) -> Path {
+    Path {
+        l: lane3(&s.l, lane),
+        beta: lane3(&s.beta, lane),
+        eta_scale: s.eta[lane],
+        specular: s.specular >> lane & 1 == 1,
+        prev_pdf: s.prev_pdf[lane],
+        prev_p: lane3(&s.prev_p, lane),
+        medium: Vec3A::ZERO,
     }
 }
 

@@ -50,9 +50,10 @@ fn compare(scene: &Scene, settings: &RenderSettings, samples: std::ops::Range<u3
     let bits = |c: Vec3A| c.to_array().map(f32::to_bits);
     let (mut count, mut lit) = (0u64, 0u64);
     for lanes in [4, 8, 16] {
-        let wide = Wide::new(scene, settings)
+        // Where the tracer runs by default (`Wide::new`) it is this one.
+        let wide = Wide::anywhere(scene, settings)
             .and_then(|w| w.with_lanes(lanes))
-            .expect("the scene is one the many-path tracer takes");
+            .expect("the scene is one the many-path tracer can run");
         let mut values = Vec::new();
         // In windows of a few pixels, as `render_tile` cuts a row.
         for (window, expected) in runs.chunks(7).zip(expected.chunks(7)) {
@@ -71,14 +72,23 @@ fn compare(scene: &Scene, settings: &RenderSettings, samples: std::ops::Range<u3
                 );
             }
         }
-        // One pixel at a time gives the same values.
-        let (x, y) = pixels[pixels.len() / 2];
-        wide.sample_pixel(x, y, &runs[0].sampler, samples.clone(), &mut values);
+        // One pixel at a time gives the same values: a lit pixel (a black one would compare
+        // nothing).
+        let lit_pixel = expected
+            .iter()
+            .position(|e| e.iter().any(|v| *v != Vec3A::ZERO))
+            .expect("a lit pixel");
+        let (x, y) = pixels[lit_pixel];
         let mut s = PixelSampler::new(settings.seed, x, y, samples.start);
+        wide.sample_pixel(x, y, &s, samples.clone(), &mut values);
         for (index, v) in samples.clone().zip(&values) {
             s.set_index(index);
             assert_eq!(bits(*v), bits(sample_pixel(scene, settings, x, y, &s)));
         }
+        assert!(
+            values.iter().any(|v| *v != Vec3A::ZERO),
+            "pixel ({x}, {y}) is black in every sample"
+        );
     }
     for e in expected.iter().flatten() {
         count += 1;
@@ -297,6 +307,96 @@ fn lanes_give_the_scalar_bits_with_smooth_meshes_and_a_plane() {
     assert!(
         count > 5_000 && lit > count / 2,
         "{count} samples, {lit} lit"
+    );
+}
+
+/// Under any lights but one parallelogram, `--tracer lanes8` still runs the many-path tracer
+/// (`Wide::anywhere`), sampling them lane by lane with the scalar code: an environment map
+/// with smooth meshes (one merged mesh and nothing else), a map with balls on an infinite
+/// plane, a mesh light, a sky gradient beside a rectangle light, a point light. The default
+/// (`Wide::new`) leaves all of them to the scalar trace, where they measured faster.
+#[test]
+fn lanes_anywhere_give_the_scalar_bits_under_any_lights() {
+    let settings = RenderSettings {
+        seed: 16,
+        ..RenderSettings::default()
+    };
+    for name in [
+        "gltf-metals.toml",
+        "envmap-balls.toml",
+        "mesh-glass.toml",
+        "spheres.toml",
+        "caustic.toml",
+    ] {
+        let scene = load(name);
+        assert!(Wide::new(&scene, &settings).is_none(), "{name}");
+        let (count, lit) = compare(&scene, &settings, 0..5);
+        assert!(
+            count > 2_000 && lit > count / 2,
+            "{name}: {count} samples, {lit} lit"
+        );
+    }
+    // Punctual lights beside a rectangle light (several lights: a vertex draws which one).
+    let scene = scene(
+        r#"
+version = 1
+[camera]
+model = "look_at"
+eye = [0.0, 1.0, 3.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov = 50.0
+[film]
+width = 40
+height = 30
+[materials.floor]
+type = "diffuse"
+albedo = [0.7, 0.6, 0.5]
+[materials.gold]
+type = "conductor"
+metal = "gold"
+roughness = 0.2
+[materials.lamp]
+type = "diffuse"
+albedo = [0.3, 0.3, 0.3]
+emission = [2.0, 2.0, 2.0]
+[[objects]]
+shape = "plane"
+material = "floor"
+point = [0.0, -0.5, 0.0]
+normal = [0.0, 1.0, 0.0]
+[[objects]]
+shape = "sphere"
+material = "gold"
+center = [0.3, -0.2, 0.0]
+radius = 0.3
+[[objects]]
+shape = "rect"
+material = "lamp"
+transform.matrix = [[0.3, 0, 0, -0.6], [0, 0, -0.3, 1.0], [0, 0.3, 0, 0], [0, 0, 0, 1]]
+[[lights]]
+type = "point"
+position = [-0.5, 0.8, 0.5]
+intensity = [1.0, 0.8, 0.6]
+[[lights]]
+type = "spot"
+position = [0.5, 1.5, 1.0]
+direction = [0.0, -1.0, -0.5]
+intensity = [3.0, 3.0, 3.0]
+inner_angle = 15
+outer_angle = 30
+[[lights]]
+type = "directional"
+direction = [0.3, -1.0, -0.2]
+irradiance = [0.5, 0.5, 0.6]
+angle = 3.0
+"#,
+    );
+    assert!(Wide::new(&scene, &settings).is_none(), "punctual lights");
+    let (count, lit) = compare(&scene, &settings, 0..16);
+    assert!(
+        lit > count / 2,
+        "punctual lights: {count} samples, {lit} lit"
     );
 }
 

@@ -263,7 +263,7 @@ impl Setup {
 
 /// What a path that escapes the scene along `d` finds: the environment and the suns.
 #[inline(always)]
-fn escape<'a, G: Guiding<'a>>(
+pub(crate) fn escape<'a, G: Guiding<'a>>(
     path: &mut Path,
     scene: &Scene,
     strategy: Strategy,
@@ -456,8 +456,7 @@ fn diffuse(
 ) -> Option<Ray> {
     let p_out = offset_ray_origin(sp.p, sp.err, at.n);
     if let Some(u) = light_u {
-        let cosine = |_: Vec3A, cos: f32| cosine_hemisphere_pdf(cos);
-        if let Some((le, f)) = direct_light(scene, strategy, sp, at, p_out, u, cosine) {
+        if let Some((le, f)) = diffuse_light(scene, strategy, sp, at, p_out, u) {
             path.l += path.beta * albedo * le * f;
         }
     }
@@ -469,6 +468,21 @@ fn diffuse(
         return None;
     }
     Some(Ray::new(p_out, wi))
+}
+
+/// [`diffuse`]'s next-event estimation, weighed against its cosine lobe: also the many-path
+/// tracer's, lane by lane, for the lights it does not sample in lanes.
+#[inline(always)]
+pub(crate) fn diffuse_light(
+    scene: &Scene,
+    strategy: Strategy,
+    sp: &SurfacePoint,
+    at: &Shading,
+    p_out: Vec3A,
+    u: (f32, Vec2),
+) -> Option<(Vec3A, f32)> {
+    let cosine = |_: Vec3A, cos: f32| cosine_hemisphere_pdf(cos);
+    direct_light(scene, strategy, sp, at, p_out, u, cosine)
 }
 
 /// Next-event estimation at a diffuse vertex: a point on a light, its shadow ray from
