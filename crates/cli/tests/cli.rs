@@ -768,7 +768,7 @@ fn scene_files_may_not_read_outside_their_folder() {
     for (uri, said) in [
         ("../secret/id_rsa", "climbs out"),
         ("..%2Fsecret%2Fid_rsa", "decodes to `../secret/id_rsa`"),
-        (&format!("{}", abs.replace('/', "%2F")), "absolute"),
+        (&abs.replace('/', "%2F"), "absolute"),
         (&format!("file://{abs}"), "scheme"),
     ] {
         let gltf = format!(

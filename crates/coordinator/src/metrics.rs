@@ -298,9 +298,17 @@ fn gauges(t: &mut Text, g: &Gauges) {
     );
 }
 
+/// A metric family: its name, help and type, and what each worker's line gives it.
+type Family = (
+    &'static str,
+    &'static str,
+    &'static str,
+    fn(&WorkerLine) -> f64,
+);
+
 /// Each live worker's rate and merged samples, labelled by its id and name.
 fn per_worker(t: &mut Text, workers: &[WorkerLine]) {
-    let families: [(&str, &str, &str, fn(&WorkerLine) -> f64); 2] = [
+    let families: [Family; 2] = [
         (
             "tessera_worker_samples_per_second",
             "Each live worker's merged samples per second, recently.",

@@ -334,7 +334,7 @@ pub(super) async fn drain(
 ) -> Response {
     let req = match by_worker_id(id) {
         Ok(worker) => as_caller(pb::DrainWorkerRequest { worker }, caller),
-        Err(r) => return r,
+        Err(status) => return refused(status),
     };
     match app.svc.drain_worker(req).await {
         Ok(r) => Json(Drained {
@@ -347,12 +347,12 @@ pub(super) async fn drain(
 
 /// A worker route's id, by public id only: a name could reach several, which a button on one
 /// row must not.
-fn by_worker_id(id: String) -> Result<String, Response> {
+fn by_worker_id(id: String) -> Result<String, tonic::Status> {
     if id.parse::<tessera_proto::ids::WorkerId>().is_err() {
-        return Err(refused(tonic::Status::invalid_argument(format!(
+        return Err(tonic::Status::invalid_argument(format!(
             "{:?} is not a worker id",
             crate::error::truncate(&id)
-        ))));
+        )));
     }
     Ok(id)
 }
@@ -376,7 +376,7 @@ pub(super) async fn release(
 ) -> Response {
     let req = match by_worker_id(id) {
         Ok(worker) => as_caller(pb::ReleaseWorkerRequest { worker }, caller),
-        Err(r) => return r,
+        Err(status) => return refused(status),
     };
     match app.svc.release_worker(req).await {
         Ok(r) => Json(Released {
