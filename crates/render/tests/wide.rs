@@ -97,6 +97,18 @@ fn compare(scene: &Scene, settings: &RenderSettings, samples: std::ops::Range<u3
     (count, lit)
 }
 
+/// Asserts that the default tracer takes `scene` (`Wide::new`) and gives the scalar trace's
+/// bits over `samples` at `seed`, with more than `min` samples compared and most of them lit.
+fn taken_with_the_scalar_bits(scene: &Scene, seed: u64, samples: std::ops::Range<u32>, min: u64) {
+    let settings = RenderSettings {
+        seed,
+        ..RenderSettings::default()
+    };
+    assert!(Wide::new(scene, &settings).is_some(), "the lanes take it");
+    let (count, lit) = compare(scene, &settings, samples);
+    assert!(count > min && lit > count / 2, "{count} samples, {lit} lit");
+}
+
 #[test]
 fn lanes_give_the_scalar_bits_in_the_cornell_box() {
     let scene = load("cornell-box.toml");
@@ -125,20 +137,7 @@ fn lanes_give_the_scalar_bits_in_the_cornell_box() {
 /// one ray at a time, and must still give the scalar tracer's bits.
 #[test]
 fn lanes_give_the_scalar_bits_with_mesh_boxes() {
-    let scene = load("cornell-mesh.toml");
-    let settings = RenderSettings {
-        seed: 11,
-        ..RenderSettings::default()
-    };
-    assert!(
-        Wide::new(&scene, &settings).is_some(),
-        "flat meshes take the lanes"
-    );
-    let (count, lit) = compare(&scene, &settings, 0..9);
-    assert!(
-        count > 5_000 && lit > count / 2,
-        "{count} samples, {lit} lit"
-    );
+    taken_with_the_scalar_bits(&load("cornell-mesh.toml"), 11, 0..9, 5_000);
 }
 
 /// The same box with each cube from a file of its own, placed once each, so that the two
@@ -163,16 +162,7 @@ fn lanes_give_the_scalar_bits_with_merged_mesh_boxes() {
         .filter(|p| matches!(&p.shape, tessera_render::shape::Shape::Mesh(m) if m.mesh.is_merged()))
         .count();
     assert_eq!(merged, 2, "both boxes in one mesh");
-    let settings = RenderSettings {
-        seed: 12,
-        ..RenderSettings::default()
-    };
-    assert!(Wide::new(&scene, &settings).is_some());
-    let (count, lit) = compare(&scene, &settings, 0..9);
-    assert!(
-        count > 5_000 && lit > count / 2,
-        "{count} samples, {lit} lit"
-    );
+    taken_with_the_scalar_bits(&scene, 12, 0..9, 5_000);
 }
 
 /// A two-sided light seen from both sides, two-sided walls, and a light that is a box's face
@@ -229,23 +219,12 @@ transform.matrix = [[0.3, 0, 0.1, -0.5], [0, 0.4, 0, -0.6], [-0.1, 0, 0.3, 0.2],
 #[test]
 fn lanes_give_the_scalar_bits_with_glass_and_mirrors() {
     let scene = load("glass-mirror.toml");
-    let settings = RenderSettings {
-        seed: 13,
-        ..RenderSettings::default()
-    };
-    assert!(
-        Wide::new(&scene, &settings).is_some(),
-        "glass and mirrors take the lanes"
-    );
-    let (count, lit) = compare(&scene, &settings, 0..17);
-    assert!(
-        count > 10_000 && lit > count / 2,
-        "{count} samples, {lit} lit"
-    );
+    taken_with_the_scalar_bits(&scene, 13, 0..17, 10_000);
     let early = RenderSettings {
+        seed: 13,
         rr_depth: 1,
         rr_threshold: 1.0,
-        ..settings
+        ..RenderSettings::default()
     };
     compare(&scene, &early, 0..9);
 }
@@ -254,18 +233,8 @@ fn lanes_give_the_scalar_bits_with_glass_and_mirrors() {
 /// diffuse surface (which the lanes do not model) among diffuse walls.
 #[test]
 fn lanes_give_the_scalar_bits_with_metals_and_textures() {
-    let settings = RenderSettings {
-        seed: 14,
-        ..RenderSettings::default()
-    };
     for name in ["metals-box.toml", "textured.toml"] {
-        let scene = load(name);
-        assert!(Wide::new(&scene, &settings).is_some(), "{name}");
-        let (count, lit) = compare(&scene, &settings, 0..9);
-        assert!(
-            count > 5_000 && lit > count / 2,
-            "{name}: {count} samples, {lit} lit"
-        );
+        taken_with_the_scalar_bits(&load(name), 14, 0..9, 5_000);
     }
 }
 
@@ -298,16 +267,7 @@ fn lanes_give_the_scalar_bits_with_smooth_meshes_and_a_plane() {
     let sphere = std::fs::read(root.join("meshes/icosphere.ply")).expect("mesh");
     let scene = common::scene_with_files(&text, &[("meshes/icosphere.ply", &sphere)]);
     assert!(!scene.is_one_leaf() && scene.has_shading_normals());
-    let settings = RenderSettings {
-        seed: 15,
-        ..RenderSettings::default()
-    };
-    assert!(Wide::new(&scene, &settings).is_some());
-    let (count, lit) = compare(&scene, &settings, 0..9);
-    assert!(
-        count > 5_000 && lit > count / 2,
-        "{count} samples, {lit} lit"
-    );
+    taken_with_the_scalar_bits(&scene, 15, 0..9, 5_000);
 }
 
 /// Under any lights but one parallelogram, `--tracer lanes8` still runs the many-path tracer
