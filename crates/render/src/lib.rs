@@ -25,8 +25,8 @@
 //!   the scene readers go through), [`envmap`], [`light`], [`camera`].
 //! - [`scene`] (file format, parsing, validation, the runtime scene; loaded by
 //!   `Scene::file(path, &limits).load()` or `Scene::text(…)`).
-//! - Rendering: [`integrator`], [`aov`] (auxiliary images for denoising), [`wide`] (the integrator four to sixteen paths at a time, for
-//!   the scenes whose bounce it models, with the same bits), [`adaptive`] (noise-targeted
+//! - Rendering: [`integrator`], [`aov`] (auxiliary images for denoising), [`wide`] (the integrator four to sixteen paths at a time, by
+//!   default for the scenes lit by one rectangle light, with the same bits), [`adaptive`] (noise-targeted
 //!   sampling), [`film`] (partial sums and images), [`tile`] (the render driver) and
 //!   [`output`] (EXR, PNG).
 //!
