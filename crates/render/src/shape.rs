@@ -174,6 +174,67 @@ pub fn sphere_roots_f64(o: Vec3A, d: Vec3A, c: Vec3A, r: f32) -> Option<(f64, f6
     Some(if t0 <= t1 { (t0, t1) } else { (t1, t0) })
 }
 
+/// [`Shape::intersect`] of a sphere for `N` rays in lanes, as the bits of the lanes with a hit
+/// and each lane's t (meaningful where its bit is set), with a t_max per lane. Every lane does
+/// [`sphere_roots_f64`]'s arithmetic and the pick of the nearer root in (0, t_max) in their
+/// order, one operation across the lanes at a time, so that the compiler can run them in
+/// vector registers: each t is the one-ray test's bits (a unit test compares them).
+#[inline(always)]
+pub(crate) fn sphere_lanes<const N: usize>(
+    center: Vec3A,
+    radius: f32,
+    o: &V3<N>,
+    d: &V3<N>,
+    t_max: &[f32; N],
+) -> (u32, [f32; N]) {
+    let each = |f: &dyn Fn(usize) -> f64| -> [f64; N] { std::array::from_fn(f) };
+    let r = radius as f64;
+    let f: [[f64; N]; 3] = std::array::from_fn(|c| each(&|i| o[c].0[i] as f64 - center[c] as f64));
+    let d: [[f64; N]; 3] = std::array::from_fn(|c| each(&|i| d[c].0[i] as f64));
+    let dot = |a: &[[f64; N]; 3], b: &[[f64; N]; 3]| {
+        each(&|i| (a[0][i] * b[0][i]) + (a[1][i] * b[1][i]) + (a[2][i] * b[2][i]))
+    };
+    let a = dot(&d, &d);
+    let b = each(&|i| -dot(&f, &d)[i]);
+    let cross: [[f64; N]; 3] = [
+        each(&|i| f[1][i] * d[2][i] - d[1][i] * f[2][i]),
+        each(&|i| f[2][i] * d[0][i] - d[2][i] * f[0][i]),
+        each(&|i| f[0][i] * d[1][i] - d[0][i] * f[1][i]),
+    ];
+    let cross2 = dot(&cross, &cross);
+    let perp = each(&|i| (cross2[i] / a[i]).sqrt());
+    let disc = each(&|i| (r - perp[i]) * (r + perp[i]));
+    let ff = dot(&f, &f);
+    let cc = each(&|i| {
+        let fl = ff[i].sqrt();
+        (fl - r) * (fl + r)
+    });
+    let q = each(&|i| b[i] + b[i].signum() * (a[i] * disc[i]).sqrt());
+    let (mut hit, mut t) = (0u32, [0.0f32; N]);
+    for i in 0..N {
+        if !(disc[i] >= 0.0) {
+            continue;
+        }
+        let (t0, t1) = if q[i] == 0.0 {
+            (b[i] / a[i], b[i] / a[i])
+        } else {
+            let (t0, t1) = (cc[i] / q[i], q[i] / a[i]);
+            if t0 <= t1 {
+                (t0, t1)
+            } else {
+                (t1, t0)
+            }
+        };
+        let (t0, t1) = (t0 as f32, t1 as f32);
+        if t0 > 0.0 && t0 < t_max[i] {
+            (hit, t[i]) = (hit | 1 << i, t0);
+        } else if t1 > 0.0 && t1 < t_max[i] {
+            (hit, t[i]) = (hit | 1 << i, t1);
+        }
+    }
+    (hit, t)
+}
+
 /// Slab test against `[min, max]`. Returns (t_near, face_near, t_far, face_far) where faces are
 /// numbered axis·2 + (1 if the max side). Ties between axes go to the lowest axis; a zero
 /// direction component whose origin lies outside its slab misses; one inside is unconstrained.
@@ -486,6 +547,74 @@ impl Shape {
 mod tests {
     use super::*;
     use glam::Affine3A;
+
+    /// The lanes' sphere test gives the one-ray test's hit and t, bit for bit: rays from
+    /// inside, outside and far away, grazing and missing, towards and away from the centre,
+    /// with zero components, and a t_max per lane.
+    #[test]
+    fn sphere_lanes_match_the_one_ray_test() {
+        use crate::util::sampling::HashRng;
+        let mut rng = HashRng::new(11);
+        let mut u = move || rng.next_f32();
+        let spheres = [
+            (Vec3A::ZERO, 1.0f32),
+            (Vec3A::new(0.42, -0.68, 0.3), 0.32),
+            (Vec3A::new(1e4, -3.0, 2.0), 1e-3),
+        ];
+        let (mut hits, mut misses) = (0, 0);
+        for (center, radius) in spheres {
+            for round in 0..2_000 {
+                let mut o = [Vec3A::ZERO; 8];
+                let mut d = [Vec3A::ZERO; 8];
+                let mut t_max = [f32::INFINITY; 8];
+                for lane in 0..8 {
+                    let scale = [0.5, 2.0, 1e4][(round + lane) % 3] * radius.max(1.0);
+                    o[lane] = center + Vec3A::new(u() - 0.5, u() - 0.5, u() - 0.5) * (2.0 * scale);
+                    if (round + lane) % 4 == 1 {
+                        // On the surface, as a ray leaving it after a bounce: one root near 0,
+                        // where the root formula's sign choice matters.
+                        let n = Vec3A::new(u() - 0.5, u() - 0.5, u() - 0.5).normalize();
+                        o[lane] = center + n * (radius * (1.0 + (u() - 0.5) * 1e-5));
+                    }
+                    let towards = center + Vec3A::new(u() - 0.5, u() - 0.5, u() - 0.5) * radius;
+                    d[lane] = match lane % 4 {
+                        0 => towards - o[lane],
+                        1 => (towards - o[lane]).normalize(),
+                        2 => Vec3A::new(u() - 0.5, 0.0, u() - 0.5),
+                        _ => Vec3A::new(u() - 0.5, u() - 0.5, u() - 0.5),
+                    };
+                    if lane % 3 == 0 {
+                        t_max[lane] = u() * 3.0 * scale;
+                    }
+                }
+                let lanes =
+                    |v: &[Vec3A; 8]| -> V3<8> { v3(|c| F(std::array::from_fn(|i| v[i][c]))) };
+                let (hit, t) = sphere_lanes(center, radius, &lanes(&o), &lanes(&d), &t_max);
+                for lane in 0..8 {
+                    let shape = Shape::Sphere { center, radius };
+                    let one = shape.intersect(&Ray::new(o[lane], d[lane]), t_max[lane]);
+                    let got = (hit >> lane & 1 == 1).then(|| (t[lane], 0));
+                    assert_eq!(
+                        got.map(|(t, p)| (t.to_bits(), p)),
+                        one.map(|(t, p)| (t.to_bits(), p)),
+                        "sphere {center} r {radius}, o {} d {} t_max {}",
+                        o[lane],
+                        d[lane],
+                        t_max[lane]
+                    );
+                    if one.is_some() {
+                        hits += 1;
+                    } else {
+                        misses += 1;
+                    }
+                }
+            }
+        }
+        assert!(
+            hits > 10_000 && misses > 10_000,
+            "{hits} hits, {misses} misses"
+        );
+    }
 
     /// The lanes' box test gives the one-ray test's hit, t and face, bit for bit: rotated and
     /// axis-aligned boxes, rays from inside and outside, directions with zero components,

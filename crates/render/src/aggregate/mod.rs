@@ -147,6 +147,16 @@ impl Accel {
                         );
                         (hit, t.0, face)
                     }
+                    Shape::Sphere { center, radius } => {
+                        let (hit, t) = crate::shape::sphere_lanes(
+                            *center,
+                            *radius,
+                            r.origins(),
+                            r.directions(),
+                            t_max,
+                        );
+                        (hit & lanes, t, [0; N])
+                    }
                     shape => {
                         let (mut hit, mut t, mut part) = (0, [0.0; N], [0; N]);
                         for lane in (0..N).filter(|lane| lanes >> lane & 1 == 1) {
@@ -198,6 +208,17 @@ impl Accel {
                     Shape::Cuboid { min, max, xf } => {
                         let t = crate::util::lanes::F::splat(t_max);
                         crate::shape::cuboid_lanes(*min, *max, xf, r.origins(), r.directions(), t).0
+                    }
+                    Shape::Sphere { center, radius } => {
+                        let t = [t_max; N];
+                        let (hit, _) = crate::shape::sphere_lanes(
+                            *center,
+                            *radius,
+                            r.origins(),
+                            r.directions(),
+                            &t,
+                        );
+                        hit & lanes
                     }
                     shape => (0..N)
                         .filter(|lane| lanes >> lane & 1 == 1)
