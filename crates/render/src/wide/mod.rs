@@ -21,25 +21,25 @@
 //! of the core busy than one does, compiled also for AVX2 and AVX-512 encodings chosen at run
 //! time (see `trace8`); sixteen lanes measured slower than eight (docs/renderer.md).
 
+mod by_lane;
+
 use std::ops::Range;
 
 use glam::{Vec2, Vec3A};
 
-use crate::integrator::{diffuse_light, escape, NoGuide, RenderSettings, Setup, Strategy};
-use crate::interaction::{Hit, Shading, SurfacePoint};
+use crate::integrator::{RenderSettings, Setup, Strategy};
+use crate::interaction::{Hit, SurfacePoint};
 use crate::light::LightShape;
-use crate::material::port::Path;
-use crate::packet::{LaneHits, Rays};
+use crate::packet::Rays;
 use crate::primitive::Primitive;
 use crate::scene::Scene;
 use crate::shape::{Parallelogram, Shape};
 use crate::util::lanes::{dot, splat3, transpose3, v3, F, M, V3};
-use crate::util::math::{
-    frame_from_normal_lanes, gamma, offset_ray_origin, offset_ray_origin_lanes, Ray,
-};
+use crate::util::math::{frame_from_normal_lanes, gamma, offset_ray_origin_lanes, Ray};
 use crate::util::sampling::{
     power_heuristic, power_heuristic_lanes, square_to_cosine_hemisphere_lanes, PixelSampler,
 };
+use by_lane::{blocked_by_lane, closest_by_lane};
 
 /// The many-path tracer for one scene and its settings.
 pub struct Wide<'a> {
@@ -426,27 +426,7 @@ impl<'a> Wide<'a> {
             let mat = &scene.materials[prim.material as usize];
             let wo = -ray.d;
             if prim.light != u32::MAX {
-                let (li, le) = if GENERAL {
-                    // Mesh lights' triangles, emission textures.
-                    scene.emitted((ray, &hit, prim, &sp))
-                } else {
-                    let li = (prim.light + part) as usize;
-                    (li, scene.lights.lights[li].emitted(sp.n, wo))
-                };
-                if le != Vec3A::ZERO {
-                    let beta = lane3(&s.beta, lane);
-                    let mut l = lane3(&s.l, lane);
-                    if s.specular >> lane & 1 == 1 {
-                        // Light sampling could not have found it (the camera's "bounce" is
-                        // specular too): it counts in full.
-                        l += beta * le;
-                    } else {
-                        let prev_p = lane3(&s.prev_p, lane);
-                        let light_pdf = scene.lights.pdf(li, prev_p, sp.p, sp.n);
-                        l += beta * le * power_heuristic(s.prev_pdf[lane], light_pdf);
-                    }
-                    set3(&mut s.l, lane, l);
-                }
+                self.add_emitted::<N, GENERAL>(s, lane, (ray, &hit, prim, &sp));
             }
             // A point whose shading normal bends away from the geometric one (`Shading::facing`).
             let shaded = GENERAL && scene.has_shading_normals() && sp.ns != sp.n;
@@ -508,86 +488,37 @@ impl<'a> Wide<'a> {
         })
     }
 
-    /// What lane `lane`'s path finds as it leaves the scene (an environment, suns): the scalar
-    /// trace's `escape`.
-    #[inline(never)]
-    fn escape_in_lane<const N: usize>(&self, s: &mut Lanes<N>, lane: usize) {
-        let mut path = lane_path(s, lane);
-        let d = lane3(&s.d, lane);
-        escape(
-            &mut path,
-            self.scene,
-            Strategy::Mis,
-            d,
-            &mut NoGuide,
-            s.depth[lane],
-        );
-        set3(&mut s.l, lane, path.l);
-    }
-
-    /// Next-event estimation at lane `lane`'s diffuse vertex `sp` (albedo `albedo`, the path
-    /// leaving towards `wo`) for lights the lanes do not sample in lanes: the scalar trace's
-    /// (`integrator::diffuse_light`), with the numbers `u`.
-    #[inline(never)]
-    fn light_in_lane<const N: usize>(
+    /// What the emitter lane `lane`'s ray hit at `here` gives its path: in full after a
+    /// specular bounce (the camera's too), else weighted by the power heuristic against light
+    /// sampling, as the scalar trace's `add_emitted` under MIS.
+    #[inline(always)]
+    fn add_emitted<const N: usize, const GENERAL: bool>(
         &self,
         s: &mut Lanes<N>,
         lane: usize,
-        sp: &SurfacePoint,
-        wo: Vec3A,
-        albedo: Vec3A,
-        u: (f32, Vec2),
+        (ray, hit, prim, sp): (&Ray, &Hit, &Primitive, &SurfacePoint),
     ) {
-        // Only points that shade with their geometric normal reach here.
-        let (_, at) = Shading::facing(sp, wo, false);
-        let p_out = offset_ray_origin(sp.p, sp.err, at.n);
-        if let Some((le, f)) = diffuse_light(self.scene, Strategy::Mis, sp, &at, p_out, u) {
-            let l = lane3(&s.l, lane) + lane3(&s.beta, lane) * albedo * le * f;
-            set3(&mut s.l, lane, l);
-        }
-    }
-
-    /// Lane `lane`'s vertex at `here`, on a material the lanes do not model: the scalar
-    /// trace's step ([`Setup::leave`]) on the lane's path, taken out of the lanes and put
-    /// back. Returns whether the path goes on; one that ends is written to `out`. Out of line,
-    /// so that the diffuse bounce's loop stays as small as the Cornell box had it.
-    #[inline(never)]
-    fn leave_in_lane<const N: usize>(
-        &self,
-        s: &mut Lanes<N>,
-        out: &mut [Vec3A],
-        lane: usize,
-        here: (&Ray, &Hit, &Primitive, &SurfacePoint),
-    ) -> bool {
-        let mut path = lane_path(s, lane);
-        let mut light_uv = [s.light_uv[0][lane], s.light_uv[1][lane]];
-        let mut depth = s.depth[lane];
-        let sampler = s.sampler[lane];
-        let next = self.setup.leave(
-            self.scene,
-            here,
-            &sampler,
-            &mut light_uv,
-            &mut path,
-            &mut NoGuide,
-            &mut depth,
-        );
-        set3(&mut s.l, lane, path.l);
-        let Some(next) = next else {
-            finish(s, out, lane);
-            return false;
+        let scene = self.scene;
+        let (li, le) = if GENERAL {
+            // Mesh lights' triangles, emission textures.
+            scene.emitted((ray, hit, prim, sp))
+        } else {
+            let li = (prim.light + hit.part) as usize;
+            (li, scene.lights.lights[li].emitted(sp.n, -ray.d))
         };
-        set3(&mut s.o, lane, next.o);
-        set3(&mut s.d, lane, next.d);
-        set3(&mut s.beta, lane, path.beta);
-        set3(&mut s.prev_p, lane, path.prev_p);
-        s.prev_pdf[lane] = path.prev_pdf;
-        s.eta[lane] = path.eta_scale;
-        s.specular = s.specular & !(1 << lane) | u32::from(path.specular) << lane;
-        s.light_uv[0][lane] = light_uv[0];
-        s.light_uv[1][lane] = light_uv[1];
-        s.depth[lane] = depth;
-        true
+        if le == Vec3A::ZERO {
+            return;
+        }
+        let beta = lane3(&s.beta, lane);
+        let mut l = lane3(&s.l, lane);
+        if s.specular >> lane & 1 == 1 {
+            l += beta * le;
+        } else {
+            let prev_p = lane3(&s.prev_p, lane);
+            let light_pdf = scene.lights.pdf(li, prev_p, sp.p, sp.n);
+            l += beta * le * power_heuristic(s.prev_pdf[lane], light_pdf);
+        }
+        set3(&mut s.l, lane, l);
     }
 
     /// Next-event estimation at the vertices: `Lights::sample` for the one parallelogram
@@ -729,55 +660,6 @@ impl<'a> Wide<'a> {
             finish(s, out, lane);
         }
     }
-}
-
-/// Lane `lane`'s path as the scalar trace holds it.
-#[inline(always)]
-fn lane_path<const N: usize>(s: &Lanes<N>, lane: usize) -> Path {
-    Path {
-        l: lane3(&s.l, lane),
-        beta: lane3(&s.beta, lane),
-        eta_scale: s.eta[lane],
-        specular: s.specular >> lane & 1 == 1,
-        prev_pdf: s.prev_pdf[lane],
-        prev_p: lane3(&s.prev_p, lane),
-        medium: Vec3A::ZERO,
-    }
-}
-
-/// The closest hits of the lanes in `active`, asked of the scene one ray at a time, for a scene
-/// the packet tests do not answer. Out of line, as the Cornell box never calls it.
-#[inline(never)]
-fn closest_by_lane<const N: usize>(
-    scene: &Scene,
-    active: u32,
-    ray: impl Fn(usize) -> Ray,
-) -> LaneHits<N> {
-    let mut hits = LaneHits {
-        hit: 0,
-        t: [0.0; N],
-        prim: [0; N],
-        part: [0; N],
-    };
-    for lane in (0..N).filter(|lane| active >> lane & 1 == 1) {
-        if let Some(h) = scene.intersect(&ray(lane), f32::INFINITY) {
-            hits.hit |= 1 << lane;
-            hits.t[lane] = h.t;
-            hits.prim[lane] = h.prim;
-            hits.part[lane] = h.part;
-        }
-    }
-    hits
-}
-
-/// Which of the shadow rays of the lanes in `lanes` something blocks (t in (0, 1 − 10⁻⁴), as
-/// `LightSample::shadow_ray` sets it), asked of the scene one ray at a time.
-#[inline(never)]
-fn blocked_by_lane(scene: &Scene, lanes: u32, ray: impl Fn(usize) -> Ray) -> u32 {
-    (0..32)
-        .filter(|lane| lanes >> lane & 1 == 1)
-        .filter(|&lane| scene.occluded(&ray(lane), 1.0 - 1e-4))
-        .fold(0, |bits, lane| bits | 1 << lane)
 }
 
 /// `v` into `dst`, but for the lanes in `kept`.
