@@ -120,6 +120,11 @@ impl Accel {
     /// the exact tests of primitives other than quads. Crate-private because on other scenes
     /// it would answer "no hit": a ray-by-ray fallback here, even out of line, cost the Cornell
     /// box measurably more instructions a sample (docs/renderer.md).
+    ///
+    /// Where a lane's hit is a sphere, `sphere_root` gets the f64 root its t rounds from, which
+    /// [`crate::shape::sphere_surface`] takes instead of solving for it again (other lanes' entries
+    /// are left as they were: the caller's array, not a new one a query, so that scenes without
+    /// spheres pay nothing for it).
     #[inline(always)]
     pub(crate) fn intersect_lanes<const N: usize>(
         &self,
@@ -127,6 +132,7 @@ impl Accel {
         r: &Rays<N>,
         ray: impl Fn(usize) -> Ray,
         active: u32,
+        sphere_root: &mut [f64; N],
     ) -> LaneHits<N> {
         debug_assert!(self.is_one_leaf());
         self.leaves
@@ -148,14 +154,20 @@ impl Accel {
                         (hit, t.0, face)
                     }
                     Shape::Sphere { center, radius } => {
-                        let (hit, t) = crate::shape::sphere_lanes(
+                        let (hit, t, root) = crate::shape::sphere_lanes(
                             *center,
                             *radius,
                             r.origins(),
                             r.directions(),
                             t_max,
                         );
-                        (hit & lanes, t, [0; N])
+                        let hit = hit & lanes;
+                        // A lane the test reports becomes this sphere's hit, so the root written
+                        // last is the hit's wherever the hit is a sphere.
+                        for lane in (0..N).filter(|lane| hit >> lane & 1 == 1) {
+                            sphere_root[lane] = root[lane];
+                        }
+                        (hit, t, [0; N])
                     }
                     shape => {
                         let (mut hit, mut t, mut part) = (0, [0.0; N], [0; N]);
@@ -211,7 +223,7 @@ impl Accel {
                     }
                     Shape::Sphere { center, radius } => {
                         let t = [t_max; N];
-                        let (hit, _) = crate::shape::sphere_lanes(
+                        let (hit, ..) = crate::shape::sphere_lanes(
                             *center,
                             *radius,
                             r.origins(),

@@ -7,11 +7,13 @@ use glam::Vec3A;
 use crate::interaction::Transformed;
 use crate::util::lanes::{v3, F, V3};
 
-/// [`Shape::intersect`] of a sphere for `N` rays in lanes, as the bits of the lanes with a hit
-/// and each lane's t (meaningful where its bit is set), with a t_max per lane. Every lane does
+/// [`Shape::intersect`] of a sphere for `N` rays in lanes, as the bits of the lanes with a hit,
+/// each lane's t and the f64 root it rounds from, the one [`super::sphere_surface`] takes
+/// (meaningful where its bit is set), with a t_max per lane. Every lane does
 /// [`super::sphere_roots_f64`]'s arithmetic and the pick of the nearer root in (0, t_max) in their
 /// order, one operation across the lanes at a time, so that the compiler can run them in
-/// vector registers: each t is the one-ray test's bits (a unit test compares them).
+/// vector registers: each t is the one-ray test's bits, and each root the one
+/// [`Shape::surface`] finds again (a unit test compares both).
 #[inline(always)]
 pub(crate) fn sphere_lanes<const N: usize>(
     center: Vec3A,
@@ -19,7 +21,7 @@ pub(crate) fn sphere_lanes<const N: usize>(
     o: &V3<N>,
     d: &V3<N>,
     t_max: &[f32; N],
-) -> (u32, [f32; N]) {
+) -> (u32, [f32; N], [f64; N]) {
     let each = |f: &dyn Fn(usize) -> f64| -> [f64; N] { std::array::from_fn(f) };
     let r = radius as f64;
     let f: [[f64; N]; 3] = std::array::from_fn(|c| each(&|i| o[c].0[i] as f64 - center[c] as f64));
@@ -43,7 +45,7 @@ pub(crate) fn sphere_lanes<const N: usize>(
         (fl - r) * (fl + r)
     });
     let q = each(&|i| b[i] + b[i].signum() * (a[i] * disc[i]).sqrt());
-    let (mut hit, mut t) = (0u32, [0.0f32; N]);
+    let (mut hit, mut t, mut root) = (0u32, [0.0f32; N], [0.0f64; N]);
     for i in 0..N {
         if !(disc[i] >= 0.0) {
             continue;
@@ -58,14 +60,15 @@ pub(crate) fn sphere_lanes<const N: usize>(
                 (t1, t0)
             }
         };
-        let (t0, t1) = (t0 as f32, t1 as f32);
-        if t0 > 0.0 && t0 < t_max[i] {
-            (hit, t[i]) = (hit | 1 << i, t0);
-        } else if t1 > 0.0 && t1 < t_max[i] {
-            (hit, t[i]) = (hit | 1 << i, t1);
+        let (t0f, t1f) = (t0 as f32, t1 as f32);
+        if t0f > 0.0 && t0f < t_max[i] {
+            (hit, t[i]) = (hit | 1 << i, t0f);
+        } else if t1f > 0.0 && t1f < t_max[i] {
+            (hit, t[i]) = (hit | 1 << i, t1f);
         }
+        root[i] = super::hit_root(t0, t1, t[i]);
     }
-    (hit, t)
+    (hit, t, root)
 }
 
 /// A box's test for `N` rays in lanes (origins `o`, directions `d`, each with its own t_max):
@@ -183,10 +186,25 @@ mod tests {
                 }
                 let lanes =
                     |v: &[Vec3A; 8]| -> V3<8> { v3(|c| F(std::array::from_fn(|i| v[i][c]))) };
-                let (hit, t) = sphere_lanes(center, radius, &lanes(&o), &lanes(&d), &t_max);
+                let (hit, t, root) = sphere_lanes(center, radius, &lanes(&o), &lanes(&d), &t_max);
                 for lane in 0..8 {
                     let shape = Shape::Sphere { center, radius };
-                    let one = shape.intersect(&Ray::new(o[lane], d[lane]), t_max[lane]);
+                    let ray = Ray::new(o[lane], d[lane]);
+                    let one = shape.intersect(&ray, t_max[lane]);
+                    if let Some((t, part)) = one {
+                        // The point from the handed-over root is the one-ray surface's.
+                        let (want, got) = (
+                            shape.surface(&ray, t, part),
+                            crate::shape::sphere_surface(&ray, center, radius, root[lane]),
+                        );
+                        assert_eq!(
+                            [got.p, got.n, got.err].map(|v| v.to_array().map(f32::to_bits)),
+                            [want.p, want.n, want.err].map(|v| v.to_array().map(f32::to_bits)),
+                            "surface: sphere {center} r {radius}, o {} d {}",
+                            o[lane],
+                            d[lane]
+                        );
+                    }
                     let got = (hit >> lane & 1 == 1).then(|| (t[lane], 0));
                     assert_eq!(
                         got.map(|(t, p)| (t.to_bits(), p)),

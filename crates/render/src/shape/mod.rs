@@ -138,6 +138,35 @@ pub fn sphere_point_error(c: Vec3A, v: Vec3A) -> Vec3A {
     (c.abs() + v.abs()) * gamma(8) + Vec3A::splat(f32::MIN_POSITIVE)
 }
 
+/// The surface point of a sphere's hit along `r` whose root in f64 (from
+/// [`sphere_roots_f64`], chosen by [`hit_root`]) is `t64`: the direction from the centre in f64,
+/// as o + t·d in f32 can be off by more than the whole sphere when the ray starts far away.
+/// The many-path tracer's packet test hands over the root it found, so the point costs no
+/// second root (`LaneHits::sphere_root`).
+#[inline]
+pub(crate) fn sphere_surface(r: &Ray, center: Vec3A, radius: f32, t64: f64) -> SurfacePoint {
+    let rel = (r.o.as_dvec3() - center.as_dvec3()) + r.d.as_dvec3() * t64;
+    sphere_point(center, radius, rel.normalize().as_vec3a())
+}
+
+/// The point of a sphere in unit direction `n` from its centre: re-projected onto the surface,
+/// which removes the error of o + t·d (pbrt-v4).
+#[inline]
+fn sphere_point(center: Vec3A, radius: f32, n: Vec3A) -> SurfacePoint {
+    let p = center + n * radius;
+    SurfacePoint::flat(p, n, sphere_point_error(center, n * radius))
+}
+
+/// Which of a sphere's f64 roots (t0 ≤ t1) a hit at f32 `t` (one of them, rounded) was.
+#[inline(always)]
+pub(crate) fn hit_root(t0: f64, t1: f64, t: f32) -> f64 {
+    if (t1 as f32) == t {
+        t1
+    } else {
+        t0
+    }
+}
+
 /// Roots of `|o + t·d − c|² = r²` in increasing order, as f32 (see [`sphere_roots_f64`]).
 #[inline]
 pub fn sphere_roots(o: Vec3A, d: Vec3A, c: Vec3A, r: f32) -> Option<(f32, f32)> {
@@ -309,17 +338,10 @@ impl Shape {
             Shape::Sphere { center, radius } => {
                 // The direction from the centre, in f64 from the f64 root: o + t·d in f32 can be
                 // off by more than the whole sphere when the ray starts far away.
-                let n = match sphere_roots_f64(r.o, r.d, *center, *radius) {
-                    Some((t0, t1)) => {
-                        let t64 = if (t1 as f32) == t { t1 } else { t0 };
-                        let rel = (r.o.as_dvec3() - center.as_dvec3()) + r.d.as_dvec3() * t64;
-                        rel.normalize().as_vec3a()
-                    }
-                    None => (r.at(t) - *center).normalize(),
-                };
-                // Re-project onto the surface: removes the error of o + t·d (pbrt-v4).
-                let p = *center + n * *radius;
-                SurfacePoint::flat(p, n, sphere_point_error(*center, n * *radius))
+                match sphere_roots_f64(r.o, r.d, *center, *radius) {
+                    Some((t0, t1)) => sphere_surface(r, *center, *radius, hit_root(t0, t1, t)),
+                    None => sphere_point(*center, *radius, (r.at(t) - *center).normalize()),
+                }
             }
             Shape::Ellipsoid(xf) => {
                 let lr = xf.ray_to_object(r);

@@ -14,16 +14,19 @@ pub struct Distribution1D {
     /// Each entry's cdf (the probability of it and every entry before it) and pmf, side by
     /// side: a large distribution's sample then waits for one cache line, not two.
     table: Vec<[f32; 2]>,
-    /// A guide table (Chen and Asau, 1974) for large distributions, empty for small ones: slot
+    /// A guide table (Chen and Asau, 1974), empty for the smallest distributions: slot
     /// k holds the first entry whose cdf exceeds k / len, where the search for a `u` in that
     /// slice of [0, 1) starts. On an emissive mesh of a million triangles a binary search was
     /// a random walk through megabytes for every light sample (docs/renderer.md).
     guide: Vec<u32>,
 }
 
-/// Distributions of at least this many entries get a guide table; below it, a binary search
-/// of a few cached entries costs less than the table's memory.
-const GUIDE_MIN: usize = 64;
+/// Distributions of at least this many entries get a guide table; below it, the binary search
+/// of a few cached entries costs what the table's lookup does. Small as it is, a table pays:
+/// an environment map's light sample searches its rows (tens of entries) and then a row of
+/// cells, and with tables from 8 entries instead of 64 the sky-lit scenes rendered 2 to 4%
+/// faster, the same bits (docs/benchmarks/sky-path-2026-11-30.md).
+const GUIDE_MIN: usize = 8;
 
 impl Distribution1D {
     /// Builds from non-negative weights. Returns `None` if all weights are zero.
@@ -274,13 +277,36 @@ mod tests {
     }
 
     /// The guide table picks the entry the binary search picks, for every kind of weights a
-    /// mesh light can have (equal, skewed by 10⁶, long runs of zeros), at the slices' edges
-    /// and at the cdf's own values and their neighbours, where rounding decides.
+    /// mesh light or a map's rows can have (equal, skewed by 10⁶, long runs of zeros), at the
+    /// slices' edges and at the cdf's own values and their neighbours, where rounding decides;
+    /// from the smallest distribution that has a table to a mesh's thousands of triangles.
     #[test]
     fn guided_search_picks_what_the_binary_search_picks() {
         let mut rng = HashRng::new(3);
-        let n = 5000;
-        for weights in weight_shapes(&mut rng, n, (97, 1e6), 300, 200.0) {
+        let shapes = [
+            (GUIDE_MIN, (3, 1e6), 2, 2.0),
+            (31, (7, 1e6), 5, 6.0),
+            (64, (11, 1e6), 9, 12.0),
+            (5000, (97, 1e6), 300, 200.0),
+        ];
+        for (n, spikes, zero_run, decay) in shapes {
+            check_guided_search(&mut rng, n, spikes, zero_run, decay);
+        }
+        // Small distributions keep the plain search and no table.
+        assert!(Distribution1D::new(&[1.0; GUIDE_MIN - 1])
+            .expect("non-zero")
+            .guide
+            .is_empty());
+    }
+
+    fn check_guided_search(
+        rng: &mut HashRng,
+        n: usize,
+        spikes: (usize, f32),
+        zero_run: usize,
+        decay: f32,
+    ) {
+        for weights in weight_shapes(rng, n, spikes, zero_run, decay) {
             let d = Distribution1D::new(&weights).expect("non-zero");
             assert_eq!(d.guide.len(), n);
             let mut plain = d.clone();
@@ -292,15 +318,11 @@ mod tests {
             us.extend((0..20_000).map(|_| rng.next_f32()));
             us.push(ONE_MINUS_EPSILON);
             for u in us.into_iter().filter(|u| (0.0..1.0).contains(u)) {
-                assert_eq!(d.sample(u), plain.sample(u), "u = {u}");
-                assert_eq!(d.sample_remap(u), plain.sample_remap(u), "u = {u}");
+                assert_eq!(d.sample(u), plain.sample(u), "n = {n}, u = {u}");
+                let remap = plain.sample_remap(u);
+                assert_eq!(d.sample_remap(u), remap, "n = {n}, u = {u}");
             }
         }
-        // Small distributions keep the plain search and no table.
-        assert!(Distribution1D::new(&[1.0; GUIDE_MIN - 1])
-            .expect("non-zero")
-            .guide
-            .is_empty());
     }
 
     /// The alias table draws each index in proportion to its weight (Pearson's chi-square over

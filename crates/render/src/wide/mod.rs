@@ -157,6 +157,9 @@ struct Lanes<const N: usize> {
     eta: [f32; N],
     /// The lanes whose last bounce was specular, or the camera's.
     specular: u32,
+    /// Where the lane's last hit is a sphere found by the packet test, the f64 root its point
+    /// comes from (`Accel::intersect_lanes`); stale elsewhere.
+    sphere_root: [f64; N],
     depth: [u32; N],
     /// Where the lane's value goes in the output.
     slot: [usize; N],
@@ -299,6 +302,7 @@ impl<'a> Wide<'a> {
             light_uv: [[0.0; N]; 2],
             eta: [1.0; N],
             specular: 0,
+            sphere_root: [0.0; N],
             depth: [0; N],
             slot: [0; N],
             run: [0; N],
@@ -388,6 +392,7 @@ impl<'a> Wide<'a> {
                 &Rays::from_lanes(load3(&s.o), load3(&s.d)),
                 ray_of,
                 s.active,
+                &mut s.sphere_root,
             )
         } else {
             closest_by_lane(scene, s.active, ray_of)
@@ -418,9 +423,13 @@ impl<'a> Wide<'a> {
             };
             let (t, part) = (hit.t, hit.part);
             let prim = &scene.prims[hit.prim as usize];
-            // Quads, most of a room's hits, without the call and the match on the shape.
+            // Quads, most of a room's hits, without the call and the match on the shape; a
+            // sphere from the root its packet test found.
             let sp = match &prim.shape {
                 Shape::Parallelogram(q) => q.surface(ray, t),
+                Shape::Sphere { center, radius } if GENERAL && self.one_leaf => {
+                    crate::shape::sphere_surface(ray, *center, *radius, s.sphere_root[lane])
+                }
                 shape => shape.surface(ray, t, part),
             };
             let mat = &scene.materials[prim.material as usize];
