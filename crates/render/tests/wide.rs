@@ -273,8 +273,9 @@ fn lanes_give_the_scalar_bits_with_smooth_meshes_and_a_plane() {
 /// Under any lights but one parallelogram, `--tracer lanes8` still runs the many-path tracer
 /// (`Wide::anywhere`), sampling them lane by lane with the scalar code: an environment map
 /// with smooth meshes (one merged mesh and nothing else), a map with balls on an infinite
-/// plane, a mesh light, a sky gradient beside a rectangle light, a point light. The default
-/// (`Wide::new`) leaves all of them to the scalar trace, where they measured faster.
+/// plane, a sky gradient beside a rectangle light, a sphere light over an infinite plane,
+/// point, spot and sun lights. The default (`Wide::new`) leaves all of them to the scalar
+/// trace, where they measured faster: each is under a sky or a sun, or not one BVH leaf.
 #[test]
 fn lanes_anywhere_give_the_scalar_bits_under_any_lights() {
     let settings = RenderSettings {
@@ -284,7 +285,6 @@ fn lanes_anywhere_give_the_scalar_bits_under_any_lights() {
     for name in [
         "gltf-metals.toml",
         "envmap-balls.toml",
-        "mesh-glass.toml",
         "spheres.toml",
         "caustic.toml",
     ] {
@@ -358,6 +358,56 @@ angle = 3.0
         lit > count / 2,
         "punctual lights: {count} samples, {lit} lit"
     );
+}
+
+/// A closed room of one BVH leaf takes the lanes by default whatever lights it: two
+/// rectangles, a sphere, a point light and a spot, an emissive mesh (`mesh-glass.toml`'s
+/// lamp), each the scalar trace's bits.
+#[test]
+fn closed_rooms_under_other_lights_take_the_lanes() {
+    let cornell = std::fs::read_to_string(common::repo_root().join("scenes/cornell-box.toml"))
+        .expect("the bundled Cornell box");
+    let light = r#"[[objects]] # light
+shape = "rect"
+material = "light"
+transform.matrix = [[0.23, 0, 0, 0], [0, 0, -0.19, 0.99], [0, 0.19, 0, 0.01], [0, 0, 0, 1]]
+"#;
+    assert!(
+        cornell.contains(light),
+        "the Cornell box's light as written here"
+    );
+    let lit_by = |lights: &str| scene(&cornell.replace(light, lights));
+    let two = r#"[[objects]]
+shape = "rect"
+material = "light"
+transform.matrix = [[0.23, 0, 0, -0.3], [0, 0, -0.19, 0.99], [0, 0.19, 0, 0.01], [0, 0, 0, 1]]
+[[objects]]
+shape = "rect"
+material = "light"
+transform.matrix = [[0.23, 0, 0, 0.3], [0, 0, -0.19, 0.99], [0, 0.19, 0, 0.01], [0, 0, 0, 1]]
+"#;
+    let sphere = r#"[[objects]]
+shape = "sphere"
+material = "light"
+center = [0.0, 0.8, 0.0]
+radius = 0.1
+"#;
+    let punctual = r#"[[lights]]
+type = "point"
+position = [0.0, 0.9, 0.0]
+intensity = [3.0, 2.5, 2.0]
+[[lights]]
+type = "spot"
+position = [0.5, 0.9, 0.5]
+direction = [-0.3, -1.0, -0.2]
+intensity = [4.0, 4.0, 4.0]
+inner_angle = 20
+outer_angle = 35
+"#;
+    for (lights, seed) in [(two, 31), (sphere, 32), (punctual, 33)] {
+        taken_with_the_scalar_bits(&lit_by(lights), seed, 0..6, 2_000);
+    }
+    taken_with_the_scalar_bits(&load("mesh-glass.toml"), 34, 0..6, 2_000);
 }
 
 /// The scenes whose bounce the lanes do not model go one path at a time.

@@ -171,11 +171,15 @@ struct Lanes<const N: usize> {
 
 impl<'a> Wide<'a> {
     /// The many-path tracer for `scene` where it pays, eight paths at a time: where its one
-    /// light is a parallelogram, which the lanes sample together. Elsewhere the lanes would
-    /// sample the lights one by one, and measured slower than the scalar trace on scenes lit
-    /// by a sky (docs/renderer.md).
+    /// light is a parallelogram, which the lanes sample together; and in a closed world (no
+    /// sky, no sun) of one BVH leaf whatever its lights (several rectangles, spheres, emissive
+    /// meshes, points, spots), which the lanes sample one by one. Under a sky or a sun most
+    /// paths leave a scene's few diffuse surfaces for the sky and the lanes measured slower
+    /// than the scalar trace where the materials were mostly metals and pbr; on a world that
+    /// is not one leaf (an infinite plane) the lanes query one ray at a time, which measured
+    /// slower with a sphere light (docs/renderer.md, "The lanes under other lights").
     pub fn new(scene: &'a Scene, settings: &'a RenderSettings) -> Option<Self> {
-        Self::anywhere(scene, settings).filter(|w| w.quad.is_some())
+        Self::anywhere(scene, settings).filter(|w| w.quad.is_some() || (!w.escapes && w.one_leaf))
     }
 
     /// The many-path tracer for `scene` wherever it can run, whatever the lights: what
