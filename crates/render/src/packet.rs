@@ -48,6 +48,26 @@ pub struct LaneHits<const N: usize> {
     pub part: [u32; N],
 }
 
+/// What a packet query found for each lane beyond t, primitive and part, kept for the lane's
+/// surface point so that it is not found again: each sphere hit's f64 root
+/// ([`crate::shape::sphere_surface`]) and each mesh hit's barycentrics (`mesh::restore_hit`).
+/// Written only for the lanes whose hit is a sphere or a mesh, and stale elsewhere: the
+/// caller keeps one for all its queries, so that scenes without either store nothing.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct HitKeep<const N: usize> {
+    pub(crate) sphere_root: [f64; N],
+    pub(crate) mesh_hit: [Option<crate::mesh::LastHit>; N],
+}
+
+impl<const N: usize> HitKeep<N> {
+    pub(crate) fn new() -> Self {
+        Self {
+            sphere_root: [0.0; N],
+            mesh_hit: [None; N],
+        }
+    }
+}
+
 /// `N` rays in structure-of-arrays lanes.
 #[derive(Clone, Copy, Debug)]
 pub struct Rays<const N: usize> {

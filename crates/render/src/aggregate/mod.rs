@@ -12,7 +12,7 @@ pub mod leaf;
 use leaf::Leaves;
 
 use crate::accel::bvh::Bvh;
-use crate::packet::{LaneHits, RayX4, Rays};
+use crate::packet::{HitKeep, LaneHits, RayX4, Rays};
 use crate::primitive::Primitive;
 use crate::shape::{Hit, Shape};
 use crate::util::math::{Aabb, Ray};
@@ -121,10 +121,8 @@ impl Accel {
     /// it would answer "no hit": a ray-by-ray fallback here, even out of line, cost the Cornell
     /// box measurably more instructions a sample (docs/renderer.md).
     ///
-    /// Where a lane's hit is a sphere, `sphere_root` gets the f64 root its t rounds from, which
-    /// [`crate::shape::sphere_surface`] takes instead of solving for it again (other lanes' entries
-    /// are left as they were: the caller's array, not a new one a query, so that scenes without
-    /// spheres pay nothing for it).
+    /// Where a lane's hit is a sphere or a mesh, `keep` gets what its surface point would
+    /// otherwise find again ([`HitKeep`]).
     #[inline(always)]
     pub(crate) fn intersect_lanes<const N: usize>(
         &self,
@@ -132,7 +130,7 @@ impl Accel {
         r: &Rays<N>,
         ray: impl Fn(usize) -> Ray,
         active: u32,
-        sphere_root: &mut [f64; N],
+        keep: &mut HitKeep<N>,
     ) -> LaneHits<N> {
         debug_assert!(self.is_one_leaf());
         self.leaves
@@ -165,7 +163,7 @@ impl Accel {
                         // A lane the test reports becomes this sphere's hit, so the root written
                         // last is the hit's wherever the hit is a sphere.
                         for lane in (0..N).filter(|lane| hit >> lane & 1 == 1) {
-                            sphere_root[lane] = root[lane];
+                            keep.sphere_root[lane] = root[lane];
                         }
                         (hit, t, [0; N])
                     }
@@ -175,6 +173,9 @@ impl Accel {
                             if let Some((tl, pl)) = shape.intersect(&ray(lane), t_max[lane]) {
                                 hit |= 1 << lane;
                                 (t[lane], part[lane]) = (tl, pl);
+                                if let Shape::Mesh(_) = shape {
+                                    keep.mesh_hit[lane] = crate::mesh::kept_hit();
+                                }
                             }
                         }
                         (hit, t, part)

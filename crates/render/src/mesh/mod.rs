@@ -279,8 +279,8 @@ impl TriMesh {
 /// map's frame), and finding them again cost a whole triangle test each time. A key that does
 /// not match (another ray's hit, another thread's) only means the test runs again, so the
 /// pixels cannot depend on it.
-#[derive(Clone, Copy)]
-struct LastHit {
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct LastHit {
     mesh: usize,
     slot: u32,
     ray: [u32; 6],
@@ -307,6 +307,21 @@ impl LastHit {
 
 thread_local! {
     static LAST_HIT: std::cell::Cell<Option<LastHit>> = const { std::cell::Cell::new(None) };
+}
+
+/// This thread's last mesh hit, for [`restore_hit`]: the many-path tracer queries all its
+/// lanes before it shades any, so each lane's hit would otherwise be the next lane's to lose.
+#[inline(always)]
+pub(crate) fn kept_hit() -> Option<LastHit> {
+    LAST_HIT.get()
+}
+
+/// Makes `hit` (from [`kept_hit`]) this thread's last mesh hit again, before its point is
+/// shaded. Whatever it holds, the pixels are the same: a hit that is not the one shaded only
+/// means the triangle is tested again.
+#[inline(always)]
+pub(crate) fn restore_hit(hit: Option<LastHit>) {
+    LAST_HIT.set(hit);
 }
 
 /// Texture coordinates at a hit and how the surface moves with them.

@@ -10,7 +10,7 @@ use super::{finish, lane3, set3, Lanes, Wide};
 use crate::integrator::{diffuse_light, escape, NoGuide, Strategy};
 use crate::interaction::{Hit, Shading, SurfacePoint};
 use crate::material::port::Path;
-use crate::packet::LaneHits;
+use crate::packet::{HitKeep, LaneHits};
 use crate::primitive::Primitive;
 use crate::scene::Scene;
 use crate::util::math::{offset_ray_origin, Ray};
@@ -114,12 +114,14 @@ fn lane_path<const N: usize>(s: &Lanes<N>, lane: usize) -> Path {
 }
 
 /// The closest hits of the lanes in `active`, asked of the scene one ray at a time, for a scene
-/// the packet tests do not answer. Out of line, as the Cornell box never calls it.
+/// the packet tests do not answer, each lane's mesh hit kept in `keep`. Out of line, as the
+/// Cornell box never calls it.
 #[inline(never)]
 pub(super) fn closest_by_lane<const N: usize>(
     scene: &Scene,
     active: u32,
     ray: impl Fn(usize) -> Ray,
+    keep: &mut HitKeep<N>,
 ) -> LaneHits<N> {
     let mut hits = LaneHits {
         hit: 0,
@@ -133,6 +135,9 @@ pub(super) fn closest_by_lane<const N: usize>(
             hits.t[lane] = h.t;
             hits.prim[lane] = h.prim;
             hits.part[lane] = h.part;
+            // Where the hit is a mesh, the last mesh hit the query kept is this one (a mesh only
+            // reports, and keeps, a hit nearer than any before it).
+            keep.mesh_hit[lane] = crate::mesh::kept_hit();
         }
     }
     hits
