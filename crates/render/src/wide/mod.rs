@@ -30,7 +30,7 @@ use glam::{Vec2, Vec3A};
 use crate::integrator::{RenderSettings, Setup, Strategy};
 use crate::interaction::{Hit, SurfacePoint};
 use crate::light::LightShape;
-use crate::packet::{HitKeep, Rays};
+use crate::packet::{HitKeep, LaneHits, Rays};
 use crate::primitive::Primitive;
 use crate::scene::Scene;
 use crate::shape::{Parallelogram, Shape};
@@ -391,6 +391,25 @@ impl<'a> Wide<'a> {
         self.continue_paths::<N, GENERAL>(s, &v, p_out, out);
     }
 
+    /// The closest hits of the active lanes' rays: the one leaf's packet tests, else one ray at
+    /// a time.
+    #[inline(always)]
+    fn closest<const N: usize, const GENERAL: bool>(&self, s: &mut Lanes<N>) -> LaneHits<N> {
+        let scene = self.scene;
+        let ray_of = |lane| Ray::new(lane3(&s.o, lane), lane3(&s.d, lane));
+        if !GENERAL || self.one_leaf {
+            scene.accel().intersect_lanes(
+                &scene.prims,
+                &Rays::from_lanes(load3(&s.o), load3(&s.d)),
+                ray_of,
+                s.active,
+                &mut s.keep,
+            )
+        } else {
+            closest_by_lane(scene, s.active, ray_of, &mut s.keep)
+        }
+    }
+
     /// Intersects the active lanes' rays, adds what emitters they hit give (weighted against
     /// light sampling), ends the paths that leave the scene or hit a back face, and returns the
     /// vertices of the others, in lanes; `None` if no lane has one.
@@ -402,18 +421,7 @@ impl<'a> Wide<'a> {
     ) -> Option<Vertices<N>> {
         let scene = self.scene;
         let settings = self.settings;
-        let ray_of = |lane| Ray::new(lane3(&s.o, lane), lane3(&s.d, lane));
-        let hits = if !GENERAL || self.one_leaf {
-            scene.accel().intersect_lanes(
-                &scene.prims,
-                &Rays::from_lanes(load3(&s.o), load3(&s.d)),
-                ray_of,
-                s.active,
-                &mut s.keep,
-            )
-        } else {
-            closest_by_lane(scene, s.active, ray_of, &mut s.keep)
-        };
+        let hits = self.closest::<N, GENERAL>(s);
         // Per lane as whole vectors, turned into lanes afterwards (`lanes::transpose3`).
         let mut p = [Vec3A::ZERO; N];
         let mut n = [Vec3A::ZERO; N];
