@@ -142,7 +142,7 @@ pub fn sphere_point_error(c: Vec3A, v: Vec3A) -> Vec3A {
 /// [`sphere_roots_f64`], chosen by [`hit_root`]) is `t64`: the direction from the centre in f64,
 /// as o + t·d in f32 can be off by more than the whole sphere when the ray starts far away.
 /// The many-path tracer's packet test hands over the root it found, so the point costs no
-/// second root (`LaneHits::sphere_root`).
+/// second root (`packet::HitKeep`).
 #[inline]
 pub(crate) fn sphere_surface(r: &Ray, center: Vec3A, radius: f32, t64: f64) -> SurfacePoint {
     let rel = (r.o.as_dvec3() - center.as_dvec3()) + r.d.as_dvec3() * t64;
@@ -336,8 +336,6 @@ impl Shape {
     pub fn surface(&self, r: &Ray, t: f32, part: u32) -> SurfacePoint {
         match self {
             Shape::Sphere { center, radius } => {
-                // The direction from the centre, in f64 from the f64 root: o + t·d in f32 can be
-                // off by more than the whole sphere when the ray starts far away.
                 match sphere_roots_f64(r.o, r.d, *center, *radius) {
                     Some((t0, t1)) => sphere_surface(r, *center, *radius, hit_root(t0, t1, t)),
                     None => sphere_point(*center, *radius, (r.at(t) - *center).normalize()),
