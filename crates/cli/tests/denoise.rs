@@ -113,6 +113,21 @@ fn denoised_files_are_the_same_bytes_on_any_number_of_threads_on_one_machine() {
     );
 }
 
+/// Runs the copied binary. Its copy was written through a file handle that a child which
+/// another test thread forked at that moment holds until that child execs; exec meanwhile
+/// fails with ETXTBSY ("Text file busy", seen in CI), so that one error is waited out.
+fn output_of_copy(cmd: &mut std::process::Command) -> std::process::Output {
+    for _ in 0..200 {
+        match cmd.output() {
+            Err(e) if e.kind() == std::io::ErrorKind::ExecutableFileBusy => {
+                std::thread::sleep(std::time::Duration::from_millis(25));
+            }
+            r => return r.expect("run"),
+        }
+    }
+    panic!("the copied binary stayed busy for 5 s");
+}
+
 #[test]
 fn without_the_library_denoise_fails_at_once_saying_how_to_install_it() {
     // The binary copied where no oidn/lib is beside it or above it: as on a machine where
@@ -122,19 +137,19 @@ fn without_the_library_denoise_fails_at_once_saying_how_to_install_it() {
     std::fs::create_dir_all(bin.parent().expect("parent")).expect("mkdir");
     std::fs::copy(env!("CARGO_BIN_EXE_tessera"), &bin).expect("copy");
     let out = dir.path().join("out.exr");
-    let r = std::process::Command::new(&bin)
-        .args([
-            "render",
-            &repo("scenes/cornell-box.toml"),
-            "--spp",
-            "1024",
-            "--denoise",
-            "--output",
-            out.to_str().expect("utf8"),
-        ])
-        .env_remove("TESSERA_OIDN_DIR")
-        .output()
-        .expect("run");
+    let r = output_of_copy(
+        std::process::Command::new(&bin)
+            .args([
+                "render",
+                &repo("scenes/cornell-box.toml"),
+                "--spp",
+                "1024",
+                "--denoise",
+                "--output",
+                out.to_str().expect("utf8"),
+            ])
+            .env_remove("TESSERA_OIDN_DIR"),
+    );
     assert_clean_failure(
         &r,
         &[
@@ -146,26 +161,23 @@ fn without_the_library_denoise_fails_at_once_saying_how_to_install_it() {
     assert!(!out.exists(), "nothing is rendered or written");
     // A worker asked to denoise does not start without it either (nor register: the URL
     // leads nowhere, and the library is checked first).
-    let r = std::process::Command::new(&bin)
-        .args(["worker", "--coordinator", "http://127.0.0.1:9", "--denoise"])
-        .env_remove("TESSERA_OIDN_DIR")
-        .output()
-        .expect("run");
+    let r = output_of_copy(
+        std::process::Command::new(&bin)
+            .args(["worker", "--coordinator", "http://127.0.0.1:9", "--denoise"])
+            .env_remove("TESSERA_OIDN_DIR"),
+    );
     assert_clean_failure(&r, &["libOpenImageDenoise.so.2", "scripts/install-oidn.sh"]);
     // The same binary renders without --denoise.
-    let r = std::process::Command::new(&bin)
-        .args([
-            "render",
-            &repo("scenes/cornell-box.toml"),
-            "--spp",
-            "1",
-            "--resolution",
-            "16x16",
-            "--output",
-            out.to_str().expect("utf8"),
-        ])
-        .output()
-        .expect("run");
+    let r = output_of_copy(std::process::Command::new(&bin).args([
+        "render",
+        &repo("scenes/cornell-box.toml"),
+        "--spp",
+        "1",
+        "--resolution",
+        "16x16",
+        "--output",
+        out.to_str().expect("utf8"),
+    ]));
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
 }
 
