@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Same-sitting A/B of render time (what `tessera render` prints as "in X s": the render alone,
+# without loading the scene) of a baseline binary ($1) against a new one ($2), alternated for
+# $3 rounds at $4 spp, then per scene the medians, the median ratio new/old, the range of the
+# paired ratios, and whether the last EXRs are the same bytes (cmp). A scene is a bundled one
+# by name (`envmap-balls`) or a path (the scenes of bench/make_probe_scenes.py):
+#
+#   bench/ab-render-time.sh OLD NEW 6 128 envmap-balls target/bench-cache/probe/v3-point-pbr.toml
+set -euo pipefail
+old=$1; new=$2; rounds=$3; spp=$4
+shift 4
+cd "$(dirname "$0")/.."
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+seconds() { "$1" render "$2" --spp "$spp" --output "$3" 2>&1 | grep -o 'in [0-9.]* s' | awk '{print $2}'; }
+for s in "$@"; do
+  file=scenes/$s.toml; [[ $s == */* ]] && file=$s
+  a=(); b=()
+  for _ in $(seq "$rounds"); do
+    a+=("$(seconds "$old" "$file" "$tmp/old.exr")")
+    b+=("$(seconds "$new" "$file" "$tmp/new.exr")")
+  done
+  same=$(cmp -s "$tmp/old.exr" "$tmp/new.exr" && echo same || echo DIFFERENT)
+  python3 - "$(basename "$s" .toml)" "$same" "${a[*]}" "${b[*]}" <<'PY'
+import statistics as st
+import sys
+name, same, a, b = sys.argv[1], sys.argv[2], sys.argv[3].split(), sys.argv[4].split()
+a, b = [float(x) for x in a], [float(x) for x in b]
+r = sorted(y / x for x, y in zip(a, b))
+print(f"{name}: old {st.median(a):.3f} s, new {st.median(b):.3f} s, ratio {st.median(b) / st.median(a):.3f}"
+      f" (paired {r[0]:.3f}-{r[-1]:.3f}), bits {same}")
+PY
+done
