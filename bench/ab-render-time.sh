@@ -3,7 +3,9 @@
 # without loading the scene) of a baseline binary ($1) against a new one ($2), alternated for
 # $3 rounds at $4 spp, then per scene the medians, the median ratio new/old, the range of the
 # paired ratios, and whether the last EXRs are the same bytes (cmp). A scene is a bundled one
-# by name (`envmap-balls`) or a path (the scenes of bench/make_probe_scenes.py):
+# by name (`envmap-balls`) or a path (the scenes of bench/make_probe_scenes.py). Unlike
+# bench/ab-render.sh, which prints each run's wall time with the scene's load, this times the
+# render alone and summarises, for steps of a few percent on the render loop:
 #
 #   bench/ab-render-time.sh OLD NEW 6 128 envmap-balls target/bench-cache/probe/v3-point-pbr.toml
 set -euo pipefail

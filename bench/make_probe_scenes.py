@@ -1,6 +1,7 @@
-"""Writes four sky-lit scenes that are not among the bundled ones, for checking that the
-default tracer's measured choice (crates/render/src/wide/probe.rs) gains where the lanes win
-and costs nothing where they lose, on scenes it was not developed on:
+"""Writes four sky-lit scenes that are not among the bundled ones, for checking a rule that
+decides the default tracer (the lanes or one path at a time) on scenes it was not developed
+on: that it gains where the lanes win and costs nothing where they lose (docs/renderer.md,
+"The tracer measured on the scene", where a measured choice failed that check):
 
     target/bench-cache/probe/v1-metal-balls.toml   envmap-balls with its three balls metals
                                                    (copper, gold, aluminium)
