@@ -196,14 +196,14 @@ struct AreaSample {
     pdf: f32,
 }
 
-/// All emitters with a power-proportional selection distribution.
+/// All emitters with their selection distribution ([`Lights::new`]).
 #[derive(Clone, Debug, Default)]
 pub struct Lights {
     /// The emitters.
     pub lights: Vec<Light>,
     select: Option<Distribution1D>,
-    /// The punctual lights alone, by power, with their indices: what BSDF-only rendering
-    /// samples.
+    /// The punctual lights alone, weighted as in `select`, with their indices: what BSDF-only
+    /// rendering samples.
     delta: Option<(Distribution1D, Vec<u32>)>,
     /// The suns' indices: what a ray that escapes the scene must look for.
     suns: Vec<u32>,
@@ -458,10 +458,54 @@ fn dir_and_dist2(p: Vec3A, x: Vec3A) -> Option<(Vec3A, f32)> {
     Some((d / dist2.sqrt(), dist2))
 }
 
+/// Gives the distant lights together half the selection weight and the others the other half,
+/// each group keeping its lights' power ratios; weights of a scene with only one group stay
+/// as they are.
+///
+/// Why not power across the groups: a distant light's power is its irradiance through the
+/// scene's cross-section, π·reach², and the reach is the radius of the scene's bounding sphere,
+/// which a far-off ground plane or backdrop sets, not the light. By power a sky-lit scene gave
+/// its lamp a few percent of the light samples. The lamp's light reflected by a glossy surface
+/// (a caustic on the floor beside a metal ball) then came through those few samples, each
+/// weighted by the inverse of that small probability, as fireflies: on the sky-lit glTF scenes
+/// with a point lamp, most of the error sat in their brightest 1% of pixels
+/// (docs/benchmarks/light-selection-2026-11-30.md). The even split is pbrt-v4's
+/// (`BVHLightSampler` samples its infinite lights against the tree of the others, one share
+/// each) and costs a scene at most half its samples of either group.
+fn distant_and_local_halves(lights: &[Light], weights: &mut [f32]) {
+    let distant = |l: &Light| {
+        matches!(
+            l.shape,
+            LightShape::Environment { .. }
+                | LightShape::Sun { .. }
+                | LightShape::Directional { .. }
+        )
+    };
+    let (mut far, mut near) = (0.0f64, 0.0f64);
+    for (l, &w) in lights.iter().zip(weights.iter()) {
+        let w = f64::from(w.max(0.0));
+        if distant(l) {
+            far += w;
+        } else {
+            near += w;
+        }
+    }
+    if !(far > 0.0 && near > 0.0 && far.is_finite() && near.is_finite()) {
+        return;
+    }
+    for (l, w) in lights.iter().zip(weights.iter_mut()) {
+        let total = if distant(l) { far } else { near };
+        *w = (f64::from(w.max(0.0)) / total * 0.5) as f32;
+    }
+}
+
 impl Lights {
-    /// Builds the selection distribution (power-proportional).
+    /// Builds the selection distribution: by power within each of two groups, the distant
+    /// lights (environment maps, suns, directional lights) and the rest, and half to each
+    /// group where a scene has both ([`distant_and_local_halves`]).
     pub fn new(lights: Vec<Light>) -> Self {
-        let weights: Vec<f32> = lights.iter().map(Light::power_weight).collect();
+        let mut weights: Vec<f32> = lights.iter().map(Light::power_weight).collect();
+        distant_and_local_halves(&lights, &mut weights);
         let select = Distribution1D::new(&weights);
         let delta_index: Vec<u32> = (0..lights.len() as u32)
             .filter(|&i| lights[i as usize].is_delta())
@@ -485,8 +529,8 @@ impl Lights {
         self.delta.is_some()
     }
 
-    /// Picks a punctual light by power among the punctual ones: what rendering with BSDF
-    /// sampling alone still needs, since no ray finds them.
+    /// Picks a punctual light among the punctual ones, weighted as [`Lights::sample`] weighs
+    /// them: what rendering with BSDF sampling alone still needs, since no ray finds them.
     pub fn sample_delta(&self, p: Vec3A, u_select: f32) -> Option<LightSample<'_>> {
         let (dist, index) = self.delta.as_ref()?;
         let k = dist.sample(u_select);
@@ -661,6 +705,71 @@ impl Falloff {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn light(shape: LightShape, radiance: f32) -> Light {
+        Light {
+            shape,
+            radiance: Vec3A::splat(radiance),
+            two_sided: false,
+            texture: None,
+        }
+    }
+
+    /// The distant lights share half the selection and the others the other half, each group
+    /// by power, whatever the scene's reach (which power across the groups followed: a lamp's
+    /// share fell a hundredfold when the reach grew tenfold); a scene of one group keeps power.
+    #[test]
+    fn distant_and_local_lights_each_get_half_whatever_the_reach() {
+        let map = Arc::new(EnvMap::new(2, 2, &[Vec3A::ONE; 4], 1.0, 0.0).expect("a map"));
+        let point = |x: f32, radiance: f32| {
+            light(
+                LightShape::Point {
+                    position: Vec3A::new(x, 0.0, 0.0),
+                },
+                radiance,
+            )
+        };
+        let scene = |reach: f32| {
+            Lights::new(vec![
+                light(
+                    LightShape::Environment {
+                        map: map.clone(),
+                        reach,
+                    },
+                    0.0,
+                ),
+                point(0.0, 1.0),
+                point(1.0, 3.0),
+                light(
+                    LightShape::Directional {
+                        towards: Vec3A::Y,
+                        reach,
+                    },
+                    2.0,
+                ),
+            ])
+        };
+        // The map's power over the directional light's: ∫(R + G + B) dω = 3·4π against 3·2.
+        let env = 0.5 * (2.0 * PI) / (2.0 * PI + 1.0);
+        for reach in [1.0f32, 10.0, 1000.0] {
+            let l = scene(reach);
+            let want = [env, 0.125, 0.375, 0.5 - env];
+            for (i, w) in want.into_iter().enumerate() {
+                let got = l.selection(i);
+                assert!(
+                    (got - w).abs() < 1e-6,
+                    "reach {reach}, light {i}: {got} vs {w}"
+                );
+            }
+        }
+        let local = Lights::new(vec![point(0.0, 1.0), point(1.0, 3.0)]);
+        assert!((local.selection(0) - 0.25).abs() < 1e-6);
+        let far = Lights::new(vec![light(
+            LightShape::Environment { map, reach: 5.0 },
+            0.0,
+        )]);
+        assert_eq!(far.selection(0), 1.0);
+    }
 
     #[test]
     fn a_spots_falloffs_are_gltfs_ramp_and_blenders_smoothstep() {
