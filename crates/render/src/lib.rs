@@ -117,9 +117,9 @@ pub use util::{files, lanes, math, sampling};
 /// environment map's light samples by its luminance less its mean (MIS compensation, as
 /// pbrt-v4's image light): another density, so every scene with a non-uniform map renders
 /// differently (with less noise), and under `--strategy nee` a ray that escapes into the map's
-/// dim part now counts there. Revision 16 gives a scene's distant lights (maps, suns,
-/// directional lights) half its light samples and its other lights the other half, each group
-/// by power (`light::distant_and_local_halves`), where power across the two split them: every
-/// scene with a distant light and another light renders differently (a sky-lit scene with a
-/// lamp with fewer fireflies).
+/// dim part now counts there. Revision 16 splits a scene's lights into the distant ones
+/// (maps, suns, directional lights) and the others, and where a scene has both, a vertex takes
+/// a light sample of each group (within it by power; `light::Lights::new`), where it took one
+/// of all, chosen by power across the groups: every scene with a distant light and another
+/// light renders differently (a sky-lit scene with a lamp with far fewer fireflies).
 pub const IMAGE_REVISION: u32 = 16;

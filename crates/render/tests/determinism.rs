@@ -184,7 +184,7 @@ fn middle(scene: &tessera_render::scene::Scene, rows: u32) -> PixelRect {
 /// and normal-map textures), whose map's bits were not pinned before, and since revision 12 the
 /// ellipsoid's AOVs over its whole frame (its lamp in view), and since revision 13 a sphere under
 /// a map wide enough for alias tables.
-const PINNED: (u32, u64) = (16, 0x3561_1d74_0796_58bb);
+const PINNED: (u32, u64) = (16, 0xca5a_561f_75e0_457c);
 
 /// The camera, film and diffuse material `a` of the pin's own scenes (an ellipsoid, a ball
 /// under a wide map).

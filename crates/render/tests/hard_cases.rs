@@ -613,7 +613,7 @@ fn samplers_at_the_domain_edges_stay_finite() {
         for &s in &edges {
             for &a in &edges {
                 for &b in &edges {
-                    if let Some(ls) = sc.lights.sample(p, s, Vec2::new(a, b)) {
+                    if let Some(ls) = sc.lights.sample(p, 0, s, Vec2::new(a, b)) {
                         assert!(
                             ls.p.is_finite() && ls.wi.is_finite() && ls.le().is_finite(),
                             "{p:?} {ls:?}"
@@ -629,7 +629,7 @@ fn samplers_at_the_domain_edges_stay_finite() {
     assert!(samples > 100);
     // Zero-length and degenerate inputs: the light point itself gives no sample, not a NaN.
     let c = Vec3A::new(1.0, 4.0, 2.5);
-    let got = sc.lights.sample(c, 0.0, Vec2::new(0.5, 0.0));
+    let got = sc.lights.sample(c, 0, 0.0, Vec2::new(0.5, 0.0));
     assert!(got.is_none_or(|ls| ls.pdf.is_finite() && ls.wi.is_finite()));
     for omc in [0.0f32, 1e-30, 2.0] {
         let w = square_to_uniform_cone(Vec2::new(0.0, ONE_MINUS_EPSILON), omc);

@@ -127,7 +127,7 @@ fn light_test_scene(
     chi_square(
         name,
         |r| {
-            let s = scene.lights.sample(p, r.next_f32(), u2(r))?;
+            let s = scene.lights.sample(p, 0, r.next_f32(), u2(r))?;
             let exact = scene.lights.pdf_direction(p, s.wi) as f64;
             assert!(
                 (s.pdf as f64 - exact).abs() <= 1e-3 * exact || !first_hit_too,

@@ -39,7 +39,7 @@
 
 use glam::{Vec2, Vec3A};
 
-use super::{direct_light, Path, Shading};
+use super::{direct_light, light_groups, Path, Shading};
 use crate::bsdf::sample_diffuse;
 use crate::guide::{DirTree, SdTree, ALPHAS};
 use crate::interaction::SurfacePoint;
@@ -206,8 +206,11 @@ pub(super) fn diffuse(
         _ => cosine_hemisphere_pdf(cos),
     };
     if let Some(u) = light_u {
-        if let Some((le, f)) = direct_light(scene, strategy, sp, at, p_out, u, mixture) {
-            path.l += path.beta * albedo * le * f;
+        for group in 0..light_groups(scene, strategy) {
+            if let Some((le, f)) = direct_light(scene, strategy, sp, at, p_out, (group, u), mixture)
+            {
+                path.l += path.beta * albedo * le * f;
+            }
         }
     }
     // Each technique's density at its own sample is the one it drew by; the other's is

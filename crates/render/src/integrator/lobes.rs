@@ -5,7 +5,7 @@
 
 use glam::{Vec2, Vec3A};
 
-use super::{sample_light, visible_light};
+use super::{light_groups, sample_light, visible_light};
 use crate::interaction::{Shading, SurfacePoint};
 use crate::material::port::{Lobe, Path};
 use crate::scene::Scene;
@@ -30,7 +30,10 @@ pub(super) fn reflected_light<E, P>(
     E: Fn(Vec3A) -> Vec3A,
     P: Fn(Vec3A) -> f32,
 {
-    if let Some((ls, _)) = visible_light(scene, strategy, sp, at, p_out, u) {
+    for group in 0..light_groups(scene, strategy) {
+        let Some((ls, _)) = visible_light(scene, strategy, sp, at, p_out, group, u) else {
+            continue;
+        };
         let i = lobe.frame.to_local(ls.wi);
         let f = (lobe.eval)(i);
         let w = if strategy == Strategy::Mis && !ls.delta {
@@ -52,13 +55,32 @@ pub(super) fn two_sided_light<E, P>(
     path: &mut Path,
     sp: &SurfacePoint,
     at: &Shading,
-    (u_select, u_point): (f32, Vec2),
+    u: (f32, Vec2),
     lobe: Lobe<'_, E, P>,
 ) where
     E: Fn(Vec3A) -> Vec3A,
     P: Fn(Vec3A) -> f32,
 {
-    let Some(ls) = sample_light(scene, strategy, sp.p, u_select, u_point) else {
+    for group in 0..light_groups(scene, strategy) {
+        one_sided_sample(scene, strategy, path, sp, at, (group, u), &lobe);
+    }
+}
+
+/// One light sample of [`two_sided_light`], from group `group`.
+#[inline(always)]
+fn one_sided_sample<E, P>(
+    scene: &Scene,
+    strategy: Strategy,
+    path: &mut Path,
+    sp: &SurfacePoint,
+    at: &Shading,
+    (group, u): (usize, (f32, Vec2)),
+    lobe: &Lobe<'_, E, P>,
+) where
+    E: Fn(Vec3A) -> Vec3A,
+    P: Fn(Vec3A) -> f32,
+{
+    let Some(ls) = sample_light(scene, strategy, sp.p, group, u) else {
         return;
     };
     let cos = at.ns.dot(ls.wi);

@@ -456,8 +456,10 @@ fn diffuse(
 ) -> Option<Ray> {
     let p_out = offset_ray_origin(sp.p, sp.err, at.n);
     if let Some(u) = light_u {
-        if let Some((le, f)) = diffuse_light(scene, strategy, sp, at, p_out, u) {
-            path.l += path.beta * albedo * le * f;
+        for group in 0..light_groups(scene, strategy) {
+            if let Some((le, f)) = diffuse_light(scene, strategy, sp, at, p_out, group, u) {
+                path.l += path.beta * albedo * le * f;
+            }
         }
     }
     let (wi, pdf) = sample_diffuse(at.ns, bsdf_u);
@@ -479,10 +481,11 @@ pub(crate) fn diffuse_light(
     sp: &SurfacePoint,
     at: &Shading,
     p_out: Vec3A,
+    group: usize,
     u: (f32, Vec2),
 ) -> Option<(Vec3A, f32)> {
     let cosine = |_: Vec3A, cos: f32| cosine_hemisphere_pdf(cos);
-    direct_light(scene, strategy, sp, at, p_out, u, cosine)
+    direct_light(scene, strategy, sp, at, p_out, (group, u), cosine)
 }
 
 /// Next-event estimation at a diffuse vertex: a point on a light, its shadow ray from
@@ -497,10 +500,10 @@ fn direct_light(
     sp: &SurfacePoint,
     at: &Shading,
     p_out: Vec3A,
-    u: (f32, Vec2),
+    (group, u): (usize, (f32, Vec2)),
     bsdf_pdf: impl Fn(Vec3A, f32) -> f32,
 ) -> Option<(Vec3A, f32)> {
-    let (ls, cos) = visible_light(scene, strategy, sp, at, p_out, u)?;
+    let (ls, cos) = visible_light(scene, strategy, sp, at, p_out, group, u)?;
     let w = if strategy == Strategy::Mis && !ls.delta {
         power_heuristic(ls.pdf, bsdf_pdf(ls.wi, cos))
     } else {
@@ -509,20 +512,33 @@ fn direct_light(
     Some((ls.le(), cos * std::f32::consts::FRAC_1_PI * w / ls.pdf))
 }
 
-/// A light sample for next-event estimation from `p`: any light, or under BSDF sampling alone
-/// the punctual ones only (the rest are found by the BSDF's rays, and counted in full then).
+/// How many light samples a vertex takes: one from each of the scene's groups of lights (the
+/// distant ones and the others: [`crate::light::Lights::new`]), or under BSDF sampling alone
+/// one of the punctual lights.
+#[inline(always)]
+pub(crate) fn light_groups(scene: &Scene, strategy: Strategy) -> usize {
+    if strategy == Strategy::Bsdf {
+        1
+    } else {
+        scene.lights.groups()
+    }
+}
+
+/// A light sample for next-event estimation from `p`: a light of group `group`, or under BSDF
+/// sampling alone a punctual one (the rest are found by the BSDF's rays, and counted in full
+/// then).
 #[inline(always)]
 fn sample_light(
     scene: &Scene,
     strategy: Strategy,
     p: Vec3A,
-    u_select: f32,
-    u_point: Vec2,
+    group: usize,
+    (u_select, u_point): (f32, Vec2),
 ) -> Option<LightSample<'_>> {
     if strategy == Strategy::Bsdf {
         scene.lights.sample_delta(p, u_select)
     } else {
-        scene.lights.sample(p, u_select, u_point)
+        scene.lights.sample(p, group, u_select, u_point)
     }
 }
 
@@ -536,9 +552,10 @@ fn visible_light<'s>(
     sp: &SurfacePoint,
     at: &Shading,
     p_out: Vec3A,
-    (u_select, u_point): (f32, Vec2),
+    group: usize,
+    u: (f32, Vec2),
 ) -> Option<(LightSample<'s>, f32)> {
-    let ls = sample_light(scene, strategy, sp.p, u_select, u_point)?;
+    let ls = sample_light(scene, strategy, sp.p, group, u)?;
     let cos = at.ns.dot(ls.wi);
     // A light behind the geometric surface is unreachable, whatever the shading normal says.
     let reachable = !at.shaded || at.n.dot(ls.wi) > 0.0;

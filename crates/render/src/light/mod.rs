@@ -196,14 +196,18 @@ struct AreaSample {
     pdf: f32,
 }
 
-/// All emitters with their selection distribution ([`Lights::new`]).
+/// All emitters, in the groups light sampling draws one light from each ([`Lights::new`]).
 #[derive(Clone, Debug, Default)]
 pub struct Lights {
     /// The emitters.
     pub lights: Vec<Light>,
-    select: Option<Distribution1D>,
-    /// The punctual lights alone, weighted as in `select`, with their indices: what BSDF-only
-    /// rendering samples.
+    /// Each group's lights by power, with their indices: the distant lights and the others
+    /// where a scene has both, else all of them as one.
+    groups: Vec<(Distribution1D, Vec<u32>)>,
+    /// Each light's probability of being drawn within its group.
+    pmf: Vec<f32>,
+    /// The punctual lights alone, by power, with their indices: what BSDF-only rendering
+    /// samples.
     delta: Option<(Distribution1D, Vec<u32>)>,
     /// The suns' indices: what a ray that escapes the scene must look for.
     suns: Vec<u32>,
@@ -256,6 +260,18 @@ impl Light {
         matches!(
             self.shape,
             LightShape::Quad(_) | LightShape::Sphere { .. } | LightShape::Mesh(_)
+        )
+    }
+
+    /// Whether it is infinitely far away (a map, a sun, a directional light): its power is
+    /// measured through the scene's cross-section.
+    #[inline]
+    pub fn is_distant(&self) -> bool {
+        matches!(
+            self.shape,
+            LightShape::Environment { .. }
+                | LightShape::Sun { .. }
+                | LightShape::Directional { .. }
         )
     }
 
@@ -458,55 +474,44 @@ fn dir_and_dist2(p: Vec3A, x: Vec3A) -> Option<(Vec3A, f32)> {
     Some((d / dist2.sqrt(), dist2))
 }
 
-/// Gives the distant lights together half the selection weight and the others the other half,
-/// each group keeping its lights' power ratios; weights of a scene with only one group stay
-/// as they are.
-///
-/// Why not power across the groups: a distant light's power is its irradiance through the
-/// scene's cross-section, π·reach², and the reach is the radius of the scene's bounding sphere,
-/// which a far-off ground plane or backdrop sets, not the light. By power a sky-lit scene gave
-/// its lamp a few percent of the light samples. The lamp's light reflected by a glossy surface
-/// (a caustic on the floor beside a metal ball) then came through those few samples, each
-/// weighted by the inverse of that small probability, as fireflies: on the sky-lit glTF scenes
-/// with a point lamp, most of the error sat in their brightest 1% of pixels
-/// (docs/benchmarks/light-selection-2026-11-30.md). The even split is pbrt-v4's
-/// (`BVHLightSampler` samples its infinite lights against the tree of the others, one share
-/// each) and costs a scene at most half its samples of either group.
-fn distant_and_local_halves(lights: &[Light], weights: &mut [f32]) {
-    let distant = |l: &Light| {
-        matches!(
-            l.shape,
-            LightShape::Environment { .. }
-                | LightShape::Sun { .. }
-                | LightShape::Directional { .. }
-        )
-    };
-    let (mut far, mut near) = (0.0f64, 0.0f64);
-    for (l, &w) in lights.iter().zip(weights.iter()) {
-        let w = f64::from(w.max(0.0));
-        if distant(l) {
-            far += w;
-        } else {
-            near += w;
-        }
-    }
-    if !(far > 0.0 && near > 0.0 && far.is_finite() && near.is_finite()) {
-        return;
-    }
-    for (l, w) in lights.iter().zip(weights.iter_mut()) {
-        let total = if distant(l) { far } else { near };
-        *w = (f64::from(w.max(0.0)) / total * 0.5) as f32;
-    }
-}
-
 impl Lights {
-    /// Builds the selection distribution: by power within each of two groups, the distant
-    /// lights (environment maps, suns, directional lights) and the rest, and half to each
-    /// group where a scene has both ([`distant_and_local_halves`]).
+    /// Groups the lights: the distant ones (environment maps, suns, directional lights) and
+    /// the others, where a scene has both, else all of them as one group. Light sampling
+    /// draws one light of each group at every vertex, within the group by power.
+    ///
+    /// Why two groups, each sampled every time, rather than one choice by power among all:
+    /// a distant light's power is its irradiance through the scene's cross-section, π·reach²,
+    /// and the reach is the radius of the scene's bounding sphere, which a far-off ground
+    /// plane sets, not the light, so power across the groups follows the scene's extent. By
+    /// power a sky-lit scene gave its lamp about a tenth of the light samples, and the lamp's
+    /// light reflected by a glossy surface onto a floor (a caustic, which only next-event
+    /// estimation at the glossy vertex finds) came through those few samples, each weighed
+    /// by the inverse of that small probability, as fireflies. A fixed even split instead
+    /// cured those scenes but starved the sky of another that the lamp barely lit; drawing
+    /// from both groups leaves neither to chance, for a second shadow ray where a scene has
+    /// both kinds of light (docs/benchmarks/light-selection-2026-11-30.md).
     pub fn new(lights: Vec<Light>) -> Self {
-        let mut weights: Vec<f32> = lights.iter().map(Light::power_weight).collect();
-        distant_and_local_halves(&lights, &mut weights);
-        let select = Distribution1D::new(&weights);
+        let weights: Vec<f32> = lights.iter().map(Light::power_weight).collect();
+        let (far, near): (Vec<u32>, Vec<u32>) =
+            (0..lights.len() as u32).partition(|&i| lights[i as usize].is_distant());
+        let group = |index: Vec<u32>| {
+            let w: Vec<f32> = index.iter().map(|&i| weights[i as usize]).collect();
+            Distribution1D::new(&w).map(|d| (d, index))
+        };
+        let split = [group(far), group(near)];
+        let groups: Vec<_> = if split.iter().all(Option::is_some) {
+            split.into_iter().flatten().collect()
+        } else {
+            group((0..lights.len() as u32).collect())
+                .into_iter()
+                .collect()
+        };
+        let mut pmf = vec![0.0; lights.len()];
+        for (d, index) in &groups {
+            for (k, &i) in index.iter().enumerate() {
+                pmf[i as usize] = d.pmf(k);
+            }
+        }
         let delta_index: Vec<u32> = (0..lights.len() as u32)
             .filter(|&i| lights[i as usize].is_delta())
             .collect();
@@ -517,7 +522,8 @@ impl Lights {
             .collect();
         Self {
             lights,
-            select,
+            groups,
+            pmf,
             delta,
             suns,
         }
@@ -529,8 +535,8 @@ impl Lights {
         self.delta.is_some()
     }
 
-    /// Picks a punctual light among the punctual ones, weighted as [`Lights::sample`] weighs
-    /// them: what rendering with BSDF sampling alone still needs, since no ray finds them.
+    /// Picks a punctual light by power among the punctual ones: what rendering with BSDF
+    /// sampling alone still needs, since no ray finds them.
     pub fn sample_delta(&self, p: Vec3A, u_select: f32) -> Option<LightSample<'_>> {
         let (dist, index) = self.delta.as_ref()?;
         let k = dist.sample(u_select);
@@ -546,27 +552,42 @@ impl Lights {
     /// Whether there is anything to sample.
     #[inline]
     pub fn is_empty(&self) -> bool {
-        self.select.is_none()
+        self.groups.is_empty()
     }
 
-    /// The selection probability of a scene's only light (what [`Lights::sample`] multiplies
+    /// How many groups light sampling draws a light from at each vertex ([`Lights::new`]): 2
+    /// where a scene has distant lights and others, else 1, or 0 without lights.
+    #[inline]
+    pub fn groups(&self) -> usize {
+        self.groups.len()
+    }
+
+    /// The selection probability of a scene's first light (what [`Lights::sample`] multiplies
     /// its density by), or 0 where there is no light.
     pub fn pdf_scale(&self) -> f32 {
-        self.select.as_ref().map_or(0.0, |d| d.pmf(0))
+        self.selection(0)
     }
 
-    /// Picks a light and a point on it as seen from `p`. Always inlined, as it was before
-    /// punctual lights, whose case is a call: inlined, it costs the area lights nothing.
+    /// Picks a light of group `group` and a point on it as seen from `p`. Always inlined, as
+    /// it was before punctual lights, whose case is a call: inlined, it costs the area lights
+    /// nothing.
     #[inline(always)]
-    pub fn sample(&self, p: Vec3A, u_select: f32, u: Vec2) -> Option<LightSample<'_>> {
-        let dist = self.select.as_ref()?;
-        let i = dist.sample(u_select);
-        let light = &self.lights[i];
+    pub fn sample(
+        &self,
+        p: Vec3A,
+        group: usize,
+        u_select: f32,
+        u: Vec2,
+    ) -> Option<LightSample<'_>> {
+        let (dist, index) = self.groups.get(group)?;
+        let k = dist.sample(u_select);
+        let light = &self.lights[index[k] as usize];
+        let pmf = dist.pmf(k);
         if !light.is_area() {
-            return surfaceless_sample(light, p, u, dist.pmf(i));
+            return surfaceless_sample(light, p, u, pmf);
         }
         let AreaSample { x, n, err, wi, pdf } = light.sample(p, u)?;
-        let pdf = pdf * dist.pmf(i);
+        let pdf = pdf * pmf;
         if !positive_finite(pdf) {
             return None;
         }
@@ -592,7 +613,10 @@ impl Lights {
     /// sampler's exact direction density, for tests; the integrator needs only [`Lights::pdf`],
     /// because a sample behind another surface is blocked by its shadow ray.
     pub fn pdf_direction(&self, p: Vec3A, w: Vec3A) -> f32 {
-        let Some(d) = &self.select else { return 0.0 };
+        if self.is_empty() {
+            return 0.0;
+        }
+        let pmf = |i: usize| self.pmf[i];
         let ray = Ray::new(p, w);
         let mut total = 0.0;
         for (i, light) in self.lights.iter().enumerate() {
@@ -610,43 +634,44 @@ impl Lights {
                     for &LightTriangle { p: [p0, p1, p2], n } in &m.tris {
                         let hit = crate::mesh::triangle::intersect(p, w, p0, p1, p2, f32::INFINITY);
                         if let Some(h) = hit {
-                            total += d.pmf(i) * light.pdf(p, ray.at(h.t), n);
+                            total += pmf(i) * light.pdf(p, ray.at(h.t), n);
                         }
                     }
                     None
                 }
                 LightShape::Environment { map, .. } => {
-                    total += d.pmf(i) * map.pdf(w);
+                    total += pmf(i) * map.pdf(w);
                     None
                 }
                 LightShape::Sun { .. } => {
-                    total += light.sun_seen(w).map_or(0.0, |(_, pdf)| d.pmf(i) * pdf);
+                    total += light.sun_seen(w).map_or(0.0, |(_, pdf)| pmf(i) * pdf);
                     None
                 }
                 _ => None,
             };
             if let Some((x, n)) = hit {
-                total += d.pmf(i) * light.pdf(p, x, n);
+                total += pmf(i) * light.pdf(p, x, n);
             }
         }
         total
     }
 
-    /// The probability with which [`Lights::sample`] selects light `index` (0 where there is
-    /// no light).
+    /// The probability with which [`Lights::sample`] selects light `index` within its group
+    /// (0 where there is no light): the group is drawn from at every vertex, so this is the
+    /// light's whole selection probability.
     #[inline]
     pub fn selection(&self, index: usize) -> f32 {
-        self.select.as_ref().map_or(0.0, |d| d.pmf(index))
+        self.pmf.get(index).copied().unwrap_or(0.0)
     }
 
     /// Density (solid angle, selection included) with which [`Lights::sample`] from `p` would
     /// have chosen point `x` (normal `n`) of light `index`.
     #[inline]
     pub fn pdf(&self, index: usize, p: Vec3A, x: Vec3A, n: Vec3A) -> f32 {
-        match &self.select {
-            Some(d) => d.pmf(index) * self.lights[index].pdf(p, x, n),
-            None => 0.0,
+        if self.is_empty() {
+            return 0.0;
         }
+        self.selection(index) * self.lights[index].pdf(p, x, n)
     }
 }
 
@@ -715,11 +740,12 @@ mod tests {
         }
     }
 
-    /// The distant lights share half the selection and the others the other half, each group
-    /// by power, whatever the scene's reach (which power across the groups followed: a lamp's
-    /// share fell a hundredfold when the reach grew tenfold); a scene of one group keeps power.
+    /// A scene with distant lights and others draws from each group at every vertex, within
+    /// it by power, whatever the scene's reach (which power across the groups followed: a
+    /// lamp's share fell a hundredfold when the reach grew tenfold); a scene of one kind of
+    /// light is one group, by power.
     #[test]
-    fn distant_and_local_lights_each_get_half_whatever_the_reach() {
+    fn distant_and_local_lights_are_drawn_from_apart_whatever_the_reach() {
         let map = Arc::new(EnvMap::new(2, 2, &[Vec3A::ONE; 4], 1.0, 0.0).expect("a map"));
         let point = |x: f32, radiance: f32| {
             light(
@@ -750,10 +776,11 @@ mod tests {
             ])
         };
         // The map's power over the directional light's: ∫(R + G + B) dω = 3·4π against 3·2.
-        let env = 0.5 * (2.0 * PI) / (2.0 * PI + 1.0);
+        let env = (2.0 * PI) / (2.0 * PI + 1.0);
         for reach in [1.0f32, 10.0, 1000.0] {
             let l = scene(reach);
-            let want = [env, 0.125, 0.375, 0.5 - env];
+            assert_eq!(l.groups(), 2);
+            let want = [env, 0.25, 0.75, 1.0 - env];
             for (i, w) in want.into_iter().enumerate() {
                 let got = l.selection(i);
                 assert!(
@@ -761,14 +788,29 @@ mod tests {
                     "reach {reach}, light {i}: {got} vs {w}"
                 );
             }
+            // Group 0 draws only distant lights, group 1 only the points.
+            for k in 0..64 {
+                let u = (k as f32 + 0.5) / 64.0;
+                let far = l
+                    .sample(Vec3A::Y, 0, u, Vec2::splat(0.3))
+                    .expect("a sample");
+                assert!(far.distant, "u {u}");
+                let near = l
+                    .sample(Vec3A::Y, 1, u, Vec2::splat(0.3))
+                    .expect("a sample");
+                assert!(!near.distant && near.delta, "u {u}");
+            }
+            assert!(l.sample(Vec3A::Y, 2, 0.5, Vec2::splat(0.3)).is_none());
         }
         let local = Lights::new(vec![point(0.0, 1.0), point(1.0, 3.0)]);
+        assert_eq!(local.groups(), 1);
         assert!((local.selection(0) - 0.25).abs() < 1e-6);
         let far = Lights::new(vec![light(
             LightShape::Environment { map, reach: 5.0 },
             0.0,
         )]);
-        assert_eq!(far.selection(0), 1.0);
+        assert_eq!((far.groups(), far.selection(0)), (1, 1.0));
+        assert_eq!(Lights::new(Vec::new()).groups(), 0);
     }
 
     #[test]

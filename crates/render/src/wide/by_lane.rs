@@ -49,9 +49,12 @@ impl Wide<'_> {
         // Only points that shade with their geometric normal reach here.
         let (_, at) = Shading::facing(sp, wo, false);
         let p_out = offset_ray_origin(sp.p, sp.err, at.n);
-        if let Some((le, f)) = diffuse_light(self.scene, Strategy::Mis, sp, &at, p_out, u) {
-            let l = lane3(&s.l, lane) + lane3(&s.beta, lane) * albedo * le * f;
-            set3(&mut s.l, lane, l);
+        for group in 0..self.scene.lights.groups() {
+            let light = diffuse_light(self.scene, Strategy::Mis, sp, &at, p_out, group, u);
+            if let Some((le, f)) = light {
+                let l = lane3(&s.l, lane) + lane3(&s.beta, lane) * albedo * le * f;
+                set3(&mut s.l, lane, l);
+            }
         }
     }
 
