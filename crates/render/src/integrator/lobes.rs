@@ -62,13 +62,13 @@ pub(super) fn two_sided_light<E, P>(
     P: Fn(Vec3A) -> f32,
 {
     for group in 0..light_groups(scene, strategy) {
-        one_sided_sample(scene, strategy, path, sp, at, (group, u), &lobe);
+        two_sided_sample(scene, strategy, path, sp, at, (group, u), &lobe);
     }
 }
 
 /// One light sample of [`two_sided_light`], from group `group`.
 #[inline(always)]
-fn one_sided_sample<E, P>(
+fn two_sided_sample<E, P>(
     scene: &Scene,
     strategy: Strategy,
     path: &mut Path,

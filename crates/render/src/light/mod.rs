@@ -517,8 +517,7 @@ impl Lights {
         let delta_index: Vec<u32> = (0..lights.len() as u32)
             .filter(|&i| lights[i as usize].is_delta())
             .collect();
-        let delta_weights: Vec<f32> = delta_index.iter().map(|&i| weights[i as usize]).collect();
-        let delta = Distribution1D::new(&delta_weights).map(|d| (d, delta_index));
+        let delta = group(delta_index);
         let suns = (0..lights.len() as u32)
             .filter(|&i| matches!(lights[i as usize].shape, LightShape::Sun { .. }))
             .collect();

@@ -7,7 +7,7 @@
 use glam::{Vec2, Vec3A};
 
 use super::{finish, lane3, set3, Lanes, Wide};
-use crate::integrator::{diffuse_light, escape, NoGuide, Strategy};
+use crate::integrator::{diffuse_light, escape, light_groups, NoGuide, Strategy};
 use crate::interaction::{Hit, Shading, SurfacePoint};
 use crate::material::port::Path;
 use crate::packet::{HitKeep, LaneHits};
@@ -49,7 +49,7 @@ impl Wide<'_> {
         // Only points that shade with their geometric normal reach here.
         let (_, at) = Shading::facing(sp, wo, false);
         let p_out = offset_ray_origin(sp.p, sp.err, at.n);
-        for group in 0..self.scene.lights.groups() {
+        for group in 0..light_groups(self.scene, Strategy::Mis) {
             let light = diffuse_light(self.scene, Strategy::Mis, sp, &at, p_out, group, u);
             if let Some((le, f)) = light {
                 let l = lane3(&s.l, lane) + lane3(&s.beta, lane) * albedo * le * f;
