@@ -8,13 +8,22 @@
 # render alone and summarises, for steps of a few percent on the render loop:
 #
 #   bench/ab-render-time.sh OLD NEW 6 128 envmap-balls target/bench-cache/probe/v3-point-pbr.toml
+#
+# OLD and NEW may carry `render` flags after the binary, to time two settings of one binary
+# (the same bits are then expected too):
+#
+#   bench/ab-render-time.sh "target/release/tessera --tracer scalar" target/release/tessera 6 64 envmap-balls
 set -euo pipefail
 old=$1; new=$2; rounds=$3; spp=$4
 shift 4
 cd "$(dirname "$0")/.."
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
-seconds() { "$1" render "$2" --spp "$spp" --output "$3" 2>&1 | grep -o 'in [0-9.]* s' | awk '{print $2}'; }
+seconds() {
+  local cmd
+  read -ra cmd <<< "$1"
+  "${cmd[0]}" render "$2" --spp "$spp" --output "$3" "${cmd[@]:1}" 2>&1 | grep -o 'in [0-9.]* s' | awk '{print $2}'
+}
 for s in "$@"; do
   file=scenes/$s.toml; [[ $s == */* ]] && file=$s
   a=(); b=()

@@ -271,23 +271,20 @@ fn lanes_give_the_scalar_bits_with_smooth_meshes_and_a_plane() {
 }
 
 /// Under any lights but one parallelogram, `--tracer lanes8` still runs the many-path tracer
-/// (`Wide::anywhere`), sampling them lane by lane with the scalar code: an environment map
-/// with smooth meshes (one merged mesh and nothing else), a map with balls on an infinite
-/// plane, a sky gradient beside a rectangle light, a sphere light over an infinite plane,
+/// (`Wide::anywhere`), sampling them lane by lane with the scalar code, or the map in lanes
+/// where it is the only distant light: an environment map and a point light with smooth
+/// meshes (one merged mesh and nothing else: the map in lanes, the lamp lane by lane, added
+/// after it), a sky gradient beside a rectangle light, a sphere light over an infinite plane,
 /// point, spot and sun lights. The default (`Wide::new`) leaves all of them to the scalar
-/// trace, where they measured faster: each is under a sky or a sun, or not one BVH leaf.
+/// trace, where they measured faster: each is under a sky or a sun beside other lights, or
+/// not one BVH leaf.
 #[test]
 fn lanes_anywhere_give_the_scalar_bits_under_any_lights() {
     let settings = RenderSettings {
         seed: 16,
         ..RenderSettings::default()
     };
-    for name in [
-        "gltf-metals.toml",
-        "envmap-balls.toml",
-        "spheres.toml",
-        "caustic.toml",
-    ] {
+    for name in ["gltf-metals.toml", "spheres.toml", "caustic.toml"] {
         let scene = load(name);
         assert!(Wide::new(&scene, &settings).is_none(), "{name}");
         let (count, lit) = compare(&scene, &settings, 0..5);
@@ -410,6 +407,31 @@ outer_angle = 35
     taken_with_the_scalar_bits(&load("mesh-glass.toml"), 34, 0..6, 2_000);
 }
 
+/// A world of one BVH leaf whose only light is an environment map takes the lanes by default,
+/// which look the map up and sample it in lanes (`wide/sky.rs`), with the scalar trace's bits:
+/// diffuse ground and glossy balls, pbr balls, and the material showcase (textured,
+/// normal-mapped pbr meshes, rough gold, frosted glass, plastic).
+#[test]
+fn one_leaf_under_a_map_alone_takes_the_lanes() {
+    for (name, seed) in [
+        ("envmap-balls.toml", 3),
+        ("pbr-metals.toml", 4),
+        ("materials.toml", 5),
+    ] {
+        let scene = load(name);
+        let settings = RenderSettings {
+            seed,
+            ..RenderSettings::default()
+        };
+        assert!(Wide::new(&scene, &settings).is_some(), "{name}");
+        let (count, lit) = compare(&scene, &settings, 0..5);
+        assert!(
+            count > 2_000 && lit > count / 2,
+            "{name}: {count} samples, {lit} lit"
+        );
+    }
+}
+
 /// The scenes whose bounce the lanes do not model go one path at a time.
 #[test]
 fn other_scenes_and_strategies_go_one_path_at_a_time() {
@@ -423,10 +445,28 @@ fn other_scenes_and_strategies_go_one_path_at_a_time() {
     }
     let settings = RenderSettings::default();
     assert!(Wide::new(&cornell, &settings).is_some());
-    // An environment map; meshes under a sky.
-    for name in ["envmap-balls.toml", "gltf-metals.toml"] {
-        assert!(Wide::new(&load(name), &settings).is_none(), "{name}");
-    }
+    // Meshes under a sky and a lamp.
+    assert!(Wide::new(&load("gltf-metals.toml"), &settings).is_none());
+    // A map beside a point light in one leaf: the lamp is sampled lane by lane.
+    let root = common::repo_root().join("scenes");
+    let text = std::fs::read_to_string(root.join("envmap-balls.toml")).expect("scene");
+    let sky = std::fs::read(root.join("textures/sky.exr")).expect("sky");
+    let text = text
+        .replace("width = 256", "width = 48")
+        .replace("height = 256", "height = 48");
+    let lamp =
+        "[[lights]]\ntype = \"point\"\nposition = [0.0, 2.0, 1.0]\nintensity = [1.0, 1.0, 1.0]\n";
+    let with_lamp =
+        common::scene_with_files(&format!("{text}\n{lamp}"), &[("textures/sky.exr", &sky)]);
+    assert!(
+        Wide::new(&with_lamp, &settings).is_none(),
+        "a map and a lamp"
+    );
+    let (count, lit) = compare(&with_lamp, &settings, 0..6);
+    assert!(
+        lit > count / 2,
+        "a map and a lamp: {count} samples, {lit} lit"
+    );
     // A room the lanes would shade nothing of (every surface a metal), and one with coloured
     // glass (whose medium they do not track): the same room, its walls' material swapped.
     let room = |walls: &str, ball: &str| {

@@ -563,6 +563,14 @@ impl Lights {
         self.groups.len()
     }
 
+    /// Whether light `index` is the only light of group `group`: its samples then take no
+    /// selection number's choice.
+    pub fn alone_in(&self, group: usize, index: u32) -> bool {
+        self.groups
+            .get(group)
+            .is_some_and(|(_, i)| i[..] == [index])
+    }
+
     /// The selection probability of a scene's first light (what [`Lights::sample`] multiplies
     /// its density by), or 0 where there is no light.
     pub fn pdf_scale(&self) -> f32 {

@@ -2,7 +2,7 @@
 
 use glam::{Vec3, Vec3A};
 
-use crate::util::lanes::{v3 as lanes3, F, V3};
+use crate::util::lanes::{v3 as lanes3, F, M, V3};
 
 /// A ray `o + t·d`. `d` need not be unit length: transformed shapes rely on `t`
 /// being preserved by affine maps, which only holds when `d` is mapped unnormalised.
@@ -289,6 +289,34 @@ pub fn atan2(y: f32, x: f32) -> f32 {
         r = -r;
     }
     r
+}
+
+/// [`atan2`], lane by lane, for the many-path tracer: each branch of the scalar function a
+/// select over the same operations, so every lane gets the scalar bits
+/// (`tests::atan2_lanes_gives_the_scalar_bits`).
+#[inline(always)]
+pub fn atan2_lanes<const N: usize>(y: F<N>, x: F<N>) -> F<N> {
+    use std::f32::consts::{FRAC_PI_2, FRAC_PI_4, PI};
+    let (ax, ay) = (x.abs(), y.abs());
+    let steep = ay.cmpgt(ax);
+    let (lo, hi) = (F::select(steep, ax, ay), F::select(steep, ay, ax));
+    let t = F::select(hi.cmpgt(F::ZERO), lo / hi, lo);
+    let reduce = t.cmpgt(F::splat(0.414_213_57));
+    let base = F::select(reduce, F::splat(FRAC_PI_4), F::ZERO);
+    let t = F::select(reduce, (t - 1.0) / (t + 1.0), t);
+    let z = t * t;
+    let p =
+        (((8.053_744_5e-2 * z - 1.387_768_6e-1) * z + 1.997_771_1e-1) * z - 3.333_295e-1) * z * t
+            + t;
+    let r = base + p;
+    let r = F::select(steep, FRAC_PI_2 - r, r);
+    let r = F::select(x.cmplt(F::ZERO), PI - r, r);
+    // y = −0 with x < 0 is the lower side of the cut: −π, as the scalar function gives.
+    let lower = (0..N).fold(0u32, |bits, lane| {
+        let (y, x) = (y.0[lane], x.0[lane]);
+        bits | u32::from(y < 0.0 || (y == 0.0 && y.is_sign_negative() && x < 0.0)) << lane
+    });
+    F::select(M::from_bits(lower), -r, r)
 }
 
 /// The polar angle θ ∈ [0, π] of a unit vector whose cosine (its component along the pole) is
@@ -583,6 +611,55 @@ mod tests {
         assert_eq!(super::exp_nonpositive(-1000.0), 0.0);
         assert_eq!(super::exp_nonpositive(f32::NEG_INFINITY), 0.0);
         assert_eq!(super::exp_nonpositive(f32::NAN), 0.0);
+    }
+
+    /// Every lane of [`atan2_lanes`] is [`atan2`]'s, bit for bit: on a grid through every
+    /// octant and both sides of the reduction at tan π/8, on the axes and the cut with both
+    /// zeros, and for NaN and infinite inputs, each in a different lane of its eight.
+    #[test]
+    fn atan2_lanes_gives_the_scalar_bits() {
+        let mut values = vec![
+            0.0,
+            -0.0,
+            1.0,
+            -1.0,
+            0.414_213_57,
+            0.414_213_6,
+            f32::MIN_POSITIVE,
+        ];
+        values.extend([
+            1e-30,
+            -1e-30,
+            1e30,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+        ]);
+        values.extend((0..200).map(|i| -3.0 + 6.0 * (i as f32 + 0.3) / 200.0));
+        let pairs: Vec<(f32, f32)> = values
+            .iter()
+            .flat_map(|&y| values.iter().map(move |&x| (y, x)))
+            .collect();
+        for (k, chunk) in pairs.chunks(8).enumerate() {
+            let mut y = [0.5f32; 8];
+            let mut x = [0.5f32; 8];
+            for (lane, &(yl, xl)) in chunk.iter().enumerate() {
+                // Rotate the lanes, so that a value meets every lane.
+                let lane = (lane + k) % 8;
+                y[lane] = yl;
+                x[lane] = xl;
+            }
+            let got = atan2_lanes(F(y), F(x));
+            for lane in 0..8 {
+                assert_eq!(
+                    got.0[lane].to_bits(),
+                    atan2(y[lane], x[lane]).to_bits(),
+                    "atan2({}, {})",
+                    y[lane],
+                    x[lane]
+                );
+            }
+        }
     }
 
     #[test]

@@ -9,7 +9,7 @@ use std::f32::consts::{FRAC_1_PI, FRAC_PI_4};
 
 use glam::{Vec2, Vec3A};
 
-use crate::util::lanes::{F, V3};
+use crate::util::lanes::{F, M, V3};
 
 /// Largest f32 below 1. Warps clamp to it so that `u = 1 − 2⁻²⁴` style inputs stay inside
 /// their domain.
@@ -302,6 +302,34 @@ pub fn sin_cos_turn(u: f32) -> (f32, f32) {
     }
 }
 
+/// [`sin_cos_turn`], lane by lane, for the many-path tracer: the octant's swap and signs as
+/// selects, so every lane gets the scalar bits (`tests::the_lanes_twins_give_the_scalar_bits`).
+#[inline(always)]
+pub fn sin_cos_turn_lanes<const N: usize>(u: F<N>) -> (F<N>, F<N>) {
+    let scaled = 8.0 * u;
+    let (mut odd, mut swap, mut neg_sin, mut neg_cos) = (0u32, 0u32, 0u32, 0u32);
+    let mut k = [0.0f32; N];
+    for (lane, (k, scaled)) in k.iter_mut().zip(scaled.0).enumerate() {
+        let octant = (scaled.floor() as u32).min(7);
+        *k = octant as f32;
+        odd |= (octant & 1) << lane;
+        // The scalar function's table: (c, ·) in octants 1, 2, 5, 6; −sin in 4 to 7, −cos in
+        // 2 to 5.
+        swap |= u32::from(matches!(octant, 1 | 2 | 5 | 6)) << lane;
+        neg_sin |= u32::from(octant >= 4) << lane;
+        neg_cos |= u32::from((2..=5).contains(&octant)) << lane;
+    }
+    let f = scaled - F(k);
+    let a = F::select(M::from_bits(odd), 1.0 - f, f);
+    let (s, c) = sin_cos_polynomials(FRAC_PI_4 * a);
+    let swap = M::from_bits(swap);
+    let (first, second) = (F::select(swap, c, s), F::select(swap, s, c));
+    (
+        F::select(M::from_bits(neg_sin), -first, first),
+        F::select(M::from_bits(neg_cos), -second, second),
+    )
+}
+
 /// Cosine-weighted direction on the +z hemisphere (Malley's method). pdf = cos θ / π.
 #[inline]
 pub fn square_to_cosine_hemisphere(u: Vec2) -> Vec3A {
@@ -402,6 +430,32 @@ mod tests {
                 for c in 0..3 {
                     assert_eq!(got[c].0[1].to_bits(), want[c].to_bits(), "{u}");
                 }
+            }
+        }
+        // Every octant at both ends, and a grid through them, each value in every lane.
+        let n = 4096;
+        let us: Vec<f32> = (0..=n)
+            .map(|i| i as f32 / n as f32)
+            .chain((0..=8).flat_map(|k| {
+                let u = k as f32 / 8.0;
+                [
+                    u,
+                    f32::from_bits(u.to_bits().saturating_sub(1)),
+                    u + f32::EPSILON / 8.0,
+                ]
+            }))
+            .map(|u: f32| u.clamp(0.0, 1.0))
+            .collect();
+        for (k, chunk) in us.chunks(8).enumerate() {
+            let mut u = [0.25f32; 8];
+            for (lane, &v) in chunk.iter().enumerate() {
+                u[(lane + k) % 8] = v;
+            }
+            let (s, c) = sin_cos_turn_lanes(F(u));
+            for (lane, u) in u.iter().enumerate() {
+                let (ws, wc) = sin_cos_turn(*u);
+                assert_eq!(s.0[lane].to_bits(), ws.to_bits(), "sin, u = {u}");
+                assert_eq!(c.0[lane].to_bits(), wc.to_bits(), "cos, u = {u}");
             }
         }
         let weights = [0.0, 1e-30, 0.5, 1.0, 3.0, 1e30, f32::INFINITY];

@@ -58,6 +58,28 @@ impl Wide<'_> {
         }
     }
 
+    /// What lane `lane`'s light sample of the second group of lights adds to its path (the
+    /// scalar trace's, as [`Wide::light_in_lane`]), where the lanes draw the first group's
+    /// themselves (`sky.rs`): added after it, in the scalar trace's order.
+    #[inline(never)]
+    pub(super) fn later_light_in_lane<const N: usize>(
+        &self,
+        s: &Lanes<N>,
+        lane: usize,
+        sp: &SurfacePoint,
+        wo: Vec3A,
+        albedo: Vec3A,
+        u: (f32, Vec2),
+    ) -> Option<Vec3A> {
+        if light_groups(self.scene, Strategy::Mis) < 2 {
+            return None;
+        }
+        let (_, at) = Shading::facing(sp, wo, false);
+        let p_out = offset_ray_origin(sp.p, sp.err, at.n);
+        let (le, f) = diffuse_light(self.scene, Strategy::Mis, sp, &at, p_out, 1, u)?;
+        Some(lane3(&s.beta, lane) * albedo * le * f)
+    }
+
     /// Lane `lane`'s vertex at `here`, on a material the lanes do not model: the scalar
     /// trace's step ([`Setup::leave`]) on the lane's path, taken out of the lanes and put
     /// back. Returns whether the path goes on; one that ends is written to `out`. Out of line,
@@ -146,12 +168,17 @@ pub(super) fn closest_by_lane<const N: usize>(
     hits
 }
 
-/// Which of the shadow rays of the lanes in `lanes` something blocks (t in (0, 1 − 10⁻⁴), as
+/// Which of the shadow rays of the lanes in `lanes` something blocks (t in (0, `t_max`), as
 /// `LightSample::shadow_ray` sets it), asked of the scene one ray at a time.
 #[inline(never)]
-pub(super) fn blocked_by_lane(scene: &Scene, lanes: u32, ray: impl Fn(usize) -> Ray) -> u32 {
+pub(super) fn blocked_by_lane(
+    scene: &Scene,
+    lanes: u32,
+    ray: impl Fn(usize) -> Ray,
+    t_max: f32,
+) -> u32 {
     (0..32)
         .filter(|lane| lanes >> lane & 1 == 1)
-        .filter(|&lane| scene.occluded(&ray(lane), 1.0 - 1e-4))
+        .filter(|&lane| scene.occluded(&ray(lane), t_max))
         .fold(0, |bits, lane| bits | 1 << lane)
 }

@@ -22,6 +22,7 @@
 //! time (see `trace8`); sixteen lanes measured slower than eight (docs/renderer.md).
 
 mod by_lane;
+mod sky;
 
 use std::ops::Range;
 
@@ -40,6 +41,7 @@ use crate::util::sampling::{
     power_heuristic, power_heuristic_lanes, square_to_cosine_hemisphere_lanes, PixelSampler,
 };
 use by_lane::{blocked_by_lane, closest_by_lane};
+use sky::Sky;
 
 /// The many-path tracer for one scene and its settings.
 pub struct Wide<'a> {
@@ -54,6 +56,8 @@ pub struct Wide<'a> {
     picks_light: bool,
     /// Whether a path that leaves the scene finds an environment or a sun.
     escapes: bool,
+    /// The environment map, where the lanes look it up themselves (`sky.rs`).
+    sky: Option<Sky<'a>>,
     /// Whether the lanes' queries go to the one leaf's packet tests.
     one_leaf: bool,
     /// Whether the scene needs more than the Cornell box's bounce: a vertex that may be the
@@ -142,6 +146,9 @@ struct Vertices<const N: usize> {
     /// The lanes the scalar step moved on this bounce, whose state the shaded lanes' update
     /// leaves as it is.
     stepped: u32,
+    /// The lanes whose light sample of the second group of lights adds
+    /// `Lanes::later_light`.
+    later: u32,
 }
 
 /// A mesh hit's surface point with the barycentrics its query kept made this thread's last
@@ -173,6 +180,10 @@ struct Lanes<const N: usize> {
     specular: u32,
     /// What the lanes' last queries found for their sphere and mesh hits' points.
     keep: HitKeep<N>,
+    /// What a vertex's light sample of the second group of lights adds, drawn lane by lane
+    /// but added after the first group's, which the lanes draw (`sky.rs`): the scalar trace's
+    /// order. Read only in the lanes of `Vertices::later`.
+    later_light: [[f32; N]; 3],
     depth: [u32; N],
     /// Where the lane's value goes in the output.
     slot: [usize; N],
@@ -184,15 +195,20 @@ struct Lanes<const N: usize> {
 
 impl<'a> Wide<'a> {
     /// The many-path tracer for `scene` where it pays, eight paths at a time: where its one
-    /// light is a parallelogram, which the lanes sample together; and in a closed world (no
-    /// sky, no sun) of one BVH leaf whatever its lights (several rectangles, spheres, emissive
-    /// meshes, points, spots), which the lanes sample one by one. Under a sky or a sun most
-    /// paths leave a scene's few diffuse surfaces for the sky and the lanes measured slower
-    /// than the scalar trace where the materials were mostly metals and pbr; on a world that
-    /// is not one leaf (an infinite plane) the lanes query one ray at a time, which measured
-    /// slower with a sphere light (docs/renderer.md, "The lanes under other lights").
+    /// light is a parallelogram, which the lanes sample together; in a closed world (no sky,
+    /// no sun) of one BVH leaf whatever its lights (several rectangles, spheres, emissive
+    /// meshes, points, spots), which the lanes sample one by one; and in a world of one leaf
+    /// whose only light is an environment map, which the lanes look up and sample together
+    /// (`sky.rs`). Under a map beside other lights, or a sun, the lanes sample lane by lane
+    /// and measured slower than the scalar trace where the materials were mostly metals and
+    /// pbr; on a world that is not one leaf (an infinite plane, a sky over meshes) the lanes
+    /// query one ray at a time, which measured slower with a sphere light and under a sky
+    /// (docs/renderer.md, "The lanes under other lights", "The map in lanes").
     pub fn new(scene: &'a Scene, settings: &'a RenderSettings) -> Option<Self> {
-        Self::anywhere(scene, settings).filter(|w| w.quad.is_some() || (!w.escapes && w.one_leaf))
+        Self::anywhere(scene, settings).filter(|w| {
+            let only_the_map = w.sky.as_ref().is_some_and(Sky::sampled) && !w.picks_light;
+            w.quad.is_some() || (w.one_leaf && (!w.escapes || only_the_map))
+        })
     }
 
     /// The many-path tracer for `scene` wherever it can run, whatever the lights: what
@@ -232,6 +248,7 @@ impl<'a> Wide<'a> {
             setup: Setup::new(scene, settings),
             picks_light: scene.lights.lights.len() > 1,
             escapes: scene.environment.is_some() || !scene.lights.suns().is_empty(),
+            sky: Sky::new(scene),
             one_leaf: scene.is_one_leaf(),
             general: quad.is_none()
                 || scene.environment.is_some()
@@ -320,6 +337,7 @@ impl<'a> Wide<'a> {
             eta: [1.0; N],
             specular: 0,
             keep: HitKeep::new(),
+            later_light: [[0.0; N]; 3],
             depth: [0; N],
             slot: [0; N],
             run: [0; N],
@@ -387,6 +405,15 @@ impl<'a> Wide<'a> {
         // Without it the lanes sampled their lights one by one as they shaded the hits.
         if let Some(light) = light {
             self.direct_light::<N, GENERAL>(s, light, &v, &p_out);
+        } else if let Some(sky) = self.sky.as_ref().filter(|sky| GENERAL && sky.sampled()) {
+            self.sky_light::<N, GENERAL>(s, sky, &v, &p_out);
+            if v.later != 0 {
+                let mask = M::from_bits(v.later);
+                for (l_c, later_c) in s.l.iter_mut().zip(&s.later_light) {
+                    let l = F(*l_c);
+                    *l_c = F::select(mask, l + F(*later_c), l).0;
+                }
+            }
         }
         self.continue_paths::<N, GENERAL>(s, &v, p_out, out);
     }
@@ -428,12 +455,18 @@ impl<'a> Wide<'a> {
         let mut err = [Vec3A::ZERO; N];
         let mut albedo = [Vec3A::ZERO; N];
         let mut u = [[0.0f32; N]; 5];
-        let (mut shade, mut stepped) = (0u32, 0u32);
+        let (mut shade, mut stepped, mut escaped) = (0u32, 0u32, 0u32);
+        let mut later = 0u32;
+        let sky = self.sky.as_ref().filter(|_| GENERAL);
         for lane in 0..N {
             if s.active >> lane & 1 == 0 {
                 continue;
             }
             if hits.hit >> lane & 1 == 0 {
+                if sky.is_some() {
+                    escaped |= 1 << lane;
+                    continue;
+                }
                 if GENERAL && self.escapes {
                     self.escape_in_lane(s, lane);
                 }
@@ -493,7 +526,15 @@ impl<'a> Wide<'a> {
                 };
             if GENERAL && self.quad.is_none() {
                 let u_light = Vec2::new(s.light_uv[0][lane], s.light_uv[1][lane]);
-                self.light_in_lane(s, lane, &sp, wo, a, (u_select, u_light));
+                let u = (u_select, u_light);
+                if sky.is_some_and(Sky::sampled) {
+                    if let Some(c) = self.later_light_in_lane(s, lane, &sp, wo, a, u) {
+                        set3(&mut s.later_light, lane, c);
+                        later |= 1 << lane;
+                    }
+                } else {
+                    self.light_in_lane(s, lane, &sp, wo, a, u);
+                }
             }
             u[0][lane] = u0;
             u[1][lane] = u1;
@@ -507,6 +548,12 @@ impl<'a> Wide<'a> {
             err[lane] = sp.err;
             albedo[lane] = a;
             shade |= 1 << lane;
+        }
+        if let Some(sky) = sky.filter(|_| escaped != 0) {
+            self.escape_lanes(s, sky, escaped);
+            for lane in (0..N).filter(|lane| escaped >> lane & 1 == 1) {
+                finish(s, out, lane);
+            }
         }
         if shade == 0 {
             return None;
@@ -522,6 +569,7 @@ impl<'a> Wide<'a> {
             u_rr,
             shade,
             stepped,
+            later,
         })
     }
 
@@ -613,7 +661,7 @@ impl<'a> Wide<'a> {
                     1.0 - 1e-4,
                 )
             } else {
-                blocked_by_lane(scene, nee, shadow)
+                blocked_by_lane(scene, nee, shadow, 1.0 - 1e-4)
             };
             let add = nee & !blocked;
             if add != 0 {

@@ -40,6 +40,8 @@ use crate::util::distribution::{alias_bin, push_alias_entries, AliasEntry, Distr
 use crate::util::math::{atan2, luminance};
 use crate::util::sampling::sin_cos_turn;
 
+mod lanes;
+
 /// An equirectangular environment map, ready to evaluate and sample.
 #[derive(Clone, Debug)]
 pub struct EnvMap {
@@ -246,7 +248,12 @@ impl EnvMap {
     /// Where local direction `d` falls: its cell and the blend's fractions across it.
     #[inline]
     fn locate(&self, d: Vec3A) -> Blend {
-        let uv = Self::uv(d);
+        self.locate_uv(Self::uv(d))
+    }
+
+    /// The cell and fractions at (u, v) ([`EnvMap::uv`]).
+    #[inline]
+    fn locate_uv(&self, uv: Vec2) -> Blend {
         let (i, fx) = self.column(uv.x);
         let (j, fy) = self.row(uv.y);
         Blend { i, j, fx, fy }
@@ -299,6 +306,29 @@ impl EnvMap {
     /// reads the texels, which on a full-size map are a wait on memory each.
     #[inline]
     pub fn sample_direction(&self, u: Vec2) -> Option<EnvDraw> {
+        let cell = self.draw_cell(u)?;
+        let (phi, c0, c1) = self.cell_angles(&cell);
+        let cos = (c0 + cell.uy * (c1 - c0)).clamp(-1.0, 1.0);
+        let sin = ((1.0 - cos) * (1.0 + cos)).max(0.0).sqrt();
+        let (sin_phi, cos_phi) = sin_cos_turn(phi);
+        let local = Vec3A::new(sin_phi * sin, cos, -cos_phi * sin);
+        Some(EnvDraw {
+            wi: self.to_world(local),
+            pdf: cell.pdf,
+            point: MapPoint {
+                i: cell.i,
+                j: cell.j,
+                fx: cell.ux,
+                sin,
+                cos,
+            },
+        })
+    }
+
+    /// The cell a light sample's numbers `u` draw, with the numbers' places across and down
+    /// it and its density; `None` where the density is not positive and finite.
+    #[inline(always)]
+    fn draw_cell(&self, u: Vec2) -> Option<Cell> {
         let (j, uy) = self.rows.sample_remap(u.y);
         let (i, ux, pdf) = match &self.columns {
             Columns::Inverted(rows) => {
@@ -315,28 +345,27 @@ impl EnvMap {
         if !(pdf > 0.0 && pdf.is_finite()) {
             return None;
         }
+        Some(Cell {
+            i: i as u32,
+            j: j as u32,
+            ux,
+            uy,
+            pdf,
+        })
+    }
+
+    /// A drawn cell's longitude (in turns, at the draw's place across it) and the cosines of
+    /// its upper and lower rows' angles from the zenith.
+    #[inline(always)]
+    fn cell_angles(&self, cell: &Cell) -> (f32, f32, f32) {
         // Column i's cell spans texel centres i and i + 1: u = (i + ½ + ux)/W, so the blend
         // across it is ux itself.
-        let mut phi = (i as f32 + 0.5 + ux) / self.width as f32;
+        let mut phi = (cell.i as f32 + 0.5 + cell.ux) / self.width as f32;
         if phi >= 1.0 {
             phi -= 1.0;
         }
-        let (c0, c1) = (self.cos_rows[j], self.cos_rows[j + 1]);
-        let cos = (c0 + uy * (c1 - c0)).clamp(-1.0, 1.0);
-        let sin = ((1.0 - cos) * (1.0 + cos)).max(0.0).sqrt();
-        let (sin_phi, cos_phi) = sin_cos_turn(phi);
-        let local = Vec3A::new(sin_phi * sin, cos, -cos_phi * sin);
-        Some(EnvDraw {
-            wi: self.to_world(local),
-            pdf,
-            point: MapPoint {
-                i: i as u32,
-                j: j as u32,
-                fx: ux,
-                sin,
-                cos,
-            },
-        })
+        let j = cell.j as usize;
+        (phi, self.cos_rows[j], self.cos_rows[j + 1])
     }
 
     /// The radiance arriving along a draw of [`EnvMap::sample_direction`] (`point` is its own).
@@ -344,15 +373,26 @@ impl EnvMap {
     /// inlined into each it crowded the instruction cache (docs/benchmarks/envmap-alias-2026-11-30.md).
     #[inline(never)]
     pub fn radiance_at(&self, point: &MapPoint) -> Vec3A {
-        let (i, j) = (point.i as usize, point.j as usize);
         // Down the cell the blend is linear in θ (rows sit at θ = πj/(H − 1)), which the
         // uniform cos θ does not give: one arctangent finds it.
-        let y = atan2(point.sin, point.cos) * ((self.height - 1) as f32 / PI);
+        let y = atan2(point.sin, point.cos) * self.rows_per_radian();
+        self.blend_down(point.i, point.j, point.fx, y)
+    }
+
+    /// (H − 1)/π: rows of texels per radian from the zenith.
+    #[inline(always)]
+    fn rows_per_radian(&self) -> f32 {
+        (self.height - 1) as f32 / PI
+    }
+
+    /// The blend in cell (i, j) at fraction `fx` across it and `y` rows down the map.
+    #[inline(always)]
+    fn blend_down(&self, i: u32, j: u32, fx: f32, y: f32) -> Vec3A {
         let fy = (y - j as f32).clamp(0.0, 1.0);
         self.blend(&Blend {
-            i,
-            j,
-            fx: point.fx,
+            i: i as usize,
+            j: j as usize,
+            fx,
             fy,
         })
     }
@@ -424,6 +464,17 @@ enum Columns {
 struct CellEntry {
     alias: AliasEntry,
     pdf: [f32; 2],
+}
+
+/// A cell a light sample drew: (i, j), the sample's places across (`ux`) and down (`uy`, in
+/// cos θ) it in [0, 1), and the cell's density in solid angle.
+#[derive(Clone, Copy, Debug)]
+struct Cell {
+    i: u32,
+    j: u32,
+    ux: f32,
+    uy: f32,
+    pdf: f32,
 }
 
 /// A place on the map: cell (i, j) (its upper-left texel) and the fractions towards texels
