@@ -62,9 +62,8 @@ pub struct RenderArgs {
 /// `--tracer` values.
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
 pub enum TracerArg {
-    /// The many-path tracer where it pays (a scene lit by one rectangle light; a closed room
-    /// under any lights: no sky, no sun, no infinite plane; or objects without an infinite
-    /// plane under an environment map that is the only light), else one path at a time.
+    /// The many-path tracer where it pays (a scene lit by one rectangle light, or a closed
+    /// room under any lights: no sky, no sun, no infinite plane), else one path at a time.
     Auto,
     /// One path at a time.
     Scalar,

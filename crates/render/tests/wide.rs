@@ -407,12 +407,12 @@ outer_angle = 35
     taken_with_the_scalar_bits(&load("mesh-glass.toml"), 34, 0..6, 2_000);
 }
 
-/// A world of one BVH leaf whose only light is an environment map takes the lanes by default,
-/// which look the map up and sample it in lanes (`wide/sky.rs`), with the scalar trace's bits:
-/// diffuse ground and glossy balls, pbr balls, and the material showcase (textured,
-/// normal-mapped pbr meshes, rough gold, frosted glass, plastic).
+/// Under an environment map that is the only distant light, the lanes look it up and sample
+/// it in lanes (`wide/sky.rs`), with the scalar trace's bits: diffuse ground and glossy balls,
+/// pbr balls, and the material showcase (textured, normal-mapped pbr meshes, rough gold,
+/// frosted glass, plastic). The default leaves them to the scalar trace (`Wide::new`).
 #[test]
-fn one_leaf_under_a_map_alone_takes_the_lanes() {
+fn the_map_in_lanes_gives_the_scalar_bits() {
     for (name, seed) in [
         ("envmap-balls.toml", 3),
         ("pbr-metals.toml", 4),
@@ -423,7 +423,7 @@ fn one_leaf_under_a_map_alone_takes_the_lanes() {
             seed,
             ..RenderSettings::default()
         };
-        assert!(Wide::new(&scene, &settings).is_some(), "{name}");
+        assert!(Wide::new(&scene, &settings).is_none(), "{name}");
         let (count, lit) = compare(&scene, &settings, 0..5);
         assert!(
             count > 2_000 && lit > count / 2,
@@ -445,9 +445,12 @@ fn other_scenes_and_strategies_go_one_path_at_a_time() {
     }
     let settings = RenderSettings::default();
     assert!(Wide::new(&cornell, &settings).is_some());
-    // Meshes under a sky and a lamp.
-    assert!(Wide::new(&load("gltf-metals.toml"), &settings).is_none());
-    // A map beside a point light in one leaf: the lamp is sampled lane by lane.
+    // Balls under a map; meshes under a sky and a lamp.
+    for name in ["envmap-balls.toml", "gltf-metals.toml"] {
+        assert!(Wide::new(&load(name), &settings).is_none(), "{name}");
+    }
+    // A map beside a point light in one leaf: the map in lanes, the lamp lane by lane, added
+    // after it.
     let root = common::repo_root().join("scenes");
     let text = std::fs::read_to_string(root.join("envmap-balls.toml")).expect("scene");
     let sky = std::fs::read(root.join("textures/sky.exr")).expect("sky");

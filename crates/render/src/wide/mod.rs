@@ -195,20 +195,16 @@ struct Lanes<const N: usize> {
 
 impl<'a> Wide<'a> {
     /// The many-path tracer for `scene` where it pays, eight paths at a time: where its one
-    /// light is a parallelogram, which the lanes sample together; in a closed world (no sky,
-    /// no sun) of one BVH leaf whatever its lights (several rectangles, spheres, emissive
-    /// meshes, points, spots), which the lanes sample one by one; and in a world of one leaf
-    /// whose only light is an environment map, which the lanes look up and sample together
-    /// (`sky.rs`). Under a map beside other lights, or a sun, the lanes sample lane by lane
-    /// and measured slower than the scalar trace where the materials were mostly metals and
-    /// pbr; on a world that is not one leaf (an infinite plane, a sky over meshes) the lanes
-    /// query one ray at a time, which measured slower with a sphere light and under a sky
+    /// light is a parallelogram, which the lanes sample together; and in a closed world (no
+    /// sky, no sun) of one BVH leaf whatever its lights (several rectangles, spheres, emissive
+    /// meshes, points, spots), which the lanes sample one by one. Under a sky or a sun most
+    /// paths leave a scene's few diffuse surfaces for the sky, and the lanes measured slower
+    /// than the scalar trace where the materials were mostly metals and pbr, also with the map
+    /// looked up and sampled in lanes (`sky.rs`); on a world that is not one leaf (an infinite
+    /// plane) the lanes query one ray at a time, which measured slower with a sphere light
     /// (docs/renderer.md, "The lanes under other lights", "The map in lanes").
     pub fn new(scene: &'a Scene, settings: &'a RenderSettings) -> Option<Self> {
-        Self::anywhere(scene, settings).filter(|w| {
-            let only_the_map = w.sky.as_ref().is_some_and(Sky::sampled) && !w.picks_light;
-            w.quad.is_some() || (w.one_leaf && (!w.escapes || only_the_map))
-        })
+        Self::anywhere(scene, settings).filter(|w| w.quad.is_some() || (!w.escapes && w.one_leaf))
     }
 
     /// The many-path tracer for `scene` wherever it can run, whatever the lights: what
