@@ -563,8 +563,7 @@ impl Lights {
         self.groups.len()
     }
 
-    /// Whether light `index` is the only light of group `group`: its samples then take no
-    /// selection number's choice.
+    /// Whether light `index` is the only light of group `group` (its selection is then 1).
     pub fn alone_in(&self, group: usize, index: u32) -> bool {
         self.groups
             .get(group)

@@ -13,8 +13,10 @@
 //! normal is not its geometric one. A scene that is one BVH leaf (the Cornell box) answers the
 //! lanes' ray queries in lanes; any other asks the scene lane by lane. Under any lights but
 //! one parallelogram the diffuse lanes sample them lane by lane too (`Wide::light_in_lane`),
-//! and a path that leaves the scene finds its sky lane by lane (`Wide::escape_in_lane`): the
-//! tracer then runs ([`Wide::anywhere`], `--tracer lanes8`) but does not pay, so the default
+//! and a path that leaves the scene finds its sky lane by lane (`Wide::escape_in_lane`), but
+//! for an environment map without a sun, which the lanes look up together, and sample
+//! together where it is the only distant light (`sky.rs`). Under a sky the tracer then runs
+//! ([`Wide::anywhere`], `--tracer lanes8`) but does not pay on every scene, so the default
 //! ([`Wide::new`]) leaves those scenes to the scalar trace.
 //!
 //! Eight lanes by default: two 128-bit registers per number, whose independent work keeps more
