@@ -8,13 +8,10 @@
 
 use std::f32::consts::FRAC_1_PI;
 
-use super::by_lane::blocked_by_lane;
-use super::{load3, Lanes, Vertices, Wide};
+use super::{add_where, load3, Lanes, Vertices, Wide};
 use crate::envmap::EnvMap;
-use crate::packet::Rays;
 use crate::scene::{Environment, Scene};
 use crate::util::lanes::{dot, F, M, V3};
-use crate::util::math::Ray;
 use crate::util::sampling::power_heuristic_lanes;
 
 /// The scene's environment map, as the lanes use it.
@@ -60,11 +57,8 @@ impl Wide<'_> {
         let light_pdf = sky.selection * F(pdf);
         let w = power_heuristic_lanes(F(s.prev_pdf), light_pdf);
         let w = F::select(M::from_bits(s.specular), F::ONE, w);
-        let mask = M::from_bits(lanes);
-        for (l_c, (beta_c, le_c)) in s.l.iter_mut().zip(s.beta.iter().zip(&le)) {
-            let l = F(*l_c);
-            *l_c = F::select(mask, l + F(*beta_c) * F(*le_c) * w, l).0;
-        }
+        let beta = &s.beta;
+        add_where(&mut s.l, lanes, |c| F(beta[c]) * F(le[c]) * w);
     }
 
     /// Next-event estimation of the map at the diffuse vertices `v`: a direction drawn from the
@@ -78,7 +72,6 @@ impl Wide<'_> {
         v: &Vertices<N>,
         p_out: &V3<N>,
     ) {
-        let scene = self.scene;
         let draws = sky.map.sample_lanes(v.light_u, v.shade);
         // `surfaceless_sample`: the density with the selection (the group's one light) taken
         // in, positive and finite.
@@ -89,34 +82,16 @@ impl Wide<'_> {
         if nee == 0 {
             return;
         }
-        let shadow = |lane| {
-            let at = |v: &V3<N>| glam::Vec3A::new(v[0].0[lane], v[1].0[lane], v[2].0[lane]);
-            Ray::new(at(p_out), at(&draws.wi))
-        };
-        let blocked = if !GENERAL || self.one_leaf {
-            scene.accel().occluded_lanes(
-                &scene.prims,
-                &Rays::from_lanes(*p_out, draws.wi),
-                shadow,
-                nee,
-                f32::INFINITY,
-            )
-        } else {
-            blocked_by_lane(scene, nee, shadow, f32::INFINITY)
-        };
-        let add = nee & !blocked;
+        let add = nee & !self.blocked::<N, GENERAL>(p_out, &draws.wi, nee, f32::INFINITY);
         if add == 0 {
             return;
         }
         let le = sky.map.radiance_at_lanes(&draws, add);
         let w = power_heuristic_lanes(pdf, cos * FRAC_1_PI);
         let factor = (cos * FRAC_1_PI * w) / pdf;
-        let mask = M::from_bits(add);
-        let terms = s.beta.iter().zip(v.albedo.iter().zip(&le));
-        for (l_c, (beta_c, (albedo_c, le_c))) in s.l.iter_mut().zip(terms) {
-            let l = F(*l_c);
-            let c_add = F(*beta_c) * *albedo_c * F(*le_c) * factor;
-            *l_c = F::select(mask, l + c_add, l).0;
-        }
+        let beta = &s.beta;
+        add_where(&mut s.l, add, |c| {
+            F(beta[c]) * v.albedo[c] * F(le[c]) * factor
+        });
     }
 }
